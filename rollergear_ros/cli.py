@@ -1,0 +1,226 @@
+"""``rollergear``: the command line (model, figures, map, simulate, replay, calibrate, play).
+
+Every subcommand loads its parameters through :func:`rollergear_ros.params.load_config`; errors in
+user input are reported as one line ``rollergear: error: …`` with exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .params import Config, ParameterError, load_config
+
+DEFAULT_PARAMS = Path(__file__).resolve().parent.parent / "config" / "gearbox.yaml"
+
+
+class UserError(Exception):
+    """A problem with the user's input: printed as one line, exit status 2."""
+
+
+def default_params_path() -> Path | None:
+    """The package's ``config/gearbox.yaml``: source tree, or the installed ``share/`` copy."""
+    if DEFAULT_PARAMS.exists():
+        return DEFAULT_PARAMS
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        p = Path(get_package_share_directory("rollergear_ros")) / "config" / "gearbox.yaml"
+        return p if p.exists() else None
+    except Exception:  # noqa: BLE001 - no ament index: fall back to the built-in defaults
+        return None
+
+
+def config_from_args(args: argparse.Namespace) -> Config:
+    path = getattr(args, "params", None)
+    if path is None:
+        path = default_params_path()
+    elif not Path(path).exists():
+        raise UserError(f"parameter file {path} does not exist")
+    return load_config(path)
+
+
+def _finite(s: str) -> float:
+    v = float(s)
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{s!r} is not a finite number")
+    return v
+
+
+# ---------------------------------------------------------------------------------- model
+def cmd_model(args: argparse.Namespace) -> int:
+    from .model import BREAKDOWN_KEYS, LossModel
+
+    config = config_from_args(args)
+    if args.csv:
+        torque, speed = _read_points_csv(Path(args.csv))
+    else:
+        if not args.torque or not args.speed:
+            raise UserError("give --torque and --speed values, or --csv FILE")
+        tt, ww = np.meshgrid(np.asarray(args.torque, float), np.asarray(args.speed, float), indexing="ij")
+        torque, speed = tt.ravel(), ww.ravel()
+    model = LossModel(config.gearbox, config.estimator.min_torque_for_efficiency_nm,
+                      config.estimator.min_speed_for_efficiency_rad_s)
+    res = model.evaluate(torque, speed)
+    points = []
+    for i in range(len(torque)):
+        points.append({
+            "torque_nm": float(torque[i]), "speed_rad_s": float(speed[i]),
+            "loss_torque_nm": float(res.loss_torque_nm[i]), "loss_power_w": float(res.loss_power_w[i]),
+            "efficiency": None if math.isnan(res.efficiency[i]) else float(res.efficiency[i]),
+            "breakdown_nm": {k: float(res.breakdown_nm[k][i]) for k in BREAKDOWN_KEYS},
+        })
+    if args.json:
+        json.dump({"points": points}, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+        return 0
+    head = f"{'T [N·m]':>10} {'ω [rad/s]':>10} {'T_loss [N·m]':>13} {'P_loss [W]':>11} {'η [%]':>8}  dominant term"
+    print(head)
+    print("-" * len(head))
+    for p in points:
+        bd = p["breakdown_nm"]
+        dom = max(bd, key=lambda k: abs(bd[k]))
+        share = 100.0 * bd[dom] / max(sum(bd.values()), 1e-300)
+        eta = "n/a" if p["efficiency"] is None else f"{100 * p['efficiency']:.3f}"
+        print(f"{p['torque_nm']:>10.4g} {p['speed_rad_s']:>10.4g} {p['loss_torque_nm']:>13.5f} "
+              f"{p['loss_power_w']:>11.4f} {eta:>8}  {dom} ({share:.0f} %)")
+    return 0
+
+
+def _read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """CSV with a header naming a torque column (``torque``/``torque_nm``/``T``) and a speed column."""
+    if not path.exists():
+        raise UserError(f"{path} does not exist")
+    with path.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise UserError(f"{path} has no data rows")
+    cols = {c.strip().lower(): c for c in rows[0]}
+    tcol = next((cols[c] for c in ("torque_nm", "torque", "t") if c in cols), None)
+    wcol = next((cols[c] for c in ("speed_rad_s", "speed", "omega", "w") if c in cols), None)
+    if tcol is None or wcol is None:
+        raise UserError(f"{path}: need columns torque_nm and speed_rad_s (found {', '.join(rows[0])})")
+    try:
+        t = np.array([float(r[tcol]) for r in rows])
+        w = np.array([float(r[wcol]) for r in rows])
+    except ValueError as exc:
+        raise UserError(f"{path}: {exc}") from None
+    bad = ~(np.isfinite(t) & np.isfinite(w))
+    if bad.any():
+        raise UserError(f"{path}: row(s) {', '.join(str(i + 2) for i in np.flatnonzero(bad)[:10])} are not finite")
+    return t, w
+
+
+# ---------------------------------------------------------------------------------- figures / map
+def cmd_figures(args: argparse.Namespace) -> int:
+    from .figures import write_figures
+
+    paths = write_figures(config_from_args(args), Path(args.out))
+    for p in paths:
+        print(p)
+    return 0
+
+
+def cmd_map(args: argparse.Namespace) -> int:
+    from .figures import grid, write_loss_map
+
+    config = config_from_args(args)
+    try:
+        speeds = grid(*args.speed_rpm)
+        torques = grid(*args.torque_nm)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    if args.both_directions:
+        speeds = np.unique(np.concatenate([-speeds, speeds]))
+    out = Path(args.out)
+    png = None if args.no_plot else out.with_suffix(".png")
+    rows = write_loss_map(config, speeds, torques, out, png)
+    eta = rows[:, 3]
+    print(f"wrote {out} ({len(rows)} points: {len(speeds)} speeds x {len(torques)} torques)"
+          + (f" and {png}" if png else ""))
+    if np.isfinite(eta).any():
+        print(f"efficiency {100 * np.nanmin(eta):.2f} … {100 * np.nanmax(eta):.2f} %, "
+              f"max loss {rows[:, 2].max():.4f} N·m")
+    return 0
+
+
+# ---------------------------------------------------------------------------------- parser
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="rollergear", description="Roller gearing gearbox loss model, "
+                                 "replay, calibration and ROS 2 tools.")
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    def with_params(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+        p.add_argument("--params", metavar="YAML", help="parameter file (default: config/gearbox.yaml)")
+        return p
+
+    p = with_params(sub.add_parser("model", help="evaluate the loss model at torque/speed points"))
+    p.add_argument("--torque", type=_finite, nargs="+", metavar="NM", help="drive torques [N·m] (signed)")
+    p.add_argument("--speed", type=_finite, nargs="+", metavar="RAD_S", help="drive speeds [rad/s] (signed)")
+    p.add_argument("--csv", metavar="FILE", help="CSV with torque_nm, speed_rad_s columns")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(func=cmd_model)
+
+    p = with_params(sub.add_parser("figures", help="the paper's sensitivity study (Figs. 6-11) as PNG"))
+    p.add_argument("--out", required=True, metavar="DIR")
+    p.set_defaults(func=cmd_figures)
+
+    p = with_params(sub.add_parser("map", help="VECTO-layout loss map CSV + efficiency contour PNG"))
+    p.add_argument("--out", default="lossmap.csv", metavar="CSV")
+    p.add_argument("--speed-rpm", type=_finite, nargs=3, default=[0.0, 3000.0, 100.0],
+                   metavar=("START", "STOP", "STEP"))
+    p.add_argument("--torque-nm", type=_finite, nargs=3, default=[-100.0, 100.0, 5.0],
+                   metavar=("START", "STOP", "STEP"))
+    p.add_argument("--both-directions", action="store_true", help="also negative speeds (reverse rotation)")
+    p.add_argument("--no-plot", action="store_true")
+    p.set_defaults(func=cmd_map)
+
+    for register in _EXTRA_COMMANDS:
+        register(sub, with_params)
+    return ap
+
+
+_EXTRA_COMMANDS: list = []
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    _load_extra_commands()
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (UserError, ParameterError) as exc:
+        print(f"rollergear: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rollergear: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+
+
+def _load_extra_commands() -> None:
+    """Subcommands living in their own modules register themselves here."""
+    if _EXTRA_COMMANDS:
+        return
+    import importlib
+
+    for name in ("rollergear_ros.replay_cli",):
+        try:
+            mod = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name != name:
+                raise
+            continue
+        _EXTRA_COMMANDS.extend(mod.REGISTER)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

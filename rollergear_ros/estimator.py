@@ -1,0 +1,535 @@
+"""The one estimator: input pairing, screening, model + accepted effects, residual, adaptation.
+
+Used by the live node (one message at a time) and by offline replay (whole arrays); there is no
+second code path: replay pushes every message through the same :class:`SampleSynchronizer` and
+evaluates the synchronised samples with :meth:`Estimator.process_batch`, whose numbers equal the
+per-sample :meth:`Estimator.process` (tested).  No rclpy import.
+
+Pairing rule (inputs are header-less ``std_msgs/Float64``): every channel has a FIFO of
+``(time, value)``; *time* is the bag's log time offline and the receive time live.  Motor torque
+and motor speed are required; output torque and output speed join the pairing once they have
+delivered a message.  Whenever every active channel has a message queued, the heads are paired if
+they lie within ``staleness_s`` of each other; otherwise the oldest head has no partner and is
+dropped (counted as ``unpaired``).  An optional channel that falls silent for longer than
+``staleness_s`` no longer holds up the motor samples (they are estimated without a residual and
+counted as ``output_missing``).  The pair carries the motor torque's time.  Oil temperature is held
+(zero-order hold) for ``temperature_hold_s``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Iterable, NamedTuple
+
+import numpy as np
+
+from .effects import additive_effects, drag_speed, load_dependent, viscosity_scale
+from .model import LossModel, efficiency, rotation_sign, rotation_sign_scalar
+from .params import Config
+
+TORQUE = "motor_torque"
+SPEED = "motor_speed"
+OUT_TORQUE = "output_torque"
+OUT_SPEED = "output_speed"
+TEMPERATURE = "oil_temperature"
+CHANNELS: tuple[str, ...] = (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED, TEMPERATURE)
+_REQUIRED = (TORQUE, SPEED)
+_OPTIONAL = (OUT_TORQUE, OUT_SPEED)
+
+TEMPERATURE_HOLD_S = 5.0
+
+#: reasons a sample is not estimated (or estimated without a residual)
+SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
+                                 "output_non_finite", "temperature_missing")
+
+
+class SyncedSample(NamedTuple):
+    """One paired input sample (NaN marks an optional value that is absent)."""
+
+    t_ns: int
+    torque_nm: float
+    speed_rad_s: float
+    out_torque_nm: float
+    out_speed_rad_s: float
+    temperature_c: float
+
+
+class SampleSynchronizer:
+    """Pairs header-less input channels by time (see the module docstring for the rule)."""
+
+    def __init__(self, staleness_s: float, temperature_hold_s: float = TEMPERATURE_HOLD_S) -> None:
+        self.tolerance_ns = int(round(staleness_s * 1e9))
+        self.temperature_hold_ns = int(round(temperature_hold_s * 1e9))
+        self.queues: dict[str, deque] = {c: deque() for c in _REQUIRED + _OPTIONAL}
+        self.active: dict[str, bool] = {TORQUE: True, SPEED: True, OUT_TORQUE: False, OUT_SPEED: False}
+        self.latest_ns = -(2 ** 62)
+        self.temperature: tuple[int, float] | None = None
+        self.counts: dict[str, int] = {r: 0 for r in SKIP_REASONS}
+        self.received: dict[str, int] = {c: 0 for c in CHANNELS}
+
+    def push(self, channel: str, t_ns: int, value: float) -> list[SyncedSample]:
+        """Add one message; returns the samples it completes (usually zero or one)."""
+        self.received[channel] += 1
+        if t_ns > self.latest_ns:
+            self.latest_ns = t_ns
+        if channel == TEMPERATURE:
+            self.temperature = (t_ns, value)
+            return []
+        self.queues[channel].append((t_ns, value))
+        if not self.active[channel]:
+            self.active[channel] = True
+        return self._drain()
+
+    def flush(self) -> list[SyncedSample]:
+        """At the end of a log: emit what can still be paired, count the rest as unpaired."""
+        self.latest_ns += 2 * self.tolerance_ns + 1
+        out = self._drain()
+        for ch in _REQUIRED:
+            self.counts["unpaired"] += len(self.queues[ch])
+            self.queues[ch].clear()
+        for ch in _OPTIONAL:
+            self.queues[ch].clear()
+        return out
+
+    def _drain(self) -> list[SyncedSample]:
+        out: list[SyncedSample] = []
+        q = self.queues
+        tol = self.tolerance_ns
+        while True:
+            if not (q[TORQUE] and q[SPEED]):
+                self._expire_required()
+                return out
+            t_req = max(q[TORQUE][0][0], q[SPEED][0][0])
+            # optional channels that are active but silent: do not hold the motor samples up
+            for ch in _OPTIONAL:
+                if self.active[ch] and not q[ch] and self.latest_ns - t_req > tol:
+                    self.active[ch] = False
+            chans = [c for c in (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED) if self.active[c]]
+            if any(not q[c] for c in chans):
+                return out
+            times = [q[c][0][0] for c in chans]
+            if max(times) - min(times) <= tol:
+                vals = {c: q[c].popleft()[1] for c in chans}
+                t = times[0]
+                out.append(self._sample(t, vals))
+                continue
+            oldest = chans[times.index(min(times))]
+            q[oldest].popleft()
+            if oldest in _REQUIRED:
+                self.counts["unpaired"] += 1
+
+    def _expire_required(self) -> None:
+        """Drop motor messages whose partner can no longer arrive (older than latest − tolerance)."""
+        limit = self.latest_ns - self.tolerance_ns
+        for ch in _REQUIRED:
+            qq = self.queues[ch]
+            while qq and qq[0][0] < limit:
+                qq.popleft()
+                self.counts["unpaired"] += 1
+
+    def _sample(self, t_ns: int, vals: dict[str, float]) -> SyncedSample:
+        if OUT_TORQUE not in vals and self.received[OUT_TORQUE]:
+            self.counts["output_missing"] += 1
+        temp = math.nan
+        if self.temperature is not None and t_ns - self.temperature[0] <= self.temperature_hold_ns:
+            temp = self.temperature[1]
+        return SyncedSample(t_ns, vals[TORQUE], vals[SPEED], vals.get(OUT_TORQUE, math.nan),
+                            vals.get(OUT_SPEED, math.nan), temp)
+
+
+@dataclass
+class Estimate:
+    """Estimator output for one sample (the node publishes these)."""
+
+    t_ns: int
+    torque_nm: float
+    speed_rad_s: float
+    loss_torque_nm: float  #: signed, input-referred, opposes rotation
+    loss_power_w: float
+    efficiency: float  #: NaN where undefined
+    measured_loss_nm: float  #: NaN without measured output
+    residual_nm: float  #: measured − expected measured loss; NaN without measured output
+
+
+# ------------------------------------------------------------------------------------ adaptation
+def adaptive_effects(config: Config) -> tuple[str, ...]:
+    """Accepted effects whose linear coefficient is adapted online (viscosity's B is not linear)."""
+    return tuple(n for n in config.effects.enabled() if n != "viscosity_temperature")
+
+
+def effect_coefficients(config: Config) -> dict[str, float]:
+    """The linear coefficient of each adaptive effect, as configured."""
+    e = config.effects
+    return {"drag_constant": e.drag_constant_c_nm, "drag_speed": e.drag_speed_c,
+            "load_dependent": e.load_dependent_c, "torque_offset": e.torque_offset_offset_nm,
+            "torque_gain": e.torque_gain_gain}
+
+
+# Regressors are normalised so that the RLS covariance is well conditioned.
+_SPEED_REF = 100.0
+_TORQUE_REF = 100.0
+
+
+def regressors(names: Iterable[str], config: Config, abs_torque, abs_speed, torque, rot_sign) -> list:
+    """Normalised regressor of each adaptive effect (works on floats and arrays)."""
+    e = config.effects
+    out = []
+    for n in names:
+        if n == "drag_constant":
+            out.append(1.0 + 0.0 * abs_speed)
+        elif n == "drag_speed":
+            out.append(drag_speed(1.0, e.drag_speed_p, abs_torque, abs_speed, torque, rot_sign)
+                       / _SPEED_REF ** e.drag_speed_p)
+        elif n == "load_dependent":
+            out.append(load_dependent(1.0, e.load_dependent_q, abs_torque, abs_speed, torque, rot_sign)
+                       / _TORQUE_REF ** e.load_dependent_q)
+        elif n == "torque_offset":
+            out.append(rot_sign + 0.0 * abs_speed)
+        elif n == "torque_gain":
+            out.append(torque * rot_sign / _TORQUE_REF)
+    return out
+
+
+def _scales(names: Iterable[str], config: Config) -> list[float]:
+    e = config.effects
+    s = {"drag_constant": 1.0, "drag_speed": _SPEED_REF ** e.drag_speed_p,
+         "load_dependent": _TORQUE_REF ** e.load_dependent_q, "torque_offset": 1.0, "torque_gain": _TORQUE_REF}
+    return [s[n] for n in names]
+
+
+class RecursiveLeastSquares:
+    """RLS with exponential forgetting and a bounded covariance (anti-windup), pure Python.
+
+    ``θ ← θ + K·(y − φᵀθ)``, ``K = Pφ/(λ + φᵀPφ)``, ``P ← (P − KφᵀP)/λ``, then ``P`` is scaled so that
+    ``trace(P) ≤ max_trace``.  A handful of parameters: plain lists beat numpy here (~5 µs/update).
+    """
+
+    def __init__(self, theta0: list[float], forgetting: float, p0: float = 1.0, max_trace: float = 1e6) -> None:
+        n = len(theta0)
+        self.theta = list(theta0)
+        self.lam = forgetting
+        self.max_trace = max_trace
+        self.P = [[p0 if i == j else 0.0 for j in range(n)] for i in range(n)]
+
+    def predict(self, phi: list[float]) -> float:
+        return sum(t * f for t, f in zip(self.theta, phi))
+
+    def update(self, phi: list[float], y: float) -> float:
+        """One update; returns the a-priori prediction error ``y − φᵀθ``."""
+        n = len(phi)
+        P = self.P
+        pphi = [sum(P[i][j] * phi[j] for j in range(n)) for i in range(n)]
+        denom = self.lam + sum(phi[i] * pphi[i] for i in range(n))
+        err = y - self.predict(phi)
+        k = [v / denom for v in pphi]
+        self.theta = [t + ki * err for t, ki in zip(self.theta, k)]
+        inv_lam = 1.0 / self.lam
+        for i in range(n):
+            ki = k[i]
+            row = P[i]
+            for j in range(n):
+                row[j] = (row[j] - ki * pphi[j]) * inv_lam
+        trace = sum(P[i][i] for i in range(n))
+        if trace > self.max_trace:
+            s = self.max_trace / trace
+            for row in P:
+                for j in range(n):
+                    row[j] *= s
+        return err
+
+
+class ChangeDetector:
+    """Two-sided CUSUM on block averages of the residual (not raw samples).
+
+    ``g⁺ ← max(0, g⁺ + x̄ − δ/2)``, ``g⁻ ← max(0, g⁻ − x̄ − δ/2)``; an alarm when either exceeds
+    ``h = 4δ``; after an alarm the sums are held at 0 until ``|x̄| < δ/2`` for 3 blocks, so one
+    change gives one alarm while adaptation settles.
+    """
+
+    def __init__(self, block_samples: int, threshold_nm: float) -> None:
+        self.block = block_samples
+        self.delta = threshold_nm
+        self.acc = 0.0
+        self.n = 0
+        self.g_pos = 0.0
+        self.g_neg = 0.0
+        self.alarms = 0
+        self.refractory = False
+        self.calm_blocks = 0
+        self.last_block_mean = math.nan
+        self.alarm_times_ns: list[int] = []
+
+    def add(self, x: float, t_ns: int) -> bool:
+        """Add one residual; returns True when this sample raises an alarm."""
+        if self.delta <= 0 or not math.isfinite(x):
+            return False
+        self.acc += x
+        self.n += 1
+        if self.n < self.block:
+            return False
+        m = self.acc / self.n
+        self.acc, self.n = 0.0, 0
+        self.last_block_mean = m
+        k = self.delta / 2.0
+        if self.refractory:
+            self.calm_blocks = self.calm_blocks + 1 if abs(m) < k else 0
+            if self.calm_blocks >= 3:
+                self.refractory = False
+            return False
+        self.g_pos = max(0.0, self.g_pos + m - k)
+        self.g_neg = max(0.0, self.g_neg - m - k)
+        if self.g_pos > 4 * self.delta or self.g_neg > 4 * self.delta:
+            self.alarms += 1
+            self.alarm_times_ns.append(t_ns)
+            self.g_pos = self.g_neg = 0.0
+            self.refractory = True
+            self.calm_blocks = 0
+            return True
+        return False
+
+
+class ResidualStats:
+    """Running residual statistics over an exponentially weighted window (for diagnostics)."""
+
+    def __init__(self, alpha: float = 1e-3) -> None:
+        self.alpha = alpha
+        self.mean = 0.0
+        self.mean_sq = 0.0
+        self.count = 0
+
+    def add(self, r: float) -> None:
+        if not math.isfinite(r):
+            return
+        self.count += 1
+        a = max(self.alpha, 1.0 / self.count)
+        self.mean += a * (r - self.mean)
+        self.mean_sq += a * (r * r - self.mean_sq)
+
+    @property
+    def rms(self) -> float:
+        return math.sqrt(max(self.mean_sq, 0.0)) if self.count else math.nan
+
+
+@dataclass
+class BatchEstimate:
+    """Estimator output for arrays of samples (replay)."""
+
+    t_ns: np.ndarray
+    torque_nm: np.ndarray
+    speed_rad_s: np.ndarray
+    loss_torque_nm: np.ndarray
+    loss_power_w: np.ndarray
+    efficiency: np.ndarray
+    measured_loss_nm: np.ndarray
+    residual_nm: np.ndarray
+    breakdown_nm: dict[str, np.ndarray] = field(default_factory=dict)
+    effects_nm: np.ndarray | None = None  #: physical effects part of the loss magnitude
+    coefficients: dict[str, np.ndarray] = field(default_factory=dict)  #: adapted, per sample
+    alarms_t_ns: list[int] = field(default_factory=list)
+
+
+class Estimator:
+    """Model + accepted effects + residual + online adaptation, for one :class:`Config`."""
+
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        est = config.estimator
+        self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s)
+        self.ratio = config.gearbox.ratio_effective
+        self.sync = SampleSynchronizer(est.staleness_s)
+        self.counts = self.sync.counts  # skip reasons (shared with the synchroniser)
+        self.adaptive = adaptive_effects(config) if est.adapt else ()
+        coef = effect_coefficients(config)
+        scales = _scales(self.adaptive, config)
+        self.rls = RecursiveLeastSquares([coef[n] * s for n, s in zip(self.adaptive, scales)],
+                                         est.rls_forgetting, 1.0, est.rls_max_covariance)
+        self._scales = scales
+        self.detector = ChangeDetector(est.change_block_samples, est.change_threshold_nm)
+        self.residual_stats = ResidualStats()
+        self.estimated = 0
+        self.last: Estimate | None = None
+
+    # ------------------------------------------------------------------ helpers
+    def coefficients(self) -> dict[str, float]:
+        """Current (adapted) coefficients of the adaptive effects, in physical units."""
+        return {n: t / s for n, t, s in zip(self.adaptive, self.rls.theta, self._scales)}
+
+    def screen(self, torque: float, speed: float) -> str | None:
+        """Reason a motor sample cannot be estimated, or None."""
+        if not (math.isfinite(torque) and math.isfinite(speed)):
+            return "non_finite"
+        est = self.config.estimator
+        if abs(torque) > est.max_abs_torque_nm or abs(speed) > est.max_abs_speed_rad_s:
+            return "implausible"
+        return None
+
+    def measured_loss(self, torque, speed, out_torque, out_speed):
+        """``T_loss,meas = (T_in·ω_in − T_out·ω_out)/|ω_in|``; ``ω_out = ω_in/ratio`` when not measured.
+
+        NaN where ``|ω_in|`` is below the efficiency speed threshold (the quotient is noise there).
+        """
+        w_out = np.where(np.isnan(out_speed), speed / self.ratio, out_speed)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            m = (torque * speed - out_torque * w_out) / np.abs(speed)
+        return np.where(np.abs(speed) < max(self.model.min_speed_rad_s, 1e-9), np.nan, m)
+
+    def _measured_loss_scalar(self, torque, speed, out_torque, out_speed) -> float:
+        if not math.isfinite(out_torque) or abs(speed) < max(self.model.min_speed_rad_s, 1e-9):
+            return math.nan
+        w_out = speed / self.ratio if math.isnan(out_speed) else out_speed
+        return (torque * speed - out_torque * w_out) / abs(speed)
+
+    # ------------------------------------------------------------------ streaming (node)
+    def push(self, channel: str, t_ns: int, value: float) -> list[Estimate]:
+        """Feed one input message; returns the estimates it completes."""
+        return [e for e in (self.process(s) for s in self.sync.push(channel, t_ns, value)) if e is not None]
+
+    def process(self, s: SyncedSample) -> Estimate | None:
+        """Estimate one paired sample (scalar path); None (and counted) when it is invalid."""
+        reason = self.screen(s.torque_nm, s.speed_rad_s)
+        if reason:
+            self.counts[reason] += 1
+            return None
+        t, w = s.torque_nm, s.speed_rad_s
+        at, aw = abs(t), abs(w)
+        sg = rotation_sign_scalar(w, t)
+        e = self.config.effects
+        vscale = 1.0
+        if e.viscosity_temperature:
+            if math.isfinite(s.temperature_c):
+                vscale = viscosity_scale(e.viscosity_temperature_B_k, e.viscosity_temperature_C_k,
+                                         e.viscosity_temperature_theta_ref_c, s.temperature_c)
+            else:
+                self.counts["temperature_missing"] += 1
+        mag = self.model.loss_magnitude_scalar(t, w, vscale)
+        phys, sens = self._effects_scalar(at, aw, t, sg)
+        loss = mag + phys
+        meas = self._measured_loss_scalar(t, w, s.out_torque_nm, s.out_speed_rad_s)
+        if math.isnan(s.out_torque_nm):
+            pass
+        elif not math.isfinite(s.out_torque_nm) or not math.isfinite(s.out_speed_rad_s) and not math.isnan(
+                s.out_speed_rad_s):
+            self.counts["output_non_finite"] += 1
+            meas = math.nan
+        residual = meas - (loss + sens) if math.isfinite(meas) else math.nan
+        if math.isfinite(residual):
+            self._adapt_scalar(at, aw, t, sg, meas - mag, s.t_ns)
+            self.residual_stats.add(residual)
+        self.estimated += 1
+        est = Estimate(s.t_ns, t, w, loss * sg, loss * aw, self.model.efficiency_scalar(t, w, loss), meas, residual)
+        self.last = est
+        return est
+
+    def _effects_scalar(self, at, aw, t, sg) -> tuple[float, float]:
+        if not self.adaptive:
+            terms = additive_effects(self.config.effects, at, aw, t, sg)
+            return terms.physical_nm, terms.sensor_nm
+        # non-adaptive part (none besides viscosity today) plus the adapted linear terms
+        phi = regressors(self.adaptive, self.config, at, aw, t, sg)
+        phys = sens = 0.0
+        for n, th, f in zip(self.adaptive, self.rls.theta, phi):
+            if n in ("torque_offset", "torque_gain"):
+                sens += th * f
+            else:
+                phys += th * f
+        return phys, sens
+
+    def _adapt_scalar(self, at, aw, t, sg, y, t_ns) -> None:
+        """RLS on ``y = measured − model``; the detector sees the a-priori error."""
+        if self.adaptive:
+            phi = regressors(self.adaptive, self.config, at, aw, t, sg)
+            err = self.rls.update(phi, y)
+        else:
+            terms = additive_effects(self.config.effects, at, aw, t, sg)
+            err = y - terms.physical_nm - terms.sensor_nm
+        self.detector.add(err, t_ns)
+
+    # ------------------------------------------------------------------ batch (replay)
+    def process_batch(self, t_ns: np.ndarray, torque: np.ndarray, speed: np.ndarray,
+                      out_torque: np.ndarray | None = None, out_speed: np.ndarray | None = None,
+                      temperature: np.ndarray | None = None, breakdown: bool = True) -> BatchEstimate:
+        """Vectorised :meth:`process` over paired samples (invalid ones are removed and counted).
+
+        Gives the same numbers as calling :meth:`process` sample by sample, including the
+        order-dependent online adaptation.
+        """
+        n = len(t_ns)
+        nan = np.full(n, np.nan)
+        out_torque = nan if out_torque is None else np.asarray(out_torque, float)
+        out_speed = nan if out_speed is None else np.asarray(out_speed, float)
+        temperature = nan if temperature is None else np.asarray(temperature, float)
+        torque = np.asarray(torque, float)
+        speed = np.asarray(speed, float)
+        est = self.config.estimator
+        finite = np.isfinite(torque) & np.isfinite(speed)
+        with np.errstate(invalid="ignore"):
+            plausible = (np.abs(torque) <= est.max_abs_torque_nm) & (np.abs(speed) <= est.max_abs_speed_rad_s)
+        self.counts["non_finite"] += int(np.count_nonzero(~finite))
+        self.counts["implausible"] += int(np.count_nonzero(finite & ~plausible))
+        keep = finite & plausible
+        t_ns, torque, speed = np.asarray(t_ns)[keep], torque[keep], speed[keep]
+        out_torque, out_speed, temperature = out_torque[keep], out_speed[keep], temperature[keep]
+        at, aw = np.abs(torque), np.abs(speed)
+        sg = rotation_sign(speed, torque)
+        e = self.config.effects
+        vscale = None
+        if e.viscosity_temperature:
+            have_t = np.isfinite(temperature)
+            self.counts["temperature_missing"] += int(np.count_nonzero(~have_t))
+            vscale = np.where(have_t, viscosity_scale(e.viscosity_temperature_B_k, e.viscosity_temperature_C_k,
+                                                      e.viscosity_temperature_theta_ref_c,
+                                                      np.where(have_t, temperature, 0.0)), 1.0)
+        res = self.model.evaluate(torque, speed, vscale, breakdown=breakdown)
+        mag = res.loss_magnitude_nm
+        bad_out = ~np.isnan(out_torque) & (~np.isfinite(out_torque) | (~np.isfinite(out_speed) & ~np.isnan(out_speed)))
+        self.counts["output_non_finite"] += int(np.count_nonzero(bad_out))
+        with np.errstate(invalid="ignore"):
+            meas = np.where(bad_out, np.nan, self.measured_loss(torque, speed, out_torque, out_speed))
+        coefficients: dict[str, np.ndarray] = {}
+        if self.adaptive:
+            phis = regressors(self.adaptive, self.config, at, aw, torque, sg)
+            theta_hist = self._adapt_batch(phis, meas - mag, t_ns)
+            phys = np.zeros(len(mag))
+            sens = np.zeros(len(mag))
+            for i, (name, phi) in enumerate(zip(self.adaptive, phis)):
+                contrib = theta_hist[:, i] * phi
+                if name in ("torque_offset", "torque_gain"):
+                    sens += contrib
+                else:
+                    phys += contrib
+                coefficients[name] = theta_hist[:, i] / self._scales[i]
+        else:
+            terms = additive_effects(e, at, aw, torque, sg)
+            phys, sens = np.asarray(terms.physical_nm) + 0.0 * mag, np.asarray(terms.sensor_nm) + 0.0 * mag
+            y = meas - mag - phys - sens
+            for ti, yi in zip(t_ns[np.isfinite(y)].tolist(), y[np.isfinite(y)].tolist()):
+                self.detector.add(yi, ti)
+                self.residual_stats.add(yi)
+        loss = mag + phys
+        residual = meas - (loss + sens)
+        eff = efficiency(torque, speed, loss, self.model.min_torque_nm, self.model.min_speed_rad_s)
+        self.estimated += len(t_ns)
+        return BatchEstimate(t_ns=t_ns, torque_nm=torque, speed_rad_s=speed, loss_torque_nm=loss * sg,
+                             loss_power_w=loss * aw, efficiency=eff, measured_loss_nm=meas,
+                             residual_nm=residual, breakdown_nm=res.breakdown_nm, effects_nm=phys,
+                             coefficients=coefficients, alarms_t_ns=list(self.detector.alarm_times_ns))
+
+    def _adapt_batch(self, phis: list[np.ndarray], y: np.ndarray, t_ns: np.ndarray) -> np.ndarray:
+        """Run RLS sample by sample (it is order dependent); returns the a-priori θ of each sample."""
+        n = len(y)
+        hist = np.empty((n, len(phis)))
+        rows = np.stack(phis, axis=1).tolist() if n else []
+        ys = y.tolist()
+        ts = t_ns.tolist()
+        rls, det, stats = self.rls, self.detector, self.residual_stats
+        for i in range(n):
+            hist[i] = rls.theta
+            yi = ys[i]
+            if yi == yi:  # not NaN
+                err = rls.update(rows[i], yi)
+                det.add(err, ts[i])
+                stats.add(err)
+        return hist
+

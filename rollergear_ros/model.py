@@ -1,0 +1,387 @@
+"""The ball-track loss model of Polák's paper, as read by ``shared/model-spec.md``.
+
+Pure physics: numpy and ``math`` only, no rclpy.  Each equation of the paper is a small function
+whose docstring gives its formula and equation number; they are collected in :data:`EQUATIONS`
+(tested across the registry).  :func:`evaluate_reference` chains them literally, sample by
+sample as the paper does.  Because every per-sample quantity is a power law of ``|T|`` and
+``|ω|``, :class:`LossModel` pre-computes the geometry once and evaluates
+
+    T_loss = K_fr·|ω|^0.66·|T|^0.47·s_η + K_tc·|T|^(5/3) + K_er·|T|^1.33 + K_0           (eq. 22–30)
+
+which is the same number (tested against the literal chain) at >10 M samples/s; ``s_η`` is
+``(η/η0)^0.66`` when a viscosity other than ``eta0`` applies (temperature effect, eq. 9).
+
+Sign conventions (REP 103): torque ``T`` [N·m] and speed ``ω`` [rad/s] are signed.  The loss
+torque magnitude ``T_loss ≥ 0`` opposes rotation: signed loss torque = ``T_loss·sign(ω)``
+(``sign(T)`` at standstill).  Loss power ``P_loss = T_loss·|ω|``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, NamedTuple
+
+import numpy as np
+
+from .params import GearboxParams
+
+RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
+
+#: breakdown keys: the contribution of each friction term and contact to T_loss [N·m]
+BREAKDOWN_KEYS: tuple[str, ...] = ("fr1", "fr2", "tc1", "tc2", "ter1", "ter2", "tb", "fg")
+BREAKDOWN_DESCRIPTIONS: dict[str, str] = {
+    "fr1": "EHL rolling resistance Fr, drive contact (eq. 3)",
+    "fr2": "EHL rolling resistance Fr, driven contact (eq. 3)",
+    "tc1": "curvature/differential-sliding torque Tc, drive contact (eq. 17)",
+    "tc2": "curvature/differential-sliding torque Tc, driven contact (eq. 17)",
+    "ter1": "elastic hysteresis torque Ter, drive contact (eq. 21)",
+    "ter2": "elastic hysteresis torque Ter, driven contact (eq. 21)",
+    "tb": "ball-ball friction torque Tb (eq. 22)",
+    "fg": "ball pressure force Fg/2 (eq. 22, 26)",
+}
+
+
+# --------------------------------------------------------------------------------------------
+# The paper's equations, one pure function each (SI units unless the name says otherwise).
+# --------------------------------------------------------------------------------------------
+
+def drive_force_n(torque_nm, dm1_m, z):
+    """Eq. 1 with load sharing: ``F_h = |T| / (z·d_m1/2)`` — torque shared by the z loaded balls."""
+    return np.abs(torque_nm) / (z * dm1_m / 2.0)
+
+
+def normal_force_n(drive_force, alpha_rad, beta_rad):
+    """Eq. 2: ``F_n = F_h / (cos α · cos β)``."""
+    return drive_force / (math.cos(alpha_rad) * math.cos(beta_rad))
+
+
+def rolling_radius_drive_m(dw_m, dm1_m, alpha_rad):
+    """Eq. 4: ``1/R_x1 = 2/d_w − 2cos α/(d_m1 + d_w cos α)``; returns ``R_x1``."""
+    c = math.cos(alpha_rad)
+    return 1.0 / (2.0 / dw_m - 2.0 * c / (dm1_m + dw_m * c))
+
+
+def rolling_radius_driven_m(dw_m, dm2_m, alpha_rad):
+    """Eq. 5: ``1/R_x2 = 2/d_w + 2cos α/(d_m2 − d_w cos α)``; returns ``R_x2``."""
+    c = math.cos(alpha_rad)
+    return 1.0 / (2.0 / dw_m + 2.0 * c / (dm2_m - dw_m * c))
+
+
+def groove_radius_m(f, dw_m):
+    """Eq. 7: ``R_y = f·d_w/(2f − 1)``."""
+    return f * dw_m / (2.0 * f - 1.0)
+
+
+def ellipticity(ry_m, rx_m):
+    """Eq. 6: ``k = R_y/R_x``."""
+    return ry_m / rx_m
+
+
+def material_parameter(e_eq_pa, alpha_p_per_pa):
+    """Eq. 8: ``G = E·α_p`` (dimensionless; the paper's "[GPa]" for α_p is a typo, 1/Pa)."""
+    return e_eq_pa * alpha_p_per_pa
+
+
+def rolling_speed_m_s(speed_rad_s, internal_ratio, dw_m):
+    """Eq. 13–14: ``v = n·i·d_w[mm]·π/60000`` with ``n = |ω|·60/2π`` rpm, i.e. ``|ω|·i·d_w/2``."""
+    n_rpm = np.abs(speed_rad_s) * RPM_PER_RAD_S
+    return n_rpm * internal_ratio * (dw_m * 1e3) * math.pi / 60000.0
+
+
+def speed_parameter(v_m_s, eta_pa_s, rx_m, e_eq_pa):
+    """Eq. 9: ``U = v·η0/(R_x·E)``."""
+    return v_m_s * eta_pa_s / (rx_m * e_eq_pa)
+
+
+def load_parameter(fn_n, e_eq_pa, rx_m):
+    """Eq. 15: ``W = F_n/(E·R_x²)``."""
+    return fn_n / (e_eq_pa * rx_m ** 2)
+
+
+def rolling_resistance_n(e_eq_pa, rx_m, k, g, u, w):
+    """Eq. 3 (Houpert): ``F_r = 2.86·E·R_x²·k^0.348·G^0.022·U^0.66·W^0.47``."""
+    return 2.86 * e_eq_pa * rx_m ** 2 * k ** 0.348 * g ** 0.022 * np.power(u, 0.66) * np.power(w, 0.47)
+
+
+def ellipse_semi_major_m(ellipse_a, rx_m, k, w):
+    """Eq. 19: ``a = 1.1552·R_x·k^0.4676·W^(1/3)`` (paper prints 1.552, see model-spec)."""
+    return ellipse_a * rx_m * k ** 0.4676 * np.cbrt(w)
+
+
+def ellipse_semi_minor_m(ellipse_b, rx_m, k, w):
+    """Eq. 20: ``b = 1.1502·R_x·k^−0.1876·W^(1/3)`` (paper prints 1.502)."""
+    return ellipse_b * rx_m * k ** -0.1876 * np.cbrt(w)
+
+
+def deformed_radius_m(dw_m, f):
+    """Eq. 18: ``R_d = 2·d_w·f/(2f + 1)``."""
+    return 2.0 * dw_m * f / (2.0 * f + 1.0)
+
+
+def curvature_torque_nm(mu_m, fn_n, a_m, rd_m, y):
+    """Eq. 17: ``T_c = 0.1·μ_m·F_n·a²/R_d·(1 − 5Y³ + 3Y⁵)``."""
+    return 0.1 * mu_m * fn_n * a_m ** 2 / rd_m * (1.0 - 5.0 * y ** 3 + 3.0 * y ** 5)
+
+
+def hysteresis_torque_nm(dw_m, fn_n, k):
+    """Eq. 21 (Snare): ``T_er = 7.48e-7·(d_w[mm]/2)^(1/3)·F_n^1.33·(1 − 3.519e-3·(k − 1)^0.806)`` N·mm → N·m."""
+    t_nmm = 7.48e-7 * (dw_m * 1e3 / 2.0) ** (1.0 / 3.0) * np.power(fn_n, 1.33) * (
+        1.0 - 3.519e-3 * (k - 1.0) ** 0.806)
+    return t_nmm * 1e-3
+
+
+def ball_friction_torque_nm(mu_b, fg_n, dw_m):
+    """Eq. 22/26 term: ``T_b = μ_b·F_g·d_w/2``."""
+    return mu_b * fg_n * dw_m / 2.0
+
+
+def drive_contact_force_n(s_n, fr_sum_n, dw_m, dm1_m, alpha_rad, fg_n):
+    """Eq. 22: ``F_1 = S + (F_r1 + F_r2)·d_w·cos α/d_m1 + F_g/2`` with ``S = ΣT/d_w + ΣF_r``."""
+    return s_n + fr_sum_n * dw_m * math.cos(alpha_rad) / dm1_m + fg_n / 2.0
+
+
+def driven_contact_force_n(s_n, fr_sum_n, dw_m, dm2_m, alpha_rad, fg_n):
+    """Eq. 26: ``F_2 = S − (F_r1 + F_r2)·d_w·cos α/d_m2 + F_g/2``."""
+    return s_n - fr_sum_n * dw_m * math.cos(alpha_rad) / dm2_m + fg_n / 2.0
+
+
+def lever_arm_m(dm_m, dw_m, alpha_rad):
+    """Eq. 24/28: ``R_j = d_mj/2 + d_w·cos α/2``."""
+    return dm_m / 2.0 + dw_m * math.cos(alpha_rad) / 2.0
+
+
+def loss_torque_nm(z, f1_n, r1_m, f2_n, r2_m):
+    """Eq. 25, 29, 30: ``T_loss = z·F_1·R_1 + z·F_2·R_2`` (input-referred, ≥ 0)."""
+    return z * f1_n * r1_m + z * f2_n * r2_m
+
+
+def efficiency(torque_nm, speed_rad_s, loss_nm, min_torque_nm=0.0, min_speed_rad_s=0.0):
+    """Eq. 30 in four quadrants.
+
+    Motoring (``T·ω > 0``): ``η = (|T| − T_loss)/|T|``; regeneration (``T·ω < 0``, power flows
+    back): ``η = |T|/(|T| + T_loss)``.  NaN (undefined, never a made-up number) where
+    ``|T| < min_torque``, ``|ω| < min_speed``, ``T·ω = 0``, or the loss exceeds the motoring torque.
+    """
+    t = np.asarray(torque_nm, dtype=float)
+    w = np.asarray(speed_rad_s, dtype=float)
+    loss = np.asarray(loss_nm, dtype=float)
+    at = np.abs(t)
+    power_sign = np.sign(t) * np.sign(w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        eta = np.where(power_sign > 0, (at - loss) / at, at / (at + loss))
+    undefined = (at < max(min_torque_nm, 0.0)) | (np.abs(w) < max(min_speed_rad_s, 0.0)) | (power_sign == 0)
+    undefined |= ~(eta > 0.0)
+    return np.where(undefined, np.nan, eta)
+
+
+#: the registry of the paper's equations (lmfit-lineshapes style), used by tests and docs
+EQUATIONS: dict[str, Callable] = {
+    "eq01_drive_force": drive_force_n,
+    "eq02_normal_force": normal_force_n,
+    "eq03_rolling_resistance": rolling_resistance_n,
+    "eq04_rolling_radius_drive": rolling_radius_drive_m,
+    "eq05_rolling_radius_driven": rolling_radius_driven_m,
+    "eq06_ellipticity": ellipticity,
+    "eq07_groove_radius": groove_radius_m,
+    "eq08_material_parameter": material_parameter,
+    "eq09_speed_parameter": speed_parameter,
+    "eq14_rolling_speed": rolling_speed_m_s,
+    "eq15_load_parameter": load_parameter,
+    "eq17_curvature_torque": curvature_torque_nm,
+    "eq18_deformed_radius": deformed_radius_m,
+    "eq19_ellipse_semi_major": ellipse_semi_major_m,
+    "eq20_ellipse_semi_minor": ellipse_semi_minor_m,
+    "eq21_hysteresis_torque": hysteresis_torque_nm,
+    "eq22_drive_contact_force": drive_contact_force_n,
+    "eq22_ball_friction_torque": ball_friction_torque_nm,
+    "eq24_lever_arm": lever_arm_m,
+    "eq26_driven_contact_force": driven_contact_force_n,
+    "eq30_loss_torque": loss_torque_nm,
+    "eq30_efficiency": efficiency,
+}
+
+
+class ContactGeometry(NamedTuple):
+    """Load- and speed-independent quantities of both contacts (eq. 4–8, 18, 24, 28)."""
+
+    rx1: float
+    rx2: float
+    ry1: float
+    ry2: float
+    k1: float
+    k2: float
+    rd1: float
+    rd2: float
+    r1: float
+    r2: float
+    g: float
+
+
+def contact_geometry(p: GearboxParams) -> ContactGeometry:
+    """Evaluate the geometry equations once for a parameter set."""
+    a = math.radians(p.alpha_deg)
+    rx1 = rolling_radius_drive_m(p.dw_m, p.dm1_m, a)
+    rx2 = rolling_radius_driven_m(p.dw_m, p.dm2_m, a)
+    ry1 = groove_radius_m(p.f1, p.dw_m)
+    ry2 = groove_radius_m(p.f2, p.dw_m)
+    return ContactGeometry(
+        rx1=rx1, rx2=rx2, ry1=ry1, ry2=ry2, k1=ellipticity(ry1, rx1), k2=ellipticity(ry2, rx2),
+        rd1=deformed_radius_m(p.dw_m, p.f1), rd2=deformed_radius_m(p.dw_m, p.f2),
+        r1=lever_arm_m(p.dm1_m, p.dw_m, a), r2=lever_arm_m(p.dm2_m, p.dw_m, a),
+        g=material_parameter(p.E_eq_pa, p.alpha_p_per_pa))
+
+
+def evaluate_reference(p: GearboxParams, torque_nm: float, speed_rad_s: float,
+                       eta_pa_s: float | None = None) -> dict[str, float]:
+    """The literal chain of eq. 1–30 for one sample; returns ``T_loss`` and every term.
+
+    Slow and obvious on purpose: it is the reference :class:`LossModel` is tested against.
+    """
+    eta = p.eta0_pa_s if eta_pa_s is None else eta_pa_s
+    geo = contact_geometry(p)
+    a = math.radians(p.alpha_deg)
+    b = math.radians(p.beta_deg)
+    fn = normal_force_n(drive_force_n(torque_nm, p.dm1_m, p.z), a, b)
+    v = rolling_speed_m_s(speed_rad_s, p.internal_ratio_effective, p.dw_m)
+    terms: dict[str, float] = {}
+    for j, rx, k, rd, f in ((1, geo.rx1, geo.k1, geo.rd1, p.f1), (2, geo.rx2, geo.k2, geo.rd2, p.f2)):
+        u = speed_parameter(v, eta, rx, p.E_eq_pa)
+        w = load_parameter(fn, p.E_eq_pa, rx)
+        terms[f"Fr{j}"] = float(rolling_resistance_n(p.E_eq_pa, rx, k, geo.g, u, w))
+        a_j = ellipse_semi_major_m(p.ellipse_a, rx, k, w)
+        terms[f"a{j}"] = float(a_j)
+        terms[f"b{j}"] = float(ellipse_semi_minor_m(p.ellipse_b, rx, k, w))
+        terms[f"Tc{j}"] = float(curvature_torque_nm(p.mu_m, fn, a_j, rd, p.Y))
+        terms[f"Ter{j}"] = float(hysteresis_torque_nm(p.dw_m, fn, k))
+    tb = ball_friction_torque_nm(p.mu_b, p.Fg_n, p.dw_m)
+    s = (terms["Tc1"] + terms["Tc2"] + terms["Ter1"] + terms["Ter2"] + tb) / p.dw_m + terms["Fr1"] + terms["Fr2"]
+    fr_sum = terms["Fr1"] + terms["Fr2"]
+    f1 = drive_contact_force_n(s, fr_sum, p.dw_m, p.dm1_m, a, p.Fg_n)
+    f2 = driven_contact_force_n(s, fr_sum, p.dw_m, p.dm2_m, a, p.Fg_n)
+    terms.update(Fn=float(fn), Tb=tb, S=s, F1=f1, F2=f2)
+    terms["T_loss"] = float(loss_torque_nm(p.z, f1, geo.r1, f2, geo.r2))
+    return terms
+
+
+@dataclass(frozen=True)
+class LossResult:
+    """Model output for arrays of samples (all arrays have the input's shape)."""
+
+    loss_torque_nm: np.ndarray  #: signed, input-referred, opposes rotation
+    loss_magnitude_nm: np.ndarray  #: |loss torque| = T_loss ≥ 0
+    loss_power_w: np.ndarray  #: T_loss·|ω| ≥ 0
+    efficiency: np.ndarray  #: (0, 1], NaN where undefined
+    breakdown_nm: dict[str, np.ndarray]  #: contribution of each term to T_loss (sums to it)
+
+
+class LossModel:
+    """Fast evaluator of the loss model for one parameter set (vectorised and per sample)."""
+
+    #: exponents of |T| in each term: Fr ∝ W^0.47, Tc ∝ F_n·a² ∝ F_n^(5/3), Ter ∝ F_n^1.33
+    EXP_FR_T = 0.47
+    EXP_FR_W = 0.66
+    EXP_TC_T = 5.0 / 3.0
+    EXP_TER_T = 1.33
+
+    def __init__(self, params: GearboxParams, min_torque_for_efficiency_nm: float = 0.2,
+                 min_speed_for_efficiency_rad_s: float = 0.5) -> None:
+        self.params = params
+        self.min_torque_nm = float(min_torque_for_efficiency_nm)
+        self.min_speed_rad_s = float(min_speed_for_efficiency_rad_s)
+        self.geometry = geo = contact_geometry(params)
+        p = params
+        a = math.radians(p.alpha_deg)
+        # per unit |T| = 1 N·m and |ω| = 1 rad/s, through the literal equations
+        fn1 = float(normal_force_n(drive_force_n(1.0, p.dm1_m, p.z), a, math.radians(p.beta_deg)))
+        v1 = float(rolling_speed_m_s(1.0, p.internal_ratio_effective, p.dw_m))
+        lever_s = p.z * (geo.r1 + geo.r2)  # dT_loss/dS
+        lever_fr = lever_s + p.z * p.dw_m * math.cos(a) * (geo.r1 / p.dm1_m - geo.r2 / p.dm2_m)
+        coef: dict[str, float] = {}
+        for j, rx, k, rd in ((1, geo.rx1, geo.k1, geo.rd1), (2, geo.rx2, geo.k2, geo.rd2)):
+            u = speed_parameter(v1, p.eta0_pa_s, rx, p.E_eq_pa)
+            w = load_parameter(fn1, p.E_eq_pa, rx)
+            coef[f"fr{j}"] = lever_fr * float(rolling_resistance_n(p.E_eq_pa, rx, k, geo.g, u, w))
+            a_j = float(ellipse_semi_major_m(p.ellipse_a, rx, k, w))
+            coef[f"tc{j}"] = lever_s / p.dw_m * float(curvature_torque_nm(p.mu_m, fn1, a_j, rd, p.Y))
+            coef[f"ter{j}"] = lever_s / p.dw_m * float(hysteresis_torque_nm(p.dw_m, fn1, k))
+        coef["tb"] = lever_s / p.dw_m * ball_friction_torque_nm(p.mu_b, p.Fg_n, p.dw_m)
+        coef["fg"] = lever_s * p.Fg_n / 2.0
+        self.coefficients = coef
+        self.k_fr = coef["fr1"] + coef["fr2"]
+        self.k_tc = coef["tc1"] + coef["tc2"]
+        self.k_ter = coef["ter1"] + coef["ter2"]
+        self.k_0 = coef["tb"] + coef["fg"]
+
+    # ---------------------------------------------------------------- vectorised
+    def loss_magnitude(self, torque_nm, speed_rad_s, viscosity_scale=None) -> np.ndarray:
+        """``T_loss ≥ 0`` [N·m] for arrays (eq. 22–30); ``viscosity_scale`` multiplies the Fr terms."""
+        at = np.abs(np.asarray(torque_nm, dtype=float))
+        aw = np.abs(np.asarray(speed_rad_s, dtype=float))
+        fr = self.k_fr * np.power(aw, self.EXP_FR_W) * np.power(at, self.EXP_FR_T)
+        if viscosity_scale is not None:
+            fr = fr * viscosity_scale
+        return fr + self.k_tc * np.power(at, self.EXP_TC_T) + self.k_ter * np.power(at, self.EXP_TER_T) + self.k_0
+
+    def fr_part(self, torque_nm, speed_rad_s) -> np.ndarray:
+        """The Fr (viscosity-dependent) part of ``T_loss`` [N·m], ∝ η0^0.66 (eq. 3, 9)."""
+        at = np.abs(np.asarray(torque_nm, dtype=float))
+        aw = np.abs(np.asarray(speed_rad_s, dtype=float))
+        return self.k_fr * np.power(aw, self.EXP_FR_W) * np.power(at, self.EXP_FR_T)
+
+    def evaluate(self, torque_nm, speed_rad_s, viscosity_scale=None, breakdown: bool = True) -> LossResult:
+        """Loss torque (signed), loss power, efficiency and breakdown for arrays of samples."""
+        t = np.asarray(torque_nm, dtype=float)
+        w = np.asarray(speed_rad_s, dtype=float)
+        at, aw = np.abs(t), np.abs(w)
+        pw_fr = np.power(aw, self.EXP_FR_W) * np.power(at, self.EXP_FR_T)
+        if viscosity_scale is not None:
+            pw_fr = pw_fr * viscosity_scale
+        pw_tc = np.power(at, self.EXP_TC_T)
+        pw_ter = np.power(at, self.EXP_TER_T)
+        c = self.coefficients
+        mag = self.k_fr * pw_fr + self.k_tc * pw_tc + self.k_ter * pw_ter + self.k_0
+        bd: dict[str, np.ndarray] = {}
+        if breakdown:
+            ones = np.ones_like(at)
+            for key, base in (("fr1", pw_fr), ("fr2", pw_fr), ("tc1", pw_tc), ("tc2", pw_tc),
+                              ("ter1", pw_ter), ("ter2", pw_ter), ("tb", ones), ("fg", ones)):
+                bd[key] = c[key] * base
+        return LossResult(
+            loss_torque_nm=mag * rotation_sign(w, t),
+            loss_magnitude_nm=mag,
+            loss_power_w=mag * aw,
+            efficiency=efficiency(t, w, mag, self.min_torque_nm, self.min_speed_rad_s),
+            breakdown_nm=bd,
+        )
+
+    # ---------------------------------------------------------------- per sample
+    def loss_magnitude_scalar(self, torque_nm: float, speed_rad_s: float, viscosity_scale: float = 1.0) -> float:
+        """Per-sample ``T_loss`` [N·m] with ``math`` on Python floats (for the node's hot path)."""
+        at = abs(torque_nm)
+        aw = abs(speed_rad_s)
+        return (self.k_fr * viscosity_scale * (aw ** self.EXP_FR_W) * (at ** self.EXP_FR_T)
+                + self.k_tc * at ** self.EXP_TC_T + self.k_ter * at ** self.EXP_TER_T + self.k_0)
+
+    def efficiency_scalar(self, torque_nm: float, speed_rad_s: float, loss_nm: float) -> float:
+        """Per-sample eq. 30 in four quadrants (NaN where undefined, see :func:`efficiency`)."""
+        at = abs(torque_nm)
+        if at < self.min_torque_nm or abs(speed_rad_s) < self.min_speed_rad_s or torque_nm * speed_rad_s == 0:
+            return math.nan
+        eta = (at - loss_nm) / at if torque_nm * speed_rad_s > 0 else at / (at + loss_nm)
+        return eta if eta > 0 else math.nan
+
+
+def rotation_sign(speed_rad_s, torque_nm):
+    """``sign(ω)``, or ``sign(T)`` at standstill: the direction a loss torque opposes."""
+    w = np.asarray(speed_rad_s, dtype=float)
+    return np.where(w != 0, np.sign(w), np.sign(np.asarray(torque_nm, dtype=float)))
+
+
+def rotation_sign_scalar(speed_rad_s: float, torque_nm: float) -> float:
+    """Scalar :func:`rotation_sign`."""
+    if speed_rad_s > 0:
+        return 1.0
+    if speed_rad_s < 0:
+        return -1.0
+    return 1.0 if torque_nm > 0 else (-1.0 if torque_nm < 0 else 0.0)

@@ -1,0 +1,483 @@
+"""One typed parameter set for the whole package, validated in one place.
+
+Every parameter is declared once in :data:`PARAMETER_SPECS` with its type, default, unit,
+allowed range and description.  The same table feeds
+
+* the YAML loader (``config/gearbox.yaml``, ROS 2 parameter-file format
+  ``loss_estimator: ros__parameters: {...}``), which rejects unknown keys;
+* :func:`validate`, the single place where values are checked (the node calls it for run-time
+  parameter changes, so a change is refused with exactly the same message as a bad YAML);
+* the node's ``ParameterDescriptor`` s (description, ranges, read-only flags).
+
+Names are dotted (``gearbox.dw_m``) like ROS parameters loaded from nested YAML.  All lengths are
+metres, angles degrees (``_deg``), viscosities Pa·s.  No rclpy import here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Iterable, Mapping
+
+import yaml
+
+NODE_NAME = "loss_estimator"
+
+#: the effect vocabulary of ``interface.md`` (order is the order they are reported in)
+EFFECT_NAMES: tuple[str, ...] = (
+    "drag_constant",
+    "drag_speed",
+    "load_dependent",
+    "viscosity_temperature",
+    "torque_offset",
+    "torque_gain",
+)
+
+
+class ParameterError(ValueError):
+    """A parameter value is out of range, of the wrong type, unknown, or inconsistent."""
+
+    def __init__(self, name: str, value: Any, allowed: str) -> None:
+        self.name = name
+        self.value = value
+        self.allowed = allowed
+        super().__init__(f"parameter '{name}' = {value!r} is invalid: {allowed}")
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """Declaration of one parameter: type, default, unit, range and documentation."""
+
+    name: str
+    kind: type  # float, int, bool or str
+    default: Any
+    description: str
+    unit: str = ""
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False  # True: value must be > low (else >= low)
+    high_open: bool = False  # True: value must be < high (else <= high)
+    choices: tuple[str, ...] = ()
+    read_only: bool = False
+
+    def allowed_text(self) -> str:
+        """Human-readable statement of the allowed values."""
+        if self.choices:
+            return "must be one of " + ", ".join(repr(c) for c in self.choices)
+        if self.kind is bool:
+            return "must be true or false"
+        if self.kind is str:
+            return "must be a string"
+        parts = []
+        if self.low is not None:
+            parts.append(f"{'>' if self.low_open else '>='} {self.low:g}")
+        if self.high is not None:
+            parts.append(f"{'<' if self.high_open else '<='} {self.high:g}")
+        rng = " and ".join(parts) if parts else "any finite value"
+        return f"must be a finite {'integer' if self.kind is int else 'number'} {rng}".rstrip()
+
+    def check(self, value: Any) -> Any:
+        """Return ``value`` coerced to the parameter's type, or raise :class:`ParameterError`."""
+        if self.kind is bool:
+            if not isinstance(value, bool):
+                raise ParameterError(self.name, value, self.allowed_text())
+            return value
+        if self.kind is str:
+            if not isinstance(value, str):
+                raise ParameterError(self.name, value, self.allowed_text())
+            if self.choices and value not in self.choices:
+                raise ParameterError(self.name, value, self.allowed_text())
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParameterError(self.name, value, self.allowed_text())
+        if self.kind is int:
+            if isinstance(value, float):
+                if not (math.isfinite(value) and value.is_integer()):
+                    raise ParameterError(self.name, value, self.allowed_text())
+                value = int(value)
+        else:
+            value = float(value)
+        if not math.isfinite(value):
+            raise ParameterError(self.name, value, self.allowed_text())
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            raise ParameterError(self.name, value, self.allowed_text())
+        if self.high is not None and (value >= self.high if self.high_open else value > self.high):
+            raise ParameterError(self.name, value, self.allowed_text())
+        return value
+
+
+def _g(name: str, default: float, unit: str, desc: str, **kw: Any) -> ParamSpec:
+    kind = int if isinstance(default, int) and not isinstance(default, bool) else float
+    return ParamSpec("gearbox." + name, kind, default, desc, unit, read_only=False, **kw)
+
+
+#: Table 1 of the paper plus the assumptions of ``model-spec.md``.
+GEARBOX_SPECS: tuple[ParamSpec, ...] = (
+    _g("dw_m", 0.006, "m", "ball diameter d_w", low=0.0, low_open=True, high=0.1),
+    _g("dm1_m", 0.0475, "m", "track pitch diameter of the drive disc d_m1 (eq. 4, 24)",
+       low=0.0, low_open=True, high=2.0),
+    _g("dm2_m", 0.065, "m", "track pitch diameter of the driven disc d_m2 (eq. 5, 28)",
+       low=0.0, low_open=True, high=2.0),
+    _g("Z", 86, "", "balls in the gearbox (only z of them carry load)", low=1, high=100000),
+    _g("z", 5, "", "connected (loaded) balls sharing the drive torque (eq. 1)", low=1, high=100000),
+    _g("alpha_deg", 20.0, "deg", "contact angle alpha (eq. 2, 4, 5)", low=0.0, high=90.0,
+       high_open=True),
+    _g("beta_deg", 0.0, "deg", "second angle beta of eq. 2", low=-90.0, high=90.0,
+       low_open=True, high_open=True),
+    _g("f1", 0.53, "", "groove curvature parameter, drive disc (eq. 7, 18)", low=0.5,
+       low_open=True, high=5.0),
+    _g("f2", 0.53, "", "groove curvature parameter, driven disc (eq. 7, 18)", low=0.5,
+       low_open=True, high=5.0),
+    _g("eta0_pa_s", 0.1, "Pa*s", "dynamic viscosity at the inlet at the reference temperature (eq. 9)",
+       low=0.0, low_open=True, high=100.0),
+    _g("Y", 0.34, "", "relative pure-rolling point (eq. 17)", low=0.0, high=1.0),
+    _g("mu_m", 0.1, "", "local friction coefficient of eq. 17", low=0.0, high=2.0),
+    _g("mu_b", 0.1, "", "friction coefficient between balls (Tb)", low=0.0, high=2.0),
+    _g("Fg_n", 0.0, "N", "pressure force between balls (eq. 22, 26)", low=0.0, high=1e6),
+    _g("E_eq_pa", 2.3077e11, "Pa", "equivalent modulus E/(1-nu^2) (eq. 3, 8, 9, 15)", low=0.0,
+       low_open=True, high=1e13),
+    _g("alpha_p_per_pa", 2.0e-8, "1/Pa", "pressure-viscosity coefficient (eq. 8)", low=0.0,
+       low_open=True, high=1e-6),
+    _g("internal_ratio", 0.0, "", "ball turns per drive-disc turn (eq. 10-13); 0 = dm1/dw (pure rolling)",
+       low=0.0, high=1e4),
+    _g("ellipse_a", 1.1552, "", "coefficient of eq. 19 (the paper prints 1.552, a typo)", low=0.0,
+       low_open=True, high=10.0),
+    _g("ellipse_b", 1.1502, "", "coefficient of eq. 20 (the paper prints 1.502, a typo)", low=0.0,
+       low_open=True, high=10.0),
+    _g("ratio", 0.0, "", "speed ratio input/output; 0 = dm2/dm1. Only used when output speed is not measured",
+       low=0.0, high=1e4),
+)
+
+#: the accepted extra effects (interface.md vocabulary).  ``enabled`` switches each on.
+EFFECT_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("effects.drag_constant.enabled", bool, False, "add a constant drag torque c"),
+    ParamSpec("effects.drag_constant.c_nm", float, 0.0, "constant drag torque c", "N*m",
+              low=-1e4, high=1e4),
+    ParamSpec("effects.drag_speed.enabled", bool, False, "add a speed drag c*|w|^p"),
+    ParamSpec("effects.drag_speed.c", float, 0.0, "speed drag coefficient c (N*m/(rad/s)^p)", "",
+              low=-1e4, high=1e4),
+    ParamSpec("effects.drag_speed.p", float, 1.0, "speed drag exponent p", "", low=0.0, high=4.0),
+    ParamSpec("effects.load_dependent.enabled", bool, False, "add a load friction c*|T|^q"),
+    ParamSpec("effects.load_dependent.c", float, 0.0, "load friction coefficient c (N*m/(N*m)^q)", "",
+              low=-1e4, high=1e4),
+    ParamSpec("effects.load_dependent.q", float, 1.0, "load friction exponent q", "", low=0.0, high=4.0),
+    ParamSpec("effects.viscosity_temperature.enabled", bool, False,
+              "evaluate the model at the Vogel viscosity eta(theta) instead of eta0"),
+    ParamSpec("effects.viscosity_temperature.B_k", float, 0.0,
+              "Vogel B: eta = eta0*exp(B/(theta+C) - B/(theta_ref+C))", "K", low=0.0, high=1e5),
+    ParamSpec("effects.viscosity_temperature.C_k", float, 95.0, "Vogel C", "K", low=-273.0,
+              low_open=True, high=1e4),
+    ParamSpec("effects.viscosity_temperature.theta_ref_c", float, 40.0,
+              "oil temperature at which the viscosity is eta0", "degC", low=-100.0, high=400.0),
+    ParamSpec("effects.torque_offset.enabled", bool, False,
+              "input torque sensor zero error (adds offset*sign(w) to the input-referred loss)"),
+    ParamSpec("effects.torque_offset.offset_nm", float, 0.0, "input-referred torque offset", "N*m",
+              low=-1e4, high=1e4),
+    ParamSpec("effects.torque_gain.enabled", bool, False,
+              "torque sensor gain error (adds gain*T*sign(w) to the input-referred loss)"),
+    ParamSpec("effects.torque_gain.gain", float, 0.0, "relative gain error", "", low=-0.5, high=0.5),
+)
+
+ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("estimator.min_torque_for_efficiency_nm", float, 0.2,
+              "efficiency is NaN below this |T|", "N*m", low=0.0, high=1e5),
+    ParamSpec("estimator.min_speed_for_efficiency_rad_s", float, 0.5,
+              "efficiency is NaN below this |w|", "rad/s", low=0.0, high=1e5),
+    ParamSpec("estimator.staleness_s", float, 0.05,
+              "an input older than this (relative to the newest) is stale: its partners are not estimated",
+              "s", low=0.0, low_open=True, high=3600.0),
+    ParamSpec("estimator.max_abs_torque_nm", float, 5000.0,
+              "|T| above this is implausible: the sample is skipped", "N*m", low=0.0, low_open=True, high=1e7),
+    ParamSpec("estimator.max_abs_speed_rad_s", float, 2000.0,
+              "|w| above this is implausible: the sample is skipped", "rad/s", low=0.0, low_open=True,
+              high=1e6),
+    ParamSpec("estimator.adapt", bool, True,
+              "update the coefficients of the accepted effects online by RLS when output torque is measured"),
+    ParamSpec("estimator.rls_forgetting", float, 0.9995, "RLS forgetting factor lambda", "",
+              low=0.9, high=1.0),
+    ParamSpec("estimator.rls_max_covariance", float, 1e6, "bound on the RLS covariance trace (anti-windup)",
+              "", low=0.0, low_open=True, high=1e12),
+    ParamSpec("estimator.change_block_samples", int, 200,
+              "block length of the residual block averages fed to the change detector", "", low=1, high=10**7),
+    ParamSpec("estimator.change_threshold_nm", float, 0.02,
+              "CUSUM threshold on block-averaged residuals; 0 disables the detector", "N*m", low=0.0, high=1e4),
+)
+
+NODE_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("node.input_mode", str, "float64", "input topics: Float64 per channel, or one JointState",
+              choices=("float64", "joint_state"), read_only=True),
+    ParamSpec("node.input_joint", str, "motor", "JointState joint carrying motor torque/speed", read_only=True),
+    ParamSpec("node.output_joint", str, "output",
+              "JointState joint carrying measured output torque/speed (absent: no residual)", read_only=True),
+    ParamSpec("node.publish_every_n", int, 1, "publish every n-th estimate (decimation for slow consumers)",
+              low=1, high=100000),
+    ParamSpec("node.expected_rate_hz", float, 1000.0, "expected input rate, for diagnostics", "Hz",
+              low=0.0, low_open=True, high=1e6),
+    ParamSpec("node.min_efficiency_warn", float, 0.9, "WARN when the latest efficiency is below this", "",
+              low=0.0, high=1.0),
+    ParamSpec("node.hardware_id", str, "rollergear_gearbox", "hardware_id in /diagnostics"),
+    ParamSpec("node.record_mcap", str, "", "record inputs and outputs to this MCAP file ('' = off)",
+              read_only=True),
+    ParamSpec("node.rerun_rrd", str, "", "log to this rerun .rrd file ('' = off)", read_only=True),
+    ParamSpec("node.rerun_connect", str, "", "stream to a rerun viewer at this gRPC URL ('' = off)",
+              read_only=True),
+)
+
+PARAMETER_SPECS: tuple[ParamSpec, ...] = GEARBOX_SPECS + EFFECT_SPECS + ESTIMATOR_SPECS + NODE_SPECS
+SPEC_BY_NAME: dict[str, ParamSpec] = {s.name: s for s in PARAMETER_SPECS}
+
+
+@dataclass(frozen=True)
+class GearboxParams:
+    """Geometry, material and lubricant of the ball track (paper Table 1, SI units)."""
+
+    dw_m: float = 0.006
+    dm1_m: float = 0.0475
+    dm2_m: float = 0.065
+    Z: int = 86
+    z: int = 5
+    alpha_deg: float = 20.0
+    beta_deg: float = 0.0
+    f1: float = 0.53
+    f2: float = 0.53
+    eta0_pa_s: float = 0.1
+    Y: float = 0.34
+    mu_m: float = 0.1
+    mu_b: float = 0.1
+    Fg_n: float = 0.0
+    E_eq_pa: float = 2.3077e11
+    alpha_p_per_pa: float = 2.0e-8
+    internal_ratio: float = 0.0
+    ellipse_a: float = 1.1552
+    ellipse_b: float = 1.1502
+    ratio: float = 0.0
+
+    @property
+    def internal_ratio_effective(self) -> float:
+        """Ball turns per drive-disc turn; ``dm1/dw`` (pure rolling) when configured as 0."""
+        return self.internal_ratio if self.internal_ratio > 0 else self.dm1_m / self.dw_m
+
+    @property
+    def ratio_effective(self) -> float:
+        """Input/output speed ratio; ``dm2/dm1`` when configured as 0."""
+        return self.ratio if self.ratio > 0 else self.dm2_m / self.dm1_m
+
+
+@dataclass(frozen=True)
+class EffectParams:
+    """Extra loss effects of the ``interface.md`` vocabulary, as accepted by ``calibrate``."""
+
+    drag_constant: bool = False
+    drag_constant_c_nm: float = 0.0
+    drag_speed: bool = False
+    drag_speed_c: float = 0.0
+    drag_speed_p: float = 1.0
+    load_dependent: bool = False
+    load_dependent_c: float = 0.0
+    load_dependent_q: float = 1.0
+    viscosity_temperature: bool = False
+    viscosity_temperature_B_k: float = 0.0
+    viscosity_temperature_C_k: float = 95.0
+    viscosity_temperature_theta_ref_c: float = 40.0
+    torque_offset: bool = False
+    torque_offset_offset_nm: float = 0.0
+    torque_gain: bool = False
+    torque_gain_gain: float = 0.0
+
+    def enabled(self) -> tuple[str, ...]:
+        """Names of the enabled effects, in vocabulary order."""
+        return tuple(n for n in EFFECT_NAMES if getattr(self, n))
+
+
+@dataclass(frozen=True)
+class EstimatorParams:
+    """How samples are paired, screened and adapted (see :mod:`rollergear_ros.estimator`)."""
+
+    min_torque_for_efficiency_nm: float = 0.2
+    min_speed_for_efficiency_rad_s: float = 0.5
+    staleness_s: float = 0.05
+    max_abs_torque_nm: float = 5000.0
+    max_abs_speed_rad_s: float = 2000.0
+    adapt: bool = True
+    rls_forgetting: float = 0.9995
+    rls_max_covariance: float = 1e6
+    change_block_samples: int = 200
+    change_threshold_nm: float = 0.02
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    """Settings only the live node uses."""
+
+    input_mode: str = "float64"
+    input_joint: str = "motor"
+    output_joint: str = "output"
+    publish_every_n: int = 1
+    expected_rate_hz: float = 1000.0
+    min_efficiency_warn: float = 0.9
+    hardware_id: str = "rollergear_gearbox"
+    record_mcap: str = ""
+    rerun_rrd: str = ""
+    rerun_connect: str = ""
+
+
+@dataclass(frozen=True)
+class Config:
+    """The complete, validated parameter set."""
+
+    gearbox: GearboxParams = field(default_factory=GearboxParams)
+    effects: EffectParams = field(default_factory=EffectParams)
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    node: NodeParams = field(default_factory=NodeParams)
+
+    def to_flat(self) -> dict[str, Any]:
+        """Dotted-name dictionary of every parameter (the inverse of :func:`validate`)."""
+        return {spec.name: getattr(self._section(spec.name), _attr(spec.name)) for spec in PARAMETER_SPECS}
+
+    def _section(self, name: str) -> Any:
+        return getattr(self, name.split(".", 1)[0])
+
+    def with_values(self, values: Mapping[str, Any]) -> "Config":
+        """A new validated config with some dotted parameters changed."""
+        flat = self.to_flat()
+        flat.update(values)
+        return validate(flat)
+
+
+def _attr(dotted: str) -> str:
+    """Dataclass attribute of a dotted name: ``effects.drag_speed.c`` -> ``drag_speed_c``."""
+    section, rest = dotted.split(".", 1)
+    if section == "effects":
+        effect, key = rest.split(".", 1)
+        return effect if key == "enabled" else f"{effect}_{key}"
+    return rest
+
+
+_SECTION_TYPES = {"gearbox": GearboxParams, "effects": EffectParams, "estimator": EstimatorParams,
+                  "node": NodeParams}
+
+
+def validate(values: Mapping[str, Any]) -> Config:
+    """Check every parameter (range, type, cross-parameter consistency) and build a :class:`Config`.
+
+    ``values`` maps dotted names to values; missing names take their defaults, unknown names are
+    an error.  Raises :class:`ParameterError` naming the first bad parameter, its value and the
+    allowed range.  This is the only place parameters are validated.
+    """
+    unknown = sorted(set(values) - set(SPEC_BY_NAME))
+    if unknown:
+        close = ", ".join(unknown)
+        raise ParameterError(unknown[0], values[unknown[0]],
+                             f"unknown parameter(s) {close}; known: {', '.join(sorted(SPEC_BY_NAME))}")
+    checked: dict[str, dict[str, Any]] = {k: {} for k in _SECTION_TYPES}
+    for spec in PARAMETER_SPECS:
+        value = spec.check(values[spec.name]) if spec.name in values else spec.default
+        checked[spec.name.split(".", 1)[0]][_attr(spec.name)] = value
+    config = Config(**{k: _SECTION_TYPES[k](**v) for k, v in checked.items()})
+    _check_consistency(config)
+    return config
+
+
+def _check_consistency(config: Config) -> None:
+    g = config.gearbox
+    if g.z > g.Z:
+        raise ParameterError("gearbox.z", g.z, f"connected balls z must be <= Z = {g.Z}")
+    if g.dm1_m <= g.dw_m:
+        raise ParameterError("gearbox.dm1_m", g.dm1_m, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m")
+    if g.dm2_m <= g.dw_m:
+        raise ParameterError("gearbox.dm2_m", g.dm2_m, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m")
+    # the Snare term (eq. 21) needs k_j = Ry/Rx >= 1; checked on the derived geometry
+    from .model import contact_geometry  # local import: model imports this module
+
+    geo = contact_geometry(g)
+    for j, k in ((1, geo.k1), (2, geo.k2)):
+        if not (math.isfinite(k) and k >= 1.0):
+            name = f"gearbox.f{j}"
+            raise ParameterError(name, getattr(g, f"f{j}"),
+                                 f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove")
+    if config.effects.viscosity_temperature and config.gearbox and (
+        config.effects.viscosity_temperature_theta_ref_c + config.effects.viscosity_temperature_C_k <= 0
+    ):
+        raise ParameterError("effects.viscosity_temperature.C_k", config.effects.viscosity_temperature_C_k,
+                             "theta_ref + C must be > 0")
+
+
+def _flatten(prefix: str, data: Mapping[str, Any], out: dict[str, Any]) -> None:
+    for key, value in data.items():
+        name = f"{prefix}.{key}" if prefix else str(key)
+        if isinstance(value, Mapping):
+            _flatten(name, value, out)
+        else:
+            out[name] = value
+
+
+def flat_from_yaml_document(doc: Any, source: str = "<yaml>") -> dict[str, Any]:
+    """Extract the dotted parameters of the ``loss_estimator`` node from a parameter-file document.
+
+    Accepts the node key as ``loss_estimator``, ``/loss_estimator``, ``/**/loss_estimator``,
+    ``<namespace>/loss_estimator`` or ``/**``.
+    """
+    if not isinstance(doc, Mapping):
+        raise ParameterError("<file>", source, "a ROS 2 parameter file must be a mapping "
+                             "'loss_estimator: {ros__parameters: {...}}'")
+    for key, body in doc.items():
+        key_s = str(key)
+        if key_s == "/**" or key_s.rstrip("/").split("/")[-1] == NODE_NAME:
+            if not isinstance(body, Mapping) or "ros__parameters" not in body:
+                raise ParameterError(key_s, body, "the node entry must contain 'ros__parameters'")
+            params = body["ros__parameters"] or {}
+            if not isinstance(params, Mapping):
+                raise ParameterError(key_s + ".ros__parameters", params, "must be a mapping")
+            out: dict[str, Any] = {}
+            _flatten("", params, out)
+            out.pop("use_sim_time", None)  # a standard ROS parameter, handled by rclpy
+            return out
+    raise ParameterError("<file>", source, f"no '{NODE_NAME}: ros__parameters:' entry "
+                         f"(found keys: {', '.join(map(str, doc)) or 'none'})")
+
+
+def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
+    """Load and validate a parameter YAML (``None``: the defaults), with optional dotted overrides."""
+    flat: dict[str, Any] = {}
+    if path is not None:
+        text = Path(path).read_text(encoding="utf-8")
+        try:
+            doc = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ParameterError("<file>", str(path), f"is not valid YAML: {exc}") from None
+        flat = flat_from_yaml_document(doc, str(path))
+    if overrides:
+        flat.update(overrides)
+    return validate(flat)
+
+
+def config_to_yaml(config: Config, header: str = "") -> str:
+    """Render a config as a ROS 2 parameter file the node and ``replay`` accept."""
+    nested: dict[str, Any] = {}
+    for name, value in config.to_flat().items():
+        cursor = nested
+        parts = name.split(".")
+        for p in parts[:-1]:
+            cursor = cursor.setdefault(p, {})
+        cursor[parts[-1]] = value
+    body = yaml.safe_dump({NODE_NAME: {"ros__parameters": nested}}, sort_keys=False)
+    return (header + body) if header else body
+
+
+def specs(prefix: str = "") -> Iterable[ParamSpec]:
+    """Parameter specs whose dotted name starts with ``prefix``."""
+    return (s for s in PARAMETER_SPECS if s.name.startswith(prefix))
+
+
+def replace_effects(config: Config, **changes: Any) -> Config:
+    """Config with some :class:`EffectParams` fields changed (validated)."""
+    return validate({**config.to_flat(), **{
+        spec.name: changes[_attr(spec.name)] for spec in EFFECT_SPECS if _attr(spec.name) in changes}})
+
+
+__all__ = [
+    "Config", "EffectParams", "EstimatorParams", "GearboxParams", "NodeParams", "ParamSpec",
+    "ParameterError", "PARAMETER_SPECS", "EFFECT_NAMES", "load_config", "validate", "config_to_yaml",
+    "flat_from_yaml_document", "specs", "replace_effects", "fields", "replace",
+]

@@ -1,0 +1,31 @@
+"""ament_python package setup (also installable with plain pip)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "rollergear_ros"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*", "bench"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="rollergear_ros maintainers",
+    maintainer_email="rollergear@example.com",
+    description="Roller gearing gearbox loss estimation: model, replay, calibration, ROS 2 node.",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "rollergear = rollergear_ros.cli:main",
+            "loss_estimator = rollergear_ros.node:main",
+        ],
+    },
+)

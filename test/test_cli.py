@@ -1,0 +1,97 @@
+"""CLI: model, figures, map run as subprocesses; outputs checked against the model."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from rollergear_ros.model import BREAKDOWN_KEYS, LossModel
+
+from conftest import run_cli
+
+
+def test_model_json_matches_the_library(config):
+    proc = run_cli("model", "--torque", "1", "10", "-50", "--speed", "104.72", "-20", "--json")
+    points = json.loads(proc.stdout)["points"]
+    assert len(points) == 6
+    lm = LossModel(config.gearbox, config.estimator.min_torque_for_efficiency_nm,
+                   config.estimator.min_speed_for_efficiency_rad_s)
+    for p in points:
+        res = lm.evaluate(np.array([p["torque_nm"]]), np.array([p["speed_rad_s"]]))
+        assert p["loss_torque_nm"] == pytest.approx(res.loss_torque_nm[0], rel=1e-12)
+        assert p["loss_power_w"] == pytest.approx(res.loss_power_w[0], rel=1e-12)
+        assert p["efficiency"] == pytest.approx(res.efficiency[0], rel=1e-12)
+        assert set(p["breakdown_nm"]) == set(BREAKDOWN_KEYS)
+        assert sum(p["breakdown_nm"].values()) == pytest.approx(abs(p["loss_torque_nm"]), rel=1e-12)
+    first = points[0]
+    assert first["torque_nm"] == 1 and round(first["loss_torque_nm"], 5) == 0.02129
+
+
+def test_model_table_and_csv_input(tmp_path):
+    f = tmp_path / "pts.csv"
+    f.write_text("torque_nm,speed_rad_s\n10,104.72\n-10,104.72\n0,0\n")
+    out = run_cli("model", "--csv", str(f)).stdout
+    lines = [ln for ln in out.splitlines() if ln.strip() and not ln.startswith("-")]
+    assert len(lines) == 4 and "0.06783" in out and "n/a" in out
+
+
+@pytest.mark.parametrize("args, message", [
+    (["model", "--torque", "1"], "give --torque and --speed"),
+    (["model", "--torque", "1", "--speed", "1", "--params", "/no/such.yaml"], "does not exist"),
+    (["map", "--speed-rpm", "100", "0", "10"], "bad grid"),
+])
+def test_bad_input_is_one_clear_line(args, message):
+    proc = run_cli(*args, check=False)
+    assert proc.returncode == 2
+    assert message in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_bad_csv_rows_rejected(tmp_path):
+    f = tmp_path / "bad.csv"
+    f.write_text("torque_nm,speed_rad_s\n1,nan\n")
+    proc = run_cli("model", "--csv", str(f), check=False)
+    assert proc.returncode == 2 and "not finite" in proc.stderr
+
+
+def test_nan_on_command_line_rejected():
+    proc = run_cli("model", "--torque", "nan", "--speed", "1", check=False)
+    assert proc.returncode == 2 and "not a finite number" in proc.stderr
+
+
+def test_bad_params_file_names_the_parameter(tmp_path):
+    p = tmp_path / "p.yaml"
+    p.write_text("loss_estimator:\n  ros__parameters:\n    gearbox: {f1: 0.4}\n")
+    proc = run_cli("model", "--torque", "1", "--speed", "1", "--params", str(p), check=False)
+    assert proc.returncode == 2 and "gearbox.f1" in proc.stderr and "> 0.5" in proc.stderr
+
+
+def test_figures_written(tmp_path):
+    run_cli("figures", "--out", str(tmp_path))
+    for i in range(6, 12):
+        png = tmp_path / f"fig{i:02d}.png"
+        assert png.stat().st_size > 10_000
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    rows = list(csv.reader((tmp_path / "figures.csv").open()))
+    header, data = rows[0], np.array(rows[1:], dtype=float)
+    t = data[:, 0]
+    eta = data[:, header.index("fig6:default")]
+    i100 = int(np.argmin(np.abs(t - 100)))
+    assert round(100 * eta[i100], 3) == pytest.approx(99.569, abs=1e-3)
+
+
+def test_map_csv_parses_and_matches_the_model(tmp_path, config):
+    out = tmp_path / "map.csv"
+    run_cli("map", "--out", str(out), "--speed-rpm", "0", "2000", "500", "--torque-nm", "-50", "50", "25",
+            "--both-directions")
+    rows = list(csv.reader(out.open()))
+    assert rows[0] == ["Input Speed [rpm]", "Input Torque [Nm]", "Torque Loss [Nm]"]
+    data = np.array(rows[1:], dtype=float)
+    assert len(data) == 9 * 5  # speeds -2000..2000 (9) x torques (5)
+    assert (data[:, 0] < 0).any() and (data[:, 1] < 0).any()
+    lm = LossModel(config.gearbox)
+    expect = lm.loss_magnitude(data[:, 1], data[:, 0] * 2 * np.pi / 60)
+    np.testing.assert_allclose(data[:, 2], expect, rtol=1e-5, atol=1e-9)
+    assert (tmp_path / "map.png").stat().st_size > 10_000

@@ -1,0 +1,175 @@
+"""The loss model: reference values, the equation registry, breakdown, and properties."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rollergear_ros import model as m
+from rollergear_ros.params import GearboxParams, validate
+
+W_1000 = 104.72
+
+# model-spec.md, computed independently of the project
+REFERENCE = [(1, 0.02129, 97.871), (10, 0.06783, 99.322), (50, 0.21084, 99.578), (100, 0.43082, 99.569)]
+
+
+def sig4(x: float) -> str:
+    return f"{x:.4g}"
+
+
+@pytest.mark.parametrize("torque, loss, eta_pct", REFERENCE)
+def test_reference_values_to_four_significant_figures(torque, loss, eta_pct):
+    lm = m.LossModel(GearboxParams())
+    res = lm.evaluate(np.array([torque]), np.array([W_1000]))
+    assert sig4(res.loss_magnitude_nm[0]) == sig4(loss)
+    assert sig4(100 * res.efficiency[0]) == sig4(eta_pct)
+    # the literal equation chain gives the same
+    assert sig4(m.evaluate_reference(GearboxParams(), torque, W_1000)["T_loss"]) == sig4(loss)
+
+
+def test_breakdown_sums_to_total_and_names_every_term():
+    lm = m.LossModel(replace(GearboxParams(), Fg_n=3.0))  # make Tb and Fg non-zero too
+    t = np.linspace(-100, 100, 41)
+    w = np.linspace(-300, 300, 41)
+    res = lm.evaluate(t, w)
+    assert set(res.breakdown_nm) == set(m.BREAKDOWN_KEYS)
+    total = sum(res.breakdown_nm.values())
+    np.testing.assert_allclose(total, res.loss_magnitude_nm, rtol=1e-12)
+    assert all(np.all(v >= 0) for v in res.breakdown_nm.values())
+    assert res.breakdown_nm["tb"][0] > 0 and res.breakdown_nm["fg"][0] > 0
+
+
+@pytest.mark.parametrize("params", [
+    GearboxParams(),
+    replace(GearboxParams(), dw_m=0.001, Fg_n=10.0, beta_deg=15.0),
+    replace(GearboxParams(), dm1_m=0.3, dm2_m=0.41, alpha_deg=35.0, f1=0.52, f2=0.56, internal_ratio=9.0),
+    replace(GearboxParams(), eta0_pa_s=1.0, z=12, mu_m=0.2, Y=0.5),
+])
+def test_fast_model_equals_literal_equation_chain(params):
+    lm = m.LossModel(params)
+    rng = np.random.default_rng(1)
+    for t, w in zip(rng.uniform(-200, 200, 30), rng.uniform(-500, 500, 30)):
+        ref = m.evaluate_reference(params, t, w)
+        fast = lm.evaluate(np.array([t]), np.array([w]))
+        assert fast.loss_magnitude_nm[0] == pytest.approx(ref["T_loss"], rel=1e-12)
+        assert lm.loss_magnitude_scalar(t, w) == pytest.approx(ref["T_loss"], rel=1e-12)
+
+
+def test_registry_covers_the_paper_and_documents_each_equation():
+    numbers = {int(k[2:4]) for k in m.EQUATIONS}
+    assert {1, 2, 3, 4, 5, 6, 7, 8, 9, 14, 15, 17, 18, 19, 20, 21, 22, 24, 26, 30} <= numbers
+    for name, fn in m.EQUATIONS.items():
+        doc = fn.__doc__ or ""
+        assert f"{int(name[2:4])}" in doc, f"{name}: docstring must give the equation number"
+        assert "=" in doc or "η" in doc, f"{name}: docstring must state the formula"
+
+
+@pytest.mark.parametrize("name", sorted(m.EQUATIONS))
+def test_every_registered_equation_is_finite_and_vectorises(name):
+    fn = m.EQUATIONS[name]
+    x = np.array([0.5, 1.0, 2.0])
+    args = {
+        "eq01_drive_force": (x, 0.0475, 5), "eq02_normal_force": (x, 0.35, 0.0),
+        "eq03_rolling_resistance": (2.3e11, 0.0027, 19.0, 4600.0, x * 1e-11, x * 1e-4),
+        "eq04_rolling_radius_drive": (0.006 * x, 0.0475, 0.35), "eq05_rolling_radius_driven": (0.006 * x, 0.065, 0.35),
+        "eq06_ellipticity": (0.05, 0.003 * x), "eq07_groove_radius": (0.5 + 0.03 * x, 0.006),
+        "eq08_material_parameter": (2.3e11 * x, 2e-8), "eq09_speed_parameter": (x, 0.1, 0.0027, 2.3e11),
+        "eq14_rolling_speed": (100 * x, 7.9, 0.006), "eq15_load_parameter": (100 * x, 2.3e11, 0.0027),
+        "eq17_curvature_torque": (0.1, 100 * x, 1e-4, 0.0031, 0.34), "eq18_deformed_radius": (0.006 * x, 0.53),
+        "eq19_ellipse_semi_major": (1.1552, 0.0027, 19.0, x * 1e-4),
+        "eq20_ellipse_semi_minor": (1.1502, 0.0027, 19.0, x * 1e-4),
+        "eq21_hysteresis_torque": (0.006, 100 * x, 19.0), "eq22_ball_friction_torque": (0.1, x, 0.006),
+        "eq22_drive_contact_force": (x, x, 0.006, 0.0475, 0.35, 0.0),
+        "eq26_driven_contact_force": (x, x, 0.006, 0.065, 0.35, 0.0), "eq24_lever_arm": (0.0475 * x, 0.006, 0.35),
+        "eq30_loss_torque": (5, x, 0.025, x, 0.033), "eq30_efficiency": (10 * x, 100 * x, 0.1 * x),
+    }[name]
+    out = np.asarray(fn(*args), dtype=float)
+    assert out.shape == (3,)
+    assert np.all(np.isfinite(out))
+    # monotone in the first varying argument where the paper's law is a positive power
+    if name not in ("eq04_rolling_radius_drive", "eq06_ellipticity", "eq07_groove_radius",
+                    "eq26_driven_contact_force", "eq30_efficiency"):
+        assert np.all(np.diff(out) > 0), name
+
+
+def test_efficiency_four_quadrants_and_undefined_points():
+    lm = m.LossModel(GearboxParams(), min_torque_for_efficiency_nm=0.2, min_speed_for_efficiency_rad_s=0.5)
+    t = np.array([10.0, -10.0, 10.0, -10.0, 0.1, 10.0, 0.0])
+    w = np.array([100.0, -100.0, -100.0, 100.0, 100.0, 0.1, 100.0])
+    res = lm.evaluate(t, w)
+    loss = res.loss_magnitude_nm
+    assert res.efficiency[0] == pytest.approx((10 - loss[0]) / 10)  # motoring
+    assert res.efficiency[1] == pytest.approx((10 - loss[1]) / 10)  # motoring in reverse
+    assert res.efficiency[2] == pytest.approx(10 / (10 + loss[2]))  # regeneration
+    assert res.efficiency[3] == pytest.approx(10 / (10 + loss[3]))
+    assert np.isnan(res.efficiency[4:]).all()  # below min |T|, below min |w|, zero torque
+    assert np.all(np.isfinite(res.loss_torque_nm))
+    # signed loss opposes rotation; at standstill it opposes the torque
+    assert np.sign(res.loss_torque_nm[:4]).tolist() == [1, -1, -1, 1]
+    z = lm.evaluate(np.array([5.0]), np.array([0.0]))
+    assert z.loss_torque_nm[0] > 0 and z.loss_power_w[0] == 0.0 and np.isnan(z.efficiency[0])
+
+
+def test_loss_larger_than_motoring_torque_gives_nan_not_a_negative_efficiency():
+    heavy = replace(GearboxParams(), Fg_n=500.0)  # constant loss ~ several N·m
+    lm = m.LossModel(heavy)
+    res = lm.evaluate(np.array([0.5]), np.array([100.0]))
+    assert res.loss_magnitude_nm[0] > 0.5 and np.isnan(res.efficiency[0])
+
+
+# ---------------------------------------------------------------- properties
+torques = st.floats(-500, 500, allow_nan=False)
+speeds = st.floats(-600, 600, allow_nan=False)
+
+
+@st.composite
+def gearboxes(draw):
+    dw = draw(st.floats(0.001, 0.012))
+    dm1 = draw(st.floats(dw * 2, 0.3))
+    g = replace(GearboxParams(), dw_m=dw, dm1_m=dm1, dm2_m=dm1 * draw(st.floats(1.05, 2.0)),
+                alpha_deg=draw(st.floats(5, 45)), f1=draw(st.floats(0.51, 0.58)), f2=draw(st.floats(0.51, 0.58)),
+                eta0_pa_s=draw(st.floats(0.01, 1.0)), z=draw(st.integers(1, 12)), Fg_n=draw(st.floats(0, 5)))
+    validate({f"gearbox.{k}": v for k, v in g.__dict__.items()})
+    return g
+
+
+@settings(max_examples=150, deadline=None)
+@given(gearboxes(), torques, speeds)
+def test_loss_finite_nonnegative_and_symmetric(g, t, w):
+    lm = m.LossModel(g)
+    res = lm.evaluate(np.array([t, -t, t, -t]), np.array([w, w, -w, -w]))
+    mag = res.loss_magnitude_nm
+    assert np.all(np.isfinite(mag)) and np.all(mag >= 0)
+    # reverse rotation and regeneration: same loss magnitude
+    assert np.allclose(mag, mag[0], rtol=1e-12)
+    assert np.allclose(np.abs(res.loss_torque_nm), mag)
+    eta = res.efficiency
+    defined = ~np.isnan(eta)
+    assert np.all((eta[defined] > 0) & (eta[defined] <= 1))
+    # vectorised and per-sample paths agree
+    s = lm.loss_magnitude_scalar(t, w)
+    assert s == pytest.approx(mag[0], rel=1e-12, abs=1e-15)
+    e_s = lm.efficiency_scalar(t, w, s)
+    assert (math.isnan(e_s) and math.isnan(eta[0])) or e_s == pytest.approx(eta[0], rel=1e-12)
+
+
+@settings(max_examples=150, deadline=None)
+@given(gearboxes(), st.floats(0, 400), st.floats(0, 400), st.floats(0, 600), st.floats(0, 600))
+def test_loss_rises_with_torque_and_speed(g, t1, t2, w1, w2):
+    lm = m.LossModel(g)
+    lo_t, hi_t = sorted((t1, t2))
+    lo_w, hi_w = sorted((w1, w2))
+    assert lm.loss_magnitude_scalar(hi_t, lo_w) >= lm.loss_magnitude_scalar(lo_t, lo_w)
+    assert lm.loss_magnitude_scalar(lo_t, hi_w) >= lm.loss_magnitude_scalar(lo_t, lo_w)
+
+
+def test_efficiency_nan_where_undefined_never_made_up():
+    lm = m.LossModel(GearboxParams())
+    res = lm.evaluate(np.array([0.0, 1e-9, 5.0]), np.array([100.0, 100.0, 0.0]))
+    assert np.isnan(res.efficiency).all()

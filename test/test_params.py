@@ -1,0 +1,93 @@
+"""One typed parameter set: YAML loading, validation with reasons, round trip."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import yaml
+
+from rollergear_ros.params import (PARAMETER_SPECS, ParameterError, config_to_yaml, load_config, validate)
+
+from conftest import CONFIG
+
+
+def test_shipped_yaml_is_the_defaults():
+    c = load_config(CONFIG)
+    assert c == validate({})
+
+
+def test_yaml_round_trip(tmp_path):
+    c = load_config(overrides={"gearbox.dw_m": 0.005, "effects.drag_speed.enabled": True,
+                               "effects.drag_speed.c": 1e-4, "effects.drag_speed.p": 1.5})
+    p = tmp_path / "x.yaml"
+    p.write_text(config_to_yaml(c))
+    assert load_config(p) == c
+
+
+BAD = [
+    ("gearbox.f1", 0.5), ("gearbox.f2", 0.3), ("gearbox.dw_m", 0.0), ("gearbox.dw_m", -0.006),
+    ("gearbox.z", 87), ("gearbox.z", 0), ("gearbox.Z", 2.5), ("gearbox.alpha_deg", 90.0),
+    ("gearbox.alpha_deg", -1.0), ("gearbox.beta_deg", 95.0), ("gearbox.eta0_pa_s", math.nan),
+    ("gearbox.E_eq_pa", math.inf), ("gearbox.Y", 1.5), ("gearbox.mu_m", -0.1), ("gearbox.dm1_m", 0.004),
+    ("gearbox.dm2_m", 0.0), ("gearbox.Fg_n", -1.0), ("gearbox.alpha_p_per_pa", 0.0),
+    ("gearbox.ellipse_a", "1.1"), ("effects.drag_speed.p", 7.0), ("effects.torque_gain.gain", 0.9),
+    ("effects.drag_speed.enabled", 1), ("estimator.staleness_s", 0.0), ("estimator.rls_forgetting", 1.5),
+    ("node.input_mode", "serial"), ("node.publish_every_n", 0),
+]
+
+
+@pytest.mark.parametrize("name, value", BAD)
+def test_every_invalid_parameter_is_rejected_with_its_name(name, value):
+    with pytest.raises(ParameterError) as err:
+        validate({name: value})
+    assert err.value.name == name
+    assert name in str(err.value)
+    assert repr(value) in str(err.value) or str(value) in str(err.value)
+
+
+def test_every_numeric_spec_rejects_nan_and_out_of_range():
+    for spec in PARAMETER_SPECS:
+        if spec.kind in (int, float):
+            with pytest.raises(ParameterError, match=spec.name.replace(".", r"\.")):
+                validate({spec.name: math.nan})
+            if spec.high is not None:
+                with pytest.raises(ParameterError):
+                    validate({spec.name: spec.high * 2 + 1})
+
+
+def test_yaml_with_a_typo_fails(tmp_path):
+    doc = yaml.safe_load(CONFIG.read_text())
+    node = next(iter(doc))
+    doc[node]["ros__parameters"]["gearbox"]["dw_mm"] = doc[node]["ros__parameters"]["gearbox"].pop("dw_m")
+    p = tmp_path / "typo.yaml"
+    p.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ParameterError, match="gearbox.dw_mm"):
+        load_config(p)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("just a string", "mapping"),
+    ("other_node:\n  ros__parameters: {}\n", "no 'loss_estimator"),
+    ("loss_estimator:\n  params: {}\n", "ros__parameters"),
+    ("loss_estimator: {ros__parameters: {gearbox: {f1: [1, 2]}}}", "gearbox.f1"),
+    ("loss_estimator: [unclosed", "not valid YAML"),
+])
+def test_malformed_files_give_clear_errors(tmp_path, text, match):
+    p = tmp_path / "bad.yaml"
+    p.write_text(text)
+    with pytest.raises(ParameterError, match=match):
+        load_config(p)
+
+
+@pytest.mark.parametrize("key", ["loss_estimator", "/loss_estimator", "/rollergear/loss_estimator",
+                                 "/**/loss_estimator", "/**"])
+def test_node_key_spellings_accepted(tmp_path, key):
+    p = tmp_path / "k.yaml"
+    p.write_text(f"{key}:\n  ros__parameters:\n    gearbox: {{z: 6}}\n    use_sim_time: true\n")
+    assert load_config(p).gearbox.z == 6
+
+
+def test_ints_accepted_for_floats_and_integral_floats_for_ints():
+    c = validate({"gearbox.alpha_deg": 20, "gearbox.z": 5.0})
+    assert isinstance(c.gearbox.alpha_deg, float) and isinstance(c.gearbox.z, int)
