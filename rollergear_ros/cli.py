@@ -212,7 +212,7 @@ def _load_extra_commands() -> None:
         return
     import importlib
 
-    for name in ("rollergear_ros.replay_cli",):
+    for name in ("rollergear_ros.replay_cli", "rollergear_ros.calibrate_cli", "rollergear_ros.player"):
         try:
             mod = importlib.import_module(name)
         except ModuleNotFoundError as exc:

@@ -6,13 +6,16 @@ evaluates the synchronised samples with :meth:`Estimator.process_batch`, whose n
 per-sample :meth:`Estimator.process` (tested).  No rclpy import.
 
 Pairing rule (inputs are header-less ``std_msgs/Float64``): every channel has a FIFO of
-``(time, value)``; *time* is the bag's log time offline and the receive time live.  Motor torque
-and motor speed are required; output torque and output speed join the pairing once they have
-delivered a message.  Whenever every active channel has a message queued, the heads are paired if
-they lie within ``staleness_s`` of each other; otherwise the oldest head has no partner and is
-dropped (counted as ``unpaired``).  An optional channel that falls silent for longer than
+``(time, value)``; *time* is the bag's log time offline and the publisher's source timestamp live
+(the receive time when the middleware gives none).  Motor torque and motor speed are required;
+output torque and output speed join the pairing once they have delivered a message.  Whenever
+every active channel has a message queued, the heads form one sample if their times lie within
+``sync_tolerance_s`` of each other; otherwise the oldest head has no partner and is dropped
+(counted as ``unpaired`` for a motor channel).  The tolerance must stay below half the sample
+period, so sample k never pairs with k±1.  An optional channel silent for longer than
 ``staleness_s`` no longer holds up the motor samples (they are estimated without a residual and
-counted as ``output_missing``).  The pair carries the motor torque's time.  Oil temperature is held
+counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
+is dropped as ``unpaired``.  The sample carries the motor torque's time.  Oil temperature is held
 (zero-order hold) for ``temperature_hold_s``.
 """
 
@@ -59,8 +62,10 @@ class SyncedSample(NamedTuple):
 class SampleSynchronizer:
     """Pairs header-less input channels by time (see the module docstring for the rule)."""
 
-    def __init__(self, staleness_s: float, temperature_hold_s: float = TEMPERATURE_HOLD_S) -> None:
-        self.tolerance_ns = int(round(staleness_s * 1e9))
+    def __init__(self, sync_tolerance_s: float, staleness_s: float,
+                 temperature_hold_s: float = TEMPERATURE_HOLD_S) -> None:
+        self.tolerance_ns = int(round(sync_tolerance_s * 1e9))
+        self.staleness_ns = int(round(staleness_s * 1e9))
         self.temperature_hold_ns = int(round(temperature_hold_s * 1e9))
         self.queues: dict[str, deque] = {c: deque() for c in _REQUIRED + _OPTIONAL}
         self.active: dict[str, bool] = {TORQUE: True, SPEED: True, OUT_TORQUE: False, OUT_SPEED: False}
@@ -84,7 +89,7 @@ class SampleSynchronizer:
 
     def flush(self) -> list[SyncedSample]:
         """At the end of a log: emit what can still be paired, count the rest as unpaired."""
-        self.latest_ns += 2 * self.tolerance_ns + 1
+        self.latest_ns += 2 * max(self.tolerance_ns, self.staleness_ns) + 1
         out = self._drain()
         for ch in _REQUIRED:
             self.counts["unpaired"] += len(self.queues[ch])
@@ -104,7 +109,7 @@ class SampleSynchronizer:
             t_req = max(q[TORQUE][0][0], q[SPEED][0][0])
             # optional channels that are active but silent: do not hold the motor samples up
             for ch in _OPTIONAL:
-                if self.active[ch] and not q[ch] and self.latest_ns - t_req > tol:
+                if self.active[ch] and not q[ch] and self.latest_ns - t_req > self.staleness_ns:
                     self.active[ch] = False
             chans = [c for c in (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED) if self.active[c]]
             if any(not q[c] for c in chans):
@@ -121,8 +126,8 @@ class SampleSynchronizer:
                 self.counts["unpaired"] += 1
 
     def _expire_required(self) -> None:
-        """Drop motor messages whose partner can no longer arrive (older than latest − tolerance)."""
-        limit = self.latest_ns - self.tolerance_ns
+        """Drop motor messages whose partner has not come within the staleness limit."""
+        limit = self.latest_ns - self.staleness_ns
         for ch in _REQUIRED:
             qq = self.queues[ch]
             while qq and qq[0][0] < limit:
@@ -338,7 +343,7 @@ class Estimator:
         est = config.estimator
         self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s)
         self.ratio = config.gearbox.ratio_effective
-        self.sync = SampleSynchronizer(est.staleness_s)
+        self.sync = SampleSynchronizer(est.sync_tolerance_s, est.staleness_s)
         self.counts = self.sync.counts  # skip reasons (shared with the synchroniser)
         self.adaptive = adaptive_effects(config) if est.adapt else ()
         coef = effect_coefficients(config)

@@ -1,0 +1,353 @@
+"""ROS 2 MCAP bags without ROS: topic discovery, batched reading, fast Float64 decoding, writing.
+
+Bags follow ``interface.md``: MCAP, ``ros2`` profile, ``ros2msg`` schemas named like
+``std_msgs/msg/Float64``, ``cdr`` messages — so ``ros2 bag``, Foxglove and ``rosbags`` open them.
+Float64 payloads are decoded with numpy (4-byte CDR encapsulation header + one float64); other
+types go through ``mcap-ros2-support``'s dynamic CDR codec.  No rclpy import here.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
+
+NAMESPACE = "/rollergear"
+
+FLOAT64 = "std_msgs/msg/Float64"
+TEMPERATURE = "sensor_msgs/msg/Temperature"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+CLOCK = "rosgraph_msgs/msg/Clock"
+
+_HEADER_DEF = """================================================================================
+MSG: std_msgs/Header
+builtin_interfaces/Time stamp
+string frame_id
+================================================================================
+MSG: builtin_interfaces/Time
+int32 sec
+uint32 nanosec
+"""
+
+#: ros2msg schema texts (with dependencies, as rosbag2 writes them)
+MSG_DEFINITIONS: dict[str, str] = {
+    FLOAT64: "float64 data\n",
+    TEMPERATURE: "std_msgs/Header header\nfloat64 temperature\nfloat64 variance\n" + _HEADER_DEF,
+    JOINT_STATE: ("std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
+                  "float64[] effort\n" + _HEADER_DEF),
+    CLOCK: "builtin_interfaces/Time clock\n================================================================================\n"
+           "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n",
+}
+
+CDR_LE_HEADER = b"\x00\x01\x00\x00"
+
+
+class BagError(Exception):
+    """A bag cannot be used: missing topics, wrong types, not a ROS 2 MCAP, unreadable."""
+
+
+@dataclass(frozen=True)
+class TopicMap:
+    """Names of the input and output topics in a bag (defaults: ``interface.md``)."""
+
+    motor_torque: str = NAMESPACE + "/motor/torque"
+    motor_speed: str = NAMESPACE + "/motor/speed"
+    output_torque: str = NAMESPACE + "/output/torque"
+    output_speed: str = NAMESPACE + "/output/speed"
+    oil_temperature: str = NAMESPACE + "/oil/temperature"
+    joint_states: str = "/joint_states"
+    input_joint: str = "motor"
+    output_joint: str = "output"
+    loss_torque: str = NAMESPACE + "/loss/torque"
+    loss_power: str = NAMESPACE + "/loss/power"
+    efficiency: str = NAMESPACE + "/efficiency"
+    residual_torque: str = NAMESPACE + "/residual/torque"
+
+    def float64_inputs(self) -> dict[str, str]:
+        """Estimator channel name -> topic, for the Float64 inputs."""
+        return {"motor_torque": self.motor_torque, "motor_speed": self.motor_speed,
+                "output_torque": self.output_torque, "output_speed": self.output_speed}
+
+
+# ------------------------------------------------------------------------------------ decoding
+def decode_float64(payloads: list[bytes]) -> np.ndarray:
+    """Decode Float64 CDR payloads (4-byte encapsulation + float64) to an array, vectorised."""
+    n = len(payloads)
+    if n == 0:
+        return np.empty(0)
+    blob = b"".join(payloads)
+    if len(blob) == 12 * n:
+        raw = np.frombuffer(blob, dtype=np.uint8).reshape(n, 12)
+        if np.all(raw[:, 1] == 1):  # little endian CDR
+            return raw[:, 4:].copy().view("<f8").ravel()
+    # mixed or padded payloads: one at a time
+    out = np.empty(n)
+    for i, p in enumerate(payloads):
+        if len(p) < 12:
+            raise BagError(f"Float64 payload of {len(p)} bytes is too short")
+        out[i] = struct.unpack("<d" if p[1] == 1 else ">d", p[4:12])[0]
+    return out
+
+
+def encode_float64(values: np.ndarray) -> list[bytes]:
+    """Encode floats as Float64 CDR payloads (little endian)."""
+    v = np.ascontiguousarray(values, dtype="<f8")
+    buf = np.empty((len(v), 12), dtype=np.uint8)
+    buf[:, :4] = np.frombuffer(CDR_LE_HEADER, dtype=np.uint8)
+    buf[:, 4:] = v.view(np.uint8).reshape(-1, 8)
+    raw = buf.tobytes()
+    return [raw[i:i + 12] for i in range(0, len(raw), 12)]
+
+
+_decoders: dict[str, Any] = {}
+_encoders: dict[str, Any] = {}
+
+
+def decoder_for(type_name: str, schema_text: str | None = None):
+    """CDR decoder function for a ROS 2 message type (dynamic, from its ros2msg definition)."""
+    if type_name not in _decoders:
+        text = schema_text if schema_text is not None else MSG_DEFINITIONS[type_name]
+        _decoders[type_name] = generate_dynamic(type_name, text)[type_name]
+    return _decoders[type_name]
+
+
+def encoder_for(type_name: str):
+    """CDR encoder function (message dict -> bytes) for a known type."""
+    if type_name not in _encoders:
+        _encoders[type_name] = serialize_dynamic(type_name, MSG_DEFINITIONS[type_name])[type_name]
+    return _encoders[type_name]
+
+
+def stamp(t_ns: int) -> dict[str, int]:
+    return {"sec": int(t_ns // 1_000_000_000), "nanosec": int(t_ns % 1_000_000_000)}
+
+
+# ------------------------------------------------------------------------------------ reading
+@dataclass
+class BagInfo:
+    """What a bag holds: topics with types and counts; whether its index (summary) is intact."""
+
+    path: Path
+    topics: dict[str, str]  #: topic -> schema (type) name
+    counts: dict[str, int]  #: topic -> message count (None-free; counted when no summary)
+    schema_texts: dict[str, str] = field(default_factory=dict)  #: type -> ros2msg text
+    indexed: bool = True
+    truncated: bool = False
+    bytes_total: int = 0
+    bytes_readable: int = 0
+    start_ns: int = 0
+    end_ns: int = 0
+    problem: str = ""
+
+    @property
+    def message_count(self) -> int:
+        return sum(self.counts.values())
+
+    def describe_topics(self) -> str:
+        return ", ".join(f"{t} [{ty}]" for t, ty in sorted(self.topics.items())) or "no topics"
+
+
+def _check_mcap(path: Path) -> None:
+    if not path.exists():
+        raise BagError(f"{path} does not exist")
+    if path.is_dir():
+        mcaps = sorted(path.glob("*.mcap"))
+        raise BagError(f"{path} is a directory; pass the .mcap file inside it"
+                       + (f" (e.g. {mcaps[0]})" if mcaps else ""))
+    with path.open("rb") as fh:
+        magic = fh.read(8)
+    if magic != b"\x89MCAP0\r\n":
+        raise BagError(f"{path} is not an MCAP file (bad magic bytes); rosbag2 .db3 (SQLite) bags are not supported, "
+                       "convert them to MCAP")
+
+
+def inspect_bag(path: str | Path) -> BagInfo:
+    """Read the bag's summary; without one (a recording cut by a crash) scan what is readable."""
+    path = Path(path)
+    _check_mcap(path)
+    size = path.stat().st_size
+    with path.open("rb") as fh:
+        try:
+            summary = make_reader(fh).get_summary()
+        except (McapError, struct.error, ValueError, EOFError):
+            summary = None
+        if summary is not None and summary.statistics is not None and summary.chunk_indexes:
+            topics = {c.topic: (summary.schemas[c.schema_id].name if c.schema_id else "") for c in
+                      summary.channels.values()}
+            texts = {s.name: s.data.decode(errors="replace") for s in summary.schemas.values()}
+            enc = {s.encoding for s in summary.schemas.values()} | {c.message_encoding for c in summary.channels.values()}
+            counts: dict[str, int] = {}
+            for cid, n in summary.statistics.channel_message_counts.items():
+                topic = summary.channels[cid].topic
+                counts[topic] = counts.get(topic, 0) + n
+            info = BagInfo(path, topics, counts, texts, True, False, size, size,
+                           summary.statistics.message_start_time, summary.statistics.message_end_time)
+            _check_encodings(info, enc)
+            return info
+    return _scan(path, size)
+
+
+def _check_encodings(info: BagInfo, encodings: set[str]) -> None:
+    foreign = encodings - {"ros2msg", "cdr", ""}
+    if foreign:
+        raise BagError(f"{info.path} is not a ROS 2 bag: it uses encodings {', '.join(sorted(foreign))} "
+                       "(expected ros2msg schemas and cdr messages)")
+
+
+def _scan(path: Path, size: int) -> BagInfo:
+    """Linear scan of a bag without summary: channels, counts, and how far it is readable."""
+    topics: dict[str, str] = {}
+    texts: dict[str, str] = {}
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    counts: dict[str, int] = {}
+    encodings: set[str] = set()
+    start = end = None
+    truncated = False
+    problem = ""
+    with path.open("rb") as fh:
+        reader = StreamReader(fh, skip_magic=False, emit_chunks=False)
+        readable = 8
+        try:
+            for rec in reader.records:
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec
+                    texts[rec.name] = rec.data.decode(errors="replace")
+                    encodings.add(rec.encoding)
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec
+                    topics[rec.topic] = schemas[rec.schema_id].name if rec.schema_id in schemas else ""
+                    encodings.add(rec.message_encoding)
+                elif isinstance(rec, Message):
+                    topic = channels[rec.channel_id].topic if rec.channel_id in channels else "?"
+                    counts[topic] = counts.get(topic, 0) + 1
+                    start = rec.log_time if start is None else min(start, rec.log_time)
+                    end = rec.log_time if end is None else max(end, rec.log_time)
+                readable = fh.tell()
+        except (McapError, struct.error, ValueError, EOFError, KeyError) as exc:
+            truncated = True
+            problem = f"{type(exc).__name__}: {exc}"
+    info = BagInfo(path, topics, counts, texts, False, truncated, size, min(readable, size),
+                   start or 0, end or 0, problem)
+    _check_encodings(info, encodings)
+    return info
+
+
+@dataclass
+class RawBatch:
+    """A batch of raw messages in file order: topic, log time, payload."""
+
+    topics: list[str]
+    log_time_ns: list[int]
+    data: list[bytes]
+
+
+def iter_raw_batches(info: BagInfo, topics: set[str] | None, batch_size: int = 50_000,
+                     warn=None) -> Iterator[RawBatch]:
+    """Yield batches of raw messages (file order, which for recorders is time order within chunks).
+
+    A truncated file yields everything readable; the loss is reported through ``warn``.
+    """
+    with info.path.open("rb") as fh:
+        reader = NonSeekingReader(fh, record_size_limit=None)
+        tp: list[str] = []
+        lt: list[int] = []
+        dd: list[bytes] = []
+        try:
+            for _schema, channel, message in reader.iter_messages(topics=topics, log_time_order=False):
+                tp.append(channel.topic)
+                lt.append(message.log_time)
+                dd.append(message.data)
+                if len(tp) >= batch_size:
+                    yield RawBatch(tp, lt, dd)
+                    tp, lt, dd = [], [], []
+        except (McapError, struct.error, ValueError, EOFError, KeyError) as exc:
+            if warn:
+                warn(f"{info.path}: stopped reading at a damaged or truncated record ({type(exc).__name__}: {exc})")
+        if tp:
+            yield RawBatch(tp, lt, dd)
+
+
+# ------------------------------------------------------------------------------------ writing
+class BagWriter:
+    """Writes a ROS 2 MCAP bag; Float64 channels get a fast vectorised path.
+
+    Used as a context manager; :meth:`close` (also on error or interrupt) writes the summary and
+    footer, so everything added so far stays readable.
+    """
+
+    def __init__(self, path: str | Path, chunk_size: int = 4 * 1024 * 1024,
+                 compression: CompressionType = CompressionType.ZSTD) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = self.path.open("wb")
+        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=compression)
+        self._writer.start(profile="ros2", library="rollergear_ros")
+        self._schema_ids: dict[str, int] = {}
+        self._channels: dict[str, int] = {}
+        self._seq: dict[int, int] = {}
+        self.closed = False
+
+    def channel(self, topic: str, type_name: str, schema_text: str | None = None) -> int:
+        """Register (once) a topic of a ROS 2 type; returns its channel id."""
+        if topic in self._channels:
+            return self._channels[topic]
+        if type_name not in self._schema_ids:
+            text = schema_text if schema_text is not None else MSG_DEFINITIONS[type_name]
+            self._schema_ids[type_name] = self._writer.register_schema(type_name, "ros2msg", text.encode())
+        cid = self._writer.register_channel(topic, "cdr", self._schema_ids[type_name],
+                                            metadata={"offered_qos_profiles": ""})
+        self._channels[topic] = cid
+        self._seq[cid] = 0
+        return cid
+
+    def write_raw(self, topic: str, type_name: str, log_time_ns: int, data: bytes,
+                  schema_text: str | None = None) -> None:
+        cid = self.channel(topic, type_name, schema_text)
+        self._seq[cid] += 1
+        self._writer.add_message(cid, log_time_ns, data, log_time_ns, self._seq[cid])
+
+    def write_message(self, topic: str, type_name: str, log_time_ns: int, message: dict) -> None:
+        """Encode a message dict with the type's CDR encoder and write it."""
+        self.write_raw(topic, type_name, log_time_ns, encoder_for(type_name)(message))
+
+    def write_float64_series(self, topic: str, t_ns: np.ndarray, values: np.ndarray) -> None:
+        """Write a whole series of Float64 messages (vectorised encoding)."""
+        cid = self.channel(topic, FLOAT64)
+        add = self._writer.add_message
+        seq = self._seq[cid]
+        for t, d in zip(np.asarray(t_ns, dtype=np.int64).tolist(), encode_float64(values)):
+            seq += 1
+            add(cid, t, d, t, seq)
+        self._seq[cid] = seq
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """Write an MCAP metadata record (string key/values)."""
+        self._writer.add_metadata(name, data)
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            self._writer.finish()
+        finally:
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+            self._fh.close()
+
+    def __enter__(self) -> "BagWriter":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

@@ -1,0 +1,329 @@
+"""Offline replay: a recorded bag through the same estimator the node runs.
+
+Reads any ROS 2 MCAP with the input topics (Float64 channels or a JointState topic), pairs and
+estimates with :class:`~rollergear_ros.estimator.Estimator`, writes an output MCAP (inputs +
+``interface.md`` outputs) and a rerun recording, and summarises.  Everything is written in
+batches, so an interrupt (Ctrl-C, SIGTERM) leaves valid files holding all processed samples.
+No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .bag import (FLOAT64, JOINT_STATE, TEMPERATURE, BagError, BagInfo, BagWriter, RawBatch, TopicMap,
+                  decode_float64, decoder_for, inspect_bag, iter_raw_batches)
+from .estimator import (OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE as CH_TEMPERATURE, TORQUE, BatchEstimate,
+                        Estimator, SyncedSample)
+from .params import Config
+
+
+@dataclass
+class InputPlan:
+    """Which topics of a bag feed which estimator channel, and how to decode them."""
+
+    mode: str  # "float64" or "joint_state"
+    float64: dict[str, str]  # topic -> channel
+    joint_states: str | None
+    temperature: tuple[str, str] | None  # (topic, type)
+    topics: TopicMap
+
+    @property
+    def all_topics(self) -> set[str]:
+        t = set(self.float64)
+        if self.joint_states:
+            t.add(self.joint_states)
+        if self.temperature:
+            t.add(self.temperature[0])
+        return t
+
+
+def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
+    """Check the bag has the inputs (with the right types); raise :class:`BagError` saying what it has."""
+    have = info.topics
+
+    def need_type(topic: str, expected: tuple[str, ...]) -> None:
+        if have[topic] not in expected:
+            raise BagError(f"topic {topic} has type {have[topic] or '<no schema>'}, expected "
+                           f"{' or '.join(expected)}")
+
+    temperature = None
+    if topics.oil_temperature in have:
+        need_type(topics.oil_temperature, (TEMPERATURE, FLOAT64))
+        temperature = (topics.oil_temperature, have[topics.oil_temperature])
+    if topics.motor_torque in have or topics.motor_speed in have:
+        missing = [t for t in (topics.motor_torque, topics.motor_speed) if t not in have]
+        if missing:
+            raise BagError(f"{info.path}: missing input topic {', '.join(missing)}; the bag has: {info.describe_topics()}")
+        f64 = {}
+        for ch, topic in topics.float64_inputs().items():
+            if topic in have:
+                need_type(topic, (FLOAT64,))
+                f64[topic] = ch
+        return InputPlan("float64", f64, None, temperature, topics)
+    if topics.joint_states in have:
+        need_type(topics.joint_states, (JOINT_STATE,))
+        return InputPlan("joint_state", {}, topics.joint_states, temperature, topics)
+    raise BagError(f"{info.path} has none of the input topics ({topics.motor_torque} and {topics.motor_speed} "
+                   f"as std_msgs/msg/Float64, or {topics.joint_states} as sensor_msgs/msg/JointState); "
+                   f"the bag has: {info.describe_topics()}")
+
+
+def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo) -> list[tuple[int, str, float]]:
+    """Decode a raw batch into ``(time, channel, value)`` in file order (non-finite values kept)."""
+    n = len(batch.topics)
+    values = np.full(n, np.nan)
+    channels: list[str | None] = [None] * n
+    by_topic: dict[str, list[int]] = {}
+    for i, tp in enumerate(batch.topics):
+        by_topic.setdefault(tp, []).append(i)
+    extra: list[tuple[int, int, str, float]] = []  # (order key, t, channel, value) for JointState fan-out
+    for topic, idx in by_topic.items():
+        if topic in plan.float64:
+            ch = plan.float64[topic]
+            values[idx] = decode_float64([batch.data[i] for i in idx])
+            for i in idx:
+                channels[i] = ch
+        elif plan.temperature and topic == plan.temperature[0]:
+            type_name = plan.temperature[1]
+            if type_name == FLOAT64:
+                values[idx] = decode_float64([batch.data[i] for i in idx])
+            else:
+                dec = decoder_for(type_name, info.schema_texts.get(type_name))
+                values[idx] = [float(dec(batch.data[i]).temperature) for i in idx]
+            for i in idx:
+                channels[i] = CH_TEMPERATURE
+        elif topic == plan.joint_states:
+            dec = decoder_for(JOINT_STATE, info.schema_texts.get(JOINT_STATE))
+            tp = plan.topics
+            for i in idx:
+                msg = dec(batch.data[i])
+                names = list(msg.name)
+                for joint, ch_t, ch_w in ((tp.input_joint, TORQUE, SPEED), (tp.output_joint, OUT_TORQUE, OUT_SPEED)):
+                    if joint in names:
+                        k = names.index(joint)
+                        eff = float(msg.effort[k]) if k < len(msg.effort) else math.nan
+                        vel = float(msg.velocity[k]) if k < len(msg.velocity) else math.nan
+                        extra.append((i, batch.log_time_ns[i], ch_t, eff))
+                        extra.append((i, batch.log_time_ns[i], ch_w, vel))
+    out = [(batch.log_time_ns[i], channels[i], float(values[i])) for i in range(n) if channels[i] is not None]
+    if extra:
+        merged = [(i, batch.log_time_ns[i], channels[i], float(values[i])) for i in range(n) if channels[i] is not None]
+        merged.extend(extra)
+        merged.sort(key=lambda r: r[0])
+        out = [(t, c, v) for _, t, c, v in merged]
+    return out
+
+
+@dataclass
+class ReplaySummary:
+    """What a replay did (printed, and returned for tests)."""
+
+    bag: str
+    input_messages: int = 0
+    samples: int = 0
+    estimated: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)
+    mean_loss_nm: float = math.nan
+    peak_loss_nm: float = math.nan
+    energy_lost_j: float = 0.0
+    mean_efficiency: float = math.nan
+    residual_rms_nm: float = math.nan
+    residual_samples: int = 0
+    duration_s: float = 0.0
+    alarms: int = 0
+    interrupted: bool = False
+    warnings: list[str] = field(default_factory=list)
+    coefficients: dict[str, float] = field(default_factory=dict)
+
+    def text(self) -> str:
+        lines = [f"bag: {self.bag}",
+                 f"input messages: {self.input_messages:,}; samples paired: {self.samples:,}; "
+                 f"estimated: {self.estimated:,}; log duration {self.duration_s:.1f} s"]
+        skipped = {k: v for k, v in self.skipped.items() if v}
+        lines.append("skipped: " + (", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in skipped.items()) or "none"))
+        lines.append(f"loss torque: mean {self.mean_loss_nm:.4f} N·m, peak {self.peak_loss_nm:.4f} N·m; "
+                     f"energy lost {self.energy_lost_j:.1f} J; mean efficiency "
+                     + ("n/a" if math.isnan(self.mean_efficiency) else f"{100 * self.mean_efficiency:.2f} %"))
+        if self.residual_samples:
+            lines.append(f"residual (measured − estimated loss): RMS {self.residual_rms_nm:.4f} N·m over "
+                         f"{self.residual_samples:,} samples; change alarms: {self.alarms}")
+        if self.coefficients:
+            lines.append("adapted coefficients: " + ", ".join(f"{k} {v:.4g}" for k, v in self.coefficients.items()))
+        if self.interrupted:
+            lines.append("INTERRUPTED: outputs hold everything processed up to the interrupt")
+        lines.extend(f"warning: {w}" for w in self.warnings)
+        return "\n".join(lines)
+
+
+class _Accumulator:
+    """Running sums for the summary."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.loss_sum = 0.0
+        self.peak = 0.0
+        self.energy = 0.0
+        self.eta_sum = 0.0
+        self.eta_n = 0
+        self.res_sq = 0.0
+        self.res_n = 0
+        self.last_t: int | None = None
+        self.first_t: int | None = None
+        self.dt_ns = 0
+
+    def add(self, b: BatchEstimate) -> None:
+        if len(b.t_ns) == 0:
+            return
+        mag = np.abs(b.loss_torque_nm)
+        self.n += len(mag)
+        self.loss_sum += float(mag.sum())
+        self.peak = max(self.peak, float(mag.max()))
+        t = np.asarray(b.t_ns, dtype=np.int64)
+        if self.first_t is None:
+            self.first_t = int(t[0])
+        prev = self.last_t if self.last_t is not None else int(t[0])
+        dt = np.diff(np.concatenate([[prev], t])).astype(float)
+        typical = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
+        if typical > 0:
+            self.dt_ns = typical
+        # integrate P·dt; gaps longer than 5 sample periods (missing data) are not integrated
+        dt = np.where((dt > 0) & (dt <= 5 * max(self.dt_ns, 1.0)), dt, 0.0)
+        self.energy += float(np.sum(b.loss_power_w * dt) * 1e-9)
+        self.last_t = int(t[-1])
+        eta = b.efficiency[np.isfinite(b.efficiency)]
+        self.eta_sum += float(eta.sum())
+        self.eta_n += len(eta)
+        r = b.residual_nm[np.isfinite(b.residual_nm)]
+        self.res_sq += float(np.sum(r * r))
+        self.res_n += len(r)
+
+
+def _samples_to_arrays(samples: list[SyncedSample]):
+    if not samples:
+        z = np.empty(0)
+        return np.empty(0, dtype=np.int64), z, z, z, z, z
+    arr = np.array([s[1:] for s in samples], dtype=float)
+    t = np.array([s[0] for s in samples], dtype=np.int64)
+    return t, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], arr[:, 4]
+
+
+def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_mcap: str | Path | None = None,
+           rrd: str | Path | None = None, show_progress: bool | None = None, batch_size: int = 100_000,
+           warn: Callable[[str], None] | None = None, collect: bool = False) -> tuple[ReplaySummary, list[BatchEstimate]]:
+    """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``)."""
+    warnings: list[str] = []
+
+    def _warn(msg: str) -> None:
+        warnings.append(msg)
+        if warn:
+            warn(msg)
+
+    info = inspect_bag(bag)
+    if info.truncated or not info.indexed:
+        lost = info.bytes_total - info.bytes_readable
+        _warn(f"{info.path} has no index (summary/footer): a recording cut short? Readable: "
+              f"{info.message_count:,} messages; {lost:,} trailing bytes ({100 * lost / max(info.bytes_total, 1):.1f} %) "
+              "could not be read" if info.truncated else f"{info.path} has no index; read linearly")
+    plan = plan_inputs(info, topics)
+    estimator = Estimator(config)
+    summary = ReplaySummary(str(bag))
+    writer = BagWriter(out_mcap) if out_mcap else None
+    rlog = None
+    if rrd:
+        from .review import RerunLog
+
+        rlog = RerunLog("rollergear_replay", rrd)
+    acc = _Accumulator()
+    collected: list[BatchEstimate] = []
+    total = sum(info.counts.get(t, 0) for t in plan.all_topics)
+    if show_progress is None:
+        show_progress = sys.stderr.isatty()
+    bar = None
+    if show_progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, unit="msg", unit_scale=True, desc="replay", file=sys.stderr)
+    try:
+        for raw in iter_raw_batches(info, plan.all_topics, batch_size, warn=_warn):
+            summary.input_messages += len(raw.topics)
+            samples: list[SyncedSample] = []
+            push = estimator.sync.push
+            for t, ch, v in decode_batch(raw, plan, info):
+                samples.extend(push(ch, t, v))
+            _emit(estimator, samples, writer, rlog, acc, collected if collect else None, config, topics)
+            if writer:
+                for tp, t, d in zip(raw.topics, raw.log_time_ns, raw.data):
+                    writer.write_raw(tp, info.topics[tp], t, d, info.schema_texts.get(info.topics[tp]))
+            if bar:
+                bar.update(len(raw.topics))
+        _emit(estimator, estimator.sync.flush(), writer, rlog, acc, collected if collect else None, config, topics)
+    except KeyboardInterrupt:
+        summary.interrupted = True
+    finally:
+        if bar:
+            bar.close()
+        if writer:
+            writer.close()
+        if rlog:
+            rlog.close()
+    summary.samples = estimator.sync.received[TORQUE]
+    summary.estimated = estimator.estimated
+    summary.skipped = dict(estimator.counts)
+    if acc.n:
+        summary.mean_loss_nm = acc.loss_sum / acc.n
+        summary.peak_loss_nm = acc.peak
+        summary.energy_lost_j = acc.energy
+        summary.duration_s = ((acc.last_t or 0) - (acc.first_t or 0)) * 1e-9
+    if acc.eta_n:
+        summary.mean_efficiency = acc.eta_sum / acc.eta_n
+    if acc.res_n:
+        summary.residual_rms_nm = math.sqrt(acc.res_sq / acc.res_n)
+        summary.residual_samples = acc.res_n
+    summary.alarms = estimator.detector.alarms
+    summary.coefficients = estimator.coefficients()
+    summary.warnings = warnings
+    return summary, collected
+
+
+def _emit(estimator: Estimator, samples: list[SyncedSample], writer: BagWriter | None, rlog, acc: _Accumulator,
+          collected: list | None, config: Config, tm: TopicMap) -> None:
+    if not samples:
+        return
+    t, tq, w, tq_out, w_out, theta = _samples_to_arrays(samples)
+    b = estimator.process_batch(t, tq, w, tq_out, w_out, theta)
+    acc.add(b)
+    if collected is not None:
+        collected.append(b)
+    has_res = np.isfinite(b.residual_nm)
+    if writer:
+        writer.write_float64_series(tm.loss_torque, b.t_ns, b.loss_torque_nm)
+        writer.write_float64_series(tm.loss_power, b.t_ns, b.loss_power_w)
+        writer.write_float64_series(tm.efficiency, b.t_ns, b.efficiency)
+        if has_res.any():
+            writer.write_float64_series(tm.residual_torque, b.t_ns[has_res], b.residual_nm[has_res])
+    if rlog:
+        series = {"/inputs/torque_nm": b.torque_nm, "/inputs/speed_rad_s": b.speed_rad_s,
+                  "/loss/torque_nm": b.loss_torque_nm, "/loss/power_w": b.loss_power_w,
+                  "/efficiency/efficiency": b.efficiency}
+        sg = np.sign(b.loss_torque_nm)
+        for k, v in b.breakdown_nm.items():
+            series[f"/loss/breakdown/{k}_nm"] = v * sg
+        if b.effects_nm is not None and config.effects.enabled():
+            series["/loss/breakdown/effects_nm"] = b.effects_nm * sg
+        rlog.send(b.t_ns, series)
+        if has_res.any():
+            rlog.send(b.t_ns[has_res], {"/residual/measured_loss_nm": b.measured_loss_nm[has_res],
+                                        "/residual/estimated_loss_nm": np.abs(b.loss_torque_nm[has_res]),
+                                        "/residual/residual_nm": b.residual_nm[has_res]})
+        for name, coef in b.coefficients.items():
+            rlog.send(b.t_ns, {f"/adaptation/{name}": coef})
+        temps = theta[np.isfinite(theta)]
+        if len(temps):
+            rlog.send(t[np.isfinite(theta)], {"/inputs/oil_temperature_c": temps})

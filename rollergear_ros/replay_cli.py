@@ -1,0 +1,113 @@
+"""Subcommands working on bags: ``simulate``, ``replay`` (``calibrate`` and ``play`` register too)."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+from .bag import BagError, TopicMap
+from .cli import UserError, config_from_args
+
+
+def add_topic_options(p: argparse.ArgumentParser) -> None:
+    """``--topic-<name>`` for every topic of :class:`TopicMap` (and the JointState joint names)."""
+    g = p.add_argument_group("topic names (defaults from interface.md)")
+    for f in fields(TopicMap):
+        opt = f.name.replace("_", "-")
+        prefix = "" if f.name.endswith("_joint") else "topic-"
+        g.add_argument(f"--{prefix}{opt}", dest=f"topic_{f.name}", default=f.default, metavar="NAME",
+                       help=f"default {f.default}")
+
+
+def topics_from_args(args: argparse.Namespace) -> TopicMap:
+    return TopicMap(**{f.name: getattr(args, f"topic_{f.name}") for f in fields(TopicMap)})
+
+
+def _sigterm_as_interrupt() -> None:
+    def handler(signum, frame):  # noqa: ARG001
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from .simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
+
+    config = config_from_args(args)
+    try:
+        effects = [DeclaredEffect.parse(e) for e in args.effect]
+        opts = SimulationOptions(profile=args.profile, rate_hz=args.rate, seed=args.seed, effects=effects,
+                                 torque_noise_nm=args.torque_noise, noise_ar1=args.noise_ar1,
+                                 output_lag_s=args.output_lag, joint_states=args.joint_states,
+                                 step_change_at_s=args.step_change_at)
+        rig = simulate(config, opts)
+    except ValueError as exc:
+        raise UserError(str(exc)) from None
+    if args.duration is not None:
+        import numpy as np
+
+        keep = (rig.t_ns - rig.t_ns[0]) <= args.duration * 1e9
+        for f in fields(rig):
+            v = getattr(rig, f.name)
+            if isinstance(v, np.ndarray) and len(v) == len(keep):
+                setattr(rig, f.name, v[keep])
+    n = write_rig_bag(rig, opts, Path(args.out), topics_from_args(args))
+    dur = (rig.t_ns[-1] - rig.t_ns[0]) * 1e-9
+    print(f"wrote {args.out}: {n:,} messages, {dur:.1f} s at {args.rate:g} Hz, profile {args.profile}, "
+          f"effects: {', '.join(e.name for e in effects) or 'none'}")
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from .replay import replay
+
+    config = config_from_args(args)
+    _sigterm_as_interrupt()
+    try:
+        summary, _ = replay(args.bag, config, topics_from_args(args), args.out, args.rrd,
+                            show_progress=None if not args.no_progress else False,
+                            warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr))
+    except BagError as exc:
+        raise UserError(str(exc)) from None
+    print(summary.text())
+    for label, path in (("estimates", args.out), ("rerun recording", args.rrd)):
+        if path:
+            print(f"{label}: {path}")
+    return 130 if summary.interrupted else 0
+
+
+def register_simulate(sub, with_params) -> None:
+    from .simulate import EFFECT_PARAMETERS, PROFILES
+
+    p = with_params(sub.add_parser("simulate", help="write a synthetic rig recording (MCAP) with declared effects"))
+    p.add_argument("--out", required=True, metavar="MCAP")
+    p.add_argument("--profile", choices=sorted(PROFILES), default="rig_map")
+    p.add_argument("--rate", type=float, default=200.0, help="sample rate [Hz] (default 200)")
+    p.add_argument("--duration", type=float, help="cut the profile after this many seconds")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--effect", action="append", default=[], metavar="NAME[:k=v,...]",
+                   help="declared extra effect, repeatable: " + "; ".join(
+                       f"{n}:{','.join(f'{k}={v:g}' for k, v in d.items())}" for n, d in EFFECT_PARAMETERS.items()))
+    p.add_argument("--torque-noise", type=float, default=0.01, help="torque sensor noise sigma [N·m]")
+    p.add_argument("--noise-ar1", type=float, default=0.0, help="AR(1) coefficient of coloured noise (0 = white)")
+    p.add_argument("--output-lag", type=float, default=0.0, help="delay of the output torque channel [s]")
+    p.add_argument("--step-change-at", type=float, default=None, help="effects switch on at this time [s]")
+    p.add_argument("--joint-states", action="store_true", help="write /joint_states instead of Float64 topics")
+    add_topic_options(p)
+    p.set_defaults(func=cmd_simulate)
+
+
+def register_replay(sub, with_params) -> None:
+    p = with_params(sub.add_parser("replay", help="replay a recorded bag through the estimator"))
+    p.add_argument("bag", metavar="BAG")
+    p.add_argument("--out", metavar="OUT.mcap", help="output MCAP (inputs + estimates)")
+    p.add_argument("--rrd", metavar="OUT.rrd", help="rerun recording with a review blueprint")
+    p.add_argument("--no-progress", action="store_true")
+    add_topic_options(p)
+    p.set_defaults(func=cmd_replay)
+
+
+REGISTER = [register_simulate, register_replay]
