@@ -286,7 +286,7 @@ class BagWriter:
     footer, so everything added so far stays readable.
     """
 
-    def __init__(self, path: str | Path, chunk_size: int = 4 * 1024 * 1024,
+    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024,
                  compression: CompressionType = CompressionType.ZSTD) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)

@@ -222,5 +222,7 @@ def _load_extra_commands() -> None:
         _EXTRA_COMMANDS.extend(mod.REGISTER)
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+if __name__ == "__main__":  # run as the package's module so exception classes are shared
+    from rollergear_ros.cli import main as _main
+
+    sys.exit(_main())

@@ -121,6 +121,35 @@ def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo) -> list[tuple[
     return out
 
 
+class GracefulStop:
+    """SIGINT/SIGTERM set a flag that long loops check between batches (files stay consistent).
+
+    A second signal raises ``KeyboardInterrupt`` at once.  Only active in the main thread.
+    """
+
+    def __init__(self) -> None:
+        import signal
+        import threading
+
+        self.requested = False
+        self._old: dict[int, object] = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handler)
+
+    def _handler(self, signum, frame) -> None:  # noqa: ARG002
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def restore(self) -> None:
+        import signal
+
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        self._old.clear()
+
+
 @dataclass
 class ReplaySummary:
     """What a replay did (printed, and returned for tests)."""
@@ -144,7 +173,7 @@ class ReplaySummary:
 
     def text(self) -> str:
         lines = [f"bag: {self.bag}",
-                 f"input messages: {self.input_messages:,}; samples paired: {self.samples:,}; "
+                 f"input messages: {self.input_messages:,} ({self.samples:,} motor torque); "
                  f"estimated: {self.estimated:,}; log duration {self.duration_s:.1f} s"]
         skipped = {k: v for k, v in self.skipped.items() if v}
         lines.append("skipped: " + (", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in skipped.items()) or "none"))
@@ -250,8 +279,12 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
         from tqdm import tqdm
 
         bar = tqdm(total=total, unit="msg", unit_scale=True, desc="replay", file=sys.stderr)
+    stop = GracefulStop()
     try:
         for raw in iter_raw_batches(info, plan.all_topics, batch_size, warn=_warn):
+            if stop.requested:
+                summary.interrupted = True
+                break
             summary.input_messages += len(raw.topics)
             samples: list[SyncedSample] = []
             push = estimator.sync.push
@@ -263,10 +296,12 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
                     writer.write_raw(tp, info.topics[tp], t, d, info.schema_texts.get(info.topics[tp]))
             if bar:
                 bar.update(len(raw.topics))
-        _emit(estimator, estimator.sync.flush(), writer, rlog, acc, collected if collect else None, config, topics)
+        else:
+            _emit(estimator, estimator.sync.flush(), writer, rlog, acc, collected if collect else None, config, topics)
     except KeyboardInterrupt:
         summary.interrupted = True
     finally:
+        stop.restore()
         if bar:
             bar.close()
         if writer:

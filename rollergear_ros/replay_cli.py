@@ -65,7 +65,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from .replay import replay
 
     config = config_from_args(args)
-    _sigterm_as_interrupt()
     try:
         summary, _ = replay(args.bag, config, topics_from_args(args), args.out, args.rrd,
                             show_progress=None if not args.no_progress else False,

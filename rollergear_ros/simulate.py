@@ -249,39 +249,38 @@ def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics
         n = len(rig.t_ns)
         block = 20_000
         temp_every = max(int(round(opts.rate_hz / opts.temperature_rate_hz)), 1)
+        temp_msgs = {i: _temperature_message(rig, opts, i) for i in range(0, n, temp_every)}
+        names = (topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed)
         for s in range(0, n, block):
             e = min(s + block, n)
-            sl = slice(s, e)
-            if opts.joint_states:
-                for i in range(s, e):
-                    bw.write_message(topics.joint_states, JOINT_STATE, int(rig.t_ns[i]), {
-                        "header": {"stamp": stamp(int(rig.t_ns[i])), "frame_id": ""},
+            payloads = [encode_float64(v[s:e]) for v in (rig.torque_meas_nm, rig.speed_rad_s,
+                                                         rig.out_torque_meas_nm, rig.out_speed_meas_rad_s)]
+            for i in range(s, e):
+                t = int(rig.t_ns[i])
+                if opts.joint_states:
+                    bw.write_message(topics.joint_states, JOINT_STATE, t, {
+                        "header": {"stamp": stamp(t), "frame_id": ""},
                         "name": [topics.input_joint, topics.output_joint], "position": [],
                         "velocity": [float(rig.speed_rad_s[i]), float(rig.out_speed_meas_rad_s[i])],
                         "effort": [float(rig.torque_meas_nm[i]), float(rig.out_torque_meas_nm[i])]})
-                count += e - s
-            else:
-                # interleave channels sample by sample, as a recorder would store them
-                for topic, values in ((topics.motor_torque, rig.torque_meas_nm), (topics.motor_speed, rig.speed_rad_s),
-                                      (topics.output_torque, rig.out_torque_meas_nm),
-                                      (topics.output_speed, rig.out_speed_meas_rad_s)):
-                    bw.channel(topic, FLOAT64)
-                payloads = [encode_float64(v[sl]) for v in (rig.torque_meas_nm, rig.speed_rad_s,
-                                                             rig.out_torque_meas_nm, rig.out_speed_meas_rad_s)]
-                names = (topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed)
-                for k, t in enumerate(rig.t_ns[sl].tolist()):
+                    count += 1
+                else:
+                    # channels interleaved sample by sample, as a recorder stores them
                     for name, pl in zip(names, payloads):
-                        bw.write_raw(name, FLOAT64, t, pl[k])
-                count += 4 * (e - s)
-            for i in range(s + (-s) % temp_every, e, temp_every):
-                t = int(rig.t_ns[i])
-                bw.write_message(topics.oil_temperature, TEMPERATURE, t, {
-                    "header": {"stamp": stamp(t), "frame_id": "oil"},
-                    "temperature": float(rig.temperature_c[i]), "variance": opts.temperature_noise_c ** 2})
-                count += 1
+                        bw.write_raw(name, FLOAT64, t, pl[i - s])
+                    count += 4
+                if i in temp_msgs:
+                    bw.write_message(topics.oil_temperature, TEMPERATURE, t, temp_msgs[i])
+                    count += 1
             if progress:
                 progress(e - s)
     return count
+
+
+def _temperature_message(rig: SimulatedRig, opts: SimulationOptions, i: int) -> dict:
+    t = int(rig.t_ns[i])
+    return {"header": {"stamp": stamp(t), "frame_id": "oil"}, "temperature": float(rig.temperature_c[i]),
+            "variance": opts.temperature_noise_c ** 2}
 
 
 def read_truth(path: Path) -> dict:

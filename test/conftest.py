@@ -26,7 +26,7 @@ def run_cli(*args: str, check: bool = True, timeout: float = 600, env: dict | No
     """Run ``rollergear ARGS`` in a subprocess (the installed console script's code path)."""
     full_env = dict(os.environ)
     full_env.update(env or {})
-    proc = subprocess.run([sys.executable, "-m", "rollergear_ros.cli", *args], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "rollergear_ros", *args], capture_output=True, text=True,
                           timeout=timeout, env=full_env, cwd=cwd or ROOT)
     if check and proc.returncode != 0:
         raise AssertionError(f"rollergear {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")

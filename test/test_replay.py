@@ -1,0 +1,317 @@
+"""Replay of recorded bags: outputs, two readers, rerun read-back, bad input, interrupts."""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rollergear_ros.bag import FLOAT64, BagError, BagWriter, TopicMap, encode_float64, inspect_bag
+from rollergear_ros.estimator import Estimator
+from rollergear_ros.model import LossModel
+from rollergear_ros.params import load_config
+from rollergear_ros.replay import replay
+from rollergear_ros.review import read_rrd_series
+from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, read_truth, simulate, write_rig_bag
+
+from bagtools import float_series, read_mcap_ros2, read_rosbags
+from conftest import BAGS, ROOT, run_cli
+
+BUNDLED = sorted(BAGS.glob("*.mcap"))
+T = TopicMap()
+
+
+def test_bundled_bags_exist_and_are_small():
+    names = {p.name for p in BUNDLED}
+    assert {"rig_map.mcap", "rig_map_drag.mcap", "drive_cycle_joint_states.mcap", "warmup.mcap"} <= names
+    for p in BUNDLED:
+        assert p.stat().st_size <= 5 * 1024 * 1024
+
+
+def _inputs_from_rosbags(msgs: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Motor torque/speed per sample from the bag, read independently (Float64 or JointState)."""
+    if T.motor_torque in msgs:
+        t, tq = float_series(msgs, T.motor_torque)
+        _, w = float_series(msgs, T.motor_speed)
+        return t, tq, w
+    t, ms = msgs[T.joint_states]
+    k = list(ms[0].name).index("motor")
+    return t, np.array([m.effort[k] for m in ms]), np.array([m.velocity[k] for m in ms])
+
+
+@pytest.mark.parametrize("bag", BUNDLED, ids=lambda p: p.stem)
+def test_replay_bundled_bag_matches_model_on_its_inputs(bag, tmp_path, config):
+    out, rrd = tmp_path / "out.mcap", tmp_path / "out.rrd"
+    proc = run_cli("replay", str(bag), "--out", str(out), "--rrd", str(rrd))
+    assert "energy lost" in proc.stdout and "skipped: none" in proc.stdout
+
+    inputs = read_rosbags(bag)
+    t_in, tq, w = _inputs_from_rosbags(inputs)
+    lm = LossModel(config.gearbox, config.estimator.min_torque_for_efficiency_nm,
+                   config.estimator.min_speed_for_efficiency_rad_s)
+    expect = lm.evaluate(tq, w, breakdown=False)
+
+    for reader in (read_rosbags, read_mcap_ros2):
+        got = reader(out)
+        for topic in (T.loss_torque, T.loss_power, T.efficiency, T.residual_torque):
+            assert topic in got, f"{topic} missing ({reader.__name__})"
+        t_loss, loss = float_series(got, T.loss_torque)
+        assert len(loss) == len(tq), "one estimate per input sample"
+        np.testing.assert_array_equal(t_loss, t_in)
+        np.testing.assert_allclose(loss, expect.loss_torque_nm, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(float_series(got, T.loss_power)[1], expect.loss_power_w, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(float_series(got, T.efficiency)[1], expect.efficiency, rtol=1e-12, equal_nan=True)
+        # the inputs are carried into the output bag unchanged
+        for topic in inputs:
+            assert len(got[topic][0]) == len(inputs[topic][0])
+
+    series = read_rrd_series(rrd)
+    t_r, v_r = series["/loss/torque_nm"]
+    np.testing.assert_array_equal(t_r, t_in)
+    np.testing.assert_allclose(v_r, expect.loss_torque_nm, rtol=1e-12)
+    np.testing.assert_allclose(series["/efficiency/efficiency"][1], expect.efficiency, rtol=1e-12, equal_nan=True)
+    bd = sum(series[f"/loss/breakdown/{k}_nm"][1] for k in ("fr1", "fr2", "tc1", "tc2", "ter1", "ter2", "tb", "fg"))
+    np.testing.assert_allclose(bd, expect.loss_torque_nm, rtol=1e-9)
+    assert "/residual/residual_nm" in series and "/inputs/speed_rad_s" in series
+
+
+def test_rrd_has_review_blueprint(tmp_path):
+    from rerun.chunk import RrdReader
+
+    rrd = tmp_path / "x.rrd"
+    replay(BAGS / "rig_map.mcap", load_config(), rrd=rrd, show_progress=False)
+    reader = RrdReader(str(rrd))
+    assert reader.recordings() and reader.blueprints(), "recording and its blueprint are in the file"
+
+
+def test_residual_equals_measured_minus_model(tmp_path, config):
+    """Residual topic = measured loss (from the bag's four channels) − model."""
+    out = tmp_path / "o.mcap"
+    replay(BAGS / "rig_map_drag.mcap", config, out_mcap=out, show_progress=False)
+    msgs = read_rosbags(out)
+    _, tq = float_series(msgs, T.motor_torque)
+    _, w = float_series(msgs, T.motor_speed)
+    _, tq_o = float_series(msgs, T.output_torque)
+    _, w_o = float_series(msgs, T.output_speed)
+    meas = (tq * w - tq_o * w_o) / np.abs(w)
+    model = LossModel(config.gearbox).loss_magnitude(tq, w)
+    ok = np.abs(w) >= config.estimator.min_speed_for_efficiency_rad_s
+    ok[0] = False  # the first sample arrives before the output channel is known
+    _, res = float_series(msgs, T.residual_torque)
+    np.testing.assert_allclose(res, (meas - model)[ok], rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("effect", ["drag_constant", "drag_speed:c=4e-4,p=1.3", "load_dependent:c=3e-3,q=1.2",
+                                    "viscosity_temperature:B=800", "torque_offset:b=0.08", "torque_gain:g=0.01"])
+def test_simulated_measured_loss_is_model_plus_declared_effect(effect, tmp_path, config):
+    eff = DeclaredEffect.parse(effect)
+    opts = SimulationOptions(profile="warmup", rate_hz=50, seed=7, effects=[eff], torque_noise_nm=0.005,
+                             speed_noise_rad_s=0.0)
+    rig = simulate(config, opts)
+    path = tmp_path / "sim.mcap"
+    write_rig_bag(rig, opts, path)
+    assert read_truth(path)["effects"][0]["name"] == eff.name
+    msgs = read_rosbags(path)
+    _, tq = float_series(msgs, T.motor_torque)
+    _, w = float_series(msgs, T.motor_speed)
+    _, tq_o = float_series(msgs, T.output_torque)
+    _, w_o = float_series(msgs, T.output_speed)
+    theta = np.interp(np.arange(len(tq)), np.arange(0, len(tq), 5)[:len(msgs[T.oil_temperature][1])],
+                      [m.temperature for m in msgs[T.oil_temperature][1]])
+    ok = np.abs(w) > 5
+    meas = ((tq * w - tq_o * w_o) / np.abs(w))[ok]
+    tt, ww, th = rig.torque_true_nm[ok], w[ok], theta[ok]
+    lm = LossModel(config.gearbox)
+    p = eff.params
+    sg = np.sign(ww)
+    declared = {
+        "drag_constant": lambda: p["c"] + 0 * ww,
+        "drag_speed": lambda: p["c"] * np.abs(ww) ** p["p"],
+        "load_dependent": lambda: p["c"] * np.abs(tt) ** p["q"],
+        "viscosity_temperature": lambda: lm.fr_part(tt, ww) * (
+            np.exp(p["B"] / (th + p["C"]) - p["B"] / (p["theta_ref"] + p["C"])) ** 0.66 - 1),
+        "torque_offset": lambda: p["b"] * sg,
+        "torque_gain": lambda: p["g"] * tt * sg,
+    }[eff.name]()
+    expected = lm.loss_magnitude(tt, ww) + declared
+    err = meas - expected
+    # what is left is sensor noise: zero mean, sigma ~ torque noise (x sqrt 2)
+    assert abs(err.mean()) < 0.002
+    assert err.std() < 0.02
+    assert np.sqrt(np.mean(declared ** 2)) > 5 * err.std(), "the effect stands out of the noise"
+
+
+def test_streaming_path_equals_batch_path(config):
+    """The node's per-message path gives the replay's numbers (incl. online adaptation)."""
+    cal = config.with_values({"effects.drag_speed.enabled": True, "effects.drag_speed.c": 1e-4,
+                              "effects.drag_speed.p": 1.4, "effects.drag_constant.enabled": True,
+                              "effects.drag_constant.c_nm": 0.01})
+    _, batches = replay(BAGS / "rig_map_drag.mcap", cal, show_progress=False, collect=True)
+    b = batches[0] if len(batches) == 1 else None
+    loss = np.concatenate([x.loss_torque_nm for x in batches])
+    res = np.concatenate([x.residual_nm for x in batches])
+    est = Estimator(cal)
+    msgs = read_rosbags(BAGS / "rig_map_drag.mcap")
+    events = []
+    chan = {T.motor_torque: "motor_torque", T.motor_speed: "motor_speed", T.output_torque: "output_torque",
+            T.output_speed: "output_speed"}
+    for topic, (ts, ms) in msgs.items():
+        for i, (t, m) in enumerate(zip(ts.tolist(), ms)):
+            if topic in chan:
+                events.append((t, list(chan).index(topic), chan[topic], m.data))
+            else:
+                events.append((t, -1, "oil_temperature", m.temperature))
+    events.sort(key=lambda e: (e[0], e[1]))
+    out = []
+    for t, _, ch, v in events:
+        out.extend(est.push(ch, t, v))
+    out.extend(filter(None, (est.process(s) for s in est.sync.flush())))
+    assert len(out) == len(loss)
+    np.testing.assert_allclose([e.loss_torque_nm for e in out], loss, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose([e.residual_nm for e in out], res, rtol=1e-7, atol=1e-9, equal_nan=True)
+    del b
+
+
+# ------------------------------------------------------------------------------- bad input
+def _write_bag(path: Path, series: dict[str, tuple[str, np.ndarray]], n: int = 200, rate: float = 100.0):
+    t = (1_000_000_000 + np.arange(n) * (1e9 / rate)).astype(np.int64)
+    with BagWriter(path) as bw:
+        for i in range(n):
+            for topic, (type_name, values) in series.items():
+                if type_name == FLOAT64:
+                    bw.write_raw(topic, FLOAT64, int(t[i]), encode_float64(values[i:i + 1])[0])
+                else:
+                    bw.write_message(topic, type_name, int(t[i]), values[i])
+
+
+def test_missing_topics_error_lists_what_the_bag_has(tmp_path):
+    p = tmp_path / "m.mcap"
+    _write_bag(p, {"/other/torque": (FLOAT64, np.ones(10))}, n=10)
+    proc = run_cli("replay", str(p), check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "/other/torque [std_msgs/msg/Float64]" in proc.stderr and T.motor_torque in proc.stderr
+
+
+def test_unexpected_type_names_the_topic(tmp_path):
+    p = tmp_path / "t.mcap"
+    msg = {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}, "temperature": 1.0, "variance": 0.0}
+    _write_bag(p, {T.motor_torque: ("sensor_msgs/msg/Temperature", [msg] * 5), T.motor_speed: (FLOAT64, np.ones(5))},
+               n=5)
+    with pytest.raises(BagError, match=f"{T.motor_torque} has type sensor_msgs/msg/Temperature"):
+        replay(p, load_config(), show_progress=False)
+
+
+def test_foreign_and_non_mcap_files(tmp_path):
+    from mcap.writer import Writer
+
+    p = tmp_path / "json.mcap"
+    with p.open("wb") as fh:
+        w = Writer(fh)
+        w.start()
+        sid = w.register_schema("x", "jsonschema", b"{}")
+        cid = w.register_channel(T.motor_torque, "json", sid)
+        w.add_message(cid, 1, b"{}", 1)
+        w.finish()
+    with pytest.raises(BagError, match="not a ROS 2 bag"):
+        replay(p, load_config(), show_progress=False)
+    q = tmp_path / "x.db3"
+    q.write_bytes(b"SQLite format 3\0" + b"\0" * 100)
+    with pytest.raises(BagError, match="not an MCAP"):
+        replay(q, load_config(), show_progress=False)
+    with pytest.raises(BagError, match="does not exist"):
+        replay(tmp_path / "nope.mcap", load_config(), show_progress=False)
+
+
+def test_nan_and_inf_samples_are_skipped_and_counted(tmp_path, config):
+    n = 300
+    tq = np.full(n, 20.0)
+    w = np.full(n, 100.0)
+    tq[[10, 20]] = np.nan
+    w[30] = np.inf
+    tq[40] = -np.inf
+    tq[50] = 1e9  # implausible
+    p = tmp_path / "nan.mcap"
+    _write_bag(p, {T.motor_torque: (FLOAT64, tq), T.motor_speed: (FLOAT64, w)}, n=n)
+    out = tmp_path / "o.mcap"
+    s, _ = replay(p, config, out_mcap=out, show_progress=False)
+    assert s.skipped["non_finite"] == 4 and s.skipped["implausible"] == 1
+    assert s.estimated == n - 5
+    _, loss = float_series(read_rosbags(out), T.loss_torque)
+    assert len(loss) == n - 5 and np.all(np.isfinite(loss))
+    assert math.isfinite(s.mean_loss_nm) and math.isfinite(s.energy_lost_j)
+
+
+def test_unpaired_and_missing_output_are_counted(tmp_path, config):
+    n = 200
+    t = (1_000_000_000 + np.arange(n) * 10_000_000).astype(np.int64)
+    p = tmp_path / "gap.mcap"
+    with BagWriter(p) as bw:
+        for i in range(n):
+            bw.write_raw(T.motor_torque, FLOAT64, int(t[i]), encode_float64(np.array([10.0]))[0])
+            if i % 10 != 5:  # every tenth speed message lost
+                bw.write_raw(T.motor_speed, FLOAT64, int(t[i]), encode_float64(np.array([50.0]))[0])
+            if i < 100:  # output torque stops half way
+                bw.write_raw(T.output_torque, FLOAT64, int(t[i]), encode_float64(np.array([13.0]))[0])
+    s, _ = replay(p, config, show_progress=False)
+    assert s.skipped["unpaired"] == 20
+    assert s.skipped["output_missing"] >= 89
+    assert s.estimated == 180
+
+
+def test_truncated_bag_processes_what_is_readable(tmp_path, config):
+    src = BAGS / "rig_map.mcap"
+    cut = tmp_path / "cut.mcap"
+    data = src.read_bytes()
+    cut.write_bytes(data[: int(len(data) * 0.5)])
+    info = inspect_bag(cut)
+    assert info.truncated and not info.indexed
+    proc = run_cli("replay", str(cut), "--out", str(tmp_path / "o.mcap"))
+    assert "warning" in proc.stderr and "could not be read" in proc.stderr
+    got = read_rosbags(tmp_path / "o.mcap")
+    n = len(got[T.loss_torque][0])
+    full = inspect_bag(src).counts[T.motor_torque]
+    assert 0.2 * full < n < 0.9 * full
+
+
+def test_topic_remapping(tmp_path, config):
+    p = tmp_path / "r.mcap"
+    _write_bag(p, {"/rig/tq": (FLOAT64, np.full(50, 10.0)), "/rig/w": (FLOAT64, np.full(50, 100.0))}, n=50)
+    proc = run_cli("replay", str(p), "--topic-motor-torque", "/rig/tq", "--topic-motor-speed", "/rig/w",
+                   "--topic-loss-torque", "/est/loss", "--out", str(tmp_path / "o.mcap"))
+    assert "estimated: 50" in proc.stdout
+    got = read_rosbags(tmp_path / "o.mcap")
+    assert len(got["/est/loss"][0]) == 50
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interrupted_replay_leaves_valid_files(tmp_path, config, sig):
+    # a long bag so the replay is still running when the signal comes
+    opts = SimulationOptions(profile="warmup", rate_hz=1000, seed=1)
+    rig = simulate(config, opts)
+    big = tmp_path / "big.mcap"
+    write_rig_bag(rig, opts, big)
+    out, rrd = tmp_path / "o.mcap", tmp_path / "o.rrd"
+    proc = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "replay", str(big), "--out", str(out),
+                             "--rrd", str(rrd)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    deadline = time.time() + 60
+    while time.time() < deadline and (not out.exists() or out.stat().st_size < 2_000_000):
+        time.sleep(0.05)
+    proc.send_signal(sig)
+    stdout, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "INTERRUPTED" in stdout and "Traceback" not in stderr
+    got = read_rosbags(out)  # a valid, indexed file
+    n = len(got[T.loss_torque][0])
+    assert 0 < n < len(rig.t_ns)
+    assert inspect_bag(out).indexed
+    assert len(read_mcap_ros2(out)[T.loss_torque][0]) == n
+    series = read_rrd_series(rrd)
+    assert 0 < len(series["/loss/torque_nm"][0]) <= n
