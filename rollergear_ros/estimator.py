@@ -15,7 +15,8 @@ every active channel has a message queued, the heads form one sample if their ti
 period, so sample k never pairs with k±1.  An optional channel silent for longer than
 ``staleness_s`` no longer holds up the motor samples (they are estimated without a residual and
 counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
-is dropped as ``unpaired``.  The sample carries the motor torque's time.  Oil temperature is held
+is dropped as ``unpaired``.  During the first ``staleness_s`` of a stream, samples wait for the
+optional channels to show up, so a log's first samples already carry their measured output.  The sample carries the motor torque's time.  Oil temperature is held
 (zero-order hold) for ``temperature_hold_s``.
 """
 
@@ -70,6 +71,7 @@ class SampleSynchronizer:
         self.queues: dict[str, deque] = {c: deque() for c in _REQUIRED + _OPTIONAL}
         self.active: dict[str, bool] = {TORQUE: True, SPEED: True, OUT_TORQUE: False, OUT_SPEED: False}
         self.latest_ns = -(2 ** 62)
+        self.first_ns: int | None = None
         self.temperature: tuple[int, float] | None = None
         self.counts: dict[str, int] = {r: 0 for r in SKIP_REASONS}
         self.received: dict[str, int] = {c: 0 for c in CHANNELS}
@@ -77,6 +79,8 @@ class SampleSynchronizer:
     def push(self, channel: str, t_ns: int, value: float) -> list[SyncedSample]:
         """Add one message; returns the samples it completes (usually zero or one)."""
         self.received[channel] += 1
+        if self.first_ns is None:
+            self.first_ns = t_ns
         if t_ns > self.latest_ns:
             self.latest_ns = t_ns
         if channel == TEMPERATURE:
@@ -107,6 +111,9 @@ class SampleSynchronizer:
                 self._expire_required()
                 return out
             t_req = max(q[TORQUE][0][0], q[SPEED][0][0])
+            if (self.latest_ns - self.first_ns <= self.staleness_ns
+                    and not (self.received[OUT_TORQUE] and self.received[OUT_SPEED])):
+                return out  # start-up: give the optional channels a chance to appear
             # optional channels that are active but silent: do not hold the motor samples up
             for ch in _OPTIONAL:
                 if self.active[ch] and not q[ch] and self.latest_ns - t_req > self.staleness_ns:
@@ -329,6 +336,7 @@ class BatchEstimate:
     efficiency: np.ndarray
     measured_loss_nm: np.ndarray
     residual_nm: np.ndarray
+    temperature_c: np.ndarray | None = None  #: oil temperature (NaN where none)
     breakdown_nm: dict[str, np.ndarray] = field(default_factory=dict)
     effects_nm: np.ndarray | None = None  #: physical effects part of the loss magnitude
     coefficients: dict[str, np.ndarray] = field(default_factory=dict)  #: adapted, per sample
@@ -404,8 +412,9 @@ class Estimator:
         vscale = 1.0
         if e.viscosity_temperature:
             if math.isfinite(s.temperature_c):
-                vscale = viscosity_scale(e.viscosity_temperature_B_k, e.viscosity_temperature_C_k,
-                                         e.viscosity_temperature_theta_ref_c, s.temperature_c)
+                vscale = 1.0 + e.viscosity_temperature_scale * (viscosity_scale(
+                    e.viscosity_temperature_B_k, e.viscosity_temperature_C_k,
+                    e.viscosity_temperature_theta_ref_c, s.temperature_c) - 1.0)
             else:
                 self.counts["temperature_missing"] += 1
         mag = self.model.loss_magnitude_scalar(t, w, vscale)
@@ -483,9 +492,9 @@ class Estimator:
         if e.viscosity_temperature:
             have_t = np.isfinite(temperature)
             self.counts["temperature_missing"] += int(np.count_nonzero(~have_t))
-            vscale = np.where(have_t, viscosity_scale(e.viscosity_temperature_B_k, e.viscosity_temperature_C_k,
-                                                      e.viscosity_temperature_theta_ref_c,
-                                                      np.where(have_t, temperature, 0.0)), 1.0)
+            s_eta = viscosity_scale(e.viscosity_temperature_B_k, e.viscosity_temperature_C_k,
+                                    e.viscosity_temperature_theta_ref_c, np.where(have_t, temperature, 0.0))
+            vscale = np.where(have_t, 1.0 + e.viscosity_temperature_scale * (s_eta - 1.0), 1.0)
         res = self.model.evaluate(torque, speed, vscale, breakdown=breakdown)
         mag = res.loss_magnitude_nm
         bad_out = ~np.isnan(out_torque) & (~np.isfinite(out_torque) | (~np.isfinite(out_speed) & ~np.isnan(out_speed)))
@@ -518,7 +527,7 @@ class Estimator:
         self.estimated += len(t_ns)
         return BatchEstimate(t_ns=t_ns, torque_nm=torque, speed_rad_s=speed, loss_torque_nm=loss * sg,
                              loss_power_w=loss * aw, efficiency=eff, measured_loss_nm=meas,
-                             residual_nm=residual, breakdown_nm=res.breakdown_nm, effects_nm=phys,
+                             residual_nm=residual, temperature_c=temperature, breakdown_nm=res.breakdown_nm, effects_nm=phys,
                              coefficients=coefficients, alarms_t_ns=list(self.detector.alarm_times_ns))
 
     def _adapt_batch(self, phis: list[np.ndarray], y: np.ndarray, t_ns: np.ndarray) -> np.ndarray:

@@ -170,6 +170,9 @@ EFFECT_SPECS: tuple[ParamSpec, ...] = (
               low_open=True, high=1e4),
     ParamSpec("effects.viscosity_temperature.theta_ref_c", float, 40.0,
               "oil temperature at which the viscosity is eta0", "degC", low=-100.0, high=400.0),
+    ParamSpec("effects.viscosity_temperature.scale", float, 1.0,
+              "scale of the viscosity correction: Fr·(1 + scale·((eta/eta0)^0.66 − 1)); 1 = the model at eta(theta)",
+              "", low=0.0, high=10.0),
     ParamSpec("effects.torque_offset.enabled", bool, False,
               "input torque sensor zero error (adds offset*sign(w) to the input-referred loss)"),
     ParamSpec("effects.torque_offset.offset_nm", float, 0.0, "input-referred torque offset", "N*m",
@@ -283,6 +286,7 @@ class EffectParams:
     viscosity_temperature_B_k: float = 0.0
     viscosity_temperature_C_k: float = 95.0
     viscosity_temperature_theta_ref_c: float = 40.0
+    viscosity_temperature_scale: float = 1.0
     torque_offset: bool = False
     torque_offset_offset_nm: float = 0.0
     torque_gain: bool = False

@@ -111,7 +111,7 @@ def drive_cycle(rate_hz: float, duration_s: float = 120.0, seed: int = 0) -> Pro
     k = max(int(rate_hz * 1.5), 1)
     w = np.convolve(np.pad(w, (k, k), mode="edge"), np.ones(k) / k, mode="same")[k:-k]
     dw = np.gradient(w, 1.0 / rate_hz)
-    inertia = 0.35
+    inertia = 1.0
     road = 8.0 * np.sign(w) + 2e-4 * w * np.abs(w)
     torque = inertia * dw + road * (np.abs(w) > 1.0)
     return Profile(t, w, np.clip(torque, -120, 120), np.full(n, 45.0), (t // 2.0).astype(int))
@@ -156,7 +156,8 @@ class SimulationOptions:
     temperature_rate_hz: float = 10.0
     joint_states: bool = False
     start_ns: int = 1_700_000_000_000_000_000
-    step_change_at_s: float | None = None  #: effects switch on here (None: from the start)
+    step_change_at_s: float | None = None  #: effects step here (None: constant from the start)
+    step_from_factor: float = 0.0  #: effect magnitudes before the step, as a fraction of the declared ones
 
 
 @dataclass
@@ -199,7 +200,8 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
     w, tq, theta = prof.speed_rad_s, prof.torque_nm, prof.temperature_c
     aw, at = np.abs(w), np.abs(tq)
     sg = rotation_sign(w, tq)
-    active = np.ones(len(w), bool) if opts.step_change_at_s is None else prof.t_s >= opts.step_change_at_s
+    active = (np.ones(len(w)) if opts.step_change_at_s is None
+              else np.where(prof.t_s >= opts.step_change_at_s, 1.0, opts.step_from_factor))
     vscale = np.ones(len(w))
     extra = np.zeros(len(w))
     gain, offset = 0.0, 0.0
@@ -212,17 +214,16 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
         elif eff.name == "load_dependent":
             extra += p["c"] * at ** p["q"] * active
         elif eff.name == "viscosity_temperature":
-            eta_ratio = np.exp(p["B"] / (theta + p["C"]) - p["B"] / (p["theta_ref"] + p["C"]))
-            vscale = np.where(active, eta_ratio ** 0.66, 1.0)
+            vscale = np.exp(active * (p["B"] / (theta + p["C"]) - p["B"] / (p["theta_ref"] + p["C"]))) ** 0.66
         elif eff.name == "torque_offset":
-            offset = p["b"]
+            offset = p["b"] * active
         elif eff.name == "torque_gain":
-            gain = p["g"]
+            gain = p["g"] * active
     model_loss = model.loss_magnitude(tq, w)
     loss_true = model.loss_magnitude(tq, w, vscale) + extra
     out_torque_true = ratio * (tq - loss_true * sg)
     n = len(w)
-    torque_meas = tq + np.where(active, gain * tq + offset, 0.0) + _noise(rng, n, opts.torque_noise_nm, opts.noise_ar1)
+    torque_meas = tq + gain * tq + offset + _noise(rng, n, opts.torque_noise_nm, opts.noise_ar1)
     out_torque_meas = out_torque_true + _noise(rng, n, opts.torque_noise_nm * ratio, opts.noise_ar1)
     if opts.output_lag_s > 0:
         lag = int(round(opts.output_lag_s * opts.rate_hz))
@@ -242,6 +243,7 @@ def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics
              "effects": [{"name": e.name, "params": e.params} for e in opts.effects],
              "torque_noise_nm": opts.torque_noise_nm, "noise_ar1": opts.noise_ar1,
              "output_lag_s": opts.output_lag_s, "step_change_at_s": opts.step_change_at_s,
+             "step_from_factor": opts.step_from_factor,
              "joint_states": opts.joint_states}
     count = 0
     with BagWriter(path) as bw:

@@ -1,0 +1,76 @@
+"""``rollergear calibrate``: residual analysis, effect discovery, error before/after on held-out data."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .bag import BagError
+from .cli import UserError, config_from_args
+from .replay_cli import add_topic_options, topics_from_args
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .calibrate import calibrate, calibrated_yaml, load_samples, write_report
+
+    config = config_from_args(args)
+
+    def log(msg: str) -> None:
+        print(msg, file=sys.stderr)
+
+    try:
+        if not args.json:
+            log(f"reading {len(args.bags)} recording(s) …")
+        data = load_samples(args.bags, config, topics_from_args(args),
+                            warn=lambda m: log(f"rollergear: warning: {m}"), progress=not args.json and sys.stderr.isatty())
+        if not args.json:
+            log(f"{len(data.t_ns):,} samples with measured output; analysing …")
+        result = calibrate(data, config, args.delta, args.block_s)
+    except (BagError, ValueError) as exc:
+        raise UserError(str(exc)) from None
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(calibrated_yaml(result, args.bags))
+    report = write_report(result, data, Path(args.report), args.bags) if args.report else None
+    if args.json:
+        sys.stdout.write(json.dumps(result.to_json()) + "\n")
+        return 0
+    eb, ea = result.error_before, result.error_after
+    print(f"verdict: {result.verdict}")
+    for e in result.effects:
+        params = ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items())
+        ci = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e["ci95"].items())
+        print(f"  effect {e['name']}: {params}  (95 %: {ci}; RMS contribution {e['rms_contribution_nm']:.4g} N·m)")
+    for a in result.ambiguous:
+        print(f"  cannot tell apart: {' / '.join(a['effects'])} — record {a['needs']} to separate them")
+    if result.verdict == "no_missing_effect":
+        bounds = ", ".join(f"{r['name']} <= {r['upper_rms_nm']:.3g}" for r in result.rejected)
+        print(f"  no missing effect larger than delta = {result.delta_nm:.4g} N·m (upper 95 % bounds: {bounds})")
+    print(f"held-out error ({result.samples:,} samples): RMSE {eb['rmse_nm']:.4g} -> {ea['rmse_nm']:.4g} N·m, "
+          f"MAE {eb['mae_nm']:.4g} -> {ea['mae_nm']:.4g} N·m, max {eb['max_abs_nm']:.4g} -> {ea['max_abs_nm']:.4g} N·m, "
+          f"{eb['rel_rmse_pct']:.2f} % -> {ea['rel_rmse_pct']:.2f} % of the measured loss")
+    print(f"held out: {result.holdout}")
+    if args.out:
+        print(f"calibrated parameters: {args.out}")
+    if report:
+        print(f"report: {report}")
+    return 0
+
+
+def register_calibrate(sub, with_params) -> None:
+    p = with_params(sub.add_parser("calibrate", help="find effects the model lacks from recordings with measured "
+                                                     "output torque; error before/after on held-out data"))
+    p.add_argument("bags", nargs="+", metavar="BAG")
+    p.add_argument("--out", metavar="CALIBRATED.yaml", help="parameter file with the accepted effects")
+    p.add_argument("--report", metavar="DIR", help="Markdown report with plots")
+    p.add_argument("--json", action="store_true", help="print exactly the interface.md JSON object on stdout")
+    p.add_argument("--delta", type=float, default=None, metavar="NM",
+                   help="practical minimum effect size (RMS N·m); default from the data")
+    p.add_argument("--block-s", type=float, default=0.25, help="averaging block length [s]")
+    add_topic_options(p)
+    p.set_defaults(func=cmd_calibrate)
+
+
+REGISTER = [register_calibrate]
