@@ -150,8 +150,11 @@ class Blocks:
         raise ValueError(name)
 
 
-def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5) -> Blocks:
-    """Average samples into blocks (see the module docstring) and compute every candidate column."""
+def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Blocks | None = None) -> Blocks:
+    """Average samples into blocks (see the module docstring) and compute every candidate column.
+
+    ``like``: reuse another block set's boundaries, dwells and folds (same samples, corrected values).
+    """
     t = d.t_ns.astype(np.float64) * 1e-9
     sg = rotation_sign(d.speed, d.torque)
     n = len(t)
@@ -162,8 +165,11 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5) -> Blocks:
         tb = np.floor((t - t[0]) / block_s)
         brk[1:] = ((tb[1:] != tb[:-1]) | (d.bag_id[1:] != d.bag_id[:-1]) | (np.sign(d.speed[1:]) != np.sign(d.speed[:-1]))
                    | (np.sign(d.torque[1:]) != np.sign(d.torque[:-1])) | (dt > 5 * typical) | (dt < 0))
-    start = np.flatnonzero(brk)
+    start = np.flatnonzero(brk) if like is None else like.start
     count = np.diff(np.append(start, n))
+    if like is not None:
+        brk = np.zeros(n, bool)
+        brk[start] = True
 
     def mean(x: np.ndarray) -> np.ndarray:
         return np.add.reduceat(x, start) / count
@@ -212,6 +218,8 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5) -> Blocks:
             run = 0
         dwell[i] = cur
     fold = dwell % folds
+    if like is not None:
+        dwell, fold = like.dwell, like.fold
     logw = np.log(np.maximum(aw, 1e-300))
     logt = np.log(np.maximum(at, 1e-300))
     speed_pow = np.stack([mean(np.exp(p * logw)) for p in SPEED_EXPONENTS])
@@ -577,10 +585,15 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
     out = cal.run()
     selected: list[Term] = out["selected"]
     final = selected + out["provisional"]
+    blocks0, data_c = blocks, data
+    if {t.name for t in final} & {"torque_offset", "torque_gain"}:
+        cal, final, data_c = _refit_sensor_errors(cal, data, final, config, block_s, folds)
+        selected = final[:len(selected)]
+    blocks = cal.b
     pred_before = np.zeros(len(blocks.y))  # the paper's model alone
     # what the calibrated parameter file adds: the accepted effects (fitted with the rest, held out)
     pred_after = cal.cv_predictions(final, only_terms=len(selected))
-    err_b = blocks.y - pred_before
+    err_b = blocks0.y - pred_before  # residual of the model at the measured torque
     err_a = blocks.y - pred_after
     full = cal.fit(final)
     effects = []
@@ -614,10 +627,9 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
     else:
         verdict = "inconclusive"
     # sample-level errors (noise included) for the report
-    res_s = data.residual
     idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
-    s_b = res_s - pred_before[idx_block]
-    s_a = res_s - pred_after[idx_block]
+    s_b = data.residual - pred_before[idx_block]
+    s_a = data_c.residual - pred_after[idx_block]
     sample_level = {"before": error_stats(s_b, data.measured_loss, np.ones(len(s_b))),
                     "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a)))}
     holdout = (f"{folds}-fold cross-validation grouped by dwell ({int(blocks.dwell.max()) + 1} dwells of steady operation, "
@@ -629,6 +641,33 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
                              error_stats(err_a, blocks.measured, blocks.count), holdout, int(len(data.t_ns)),
                              cal.delta, out["rejected"], out["ambiguous"], out["unavailable"], cal.log, sample_level,
                              new_config, blocks, pred_after)
+
+
+def _refit_sensor_errors(cal: Calibrator, data: SampleData, final: list[Term], config: Config, block_s: float,
+                         folds: int, iterations: int = 3) -> tuple[Calibrator, list[Term], SampleData]:
+    """Torque-sensor errors also corrupt the model's input: refit with ``T = (T_meas − b)/(1 + g)``.
+
+    A fixed-point iteration (the correction is second order, so it converges in 2–3 steps); the
+    estimator evaluates the model at the same corrected torque.
+    """
+    from dataclasses import replace as dc_replace
+
+    model = LossModel(config.gearbox)
+    names = [t.name for t in final]
+    for _ in range(iterations):
+        f = cal.fit(final)
+        k0 = len(cal.nuisance)
+        b = float(f.coef[k0 + names.index("torque_offset")]) if "torque_offset" in names else 0.0
+        g = float(f.coef[k0 + names.index("torque_gain")]) if "torque_gain" in names else 0.0
+        t_c = (data.torque - b) / (1.0 + g)
+        corrected = dc_replace(data, torque=t_c, model_loss=model.loss_magnitude(t_c, data.speed),
+                               fr_part=model.fr_part(t_c, data.speed))
+        new = Calibrator(make_blocks(corrected, block_s, folds, like=cal.b), cal.delta, cal.alpha,
+                         cal.min_improvement)
+        new.log = cal.log
+        final = [new._with_member(t, t.member) if t.member is not None else members(new.b, t.name)[0] for t in final]
+        cal = new
+    return cal, final, corrected
 
 
 def _calibrated_config(config: Config, effects: list[dict]) -> Config:

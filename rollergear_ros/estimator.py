@@ -369,6 +369,19 @@ class Estimator:
         """Current (adapted) coefficients of the adaptive effects, in physical units."""
         return {n: t / s for n, t, s in zip(self.adaptive, self.rls.theta, self._scales)}
 
+    def corrected_torque(self, torque_meas):
+        """Drive torque with the accepted sensor errors removed: ``T = (T_meas − b)/(1 + g)``.
+
+        The model and the physical effects see this torque; the measured loss keeps the sensor's
+        reading, so the sensor errors appear there as ``(g·T + b)·sgn ω`` (see :mod:`.effects`).
+        """
+        e = self.config.effects
+        b = e.torque_offset_offset_nm if e.torque_offset else 0.0
+        g = e.torque_gain_gain if e.torque_gain else 0.0
+        if b == 0.0 and g == 0.0:
+            return torque_meas
+        return (torque_meas - b) / (1.0 + g)
+
     def screen(self, torque: float, speed: float) -> str | None:
         """Reason a motor sample cannot be estimated, or None."""
         if not (math.isfinite(torque) and math.isfinite(speed)):
@@ -405,7 +418,8 @@ class Estimator:
         if reason:
             self.counts[reason] += 1
             return None
-        t, w = s.torque_nm, s.speed_rad_s
+        t_meas, w = s.torque_nm, s.speed_rad_s
+        t = self.corrected_torque(t_meas)
         at, aw = abs(t), abs(w)
         sg = rotation_sign_scalar(w, t)
         e = self.config.effects
@@ -420,7 +434,7 @@ class Estimator:
         mag = self.model.loss_magnitude_scalar(t, w, vscale)
         phys, sens = self._effects_scalar(at, aw, t, sg)
         loss = mag + phys
-        meas = self._measured_loss_scalar(t, w, s.out_torque_nm, s.out_speed_rad_s)
+        meas = self._measured_loss_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s)
         if math.isnan(s.out_torque_nm):
             pass
         elif not math.isfinite(s.out_torque_nm) or not math.isfinite(s.out_speed_rad_s) and not math.isnan(
@@ -432,7 +446,8 @@ class Estimator:
             self._adapt_scalar(at, aw, t, sg, meas - mag, s.t_ns)
             self.residual_stats.add(residual)
         self.estimated += 1
-        est = Estimate(s.t_ns, t, w, loss * sg, loss * aw, self.model.efficiency_scalar(t, w, loss), meas, residual)
+        est = Estimate(s.t_ns, t_meas, w, loss * sg, loss * aw, self.model.efficiency_scalar(t, w, loss), meas,
+                       residual)
         self.last = est
         return est
 
@@ -485,6 +500,8 @@ class Estimator:
         keep = finite & plausible
         t_ns, torque, speed = np.asarray(t_ns)[keep], torque[keep], speed[keep]
         out_torque, out_speed, temperature = out_torque[keep], out_speed[keep], temperature[keep]
+        torque_meas = torque
+        torque = self.corrected_torque(torque_meas)
         at, aw = np.abs(torque), np.abs(speed)
         sg = rotation_sign(speed, torque)
         e = self.config.effects
@@ -500,7 +517,7 @@ class Estimator:
         bad_out = ~np.isnan(out_torque) & (~np.isfinite(out_torque) | (~np.isfinite(out_speed) & ~np.isnan(out_speed)))
         self.counts["output_non_finite"] += int(np.count_nonzero(bad_out))
         with np.errstate(invalid="ignore"):
-            meas = np.where(bad_out, np.nan, self.measured_loss(torque, speed, out_torque, out_speed))
+            meas = np.where(bad_out, np.nan, self.measured_loss(torque_meas, speed, out_torque, out_speed))
         coefficients: dict[str, np.ndarray] = {}
         if self.adaptive:
             phis = regressors(self.adaptive, self.config, at, aw, torque, sg)
@@ -525,7 +542,7 @@ class Estimator:
         residual = meas - (loss + sens)
         eff = efficiency(torque, speed, loss, self.model.min_torque_nm, self.model.min_speed_rad_s)
         self.estimated += len(t_ns)
-        return BatchEstimate(t_ns=t_ns, torque_nm=torque, speed_rad_s=speed, loss_torque_nm=loss * sg,
+        return BatchEstimate(t_ns=t_ns, torque_nm=torque_meas, speed_rad_s=speed, loss_torque_nm=loss * sg,
                              loss_power_w=loss * aw, efficiency=eff, measured_loss_nm=meas,
                              residual_nm=residual, temperature_c=temperature, breakdown_nm=res.breakdown_nm, effects_nm=phys,
                              coefficients=coefficients, alarms_t_ns=list(self.detector.alarm_times_ns))
