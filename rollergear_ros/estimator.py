@@ -16,8 +16,16 @@ period, so sample k never pairs with k±1.  An optional channel silent for longe
 ``staleness_s`` no longer holds up the motor samples (they are estimated without a residual and
 counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
 is dropped as ``unpaired``.  During the first ``staleness_s`` of a stream, samples wait for the
-optional channels to show up, so a log's first samples already carry their measured output.  The sample carries the motor torque's time.  Oil temperature is held
-(zero-order hold) for ``temperature_hold_s``.
+optional channels to show up, so a log's first samples already carry their measured output.
+
+Arrival pairing (``arrival=True``, for a live executor that gives no publisher timestamps, so
+*time* is the callback time): messages are paired first-in first-out per channel even when their
+callback times are further apart than the tolerance (the middleware may deliver topics slightly
+out of order, and callback times spread under load); only when three consecutive pairs are more
+than ``max(sync_tolerance_s, 2 ms)`` apart is the stream taken to be misaligned by a lost message,
+and the oldest head is dropped (``unpaired``) to re-synchronise.  A lost message at more than
+~500 Hz therefore shifts the pairing by one sample until the next gap; the node reports
+``unpaired`` counts in ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -43,6 +51,7 @@ _REQUIRED = (TORQUE, SPEED)
 _OPTIONAL = (OUT_TORQUE, OUT_SPEED)
 
 TEMPERATURE_HOLD_S = 5.0
+ARRIVAL_TOLERANCE_S = 0.002
 
 #: reasons a sample is not estimated (or estimated without a residual)
 SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
@@ -64,7 +73,9 @@ class SampleSynchronizer:
     """Pairs header-less input channels by time (see the module docstring for the rule)."""
 
     def __init__(self, sync_tolerance_s: float, staleness_s: float,
-                 temperature_hold_s: float = TEMPERATURE_HOLD_S) -> None:
+                 temperature_hold_s: float = TEMPERATURE_HOLD_S, arrival: bool = False) -> None:
+        self.arrival = arrival
+        self._wide = 0  # consecutive pairs wider than the tolerance (arrival pairing)
         self.tolerance_ns = int(round(sync_tolerance_s * 1e9))
         self.staleness_ns = int(round(staleness_s * 1e9))
         self.temperature_hold_ns = int(round(temperature_hold_s * 1e9))
@@ -79,13 +90,13 @@ class SampleSynchronizer:
     def push(self, channel: str, t_ns: int, value: float) -> list[SyncedSample]:
         """Add one message; returns the samples it completes (usually zero or one)."""
         self.received[channel] += 1
+        if channel == TEMPERATURE:  # held, never paired: it does not move the pairing clock
+            self.temperature = (t_ns, value)
+            return []
         if self.first_ns is None:
             self.first_ns = t_ns
         if t_ns > self.latest_ns:
             self.latest_ns = t_ns
-        if channel == TEMPERATURE:
-            self.temperature = (t_ns, value)
-            return []
         self.queues[channel].append((t_ns, value))
         if not self.active[channel]:
             self.active[channel] = True
@@ -122,7 +133,13 @@ class SampleSynchronizer:
             if any(not q[c] for c in chans):
                 return out
             times = [q[c][0][0] for c in chans]
-            if max(times) - min(times) <= tol:
+            wide = max(times) - min(times) > tol
+            if self.arrival:
+                self._wide = self._wide + 1 if wide else 0
+                wide = self._wide >= 3
+                if wide:
+                    self._wide = 0
+            if not wide:
                 vals = {c: q[c].popleft()[1] for c in chans}
                 t = times[0]
                 out.append(self._sample(t, vals))
@@ -346,12 +363,20 @@ class BatchEstimate:
 class Estimator:
     """Model + accepted effects + residual + online adaptation, for one :class:`Config`."""
 
-    def __init__(self, config: Config) -> None:
+    def __init__(self, config: Config, pairing: str = "timestamp") -> None:
+        """``pairing``: ``timestamp`` (bags; live with publisher timestamps) or ``arrival`` (see
+        :class:`SampleSynchronizer`)."""
         self.config = config
         est = config.estimator
         self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s)
         self.ratio = config.gearbox.ratio_effective
-        self.sync = SampleSynchronizer(est.sync_tolerance_s, est.staleness_s)
+        if pairing == "arrival":
+            self.sync = SampleSynchronizer(max(est.sync_tolerance_s, ARRIVAL_TOLERANCE_S), est.staleness_s,
+                                           arrival=True)
+        elif pairing == "timestamp":
+            self.sync = SampleSynchronizer(est.sync_tolerance_s, est.staleness_s)
+        else:
+            raise ValueError(f"pairing must be 'timestamp' or 'arrival', not {pairing!r}")
         self.counts = self.sync.counts  # skip reasons (shared with the synchroniser)
         self.adaptive = adaptive_effects(config) if est.adapt else ()
         coef = effect_coefficients(config)

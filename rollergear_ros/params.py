@@ -216,6 +216,9 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("node.input_joint", str, "motor", "JointState joint carrying motor torque/speed", read_only=True),
     ParamSpec("node.output_joint", str, "output",
               "JointState joint carrying measured output torque/speed (absent: no residual)", read_only=True),
+    ParamSpec("node.executor", str, "events",
+              "rclpy executor: events (fast; pairs inputs in arrival order) or single_threaded (pairs inputs by "
+              "publisher timestamps; ~3 k messages/s at most)", choices=("events", "single_threaded"), read_only=True),
     ParamSpec("node.publish_every_n", int, 1, "publish every n-th estimate (decimation for slow consumers)",
               low=1, high=100000),
     ParamSpec("node.expected_rate_hz", float, 1000.0, "expected input rate, for diagnostics", "Hz",
@@ -321,6 +324,7 @@ class NodeParams:
     input_mode: str = "float64"
     input_joint: str = "motor"
     output_joint: str = "output"
+    executor: str = "events"
     publish_every_n: int = 1
     expected_rate_hz: float = 1000.0
     min_efficiency_warn: float = 0.9
@@ -469,7 +473,7 @@ def config_to_yaml(config: Config, header: str = "") -> str:
         for p in parts[:-1]:
             cursor = cursor.setdefault(p, {})
         cursor[parts[-1]] = value
-    body = yaml.safe_dump({NODE_NAME: {"ros__parameters": nested}}, sort_keys=False)
+    body = yaml.safe_dump({"/**/" + NODE_NAME: {"ros__parameters": nested}}, sort_keys=False)
     return (header + body) if header else body
 
 

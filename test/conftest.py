@@ -31,3 +31,8 @@ def run_cli(*args: str, check: bool = True, timeout: float = 600, env: dict | No
     if check and proc.returncode != 0:
         raise AssertionError(f"rollergear {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return proc
+
+
+# Each test run talks DDS on its own domain, on this machine only.
+os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

@@ -1,0 +1,115 @@
+"""What the node reports on ``/diagnostics``: input rates, staleness, skips, efficiency, residual.
+
+Pure Python (no rclpy): :func:`diagnose` turns an :class:`InputMonitor` and the estimator's state
+into a level, a message and key/value pairs; the node only copies them into a
+``diagnostic_msgs/DiagnosticStatus``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from .estimator import CHANNELS, OUT_TORQUE, SKIP_REASONS, SPEED, TORQUE, Estimator
+
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
+STARTUP_GRACE_S = 5.0
+
+
+@dataclass
+class InputMonitor:
+    """Counts and last arrival (wall clock, ns) of each input channel."""
+
+    start_ns: int
+    counts: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
+    last_ns: dict[str, int | None] = field(default_factory=lambda: {c: None for c in CHANNELS})
+    _window_counts: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
+    _window_start_ns: int = 0
+
+    def __post_init__(self) -> None:
+        self._window_start_ns = self.start_ns
+
+    def record(self, channel: str, wall_ns: int) -> None:
+        self.counts[channel] += 1
+        self.last_ns[channel] = wall_ns
+
+    def rates(self, now_ns: int) -> dict[str, float]:
+        """Messages per second per channel since the previous call (then a new window starts)."""
+        dt = max((now_ns - self._window_start_ns) * 1e-9, 1e-9)
+        out = {c: (self.counts[c] - self._window_counts[c]) / dt for c in CHANNELS}
+        self._window_counts = dict(self.counts)
+        self._window_start_ns = now_ns
+        return out
+
+
+@dataclass
+class DiagnosticReport:
+    level: int
+    message: str
+    values: list[tuple[str, str]]
+
+
+def _fmt(x: float, digits: int = 4) -> str:
+    return "nan" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}g}"
+
+
+def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estimator: Estimator,
+             expected_rate_hz: float, min_efficiency_warn: float, previous_skips: dict[str, int],
+             previous_alarms: int) -> DiagnosticReport:
+    """Level (worst reason wins), one-line message and the key/value pairs of the status."""
+    est = estimator.config.estimator
+    stale_after_s = max(est.staleness_s, 10.0 / expected_rate_hz)
+    reasons: list[tuple[int, str]] = []
+    values: list[tuple[str, str]] = []
+    since_start = (now_ns - monitor.start_ns) * 1e-9
+    for ch in CHANNELS:
+        last = monitor.last_ns[ch]
+        age = math.inf if last is None else (now_ns - last) * 1e-9
+        values.append((f"{ch} rate [Hz]", _fmt(rates.get(ch, 0.0))))
+        values.append((f"{ch} age [s]", "never" if last is None else _fmt(age, 3)))
+        values.append((f"{ch} messages", str(monitor.counts[ch])))
+        required = ch in (TORQUE, SPEED)
+        if required:
+            if last is None:
+                level = WARN if since_start < STARTUP_GRACE_S else ERROR
+                reasons.append((level, f"no input on {ch}"))
+            elif age > stale_after_s:
+                reasons.append((ERROR, f"stale input: {ch} silent for {age:.2f} s"))
+            elif rates.get(ch, 0.0) < 0.8 * expected_rate_hz:
+                reasons.append((WARN, f"{ch} at {rates.get(ch, 0.0):.0f} Hz, expected {expected_rate_hz:.0f} Hz"))
+        elif ch == OUT_TORQUE and last is not None and age > stale_after_s:
+            reasons.append((WARN, f"measured output stale ({age:.2f} s): no residual"))
+    values.append(("expected rate [Hz]", _fmt(expected_rate_hz)))
+    values.append(("stale after [s]", _fmt(stale_after_s, 3)))
+    values.append(("samples estimated", str(estimator.estimated)))
+    for r in SKIP_REASONS:
+        total = estimator.counts[r]
+        new = total - previous_skips.get(r, 0)
+        values.append((f"skipped {r.replace('_', ' ')}", f"{total} (+{new})"))
+        if new and r in ("non_finite", "implausible"):
+            reasons.append((WARN, f"{new} samples with {r.replace('_', ' ')} input skipped"))
+        elif new and r == "unpaired":
+            reasons.append((WARN, f"{new} input messages without partner (dropped or late)"))
+    last = estimator.last
+    if last is not None:
+        values += [("loss torque [N·m]", _fmt(last.loss_torque_nm)), ("loss power [W]", _fmt(last.loss_power_w)),
+                   ("efficiency", _fmt(last.efficiency)), ("drive torque [N·m]", _fmt(last.torque_nm)),
+                   ("drive speed [rad/s]", _fmt(last.speed_rad_s))]
+        if not math.isnan(last.efficiency) and last.efficiency < min_efficiency_warn:
+            reasons.append((WARN, f"efficiency {100 * last.efficiency:.1f} % below {100 * min_efficiency_warn:.0f} %"))
+        if math.isfinite(last.torque_nm) and abs(last.torque_nm) > 0.9 * est.max_abs_torque_nm:
+            reasons.append((WARN, f"drive torque {last.torque_nm:.0f} N·m near the plausibility limit"))
+    stats = estimator.residual_stats
+    if stats.count:
+        values += [("residual mean [N·m]", _fmt(stats.mean)), ("residual RMS [N·m]", _fmt(stats.rms)),
+                   ("residual samples", str(stats.count))]
+    for name, c in estimator.coefficients().items():
+        values.append((f"adapted {name}", _fmt(c, 5)))
+    alarms = estimator.detector.alarms
+    values.append(("residual change alarms", str(alarms)))
+    if alarms > previous_alarms:
+        reasons.append((WARN, "the residual changed (a new or changed effect): re-run `rollergear calibrate`"))
+    level = max((lv for lv, _ in reasons), default=OK)
+    message = "; ".join(m for lv, m in sorted(reasons, key=lambda r: -r[0])) if reasons else "estimating"
+    return DiagnosticReport(level, message, values)

@@ -1,0 +1,288 @@
+"""``loss_estimator``: the live node, a thin rclpy shell over :class:`~rollergear_ros.estimator.Estimator`.
+
+Subscribes to the drive (and optionally output) torque and speed, estimates every paired sample,
+publishes loss torque, loss power, efficiency (and the residual when the output is measured),
+reports ``/diagnostics`` at 1 Hz, and optionally records to MCAP and rerun.  Parameters are the
+package's one parameter set (``config/gearbox.yaml``), declared with descriptors; run-time changes
+go through :func:`rollergear_ros.params.validate` and are refused with its reason.
+
+Run: ``loss_estimator --ros-args --params-file config/gearbox.yaml`` (or ``ros2 run rollergear_ros
+loss_estimator …``).
+"""
+
+from __future__ import annotations
+
+import struct
+import sys
+import time
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy
+from sensor_msgs.msg import JointState, Temperature
+from std_msgs.msg import Float64
+
+from . import bag as bagmod
+from .diagnostics import InputMonitor, diagnose
+from .estimator import OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE, TORQUE, Estimate, Estimator
+from .params import PARAMETER_SPECS, Config, ParameterError, validate
+
+NAMESPACE = "/rollergear"
+#: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
+SENSOR_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE,
+                        history=HistoryPolicy.KEEP_LAST, depth=200)
+OUTPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=200)
+_PACK = struct.Struct("<4sd").pack
+_CDR = bagmod.CDR_LE_HEADER
+
+
+def _descriptor(spec) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]" if spec.unit else spec.description,
+                            read_only=spec.read_only, additional_constraints=spec.allowed_text())
+    if spec.kind is float and spec.low is not None and spec.high is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
+    elif spec.kind is int and spec.low is not None and spec.high is not None:
+        d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
+    return d
+
+
+def decode_float64(raw: bytes) -> float:
+    return struct.unpack_from("<d" if raw[1] == 1 else ">d", raw, 4)[0]
+
+
+class LossEstimatorNode(Node):
+    """The ``loss_estimator`` node (see the module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        kwargs.setdefault("namespace", NAMESPACE)
+        super().__init__("loss_estimator", **kwargs)
+        from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+
+        for spec in PARAMETER_SPECS:
+            try:
+                self.declare_parameter(spec.name, spec.default, _descriptor(spec))
+            except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+                override = self._parameter_overrides.get(spec.name)
+                value = override.value if override is not None else spec.default
+                raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
+        flat = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETER_SPECS}
+        self.config: Config = validate(flat)  # ParameterError: refused at start-up with the reason
+        # the single-threaded executor gives publisher timestamps; the events executor keeps arrival order
+        self.pairing = "timestamp" if self.config.node.executor == "single_threaded" else "arrival"
+        self.estimator = Estimator(self.config, self.pairing)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        node = self.config.node
+        self.monitor = InputMonitor(time.time_ns())
+        self._skips_reported = dict(self.estimator.counts)
+        self._alarms_reported = 0
+        self._published = 0
+        self.executor_kind = node.executor
+        topics = bagmod.TopicMap()
+        self.out_topics = {"loss": self.resolve_topic_name("loss/torque"),
+                           "power": self.resolve_topic_name("loss/power"),
+                           "eff": self.resolve_topic_name("efficiency"),
+                           "res": self.resolve_topic_name("residual/torque")}
+        self.pub_loss = self.create_publisher(Float64, "loss/torque", OUTPUT_QOS)
+        self.pub_power = self.create_publisher(Float64, "loss/power", OUTPUT_QOS)
+        self.pub_eff = self.create_publisher(Float64, "efficiency", OUTPUT_QOS)
+        self.pub_res = self.create_publisher(Float64, "residual/torque", OUTPUT_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.recorder: bagmod.BagWriter | None = None
+        if node.record_mcap:
+            self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024)
+        self.rerun = None
+        self._rr_buffer: list[Estimate] = []
+        if node.rerun_rrd or node.rerun_connect:
+            from .review import RerunLog
+
+            self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None)
+            self.create_timer(0.5, self._flush_rerun)
+        with_info = self.executor_kind == "single_threaded"
+        if node.input_mode == "float64":
+            for channel, rel in ((TORQUE, "motor/torque"), (SPEED, "motor/speed"), (OUT_TORQUE, "output/torque"),
+                                 (OUT_SPEED, "output/speed")):
+                self.create_subscription(Float64, rel, self._float_callback(channel, self.resolve_topic_name(rel),
+                                                                            with_info), SENSOR_QOS, raw=True)
+        else:
+            self.create_subscription(JointState, topics.joint_states, self._joint_state_callback, SENSOR_QOS)
+        self.create_subscription(Temperature, "oil/temperature", self._temperature_callback, SENSOR_QOS)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(
+            f"estimating from {'Float64 topics' if node.input_mode == 'float64' else topics.joint_states}; "
+            f"effects: {', '.join(self.config.effects.enabled()) or 'none'}; executor: {self.executor_kind}"
+            + (f"; recording {node.record_mcap}" if self.recorder else ""))
+
+    # ------------------------------------------------------------------ parameters
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        changes = {p.name: p.value for p in params if p.name in {s.name for s in PARAMETER_SPECS}}
+        if not changes:
+            return SetParametersResult(successful=True)
+        try:
+            new = self.config.with_values(changes)
+        except ParameterError as exc:
+            self.get_logger().warn(f"refused: {exc}")
+            return SetParametersResult(successful=False, reason=str(exc))
+        old = self.estimator
+        self.config = new
+        self.estimator = Estimator(new, self.pairing)
+        self.estimator.sync = old.sync  # keep queued inputs and counters
+        self.estimator.counts = old.sync.counts
+        self.estimator.estimated = old.estimated
+        self.get_logger().info(f"parameters changed: {', '.join(f'{k}={v}' for k, v in changes.items())}")
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ inputs
+    def _float_callback(self, channel: str, topic: str, with_info: bool):
+        monitor = self.monitor
+
+        def handle(raw: bytes, t_ns: int) -> None:
+            monitor.record(channel, time.time_ns())
+            if self.recorder is not None:
+                self.recorder.write_raw(topic, bagmod.FLOAT64, self.get_clock().now().nanoseconds, raw)
+            for est in self.estimator.push(channel, t_ns, decode_float64(raw)):
+                self._publish(est)
+
+        if with_info:
+            def cb_info(raw: bytes, info) -> None:
+                handle(raw, info["source_timestamp"] or time.time_ns())
+            return cb_info
+
+        def cb(raw: bytes) -> None:
+            handle(raw, time.time_ns())
+        return cb
+
+    def _joint_state_callback(self, msg: JointState) -> None:
+        wall = time.time_ns()
+        t_ns = (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec) or wall
+        names = list(msg.name)
+        node = self.config.node
+        if self.recorder is not None:
+            from rclpy.serialization import serialize_message
+
+            self.recorder.write_raw("/joint_states", bagmod.JOINT_STATE, self.get_clock().now().nanoseconds,
+                                    serialize_message(msg))
+        for joint, ch_t, ch_w in ((node.input_joint, TORQUE, SPEED), (node.output_joint, OUT_TORQUE, OUT_SPEED)):
+            if joint in names:
+                k = names.index(joint)
+                effort = msg.effort[k] if k < len(msg.effort) else float("nan")
+                velocity = msg.velocity[k] if k < len(msg.velocity) else float("nan")
+                self.monitor.record(ch_t, wall)
+                self.monitor.record(ch_w, wall)
+                for channel, value in ((ch_t, effort), (ch_w, velocity)):
+                    for est in self.estimator.push(channel, t_ns, float(value)):
+                        self._publish(est)
+
+    def _temperature_callback(self, msg: Temperature) -> None:
+        self.monitor.record(TEMPERATURE, time.time_ns())
+        if self.recorder is not None:
+            from rclpy.serialization import serialize_message
+
+            self.recorder.write_raw(self.resolve_topic_name("oil/temperature"), bagmod.TEMPERATURE,
+                                    self.get_clock().now().nanoseconds, serialize_message(msg))
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        # the stamp keeps the temperature on the inputs' clock in JointState mode (header stamps)
+        t_ns = stamp if (stamp and self.config.node.input_mode == "joint_state") else time.time_ns()
+        self.estimator.push(TEMPERATURE, t_ns, float(msg.temperature))
+
+    # ------------------------------------------------------------------ outputs
+    def _publish(self, est: Estimate) -> None:
+        self._published += 1
+        if self._published % self.config.node.publish_every_n:
+            return
+        out = [(self.pub_loss, self.out_topics["loss"], est.loss_torque_nm),
+               (self.pub_power, self.out_topics["power"], est.loss_power_w),
+               (self.pub_eff, self.out_topics["eff"], est.efficiency)]
+        if est.residual_nm == est.residual_nm:  # measured output present
+            out.append((self.pub_res, self.out_topics["res"], est.residual_nm))
+        stamp = self.get_clock().now().nanoseconds if self.recorder is not None else 0
+        for pub, topic, value in out:
+            raw = _PACK(_CDR, value)
+            pub.publish(raw)
+            if self.recorder is not None:
+                self.recorder.write_raw(topic, bagmod.FLOAT64, stamp, raw)
+        if self.rerun is not None:
+            self._rr_buffer.append(est)
+
+    def _flush_rerun(self) -> None:
+        if not self._rr_buffer or self.rerun is None:
+            return
+        import numpy as np
+
+        buf, self._rr_buffer = self._rr_buffer, []
+        t = np.array([e.t_ns for e in buf], dtype=np.int64)
+        series = {"/inputs/torque_nm": [e.torque_nm for e in buf], "/inputs/speed_rad_s": [e.speed_rad_s for e in buf],
+                  "/loss/torque_nm": [e.loss_torque_nm for e in buf], "/loss/power_w": [e.loss_power_w for e in buf],
+                  "/efficiency/efficiency": [e.efficiency for e in buf]}
+        self.rerun.send(t, {k: np.asarray(v) for k, v in series.items()})
+        res = np.array([e.residual_nm for e in buf])
+        ok = np.isfinite(res)
+        if ok.any():
+            self.rerun.send(t[ok], {"/residual/residual_nm": res[ok],
+                                    "/residual/measured_loss_nm": np.array([e.measured_loss_nm for e in buf])[ok]})
+
+    def _publish_diagnostics(self) -> None:
+        now = time.time_ns()
+        node = self.config.node
+        report = diagnose(now, self.monitor, self.monitor.rates(now), self.estimator, node.expected_rate_hz,
+                          node.min_efficiency_warn, self._skips_reported, self._alarms_reported)
+        self._skips_reported = dict(self.estimator.counts)
+        self._alarms_reported = self.estimator.detector.alarms
+        status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: roller gearbox losses",
+                                  message=report.message, hardware_id=node.hardware_id,
+                                  values=[KeyValue(key=k, value=v) for k, v in report.values])
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(arr)
+
+    # ------------------------------------------------------------------ shutdown
+    def close(self) -> None:
+        """Flush and close the recordings (safe to call twice)."""
+        if self.rerun is not None:
+            self._flush_rerun()
+            self.rerun.close()
+            self.rerun = None
+        if self.recorder is not None:
+            self.recorder.close()
+            self.recorder = None
+
+
+def make_executor(kind: str, context=None):
+    """``single_threaded`` (message info: pairs by publisher timestamps) or ``events`` (faster)."""
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``loss_estimator``: spin until Ctrl-C/SIGTERM, then close the files cleanly."""
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = LossEstimatorNode()
+        executor = make_executor(node.executor_kind)
+        executor.add_node(node)
+        # spin_once with a timeout: EventsExecutor.spin() never returns on this rclpy version
+        while rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+    except ParameterError as exc:
+        print(f"loss_estimator: error: {exc}", file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

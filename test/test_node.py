@@ -1,0 +1,194 @@
+"""The live node over real ROS 2 / DDS (loopback, own domain): outputs equal offline replay."""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from rollergear_ros.bag import TopicMap, inspect_bag
+from rollergear_ros.model import LossModel
+from rollergear_ros.params import load_config
+from rollergear_ros.replay import replay
+
+from bagtools import float_series, read_mcap_ros2, read_rosbags
+from conftest import BAGS, CONFIG
+from rostools import NodeProcess, play, ros_context, wait_for
+
+T = TopicMap()
+# play each bag so that samples arrive at ~1 kHz
+PLAY_RATE = {"rig_map": 5.0, "rig_map_drag": 10.0, "drive_cycle_joint_states": 10.0, "warmup": 10.0}
+
+
+@pytest.mark.parametrize("bag", sorted(BAGS.glob("*.mcap")), ids=lambda p: p.stem)
+def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
+    rec = tmp_path / "live.mcap"
+    params = [f"node.record_mcap:={rec}"]
+    if "joint_states" in bag.stem:
+        params.append("node.input_mode:=joint_state")
+    node = NodeProcess(*params)
+    with ros_context() as probe:
+        from std_msgs.msg import Float64
+
+        got: list[float] = []
+        probe.create_subscription(Float64, T.loss_torque, lambda m: got.append(m.data), 1000)
+        play(bag, "--rate", str(PLAY_RATE[bag.stem]), "--wait-for-subscribers", "20")
+        n_expected = inspect_bag(bag).counts.get(T.motor_torque) or inspect_bag(bag).counts[T.joint_states]
+        wait_for(lambda: len(got) >= n_expected, 10)
+    assert node.stop() == 0, node.stderr
+    assert "Traceback" not in node.stderr
+
+    summary, batches = replay(bag, load_config(CONFIG), show_progress=False, collect=True)
+    ref_loss = np.concatenate([b.loss_torque_nm for b in batches])
+    ref_eff = np.concatenate([b.efficiency for b in batches])
+    ref_res = np.concatenate([b.residual_nm for b in batches])
+    live = read_rosbags(rec)
+    _, loss = float_series(live, T.loss_torque)
+    _, eff = float_series(live, T.efficiency)
+    _, res = float_series(live, T.residual_torque)
+    assert len(loss) == len(ref_loss) == n_expected, "no dropped samples"
+    np.testing.assert_allclose(loss, ref_loss, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(eff, ref_eff, rtol=1e-12, equal_nan=True)
+    np.testing.assert_allclose(res, ref_res[np.isfinite(ref_res)], rtol=1e-9, atol=1e-12)
+    # what went over DDS is what was recorded
+    assert len(got) == len(loss)
+    np.testing.assert_allclose(got, loss, rtol=0, atol=0)
+    # the recording is a valid ROS 2 MCAP for the other reader too
+    assert len(read_mcap_ros2(rec)[T.loss_torque][0]) == len(loss)
+
+
+def _diag_levels(msgs):
+    return [(int.from_bytes(s.level, "little") if isinstance(s.level, bytes) else int(s.level), s.message, s)
+            for m in msgs for s in m.status]
+
+
+def test_diagnostics_report_rates_and_a_stale_input():
+    from diagnostic_msgs.msg import DiagnosticArray
+    from std_msgs.msg import Float64
+
+    node = NodeProcess("node.expected_rate_hz:=200.0", "node.hardware_id:=rig_7")
+    with ros_context() as probe:
+        diags: list = []
+        probe.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+        pt = probe.create_publisher(Float64, T.motor_torque, 100)
+        pw = probe.create_publisher(Float64, T.motor_speed, 100)
+        assert wait_for(lambda: pt.get_subscription_count() > 0 and pw.get_subscription_count() > 0, 20)
+        t_end = time.monotonic() + 3.0
+        while time.monotonic() < t_end:  # both inputs at ~200 Hz
+            pt.publish(Float64(data=20.0))
+            pw.publish(Float64(data=100.0))
+            time.sleep(0.005)
+        n_healthy = len(diags)
+        t_end = time.monotonic() + 2.5
+        while time.monotonic() < t_end:  # the speed topic stops
+            pt.publish(Float64(data=20.0))
+            time.sleep(0.005)
+        wait_for(lambda: any("stale input: motor_speed" in s.message for m in diags[n_healthy:] for s in m.status), 5)
+    assert node.stop() == 0
+    healthy = _diag_levels(diags[1:n_healthy])
+    assert healthy, "diagnostics at ~1 Hz while running"
+    level, message, status = healthy[-1]
+    assert status.hardware_id == "rig_7"
+    values = {kv.key: kv.value for kv in status.values}
+    assert 100 < float(values["motor_torque rate [Hz]"]) < 260
+    assert float(values["efficiency"]) > 0.9 and float(values["loss torque [N·m]"]) > 0
+    assert int(values["samples estimated"]) > 100
+    stale = [(lv, msg) for lv, msg, _ in _diag_levels(diags[n_healthy:]) if "stale input: motor_speed" in msg]
+    assert stale and stale[-1][0] == 2, "a stale required input is an ERROR"
+    assert all(lv < 2 for lv, _, _ in healthy)
+
+
+def test_parameter_changes_are_validated_and_refused_with_the_reason():
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    node = NodeProcess()
+    with ros_context() as probe:
+        client = probe.create_client(SetParameters, "/rollergear/loss_estimator/set_parameters")
+        assert client.wait_for_service(timeout_sec=20)
+
+        def set_param(name, value):
+            if isinstance(value, float):
+                pv = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=value)
+            elif isinstance(value, int):
+                pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
+            else:
+                pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
+            fut = client.call_async(SetParameters.Request(parameters=[Parameter(name=name, value=pv)]))
+            assert wait_for(fut.done, 10)
+            return fut.result().results[0]
+
+        bad = set_param("gearbox.f1", 0.45)
+        assert not bad.successful and "gearbox.f1" in bad.reason
+        z = set_param("gearbox.z", 100)  # within its own range, but more than Z = 86
+        assert not z.successful and "<= Z = 86" in z.reason
+        ro = set_param("node.input_mode", "joint_state")
+        assert not ro.successful and "read-only" in ro.reason.lower()
+        ok = set_param("gearbox.z", 6)
+        assert ok.successful
+    assert node.stop() == 0
+
+
+def test_node_started_after_the_player_still_estimates(tmp_path):
+    rec = tmp_path / "late.mcap"
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    player = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "play", str(BAGS / "rig_map.mcap"), "--rate",
+                               "2"], stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    time.sleep(3.0)
+    node = NodeProcess(f"node.record_mcap:={rec}")
+    player.wait(timeout=120)
+    assert node.stop() == 0, node.stderr
+    live = read_rosbags(rec)
+    _, tq = float_series(live, T.motor_torque)
+    _, w = float_series(live, T.motor_speed)
+    _, loss = float_series(live, T.loss_torque)
+    assert len(loss) > 1000
+    n = min(len(tq), len(w), len(loss))
+    model = LossModel(load_config(CONFIG).gearbox)
+    # estimates match the model at the inputs the node received (each sample paired with its own speed)
+    np.testing.assert_allclose(np.abs(loss[-n:]), model.loss_magnitude(tq[-n:], w[-n:]), rtol=1e-12)
+
+
+def test_use_sim_time_stamps_estimates_with_the_bag_clock(tmp_path):
+    rec = tmp_path / "sim.mcap"
+    node = NodeProcess(f"node.record_mcap:={rec}", "use_sim_time:=true")
+    play(BAGS / "rig_map.mcap", "--rate", "5", "--clock", "--wait-for-subscribers", "20")
+    assert node.stop() == 0
+    info = inspect_bag(BAGS / "rig_map.mcap")
+    t, _ = float_series(read_rosbags(rec), T.loss_torque)
+    assert len(t) > 0
+    assert info.start_ns <= t.min() and t.max() <= info.end_ns + 1_000_000_000
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_clean_shutdown_keeps_the_recording(tmp_path, sig):
+    rec = tmp_path / "r.mcap"
+    rrd = tmp_path / "r.rrd"
+    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}")
+    play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
+    time.sleep(0.8)
+    code = node.stop(sig)
+    assert code == 0 and "Traceback" not in node.stderr, node.stderr
+    n = len(read_rosbags(rec)[T.loss_torque][0])
+    assert n == 10080  # recording and rerun logging on: still no drop at 1 kHz
+    assert inspect_bag(rec).indexed
+    from rollergear_ros.review import read_rrd_series
+
+    series = read_rrd_series(rrd)
+    assert len(series["/loss/torque_nm"][0]) == n
+
+
+def test_invalid_parameter_file_is_refused_at_start(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**/loss_estimator:\n  ros__parameters:\n    gearbox:\n      f1: 0.3\n")
+    node = NodeProcess(params_file=bad)
+    code = node.proc.wait(timeout=30)
+    node.stop()
+    assert code != 0
+    assert "gearbox.f1" in node.stderr and "Traceback" not in node.stderr
