@@ -1,0 +1,154 @@
+#!/usr/bin/env python3
+"""loss_estimator over real DDS against a bare rclpy echo node, measured the same way.
+
+A driver publishes motor torque + speed (and output torque + speed) at a fixed sample rate; the
+system under test (SUT) answers on ``/rollergear/loss/torque``.  For each SUT and rate: dropped
+samples, input-to-output latency (last input of a sample -> its output; the k-th output answers the
+k-th sample), and the SUT's CPU use.  Then the highest sustained loss-free rate of each.
+Usage: python bench/bench_node.py [--seconds 5] [--no-outputs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def cpu_seconds(pid: int) -> float:
+    with open(f"/proc/{pid}/stat") as fh:
+        parts = fh.read().rsplit(")", 1)[1].split()
+    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def start_sut(kind: str) -> subprocess.Popen:
+    if kind == "echo":
+        cmd = [sys.executable, str(ROOT / "bench" / "echo_node.py")]
+    else:
+        cmd = [sys.executable, "-m", "rollergear_ros.node", "--ros-args", "--params-file",
+               str(ROOT / "config" / "gearbox.yaml")]
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def run(driver, sut: subprocess.Popen, rate: float, seconds: float, with_outputs: bool) -> dict:
+    from std_msgs.msg import Float64
+
+    node, pubs, received = driver
+    received.clear()
+    n = int(rate * seconds)
+    send_ns = np.zeros(n, dtype=np.int64)
+    period = 1e9 / rate
+    cpu0 = cpu_seconds(sut.pid)
+    t_start = time.monotonic_ns() + 50_000_000
+    msg = Float64()
+    for k in range(n):
+        target = t_start + int(k * period)
+        while True:
+            wait = target - time.monotonic_ns()
+            if wait <= 0:
+                break
+            time.sleep(wait * 1e-9 if wait > 1_000_000 else 0)
+        msg.data = 10.0 + (k % 50)
+        for i, p in enumerate(pubs):
+            if i >= 2 and not with_outputs:
+                break
+            if i == 1:
+                msg.data = 100.0
+            elif i == 2:
+                msg.data = 13.0 + (k % 50)
+            elif i == 3:
+                msg.data = 73.0
+            p.publish(msg)
+        send_ns[k] = time.monotonic_ns()
+    deadline = time.monotonic() + 2.0
+    while time.monotonic() < deadline and len(received) < n:
+        time.sleep(0.01)
+    cpu = cpu_seconds(sut.pid) - cpu0
+    recv = np.array(received[:n], dtype=np.int64)
+    lat = (recv - send_ns[:len(recv)]) * 1e-3 if len(recv) else np.array([np.nan])
+    achieved = (n - 1) / max((send_ns[-1] - send_ns[0]) * 1e-9, 1e-9)
+    return {"sent": n, "received": len(received), "dropped": n - min(len(received), n), "achieved": achieved,
+            "p50_us": float(np.percentile(lat, 50)), "p99_us": float(np.percentile(lat, 99)),
+            "cpu_pct": 100.0 * cpu / (n / rate)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--no-outputs", action="store_true", help="publish only motor torque and speed")
+    args = ap.parse_args()
+    os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    import rclpy
+    from rclpy.experimental import EventsExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import Float64
+
+    from rollergear_ros.node import OUTPUT_QOS
+
+    rclpy.init()
+    node = Node("bench_driver")
+    pubs = [node.create_publisher(Float64, f"/rollergear/{t}", 1000)
+            for t in ("motor/torque", "motor/speed", "output/torque", "output/speed")]
+    received: list[int] = []
+    node.create_subscription(Float64, "/rollergear/loss/torque", lambda raw: received.append(time.monotonic_ns()),
+                             OUTPUT_QOS, raw=True)
+    ex = EventsExecutor()
+    ex.add_node(node)
+    stop = threading.Event()
+
+    def spin() -> None:
+        while not stop.is_set():
+            ex.spin_once(timeout_sec=0.05)
+
+    th = threading.Thread(target=spin, daemon=True)
+    th.start()
+    driver = (node, pubs, received)
+    with_outputs = not args.no_outputs
+    results = {}
+    for kind in ("echo", "loss_estimator"):
+        sut = start_sut(kind)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and (pubs[0].get_subscription_count() == 0
+                                               or node.count_publishers("/rollergear/loss/torque") == 0):
+            time.sleep(0.05)
+        time.sleep(1.0)
+        run(driver, sut, 200, 1.0, with_outputs)  # warm-up
+        r1k = run(driver, sut, 1000, args.seconds, with_outputs)
+        best = 0.0
+        driver_bound = False
+        for rate in (1000, 1500, 2000, 2500, 3000, 4000, 5000, 6000, 8000, 10000):
+            r = run(driver, sut, rate, 3.0, with_outputs)
+            if r["dropped"] > 0:
+                break
+            best = r["achieved"]
+            if r["achieved"] < 0.9 * rate:  # the Python driver cannot publish faster
+                driver_bound = True
+                break
+        sut.send_signal(signal.SIGINT)
+        sut.wait(timeout=20)
+        results[kind] = (r1k, best)
+        print(f"{kind:15s} 1 kHz: dropped {r1k['dropped']}/{r1k['sent']}, latency p50 {r1k['p50_us']:.0f} µs, "
+              f"p99 {r1k['p99_us']:.0f} µs, CPU {r1k['cpu_pct']:.0f} % of a core per 1 k samples/s; "
+              f"max loss-free rate {best:.0f} samples/s" + (" (driver-bound: the publisher could not go faster)"
+                                                             if driver_bound else ""), flush=True)
+    stop.set()
+    th.join()
+    e, l = results["echo"][1], results["loss_estimator"][1]
+    channels = 4 if with_outputs else 2
+    print(f"inputs per sample: {channels} topics; loss_estimator max rate / echo max rate = "
+          f"{(l / e if e else float('nan')):.2f} (target >= 0.8)")
+    rclpy.shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,72 @@
+#!/usr/bin/env python3
+"""Replay throughput on a 1-hour 1 kHz recording, against raw MCAP iteration in the same run.
+
+Generates the recording (motor + output torque and speed, oil temperature at 10 Hz: 14.4 M
+messages for an hour) unless --bag is given, then times:
+  1. raw iteration with the ``mcap`` reader (no decoding), file order;
+  2. decoding message by message with ``mcap-ros2-support`` (on a slice, extrapolated);
+  3. ``rollergear replay`` (decode + pair + estimate + write the output MCAP).
+Usage: python bench/bench_replay.py [--minutes 60] [--rate 1000] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+from common import long_bag
+
+from rollergear_ros.params import load_config
+from rollergear_ros.replay import replay
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--minutes", type=float, default=60.0)
+    ap.add_argument("--rate", type=float, default=1000.0)
+    ap.add_argument("--bag", type=Path, help="use this recording instead of generating one")
+    ap.add_argument("--keep", type=Path, help="directory for the generated files (default: a temp dir)")
+    args = ap.parse_args()
+    work = args.keep or Path(tempfile.mkdtemp(prefix="rollergear_bench_"))
+    work.mkdir(parents=True, exist_ok=True)
+    config = load_config()
+    bag = args.bag or long_bag(work / f"rig_{args.minutes:g}min_{args.rate:g}hz.mcap", args.minutes, args.rate)
+
+    from mcap.reader import make_reader
+
+    t0 = time.perf_counter()
+    n_raw = 0
+    with bag.open("rb") as fh:
+        for _ in make_reader(fh).iter_messages(log_time_order=False):
+            n_raw += 1
+    t_raw = time.perf_counter() - t0
+    print(f"raw mcap iteration           : {n_raw:,} messages in {t_raw:6.1f} s = {n_raw / t_raw / 1e3:7.0f} k msg/s")
+
+    from mcap_ros2.decoder import DecoderFactory
+
+    limit = min(n_raw, 1_000_000)
+    t0 = time.perf_counter()
+    n_dec = 0
+    with bag.open("rb") as fh:
+        for _ in make_reader(fh, decoder_factories=[DecoderFactory()]).iter_decoded_messages(log_time_order=False):
+            n_dec += 1
+            if n_dec >= limit:
+                break
+    t_dec = (time.perf_counter() - t0) * n_raw / n_dec
+    print(f"mcap-ros2-support decode     : {n_dec / (t_dec * n_dec / n_raw) / 1e3:7.0f} k msg/s "
+          f"(measured on {n_dec:,}, extrapolated to {t_dec:.1f} s)")
+
+    out = work / "hour_estimates.mcap"
+    t0 = time.perf_counter()
+    summary, _ = replay(bag, config, out_mcap=out, show_progress=False)
+    t_rep = time.perf_counter() - t0
+    print(f"rollergear replay            : {summary.estimated:,} samples, {summary.input_messages:,} messages in "
+          f"{t_rep:6.1f} s = {summary.input_messages / t_rep / 1e3:7.0f} k msg/s; output {out.stat().st_size / 1e6:.0f} MB")
+    print(f"replay rate / raw iteration rate   : {t_raw / t_rep:.2f}x  (target >= 0.5x)")
+    print(f"replay speed-up over ros2 decoding : {t_dec / t_rep:.2f}x  (target >= 5x)")
+
+
+if __name__ == "__main__":
+    main()

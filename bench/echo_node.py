@@ -1,0 +1,36 @@
+#!/usr/bin/env python3
+"""Baseline for bench_node.py: a bare rclpy node that subscribes to the same input topics with the
+same QoS and executor as loss_estimator and republishes the motor torque (one output per sample)."""
+
+from __future__ import annotations
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
+from rclpy.node import Node
+from std_msgs.msg import Float64
+
+from rollergear_ros.node import OUTPUT_QOS, SENSOR_QOS
+
+
+def main() -> None:
+    rclpy.init()
+    node = Node("echo", namespace="/rollergear")
+    pub = node.create_publisher(Float64, "loss/torque", OUTPUT_QOS)
+    node.create_subscription(Float64, "motor/torque", lambda raw: pub.publish(raw), SENSOR_QOS, raw=True)
+    for rel in ("motor/speed", "output/torque", "output/speed"):
+        node.create_subscription(Float64, rel, lambda raw: None, SENSOR_QOS, raw=True)
+    ex = EventsExecutor()
+    ex.add_node(node)
+    try:
+        while rclpy.ok():
+            ex.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    main()
