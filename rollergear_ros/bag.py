@@ -8,7 +8,6 @@ types go through ``mcap-ros2-support``'s dynamic CDR codec.  No rclpy import her
 
 from __future__ import annotations
 
-import os
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +18,6 @@ from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType, Writer
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
 NAMESPACE = "/rollergear"
@@ -280,22 +278,21 @@ def iter_raw_batches(info: BagInfo, topics: set[str] | None, batch_size: int = 5
 
 # ------------------------------------------------------------------------------------ writing
 class BagWriter:
-    """Writes a ROS 2 MCAP bag; Float64 channels get a fast vectorised path.
+    """Writes a ROS 2 MCAP bag (``ros2`` profile, ``ros2msg`` schemas, ``cdr`` messages).
 
-    Used as a context manager; :meth:`close` (also on error or interrupt) writes the summary and
-    footer, so everything added so far stays readable.
+    Whole series of equal-sized messages (Float64 outputs, copied inputs) are added with numpy
+    (:class:`~rollergear_ros.fastmcap.ChunkedMcapWriter`).  Used as a context manager; :meth:`close`
+    (also on error or interrupt) writes the summary and footer, so everything added so far stays
+    readable.
     """
 
-    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024,
-                 compression: CompressionType = CompressionType.ZSTD) -> None:
+    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024) -> None:
+        from .fastmcap import ChunkedMcapWriter
+
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = self.path.open("wb")
-        self._writer = Writer(self._fh, chunk_size=chunk_size, compression=compression)
-        self._writer.start(profile="ros2", library="rollergear_ros")
+        self._writer = ChunkedMcapWriter(self.path, chunk_size=chunk_size)
         self._schema_ids: dict[str, int] = {}
         self._channels: dict[str, int] = {}
-        self._seq: dict[int, int] = {}
         self.closed = False
 
     def channel(self, topic: str, type_name: str, schema_text: str | None = None) -> int:
@@ -308,43 +305,47 @@ class BagWriter:
         cid = self._writer.register_channel(topic, "cdr", self._schema_ids[type_name],
                                             metadata={"offered_qos_profiles": ""})
         self._channels[topic] = cid
-        self._seq[cid] = 0
         return cid
 
     def write_raw(self, topic: str, type_name: str, log_time_ns: int, data: bytes,
                   schema_text: str | None = None) -> None:
-        cid = self.channel(topic, type_name, schema_text)
-        self._seq[cid] += 1
-        self._writer.add_message(cid, log_time_ns, data, log_time_ns, self._seq[cid])
+        """One serialized message."""
+        self._writer.add_message(self.channel(topic, type_name, schema_text), int(log_time_ns), data)
 
     def write_message(self, topic: str, type_name: str, log_time_ns: int, message: dict) -> None:
         """Encode a message dict with the type's CDR encoder and write it."""
         self.write_raw(topic, type_name, log_time_ns, encoder_for(type_name)(message))
 
+    def write_fixed(self, topic: str, type_name: str, t_ns: np.ndarray, payloads: np.ndarray,
+                    schema_text: str | None = None) -> None:
+        """Many messages of one topic whose serialized payloads are the rows of ``payloads``."""
+        self._writer.add_messages(self.channel(topic, type_name, schema_text), np.asarray(t_ns, dtype=np.int64),
+                                  payloads)
+
+    def write_fixed_mixed(self, topics: list[tuple[str, str, str | None]], which: np.ndarray, t_ns: np.ndarray,
+                          payloads: np.ndarray) -> None:
+        """Messages of several topics in their given (time) order: row i belongs to ``topics[which[i]]``
+        (``(topic, type, schema text)``); all payloads have the same length."""
+        ids = np.array([self.channel(tp, ty, tx) for tp, ty, tx in topics], dtype=np.int64)
+        self._writer.add_messages(ids[np.asarray(which)], np.asarray(t_ns, dtype=np.int64), payloads)
+
     def write_float64_series(self, topic: str, t_ns: np.ndarray, values: np.ndarray) -> None:
-        """Write a whole series of Float64 messages (vectorised encoding)."""
-        cid = self.channel(topic, FLOAT64)
-        add = self._writer.add_message
-        seq = self._seq[cid]
-        for t, d in zip(np.asarray(t_ns, dtype=np.int64).tolist(), encode_float64(values)):
-            seq += 1
-            add(cid, t, d, t, seq)
-        self._seq[cid] = seq
+        """A whole series of Float64 messages (vectorised encoding)."""
+        v = np.ascontiguousarray(values, dtype="<f8")
+        payload = np.empty((len(v), 12), dtype=np.uint8)
+        payload[:, :4] = np.frombuffer(CDR_LE_HEADER, dtype=np.uint8)
+        payload[:, 4:] = v.view(np.uint8).reshape(-1, 8)
+        self.write_fixed(topic, FLOAT64, t_ns, payload)
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        """Write an MCAP metadata record (string key/values)."""
+        """An MCAP metadata record (string key/values)."""
         self._writer.add_metadata(name, data)
 
     def close(self) -> None:
         if self.closed:
             return
         self.closed = True
-        try:
-            self._writer.finish()
-        finally:
-            self._fh.flush()
-            os.fsync(self._fh.fileno())
-            self._fh.close()
+        self._writer.close()
 
     def __enter__(self) -> "BagWriter":
         return self

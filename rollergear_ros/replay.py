@@ -19,8 +19,8 @@ import numpy as np
 
 from .bag import (FLOAT64, JOINT_STATE, TEMPERATURE, BagError, BagInfo, BagWriter, RawBatch, TopicMap,
                   decode_float64, decoder_for, inspect_bag, iter_raw_batches)
-from .estimator import (OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE as CH_TEMPERATURE, TORQUE, BatchEstimate,
-                        Estimator, SyncedSample)
+from .estimator import (CHANNELS, OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE as CH_TEMPERATURE, TORQUE,
+                        BatchEstimate, Estimator, samples_to_arrays)
 from .params import Config
 
 
@@ -119,6 +119,129 @@ def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo) -> list[tuple[
         merged.sort(key=lambda r: r[0])
         out = [(t, c, v) for _, t, c, v in merged]
     return out
+
+
+@dataclass
+class InputBatch:
+    """Decoded input messages in file order (``codes`` index :data:`~rollergear_ros.estimator.CHANNELS`)."""
+
+    codes: np.ndarray
+    t_ns: np.ndarray
+    values: np.ndarray
+    write_inputs: Callable[[BagWriter], None]
+
+
+def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None]):
+    """Batches of decoded inputs: Float64 bags through the numpy chunk reader, others record by record."""
+    if plan.mode == "float64":
+        yield from _float64_batches(info, plan, batch_size, warn)
+        return
+    code_of = {c: i for i, c in enumerate(CHANNELS)}
+    for raw in iter_raw_batches(info, plan.all_topics, batch_size, warn=warn):
+        events = decode_batch(raw, plan, info)
+        codes = np.array([code_of[c] for _, c, _ in events], dtype=np.int8)
+        t = np.array([e[0] for e in events], dtype=np.int64)
+        v = np.array([e[2] for e in events], dtype=float)
+
+        def write(writer: BagWriter, raw: RawBatch = raw) -> None:
+            for tp, tt, d in zip(raw.topics, raw.log_time_ns, raw.data):
+                writer.write_raw(tp, info.topics[tp], tt, d, info.schema_texts.get(info.topics[tp]))
+        yield InputBatch(codes, t, v, write)
+
+
+def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None]):
+    from .fastmcap import ReadState, iter_message_arrays
+
+    state = ReadState()
+    code_of = {c: i for i, c in enumerate(CHANNELS)}
+    temp_code = code_of[CH_TEMPERATURE]
+    pending: list = []
+    count = 0
+
+    def assemble(parts: list) -> InputBatch:
+        codes, ts, vals, writes = [], [], [], []
+        for arrays, lut in parts:
+            code = lut[arrays.channel]
+            keep = np.flatnonzero(code >= 0)
+            c = code[keep]
+            v = np.full(len(keep), np.nan)
+            f64 = c != temp_code
+            if plan.temperature and plan.temperature[1] == FLOAT64:
+                f64[:] = True
+            if f64.any():
+                v[f64] = arrays.float64(keep[f64])
+            if (~f64).any():
+                dec = decoder_for(plan.temperature[1], info.schema_texts.get(plan.temperature[1]))
+                v[~f64] = [float(dec(arrays.payload(i)).temperature) for i in keep[~f64].tolist()]
+            codes.append(c)
+            ts.append(arrays.log_time[keep])
+            vals.append(v)
+            writes.append((arrays, keep))
+
+        def write(writer: BagWriter) -> None:
+            """Copy the input messages in file order; equal-sized payloads go in with one numpy call."""
+            for arrays, keep in writes:
+                lens = arrays.length[keep]
+                fixed = keep[lens == 12]  # Float64 (and any other 12-byte payloads)
+                cids = sorted(set(arrays.channel[fixed].tolist()))
+                if len(fixed):
+                    meta = []
+                    for cid in cids:
+                        topic, sid, _ = state.channels[cid]
+                        type_name = state.schemas[sid][0] if sid in state.schemas else ""
+                        meta.append((topic, type_name, info.schema_texts.get(type_name)))
+                    which = np.searchsorted(np.array(cids), arrays.channel[fixed])
+                    payload = arrays.buf[arrays.offset[fixed][:, None] + np.arange(12)]
+                    writer.write_fixed_mixed(meta, which, arrays.log_time[fixed], payload)
+                for i in keep[lens != 12].tolist():
+                    topic, sid, _ = state.channels[int(arrays.channel[i])]
+                    type_name = state.schemas[sid][0] if sid in state.schemas else ""
+                    writer.write_raw(topic, type_name, int(arrays.log_time[i]), arrays.payload(i),
+                                     info.schema_texts.get(type_name))
+        return InputBatch(np.concatenate(codes).astype(np.int8), np.concatenate(ts), np.concatenate(vals), write)
+
+    carry: InputBatch | None = None
+
+    def in_time_order(batch: InputBatch, final: bool) -> InputBatch:
+        """Prepend what the previous batch held back, sort by log time (file order among equal
+        times), and hold back messages newer than the oldest channel's last one (not final)."""
+        nonlocal carry
+        if carry is not None:
+            batch = InputBatch(np.concatenate([carry.codes, batch.codes]), np.concatenate([carry.t_ns, batch.t_ns]),
+                               np.concatenate([carry.values, batch.values]), batch.write_inputs)
+        order = np.argsort(batch.t_ns, kind="stable")
+        codes, t, v = batch.codes[order], batch.t_ns[order], batch.values[order]
+        carry = None
+        if not final:
+            lasts = [t[codes == k].max() for k in np.unique(codes).tolist() if k != temp_code]
+            if lasts:
+                cut = int(np.searchsorted(t, min(lasts), side="right"))
+                if cut < len(t):
+                    carry = InputBatch(codes[cut:], t[cut:], v[cut:], batch.write_inputs)
+                    codes, t, v = codes[:cut], t[:cut], v[:cut]
+        return InputBatch(codes, t, v, batch.write_inputs)
+
+    lut_cache: dict[int, np.ndarray] = {}
+    for arrays in iter_message_arrays(info.path, state):
+        key = len(state.channels)
+        if key not in lut_cache:  # channel id -> estimator channel code (-1: not an input)
+            lut = np.full(65536, -1, dtype=np.int16)
+            for cid, (topic, _sid, _enc) in state.channels.items():
+                if topic in plan.float64:
+                    lut[cid] = code_of[plan.float64[topic]]
+                elif plan.temperature and topic == plan.temperature[0]:
+                    lut[cid] = temp_code
+            lut_cache = {key: lut}
+        pending.append((arrays, lut_cache[key]))
+        count += len(arrays)
+        if count >= batch_size:
+            yield in_time_order(assemble(pending), final=False)
+            pending, count = [], 0
+    if pending or carry is not None:
+        yield in_time_order(assemble(pending) if pending else InputBatch(
+            np.empty(0, np.int8), np.empty(0, np.int64), np.empty(0), lambda w: None), final=True)
+    if state.truncated:
+        warn(f"{info.path}: stopped reading at a damaged or truncated record ({state.problem})")
 
 
 class GracefulStop:
@@ -234,15 +357,6 @@ class _Accumulator:
         self.res_n += len(r)
 
 
-def _samples_to_arrays(samples: list[SyncedSample]):
-    if not samples:
-        z = np.empty(0)
-        return np.empty(0, dtype=np.int64), z, z, z, z, z
-    arr = np.array([s[1:] for s in samples], dtype=float)
-    t = np.array([s[0] for s in samples], dtype=np.int64)
-    return t, arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], arr[:, 4]
-
-
 def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_mcap: str | Path | None = None,
            rrd: str | Path | None = None, show_progress: bool | None = None, batch_size: int = 100_000,
            warn: Callable[[str], None] | None = None, collect: bool = False) -> tuple[ReplaySummary, list[BatchEstimate]]:
@@ -280,24 +394,21 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
 
         bar = tqdm(total=total, unit="msg", unit_scale=True, desc="replay", file=sys.stderr)
     stop = GracefulStop()
+    sink = collected if collect else None
     try:
-        for raw in iter_raw_batches(info, plan.all_topics, batch_size, warn=_warn):
+        for batch in _input_batches(info, plan, batch_size, _warn):
             if stop.requested:
                 summary.interrupted = True
                 break
-            summary.input_messages += len(raw.topics)
-            samples: list[SyncedSample] = []
-            push = estimator.sync.push
-            for t, ch, v in decode_batch(raw, plan, info):
-                samples.extend(push(ch, t, v))
-            _emit(estimator, samples, writer, rlog, acc, collected if collect else None, config, topics)
+            summary.input_messages += len(batch.codes)
+            paired = estimator.sync.push_many(batch.codes, batch.t_ns, batch.values)
+            _emit(estimator, paired, writer, rlog, acc, sink, config, topics)
             if writer:
-                for tp, t, d in zip(raw.topics, raw.log_time_ns, raw.data):
-                    writer.write_raw(tp, info.topics[tp], t, d, info.schema_texts.get(info.topics[tp]))
+                batch.write_inputs(writer)
             if bar:
-                bar.update(len(raw.topics))
+                bar.update(len(batch.codes))
         else:
-            _emit(estimator, estimator.sync.flush(), writer, rlog, acc, collected if collect else None, config, topics)
+            _emit(estimator, samples_to_arrays(estimator.sync.flush()), writer, rlog, acc, sink, config, topics)
     except KeyboardInterrupt:
         summary.interrupted = True
     finally:
@@ -327,11 +438,11 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
     return summary, collected
 
 
-def _emit(estimator: Estimator, samples: list[SyncedSample], writer: BagWriter | None, rlog, acc: _Accumulator,
+def _emit(estimator: Estimator, paired: tuple[np.ndarray, ...], writer: BagWriter | None, rlog, acc: _Accumulator,
           collected: list | None, config: Config, tm: TopicMap) -> None:
-    if not samples:
+    t, tq, w, tq_out, w_out, theta = paired
+    if len(t) == 0:
         return
-    t, tq, w, tq_out, w_out, theta = _samples_to_arrays(samples)
     b = estimator.process_batch(t, tq, w, tq_out, w_out, theta)
     acc.add(b)
     if collected is not None:
