@@ -131,17 +131,27 @@ class SampleSynchronizer:
         return samples_to_arrays(out)
 
     def _pair_vectorised(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray):
-        if any(self.queues[c] for c in self.queues) or len(codes) == 0:
+        if len(codes) == 0:
             return None
         idx = {c: np.flatnonzero(codes == k) for k, c in enumerate(CHANNELS)}
-        present = [c for c in (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED) if len(idx[c])]
+        present = [c for c in (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED) if len(idx[c]) or self.queues[c]]
         if TORQUE not in present or SPEED not in present:
             return None
         if any(self.active[c] and c not in present for c in _OPTIONAL):
             return None  # an output channel falls silent: the streaming rule decides
-        if self.first_ns is None and not (OUT_TORQUE in present and OUT_SPEED in present) and (
-                OUT_TORQUE in present or OUT_SPEED in present):
-            return None  # start-up with only some optional channels: streaming
+        outputs_known = (self.received[OUT_TORQUE] or OUT_TORQUE in present) and (
+            self.received[OUT_SPEED] or OUT_SPEED in present)
+        if not outputs_known and (self.first_ns is None or self.latest_ns - self.first_ns <= self.staleness_ns):
+            return None  # start-up hold: the streaming rule decides
+        held_queues = any(self.queues[c] for c in self.queues)
+        if held_queues:
+            # messages held from the previous batch (a sample cut by the batch boundary) go first
+            held = [(t, CHANNELS.index(c), v) for c in self.queues for t, v in self.queues[c]]
+            held.sort(key=lambda h: h[0])
+            codes = np.concatenate([np.array([h[1] for h in held], dtype=codes.dtype), codes])
+            t_ns = np.concatenate([np.array([h[0] for h in held], dtype=np.int64), t_ns])
+            values = np.concatenate([np.array([h[2] for h in held], dtype=float), values])
+            idx = {c: np.flatnonzero(codes == k) for k, c in enumerate(CHANNELS)}
         n = min(len(idx[c]) for c in present)
         if n == 0 or any(len(idx[c]) - n > 1 for c in present):
             return None
@@ -170,6 +180,10 @@ class SampleSynchronizer:
         ok = have & (t - temp_t <= self.temperature_hold_ns)
         temp[ok] = temp_v[ok]
         # bring the streaming state to where message-by-message pushing would leave it
+        if held_queues:
+            for c in self.queues:
+                self.received[c] -= len(self.queues[c])
+                self.queues[c].clear()
         non_temp = codes != CHANNELS.index(TEMPERATURE)
         if self.first_ns is None:
             self.first_ns = int(t_ns[np.flatnonzero(non_temp)[0]])
@@ -374,6 +388,30 @@ class ChangeDetector:
         self.last_block_mean = math.nan
         self.alarm_times_ns: list[int] = []
 
+    def add_many(self, x: np.ndarray, t_ns: np.ndarray) -> None:
+        """:meth:`add` for arrays of finite residuals (block sums with numpy, CUSUM per block)."""
+        if self.delta <= 0 or len(x) == 0:
+            return
+        i = 0
+        n = len(x)
+        if self.n:  # complete the open block sample by sample
+            while i < n and self.n:
+                self.add(float(x[i]), int(t_ns[i]))
+                i += 1
+        full = (n - i) // self.block
+        if full:
+            sums = x[i:i + full * self.block].reshape(full, self.block).sum(axis=1)
+            ends = t_ns[i + self.block - 1:i + full * self.block:self.block]
+            for s_, t_ in zip(sums.tolist(), ends.tolist()):
+                # the block's first samples summed with numpy; its last one goes through add(), so
+                # the alarm logic stays in one place
+                last = float(x[i + self.block - 1])
+                self.acc, self.n = s_ - last, self.block - 1
+                self.add(last, int(t_))
+                i += self.block
+        for j in range(i, n):
+            self.add(float(x[j]), int(t_ns[j]))
+
     def add(self, x: float, t_ns: int) -> bool:
         """Add one residual; returns True when this sample raises an alarm."""
         if self.delta <= 0 or not math.isfinite(x):
@@ -419,6 +457,25 @@ class ResidualStats:
         a = max(self.alpha, 1.0 / self.count)
         self.mean += a * (r - self.mean)
         self.mean_sq += a * (r * r - self.mean_sq)
+
+    def add_many(self, r: np.ndarray) -> None:
+        """:meth:`add` for an array of finite residuals (the same numbers, vectorised)."""
+        i = 0
+        n = len(r)
+        warm = int(math.ceil(1.0 / self.alpha))
+        while i < n and self.count < warm:  # the running-average phase
+            self.add(float(r[i]))
+            i += 1
+        if i >= n:
+            return
+        x = r[i:]
+        k = len(x)
+        a = self.alpha
+        w = a * (1.0 - a) ** np.arange(k - 1, -1, -1, dtype=float)
+        decay = (1.0 - a) ** k
+        self.mean = decay * self.mean + float(np.dot(w, x))
+        self.mean_sq = decay * self.mean_sq + float(np.dot(w, x * x))
+        self.count += k
 
     @property
     def rms(self) -> float:
@@ -644,9 +701,9 @@ class Estimator:
             terms = additive_effects(e, at, aw, torque, sg)
             phys, sens = np.asarray(terms.physical_nm) + 0.0 * mag, np.asarray(terms.sensor_nm) + 0.0 * mag
             y = meas - mag - phys - sens
-            for ti, yi in zip(t_ns[np.isfinite(y)].tolist(), y[np.isfinite(y)].tolist()):
-                self.detector.add(yi, ti)
-                self.residual_stats.add(yi)
+            ok = np.isfinite(y)
+            self.detector.add_many(y[ok], t_ns[ok])
+            self.residual_stats.add_many(y[ok])
         loss = mag + phys
         residual = meas - (loss + sens)
         eff = efficiency(torque, speed, loss, self.model.min_torque_nm, self.model.min_speed_rad_s)

@@ -91,12 +91,18 @@ def parse_records(data: bytes, state: ReadState) -> MessageArrays:
         if pos + rec > n:
             raise ValueError("record runs past the end of its chunk")
         if op == OP_MESSAGE:
-            k = min((n - pos) // rec, 1 << 15)
-            m = 1
-            if k > 1:  # a run of records with the same opcode and length
-                rows = buf[pos:pos + k * rec].reshape(k, rec)
-                bad = np.flatnonzero(~(rows[:, :9] == buf[pos:pos + 9]).all(axis=1))
-                m = int(bad[0]) if len(bad) else k
+            avail = (n - pos) // rec
+            head = buf[pos:pos + 9]
+            m, step = 1, 64
+            while m < avail:  # a run of records with the same opcode and length, checked in growing windows
+                k = min(step, avail - m)
+                rows = buf[pos + m * rec:pos + (m + k) * rec].reshape(k, rec)
+                bad = np.flatnonzero(~(rows[:, :9] == head).all(axis=1))
+                if len(bad):
+                    m += int(bad[0])
+                    break
+                m += k
+                step *= 2
             rows = buf[pos:pos + m * rec].reshape(m, rec)
             chans.append(rows[:, 9:11].copy().view("<u2").ravel())
             times.append(rows[:, 15:23].copy().view("<i8").ravel())

@@ -1,0 +1,155 @@
+"""The estimator's parts: pairing (both rules, both paths), detector, statistics, RLS, diagnostics."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from rollergear_ros.diagnostics import ERROR, OK, WARN, InputMonitor, diagnose
+from rollergear_ros.estimator import (CHANNELS, OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE, TORQUE, ChangeDetector,
+                                      Estimator, RecursiveLeastSquares, ResidualStats, SampleSynchronizer,
+                                      samples_to_arrays)
+from rollergear_ros.params import load_config
+
+MS = 1_000_000
+
+
+def stream(n: int, outputs: bool = True, temp_every: int = 7, seed: int = 0):
+    """(code, t, value) messages of n samples at 1 kHz, channels of a sample at the same time."""
+    rng = np.random.default_rng(seed)
+    ev = []
+    for k in range(n):
+        t = 10**12 + k * MS
+        chans = (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED) if outputs else (TORQUE, SPEED)
+        for c in chans:
+            ev.append((CHANNELS.index(c), t, float(rng.normal())))
+        if k % temp_every == 3:
+            ev.append((CHANNELS.index(TEMPERATURE), t, 40.0 + k * 0.01))
+    codes = np.array([e[0] for e in ev], dtype=np.int8)
+    return codes, np.array([e[1] for e in ev], dtype=np.int64), np.array([e[2] for e in ev])
+
+
+@pytest.mark.parametrize("outputs", [True, False])
+def test_vectorised_pairing_equals_message_by_message(outputs):
+    codes, t, v = stream(3000, outputs)
+    slow = SampleSynchronizer(0.0004, 0.1)
+    ref = []
+    for c, tt, vv in zip(codes.tolist(), t.tolist(), v.tolist()):
+        ref.extend(slow.push(CHANNELS[c], tt, vv))
+    ref.extend(slow.flush())
+    ref = samples_to_arrays(ref)
+    fast = SampleSynchronizer(0.0004, 0.1)
+    parts = []
+    for a, b in ((0, 4001), (4001, 9000), (9000, len(codes))):  # batches cut mid-sample
+        parts.append(fast.push_many(codes[a:b], t[a:b], v[a:b]))
+    parts.append(samples_to_arrays(fast.flush()))
+    got = [np.concatenate([p[i] for p in parts]) for i in range(6)]
+    for r, g in zip(ref, got):
+        np.testing.assert_array_equal(np.asarray(r), np.asarray(g))
+    assert slow.counts == fast.counts and slow.received == fast.received
+
+
+def test_timestamp_pairing_never_pairs_neighbouring_samples():
+    sync = SampleSynchronizer(0.0004, 0.1)
+    out = []
+    for k in range(10):
+        t = k * MS
+        out += sync.push(TORQUE, t, float(k))
+        if k != 4:  # speed of sample 4 lost
+            out += sync.push(SPEED, t, float(k))
+    out += sync.flush()
+    assert [s.torque_nm for s in out] == [s.speed_rad_s for s in out]
+    assert sync.counts["unpaired"] == 1 and len(out) == 9
+
+
+def test_arrival_pairing_tolerates_reordering_and_resyncs_after_a_loss():
+    sync = SampleSynchronizer(0.002, 0.1, arrival=True)
+    out = []
+    t = 0
+    for k in range(400):
+        order = [TORQUE, SPEED] if k % 5 else [SPEED, TORQUE]  # topics swap order now and then
+        for c in order:
+            if c == SPEED and k == 200:
+                continue  # lost
+            t += 10_000  # callback times advance 10 µs per message, samples 5 ms apart (200 Hz)
+            out += sync.push(c, t + 5 * k * MS, float(k))
+    paired = [(s.torque_nm, s.speed_rad_s) for s in out]
+    good = [p for p in paired if p[0] == p[1]]
+    assert len(good) >= 395, paired  # all but the few samples around the loss
+    assert paired[-1][0] == paired[-1][1], "re-synchronised after the lost message"
+
+
+def test_change_detector_vectorised_equals_scalar():
+    rng = np.random.default_rng(3)
+    x = rng.normal(0, 0.01, 20000)
+    x[9000:] += 0.05
+    t = np.arange(len(x)) * MS
+    a, b = ChangeDetector(200, 0.02), ChangeDetector(200, 0.02)
+    for xi, ti in zip(x.tolist(), t.tolist()):
+        a.add(xi, ti)
+    b.add_many(x[:777], t[:777])
+    b.add_many(x[777:], t[777:])
+    assert a.alarms == b.alarms == 1 and a.alarm_times_ns == b.alarm_times_ns
+    assert 9000 * MS <= a.alarm_times_ns[0] <= 10000 * MS
+
+
+def test_residual_stats_vectorised_equals_scalar():
+    x = np.random.default_rng(4).normal(0.1, 0.02, 5000)
+    a, b = ResidualStats(), ResidualStats()
+    for xi in x.tolist():
+        a.add(xi)
+    b.add_many(x[:300])
+    b.add_many(x[300:])
+    assert a.count == b.count and a.mean == pytest.approx(b.mean, rel=1e-9) and a.rms == pytest.approx(b.rms, rel=1e-9)
+
+
+def test_rls_tracks_coefficients_with_bounded_covariance():
+    rng = np.random.default_rng(5)
+    rls = RecursiveLeastSquares([0.0, 0.0], 0.999, p0=1.0, max_trace=10.0)
+    for i in range(5000):
+        phi = [1.0, rng.uniform(0, 2)]
+        rls.update(phi, 0.3 + 0.7 * phi[1] + rng.normal(0, 0.01))
+        assert sum(rls.P[j][j] for j in range(2)) <= 10.0 + 1e-9
+    assert rls.theta[0] == pytest.approx(0.3, abs=0.01) and rls.theta[1] == pytest.approx(0.7, abs=0.01)
+
+
+def test_sensor_errors_are_removed_from_the_model_input():
+    cfg = load_config().with_values({"effects.torque_offset.enabled": True, "effects.torque_offset.offset_nm": 0.5,
+                                     "effects.torque_gain.enabled": True, "effects.torque_gain.gain": 0.01,
+                                     "estimator.adapt": False})
+    est = Estimator(cfg)
+    assert est.corrected_torque(10.5 * 1.0 + 0.1) == pytest.approx((10.6 - 0.5) / 1.01)
+    b = est.process_batch(np.array([0]), np.array([20.0]), np.array([100.0]))
+    plain = Estimator(load_config()).process_batch(np.array([0]), np.array([(20.0 - 0.5) / 1.01]), np.array([100.0]))
+    assert b.loss_torque_nm[0] == pytest.approx(plain.loss_torque_nm[0], rel=1e-12)
+
+
+def _monitor(now, last):
+    m = InputMonitor(now - 10 * 10**9)
+    for ch, t in last.items():
+        m.record(ch, t)
+    return m
+
+
+def test_diagnostics_levels():
+    est = Estimator(load_config())
+    now = 100 * 10**9
+    healthy = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
+    rates = {TORQUE: 1000.0, SPEED: 1000.0}
+    rep = diagnose(now, healthy, rates, est, 1000.0, 0.9, dict(est.counts), 0)
+    assert rep.level == OK and rep.message == "estimating"
+    stale = _monitor(now, {TORQUE: now - MS, SPEED: now - 3 * 10**9})
+    rep = diagnose(now, stale, rates, est, 1000.0, 0.9, dict(est.counts), 0)
+    assert rep.level == ERROR and "stale input: motor_speed" in rep.message
+    rep = diagnose(now, healthy, {TORQUE: 500.0, SPEED: 500.0}, est, 1000.0, 0.9, dict(est.counts), 0)
+    assert rep.level == WARN and "expected 1000 Hz" in rep.message
+    missing = _monitor(now, {TORQUE: now - MS})
+    rep = diagnose(now, missing, rates, est, 1000.0, 0.9, dict(est.counts), 0)
+    assert rep.level == ERROR and "no input on motor_speed" in rep.message
+    est.counts["non_finite"] += 3
+    rep = diagnose(now, healthy, rates, est, 1000.0, 0.9, {**est.counts, "non_finite": 0}, 0)
+    assert rep.level == WARN and "3 samples with non finite" in rep.message
+    values = dict(rep.values)
+    assert values["skipped non finite"] == "3 (+3)" and math.isfinite(float(values["expected rate [Hz]"]))
