@@ -21,7 +21,7 @@ setup(
     maintainer_email="rollergear@example.com",
     description="Roller gearing gearbox loss estimation: model, replay, calibration, ROS 2 node.",
     license="Apache-2.0",
-    tests_require=["pytest"],
+    extras_require={"test": ["pytest", "hypothesis"]},
     entry_points={
         "console_scripts": [
             "rollergear = rollergear_ros.cli:main",

@@ -752,7 +752,7 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
     plots.append(p)
 
     eb, ea = result.error_before, result.error_after
-    lines = [f"# Calibration report\n", f"Recordings: {', '.join(map(str, sources))}  ",
+    lines = ["# Calibration report\n", f"Recordings: {', '.join(map(str, sources))}  ",
              f"Samples used: {result.samples:,} (|ω| ≥ 2 rad/s, measured output torque present)  ",
              f"Verdict: **{result.verdict.replace('_', ' ')}**  ",
              f"Practical minimum effect size δ = {result.delta_nm:.4g} N·m (RMS contribution); "

@@ -16,9 +16,9 @@ metres, angles degrees (``_deg``), viscosities Pa·s.  No rclpy import here.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Mapping
+from typing import Any, Mapping
 
 import yaml
 
@@ -477,19 +477,8 @@ def config_to_yaml(config: Config, header: str = "") -> str:
     return (header + body) if header else body
 
 
-def specs(prefix: str = "") -> Iterable[ParamSpec]:
-    """Parameter specs whose dotted name starts with ``prefix``."""
-    return (s for s in PARAMETER_SPECS if s.name.startswith(prefix))
-
-
-def replace_effects(config: Config, **changes: Any) -> Config:
-    """Config with some :class:`EffectParams` fields changed (validated)."""
-    return validate({**config.to_flat(), **{
-        spec.name: changes[_attr(spec.name)] for spec in EFFECT_SPECS if _attr(spec.name) in changes}})
-
-
 __all__ = [
     "Config", "EffectParams", "EstimatorParams", "GearboxParams", "NodeParams", "ParamSpec",
     "ParameterError", "PARAMETER_SPECS", "EFFECT_NAMES", "load_config", "validate", "config_to_yaml",
-    "flat_from_yaml_document", "specs", "replace_effects", "fields", "replace",
+    "flat_from_yaml_document",
 ]

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from dataclasses import fields
 from pathlib import Path
@@ -24,13 +23,6 @@ def add_topic_options(p: argparse.ArgumentParser) -> None:
 
 def topics_from_args(args: argparse.Namespace) -> TopicMap:
     return TopicMap(**{f.name: getattr(args, f"topic_{f.name}") for f in fields(TopicMap)})
-
-
-def _sigterm_as_interrupt() -> None:
-    def handler(signum, frame):  # noqa: ARG001
-        raise KeyboardInterrupt
-
-    signal.signal(signal.SIGTERM, handler)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:

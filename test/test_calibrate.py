@@ -171,13 +171,11 @@ def test_online_adaptation_follows_a_step_and_alarms_once(tmp_path):
 
 
 def test_calibrate_bad_input(tmp_path):
-    from conftest import BAGS
+    from rollergear_ros.bag import FLOAT64, BagWriter, encode_float64
 
     proc = run_cli("calibrate", str(tmp_path / "none.mcap"), check=False)
     assert proc.returncode == 2 and "does not exist" in proc.stderr
     # a bag without output torque cannot be calibrated: clear message
-    opts = SimulationOptions(rate_hz=50)
-    from rollergear_ros.bag import BagWriter, FLOAT64, encode_float64
 
     p = tmp_path / "noout.mcap"
     with BagWriter(p) as bw:
@@ -186,4 +184,3 @@ def test_calibrate_bad_input(tmp_path):
             bw.write_raw("/rollergear/motor/speed", FLOAT64, 10**9 + i * 10**7, encode_float64(np.array([50.0]))[0])
     proc = run_cli("calibrate", str(p), "--json", check=False)
     assert proc.returncode == 2 and "output torque" in proc.stderr and proc.stdout == ""
-    del opts, BAGS

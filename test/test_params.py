@@ -91,3 +91,12 @@ def test_node_key_spellings_accepted(tmp_path, key):
 def test_ints_accepted_for_floats_and_integral_floats_for_ints():
     c = validate({"gearbox.alpha_deg": 20, "gearbox.z": 5.0})
     assert isinstance(c.gearbox.alpha_deg, float) and isinstance(c.gearbox.z, int)
+
+
+def test_dataclass_defaults_equal_the_spec_defaults():
+    """The typed dataclasses repeat the specs' defaults; they must not drift apart."""
+    from rollergear_ros.params import Config, PARAMETER_SPECS
+
+    flat = Config().to_flat()
+    for spec in PARAMETER_SPECS:
+        assert flat[spec.name] == spec.default, spec.name

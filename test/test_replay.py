@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import math
-import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -155,7 +153,6 @@ def test_streaming_path_equals_batch_path(config):
                               "effects.drag_speed.p": 1.4, "effects.drag_constant.enabled": True,
                               "effects.drag_constant.c_nm": 0.01})
     _, batches = replay(BAGS / "rig_map_drag.mcap", cal, show_progress=False, collect=True)
-    b = batches[0] if len(batches) == 1 else None
     loss = np.concatenate([x.loss_torque_nm for x in batches])
     res = np.concatenate([x.residual_nm for x in batches])
     est = Estimator(cal)
@@ -177,7 +174,6 @@ def test_streaming_path_equals_batch_path(config):
     assert len(out) == len(loss)
     np.testing.assert_allclose([e.loss_torque_nm for e in out], loss, rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose([e.residual_nm for e in out], res, rtol=1e-7, atol=1e-9, equal_nan=True)
-    del b
 
 
 # ------------------------------------------------------------------------------- bad input
