@@ -30,12 +30,12 @@ def cpu_seconds(pid: int) -> float:
     return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def start_sut(kind: str) -> subprocess.Popen:
+def start_sut(kind: str, executor: str) -> subprocess.Popen:
     if kind == "echo":
-        cmd = [sys.executable, str(ROOT / "bench" / "echo_node.py")]
+        cmd = [sys.executable, str(ROOT / "bench" / "echo_node.py"), executor]
     else:
         cmd = [sys.executable, "-m", "rollergear_ros.node", "--ros-args", "--params-file",
-               str(ROOT / "config" / "gearbox.yaml")]
+               str(ROOT / "config" / "gearbox.yaml"), "-p", f"node.executor:={executor}"]
     return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
 
 
@@ -85,6 +85,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--no-outputs", action="store_true", help="publish only motor torque and speed")
+    ap.add_argument("--executor", choices=("events", "single_threaded"), default="events",
+                    help="rclpy executor of both systems under test")
     args = ap.parse_args()
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
@@ -116,7 +118,7 @@ def main() -> None:
     with_outputs = not args.no_outputs
     results = {}
     for kind in ("echo", "loss_estimator"):
-        sut = start_sut(kind)
+        sut = start_sut(kind, args.executor)
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and (pubs[0].get_subscription_count() == 0
                                                or node.count_publishers("/rollergear/loss/torque") == 0):
@@ -145,7 +147,7 @@ def main() -> None:
     th.join()
     e, l = results["echo"][1], results["loss_estimator"][1]
     channels = 4 if with_outputs else 2
-    print(f"inputs per sample: {channels} topics; loss_estimator max rate / echo max rate = "
+    print(f"executor: {args.executor}; inputs per sample: {channels} topics; loss_estimator max rate / echo max rate = "
           f"{(l / e if e else float('nan')):.2f} (target >= 0.8)")
     rclpy.shutdown()
 

@@ -1,11 +1,13 @@
 #!/usr/bin/env python3
 """Baseline for bench_node.py: a bare rclpy node that subscribes to the same input topics with the
-same QoS and executor as loss_estimator and republishes the motor torque (one output per sample)."""
+same QoS and executor (argument: events | single_threaded) as loss_estimator and republishes the motor torque (one output per sample)."""
 
 from __future__ import annotations
 
+import sys
+
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from std_msgs.msg import Float64
@@ -20,7 +22,7 @@ def main() -> None:
     node.create_subscription(Float64, "motor/torque", lambda raw: pub.publish(raw), SENSOR_QOS, raw=True)
     for rel in ("motor/speed", "output/torque", "output/speed"):
         node.create_subscription(Float64, rel, lambda raw: None, SENSOR_QOS, raw=True)
-    ex = EventsExecutor()
+    ex = SingleThreadedExecutor() if sys.argv[1:] == ["single_threaded"] else EventsExecutor()
     ex.add_node(node)
     try:
         while rclpy.ok():
