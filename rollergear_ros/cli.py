@@ -132,12 +132,13 @@ def cmd_map(args: argparse.Namespace) -> int:
     from .figures import grid, write_loss_map
 
     config = config_from_args(args)
+    m = config.map
     try:
-        speeds = grid(*args.speed_rpm)
-        torques = grid(*args.torque_nm)
+        speeds = grid(*(args.speed_rpm or (m.speed_min_rpm, m.speed_max_rpm, m.speed_step_rpm)))
+        torques = grid(*(args.torque_nm or (m.torque_min_nm, m.torque_max_nm, m.torque_step_nm)))
     except ValueError as exc:
         raise UserError(str(exc)) from None
-    if args.both_directions:
+    if args.both_directions or m.both_directions:
         speeds = np.unique(np.concatenate([-speeds, speeds]))
     out = Path(args.out)
     png = None if args.no_plot else out.with_suffix(".png")
@@ -174,10 +175,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = with_params(sub.add_parser("map", help="VECTO-layout loss map CSV + efficiency contour PNG"))
     p.add_argument("--out", default="lossmap.csv", metavar="CSV")
-    p.add_argument("--speed-rpm", type=_finite, nargs=3, default=[0.0, 3000.0, 100.0],
-                   metavar=("START", "STOP", "STEP"))
-    p.add_argument("--torque-nm", type=_finite, nargs=3, default=[-100.0, 100.0, 5.0],
-                   metavar=("START", "STOP", "STEP"))
+    p.add_argument("--speed-rpm", type=_finite, nargs=3, metavar=("START", "STOP", "STEP"),
+                   help="speed grid (default: the map section of the parameter file, 0 3000 100)")
+    p.add_argument("--torque-nm", type=_finite, nargs=3, metavar=("START", "STOP", "STEP"),
+                   help="torque grid (default: the map section of the parameter file, -100 100 5)")
     p.add_argument("--both-directions", action="store_true", help="also negative speeds (reverse rotation)")
     p.add_argument("--no-plot", action="store_true")
     p.set_defaults(func=cmd_map)

@@ -233,7 +233,18 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
               read_only=True),
 )
 
-PARAMETER_SPECS: tuple[ParamSpec, ...] = GEARBOX_SPECS + EFFECT_SPECS + ESTIMATOR_SPECS + NODE_SPECS
+MAP_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("map.speed_min_rpm", float, 0.0, "loss map: first input speed", "rpm", low=0.0, high=1e6),
+    ParamSpec("map.speed_max_rpm", float, 3000.0, "loss map: last input speed", "rpm", low=0.0, high=1e6),
+    ParamSpec("map.speed_step_rpm", float, 100.0, "loss map: speed step", "rpm", low=0.0, low_open=True, high=1e6),
+    ParamSpec("map.torque_min_nm", float, -100.0, "loss map: first input torque (negative: regeneration)", "N*m",
+              low=-1e6, high=1e6),
+    ParamSpec("map.torque_max_nm", float, 100.0, "loss map: last input torque", "N*m", low=-1e6, high=1e6),
+    ParamSpec("map.torque_step_nm", float, 5.0, "loss map: torque step", "N*m", low=0.0, low_open=True, high=1e6),
+    ParamSpec("map.both_directions", bool, False, "loss map: also negative speeds (reverse rotation)"),
+)
+
+PARAMETER_SPECS: tuple[ParamSpec, ...] = GEARBOX_SPECS + EFFECT_SPECS + ESTIMATOR_SPECS + NODE_SPECS + MAP_SPECS
 SPEC_BY_NAME: dict[str, ParamSpec] = {s.name: s for s in PARAMETER_SPECS}
 
 
@@ -335,6 +346,19 @@ class NodeParams:
 
 
 @dataclass(frozen=True)
+class MapParams:
+    """Grid of ``rollergear map`` (the command's options override it)."""
+
+    speed_min_rpm: float = 0.0
+    speed_max_rpm: float = 3000.0
+    speed_step_rpm: float = 100.0
+    torque_min_nm: float = -100.0
+    torque_max_nm: float = 100.0
+    torque_step_nm: float = 5.0
+    both_directions: bool = False
+
+
+@dataclass(frozen=True)
 class Config:
     """The complete, validated parameter set."""
 
@@ -342,6 +366,7 @@ class Config:
     effects: EffectParams = field(default_factory=EffectParams)
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
     node: NodeParams = field(default_factory=NodeParams)
+    map: MapParams = field(default_factory=MapParams)
 
     def to_flat(self) -> dict[str, Any]:
         """Dotted-name dictionary of every parameter (the inverse of :func:`validate`)."""
@@ -367,7 +392,7 @@ def _attr(dotted: str) -> str:
 
 
 _SECTION_TYPES = {"gearbox": GearboxParams, "effects": EffectParams, "estimator": EstimatorParams,
-                  "node": NodeParams}
+                  "node": NodeParams, "map": MapParams}
 
 
 def validate(values: Mapping[str, Any]) -> Config:
@@ -408,6 +433,10 @@ def _check_consistency(config: Config) -> None:
             name = f"gearbox.f{j}"
             raise ParameterError(name, getattr(g, f"f{j}"),
                                  f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove")
+    if config.map.speed_max_rpm < config.map.speed_min_rpm:
+        raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm, "must be >= map.speed_min_rpm")
+    if config.map.torque_max_nm < config.map.torque_min_nm:
+        raise ParameterError("map.torque_max_nm", config.map.torque_max_nm, "must be >= map.torque_min_nm")
     if config.effects.viscosity_temperature and config.gearbox and (
         config.effects.viscosity_temperature_theta_ref_c + config.effects.viscosity_temperature_C_k <= 0
     ):

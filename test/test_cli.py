@@ -95,3 +95,19 @@ def test_map_csv_parses_and_matches_the_model(tmp_path, config):
     expect = lm.loss_magnitude(data[:, 1], data[:, 0] * 2 * np.pi / 60)
     np.testing.assert_allclose(data[:, 2], expect, rtol=1e-5, atol=1e-9)
     assert (tmp_path / "map.png").stat().st_size > 10_000
+
+
+def test_map_grid_from_the_parameter_file(tmp_path):
+    p = tmp_path / "grid.yaml"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    map: {speed_min_rpm: 500.0, speed_max_rpm: 1500.0, "
+                 "speed_step_rpm: 500.0, torque_min_nm: -20.0, torque_max_nm: 20.0, torque_step_nm: 10.0, "
+                 "both_directions: true}\n")
+    out = tmp_path / "m.csv"
+    run_cli("map", "--out", str(out), "--params", str(p), "--no-plot")
+    data = np.array(list(csv.reader(out.open()))[1:], dtype=float)
+    assert sorted(set(data[:, 0])) == [-1500, -1000, -500, 500, 1000, 1500]
+    assert sorted(set(data[:, 1])) == [-20, -10, 0, 10, 20]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**/loss_estimator:\n  ros__parameters:\n    map: {speed_min_rpm: 500.0, speed_max_rpm: 100.0}\n")
+    proc = run_cli("map", "--params", str(bad), "--out", str(out), check=False)
+    assert proc.returncode == 2 and "map.speed_max_rpm" in proc.stderr
