@@ -128,7 +128,8 @@ def main() -> None:
         r1k = run(driver, sut, 1000, args.seconds, with_outputs)
         best = 0.0
         driver_bound = False
-        for rate in (1000, 1500, 2000, 2500, 3000, 4000, 5000, 6000, 8000, 10000):
+        for rate in (1000, 1500, 2000, 2500, 3000, 3500, 4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000,
+                     9000, 10000):
             r = run(driver, sut, rate, 3.0, with_outputs)
             if r["dropped"] > 0:
                 break

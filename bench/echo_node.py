@@ -1,6 +1,8 @@
 #!/usr/bin/env python3
-"""Baseline for bench_node.py: a bare rclpy node that subscribes to the same input topics with the
-same QoS and executor (argument: events | single_threaded) as loss_estimator and republishes the motor torque (one output per sample)."""
+"""Baseline for bench_node.py: a bare rclpy echo node.  It subscribes to the same input topics with
+the same QoS and executor (argument: events | single_threaded) as loss_estimator and republishes
+every message it receives, unchanged, on an output topic (motor torque on ``loss/torque``, the
+others on ``echo/...``): four callbacks and four publications per sample, like loss_estimator."""
 
 from __future__ import annotations
 
@@ -18,10 +20,10 @@ from rollergear_ros.node import OUTPUT_QOS, SENSOR_QOS
 def main() -> None:
     rclpy.init()
     node = Node("echo", namespace="/rollergear")
-    pub = node.create_publisher(Float64, "loss/torque", OUTPUT_QOS)
-    node.create_subscription(Float64, "motor/torque", lambda raw: pub.publish(raw), SENSOR_QOS, raw=True)
-    for rel in ("motor/speed", "output/torque", "output/speed"):
-        node.create_subscription(Float64, rel, lambda raw: None, SENSOR_QOS, raw=True)
+    for rel, out in (("motor/torque", "loss/torque"), ("motor/speed", "echo/motor_speed"),
+                     ("output/torque", "echo/output_torque"), ("output/speed", "echo/output_speed")):
+        pub = node.create_publisher(Float64, out, OUTPUT_QOS)
+        node.create_subscription(Float64, rel, lambda raw, pub=pub: pub.publish(raw), SENSOR_QOS, raw=True)
     ex = SingleThreadedExecutor() if sys.argv[1:] == ["single_threaded"] else EventsExecutor()
     ex.add_node(node)
     try:

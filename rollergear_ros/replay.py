@@ -169,7 +169,10 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Call
             if plan.temperature and plan.temperature[1] == FLOAT64:
                 f64[:] = True
             if f64.any():
-                v[f64] = arrays.float64(keep[f64])
+                try:
+                    v[f64] = arrays.float64(keep[f64])
+                except ValueError:  # big-endian or padded payloads: one by one
+                    v[f64] = decode_float64([arrays.payload(i) for i in keep[f64].tolist()])
             if (~f64).any():
                 dec = decoder_for(plan.temperature[1], info.schema_texts.get(plan.temperature[1]))
                 v[~f64] = [float(dec(arrays.payload(i)).temperature) for i in keep[~f64].tolist()]

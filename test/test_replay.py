@@ -311,3 +311,19 @@ def test_interrupted_replay_leaves_valid_files(tmp_path, config, sig):
     assert len(read_mcap_ros2(out)[T.loss_torque][0]) == n
     series = read_rrd_series(rrd)
     assert 0 < len(series["/loss/torque_nm"][0]) <= n
+
+
+def test_big_endian_float64_payloads_are_decoded(tmp_path, config):
+    import struct
+
+    p = tmp_path / "be.mcap"
+    n = 50
+    with BagWriter(p) as bw:
+        for i in range(n):
+            t = 10**9 + i * 10**7
+            bw.write_raw(T.motor_torque, FLOAT64, t, b"\x00\x00\x00\x00" + struct.pack(">d", 20.0))
+            bw.write_raw(T.motor_speed, FLOAT64, t, b"\x00\x00\x00\x00" + struct.pack(">d", 100.0))
+    s, batches = replay(p, config, show_progress=False, collect=True)
+    loss = np.concatenate([b.loss_torque_nm for b in batches])
+    assert len(loss) == n
+    np.testing.assert_allclose(loss, LossModel(config.gearbox).loss_magnitude(20.0, 100.0), rtol=1e-12)
