@@ -97,9 +97,16 @@ class SampleSynchronizer:
             self.first_ns = t_ns
         if t_ns > self.latest_ns:
             self.latest_ns = t_ns
-        self.queues[channel].append((t_ns, value))
+        q = self.queues
+        q[channel].append((t_ns, value))
         if not self.active[channel]:
             self.active[channel] = True
+        # fast exit (the node's hot path): nothing is backed up and some active channel is still
+        # empty, so no sample can complete and no waiting message can have gone stale
+        if len(q[TORQUE]) <= 1 and len(q[SPEED]) <= 1 and self.first_ns != t_ns and (
+                not q[TORQUE] or not q[SPEED] or (self.active[OUT_TORQUE] and not q[OUT_TORQUE])
+                or (self.active[OUT_SPEED] and not q[OUT_SPEED])):
+            return []
         return self._drain()
 
     def flush(self) -> list[SyncedSample]:
@@ -266,7 +273,7 @@ def samples_to_arrays(samples: list[SyncedSample]) -> tuple[np.ndarray, ...]:
             arr[:, 4])
 
 
-@dataclass
+@dataclass(slots=True)
 class Estimate:
     """Estimator output for one sample (the node publishes these)."""
 
@@ -526,6 +533,10 @@ class Estimator:
                                          est.rls_forgetting, 1.0, est.rls_max_covariance)
         self._scales = scales
         self.detector = ChangeDetector(est.change_block_samples, est.change_threshold_nm)
+        self._additive = any(n != "viscosity_temperature" for n in config.effects.enabled())
+        e = config.effects
+        self._sensor_offset = e.torque_offset_offset_nm if e.torque_offset else 0.0
+        self._sensor_gain = e.torque_gain_gain if e.torque_gain else 0.0
         self.residual_stats = ResidualStats()
         self.estimated = 0
         self.last: Estimate | None = None
@@ -541,9 +552,7 @@ class Estimator:
         The model and the physical effects see this torque; the measured loss keeps the sensor's
         reading, so the sensor errors appear there as ``(g·T + b)·sgn ω`` (see :mod:`.effects`).
         """
-        e = self.config.effects
-        b = e.torque_offset_offset_nm if e.torque_offset else 0.0
-        g = e.torque_gain_gain if e.torque_gain else 0.0
+        b, g = self._sensor_offset, self._sensor_gain
         if b == 0.0 and g == 0.0:
             return torque_meas
         return (torque_meas - b) / (1.0 + g)
@@ -576,7 +585,12 @@ class Estimator:
     # ------------------------------------------------------------------ streaming (node)
     def push(self, channel: str, t_ns: int, value: float) -> list[Estimate]:
         """Feed one input message; returns the estimates it completes."""
-        return [e for e in (self.process(s) for s in self.sync.push(channel, t_ns, value)) if e is not None]
+        out = []
+        for s in self.sync.push(channel, t_ns, value):
+            e = self.process(s)
+            if e is not None:
+                out.append(e)
+        return out
 
     def process(self, s: SyncedSample) -> Estimate | None:
         """Estimate one paired sample (scalar path); None (and counted) when it is invalid."""
@@ -618,6 +632,8 @@ class Estimator:
         return est
 
     def _effects_scalar(self, at, aw, t, sg) -> tuple[float, float]:
+        if not self._additive:
+            return 0.0, 0.0
         if not self.adaptive:
             terms = additive_effects(self.config.effects, at, aw, t, sg)
             return terms.physical_nm, terms.sensor_nm
@@ -636,9 +652,11 @@ class Estimator:
         if self.adaptive:
             phi = regressors(self.adaptive, self.config, at, aw, t, sg)
             err = self.rls.update(phi, y)
-        else:
+        elif self._additive:
             terms = additive_effects(self.config.effects, at, aw, t, sg)
             err = y - terms.physical_nm - terms.sensor_nm
+        else:
+            err = y
         self.detector.add(err, t_ns)
 
     # ------------------------------------------------------------------ batch (replay)
