@@ -42,7 +42,7 @@ import numpy as np
 from .bag import TopicMap
 from .effects import FR_VISCOSITY_EXPONENT
 from .model import LossModel, rotation_sign
-from .params import Config, config_to_yaml, validate
+from .params import Config, ParameterError, config_to_yaml, validate
 
 GROUPS: tuple[str, ...] = ("drag_constant", "drag_speed", "load_dependent", "viscosity_temperature",
                            "torque_offset", "torque_gain")
@@ -636,6 +636,20 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
                f"at most 5 s each; whole dwells held out, never single rows); errors are of {blocks.block_s:g} s block "
                f"means of every held-out block, predicted by a fit that did not see its fold "
                f"({len(blocks.y)} blocks)")
+    # a fitted value outside a parameter's physical range (e.g. recordings of different rigs mixed)
+    # is not written to the parameter file: the verdict says so
+    writable = []
+    for e in effects:
+        try:
+            _calibrated_config(config, [e])
+            writable.append(e)
+        except ParameterError as exc:
+            cal.log.append(f"{e['name']} not written to the parameter file: {exc}")
+            out["rejected"].append({"name": e["name"], "upper_rms_nm": e["rms_contribution_ci95_nm"][1],
+                                    "estimate_rms_nm": e["rms_contribution_nm"], "ambiguous": False,
+                                    "reason": f"fitted value outside the physical range: {exc}"})
+            verdict = "inconclusive"
+    effects = writable
     new_config = _calibrated_config(config, effects)
     return CalibrationResult(verdict, effects, error_stats(err_b, blocks.measured, blocks.count),
                              error_stats(err_a, blocks.measured, blocks.count), holdout, int(len(data.t_ns)),
@@ -783,7 +797,8 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
                          f"columns are the same on this data. To separate them record {a['needs']}.")
     lines.append("\n## Groups not accepted (upper 95 % bound of their RMS contribution)\n")
     for r in result.rejected:
-        lines.append(f"- {r['name']}: ≤ {r['upper_rms_nm']:.3g} N·m" + (" (ambiguous, see above)" if r["ambiguous"] else ""))
+        lines.append(f"- {r['name']}: ≤ {r['upper_rms_nm']:.3g} N·m" + (" (ambiguous, see above)" if r["ambiguous"] else "")
+                     + (f" — {r['reason']}" if r.get("reason") else ""))
     for u in result.unavailable:
         lines.append(f"- {u}: not testable on this data (needs an oil temperature that varies by ≥ 3 °C)")
     lines.append("\n## Selection log\n")

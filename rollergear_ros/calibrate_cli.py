@@ -43,6 +43,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         params = ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items())
         ci = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e["ci95"].items())
         print(f"  effect {e['name']}: {params}  (95 %: {ci}; RMS contribution {e['rms_contribution_nm']:.4g} N·m)")
+    for r in result.rejected:
+        if r.get("reason"):
+            print(f"  {r['name']} not accepted: {r['reason']}")
     for a in result.ambiguous:
         print(f"  cannot tell apart: {' / '.join(a['effects'])} — record {a['needs']} to separate them")
     if result.verdict == "no_missing_effect":

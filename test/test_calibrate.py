@@ -184,3 +184,15 @@ def test_calibrate_bad_input(tmp_path):
             bw.write_raw("/rollergear/motor/speed", FLOAT64, 10**9 + i * 10**7, encode_float64(np.array([50.0]))[0])
     proc = run_cli("calibrate", str(p), "--json", check=False)
     assert proc.returncode == 2 and "output torque" in proc.stderr and proc.stdout == ""
+
+
+def test_recordings_of_different_rigs_do_not_crash_and_are_not_written(tmp_path):
+    """Mixed recordings (viscosity effect in one, load friction in the other) give physically
+    out-of-range fits: reported, never written to the parameter file, verdict inconclusive."""
+    from conftest import BAGS
+
+    out = tmp_path / "cal.yaml"
+    proc = run_cli("calibrate", str(BAGS / "warmup.mcap"), str(BAGS / "drive_cycle_joint_states.mcap"),
+                   "--out", str(out))
+    assert "verdict: inconclusive" in proc.stdout and "outside the physical range" in proc.stdout
+    load_config(out)  # the written file is valid
