@@ -30,13 +30,14 @@ def cpu_seconds(pid: int) -> float:
     return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def start_sut(kind: str, executor: str) -> subprocess.Popen:
+def start_sut(kind: str, executor: str, cpu: int | None = None) -> subprocess.Popen:
     if kind == "echo":
         cmd = [sys.executable, str(ROOT / "bench" / "echo_node.py"), executor]
     else:
         cmd = [sys.executable, "-m", "rollergear_ros.node", "--ros-args", "--params-file",
                str(ROOT / "config" / "gearbox.yaml"), "-p", f"node.executor:={executor}"]
-    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    pin = (lambda: os.sched_setaffinity(0, {cpu})) if cpu is not None else None
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=pin)
 
 
 def run(driver, sut: subprocess.Popen, rate: float, seconds: float, with_outputs: bool) -> dict:
@@ -87,8 +88,12 @@ def main() -> None:
     ap.add_argument("--no-outputs", action="store_true", help="publish only motor torque and speed")
     ap.add_argument("--executor", choices=("events", "single_threaded"), default="events",
                     help="rclpy executor of both systems under test")
+    ap.add_argument("--pin", action="store_true",
+                    help="driver on CPU 0, system under test on CPU 1 (so they do not compete for a core)")
     args = ap.parse_args()
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
+    if args.pin:
+        os.sched_setaffinity(0, {0})
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     import rclpy
     from rclpy.experimental import EventsExecutor
@@ -118,7 +123,7 @@ def main() -> None:
     with_outputs = not args.no_outputs
     results = {}
     for kind in ("echo", "loss_estimator"):
-        sut = start_sut(kind, args.executor)
+        sut = start_sut(kind, args.executor, 1 if args.pin else None)
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline and (pubs[0].get_subscription_count() == 0
                                                or node.count_publishers("/rollergear/loss/torque") == 0):
@@ -148,7 +153,7 @@ def main() -> None:
     th.join()
     e, l = results["echo"][1], results["loss_estimator"][1]
     channels = 4 if with_outputs else 2
-    print(f"executor: {args.executor}; inputs per sample: {channels} topics; loss_estimator max rate / echo max rate = "
+    print(f"executor: {args.executor}{'; driver on CPU 0, SUT on CPU 1' if args.pin else ''}; inputs per sample: {channels} topics; loss_estimator max rate / echo max rate = "
           f"{(l / e if e else float('nan')):.2f} (target >= 0.8)")
     rclpy.shutdown()
 

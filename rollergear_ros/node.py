@@ -80,6 +80,7 @@ class LossEstimatorNode(Node):
         self._skips_reported = dict(self.estimator.counts)
         self._alarms_reported = 0
         self._published = 0
+        self._every = self.config.node.publish_every_n
         self.executor_kind = node.executor
         topics = bagmod.TopicMap()
         self.out_topics = {"loss": self.resolve_topic_name("loss/torque"),
@@ -128,6 +129,7 @@ class LossEstimatorNode(Node):
             return SetParametersResult(successful=False, reason=str(exc))
         old = self.estimator
         self.config = new
+        self._every = new.node.publish_every_n
         self.estimator = Estimator(new, self.pairing)
         self.estimator.sync = old.sync  # keep queued inputs and counters
         self.estimator.counts = old.sync.counts
@@ -137,22 +139,28 @@ class LossEstimatorNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def _float_callback(self, channel: str, topic: str, with_info: bool):
-        monitor = self.monitor
+        """The hot path: one Float64 message (raw CDR bytes) -> estimator -> outputs."""
+        counts, last = self.monitor.counts, self.monitor.last_ns
+        unpack = struct.Struct("<d").unpack_from
 
-        def handle(raw: bytes, t_ns: int) -> None:
-            monitor.record(channel, time.time_ns())
+        def handle(raw: bytes, t_ns: int, wall_ns: int) -> None:
+            counts[channel] += 1
+            last[channel] = wall_ns
             if self.recorder is not None:
                 self.recorder.write_raw(topic, bagmod.FLOAT64, self.get_clock().now().nanoseconds, raw)
-            for est in self.estimator.push(channel, t_ns, decode_float64(raw)):
+            value = unpack(raw, 4)[0] if raw[1] == 1 else decode_float64(raw)
+            for est in self.estimator.push(channel, t_ns, value):
                 self._publish(est)
 
         if with_info:
             def cb_info(raw: bytes, info) -> None:
-                handle(raw, info["source_timestamp"] or time.time_ns())
+                wall = time.time_ns()
+                handle(raw, info["source_timestamp"] or wall, wall)
             return cb_info
 
         def cb(raw: bytes) -> None:
-            handle(raw, time.time_ns())
+            wall = time.time_ns()
+            handle(raw, wall, wall)
         return cb
 
     def _joint_state_callback(self, msg: JointState) -> None:
@@ -191,19 +199,23 @@ class LossEstimatorNode(Node):
     # ------------------------------------------------------------------ outputs
     def _publish(self, est: Estimate) -> None:
         self._published += 1
-        if self._published % self.config.node.publish_every_n:
+        if self._every > 1 and self._published % self._every:
             return
-        out = [(self.pub_loss, self.out_topics["loss"], est.loss_torque_nm),
-               (self.pub_power, self.out_topics["power"], est.loss_power_w),
-               (self.pub_eff, self.out_topics["eff"], est.efficiency)]
-        if est.residual_nm == est.residual_nm:  # measured output present
-            out.append((self.pub_res, self.out_topics["res"], est.residual_nm))
-        stamp = self.get_clock().now().nanoseconds if self.recorder is not None else 0
-        for pub, topic, value in out:
-            raw = _PACK(_CDR, value)
-            pub.publish(raw)
-            if self.recorder is not None:
-                self.recorder.write_raw(topic, bagmod.FLOAT64, stamp, raw)
+        raws = (_PACK(_CDR, est.loss_torque_nm), _PACK(_CDR, est.loss_power_w), _PACK(_CDR, est.efficiency))
+        self.pub_loss.publish(raws[0])
+        self.pub_power.publish(raws[1])
+        self.pub_eff.publish(raws[2])
+        res = est.residual_nm
+        res_raw = None
+        if res == res:  # measured output present
+            res_raw = _PACK(_CDR, res)
+            self.pub_res.publish(res_raw)
+        if self.recorder is not None:
+            stamp = self.get_clock().now().nanoseconds
+            for key, raw in zip(("loss", "power", "eff"), raws):
+                self.recorder.write_raw(self.out_topics[key], bagmod.FLOAT64, stamp, raw)
+            if res_raw is not None:
+                self.recorder.write_raw(self.out_topics["res"], bagmod.FLOAT64, stamp, res_raw)
         if self.rerun is not None:
             self._rr_buffer.append(est)
 
