@@ -16,8 +16,6 @@ from typing import Any, Iterator
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
-from mcap.records import Channel, Message, Schema
-from mcap.stream_reader import StreamReader
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
 NAMESPACE = "/rollergear"
@@ -97,13 +95,18 @@ def decode_float64(payloads: list[bytes]) -> np.ndarray:
     return out
 
 
-def encode_float64(values: np.ndarray) -> list[bytes]:
-    """Encode floats as Float64 CDR payloads (little endian)."""
+def float64_payloads(values: np.ndarray) -> np.ndarray:
+    """Float64 CDR payloads (little endian) as the rows of an ``(n, 12)`` uint8 array."""
     v = np.ascontiguousarray(values, dtype="<f8")
     buf = np.empty((len(v), 12), dtype=np.uint8)
     buf[:, :4] = np.frombuffer(CDR_LE_HEADER, dtype=np.uint8)
     buf[:, 4:] = v.view(np.uint8).reshape(-1, 8)
-    raw = buf.tobytes()
+    return buf
+
+
+def encode_float64(values: np.ndarray) -> list[bytes]:
+    """Encode floats as Float64 CDR payloads (little endian), one ``bytes`` each."""
+    raw = float64_payloads(values).tobytes()
     return [raw[i:i + 12] for i in range(0, len(raw), 12)]
 
 
@@ -204,39 +207,28 @@ def _check_encodings(info: BagInfo, encodings: set[str]) -> None:
 
 def _scan(path: Path, size: int) -> BagInfo:
     """Linear scan of a bag without summary: channels, counts, and how far it is readable."""
-    topics: dict[str, str] = {}
-    texts: dict[str, str] = {}
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    counts: dict[str, int] = {}
-    encodings: set[str] = set()
+    from .fastmcap import ReadState, iter_message_arrays
+
+    state = ReadState()
+    counts_by_id: dict[int, int] = {}
     start = end = None
-    truncated = False
-    problem = ""
-    with path.open("rb") as fh:
-        reader = StreamReader(fh, skip_magic=False, emit_chunks=False)
-        readable = 8
-        try:
-            for rec in reader.records:
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                    texts[rec.name] = rec.data.decode(errors="replace")
-                    encodings.add(rec.encoding)
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                    topics[rec.topic] = schemas[rec.schema_id].name if rec.schema_id in schemas else ""
-                    encodings.add(rec.message_encoding)
-                elif isinstance(rec, Message):
-                    topic = channels[rec.channel_id].topic if rec.channel_id in channels else "?"
-                    counts[topic] = counts.get(topic, 0) + 1
-                    start = rec.log_time if start is None else min(start, rec.log_time)
-                    end = rec.log_time if end is None else max(end, rec.log_time)
-                readable = fh.tell()
-        except (McapError, struct.error, ValueError, EOFError, KeyError) as exc:
-            truncated = True
-            problem = f"{type(exc).__name__}: {exc}"
-    info = BagInfo(path, topics, counts, texts, False, truncated, size, min(readable, size),
-                   start or 0, end or 0, problem)
+    for arrays in iter_message_arrays(path, state):
+        ids, n = np.unique(arrays.channel, return_counts=True)
+        for cid, k in zip(ids.tolist(), n.tolist()):
+            counts_by_id[cid] = counts_by_id.get(cid, 0) + k
+        lo, hi = int(arrays.log_time.min()), int(arrays.log_time.max())
+        start = lo if start is None else min(start, lo)
+        end = hi if end is None else max(end, hi)
+    schema_names = {sid: name for sid, (name, _enc, _data) in state.schemas.items()}
+    topics = {topic: schema_names.get(sid, "") for topic, sid, _enc in state.channels.values()}
+    texts = {name: data.decode(errors="replace") for name, _enc, data in state.schemas.values()}
+    counts: dict[str, int] = {}
+    for cid, k in counts_by_id.items():
+        topic = state.channels[cid][0] if cid in state.channels else "?"
+        counts[topic] = counts.get(topic, 0) + k
+    encodings = {enc for _n, enc, _d in state.schemas.values()} | {enc for _t, _s, enc in state.channels.values()}
+    info = BagInfo(path, topics, counts, texts, False, state.truncated, size, min(max(state.bytes_read, 8), size),
+                   start or 0, end or 0, state.problem)
     _check_encodings(info, encodings)
     return info
 
@@ -331,11 +323,7 @@ class BagWriter:
 
     def write_float64_series(self, topic: str, t_ns: np.ndarray, values: np.ndarray) -> None:
         """A whole series of Float64 messages (vectorised encoding)."""
-        v = np.ascontiguousarray(values, dtype="<f8")
-        payload = np.empty((len(v), 12), dtype=np.uint8)
-        payload[:, :4] = np.frombuffer(CDR_LE_HEADER, dtype=np.uint8)
-        payload[:, 4:] = v.view(np.uint8).reshape(-1, 8)
-        self.write_fixed(topic, FLOAT64, t_ns, payload)
+        self.write_fixed(topic, FLOAT64, t_ns, float64_payloads(values))
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """An MCAP metadata record (string key/values)."""

@@ -180,9 +180,7 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
                 elif op in (OP_DATA_END, OP_FOOTER):
                     state.bytes_read = pos + 9 + ln
                     break
-            except (ValueError, struct.error, Exception) as exc:  # noqa: BLE001 - damaged data: stop there
-                if isinstance(exc, GeneratorExit):
-                    raise
+            except Exception as exc:  # noqa: BLE001 - damaged data (bad lengths, decompression): stop there
                 state.truncated = True
                 state.problem = f"damaged record at byte {pos}: {exc}"
                 break
@@ -190,14 +188,14 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
 
 
 # ------------------------------------------------------------------------------------ writing
-def message_rows(channel_id: int, log_time: np.ndarray, payload: np.ndarray, seq0: int) -> np.ndarray:
-    """Message records (one row each) for payloads of equal length, built with numpy."""
+def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> np.ndarray:
+    """Message records (one row each, sequence numbers left 0) for payloads of equal length."""
     n, plen = payload.shape
     rows = np.empty((n, 9 + _MSG_FIXED + plen), dtype=np.uint8)
     rows[:, 0] = OP_MESSAGE
     rows[:, 1:9] = np.frombuffer(struct.pack("<Q", _MSG_FIXED + plen), dtype=np.uint8)
-    rows[:, 9:11] = np.frombuffer(struct.pack("<H", channel_id), dtype=np.uint8)
-    rows[:, 11:15] = (seq0 + np.arange(1, n + 1, dtype=np.uint32)).astype("<u4").view(np.uint8).reshape(n, 4)
+    rows[:, 9:11] = np.ascontiguousarray(channel_id, dtype="<u2").view(np.uint8).reshape(n, 2)
+    rows[:, 11:15] = 0
     lt = np.ascontiguousarray(log_time, dtype="<i8").view(np.uint8).reshape(n, 8)
     rows[:, 15:23] = lt
     rows[:, 23:31] = lt
@@ -287,8 +285,7 @@ class ChunkedMcapWriter:
             return
         log_time = np.asarray(log_time, dtype=np.int64)
         ids = np.broadcast_to(np.asarray(channel_id, dtype=np.int64), (n,))
-        rows = message_rows(0, log_time, payload, 0)
-        rows[:, 9:11] = ids.astype("<u2").view(np.uint8).reshape(n, 2)
+        rows = message_rows(ids, log_time, payload)
         rec = rows.shape[1]
         offsets = self._size + rec * np.arange(n, dtype=np.int64)
         for cid in np.unique(ids).tolist():

@@ -22,6 +22,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.serialization import serialize_message
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64
@@ -48,10 +49,6 @@ def _descriptor(spec) -> ParameterDescriptor:
     elif spec.kind is int and spec.low is not None and spec.high is not None:
         d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
     return d
-
-
-def decode_float64(raw: bytes) -> float:
-    return struct.unpack_from("<d" if raw[1] == 1 else ">d", raw, 4)[0]
 
 
 class LossEstimatorNode(Node):
@@ -148,7 +145,7 @@ class LossEstimatorNode(Node):
             last[channel] = wall_ns
             if self.recorder is not None:
                 self.recorder.write_raw(topic, bagmod.FLOAT64, self.get_clock().now().nanoseconds, raw)
-            value = unpack(raw, 4)[0] if raw[1] == 1 else decode_float64(raw)
+            value = unpack(raw, 4)[0] if raw[1] == 1 else float(bagmod.decode_float64([raw])[0])
             for est in self.estimator.push(channel, t_ns, value):
                 self._publish(est)
 
@@ -169,8 +166,6 @@ class LossEstimatorNode(Node):
         names = list(msg.name)
         node = self.config.node
         if self.recorder is not None:
-            from rclpy.serialization import serialize_message
-
             self.recorder.write_raw("/joint_states", bagmod.JOINT_STATE, self.get_clock().now().nanoseconds,
                                     serialize_message(msg))
         for joint, ch_t, ch_w in ((node.input_joint, TORQUE, SPEED), (node.output_joint, OUT_TORQUE, OUT_SPEED)):
@@ -187,8 +182,6 @@ class LossEstimatorNode(Node):
     def _temperature_callback(self, msg: Temperature) -> None:
         self.monitor.record(TEMPERATURE, time.time_ns())
         if self.recorder is not None:
-            from rclpy.serialization import serialize_message
-
             self.recorder.write_raw(self.resolve_topic_name("oil/temperature"), bagmod.TEMPERATURE,
                                     self.get_clock().now().nanoseconds, serialize_message(msg))
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec

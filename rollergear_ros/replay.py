@@ -76,48 +76,27 @@ def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
 
 
 def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo) -> list[tuple[int, str, float]]:
-    """Decode a raw batch into ``(time, channel, value)`` in file order (non-finite values kept)."""
-    n = len(batch.topics)
-    values = np.full(n, np.nan)
-    channels: list[str | None] = [None] * n
-    by_topic: dict[str, list[int]] = {}
-    for i, tp in enumerate(batch.topics):
-        by_topic.setdefault(tp, []).append(i)
-    extra: list[tuple[int, int, str, float]] = []  # (order key, t, channel, value) for JointState fan-out
-    for topic, idx in by_topic.items():
-        if topic in plan.float64:
-            ch = plan.float64[topic]
-            values[idx] = decode_float64([batch.data[i] for i in idx])
-            for i in idx:
-                channels[i] = ch
-        elif plan.temperature and topic == plan.temperature[0]:
-            type_name = plan.temperature[1]
-            if type_name == FLOAT64:
-                values[idx] = decode_float64([batch.data[i] for i in idx])
-            else:
-                dec = decoder_for(type_name, info.schema_texts.get(type_name))
-                values[idx] = [float(dec(batch.data[i]).temperature) for i in idx]
-            for i in idx:
-                channels[i] = CH_TEMPERATURE
+    """Decode a raw batch of a JointState recording into ``(time, channel, value)`` in file order.
+
+    Float64 recordings take the vectorised path (:func:`_float64_batches`); non-finite values are kept.
+    """
+    out: list[tuple[int, str, float]] = []
+    tp = plan.topics
+    temp_topic, temp_type = plan.temperature or (None, None)
+    js_dec = decoder_for(JOINT_STATE, info.schema_texts.get(JOINT_STATE))
+    temp_dec = decoder_for(temp_type, info.schema_texts.get(temp_type)) if temp_type not in (None, FLOAT64) else None
+    for topic, t, data in zip(batch.topics, batch.log_time_ns, batch.data):
+        if topic == temp_topic:
+            value = decode_float64([data])[0] if temp_dec is None else temp_dec(data).temperature
+            out.append((t, CH_TEMPERATURE, float(value)))
         elif topic == plan.joint_states:
-            dec = decoder_for(JOINT_STATE, info.schema_texts.get(JOINT_STATE))
-            tp = plan.topics
-            for i in idx:
-                msg = dec(batch.data[i])
-                names = list(msg.name)
-                for joint, ch_t, ch_w in ((tp.input_joint, TORQUE, SPEED), (tp.output_joint, OUT_TORQUE, OUT_SPEED)):
-                    if joint in names:
-                        k = names.index(joint)
-                        eff = float(msg.effort[k]) if k < len(msg.effort) else math.nan
-                        vel = float(msg.velocity[k]) if k < len(msg.velocity) else math.nan
-                        extra.append((i, batch.log_time_ns[i], ch_t, eff))
-                        extra.append((i, batch.log_time_ns[i], ch_w, vel))
-    out = [(batch.log_time_ns[i], channels[i], float(values[i])) for i in range(n) if channels[i] is not None]
-    if extra:
-        merged = [(i, batch.log_time_ns[i], channels[i], float(values[i])) for i in range(n) if channels[i] is not None]
-        merged.extend(extra)
-        merged.sort(key=lambda r: r[0])
-        out = [(t, c, v) for _, t, c, v in merged]
+            msg = js_dec(data)
+            names = list(msg.name)
+            for joint, ch_t, ch_w in ((tp.input_joint, TORQUE, SPEED), (tp.output_joint, OUT_TORQUE, OUT_SPEED)):
+                if joint in names:
+                    k = names.index(joint)
+                    out.append((t, ch_t, float(msg.effort[k]) if k < len(msg.effort) else math.nan))
+                    out.append((t, ch_w, float(msg.velocity[k]) if k < len(msg.velocity) else math.nan))
     return out
 
 
