@@ -168,7 +168,7 @@ def efficiency(torque_nm, speed_rad_s, loss_nm, min_torque_nm=0.0, min_speed_rad
     loss = np.asarray(loss_nm, dtype=float)
     at = np.abs(t)
     power_sign = np.sign(t) * np.sign(w)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         eta = np.where(power_sign > 0, (at - loss) / at, at / (at + loss))
     undefined = (at < max(min_torque_nm, 0.0)) | (np.abs(w) < max(min_speed_rad_s, 0.0)) | (power_sign == 0)
     undefined |= ~(eta > 0.0)
