@@ -23,9 +23,14 @@ Arrival pairing (``arrival=True``, for a live executor that gives no publisher t
 callback times are further apart than the tolerance (the middleware may deliver topics slightly
 out of order, and callback times spread under load); only when three consecutive pairs are more
 than ``max(sync_tolerance_s, 2 ms)`` apart is the stream taken to be misaligned by a lost message,
-and the oldest head is dropped (``unpaired``) to re-synchronise.  A lost message at more than
-~500 Hz therefore shifts the pairing by one sample until the next gap; the node reports
-``unpaired`` counts in ``/diagnostics``.
+and the oldest head is dropped (``unpaired``) to re-synchronise.  That leniency applies once the
+stream is locked on (a pair within the tolerance).  Unlocked -- at the start, after a resync, and
+after a gap longer than ``staleness_s`` with nothing queued -- a wide pair is dropped at once, so the
+backlog of a topic whose subscription matched before its partner's (a node started while a bag
+plays) is not paired with the wrong samples.  Below ~500 Hz a lost message mispairs two samples
+before the resync; above it, neighbouring samples lie within 2 ms of each other and a lost message
+shifts the pairing by one sample until the next gap.  The node reports ``unpaired`` counts in
+``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -76,6 +81,7 @@ class SampleSynchronizer:
                  temperature_hold_s: float = TEMPERATURE_HOLD_S, arrival: bool = False) -> None:
         self.arrival = arrival
         self._wide = 0  # consecutive pairs wider than the tolerance (arrival pairing)
+        self._locked = False  # arrival pairing: the heads have paired within the tolerance
         self.tolerance_ns = int(round(sync_tolerance_s * 1e9))
         self.staleness_ns = int(round(staleness_s * 1e9))
         self.temperature_hold_ns = int(round(temperature_hold_s * 1e9))
@@ -96,6 +102,10 @@ class SampleSynchronizer:
         if self.first_ns is None:
             self.first_ns = t_ns
         if t_ns > self.latest_ns:
+            if t_ns - self.latest_ns > self.staleness_ns and not any(self.queues.values()):
+                # a new stream after a clean end (nothing half-paired): its topics may start out of
+                # step.  A gap inside a sample is an executor stall, not a new stream.
+                self._locked = False
             self.latest_ns = t_ns
         q = self.queues
         q[channel].append((t_ns, value))
@@ -230,10 +240,7 @@ class SampleSynchronizer:
             times = [q[c][0][0] for c in chans]
             wide = max(times) - min(times) > tol
             if self.arrival:
-                self._wide = self._wide + 1 if wide else 0
-                wide = self._wide >= 3
-                if wide:
-                    self._wide = 0
+                wide = self._arrival_wide(wide)
             if not wide:
                 vals = {c: q[c].popleft()[1] for c in chans}
                 t = times[0]
@@ -243,6 +250,26 @@ class SampleSynchronizer:
             q[oldest].popleft()
             if oldest in _REQUIRED:
                 self.counts["unpaired"] += 1
+
+    def _arrival_wide(self, wide: bool) -> bool:
+        """Arrival pairing: whether a pair whose times are ``wide`` apart is taken as misaligned.
+
+        Locked on (after a pair within the tolerance), up to two consecutive wide pairs are
+        delivery jitter; the third means a lost message: the oldest head is dropped and the stream
+        is unlocked.  Unlocked (at the start of a stream, after a gap, after a resync), every wide
+        pair is misaligned: a subscription that matched before its partner's delivers a backlog that
+        has no partner, and it is dropped until the heads pair within the tolerance.
+        """
+        if not wide:
+            self._locked, self._wide = True, 0
+            return False
+        if not self._locked:
+            return True
+        self._wide += 1
+        if self._wide < 3:
+            return False
+        self._locked, self._wide = False, 0
+        return True
 
     def _expire_required(self) -> None:
         """Drop motor messages whose partner has not come within the staleness limit."""

@@ -187,6 +187,51 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
             pos += 9 + ln
 
 
+def release_count(t_sorted: np.ndarray, keys_sorted: np.ndarray, ignore_key: int | None = None) -> int:
+    """How many messages of a log-time-sorted batch are safe to hand on before the next batch is read.
+
+    Each channel is in log-time order within a file, but channels interleave loosely across chunk
+    (and batch) boundaries, so a message newer than the oldest of the channels' latest messages may
+    still be preceded by one in the next batch; those are held back.  ``ignore_key`` names a slow
+    channel (e.g. a temperature) whose last message must not hold everything else back.
+    """
+    keep = keys_sorted != ignore_key if ignore_key is not None else slice(None)
+    t, k = t_sorted[keep], keys_sorted[keep]
+    if len(t) == 0:
+        return len(t_sorted)
+    uniq, inv = np.unique(k, return_inverse=True)
+    lasts = np.full(len(uniq), np.iinfo(np.int64).min, dtype=np.int64)
+    np.maximum.at(lasts, inv, t)
+    return int(np.searchsorted(t_sorted, lasts.min(), side="right"))
+
+
+def iter_log_time_order(path: str | Path, state: ReadState | None = None
+                        ) -> Iterator[tuple[np.ndarray, np.ndarray, list[bytes]]]:
+    """All messages of an MCAP file in log-time order (file order among equal times), chunk by chunk.
+
+    Yields ``(log_time, channel_id, payloads)``; ``state.channels`` maps the ids to topics.  Reads
+    linearly like :func:`iter_message_arrays` (so also unindexed or truncated files) and restores
+    the order across chunk boundaries with :func:`release_count`.
+    """
+    state = state if state is not None else ReadState()
+    carry_t = np.empty(0, dtype=np.int64)
+    carry_c = np.empty(0, dtype=np.int64)
+    carry_p: list[bytes] = []
+    for arrays in iter_message_arrays(path, state):
+        data = arrays.buf.tobytes()
+        payloads = carry_p + [data[o:o + n] for o, n in zip(arrays.offset.tolist(), arrays.length.tolist())]
+        t = np.concatenate([carry_t, arrays.log_time])
+        c = np.concatenate([carry_c, arrays.channel.astype(np.int64)])
+        order = np.argsort(t, kind="stable")
+        t, c = t[order], c[order]
+        payloads = [payloads[i] for i in order.tolist()]
+        cut = release_count(t, c)
+        yield t[:cut], c[:cut], payloads[:cut]
+        carry_t, carry_c, carry_p = t[cut:], c[cut:], payloads[cut:]
+    if len(carry_t):
+        yield carry_t, carry_c, carry_p
+
+
 # ------------------------------------------------------------------------------------ writing
 def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> np.ndarray:
     """Message records (one row each, sequence numbers left 0) for payloads of equal length."""
@@ -228,7 +273,7 @@ class ChunkedMcapWriter:
         self._channels: dict[int, object] = {}
         self._chunk_indexes: list = []
         self._metadata_indexes: list = []
-        self._parts: list[np.ndarray | bytes] = []  # record bytes of the open chunk
+        self._chunk = bytearray()  # record bytes of the open chunk
         self._index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # channel -> [(log times, offsets)]
         self._single: dict[int, tuple[list[int], list[int]]] = {}  # the same for messages added one by one
         self._size = 0
@@ -271,7 +316,7 @@ class ChunkedMcapWriter:
         rb = RecordBuilder()
         record.write(rb)
         data = rb.end()
-        self._parts.append(data)
+        self._chunk += data
         self._size += len(data)
 
     # -------------------------------------------------------------- messages
@@ -296,7 +341,7 @@ class ChunkedMcapWriter:
             self._seq[cid] += k
             self._index.setdefault(cid, []).append((log_time[sel], offsets[sel]))
             self._counts[cid] += k
-        self._parts.append(rows.reshape(-1))
+        self._chunk += rows.reshape(-1).data
         self._size += rows.size
         self._message_count += n
         lo, hi = int(np.min(log_time)), int(np.max(log_time))
@@ -314,7 +359,8 @@ class ChunkedMcapWriter:
         times, offs = self._single.setdefault(channel_id, ([], []))
         times.append(log_time)
         offs.append(self._size)
-        self._parts.append(rec + data)
+        self._chunk += rec
+        self._chunk += data
         self._size += len(rec) + len(data)
         self._counts[channel_id] += 1
         self._message_count += 1
@@ -346,9 +392,9 @@ class ChunkedMcapWriter:
         from mcap.data_stream import RecordBuilder
         from mcap.records import Chunk, ChunkIndex
 
-        if not self._parts:
+        if not self._chunk:
             return
-        data = b"".join(p.tobytes() if isinstance(p, np.ndarray) else p for p in self._parts)
+        data = self._chunk
         compressed = self._zstd.compress(data)
         start = self._start if self._start is not None else 0
         end = self._end if self._end is not None else 0
@@ -377,7 +423,7 @@ class ChunkedMcapWriter:
             chunk_length=len(chunk_blob), message_index_offsets=index_offsets,
             message_index_length=self._fh.tell() - index_start, compression="zstd",
             compressed_size=len(compressed), uncompressed_size=len(data)))
-        self._parts, self._index, self._single, self._size = [], {}, {}, 0
+        self._chunk, self._index, self._single, self._size = bytearray(), {}, {}, 0
         self._start = self._end = None
 
     def close(self) -> None:

@@ -129,7 +129,7 @@ def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callab
 
 
 def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None]):
-    from .fastmcap import ReadState, iter_message_arrays
+    from .fastmcap import ReadState, iter_message_arrays, release_count
 
     state = ReadState()
     code_of = {c: i for i, c in enumerate(CHANNELS)}
@@ -195,12 +195,10 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Call
         codes, t, v = batch.codes[order], batch.t_ns[order], batch.values[order]
         carry = None
         if not final:
-            lasts = [t[codes == k].max() for k in np.unique(codes).tolist() if k != temp_code]
-            if lasts:
-                cut = int(np.searchsorted(t, min(lasts), side="right"))
-                if cut < len(t):
-                    carry = InputBatch(codes[cut:], t[cut:], v[cut:], batch.write_inputs)
-                    codes, t, v = codes[:cut], t[:cut], v[:cut]
+            cut = release_count(t, codes, ignore_key=temp_code)
+            if cut < len(t):
+                carry = InputBatch(codes[cut:], t[cut:], v[cut:], batch.write_inputs)
+                codes, t, v = codes[:cut], t[:cut], v[:cut]
         return InputBatch(codes, t, v, batch.write_inputs)
 
     lut_cache: dict[int, np.ndarray] = {}

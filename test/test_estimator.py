@@ -81,6 +81,41 @@ def test_arrival_pairing_tolerates_reordering_and_resyncs_after_a_loss():
     assert paired[-1][0] == paired[-1][1], "re-synchronised after the lost message"
 
 
+def test_arrival_pairing_drops_the_backlog_of_a_topic_that_started_early():
+    """A node started while a bag plays: the torque subscription matched 3 samples before speed's."""
+    sync = SampleSynchronizer(0.002, 0.1, arrival=True)
+    out = []
+    for k in range(300):
+        t = 5 * k * MS  # 200 Hz
+        out += sync.push(TORQUE, t, float(k))
+        if k >= 3:
+            out += sync.push(SPEED, t + 10_000, float(k))
+        if k == 150:
+            t_gap = t
+    # the same after a pause longer than the staleness limit, speed resuming 2 samples late
+    for k in range(300, 400):
+        t = t_gap + 2_000 * MS + 5 * k * MS
+        out += sync.push(TORQUE, t, float(k))
+        if k >= 302:
+            out += sync.push(SPEED, t + 10_000, float(k))
+    paired = [(s.torque_nm, s.speed_rad_s) for s in out]
+    assert all(a == b for a, b in paired), [p for p in paired if p[0] != p[1]]
+    assert len(paired) == 297 + 98
+    assert sync.counts["unpaired"] == 5
+
+
+def test_arrival_pairing_keeps_a_sample_split_by_an_executor_stall():
+    """The executor stalls 150 ms between a sample's torque and speed callbacks, then catches up."""
+    sync = SampleSynchronizer(0.002, 0.1, arrival=True)
+    out = []
+    for k in range(100):
+        t = k * MS + (150 * MS if k >= 50 else 0)
+        out += sync.push(TORQUE, t - (150 * MS if k == 50 else 0), float(k))
+        out += sync.push(SPEED, t + 10_000, float(k))
+    assert [(s.torque_nm, s.speed_rad_s) for s in out] == [(float(k), float(k)) for k in range(100)]
+    assert sync.counts["unpaired"] == 0
+
+
 def test_change_detector_vectorised_equals_scalar():
     rng = np.random.default_rng(3)
     x = rng.normal(0, 0.01, 20000)
