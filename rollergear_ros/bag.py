@@ -198,6 +198,29 @@ def inspect_bag(path: str | Path) -> BagInfo:
     return _scan(path, size)
 
 
+def median_period_s(path: str | Path, topic: str, max_messages: int = 2000) -> float | None:
+    """Median log-time interval between consecutive ``topic`` messages, over its first ``max_messages``
+    (``None`` with fewer than two distinct times)."""
+    from .fastmcap import ReadState, iter_message_arrays
+
+    state = ReadState()
+    parts, n = [], 0
+    chunks = iter_message_arrays(path, state)
+    try:
+        for arrays in chunks:
+            ids = [cid for cid, (name, _sid, _enc) in state.channels.items() if name == topic]
+            t = arrays.log_time[np.isin(arrays.channel, ids)]
+            parts.append(t)
+            n += len(t)
+            if n >= max_messages:
+                break
+    finally:
+        chunks.close()
+    d = np.diff(np.sort(np.concatenate(parts + [np.empty(0, dtype=np.int64)])))
+    d = d[d > 0]
+    return float(np.median(d)) * 1e-9 if len(d) else None
+
+
 def _check_encodings(info: BagInfo, encodings: set[str]) -> None:
     foreign = encodings - {"ros2msg", "cdr", ""}
     if foreign:

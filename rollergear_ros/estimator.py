@@ -12,7 +12,9 @@ output torque and output speed join the pairing once they have delivered a messa
 every active channel has a message queued, the heads form one sample if their times lie within
 ``sync_tolerance_s`` of each other; otherwise the oldest head has no partner and is dropped
 (counted as ``unpaired`` for a motor channel).  The tolerance must stay below half the sample
-period, so sample k never pairs with k±1.  An optional channel silent for longer than
+period, so sample k never pairs with k±1; ``sync_tolerance_s: 0`` (the default) takes 0.4 × the
+motor torque's median message period (:func:`pairing_tolerance_s`), which also pairs topics that
+separate publishers or recorders logged a fraction of a period apart.  An optional channel silent for longer than
 ``staleness_s`` no longer holds up the motor samples (they are estimated without a residual and
 counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
 is dropped as ``unpaired``.  During the first ``staleness_s`` of a stream, samples wait for the
@@ -57,6 +59,20 @@ _OPTIONAL = (OUT_TORQUE, OUT_SPEED)
 
 TEMPERATURE_HOLD_S = 5.0
 ARRIVAL_TOLERANCE_S = 0.002
+AUTO_TOLERANCE_FRACTION = 0.4  #: automatic pairing tolerance as a fraction of the sample period
+FALLBACK_PERIOD_S = 0.001  #: assumed sample period when it is unknown (1 kHz)
+
+
+def pairing_tolerance_s(sync_tolerance_s: float, sample_period_s: float | None) -> float:
+    """The pairing tolerance: the configured one, or (configured 0) 0.4 x the sample period.
+
+    Channels logged by separate publishers or recorders carry times that differ by a fraction of
+    a period; 0.4 x the period accepts that and still never pairs sample k with k+-1.
+    """
+    if sync_tolerance_s > 0:
+        return sync_tolerance_s
+    period = sample_period_s if sample_period_s and sample_period_s > 0 else FALLBACK_PERIOD_S
+    return AUTO_TOLERANCE_FRACTION * period
 
 #: reasons a sample is not estimated (or estimated without a residual)
 SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
@@ -538,18 +554,20 @@ class BatchEstimate:
 class Estimator:
     """Model + accepted effects + residual + online adaptation, for one :class:`Config`."""
 
-    def __init__(self, config: Config, pairing: str = "timestamp") -> None:
+    def __init__(self, config: Config, pairing: str = "timestamp", sample_period_s: float | None = None) -> None:
         """``pairing``: ``timestamp`` (bags; live with publisher timestamps) or ``arrival`` (see
-        :class:`SampleSynchronizer`)."""
+        :class:`SampleSynchronizer`); ``sample_period_s``: the motor torque's median message period,
+        for the automatic pairing tolerance (:func:`pairing_tolerance_s`; 1 ms when not given)."""
         self.config = config
         est = config.estimator
+        self.sync_tolerance_s = pairing_tolerance_s(est.sync_tolerance_s, sample_period_s)
         self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s)
         self.ratio = config.gearbox.ratio_effective
         if pairing == "arrival":
-            self.sync = SampleSynchronizer(max(est.sync_tolerance_s, ARRIVAL_TOLERANCE_S), est.staleness_s,
-                                           arrival=True)
+            self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
+            self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s, arrival=True)
         elif pairing == "timestamp":
-            self.sync = SampleSynchronizer(est.sync_tolerance_s, est.staleness_s)
+            self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s)
         else:
             raise ValueError(f"pairing must be 'timestamp' or 'arrival', not {pairing!r}")
         self.counts = self.sync.counts  # skip reasons (shared with the synchroniser)

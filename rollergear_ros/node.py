@@ -70,7 +70,7 @@ class LossEstimatorNode(Node):
         self.config: Config = validate(flat)  # ParameterError: refused at start-up with the reason
         # the single-threaded executor gives publisher timestamps; the events executor keeps arrival order
         self.pairing = "timestamp" if self.config.node.executor == "single_threaded" else "arrival"
-        self.estimator = Estimator(self.config, self.pairing)
+        self.estimator = Estimator(self.config, self.pairing, 1.0 / self.config.node.expected_rate_hz)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         node = self.config.node
         self.monitor = InputMonitor(time.time_ns())
@@ -127,7 +127,7 @@ class LossEstimatorNode(Node):
         old = self.estimator
         self.config = new
         self._every = new.node.publish_every_n
-        self.estimator = Estimator(new, self.pairing)
+        self.estimator = Estimator(new, self.pairing, 1.0 / new.node.expected_rate_hz)
         self.estimator.sync = old.sync  # keep queued inputs and counters
         self.estimator.counts = old.sync.counts
         self.estimator.estimated = old.estimated

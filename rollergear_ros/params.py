@@ -187,9 +187,10 @@ ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
               "efficiency is NaN below this |T|", "N*m", low=0.0, high=1e5),
     ParamSpec("estimator.min_speed_for_efficiency_rad_s", float, 0.5,
               "efficiency is NaN below this |w|", "rad/s", low=0.0, high=1e5),
-    ParamSpec("estimator.sync_tolerance_s", float, 0.0004,
-              "input messages whose times differ by at most this are one sample (keep below half the sample period)",
-              "s", low=0.0, high=10.0),
+    ParamSpec("estimator.sync_tolerance_s", float, 0.0,
+              "input messages whose times differ by at most this are one sample (keep below half the sample "
+              "period); 0 = automatic: 0.4 x the median period of the motor torque messages (offline measured in "
+              "the bag, live 1/node.expected_rate_hz)", "s", low=0.0, high=10.0),
     ParamSpec("estimator.staleness_s", float, 0.1,
               "an input silent for longer than this is stale: motor samples no longer wait for it, diagnostics warn",
               "s", low=0.0, low_open=True, high=3600.0),
@@ -317,7 +318,7 @@ class EstimatorParams:
 
     min_torque_for_efficiency_nm: float = 0.2
     min_speed_for_efficiency_rad_s: float = 0.5
-    sync_tolerance_s: float = 0.0004
+    sync_tolerance_s: float = 0.0
     staleness_s: float = 0.1
     max_abs_torque_nm: float = 5000.0
     max_abs_speed_rad_s: float = 2000.0

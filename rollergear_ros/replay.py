@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from .bag import (FLOAT64, JOINT_STATE, TEMPERATURE, BagError, BagInfo, BagWriter, RawBatch, TopicMap,
-                  decode_float64, decoder_for, inspect_bag, iter_raw_batches)
+                  decode_float64, decoder_for, inspect_bag, iter_raw_batches, median_period_s)
 from .estimator import (CHANNELS, OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE as CH_TEMPERATURE, TORQUE,
                         BatchEstimate, Estimator, samples_to_arrays)
 from .params import Config
@@ -271,6 +271,8 @@ class ReplaySummary:
     duration_s: float = 0.0
     alarms: int = 0
     interrupted: bool = False
+    sync_tolerance_s: float = math.nan  #: the pairing tolerance used
+    sample_period_s: float | None = None  #: the motor torque's median message period in the bag
     warnings: list[str] = field(default_factory=list)
     coefficients: dict[str, float] = field(default_factory=dict)
 
@@ -278,6 +280,9 @@ class ReplaySummary:
         lines = [f"bag: {self.bag}",
                  f"input messages: {self.input_messages:,} ({self.samples:,} motor torque); "
                  f"estimated: {self.estimated:,}; log duration {self.duration_s:.1f} s"]
+        if self.sample_period_s:
+            lines.append(f"pairing: sample period {1e3 * self.sample_period_s:.3g} ms, inputs within "
+                         f"{1e3 * self.sync_tolerance_s:.3g} ms form one sample")
         skipped = {k: v for k, v in self.skipped.items() if v}
         lines.append("skipped: " + (", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in skipped.items()) or "none"))
         lines.append(f"loss torque: mean {self.mean_loss_nm:.4f} N·m, peak {self.peak_loss_nm:.4f} N·m; "
@@ -355,8 +360,9 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
               f"{info.message_count:,} messages; {lost:,} trailing bytes ({100 * lost / max(info.bytes_total, 1):.1f} %) "
               "could not be read" if info.truncated else f"{info.path} has no index; read linearly")
     plan = plan_inputs(info, topics)
-    estimator = Estimator(config)
-    summary = ReplaySummary(str(bag))
+    period_s = median_period_s(info.path, plan.joint_states or topics.motor_torque)
+    estimator = Estimator(config, sample_period_s=period_s)
+    summary = ReplaySummary(str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s)
     writer = BagWriter(out_mcap) if out_mcap else None
     rlog = None
     if rrd:
@@ -402,6 +408,11 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
     summary.samples = estimator.sync.received[TORQUE]
     summary.estimated = estimator.estimated
     summary.skipped = dict(estimator.counts)
+    unpaired = summary.skipped.get("unpaired", 0)
+    if summary.samples and unpaired > 0.05 * summary.samples:
+        _warn(f"{unpaired:,} of {summary.samples:,} motor messages had no partner within the pairing tolerance of "
+              f"{1e3 * estimator.sync_tolerance_s:.2g} ms: do the input topics share one time base? "
+              "Set estimator.sync_tolerance_s (below half the sample period) if they are logged further apart")
     if acc.n:
         summary.mean_loss_nm = acc.loss_sum / acc.n
         summary.peak_loss_nm = acc.peak

@@ -10,7 +10,7 @@ import pytest
 from rollergear_ros.diagnostics import ERROR, OK, WARN, InputMonitor, diagnose
 from rollergear_ros.estimator import (CHANNELS, OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE, TORQUE, ChangeDetector,
                                       Estimator, RecursiveLeastSquares, ResidualStats, SampleSynchronizer,
-                                      samples_to_arrays)
+                                      pairing_tolerance_s, samples_to_arrays)
 from rollergear_ros.params import load_config
 
 MS = 1_000_000
@@ -114,6 +114,15 @@ def test_arrival_pairing_keeps_a_sample_split_by_an_executor_stall():
         out += sync.push(SPEED, t + 10_000, float(k))
     assert [(s.torque_nm, s.speed_rad_s) for s in out] == [(float(k), float(k)) for k in range(100)]
     assert sync.counts["unpaired"] == 0
+
+
+def test_pairing_tolerance_is_explicit_or_a_fraction_of_the_period():
+    assert pairing_tolerance_s(0.003, 0.01) == 0.003  # explicit wins
+    assert pairing_tolerance_s(0.0, 0.01) == pytest.approx(0.004)  # 0.4 x the period: never k with k+-1
+    assert pairing_tolerance_s(0.0, None) == pytest.approx(0.0004)  # unknown period: 1 kHz assumed
+    assert Estimator(load_config(), sample_period_s=0.005).sync.tolerance_ns == 2_000_000
+    assert Estimator(load_config(), "arrival", 0.01).sync.tolerance_ns == 4_000_000
+    assert Estimator(load_config(), "arrival", 0.001).sync.tolerance_ns == 2_000_000  # at least 2 ms
 
 
 def test_change_detector_vectorised_equals_scalar():

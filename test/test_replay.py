@@ -125,7 +125,7 @@ def test_simulated_measured_loss_is_model_plus_declared_effect(effect, tmp_path,
     theta = np.interp(np.arange(len(tq)), np.arange(0, len(tq), 5)[:len(msgs[T.oil_temperature][1])],
                       [m.temperature for m in msgs[T.oil_temperature][1]])
     ok = np.abs(w) > 5
-    meas = ((tq * w - tq_o * w_o) / np.abs(w))[ok]
+    meas = (tq[ok] * w[ok] - tq_o[ok] * w_o[ok]) / np.abs(w[ok])
     tt, ww, th = rig.torque_true_nm[ok], w[ok], theta[ok]
     lm = LossModel(config.gearbox)
     p = eff.params
@@ -260,6 +260,43 @@ def test_unpaired_and_missing_output_are_counted(tmp_path, config):
     assert s.skipped["unpaired"] == 20
     assert s.skipped["output_missing"] >= 89
     assert s.estimated == 180
+
+
+def _separately_logged_bag(path: Path, offset_s: float, jitter_s: float, n: int = 1000, rate: float = 100.0):
+    """Torque, speed and output torque logged by separate publishers: each topic's log time lags the
+    torque's by ``k * offset_s`` plus up to ``jitter_s`` (as ``ros2 bag record`` sees them)."""
+    rng = np.random.default_rng(7)
+    k = np.arange(n)
+    torque = 40.0 * np.sin(k / 50.0)
+    speed = 100.0 + 50.0 * np.cos(k / 70.0)
+    rows = []
+    for lag, (topic, values) in enumerate(((T.motor_torque, torque), (T.motor_speed, speed),
+                                           (T.output_torque, torque * 11.6))):
+        t = 1_000_000_000 + (k / rate + lag * offset_s + rng.uniform(0, jitter_s, n)) * 1e9
+        rows += [(int(ti), topic, v) for ti, v in zip(t, values)]
+    rows.sort()
+    with BagWriter(path) as bw:
+        for t, topic, v in rows:
+            bw.write_raw(topic, FLOAT64, t, encode_float64(np.array([v]))[0])
+    return torque, speed
+
+
+def test_topics_logged_apart_are_paired_by_the_automatic_tolerance(tmp_path, config):
+    """At 100 Hz, topics 1-2.5 ms apart (far beyond a fixed 0.4 ms) still pair sample by sample."""
+    bag = tmp_path / "apart.mcap"
+    torque, speed = _separately_logged_bag(bag, offset_s=0.001, jitter_s=0.0005)
+    s, batches = replay(bag, config, show_progress=False, collect=True)
+    assert s.sample_period_s == pytest.approx(0.01, rel=0.05)
+    assert s.sync_tolerance_s == pytest.approx(0.004, rel=0.05)
+    assert s.skipped["unpaired"] == 0 and s.estimated == len(torque) and not s.warnings
+    got_t = np.concatenate([b.torque_nm for b in batches])
+    got_w = np.concatenate([b.speed_rad_s for b in batches])
+    np.testing.assert_array_equal(got_t, torque)
+    np.testing.assert_array_equal(got_w, speed)  # each torque with its own speed
+    # an explicit tolerance is used as given: 0.4 ms loses most samples, and says why
+    tight, _ = replay(bag, config.with_values({"estimator.sync_tolerance_s": 0.0004}), show_progress=False)
+    assert tight.skipped["unpaired"] > 500
+    assert any("pairing tolerance" in w and "sync_tolerance_s" in w for w in tight.warnings)
 
 
 def test_truncated_bag_processes_what_is_readable(tmp_path, config):
