@@ -5,7 +5,7 @@ A driver publishes motor torque + speed (and output torque + speed) at a fixed s
 system under test (SUT) answers on ``/rollergear/loss/torque``.  For each SUT and rate: dropped
 samples, input-to-output latency (last input of a sample -> its output; the k-th output answers the
 k-th sample), and the SUT's CPU use.  Then the highest sustained loss-free rate of each.
-Usage: python bench/bench_node.py [--seconds 5] [--no-outputs]
+Usage: python bench/bench_node.py [--seconds 5] [--repeat 3] [--pin] [--no-outputs]
 """
 
 from __future__ import annotations
@@ -82,12 +82,53 @@ def run(driver, sut: subprocess.Popen, rate: float, seconds: float, with_outputs
             "cpu_pct": 100.0 * cpu / (n / rate)}
 
 
+def loss_free(driver, sut: subprocess.Popen, rate: float, seconds: float, with_outputs: bool) -> tuple[bool, float, bool]:
+    """Whether ``rate`` is sustained without a drop: one transient drop (a scheduling hiccup on
+    this 2-core machine) earns a second try, two mean no.  Returns (ok, achieved rate, driver-bound)."""
+    for _ in range(2):
+        r = run(driver, sut, rate, seconds, with_outputs)
+        if r["achieved"] < 0.9 * rate:  # the Python driver cannot publish faster
+            return False, r["achieved"], True
+        if r["dropped"] == 0:
+            return True, r["achieved"], False
+    return False, r["achieved"], False
+
+
+def max_loss_free_rate(driver, sut: subprocess.Popen, with_outputs: bool, seconds: float = 3.0,
+                       ceiling: float = 20000.0) -> tuple[float, bool]:
+    """Highest rate with no dropped sample: ramp in 1 k samples/s steps until a rate fails (see
+    :func:`loss_free`), then bisect three times (resolution 125 samples/s).  Also says whether the
+    driver could not keep up."""
+    good = 0.0
+    rate = 1000.0
+    while rate <= ceiling:
+        ok, achieved, driver_bound = loss_free(driver, sut, rate, seconds, with_outputs)
+        if driver_bound:
+            return good, True
+        if not ok:
+            break
+        good = achieved
+        rate += 1000.0
+    else:
+        return good, False
+    lo, hi = rate - 1000.0, rate
+    for _ in range(3):
+        mid = (lo + hi) / 2
+        ok, achieved, _ = loss_free(driver, sut, mid, seconds, with_outputs)
+        if ok:
+            lo, good = mid, achieved
+        else:
+            hi = mid
+    return good, False
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--no-outputs", action="store_true", help="publish only motor torque and speed")
     ap.add_argument("--executor", choices=("events", "single_threaded"), default="events",
                     help="rclpy executor of both systems under test")
+    ap.add_argument("--repeat", type=int, default=3, help="interleaved runs of each system (median ratio)")
     ap.add_argument("--pin", action="store_true",
                     help="driver on CPU 0, system under test on CPU 1 (so they do not compete for a core)")
     args = ap.parse_args()
@@ -121,40 +162,33 @@ def main() -> None:
     th.start()
     driver = (node, pubs, received)
     with_outputs = not args.no_outputs
-    results = {}
-    for kind in ("echo", "loss_estimator"):
-        sut = start_sut(kind, args.executor, 1 if args.pin else None)
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and (pubs[0].get_subscription_count() == 0
-                                               or node.count_publishers("/rollergear/loss/torque") == 0):
-            time.sleep(0.05)
-        time.sleep(1.0)
-        run(driver, sut, 200, 1.0, with_outputs)  # warm-up
-        r1k = run(driver, sut, 1000, args.seconds, with_outputs)
-        best = 0.0
-        driver_bound = False
-        for rate in (1000, 1500, 2000, 2500, 3000, 3500, 4000, 4500, 5000, 5500, 6000, 6500, 7000, 7500, 8000,
-                     9000, 10000):
-            r = run(driver, sut, rate, 3.0, with_outputs)
-            if r["dropped"] > 0:
-                break
-            best = r["achieved"]
-            if r["achieved"] < 0.9 * rate:  # the Python driver cannot publish faster
-                driver_bound = True
-                break
-        sut.send_signal(signal.SIGINT)
-        sut.wait(timeout=20)
-        results[kind] = (r1k, best)
-        print(f"{kind:15s} 1 kHz: dropped {r1k['dropped']}/{r1k['sent']}, latency p50 {r1k['p50_us']:.0f} µs, "
-              f"p99 {r1k['p99_us']:.0f} µs, CPU {r1k['cpu_pct']:.0f} % of a core per 1 k samples/s; "
-              f"max loss-free rate {best:.0f} samples/s" + (" (driver-bound: the publisher could not go faster)"
-                                                             if driver_bound else ""), flush=True)
+    kinds = ("echo", "loss_estimator")
+    best_of: dict[str, list[float]] = {k: [] for k in kinds}
+    for rep in range(args.repeat):
+        for kind in (kinds if rep % 2 == 0 else kinds[::-1]):  # interleaved: drifts hit both alike
+            sut = start_sut(kind, args.executor, 1 if args.pin else None)
+            deadline = time.monotonic() + 30
+            while time.monotonic() < deadline and (pubs[0].get_subscription_count() == 0
+                                                   or node.count_publishers("/rollergear/loss/torque") == 0):
+                time.sleep(0.05)
+            time.sleep(1.0)
+            run(driver, sut, 200, 1.0, with_outputs)  # warm-up
+            r1k = run(driver, sut, 1000, args.seconds, with_outputs)
+            best, driver_bound = max_loss_free_rate(driver, sut, with_outputs)
+            sut.send_signal(signal.SIGINT)
+            sut.wait(timeout=20)
+            best_of[kind].append(best)
+            print(f"run {rep + 1} {kind:15s} 1 kHz: dropped {r1k['dropped']}/{r1k['sent']}, latency p50 "
+                  f"{r1k['p50_us']:.0f} µs, p99 {r1k['p99_us']:.0f} µs, CPU {r1k['cpu_pct']:.0f} % of a core per "
+                  f"1 k samples/s; max loss-free rate {best:.0f} samples/s"
+                  + (" (driver-bound: the publisher could not go faster)" if driver_bound else ""), flush=True)
     stop.set()
     th.join()
-    e, l = results["echo"][1], results["loss_estimator"][1]
     channels = 4 if with_outputs else 2
-    print(f"executor: {args.executor}{'; driver on CPU 0, SUT on CPU 1' if args.pin else ''}; inputs per sample: {channels} topics; loss_estimator max rate / echo max rate = "
-          f"{(l / e if e else float('nan')):.2f} (target >= 0.8)")
+    ratios = [lo / e if e else float("nan") for lo, e in zip(best_of["loss_estimator"], best_of["echo"])]
+    print(f"executor: {args.executor}{'; driver on CPU 0, SUT on CPU 1' if args.pin else ''}; inputs per sample: "
+          f"{channels} topics; loss_estimator max rate / echo max rate per run: "
+          f"{', '.join(f'{r:.2f}' for r in ratios)}; median {float(np.median(ratios)):.2f} (target >= 0.8)")
     rclpy.shutdown()
 
 

@@ -125,14 +125,23 @@ class SampleSynchronizer:
             self.latest_ns = t_ns
         q = self.queues
         q[channel].append((t_ns, value))
-        if not self.active[channel]:
-            self.active[channel] = True
-        # fast exit (the node's hot path): nothing is backed up and some active channel is still
-        # empty, so no sample can complete and no waiting message can have gone stale
-        if len(q[TORQUE]) <= 1 and len(q[SPEED]) <= 1 and self.first_ns != t_ns and (
-                not q[TORQUE] or not q[SPEED] or (self.active[OUT_TORQUE] and not q[OUT_TORQUE])
-                or (self.active[OUT_SPEED] and not q[OUT_SPEED])):
-            return []
+        active = self.active
+        if not active[channel]:
+            active[channel] = True
+        # fast exit (the node's hot path): an active channel has nothing queued, so no sample can
+        # complete, and no queued motor message is older than the staleness limit, so nothing
+        # expires and no optional channel is given up on (what _drain would conclude, cheaper)
+        qt, qs = q[TORQUE], q[SPEED]
+        if not qt or not qs or (active[OUT_TORQUE] and not q[OUT_TORQUE]) or (
+                active[OUT_SPEED] and not q[OUT_SPEED]):
+            if qt and qs:
+                head = min(qt[0][0], qs[0][0])
+            elif qt or qs:
+                head = (qt or qs)[0][0]
+            else:
+                return []
+            if self.latest_ns - head <= self.staleness_ns:
+                return []
         return self._drain()
 
     def flush(self) -> list[SyncedSample]:

@@ -12,6 +12,7 @@ loss_estimator …``).
 
 from __future__ import annotations
 
+import gc
 import struct
 import sys
 import time
@@ -35,7 +36,7 @@ from .params import PARAMETER_SPECS, Config, ParameterError, validate
 NAMESPACE = "/rollergear"
 #: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
 SENSOR_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE,
-                        history=HistoryPolicy.KEEP_LAST, depth=200)
+                        history=HistoryPolicy.KEEP_LAST, depth=1000)
 OUTPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=200)
 _PACK = struct.Struct("<4sd").pack
 _CDR = bagmod.CDR_LE_HEADER
@@ -273,6 +274,10 @@ def main(args: list[str] | None = None) -> int:
         node = LossEstimatorNode()
         executor = make_executor(node.executor_kind)
         executor.add_node(node)
+        # everything built so far lives as long as the node: keep it out of the garbage collector's
+        # full passes, which otherwise stall the callbacks for milliseconds at high input rates
+        gc.collect()
+        gc.freeze()
         # spin_once with a timeout: EventsExecutor.spin() never returns on this rclpy version
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.1)

@@ -71,7 +71,7 @@ def test_player_keeps_the_bag_timing_across_chunk_boundaries():
     assert m, proc.stderr
     assert int(m.group(1).replace(",", "")) == info.message_count
     assert float(m.group(2)) < 40.0, proc.stderr
-    assert int(m.group(3)) < 20, proc.stderr
+    assert int(m.group(3)) < 0.01 * info.message_count, proc.stderr  # a hiccup, not a pattern
 
 
 def _diag_levels(msgs):
