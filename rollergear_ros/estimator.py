@@ -14,9 +14,9 @@ every active channel has a message queued, the heads form one sample if their ti
 (counted as ``unpaired`` for a motor channel).  The tolerance must stay below half the sample
 period, so sample k never pairs with k±1; ``sync_tolerance_s: 0`` (the default) takes 0.4 × the
 motor torque's median message period (:func:`pairing_tolerance_s`), which also pairs topics that
-separate publishers or recorders logged a fraction of a period apart.  An optional channel silent for longer than
-``staleness_s`` no longer holds up the motor samples (they are estimated without a residual and
-counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
+separate publishers or recorders logged a fraction of a period apart.  An optional channel silent
+for longer than ``staleness_s`` no longer holds up the motor samples (they are estimated without a
+residual and counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
 is dropped as ``unpaired``.  During the first ``staleness_s`` of a stream, samples wait for the
 optional channels to show up, so a log's first samples already carry their measured output.
 
@@ -62,6 +62,10 @@ ARRIVAL_TOLERANCE_S = 0.002
 AUTO_TOLERANCE_FRACTION = 0.4  #: automatic pairing tolerance as a fraction of the sample period
 FALLBACK_PERIOD_S = 0.001  #: assumed sample period when it is unknown (1 kHz)
 
+#: reasons a sample is not estimated (or estimated without a residual)
+SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
+                                 "output_non_finite", "temperature_missing")
+
 
 def pairing_tolerance_s(sync_tolerance_s: float, sample_period_s: float | None) -> float:
     """The pairing tolerance: the configured one, or (configured 0) 0.4 x the sample period.
@@ -73,10 +77,6 @@ def pairing_tolerance_s(sync_tolerance_s: float, sample_period_s: float | None) 
         return sync_tolerance_s
     period = sample_period_s if sample_period_s and sample_period_s > 0 else FALLBACK_PERIOD_S
     return AUTO_TOLERANCE_FRACTION * period
-
-#: reasons a sample is not estimated (or estimated without a residual)
-SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
-                                 "output_non_finite", "temperature_missing")
 
 
 class SyncedSample(NamedTuple):
