@@ -109,6 +109,11 @@ class SampleSynchronizer:
         self.counts: dict[str, int] = {r: 0 for r in SKIP_REASONS}
         self.received: dict[str, int] = {c: 0 for c in CHANNELS}
 
+    def set_limits(self, sync_tolerance_s: float, staleness_s: float) -> None:
+        """Change the pairing tolerance and the staleness limit; queued messages are kept."""
+        self.tolerance_ns = int(round(sync_tolerance_s * 1e9))
+        self.staleness_ns = int(round(staleness_s * 1e9))
+
     def push(self, channel: str, t_ns: int, value: float) -> list[SyncedSample]:
         """Add one message; returns the samples it completes (usually zero or one)."""
         self.received[channel] += 1
@@ -594,6 +599,14 @@ class Estimator:
         self.residual_stats = ResidualStats()
         self.estimated = 0
         self.last: Estimate | None = None
+
+    def take_over_inputs(self, previous: Estimator) -> None:
+        """Continue the input stream of ``previous`` (a parameter change at run time): keep its
+        queued messages, skip counters and sample count, under this estimator's pairing limits."""
+        self.sync = previous.sync
+        self.sync.set_limits(self.sync_tolerance_s, self.config.estimator.staleness_s)
+        self.counts = self.sync.counts
+        self.estimated = previous.estimated
 
     # ------------------------------------------------------------------ helpers
     def coefficients(self) -> dict[str, float]:

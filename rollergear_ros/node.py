@@ -129,9 +129,7 @@ class LossEstimatorNode(Node):
         self.config = new
         self._every = new.node.publish_every_n
         self.estimator = Estimator(new, self.pairing, 1.0 / new.node.expected_rate_hz)
-        self.estimator.sync = old.sync  # keep queued inputs and counters
-        self.estimator.counts = old.sync.counts
-        self.estimator.estimated = old.estimated
+        self.estimator.take_over_inputs(old)
         self.get_logger().info(f"parameters changed: {', '.join(f'{k}={v}' for k, v in changes.items())}")
         return SetParametersResult(successful=True)
 

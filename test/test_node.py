@@ -146,6 +146,37 @@ def test_parameter_changes_are_validated_and_refused_with_the_reason():
     assert node.stop() == 0
 
 
+def test_run_time_change_of_pairing_limits_takes_effect():
+    """A new pairing tolerance (via node.expected_rate_hz) and staleness apply to the running
+    synchroniser at once, and the inputs already queued are kept."""
+    from rclpy.parameter import Parameter
+
+    from rollergear_ros.estimator import SPEED, TORQUE
+    from rollergear_ros.node import LossEstimatorNode
+
+    with ros_context() as probe:
+        node = LossEstimatorNode(context=probe.context)
+        try:
+            push = node.estimator.push
+            for t_ns in (0, 200_000_000):  # a stream is running (it waited 0.1 s for output topics)
+                push(TORQUE, t_ns, 10.0)
+                push(SPEED, t_ns, 50.0)
+            assert node.estimator.estimated == 2
+            assert push(TORQUE, 300_000_000, 20.0) == []  # queued before the change
+            results = node.set_parameters([Parameter("node.expected_rate_hz", value=100.0),
+                                           Parameter("estimator.staleness_s", value=0.05)])
+            assert all(r.successful for r in results)
+            sync = node.estimator.sync
+            assert sync.tolerance_ns == 4_000_000  # 0.4 x 10 ms (it was 2 ms at 1 kHz)
+            assert sync.staleness_ns == 50_000_000
+            # 3 ms apart: wider than the old tolerance, within the new one
+            est = node.estimator.push(SPEED, 303_000_000, 100.0)
+            assert len(est) == 1 and est[0].torque_nm == 20.0 and est[0].speed_rad_s == 100.0
+            assert node.estimator.estimated == 3
+        finally:
+            node.destroy_node()
+
+
 def test_node_started_after_the_player_still_estimates(tmp_path):
     rec = tmp_path / "late.mcap"
     import subprocess
