@@ -40,7 +40,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Iterable, NamedTuple
+from typing import Iterable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -56,6 +56,7 @@ TEMPERATURE = "oil_temperature"
 CHANNELS: tuple[str, ...] = (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED, TEMPERATURE)
 _REQUIRED = (TORQUE, SPEED)
 _OPTIONAL = (OUT_TORQUE, OUT_SPEED)
+_PAIRED = (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED)  #: the channels that pair, in sample order
 
 TEMPERATURE_HOLD_S = 5.0
 ARRIVAL_TOLERANCE_S = 0.002
@@ -103,6 +104,7 @@ class SampleSynchronizer:
         self.temperature_hold_ns = int(round(temperature_hold_s * 1e9))
         self.queues: dict[str, deque] = {c: deque() for c in _REQUIRED + _OPTIONAL}
         self.active: dict[str, bool] = {TORQUE: True, SPEED: True, OUT_TORQUE: False, OUT_SPEED: False}
+        self._active_channels: tuple[str, ...] = _REQUIRED  #: the channels in ``active``, cached
         self.latest_ns = -(2 ** 62)
         self.first_ns: int | None = None
         self.temperature: tuple[int, float] | None = None
@@ -114,12 +116,16 @@ class SampleSynchronizer:
         self.tolerance_ns = int(round(sync_tolerance_s * 1e9))
         self.staleness_ns = int(round(staleness_s * 1e9))
 
-    def push(self, channel: str, t_ns: int, value: float) -> list[SyncedSample]:
+    def _set_active(self, channel: str, active: bool) -> None:
+        self.active[channel] = active
+        self._active_channels = tuple(c for c in _PAIRED if self.active[c])
+
+    def push(self, channel: str, t_ns: int, value: float) -> Sequence[SyncedSample]:
         """Add one message; returns the samples it completes (usually zero or one)."""
         self.received[channel] += 1
         if channel == TEMPERATURE:  # held, never paired: it does not move the pairing clock
             self.temperature = (t_ns, value)
-            return []
+            return ()
         if self.first_ns is None:
             self.first_ns = t_ns
         if t_ns > self.latest_ns:
@@ -132,7 +138,7 @@ class SampleSynchronizer:
         q[channel].append((t_ns, value))
         active = self.active
         if not active[channel]:
-            active[channel] = True
+            self._set_active(channel, True)
         # fast exit (the node's hot path): an active channel has nothing queued, so no sample can
         # complete, and no queued motor message is older than the staleness limit, so nothing
         # expires and no optional channel is given up on (what _drain would conclude, cheaper)
@@ -144,9 +150,9 @@ class SampleSynchronizer:
             elif qt or qs:
                 head = (qt or qs)[0][0]
             else:
-                return []
+                return ()
             if self.latest_ns - head <= self.staleness_ns:
-                return []
+                return ()
         return self._drain()
 
     def flush(self) -> list[SyncedSample]:
@@ -237,7 +243,8 @@ class SampleSynchronizer:
         self.latest_ns = max(self.latest_ns, int(t_ns[non_temp][:complete_at.max() + 1].max()))
         for c in present:
             self.received[c] += n
-            self.active[c] = True
+            if not self.active[c]:
+                self._set_active(c, True)
         if OUT_TORQUE not in present and self.received[OUT_TORQUE]:
             self.counts["output_missing"] += n
         self.received[TEMPERATURE] += len(tpos)
@@ -261,10 +268,12 @@ class SampleSynchronizer:
                     and not (self.received[OUT_TORQUE] and self.received[OUT_SPEED])):
                 return out  # start-up: give the optional channels a chance to appear
             # optional channels that are active but silent: do not hold the motor samples up
-            for ch in _OPTIONAL:
-                if self.active[ch] and not q[ch] and self.latest_ns - t_req > self.staleness_ns:
-                    self.active[ch] = False
-            chans = [c for c in (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED) if self.active[c]]
+            chans = self._active_channels
+            if len(chans) > 2 and self.latest_ns - t_req > self.staleness_ns:
+                for ch in _OPTIONAL:
+                    if self.active[ch] and not q[ch]:
+                        self._set_active(ch, False)
+                chans = self._active_channels
             if any(not q[c] for c in chans):
                 return out
             times = [q[c][0][0] for c in chans]
@@ -650,10 +659,13 @@ class Estimator:
         return (torque * speed - out_torque * w_out) / abs(speed)
 
     # ------------------------------------------------------------------ streaming (node)
-    def push(self, channel: str, t_ns: int, value: float) -> list[Estimate]:
+    def push(self, channel: str, t_ns: int, value: float) -> Sequence[Estimate]:
         """Feed one input message; returns the estimates it completes."""
+        samples = self.sync.push(channel, t_ns, value)
+        if not samples:
+            return ()
         out = []
-        for s in self.sync.push(channel, t_ns, value):
+        for s in samples:
             e = self.process(s)
             if e is not None:
                 out.append(e)
@@ -661,12 +673,12 @@ class Estimator:
 
     def process(self, s: SyncedSample) -> Estimate | None:
         """Estimate one paired sample (scalar path); None (and counted) when it is invalid."""
-        reason = self.screen(s.torque_nm, s.speed_rad_s)
+        t_meas, w = s.torque_nm, s.speed_rad_s
+        reason = self.screen(t_meas, w)
         if reason:
             self.counts[reason] += 1
             return None
-        t_meas, w = s.torque_nm, s.speed_rad_s
-        t = self.corrected_torque(t_meas)
+        t = t_meas if self._sensor_offset == 0.0 and self._sensor_gain == 0.0 else self.corrected_torque(t_meas)
         at, aw = abs(t), abs(w)
         sg = rotation_sign_scalar(w, t)
         e = self.config.effects

@@ -42,6 +42,13 @@ _PACK = struct.Struct("<4sd").pack
 _CDR = bagmod.CDR_LE_HEADER
 
 
+def _raw_publish(publisher):
+    """``publisher.publish`` for serialized messages, without rclpy's per-call type check and
+    destruction guard (0.6 of its 1.2 µs per call; four calls per sample).  Safe here: the node's
+    publishers are destroyed only with the node, after the executor has stopped."""
+    return getattr(publisher.handle, "publish_raw", None) or publisher.publish
+
+
 def _descriptor(spec) -> ParameterDescriptor:
     d = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]" if spec.unit else spec.description,
                             read_only=spec.read_only, additional_constraints=spec.allowed_text())
@@ -90,6 +97,8 @@ class LossEstimatorNode(Node):
         self.pub_eff = self.create_publisher(Float64, "efficiency", OUTPUT_QOS)
         self.pub_res = self.create_publisher(Float64, "residual/torque", OUTPUT_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._send_loss, self._send_power, self._send_eff, self._send_res = (
+            _raw_publish(p) for p in (self.pub_loss, self.pub_power, self.pub_eff, self.pub_res))
         self.recorder: bagmod.BagWriter | None = None
         if node.record_mcap:
             self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024)
@@ -138,6 +147,7 @@ class LossEstimatorNode(Node):
         """The hot path: one Float64 message (raw CDR bytes) -> estimator -> outputs."""
         counts, last = self.monitor.counts, self.monitor.last_ns
         unpack = struct.Struct("<d").unpack_from
+        time_ns = time.time_ns
 
         def handle(raw: bytes, t_ns: int, wall_ns: int) -> None:
             counts[channel] += 1
@@ -150,12 +160,12 @@ class LossEstimatorNode(Node):
 
         if with_info:
             def cb_info(raw: bytes, info) -> None:
-                wall = time.time_ns()
+                wall = time_ns()
                 handle(raw, info["source_timestamp"] or wall, wall)
             return cb_info
 
         def cb(raw: bytes) -> None:
-            wall = time.time_ns()
+            wall = time_ns()
             handle(raw, wall, wall)
         return cb
 
@@ -194,14 +204,14 @@ class LossEstimatorNode(Node):
         if self._every > 1 and self._published % self._every:
             return
         raws = (_PACK(_CDR, est.loss_torque_nm), _PACK(_CDR, est.loss_power_w), _PACK(_CDR, est.efficiency))
-        self.pub_loss.publish(raws[0])
-        self.pub_power.publish(raws[1])
-        self.pub_eff.publish(raws[2])
+        self._send_loss(raws[0])
+        self._send_power(raws[1])
+        self._send_eff(raws[2])
         res = est.residual_nm
         res_raw = None
         if res == res:  # measured output present
             res_raw = _PACK(_CDR, res)
-            self.pub_res.publish(res_raw)
+            self._send_res(res_raw)
         if self.recorder is not None:
             stamp = self.get_clock().now().nanoseconds
             for key, raw in zip(("loss", "power", "eff"), raws):

@@ -162,7 +162,7 @@ def test_run_time_change_of_pairing_limits_takes_effect():
                 push(TORQUE, t_ns, 10.0)
                 push(SPEED, t_ns, 50.0)
             assert node.estimator.estimated == 2
-            assert push(TORQUE, 300_000_000, 20.0) == []  # queued before the change
+            assert not push(TORQUE, 300_000_000, 20.0)  # queued before the change
             results = node.set_parameters([Parameter("node.expected_rate_hz", value=100.0),
                                            Parameter("estimator.staleness_s", value=0.05)])
             assert all(r.successful for r in results)
