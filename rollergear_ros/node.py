@@ -254,14 +254,19 @@ class LossEstimatorNode(Node):
 
     # ------------------------------------------------------------------ shutdown
     def close(self) -> None:
-        """Flush and close the recordings (safe to call twice)."""
-        if self.rerun is not None:
-            self._flush_rerun()
-            self.rerun.close()
-            self.rerun = None
+        """Flush and close the recordings, the MCAP first (safe to call twice).  A rerun viewer
+        that cannot be reached costs its data, with a warning, never the MCAP or a traceback."""
         if self.recorder is not None:
             self.recorder.close()
             self.recorder = None
+        if self.rerun is not None:
+            try:
+                self._flush_rerun()
+                self.rerun.close()
+            except Exception as exc:  # rerun raises RuntimeError when its gRPC sink never connected
+                self.get_logger().warn(f"rerun logging incomplete: {exc}")
+            finally:
+                self.rerun = None
 
 
 def make_executor(kind: str, context=None):

@@ -396,6 +396,10 @@ _SECTION_TYPES = {"gearbox": GearboxParams, "effects": EffectParams, "estimator"
                   "node": NodeParams, "map": MapParams}
 
 
+#: URL schemes rerun's gRPC sink accepts (``node.rerun_connect``)
+RERUN_URL_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")
+
+
 def validate(values: Mapping[str, Any]) -> Config:
     """Check every parameter (range, type, cross-parameter consistency) and build a :class:`Config`.
 
@@ -434,6 +438,11 @@ def _check_consistency(config: Config) -> None:
             name = f"gearbox.f{j}"
             raise ParameterError(name, getattr(g, f"f{j}"),
                                  f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove")
+    url = config.node.rerun_connect
+    if url and not url.startswith(RERUN_URL_SCHEMES):
+        raise ParameterError("node.rerun_connect", url,
+                             f"a rerun gRPC URL starts with {', '.join(RERUN_URL_SCHEMES)} "
+                             "(e.g. rerun+http://127.0.0.1:9876/proxy)")
     if config.map.speed_max_rpm < config.map.speed_min_rpm:
         raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm, "must be >= map.speed_min_rpm")
     if config.map.torque_max_nm < config.map.torque_min_nm:

@@ -13,6 +13,8 @@ from typing import Mapping
 import numpy as np
 
 TIMELINE = "log_time"
+#: longest a closing recording waits for a streamed viewer to take the data (seconds)
+FLUSH_TIMEOUT_S = 10.0
 
 #: entity -> (legend name) for the series a reviewer wants
 SERIES: dict[str, str] = {
@@ -88,8 +90,11 @@ class RerunLog:
         if self.closed:
             return
         self.closed = True
-        self.rec.flush()
-        self.rec.disconnect()
+        try:
+            # bounded: the default waits forever for a viewer that never answers (raises on timeout)
+            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        finally:
+            self.rec.disconnect()
 
 
 def read_rrd_series(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:

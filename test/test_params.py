@@ -34,6 +34,7 @@ BAD = [
     ("gearbox.ellipse_a", "1.1"), ("effects.drag_speed.p", 7.0), ("effects.torque_gain.gain", 0.9),
     ("effects.drag_speed.enabled", 1), ("estimator.staleness_s", 0.0), ("estimator.rls_forgetting", 1.5),
     ("node.input_mode", "serial"), ("node.publish_every_n", 0),
+    ("node.rerun_connect", "http://127.0.0.1:9876/proxy"),
 ]
 
 
