@@ -30,9 +30,14 @@ stream is locked on (a pair within the tolerance).  Unlocked -- at the start, af
 after a gap longer than ``staleness_s`` with nothing queued -- a wide pair is dropped at once, so the
 backlog of a topic whose subscription matched before its partner's (a node started while a bag
 plays) is not paired with the wrong samples.  Below ~500 Hz a lost message mispairs two samples
-before the resync; above it, neighbouring samples lie within 2 ms of each other and a lost message
-shifts the pairing by one sample until the next gap.  The node reports ``unpaired`` counts in
-``/diagnostics``.
+before the resync.  Above it, neighbouring samples lie within 2 ms of each other, so a pairing one
+sample off (a lost message; the start-up backlog of a node that joined a running stream, taken in
+one burst while its subscriptions had matched a few samples apart) is found by its mean instead:
+each channel's arrival offset from the motor torque, averaged over ~16 pairs, is near zero when
+the messages of one sample arrive together and near a whole period when they are paired with a
+neighbour's; beyond 0.75 periods the lagging heads are dropped (:meth:`SampleSynchronizer._arrival_skewed`).
+A skew is undone within ~30 samples of live data; a burst itself carries no timing and keeps the
+pairing it was taken with.  The node reports ``unpaired`` counts in ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -62,6 +67,14 @@ TEMPERATURE_HOLD_S = 5.0
 ARRIVAL_TOLERANCE_S = 0.002
 AUTO_TOLERANCE_FRACTION = 0.4  #: automatic pairing tolerance as a fraction of the sample period
 FALLBACK_PERIOD_S = 0.001  #: assumed sample period when it is unknown (1 kHz)
+#: arrival pairing, skew detector: gain of the running means of the channels' arrival offsets and of
+#: the sample period; mean offset (fraction of the period) that means a skewed pairing; pairs
+#: observed before it acts; shortest mean period it acts on (a burst of queued messages, or a rate
+#: above 10 kHz, carries no timing information)
+SKEW_GAIN = 1.0 / 16.0
+SKEW_LIMIT = 0.75
+SKEW_MIN_PAIRS = 8
+SKEW_MIN_PERIOD_NS = 100_000
 
 #: reasons a sample is not estimated (or estimated without a residual)
 SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
@@ -99,6 +112,13 @@ class SampleSynchronizer:
         self.arrival = arrival
         self._wide = 0  # consecutive pairs wider than the tolerance (arrival pairing)
         self._locked = False  # arrival pairing: the heads have paired within the tolerance
+        # arrival pairing, skew detector: channels observed, their mean arrival offsets from the
+        # motor torque's (ns), pairs since the last reset, mean sample period (ns), last pair time
+        self._skew_chans: tuple[str, ...] = ()
+        self._skew_mean: list[float] = []
+        self._skew_n = 0
+        self._period_ns = 0.0
+        self._last_pair_ns: int | None = None
         self.tolerance_ns = int(round(sync_tolerance_s * 1e9))
         self.staleness_ns = int(round(staleness_s * 1e9))
         self.temperature_hold_ns = int(round(temperature_hold_s * 1e9))
@@ -281,6 +301,8 @@ class SampleSynchronizer:
             if self.arrival:
                 wide = self._arrival_wide(wide)
             if not wide:
+                if self.arrival and self._arrival_skewed(chans, times):
+                    continue
                 vals = {c: q[c].popleft()[1] for c in chans}
                 t = times[0]
                 out.append(self._sample(t, vals))
@@ -308,6 +330,47 @@ class SampleSynchronizer:
         if self._wide < 3:
             return False
         self._locked, self._wide = False, 0
+        return True
+
+    def _arrival_skewed(self, chans: tuple[str, ...], times: list[int]) -> bool:
+        """Arrival pairing: whether the heads pair each sample with a neighbour's message; if so,
+        the lagging heads are dropped (``unpaired``) and True returned.
+
+        A skew of one sample keeps every pair within the 2 ms of jitter allowed above ~500 Hz (a
+        node that joined a running stream and took its start-up backlog in one burst, or a lost
+        message), so it is told by its mean: each channel's arrival offset from the motor torque
+        (clipped to ± one period), averaged over the last ~16 pairs, against the mean sample
+        period.  Messages of one sample arrive together (mean offset ~0); a pairing one sample off
+        has a mean offset of a whole period.  A spread of the means beyond ``SKEW_LIMIT`` x the
+        period drops the heads of the channels that lag the most advanced one; channels published
+        at independent phases settle at an offset within ±0.25 periods after one such drop.
+        """
+        t0 = times[0]
+        last, self._last_pair_ns = self._last_pair_ns, t0
+        period = self._period_ns
+        if last is not None and 0 < t0 - last <= self.staleness_ns:
+            period = self._period_ns = period + SKEW_GAIN * ((t0 - last) - period) if period else float(t0 - last)
+        # an offset counts at most one period: a stall between two callbacks is not a skew
+        if chans is not self._skew_chans:
+            self._skew_chans, self._skew_n = chans, 1
+            self._skew_mean = [max(-period, min(period, float(t - t0))) for t in times]
+            return False
+        mean = self._skew_mean
+        for i in range(1, len(times)):
+            mean[i] += SKEW_GAIN * (max(-period, min(period, times[i] - t0)) - mean[i])
+        self._skew_n += 1
+        if self._skew_n < SKEW_MIN_PAIRS or period < SKEW_MIN_PERIOD_NS:
+            return False
+        lead = max(mean)
+        limit = SKEW_LIMIT * period
+        if lead - min(mean) <= limit:
+            return False
+        for ch, m in zip(chans, mean):
+            if lead - m > limit:
+                self.queues[ch].popleft()
+                if ch in _REQUIRED:
+                    self.counts["unpaired"] += 1
+        self._skew_chans = ()  # observe the new pairing afresh
         return True
 
     def _expire_required(self) -> None:

@@ -86,6 +86,8 @@ class LossEstimatorNode(Node):
         self._alarms_reported = 0
         self._published = 0
         self._every = self.config.node.publish_every_n
+        self._taking_backlog = False
+        self.backlog_discarded = 0  #: input messages queued before the first spin, discarded
         self.executor_kind = node.executor
         topics = bagmod.TopicMap()
         self.out_topics = {"loss": self.resolve_topic_name("loss/torque"),
@@ -143,6 +145,32 @@ class LossEstimatorNode(Node):
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ inputs
+    def discard_start_up_backlog(self, executor) -> int:
+        """Take and discard the Float64 inputs queued before the executor first spins (arrival
+        pairing only); returns how many.
+
+        A node that joins a running stream finds up to a queue's depth of messages waiting, its
+        subscriptions having matched a few samples apart; taken in one burst, their callback
+        times say nothing about which torque belongs to which speed.  Pairing them would guess;
+        live messages pair by their arrival.  Publisher timestamps (``single_threaded``) and
+        JointState header stamps pair the backlog exactly, so it is kept there.
+        """
+        if self.pairing != "arrival" or self.config.node.input_mode != "float64":
+            return 0
+        self._taking_backlog = True
+        try:
+            idle = 0
+            while idle < 3:  # a few empty takes in a row: the queues are drained
+                before = self.backlog_discarded
+                executor.spin_once(timeout_sec=0.0)
+                idle = idle + 1 if self.backlog_discarded == before else 0
+        finally:
+            self._taking_backlog = False
+        if self.backlog_discarded:
+            self.get_logger().info(f"discarded {self.backlog_discarded} input messages queued before start-up "
+                                   "(a running stream: their arrival order cannot pair them)")
+        return self.backlog_discarded
+
     def _float_callback(self, channel: str, topic: str, with_info: bool):
         """The hot path: one Float64 message (raw CDR bytes) -> estimator -> outputs."""
         counts, last = self.monitor.counts, self.monitor.last_ns
@@ -150,6 +178,9 @@ class LossEstimatorNode(Node):
         time_ns = time.time_ns
 
         def handle(raw: bytes, t_ns: int, wall_ns: int) -> None:
+            if self._taking_backlog:
+                self.backlog_discarded += 1
+                return
             counts[channel] += 1
             last[channel] = wall_ns
             if self.recorder is not None:
@@ -247,7 +278,9 @@ class LossEstimatorNode(Node):
         self._alarms_reported = self.estimator.detector.alarms
         status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: roller gearbox losses",
                                   message=report.message, hardware_id=node.hardware_id,
-                                  values=[KeyValue(key=k, value=v) for k, v in report.values])
+                                  values=[KeyValue(key=k, value=v) for k, v in report.values]
+                                  + [KeyValue(key="start-up backlog discarded [messages]",
+                                              value=str(self.backlog_discarded))])
         arr = DiagnosticArray(status=[status])
         arr.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(arr)
@@ -291,6 +324,7 @@ def main(args: list[str] | None = None) -> int:
         # full passes, which otherwise stall the callbacks for milliseconds at high input rates
         gc.collect()
         gc.freeze()
+        node.discard_start_up_backlog(executor)
         # spin_once with a timeout: EventsExecutor.spin() never returns on this rclpy version
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.1)

@@ -116,6 +116,69 @@ def test_arrival_pairing_keeps_a_sample_split_by_an_executor_stall():
     assert sync.counts["unpaired"] == 0
 
 
+def _skewed(out) -> list[float]:
+    return [s.torque_nm for s in out if s.torque_nm != s.speed_rad_s]
+
+
+def test_arrival_pairing_undoes_the_skew_of_a_start_up_backlog():
+    """A node joins a 1 kHz stream: its torque subscription matched 3 samples before speed's and
+    the backlog is taken in one burst (callbacks 10 µs apart: no timing left to pair by).  Once
+    live, the pairing three samples off shows as a mean offset of a period, and is undone."""
+    sync = SampleSynchronizer(0.002, 0.1, arrival=True)
+    out = []
+    t = 0
+    burst = [(TORQUE, k) for k in range(3)] + [(c, k) for k in range(3, 300) for c in (TORQUE, SPEED)]
+    for c, k in burst:
+        t += 10_000
+        out += sync.push(c, t, float(k))
+    for k in range(300, 2300):
+        t_k = t + (k - 299) * MS
+        out += sync.push(TORQUE, t_k, float(k))
+        out += sync.push(SPEED, t_k + 10_000, float(k))
+    skewed = _skewed(out)
+    assert max(skewed) < 300 + 50, "undone within 50 live samples"
+    assert len(out) > 2200 and sync.counts["unpaired"] == 3
+
+
+def test_arrival_pairing_undoes_the_skew_of_a_lost_message_at_1_khz():
+    sync = SampleSynchronizer(0.002, 0.1, arrival=True)
+    out = []
+    for k in range(3000):
+        out += sync.push(TORQUE, k * MS, float(k))
+        if k != 1000:
+            out += sync.push(SPEED, k * MS + 20_000, float(k))
+    skewed = _skewed(out)
+    assert skewed and min(skewed) >= 1000 and max(skewed) < 1050
+    assert sync.counts["unpaired"] == 1 and len(out) == 2999
+
+
+@pytest.mark.parametrize("phase", [0.3, 0.6, 0.9])
+def test_arrival_pairing_settles_with_independently_phased_publishers(phase):
+    """Speed published ``phase`` periods after torque by another node (both 1 kHz, ±50 µs jitter):
+    pairing with the nearer message is kept; at most one resync, then no drops."""
+    rng = np.random.default_rng(1)
+    sync = SampleSynchronizer(0.002, 0.1, arrival=True)
+    out = []
+    for k in range(4000):
+        jitter = rng.normal(0, 50_000, 2).astype(int)
+        out += sync.push(TORQUE, k * MS + jitter[0], float(k))
+        out += sync.push(SPEED, k * MS + int(phase * MS) + jitter[1], float(k))
+    assert sync.counts["unpaired"] <= 1
+    lag = {s.torque_nm - s.speed_rad_s for s in out[100:]}
+    assert lag == ({0.0} if phase < 0.75 else {1.0}), lag
+
+
+def test_arrival_pairing_skew_detector_ignores_an_executor_stall():
+    """A 40 ms stall between one sample's torque and speed callbacks at 1 kHz is not a skew."""
+    sync = SampleSynchronizer(0.002, 0.1, arrival=True)
+    out = []
+    for k in range(500):
+        stall = 40 * MS if k >= 250 else 0
+        out += sync.push(TORQUE, k * MS + (stall if k > 250 else 0), float(k))
+        out += sync.push(SPEED, k * MS + stall + 10_000, float(k))
+    assert not _skewed(out) and len(out) == 500 and sync.counts["unpaired"] == 0
+
+
 def test_pairing_tolerance_is_explicit_or_a_fraction_of_the_period():
     assert pairing_tolerance_s(0.003, 0.01) == 0.003  # explicit wins
     assert pairing_tolerance_s(0.0, 0.01) == pytest.approx(0.004)  # 0.4 x the period: never k with k+-1

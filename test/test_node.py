@@ -177,6 +177,42 @@ def test_run_time_change_of_pairing_limits_takes_effect():
             node.destroy_node()
 
 
+def test_start_up_backlog_of_a_running_stream_is_discarded():
+    """Messages queued before the executor first spins are taken and discarded (arrival pairing
+    could only guess their pairs); live messages after that are estimated."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    from rollergear_ros.node import LossEstimatorNode, make_executor
+
+    with ros_context() as probe:
+        node = LossEstimatorNode(context=probe.context)
+        executor = make_executor("events", context=probe.context)
+        try:
+            executor.add_node(node)
+            qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+            pubs = [probe.create_publisher(Float64, t, qos) for t in (T.motor_torque, T.motor_speed)]
+            assert wait_for(lambda: all(p.get_subscription_count() for p in pubs), 20)
+            for k in range(200):
+                for p in pubs:
+                    p.publish(Float64(data=10.0 + k))
+            time.sleep(0.3)
+            assert node.discard_start_up_backlog(executor) > 300
+            assert node.estimator.estimated == 0 and sum(node.monitor.counts.values()) == 0
+            for k in range(300):  # then live at ~1 kHz
+                for p in pubs:
+                    p.publish(Float64(data=50.0 + k))
+                next_sample = time.monotonic() + 0.001
+                while time.monotonic() < next_sample:
+                    executor.spin_once(timeout_sec=0.0005)
+            assert wait_for(lambda: executor.spin_once(timeout_sec=0.01) or node.estimator.estimated >= 250, 10), (
+                node.estimator.estimated, node.estimator.counts)
+            assert node.estimator.counts["unpaired"] < 10
+        finally:
+            executor.shutdown()
+            node.destroy_node()
+
+
 @pytest.mark.parametrize("executor", ["single_threaded", "events"])
 def test_node_started_after_the_player_still_estimates(executor, tmp_path):
     """Discovery order: a node that joins a running stream estimates from its inputs.
@@ -186,7 +222,7 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
     go astray only locally -- the backlog taken at start-up when the two subscriptions matched a
     few samples apart, a lost message, a publisher preempted between a sample's torque and speed --
     so nearly all estimates are the model at their own (torque, speed) pair, and none is the model
-    at inputs more than a few samples apart.
+    at inputs more than a few samples apart (the skew detector undoes a skew within ~30 samples).
     """
     rec = tmp_path / "late.mcap"
     import subprocess
@@ -194,8 +230,10 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
 
     from conftest import ROOT
 
+    # 1 kHz: neighbouring samples arrive within the 2 ms jitter allowance, so only the skew detector
+    # can tell a pairing one sample off
     player = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "play", str(BAGS / "rig_map.mcap"), "--rate",
-                               "2"], stderr=subprocess.PIPE, text=True, cwd=ROOT)
+                               "5"], stderr=subprocess.PIPE, text=True, cwd=ROOT)
     time.sleep(3.0)
     node = NodeProcess(f"node.record_mcap:={rec}", f"node.executor:={executor}")
     player.wait(timeout=120)
@@ -219,7 +257,7 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
 
     exact = paired_with(0)
     assert exact.mean() > 0.95, f"{np.sum(~exact)} of {len(loss)} estimates not paired with their own inputs"
-    assert paired_with(10)[~exact].all(), "an estimate from inputs more than 10 samples apart"
+    assert paired_with(20)[~exact].all(), "an estimate from inputs more than 20 samples apart"
 
 
 def test_use_sim_time_stamps_estimates_with_the_bag_clock(tmp_path):
