@@ -260,6 +260,56 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
     assert paired_with(20)[~exact].all(), "an estimate from inputs more than 20 samples apart"
 
 
+def test_decimated_outputs_are_every_nth_estimate(tmp_path):
+    """``node.publish_every_n``: outputs (published and recorded) are every n-th estimate of
+    offline replay, for consumers that cannot take the input rate."""
+    rec = tmp_path / "every10.mcap"
+    node = NodeProcess(f"node.record_mcap:={rec}", "node.publish_every_n:=10")
+    play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
+    assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
+    _, batches = replay(BAGS / "rig_map.mcap", load_config(CONFIG), show_progress=False, collect=True)
+    ref_loss = np.concatenate([b.loss_torque_nm for b in batches])
+    _, loss = float_series(read_rosbags(rec), T.loss_torque)
+    assert len(loss) == len(ref_loss) // 10
+    np.testing.assert_allclose(loss, ref_loss[9::10], rtol=1e-12, atol=1e-15)
+
+
+def test_player_loops_with_the_bag_timing_and_stops_cleanly_on_ctrl_c(tmp_path):
+    """``rollergear play --loop``: the bag again and again, in order, each pass with the bag's
+    timing; SIGINT ends it with exit code 0 and no traceback."""
+    import subprocess
+    import sys
+
+    from std_msgs.msg import Float64
+
+    from rollergear_ros.bag import BagWriter
+    from conftest import ROOT
+
+    n, period_s = 50, 0.01
+    bag = tmp_path / "short.mcap"
+    with BagWriter(bag) as bw:
+        bw.write_float64_series(T.motor_torque, 1_000_000_000 + np.arange(n, dtype=np.int64) * int(period_s * 1e9),
+                                np.arange(n, dtype=float))
+    with ros_context() as probe:
+        got: list[tuple[float, float]] = []
+        probe.create_subscription(Float64, T.motor_torque, lambda m: got.append((time.monotonic(), m.data)), 1000)
+        player = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "play", str(bag), "--loop",
+                                   "--wait-for-subscribers", "20"], stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        try:
+            assert wait_for(lambda: len(got) >= 3 * n, 30), len(got)
+        finally:
+            player.send_signal(signal.SIGINT)
+            _, err = player.communicate(timeout=20)
+    assert player.returncode == 0 and "Traceback" not in err, err
+    assert "played" in err
+    t, values = np.array(got[:3 * n]).T
+    np.testing.assert_array_equal(values, np.tile(np.arange(n, dtype=float), 3))
+    # each pass keeps the bag's timing: (n - 1) periods from its first message to its last
+    for k in range(3):
+        span = t[k * n + n - 1] - t[k * n]
+        assert 0.8 * (n - 1) * period_s < span < 3 * (n - 1) * period_s, span
+
+
 def test_use_sim_time_stamps_estimates_with_the_bag_clock(tmp_path):
     rec = tmp_path / "sim.mcap"
     node = NodeProcess(f"node.record_mcap:={rec}", "use_sim_time:=true")
