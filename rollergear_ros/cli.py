@@ -213,7 +213,8 @@ def _load_extra_commands() -> None:
         return
     import importlib
 
-    for name in ("rollergear_ros.replay_cli", "rollergear_ros.calibrate_cli", "rollergear_ros.player"):
+    for name in ("rollergear_ros.replay_cli", "rollergear_ros.calibrate_cli", "rollergear_ros.player",
+                 "rollergear_ros.watch"):
         try:
             mod = importlib.import_module(name)
         except ModuleNotFoundError as exc:

@@ -162,12 +162,27 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     return stats
 
 
+def init_for_command_line() -> None:
+    """``rclpy.init`` for a command-line tool: Ctrl-C and SIGTERM raise ``KeyboardInterrupt`` in the
+    main thread, which the tool takes as its normal end.  (rclpy's own handler shuts the context down
+    under a running ``publish``, which then fails with ``RCLError: publisher's context is invalid``.)"""
+    import signal
+
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
+    # also where the shell started us with SIGINT ignored (a background job without job control)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.default_int_handler)
+
+
 def cmd_play(args: argparse.Namespace) -> int:
     import rclpy
 
     if not (args.rate > 0):
         raise UserError("--rate must be > 0")
-    rclpy.init(args=None)
+    init_for_command_line()
     try:
         play(Path(args.bag), args.rate, args.loop, args.clock, args.topics, args.wait_for_subscribers,
              args.delay, not args.best_effort)

@@ -310,6 +310,26 @@ def test_player_loops_with_the_bag_timing_and_stops_cleanly_on_ctrl_c(tmp_path):
         assert 0.8 * (n - 1) * period_s < span < 3 * (n - 1) * period_s, span
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_player_interrupted_while_publishing_ends_cleanly(sig):
+    """A signal that arrives during a publish (4 k messages/s) ends the player with exit code 0 and
+    its summary line.  rclpy's own handler used to invalidate the context under the running publish
+    (``RCLError: publisher's context is invalid``: on SIGTERM each time, on SIGINT from a shell 4 of 4)."""
+    import subprocess
+    import sys
+
+    from conftest import ROOT
+
+    player = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "play", str(BAGS / "rig_map.mcap"), "--rate",
+                               "20", "--loop"], stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    time.sleep(2.0)
+    assert player.poll() is None
+    player.send_signal(sig)
+    _, err = player.communicate(timeout=20)
+    assert player.returncode == 0 and "Traceback" not in err, err
+    assert "played" in err and "messages" in err, err
+
+
 def test_use_sim_time_stamps_estimates_with_the_bag_clock(tmp_path):
     rec = tmp_path / "sim.mcap"
     node = NodeProcess(f"node.record_mcap:={rec}", "use_sim_time:=true")

@@ -1,0 +1,137 @@
+"""``rollergear watch``: a running ``loss_estimator``'s estimates and status, one line per second.
+
+Stands in for ``ros2 topic echo`` (the ``ros2`` CLI has no PyPI wheels) in the terminal next to a
+node and a player.  Each line gives, over the last period: estimates received per second, the mean
+loss torque [N·m] and loss power [W], the mean efficiency (and its minimum), the mean residual
+[N·m] when measured output torque is present, and the node's latest ``/diagnostics`` level and
+message.  The outputs are taken raw and best effort with shallow queues: a slow terminal never
+holds the node back, and the rate shown is what reached the watcher.
+
+:class:`WatchWindow` (no rclpy) collects and formats one period; :func:`watch` is the ROS shell.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .bag import NAMESPACE, decode_float64
+from .cli import UserError
+from .player import init_for_command_line
+
+#: output channel -> topic relative to the node's namespace (``interface.md``)
+OUTPUT_TOPICS = {"loss": "loss/torque", "power": "loss/power", "efficiency": "efficiency",
+                 "residual": "residual/torque"}
+DIAGNOSTIC_LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+#: the node's status name ends with this (``<node name>: roller gearbox losses``)
+STATUS_NAME_SUFFIX = "roller gearbox losses"
+
+
+@dataclass
+class WatchWindow:
+    """Serialized Float64 outputs and the latest diagnostics received during one period."""
+
+    payloads: dict[str, list[bytes]] = field(default_factory=lambda: {k: [] for k in OUTPUT_TOPICS})
+    diagnostic: tuple[int, str] | None = None  #: (level, message) of the node's latest status
+
+    def add(self, channel: str, raw: bytes) -> None:
+        self.payloads[channel].append(raw)
+
+    def line(self, period_s: float, topic_of_loss: str) -> str:
+        """Format the period and start a new one: ``est/s  loss  power  η  residual  [level] message``."""
+        values = {k: decode_float64(v) for k, v in self.payloads.items()}
+        for v in self.payloads.values():
+            v.clear()
+        status = ""
+        if self.diagnostic is not None:
+            level, message = self.diagnostic
+            status = f"  [{DIAGNOSTIC_LEVELS.get(level, str(level))}] {message}"
+        n = len(values["loss"])
+        if n == 0:
+            return f"no estimates on {topic_of_loss} in the last {period_s:.1f} s{status}"
+        parts = [f"{n / period_s:7.0f} est/s", f"loss {_mean(values['loss']):.4f} N·m",
+                 f"{_mean(values['power']):.2f} W"]
+        eff = values["efficiency"]
+        if np.isfinite(eff).any():
+            parts.append(f"η {100 * _mean(eff):.2f} % (min {100 * np.nanmin(eff):.2f})")
+        else:
+            parts.append("η —")
+        if len(values["residual"]):
+            parts.append(f"residual {_mean(values['residual']):+.4f} N·m")
+        return "  ".join(parts) + status
+
+
+def _mean(v: np.ndarray) -> float:
+    finite = v[np.isfinite(v)]
+    return float(finite.mean()) if len(finite) else float("nan")
+
+
+def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out=sys.stdout) -> int:
+    """Print one :meth:`WatchWindow.line` per ``period_s`` until Ctrl-C (or ``count`` lines)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    window = WatchWindow()
+    node = Node("rollergear_watch")
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+    for channel, rel in OUTPUT_TOPICS.items():
+        node.create_subscription(Float64, f"{ns}/{rel}", lambda raw, c=channel: window.add(c, raw), qos, raw=True)
+
+    def on_diagnostics(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.endswith(STATUS_NAME_SUFFIX):
+                window.diagnostic = (status.level[0] if isinstance(status.level, bytes) else int(status.level),
+                                     status.message)
+
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    topic_of_loss = f"{ns}/{OUTPUT_TOPICS['loss']}"
+    print(f"watching {ns or '/'} (outputs and /diagnostics), a line every {period_s:g} s; Ctrl-C to stop",
+          file=sys.stderr)
+    lines = 0
+    try:
+        start = time.monotonic()
+        while count <= 0 or lines < count:
+            deadline = start + (lines + 1) * period_s
+            while (left := deadline - time.monotonic()) > 0:
+                executor.spin_once(timeout_sec=min(left, 0.1))
+            print(f"{time.strftime('%H:%M:%S')}  {window.line(period_s, topic_of_loss)}", file=out, flush=True)
+            lines += 1
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the normal end
+        pass
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+    return 0
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    import rclpy
+
+    if not (args.period > 0):
+        raise UserError("--period must be > 0")
+    init_for_command_line()
+    try:
+        return watch(args.namespace, args.period, args.count)
+    finally:
+        rclpy.try_shutdown()
+
+
+def register_watch(sub, with_params) -> None:  # noqa: ARG001
+    p = sub.add_parser("watch", help="print a running loss_estimator's estimates and status once a second")
+    p.add_argument("--namespace", default=NAMESPACE, help=f"the node's namespace (default {NAMESPACE})")
+    p.add_argument("--period", type=float, default=1.0, metavar="S", help="seconds per line (default 1)")
+    p.add_argument("--count", type=int, default=0, metavar="N", help="stop after N lines (default: until Ctrl-C)")
+    p.set_defaults(func=cmd_watch)
+
+
+REGISTER = [register_watch]
