@@ -172,6 +172,23 @@ def _check_mcap(path: Path) -> None:
                        "convert them to MCAP")
 
 
+#: metadata record the node writes into its recordings: how it paired the inputs it recorded
+RECORDING_METADATA = "rollergear_recording"
+
+
+def read_metadata(path: str | Path, name: str) -> dict[str, str] | None:
+    """The bag's MCAP metadata record ``name`` (string key/values), or None when it has none or
+    it cannot be read (a recording without its summary)."""
+    try:
+        with Path(path).open("rb") as fh:
+            for md in make_reader(fh).iter_metadata():
+                if md.name == name:
+                    return dict(md.metadata)
+    except (McapError, struct.error, ValueError, EOFError, KeyError, OSError):
+        return None
+    return None
+
+
 def inspect_bag(path: str | Path) -> BagInfo:
     """Read the bag's summary; without one (a recording cut by a crash) scan what is readable."""
     path = Path(path)

@@ -102,8 +102,16 @@ class LossEstimatorNode(Node):
         self._send_loss, self._send_power, self._send_eff, self._send_res = (
             _raw_publish(p) for p in (self.pub_loss, self.pub_power, self.pub_eff, self.pub_res))
         self.recorder: bagmod.BagWriter | None = None
+        # arrival pairing: inputs are recorded at the very arrival times the estimator paired them by,
+        # so that replay of the recording pairs them as the node did (``rollergear_recording`` metadata)
+        self._record_arrival = (self.pairing == "arrival" and node.input_mode == "float64"
+                                and not self.get_parameter("use_sim_time").value)
         if node.record_mcap:
             self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024)
+            self.recorder.add_metadata(bagmod.RECORDING_METADATA, {
+                "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
+                "pairing": self.pairing if self._record_arrival else "timestamp",
+                "sample_period_s": repr(1.0 / node.expected_rate_hz)})
         self.rerun = None
         self._rr_buffer: list[Estimate] = []
         if node.rerun_rrd or node.rerun_connect:
@@ -176,6 +184,7 @@ class LossEstimatorNode(Node):
         counts, last = self.monitor.counts, self.monitor.last_ns
         unpack = struct.Struct("<d").unpack_from
         time_ns = time.time_ns
+        record_arrival = self._record_arrival
 
         def handle(raw: bytes, t_ns: int, wall_ns: int) -> None:
             if self._taking_backlog:
@@ -184,7 +193,8 @@ class LossEstimatorNode(Node):
             counts[channel] += 1
             last[channel] = wall_ns
             if self.recorder is not None:
-                self.recorder.write_raw(topic, bagmod.FLOAT64, self.get_clock().now().nanoseconds, raw)
+                self.recorder.write_raw(topic, bagmod.FLOAT64,
+                                        t_ns if record_arrival else self.get_clock().now().nanoseconds, raw)
             value = unpack(raw, 4)[0] if raw[1] == 1 else float(bagmod.decode_float64([raw])[0])
             for est in self.estimator.push(channel, t_ns, value):
                 self._publish(est)
@@ -220,13 +230,15 @@ class LossEstimatorNode(Node):
                         self._publish(est)
 
     def _temperature_callback(self, msg: Temperature) -> None:
-        self.monitor.record(TEMPERATURE, time.time_ns())
+        wall = time.time_ns()
+        self.monitor.record(TEMPERATURE, wall)
         if self.recorder is not None:
             self.recorder.write_raw(self.resolve_topic_name("oil/temperature"), bagmod.TEMPERATURE,
-                                    self.get_clock().now().nanoseconds, serialize_message(msg))
+                                    wall if self._record_arrival else self.get_clock().now().nanoseconds,
+                                    serialize_message(msg))
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         # the stamp keeps the temperature on the inputs' clock in JointState mode (header stamps)
-        t_ns = stamp if (stamp and self.config.node.input_mode == "joint_state") else time.time_ns()
+        t_ns = stamp if (stamp and self.config.node.input_mode == "joint_state") else wall
         self.estimator.push(TEMPERATURE, t_ns, float(msg.temperature))
 
     # ------------------------------------------------------------------ outputs
@@ -317,13 +329,17 @@ def main(args: list[str] | None = None) -> int:
     node = None
     code = 0
     try:
+        # the modules loaded so far live as long as the process: keep them out of the garbage
+        # collector's full passes, which otherwise stall the callbacks for milliseconds at high
+        # input rates.  Done before the node exists: its subscriptions must be taken from as soon
+        # as they are created, or the first messages of a stream that starts then would be taken
+        # for a backlog and discarded (a full collection takes 16 ms, longer on a loaded machine)
+        gc.collect()
+        gc.freeze()
         node = LossEstimatorNode()
         executor = make_executor(node.executor_kind)
         executor.add_node(node)
-        # everything built so far lives as long as the node: keep it out of the garbage collector's
-        # full passes, which otherwise stall the callbacks for milliseconds at high input rates
-        gc.collect()
-        gc.freeze()
+        gc.freeze()  # and the node's own objects (no collection: it would delay the first take)
         node.discard_start_up_backlog(executor)
         # spin_once with a timeout: EventsExecutor.spin() never returns on this rclpy version
         while rclpy.ok():

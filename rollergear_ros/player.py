@@ -82,6 +82,10 @@ class PlayStats:
                 f"{self.late_over_5ms} more than 5 ms late")
 
 
+#: with ``--wait-for-subscribers``: pause after every topic has a subscriber, before the first message
+SUBSCRIBER_SETTLE_S = 1.0
+
+
 def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, topics: list[str] | None = None,
          wait_for_subscribers: float = 0.0, start_delay: float = 0.0, reliable: bool = True,
          quiet: bool = False) -> PlayStats:
@@ -107,8 +111,10 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
         deadline = time.monotonic() + wait_for_subscribers
         while time.monotonic() < deadline and any(p.get_subscription_count() == 0 for p in pubs.values()):
             time.sleep(0.02)
-        # give discovery of the reverse direction a moment as well
-        time.sleep(0.2)
+        # the subscribers must discover the player as well: a best-effort subscription drops what a
+        # publisher it has not matched yet sends (seen: the first 20-74 samples, 0.2 s after the
+        # player saw its subscribers, on a loaded machine)
+        time.sleep(SUBSCRIBER_SETTLE_S)
     if start_delay > 0:
         time.sleep(start_delay)
     stats = PlayStats()
@@ -201,7 +207,8 @@ def register_play(sub, with_params) -> None:  # noqa: ARG001
     p.add_argument("--clock", action="store_true", help="publish /clock with the bag's time (use_sim_time)")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
     p.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="S",
-                   help="wait up to S seconds until every topic has a subscriber")
+                   help="wait up to S seconds until every topic has a subscriber, then 1 s for them to "
+                        "discover the player")
     p.add_argument("--delay", type=float, default=0.0, metavar="S", help="sleep S seconds before playing")
     p.add_argument("--best-effort", action="store_true", help="publish best effort instead of reliable")
     p.set_defaults(func=cmd_play)

@@ -17,8 +17,8 @@ from typing import Callable
 
 import numpy as np
 
-from .bag import (FLOAT64, JOINT_STATE, TEMPERATURE, BagError, BagInfo, BagWriter, RawBatch, TopicMap,
-                  decode_float64, decoder_for, inspect_bag, iter_raw_batches, median_period_s)
+from .bag import (FLOAT64, JOINT_STATE, RECORDING_METADATA, TEMPERATURE, BagError, BagInfo, BagWriter, RawBatch,
+                  TopicMap, decode_float64, decoder_for, inspect_bag, iter_raw_batches, median_period_s, read_metadata)
 from .estimator import (CHANNELS, OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE as CH_TEMPERATURE, TORQUE,
                         BatchEstimate, Estimator, samples_to_arrays)
 from .params import Config
@@ -273,6 +273,7 @@ class ReplaySummary:
     interrupted: bool = False
     sync_tolerance_s: float = math.nan  #: the pairing tolerance used
     sample_period_s: float | None = None  #: the motor torque's median message period in the bag
+    pairing: str = "timestamp"  #: ``arrival`` for a recording of the node that paired by arrival
     warnings: list[str] = field(default_factory=list)
     coefficients: dict[str, float] = field(default_factory=dict)
 
@@ -280,7 +281,11 @@ class ReplaySummary:
         lines = [f"bag: {self.bag}",
                  f"input messages: {self.input_messages:,} ({self.samples:,} motor torque); "
                  f"estimated: {self.estimated:,}; log duration {self.duration_s:.1f} s"]
-        if self.sample_period_s:
+        if self.pairing == "arrival":
+            lines.append(f"pairing: by arrival, as loss_estimator paired them when it recorded this bag (its sample "
+                         f"period {1e3 * (self.sample_period_s or 0):.3g} ms, arrivals within "
+                         f"{1e3 * self.sync_tolerance_s:.3g} ms)")
+        elif self.sample_period_s:
             lines.append(f"pairing: sample period {1e3 * self.sample_period_s:.3g} ms, inputs within "
                          f"{1e3 * self.sync_tolerance_s:.3g} ms form one sample")
         skipped = {k: v for k, v in self.skipped.items() if v}
@@ -342,6 +347,22 @@ class _Accumulator:
         self.res_n += len(r)
 
 
+def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tuple[str, float | None]:
+    """How to pair the bag's Float64 inputs: ``("arrival", the node's sample period)`` for a
+    recording ``loss_estimator`` made while pairing by arrival (its ``rollergear_recording``
+    metadata; the inputs were logged at the arrival times it paired them by, so replay pairs them
+    as the node did), else ``("timestamp", period_s)``."""
+    recording = read_metadata(path, RECORDING_METADATA) if plan.mode == "float64" else None
+    if recording and recording.get("pairing") == "arrival":
+        try:
+            node_period_s = float(recording.get("sample_period_s", "nan"))
+        except ValueError:
+            node_period_s = math.nan
+        if math.isfinite(node_period_s) and node_period_s > 0:
+            return "arrival", node_period_s
+    return "timestamp", period_s
+
+
 def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_mcap: str | Path | None = None,
            rrd: str | Path | None = None, show_progress: bool | None = None, batch_size: int = 100_000,
            warn: Callable[[str], None] | None = None, collect: bool = False) -> tuple[ReplaySummary, list[BatchEstimate]]:
@@ -361,8 +382,10 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
               "could not be read" if info.truncated else f"{info.path} has no index; read linearly")
     plan = plan_inputs(info, topics)
     period_s = median_period_s(info.path, plan.joint_states or topics.motor_torque)
-    estimator = Estimator(config, sample_period_s=period_s)
-    summary = ReplaySummary(str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s)
+    pairing, period_s = recorded_pairing(info.path, plan, period_s)
+    estimator = Estimator(config, pairing=pairing, sample_period_s=period_s)
+    summary = ReplaySummary(str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s,
+                            pairing=pairing)
     writer = BagWriter(out_mcap) if out_mcap else None
     rlog = None
     if rrd:

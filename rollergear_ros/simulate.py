@@ -287,10 +287,9 @@ def _temperature_message(rig: SimulatedRig, opts: SimulationOptions, i: int) -> 
 
 def read_truth(path: Path) -> dict:
     """The ``rollergear_simulation`` metadata of a simulated bag (for tests and docs only)."""
-    from mcap.reader import make_reader
+    from .bag import read_metadata
 
-    with Path(path).open("rb") as fh:
-        for md in make_reader(fh).iter_metadata():
-            if md.name == "rollergear_simulation":
-                return json.loads(md.metadata["truth"])
-    raise KeyError(f"{path} has no rollergear_simulation metadata")
+    md = read_metadata(path, "rollergear_simulation")
+    if md is None:
+        raise KeyError(f"{path} has no rollergear_simulation metadata")
+    return json.loads(md["truth"])

@@ -48,7 +48,7 @@ def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     _, loss = float_series(live, T.loss_torque)
     _, eff = float_series(live, T.efficiency)
     _, res = float_series(live, T.residual_torque)
-    assert len(loss) == len(ref_loss) == n_expected, "no dropped samples"
+    assert len(loss) == len(ref_loss) == n_expected, f"dropped samples: {len(loss)} of {n_expected}; {node.stderr}"
     np.testing.assert_allclose(loss, ref_loss, rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(eff, ref_eff, rtol=1e-12, equal_nan=True)
     np.testing.assert_allclose(res, ref_res[np.isfinite(ref_res)], rtol=1e-9, atol=1e-12)
@@ -57,6 +57,9 @@ def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     np.testing.assert_allclose(got, loss, rtol=0, atol=0)
     # the recording is a valid ROS 2 MCAP for the other reader too
     assert len(read_mcap_ros2(rec)[T.loss_torque][0]) == len(loss)
+    # and replaying the node's own recording gives exactly what the node published
+    _, own = replay(rec, load_config(CONFIG), show_progress=False, collect=True)
+    np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in own]), loss, rtol=1e-12, atol=1e-15)
 
 
 def test_player_keeps_the_bag_timing_across_chunk_boundaries():
@@ -258,6 +261,10 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
     exact = paired_with(0)
     assert exact.mean() > 0.95, f"{np.sum(~exact)} of {len(loss)} estimates not paired with their own inputs"
     assert paired_with(20)[~exact].all(), "an estimate from inputs more than 20 samples apart"
+    if executor == "events":  # arrival pairing: the recording replays to exactly what the node published
+        summary, own = replay(rec, load_config(CONFIG), show_progress=False, collect=True)
+        assert summary.pairing == "arrival"
+        np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in own]), loss, rtol=1e-12, atol=1e-15)
 
 
 def test_decimated_outputs_are_every_nth_estimate(tmp_path):

@@ -364,3 +364,32 @@ def test_big_endian_float64_payloads_are_decoded(tmp_path, config):
     loss = np.concatenate([b.loss_torque_nm for b in batches])
     assert len(loss) == n
     np.testing.assert_allclose(loss, LossModel(config.gearbox).loss_magnitude(20.0, 100.0), rtol=1e-12)
+
+
+@pytest.mark.parametrize("metadata, pairing", [
+    ({"pairing": "arrival", "sample_period_s": "0.001"}, "arrival"),
+    ({"pairing": "arrival", "sample_period_s": "abc"}, "timestamp"),  # unreadable: the bag's own timing
+    ({"pairing": "arrival", "sample_period_s": "-1"}, "timestamp"),
+    ({"pairing": "timestamp", "sample_period_s": "0.001"}, "timestamp"),
+    (None, "timestamp"),
+])
+def test_a_node_recording_is_paired_as_the_node_paired_it(tmp_path, config, metadata, pairing):
+    """``rollergear_recording`` metadata (written by loss_estimator) selects arrival pairing with the
+    node's sample period; anything unreadable falls back to pairing by the bag's timestamps."""
+    from rollergear_ros.bag import RECORDING_METADATA
+
+    n = 300
+    t = (1_000_000_000 + np.arange(n) * 1_000_000).astype(np.int64)
+    p = tmp_path / "node.mcap"
+    with BagWriter(p) as bw:
+        if metadata is not None:
+            bw.add_metadata(RECORDING_METADATA, metadata)
+        bw.write_float64_series(T.motor_torque, t, np.linspace(5.0, 50.0, n))
+        bw.write_float64_series(T.motor_speed, t + 50_000, np.full(n, 100.0))
+    s, batches = replay(p, config, show_progress=False, collect=True)
+    assert s.pairing == pairing and ("pairing: by arrival" in s.text()) == (pairing == "arrival")
+    assert s.sync_tolerance_s == pytest.approx(0.002 if pairing == "arrival" else 0.0004)
+    assert s.estimated == n
+    np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in batches]),
+                               LossModel(config.gearbox).loss_magnitude(np.linspace(5.0, 50.0, n), np.full(n, 100.0)),
+                               rtol=1e-12)
