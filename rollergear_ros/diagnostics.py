@@ -14,6 +14,8 @@ from .estimator import CHANNELS, OUT_TORQUE, SKIP_REASONS, SPEED, TORQUE, Estima
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
+#: the node's ``/diagnostics`` status is named ``<node name>: STATUS_NAME``
+STATUS_NAME = "roller gearbox losses"
 STARTUP_GRACE_S = 5.0
 
 

@@ -29,7 +29,7 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64
 
 from . import bag as bagmod
-from .diagnostics import InputMonitor, diagnose
+from .diagnostics import STATUS_NAME, InputMonitor, diagnose
 from .estimator import OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE, TORQUE, Estimate, Estimator
 from .params import PARAMETER_SPECS, Config, ParameterError, validate
 
@@ -288,7 +288,7 @@ class LossEstimatorNode(Node):
                           node.min_efficiency_warn, self._skips_reported, self._alarms_reported)
         self._skips_reported = dict(self.estimator.counts)
         self._alarms_reported = self.estimator.detector.alarms
-        status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: roller gearbox losses",
+        status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: {STATUS_NAME}",
                                   message=report.message, hardware_id=node.hardware_id,
                                   values=[KeyValue(key=k, value=v) for k, v in report.values]
                                   + [KeyValue(key="start-up backlog discarded [messages]",

@@ -207,8 +207,8 @@ def register_play(sub, with_params) -> None:  # noqa: ARG001
     p.add_argument("--clock", action="store_true", help="publish /clock with the bag's time (use_sim_time)")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
     p.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="S",
-                   help="wait up to S seconds until every topic has a subscriber, then 1 s for them to "
-                        "discover the player")
+                   help="wait up to S seconds until every topic has a subscriber, then "
+                        f"{SUBSCRIBER_SETTLE_S:g} s for them to discover the player")
     p.add_argument("--delay", type=float, default=0.0, metavar="S", help="sleep S seconds before playing")
     p.add_argument("--best-effort", action="store_true", help="publish best effort instead of reliable")
     p.set_defaults(func=cmd_play)

@@ -19,16 +19,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bag import NAMESPACE, decode_float64
+from .bag import NAMESPACE, TopicMap, decode_float64
 from .cli import UserError
+from .diagnostics import LEVEL_NAMES, STATUS_NAME
 from .player import init_for_command_line
 
+_T = TopicMap()
 #: output channel -> topic relative to the node's namespace (``interface.md``)
-OUTPUT_TOPICS = {"loss": "loss/torque", "power": "loss/power", "efficiency": "efficiency",
-                 "residual": "residual/torque"}
-DIAGNOSTIC_LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
-#: the node's status name ends with this (``<node name>: roller gearbox losses``)
-STATUS_NAME_SUFFIX = "roller gearbox losses"
+OUTPUT_TOPICS = {channel: topic[len(NAMESPACE) + 1:] for channel, topic in (
+    ("loss", _T.loss_torque), ("power", _T.loss_power), ("efficiency", _T.efficiency), ("residual", _T.residual_torque))}
 
 
 @dataclass
@@ -49,7 +48,7 @@ class WatchWindow:
         status = ""
         if self.diagnostic is not None:
             level, message = self.diagnostic
-            status = f"  [{DIAGNOSTIC_LEVELS.get(level, str(level))}] {message}"
+            status = f"  [{LEVEL_NAMES.get(level, str(level))}] {message}"
         n = len(values["loss"])
         if n == 0:
             return f"no estimates on {topic_of_loss} in the last {period_s:.1f} s{status}"
@@ -87,7 +86,7 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
 
     def on_diagnostics(msg: DiagnosticArray) -> None:
         for status in msg.status:
-            if status.name.endswith(STATUS_NAME_SUFFIX):
+            if status.name.endswith(STATUS_NAME):
                 window.diagnostic = (status.level[0] if isinstance(status.level, bytes) else int(status.level),
                                      status.message)
 
