@@ -37,6 +37,10 @@ NAMESPACE = "/rollergear"
 #: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
 SENSOR_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE,
                         history=HistoryPolicy.KEEP_LAST, depth=1000)
+#: ``node.input_qos: reliable``: nothing lost; a publisher that outpaces the node waits for it
+RELIABLE_INPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+                                history=HistoryPolicy.KEEP_ALL)
+INPUT_QOS = {"sensor_data": SENSOR_QOS, "reliable": RELIABLE_INPUT_QOS}
 OUTPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=200)
 _PACK = struct.Struct("<4sd").pack
 _CDR = bagmod.CDR_LE_HEADER
@@ -120,18 +124,20 @@ class LossEstimatorNode(Node):
             self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None)
             self.create_timer(0.5, self._flush_rerun)
         with_info = self.executor_kind == "single_threaded"
+        input_qos = INPUT_QOS[node.input_qos]
         if node.input_mode == "float64":
             for channel, rel in ((TORQUE, "motor/torque"), (SPEED, "motor/speed"), (OUT_TORQUE, "output/torque"),
                                  (OUT_SPEED, "output/speed")):
                 self.create_subscription(Float64, rel, self._float_callback(channel, self.resolve_topic_name(rel),
-                                                                            with_info), SENSOR_QOS, raw=True)
+                                                                            with_info), input_qos, raw=True)
         else:
-            self.create_subscription(JointState, topics.joint_states, self._joint_state_callback, SENSOR_QOS)
-        self.create_subscription(Temperature, "oil/temperature", self._temperature_callback, SENSOR_QOS)
+            self.create_subscription(JointState, topics.joint_states, self._joint_state_callback, input_qos)
+        self.create_subscription(Temperature, "oil/temperature", self._temperature_callback, input_qos)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f"estimating from {'Float64 topics' if node.input_mode == 'float64' else topics.joint_states}; "
-            f"effects: {', '.join(self.config.effects.enabled()) or 'none'}; executor: {self.executor_kind}"
+            f"effects: {', '.join(self.config.effects.enabled()) or 'none'}; executor: {self.executor_kind}; "
+            f"input QoS: {node.input_qos}"
             + (f"; recording {node.record_mcap}" if self.recorder else ""))
 
     # ------------------------------------------------------------------ parameters

@@ -220,6 +220,11 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("node.executor", str, "events",
               "rclpy executor: events (fast; pairs inputs in arrival order) or single_threaded (pairs inputs by "
               "publisher timestamps; ~3 k messages/s at most)", choices=("events", "single_threaded"), read_only=True),
+    ParamSpec("node.input_qos", str, "sensor_data",
+              "QoS of the input subscriptions: sensor_data (best effort, 1000 deep: a node that falls behind loses "
+              "samples, the publisher never waits) or reliable (reliable, keep all: a publisher that outpaces the "
+              "node is held back instead, e.g. a recording played into it; nothing is lost)",
+              choices=("sensor_data", "reliable"), read_only=True),
     ParamSpec("node.publish_every_n", int, 1, "publish every n-th estimate (decimation for slow consumers)",
               low=1, high=100000),
     ParamSpec("node.expected_rate_hz", float, 1000.0, "expected input rate, for diagnostics", "Hz",
@@ -337,6 +342,7 @@ class NodeParams:
     input_joint: str = "motor"
     output_joint: str = "output"
     executor: str = "events"
+    input_qos: str = "sensor_data"
     publish_every_n: int = 1
     expected_rate_hz: float = 1000.0
     min_efficiency_warn: float = 0.9

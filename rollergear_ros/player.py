@@ -76,23 +76,35 @@ class PlayStats:
     messages: int = 0
     max_late_ms: float = 0.0  #: worst delay of a publish behind its scheduled time
     late_over_5ms: int = 0  #: publishes more than 5 ms behind
+    held_back: int = 0  #: publishes that waited for a reliable keep-all subscriber to catch up
 
     def text(self) -> str:
+        held = f"; held back {self.held_back} times by a subscriber that fell behind" if self.held_back else ""
         return (f"{self.messages:,} messages; timing: max {self.max_late_ms:.1f} ms late, "
-                f"{self.late_over_5ms} more than 5 ms late")
+                f"{self.late_over_5ms} more than 5 ms late{held}")
 
 
 #: with ``--wait-for-subscribers``: pause after every topic has a subscriber, before the first message
 SUBSCRIBER_SETTLE_S = 1.0
+#: at the end: how long reliable subscribers may take to acknowledge the last messages
+FINAL_ACK_TIMEOUT_S = 60.0
 
 
 def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, topics: list[str] | None = None,
          wait_for_subscribers: float = 0.0, start_delay: float = 0.0, reliable: bool = True,
          quiet: bool = False) -> PlayStats:
-    """Publish the bag in log-time order at ``rate`` times real time."""
+    """Publish the bag in log-time order at ``rate`` times real time.
+
+    Reliable publishers keep every message until each reliable subscriber has it: a subscriber
+    that keeps all (``node.input_qos: reliable``) and falls behind holds the player back
+    (counted in :attr:`PlayStats.held_back`) instead of losing messages; best-effort subscribers
+    never hold it back.
+    """
     import rclpy
+    from rclpy.duration import Duration
+    from rclpy.impl.implementation_singleton import rclpy_implementation
     from rclpy.node import Node
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
 
     info = inspect_bag(bag)
@@ -104,7 +116,9 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     if not rclpy.ok():
         rclpy.init()
     node = Node("rollergear_player")
-    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT)
+    qos = (QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE) if reliable
+           else QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
+    publish_failed = rclpy_implementation.RCLError
     pubs = {t: node.create_publisher(message_class(ty), t, qos) for t, ty in selected.items()}
     clock_pub = node.create_publisher(Clock, "/clock", 10) if clock else None
     if wait_for_subscribers > 0:
@@ -151,13 +165,23 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
                             c.clock.sec, c.clock.nanosec = divmod(t_bag, 1_000_000_000)
                             clock_pub.publish(c)
                             last_clock = t_bag
-                        pub.publish(data)
+                        while True:
+                            try:
+                                pub.publish(data)
+                                break
+                            except publish_failed:  # a keep-all subscriber's queue is full (after ~0.1 s)
+                                if not rclpy.ok():
+                                    raise
+                                stats.held_back += 1
                         stats.messages += 1
             finally:
                 reader.close()
             if not loop:
                 break
-        # let the middleware deliver the last messages before the publisher goes away
+        # every reliable subscriber has the last messages before the publishers go away (bounded);
+        # best-effort ones get a moment for the delivery
+        for pub in pubs.values():
+            pub.wait_for_all_acked(Duration(seconds=FINAL_ACK_TIMEOUT_S))
         time.sleep(0.3)
     except KeyboardInterrupt:
         pass

@@ -46,16 +46,22 @@ def play(bag: Path, *args: str, timeout: float = 300) -> subprocess.CompletedPro
 
 @contextmanager
 def ros_context():
-    """A private rclpy Context with a node and an executor spinning in a thread."""
+    """A private rclpy Context with a probe node, spun in a thread by an EventsExecutor.
+
+    The EventsExecutor takes a message for a few microseconds of Python where the
+    SingleThreadedExecutor rebuilds its wait set each time (~3 k messages/s here, a few hundred on a
+    slow, loaded machine): a probe must keep up with the node it watches.  ``spin_once`` with a
+    timeout, because its ``spin()`` never returns on this rclpy version.
+    """
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
 
     ctx = Context()
     rclpy.init(context=ctx)
     node = Node(f"test_probe_{os.getpid()}", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
+    ex = EventsExecutor(context=ctx)
     ex.add_node(node)
     stop = threading.Event()
 
@@ -73,6 +79,42 @@ def ros_context():
         ex.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+#: a reader's history holds at most this many samples (Fast DDS's default resource limit,
+#: whatever larger depth is asked for): 5 s of backlog at 1 kHz
+PROBE_DEPTH = 5000
+
+
+class FloatProbe:
+    """Every ``std_msgs/Float64`` of one topic, as received: a reliable subscription with the
+    deepest queue the middleware keeps, taking raw bytes (no per-message deserialisation)."""
+
+    def __init__(self, probe_node, topic: str) -> None:
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import Float64
+
+        self.topic = topic
+        self.raw: list[bytes] = []
+        self.subscription = probe_node.create_subscription(
+            Float64, topic, self.raw.append, QoSProfile(depth=PROBE_DEPTH, reliability=ReliabilityPolicy.RELIABLE),
+            raw=True)
+
+    def wait_matched(self, timeout: float = 60.0) -> None:
+        """Until the topic's publisher has been matched (the node publishes nothing before its
+        inputs arrive, so nothing is missed once this returns)."""
+        assert wait_for(lambda: self.subscription.get_publisher_count() > 0, timeout), \
+            f"no publisher of {self.topic} matched in {timeout} s"
+
+    def __len__(self) -> int:
+        return len(self.raw)
+
+    def values(self):
+        import numpy as np
+
+        raw = list(self.raw)
+        assert all(r[:2] == b"\x00\x01" and len(r) >= 12 for r in raw), "not little-endian CDR Float64"
+        return np.frombuffer(b"".join(r[4:12] for r in raw), dtype="<f8")
 
 
 def wait_for(predicate, timeout: float, step: float = 0.05) -> bool:

@@ -15,28 +15,37 @@ from rollergear_ros.replay import replay
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
 from conftest import BAGS, CONFIG
-from rostools import NodeProcess, play, ros_context, wait_for
+from rostools import FloatProbe, NodeProcess, play, ros_context, wait_for
 
 T = TopicMap()
 # play each bag so that samples arrive at ~1 kHz
 PLAY_RATE = {"rig_map": 5.0, "rig_map_drag": 10.0, "drive_cycle_joint_states": 10.0, "warmup": 10.0}
+#: tests that count every sample take the inputs reliably: a node that falls behind on a busy machine
+#: holds the player back instead of losing samples (best-effort loss at 1 kHz is bench_node.py's measure)
+LOSSLESS = "node.input_qos:=reliable"
+
+
+def play_and_receive(bag, rate: float, n_expected: int, topic: str = T.loss_torque) -> np.ndarray:
+    """Play ``bag`` into a running node and return what a probe received on ``topic`` once it has
+    ``n_expected`` messages (it drains at its own pace; a node that dropped some fails the caller's
+    count, after at most 2 minutes here)."""
+    with ros_context() as probe_node:
+        probe = FloatProbe(probe_node, topic)
+        probe.wait_matched()
+        play(bag, "--rate", str(rate), "--wait-for-subscribers", "20")
+        wait_for(lambda: len(probe) >= n_expected, 120)
+        return probe.values()
 
 
 @pytest.mark.parametrize("bag", sorted(BAGS.glob("*.mcap")), ids=lambda p: p.stem)
 def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     rec = tmp_path / "live.mcap"
-    params = [f"node.record_mcap:={rec}"]
+    params = [f"node.record_mcap:={rec}", LOSSLESS]
     if "joint_states" in bag.stem:
         params.append("node.input_mode:=joint_state")
     node = NodeProcess(*params)
-    with ros_context() as probe:
-        from std_msgs.msg import Float64
-
-        got: list[float] = []
-        probe.create_subscription(Float64, T.loss_torque, lambda m: got.append(m.data), 1000)
-        play(bag, "--rate", str(PLAY_RATE[bag.stem]), "--wait-for-subscribers", "20")
-        n_expected = inspect_bag(bag).counts.get(T.motor_torque) or inspect_bag(bag).counts[T.joint_states]
-        wait_for(lambda: len(got) >= n_expected, 10)
+    n_expected = inspect_bag(bag).counts.get(T.motor_torque) or inspect_bag(bag).counts[T.joint_states]
+    got = play_and_receive(bag, PLAY_RATE[bag.stem], n_expected)
     assert node.stop() == 0, node.stderr
     assert "Traceback" not in node.stderr
 
@@ -62,19 +71,33 @@ def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in own]), loss, rtol=1e-12, atol=1e-15)
 
 
-def test_player_keeps_the_bag_timing_across_chunk_boundaries():
-    """rig_map_drag spans two 1 MB chunks; decoding the next one must not stall the publishing
-    (the ``mcap`` reader used to hold the player up 75-130 ms there, in the middle of a sample)."""
-    import re
+def test_player_keeps_the_bag_timing_across_chunk_boundaries(monkeypatch):
+    """Reading and decoding the next chunk never holds the publishing up: with every chunk after the
+    first made to take 0.6 s longer to read, the player still publishes each message within 0.3 s of
+    its time (a player that read on its publishing thread, as it once did with the ``mcap`` reader,
+    is 0.6 s late at each boundary on any machine).  How punctual it is otherwise depends on the
+    CPU it gets: it prints that after every play (the README quotes it)."""
+    import rclpy
 
+    from rollergear_ros import player
+
+    stall_s = 0.6
+    read_chunks = player.iter_log_time_order
+
+    def slow_reader(path, state):
+        for k, batch in enumerate(read_chunks(path, state)):
+            if k:
+                time.sleep(stall_s)
+            yield batch
+
+    monkeypatch.setattr(player, "iter_log_time_order", slow_reader)
     info = inspect_bag(BAGS / "rig_map_drag.mcap")
-    proc = play(BAGS / "rig_map_drag.mcap", "--rate", "10")
-    m = re.search(r"played .*: ([\d,]+) messages; timing: max ([\d.]+) ms late, (\d+) more than 5 ms late",
-                  proc.stderr)
-    assert m, proc.stderr
-    assert int(m.group(1).replace(",", "")) == info.message_count
-    assert float(m.group(2)) < 40.0, proc.stderr
-    assert int(m.group(3)) < 0.01 * info.message_count, proc.stderr  # a hiccup, not a pattern
+    try:
+        stats = player.play(BAGS / "rig_map_drag.mcap", rate=10.0, quiet=True)
+    finally:
+        rclpy.try_shutdown()
+    assert stats.messages == info.message_count
+    assert stats.max_late_ms < 1000 * stall_s / 2, stats.text()
 
 
 def _diag_levels(msgs):
@@ -271,14 +294,15 @@ def test_decimated_outputs_are_every_nth_estimate(tmp_path):
     """``node.publish_every_n``: outputs (published and recorded) are every n-th estimate of
     offline replay, for consumers that cannot take the input rate."""
     rec = tmp_path / "every10.mcap"
-    node = NodeProcess(f"node.record_mcap:={rec}", "node.publish_every_n:=10")
-    play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
+    node = NodeProcess(f"node.record_mcap:={rec}", "node.publish_every_n:=10", LOSSLESS)
+    got = play_and_receive(BAGS / "rig_map.mcap", 5, 10080 // 10)
     assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
     _, batches = replay(BAGS / "rig_map.mcap", load_config(CONFIG), show_progress=False, collect=True)
     ref_loss = np.concatenate([b.loss_torque_nm for b in batches])
     _, loss = float_series(read_rosbags(rec), T.loss_torque)
     assert len(loss) == len(ref_loss) // 10
     np.testing.assert_allclose(loss, ref_loss[9::10], rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(got, loss)
 
 
 def test_player_loops_with_the_bag_timing_and_stops_cleanly_on_ctrl_c(tmp_path):
@@ -352,9 +376,8 @@ def test_use_sim_time_stamps_estimates_with_the_bag_clock(tmp_path):
 def test_clean_shutdown_keeps_the_recording(tmp_path, sig):
     rec = tmp_path / "r.mcap"
     rrd = tmp_path / "r.rrd"
-    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}")
-    play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
-    time.sleep(0.8)
+    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}", LOSSLESS)
+    play_and_receive(BAGS / "rig_map.mcap", 5, 10080)
     code = node.stop(sig)
     assert code == 0 and "Traceback" not in node.stderr, node.stderr
     n = len(read_rosbags(rec)[T.loss_torque][0])
@@ -396,14 +419,14 @@ def test_rerun_streams_to_a_viewer_address(tmp_path):
 
         assert wait_for(listening, 30), "rerun server did not listen"
         rec = tmp_path / "r.mcap"
-        node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_connect:=rerun+http://127.0.0.1:{port}/proxy")
-        play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
-        time.sleep(0.8)
+        node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_connect:=rerun+http://127.0.0.1:{port}/proxy",
+                           LOSSLESS)
+        play_and_receive(BAGS / "rig_map.mcap", 5, 10080)
         assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
     finally:
-        time.sleep(1.0)
+        # the node flushed its stream before it exited; on SIGINT the server saves what it received
         server.send_signal(signal.SIGINT)
-        server.wait(timeout=20)
+        server.wait(timeout=300)
     _, loss = float_series(read_rosbags(rec), T.loss_torque)
     assert len(loss) == 10080
     t, streamed = read_rrd_series(received)["/loss/torque_nm"]
@@ -412,9 +435,9 @@ def test_rerun_streams_to_a_viewer_address(tmp_path):
 
 def test_unreachable_rerun_viewer_costs_only_the_rerun_data(tmp_path):
     rec = tmp_path / "r.mcap"
-    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_connect:=rerun+http://127.0.0.1:{_free_port()}/proxy")
-    play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
-    time.sleep(0.8)
+    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_connect:=rerun+http://127.0.0.1:{_free_port()}/proxy",
+                       LOSSLESS)
+    play_and_receive(BAGS / "rig_map.mcap", 5, 10080)
     assert node.stop(timeout=40) == 0, node.stderr
     assert "Traceback" not in node.stderr and "rerun logging incomplete" in node.stderr, node.stderr
     assert len(read_rosbags(rec)[T.loss_torque][0]) == 10080
