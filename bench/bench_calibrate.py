@@ -14,6 +14,7 @@ from pathlib import Path
 from common import long_bag
 
 from rollergear_ros.calibrate import calibrate, load_samples
+from rollergear_ros.effects import EffectInputs
 from rollergear_ros.estimator import Estimator, RecursiveLeastSquares, regressors
 from rollergear_ros.params import load_config
 
@@ -46,7 +47,7 @@ def main() -> None:
     est = Estimator(cal)
     names = est.adaptive
     rls = RecursiveLeastSquares([0.0] * len(names), 0.9995)
-    phis = [regressors(names, cal, 10.0 + i % 50, 100.0 + i % 200, 10.0, 1.0) for i in range(20000)]
+    phis = [regressors(names, cal, EffectInputs(10.0 + i % 50, 100.0 + i % 200, 10.0, 1.0)) for i in range(20000)]
     t0 = time.perf_counter()
     for phi in phis:
         rls.update(phi, 0.1)

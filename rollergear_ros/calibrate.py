@@ -40,28 +40,17 @@ from typing import Callable, Sequence
 import numpy as np
 
 from .bag import TopicMap
-from .effects import FR_VISCOSITY_EXPONENT
+from .effects import EFFECTS, EffectInputs, separating_data
 from .model import LossModel, rotation_sign
 from .params import Config, ParameterError, config_to_yaml, validate
 
-GROUPS: tuple[str, ...] = ("drag_constant", "drag_speed", "load_dependent", "viscosity_temperature",
-                           "torque_offset", "torque_gain")
-SPEED_EXPONENTS = np.round(np.arange(0.5, 3.0001, 0.1), 3)
-LOAD_EXPONENTS = np.round(np.arange(0.5, 2.5001, 0.1), 3)
-VOGEL_B = np.arange(100.0, 4000.1, 100.0)
-MEMBER_BOUNDS = {"drag_speed": (0.3, 3.5), "load_dependent": (0.3, 3.0), "viscosity_temperature": (1.0, 6000.0)}
-VOGEL_C = 95.0
-THETA_REF = 40.0
+#: an effect that needs the oil temperature is testable when it varies by at least this much
+MIN_TEMPERATURE_SPAN_C = 3.0
 
-SEPARATING_DATA: dict[frozenset, str] = {
-    frozenset({"drag_constant", "torque_offset"}): "reverse rotation (or a standstill zero reading of the torque sensors)",
-    frozenset({"load_dependent", "torque_gain"}): "regeneration (torque and speed of opposite sign)",
-    frozenset({"drag_constant", "drag_speed"}): "a wider speed range",
-    frozenset({"drag_speed", "viscosity_temperature"}): "the same speeds at different oil temperatures",
-    frozenset({"load_dependent", "viscosity_temperature"}): "the same torques at different oil temperatures",
-    frozenset({"drag_constant", "load_dependent"}): "a wider torque range, including light load",
-    frozenset({"torque_offset", "torque_gain"}): "a wider torque range in both directions",
-}
+
+def groups() -> tuple[str, ...]:
+    """The candidate groups: every effect of the registry, in its order."""
+    return tuple(EFFECTS)
 
 
 # ------------------------------------------------------------------------------------ data
@@ -126,28 +115,22 @@ class Blocks:
     weight: np.ndarray  # inverse variance of the block mean
     dwell: np.ndarray
     fold: np.ndarray
-    columns: dict[str, np.ndarray]  # fixed columns: const, sgn, tsgn, dtdt, dwdt
-    speed_pow: np.ndarray  # (len(SPEED_EXPONENTS), n_blocks)
-    load_pow: np.ndarray
-    visc: np.ndarray | None  # (len(VOGEL_B), n_blocks), or None without temperature data
+    columns: dict[str, np.ndarray]  # nuisance columns dtdt, dwdt; effects without a member, by name
+    grids: dict[str, np.ndarray]  # effect with a member -> (len(member_grid), n_blocks) columns
     inflation: float
     block_s: float
-    per_sample: dict[str, np.ndarray] = field(default_factory=dict)  # log|ω|, log|T|, Fr part, 1/(θ+C) − …
+    x: EffectInputs | None = None  # per-sample inputs of the effects' terms
+    testable: tuple[str, ...] = ()  # effects this data can test (a varying temperature where needed)
 
-    def column(self, name: str, member: float) -> np.ndarray:
-        """Block means of a group's regressor at any exponent / Vogel B (not only the grid's)."""
-        ps = self.per_sample
+    def mean(self, values: np.ndarray) -> np.ndarray:
+        return np.add.reduceat(np.broadcast_to(values, self.x.abs_speed.shape), self.start) / self.count
 
-        def mean(x: np.ndarray) -> np.ndarray:
-            return np.add.reduceat(x, self.start) / self.count
-
-        if name == "drag_speed":
-            return mean(np.exp(member * ps["logw"]))
-        if name == "load_dependent":
-            return mean(np.where(ps["at"] > 0, np.exp(member * ps["logt"]), 0.0))
-        if name == "viscosity_temperature":
-            return mean(ps["fr"] * (np.exp(FR_VISCOSITY_EXPONENT * member * ps["inv_theta"]) - 1.0))
-        raise ValueError(name)
+    def column(self, name: str, member: float | None = None) -> np.ndarray:
+        """Block means of an effect's regressor (coefficient 1), at any member (not only the grid's);
+        a sample without an input the effect needs (a missing temperature) contributes 0."""
+        effect = EFFECTS[name]
+        values = effect.column(self.x, effect.defaults(), member)
+        return self.mean(np.where(np.isnan(values), 0.0, values))
 
 
 def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Blocks | None = None) -> Blocks:
@@ -220,22 +203,22 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     fold = dwell % folds
     if like is not None:
         dwell, fold = like.dwell, like.fold
-    logw = np.log(np.maximum(aw, 1e-300))
-    logt = np.log(np.maximum(at, 1e-300))
-    speed_pow = np.stack([mean(np.exp(p * logw)) for p in SPEED_EXPONENTS])
-    load_pow = np.stack([mean(np.where(at > 0, np.exp(q * logt), 0.0)) for q in LOAD_EXPONENTS])
-    visc = None
     theta = d.temperature
-    per_sample = {"logw": logw, "logt": logt, "at": at}
-    if np.isfinite(theta).mean() > 0.9 and np.nanmax(theta) - np.nanmin(theta) >= 3.0:
-        th = np.where(np.isfinite(theta), theta, THETA_REF)
-        inv = 1.0 / (th + VOGEL_C) - 1.0 / (THETA_REF + VOGEL_C)
-        visc = np.stack([mean(d.fr_part * (np.exp(FR_VISCOSITY_EXPONENT * bb * inv) - 1.0)) for bb in VOGEL_B])
-        per_sample.update(fr=d.fr_part, inv_theta=inv)
-    columns = {"const": np.ones(nb), "sgn": mean(sg), "tsgn": mean(d.torque * sg), "dtdt": mean(dtdt * sg),
-               "dwdt": mean(dwdt * sg)}
-    return Blocks(start, count, ym, mean(d.measured_loss), spd, trq, temp, weight, dwell, fold, columns,
-                  speed_pow, load_pow, visc, inflation, block_s, per_sample)
+    have_theta = np.isfinite(theta)
+    varies = bool(have_theta.mean() > 0.9 and np.nanmax(theta) - np.nanmin(theta) >= MIN_TEMPERATURE_SPAN_C) \
+        if have_theta.any() else False
+    testable = tuple(n for n, e in EFFECTS.items() if varies or not e.needs_temperature)
+    columns = {"dtdt": mean(dtdt * sg), "dwdt": mean(dwdt * sg)}
+    x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
+    blocks = Blocks(start, count, ym, mean(d.measured_loss), spd, trq, temp, weight, dwell, fold, columns, {},
+                    inflation, block_s, x, testable)
+    for name in testable:
+        effect = EFFECTS[name]
+        if effect.member is None:
+            columns[name] = blocks.column(name)
+        else:
+            blocks.grids[name] = np.stack([blocks.column(name, m) for m in effect.member_grid])
+    return blocks
 
 
 # ------------------------------------------------------------------------------------ fitting
@@ -279,34 +262,25 @@ class Term:
     member: float | None = None  # p, q or B
 
     def params(self, coef: float) -> dict[str, float]:
-        if self.name == "drag_constant":
-            return {"c": coef}
-        if self.name == "drag_speed":
-            return {"c": coef, "p": float(self.member)}
-        if self.name == "load_dependent":
-            return {"c": coef, "q": float(self.member)}
-        if self.name == "viscosity_temperature":
-            return {"B": float(self.member), "C": VOGEL_C, "theta_ref": THETA_REF, "scale": coef}
-        if self.name == "torque_offset":
-            return {"b": coef}
-        return {"g": coef}
+        """The effect's parameters (short names, registry order): the fitted coefficient, the
+        profiled member, the defaults for the rest."""
+        effect = EFFECTS[self.name]
+        values = effect.defaults()
+        values[effect.coefficient] = coef
+        if effect.member is not None:
+            values[effect.member] = float(self.member)
+        return values
 
 
 def members(blocks: Blocks, name: str) -> list[Term]:
-    c = blocks.columns
-    if name == "drag_constant":
-        return [Term(name, c["const"])]
-    if name == "torque_offset":
-        return [Term(name, c["sgn"])]
-    if name == "torque_gain":
-        return [Term(name, c["tsgn"])]
-    if name == "drag_speed":
-        return [Term(name, blocks.speed_pow[i], float(p)) for i, p in enumerate(SPEED_EXPONENTS)]
-    if name == "load_dependent":
-        return [Term(name, blocks.load_pow[i], float(q)) for i, q in enumerate(LOAD_EXPONENTS)]
-    if name == "viscosity_temperature" and blocks.visc is not None:
-        return [Term(name, blocks.visc[i], float(b)) for i, b in enumerate(VOGEL_B)]
-    return []
+    """The candidate terms of one group: one column, or one per member of its grid ([] when the
+    data cannot test it)."""
+    if name not in blocks.testable:
+        return []
+    effect = EFFECTS[name]
+    if effect.member is None:
+        return [Term(name, blocks.columns[name])]
+    return [Term(name, blocks.grids[name][i], float(m)) for i, m in enumerate(effect.member_grid)]
 
 
 class Calibrator:
@@ -387,7 +361,7 @@ class Calibrator:
                 grid = members(self.b, t.name)
                 scores = [self.wsse(terms[:i] + [g] + terms[i + 1:]) for g in grid]
                 j = int(np.argmin(scores))
-                lo_b, hi_b = MEMBER_BOUNDS[t.name]
+                lo_b, hi_b = EFFECTS[t.name].member_bounds
                 step = (grid[1].member - grid[0].member) if len(grid) > 1 else 0.1
                 lo = max(lo_b, grid[j].member - step)
                 hi = min(hi_b, grid[j].member + step)
@@ -423,7 +397,7 @@ class Calibrator:
         def excess(m: float) -> float:
             return self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1:]) - limit
 
-        lo_b, hi_b = MEMBER_BOUNDS[t.name]
+        lo_b, hi_b = EFFECTS[t.name].member_bounds
         lo = brentq(excess, lo_b, t.member, xtol=1e-4) if excess(lo_b) > 0 else lo_b
         hi = brentq(excess, t.member, hi_b, xtol=1e-4) if excess(hi_b) > 0 else hi_b
         return [float(lo), float(hi)]
@@ -438,8 +412,8 @@ class Calibrator:
         selected: list[Term] = []  # accepted
         provisional: list[Term] = []  # best member of each ambiguous set: kept in the fit, not reported
         ambiguous: list[dict] = []
-        remaining = [g for g in GROUPS if members(self.b, g)]
-        unavailable = [g for g in GROUPS if g not in remaining]
+        remaining = [g for g in groups() if members(self.b, g)]
+        unavailable = [g for g in groups() if g not in remaining]
         cv_now = self.cv_rmse([])
         while remaining:
             base = selected + provisional
@@ -483,8 +457,8 @@ class Calibrator:
             selected, provisional = terms[:n_sel], terms[n_sel:len(base)]
             if twins:
                 group = sorted([g] + twins)
-                needs = "; ".join(sorted({SEPARATING_DATA.get(frozenset({a, b}), "data over a wider range of "
-                                                               "speed, torque, direction and temperature")
+                needs = "; ".join(sorted({separating_data(a, b) or "data over a wider range of speed, torque, "
+                                                                   "direction and temperature"
                                           for a in group for b in group if a < b}))
                 ambiguous.append({"effects": group, "needs": needs, "rms_contribution_nm": [lower, upper]})
                 provisional.append(new)
@@ -498,7 +472,7 @@ class Calibrator:
         ranges = {t.name: self.member_range(final, i) for i, t in enumerate(final) if t.member is not None}
         rejected = []
         blocked = {e for a in ambiguous for e in a["effects"]}
-        for g in GROUPS:
+        for g in groups():
             if g in (t.name for t in selected) or g in unavailable:
                 continue
             if g in blocked:
@@ -530,8 +504,7 @@ class Calibrator:
 
 
 def _member_text(t: Term) -> str:
-    key = {"drag_speed": "p", "load_dependent": "q", "viscosity_temperature": "B"}[t.name]
-    return f"{key} = {t.member:.3g}"
+    return f"{EFFECTS[t.name].member} = {t.member:.3g}"
 
 
 def _z_two_sided(alpha: float) -> float:
@@ -598,9 +571,8 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
     full = cal.fit(final)
     effects = []
     k0 = len(cal.nuisance)
-    coef_keys = {"drag_constant": "c", "drag_speed": "c", "load_dependent": "c", "torque_offset": "b",
-                 "torque_gain": "g", "viscosity_temperature": "scale"}
-    expo_keys = {"drag_speed": "p", "load_dependent": "q", "viscosity_temperature": "B"}
+    coef_keys = {n: e.coefficient for n, e in EFFECTS.items()}
+    expo_keys = {n: e.member for n, e in EFFECTS.items()}
     for i, term in enumerate(selected):
         c = float(full.coef[k0 + i])
         se = float(math.sqrt(max(full.cov[k0 + i, k0 + i], 0.0)))
@@ -685,28 +657,14 @@ def _refit_sensor_errors(cal: Calibrator, data: SampleData, final: list[Term], c
 
 
 def _calibrated_config(config: Config, effects: list[dict]) -> Config:
+    """``config`` with exactly the accepted effects enabled, at their fitted parameters."""
     flat = {k: v for k, v in config.to_flat().items()}
-    for name in GROUPS:
+    for name in groups():
         flat[f"effects.{name}.enabled"] = False
     for e in effects:
-        p = e["params"]
-        n = e["name"]
-        flat[f"effects.{n}.enabled"] = True
-        if n == "drag_constant":
-            flat["effects.drag_constant.c_nm"] = p["c"]
-        elif n == "drag_speed":
-            flat["effects.drag_speed.c"], flat["effects.drag_speed.p"] = p["c"], p["p"]
-        elif n == "load_dependent":
-            flat["effects.load_dependent.c"], flat["effects.load_dependent.q"] = p["c"], p["q"]
-        elif n == "viscosity_temperature":
-            flat["effects.viscosity_temperature.B_k"] = p["B"]
-            flat["effects.viscosity_temperature.C_k"] = p["C"]
-            flat["effects.viscosity_temperature.theta_ref_c"] = p["theta_ref"]
-            flat["effects.viscosity_temperature.scale"] = p["scale"]
-        elif n == "torque_offset":
-            flat["effects.torque_offset.offset_nm"] = p["b"]
-        elif n == "torque_gain":
-            flat["effects.torque_gain.gain"] = p["g"]
+        flat[f"effects.{e['name']}.enabled"] = True
+        for q in EFFECTS[e["name"]].parameters:
+            flat[f"effects.{e['name']}.{q.key}"] = e["params"][q.short]
     return validate(flat)
 
 
@@ -800,7 +758,8 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
         lines.append(f"- {r['name']}: ≤ {r['upper_rms_nm']:.3g} N·m" + (" (ambiguous, see above)" if r["ambiguous"] else "")
                      + (f" — {r['reason']}" if r.get("reason") else ""))
     for u in result.unavailable:
-        lines.append(f"- {u}: not testable on this data (needs an oil temperature that varies by ≥ 3 °C)")
+        lines.append(f"- {u}: not testable on this data (needs an oil temperature that varies by "
+                     f"≥ {MIN_TEMPERATURE_SPAN_C:g} °C)")
     lines.append("\n## Selection log\n")
     lines += [f"- {entry}" for entry in result.log]
     lines.append("\n## Plots\n")

@@ -1,60 +1,86 @@
-"""Extra loss effects the paper's model lacks (the ``interface.md`` vocabulary).
+"""The registry of extra effects the paper's model lacks: one descriptor per effect, read by everyone.
 
-Each effect is a pure function of the per-sample quantities, returning its contribution to the
-*measured input-referred loss* ``T_loss,meas = (T_in·ω_in − T_out·ω_out)/|ω_in|`` [N·m] (positive =
-more loss).  The functions use only ``abs``, ``**``, ``*`` and ``+`` so the same code runs on Python
-floats (the node's per-sample path) and on numpy arrays (replay, calibration).
+Each effect is a pure function ``term(x, **params)`` -- its contribution to the *measured
+input-referred loss* ``T_loss,meas = (T_in·ω_in − T_out·ω_out)/|ω_in|`` [N·m], positive = more
+loss -- plus an :class:`Effect` descriptor: its parameters (names in the parameter file and in
+``calibrate --json`` / ``simulate --effect``, defaults, ranges), whether it is a physical loss or a
+sensor error, which parameter is its linear coefficient, which one ``calibrate`` profiles on a
+grid, the regressor scale of the online RLS, and which other effects the data may confuse it
+with.  The functions use only ``abs``, ``**``, ``*``, ``+`` so they run on Python floats (the
+node's per-sample path) and on numpy arrays (replay, calibration, simulation) alike.
 
-=========================  ==========================================  ======================
-name                       contribution to the measured loss [N·m]     physical?
-=========================  ==========================================  ======================
-``drag_constant``          ``c``                                       yes (seal, return track)
-``drag_speed``             ``c·|ω|^p``                                 yes (churning, windage)
-``load_dependent``         ``c·|T|^q``                                 yes (bearing load, sliding)
-``viscosity_temperature``  ``T_Fr·(s(θ) − 1)``, ``s = (η(θ)/η0)^0.66``  yes (oil warming)
-``torque_offset``          ``b·sgn(ω)``                                no: torque-sensor zero error
-``torque_gain``            ``g·T·sgn(ω)``                              no: torque-sensor gain error
-=========================  ==========================================  ======================
+=========================  ===========================================  ======================
+effect                     contribution to the measured loss [N·m]      kind
+=========================  ===========================================  ======================
+``drag_constant``          ``c``                                        loss (seal, return track)
+``drag_speed``             ``c·|ω|^p``                                  loss (churning, windage)
+``load_dependent``         ``c·|T|^q``                                  loss (bearing load, sliding)
+``viscosity_temperature``  ``scale·T_Fr·(s(θ) − 1)``, ``s = (η(θ)/η0)^0.66``  loss (oil warming), scales Fr
+``torque_offset``          ``b·sgn(ω)``                                 sensor zero error
+``torque_gain``            ``g·T·sgn(ω)``                               sensor gain error
+=========================  ===========================================  ======================
 
 ``T_Fr`` is the Fr part of the model (eq. 3, ∝ η^0.66 through U^0.66 of eq. 9), and
-``η(θ) = η0·exp(B/(θ + C) − B/(θ_ref + C))`` (Vogel).  Sensor effects are not losses: they enter
-the comparison with the measured loss (the residual), never the published loss torque.
+``η(θ) = η0·exp(B/(θ + C) − B/(θ_ref + C))`` (Vogel).  Sensor errors are not losses: they enter
+the comparison with the measured loss (the residual), never the published loss torque; the two
+torque-sensor errors also corrupt the model's input torque (:func:`corrected_torque`).
+
+Adding an effect
+----------------
+1. Write its function below: ``def name(x: EffectInputs, coef, ...)`` returning N·m, linear in
+   its coefficient, the formula and its cause in the docstring.
+2. Add one :class:`Effect` entry to :data:`EFFECTS` (or call :func:`register`): parameters with
+   their YAML key, short name, default, unit and range; ``physical``; ``coefficient``; for a
+   nonlinear parameter ``member`` with its grid and bounds; ``regressor_scale`` when the RLS needs
+   a normalised column; ``separated_from`` for effects whose columns look alike, with the data
+   that tells them apart.
+3. Tests: the function against its formula, and a recording simulated with the effect declared
+   that ``calibrate`` finds (``test/test_effects.py`` shows both, for a toy effect registered at
+   run time).
+
+Everything else follows from the entry: the parameter file's ``effects.<name>.*`` keys and their
+validation (:mod:`.params`), the estimator's terms and its RLS regressors (:mod:`.estimator`), the
+candidate groups, fit parameters, intervals and written YAML of ``calibrate``, ``simulate
+--effect``, the report, and ``docs/effects.md`` (``python -m rollergear_ros.effects``).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Callable
-
-from .params import EffectParams
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, NamedTuple
 
 FR_VISCOSITY_EXPONENT = 0.66  # Fr ∝ U^0.66 ∝ η^0.66 (eq. 3, 9)
+#: regressors of the RLS are normalised at these operating points (a well-conditioned covariance)
+SPEED_REF_RAD_S = 100.0
+TORQUE_REF_NM = 100.0
 
 
-def drag_constant(c_nm, abs_torque, abs_speed, torque, rot_sign):
+class EffectInputs(NamedTuple):
+    """What an effect's term may depend on, per sample (floats or equal-length arrays)."""
+
+    abs_torque: Any  #: |T| of the model's input torque [N·m]
+    abs_speed: Any  #: |ω| [rad/s]
+    torque: Any  #: signed T [N·m]
+    rot_sign: Any  #: direction of rotation as the loss opposes it (±1)
+    temperature_c: Any = math.nan  #: oil temperature θ [°C]
+    fr_part_nm: Any = 1.0  #: the model's Fr part T_Fr [N·m] (1: a relative change of it)
+
+
+# ------------------------------------------------------------------------------------ terms
+def drag_constant(x: EffectInputs, c):
     """Constant drag: ``ΔT = c`` (seal friction, return-track friction, Coulomb drag)."""
-    return c_nm + 0.0 * abs_speed
+    return c + 0.0 * x.abs_speed
 
 
-def drag_speed(c, p, abs_torque, abs_speed, torque, rot_sign):
+def drag_speed(x: EffectInputs, c, p):
     """Speed drag: ``ΔT = c·|ω|^p`` (churning p≈1–2, viscous p=1, windage p≈2)."""
-    return c * abs_speed ** p
+    return c * x.abs_speed ** p
 
 
-def load_dependent(c, q, abs_torque, abs_speed, torque, rot_sign):
+def load_dependent(x: EffectInputs, c, q):
     """Load-dependent friction: ``ΔT = c·|T|^q`` (bearing load friction, sliding)."""
-    return c * abs_torque ** q
-
-
-def torque_offset(offset_nm, abs_torque, abs_speed, torque, rot_sign):
-    """Torque-sensor zero error, input-referred: ``ΔT = b·sgn(ω)`` (flips with direction)."""
-    return offset_nm * rot_sign
-
-
-def torque_gain(gain, abs_torque, abs_speed, torque, rot_sign):
-    """Torque-sensor gain error: ``ΔT = g·T·sgn(ω)`` (= g|T| motoring, −g|T| regenerating)."""
-    return gain * torque * rot_sign
+    return c * x.abs_torque ** q
 
 
 def viscosity_scale(b_k, c_k, theta_ref_c, theta_c):
@@ -62,15 +88,167 @@ def viscosity_scale(b_k, c_k, theta_ref_c, theta_c):
     return math.e ** (FR_VISCOSITY_EXPONENT * (b_k / (theta_c + c_k) - b_k / (theta_ref_c + c_k)))
 
 
-#: registry: name -> (function, is a physical loss)
-EFFECTS: dict[str, tuple[Callable, bool]] = {
-    "drag_constant": (drag_constant, True),
-    "drag_speed": (drag_speed, True),
-    "load_dependent": (load_dependent, True),
-    "viscosity_temperature": (viscosity_scale, True),
-    "torque_offset": (torque_offset, False),
-    "torque_gain": (torque_gain, False),
-}
+def viscosity_temperature(x: EffectInputs, B, C, theta_ref, scale):
+    """Oil viscosity at the oil temperature: ``ΔT = scale·T_Fr·((η(θ)/η0)^0.66 − 1)``.
+
+    The model's Fr part evaluated at ``η(θ)`` instead of ``η0`` (``scale = 1``), Vogel ``η(θ)``
+    (:func:`viscosity_scale`).  With ``x.fr_part_nm = 1`` it is the relative change of Fr that the
+    estimator applies inside the model (:attr:`Effect.scales_fr`).
+    """
+    return scale * x.fr_part_nm * (viscosity_scale(B, C, theta_ref, x.temperature_c) - 1.0)
+
+
+def torque_offset(x: EffectInputs, b):
+    """Torque-sensor zero error, input-referred: ``ΔT = b·sgn(ω)`` (flips with direction)."""
+    return b * x.rot_sign
+
+
+def torque_gain(x: EffectInputs, g):
+    """Torque-sensor gain error: ``ΔT = g·T·sgn(ω)`` (= g|T| motoring, −g|T| regenerating)."""
+    return g * x.torque * x.rot_sign
+
+
+def corrected_torque(torque_meas, offset_nm: float, gain: float):
+    """Drive torque with the torque sensor's errors removed: ``T = (T_meas − b)/(1 + g)``.
+
+    The model and the physical effects see this torque; the measured loss keeps the sensor's
+    reading, so the errors appear there as ``(g·T + b)·sgn ω`` (:func:`torque_offset`,
+    :func:`torque_gain`).
+    """
+    if offset_nm == 0.0 and gain == 0.0:
+        return torque_meas
+    return (torque_meas - offset_nm) / (1.0 + gain)
+
+
+# ------------------------------------------------------------------------------------ descriptors
+@dataclass(frozen=True)
+class EffectParameter:
+    """One parameter of an effect."""
+
+    short: str  #: name in ``calibrate --json`` ``params`` and in ``simulate --effect NAME:short=value``
+    key: str  #: key under ``effects.<effect>.`` in the parameter file (SI unit in the name where one applies)
+    default: float  #: in the parameter file
+    description: str
+    unit: str = ""
+    low: float = -1e4
+    high: float = 1e4
+    low_open: bool = False
+    simulated: float | None = None  #: ``simulate``'s value when ``--effect`` does not give one (None: default)
+
+
+@dataclass(frozen=True)
+class Effect:
+    """Descriptor of one effect (see the module docstring for how the rest of the package uses it)."""
+
+    name: str
+    term: Callable[..., Any]  #: ``term(x: EffectInputs, **{short: value})`` -> N·m
+    physical: bool  #: a loss (published) or a sensor error (only in the residual)
+    summary: str  #: what enabling it does (the ``enabled`` parameter's description)
+    cause: str  #: typical physical cause (docs, report)
+    parameters: tuple[EffectParameter, ...]
+    coefficient: str  #: short name of the parameter the term is linear in (fitted, adapted online)
+    member: str | None = None  #: short name of the nonlinear parameter ``calibrate`` profiles
+    member_grid: tuple[float, ...] = ()
+    member_bounds: tuple[float, float] = (0.0, 0.0)
+    regressor_scale: Callable[[Mapping[str, float]], float] = lambda params: 1.0
+    adaptive: bool = True  #: the coefficient is adapted online by RLS when output torque is measured
+    needs_temperature: bool = False  #: testable only when the oil temperature varies (≥ 3 °C)
+    scales_fr: bool = False  #: applied as a factor on the model's Fr part (the estimator's viscosity path)
+    separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
+
+    def parameter(self, short: str) -> EffectParameter:
+        return next(p for p in self.parameters if p.short == short)
+
+    def defaults(self) -> dict[str, float]:
+        """Short name -> value in the parameter file's defaults."""
+        return {p.short: p.default for p in self.parameters}
+
+    def simulated_defaults(self) -> dict[str, float]:
+        return {p.short: p.default if p.simulated is None else p.simulated for p in self.parameters}
+
+    def column(self, x: EffectInputs, params: Mapping[str, float], member: float | None = None):
+        """The term with coefficient 1 (the regressor it is linear in), at ``member`` if given."""
+        values = dict(params)
+        values[self.coefficient] = 1.0
+        if member is not None and self.member is not None:
+            values[self.member] = member
+        return self.term(x, **values)
+
+    def formula(self) -> str:
+        """First line of the term's docstring."""
+        return (self.term.__doc__ or self.name).strip().splitlines()[0]
+
+
+def _grid(start: float, stop: float, step: float) -> tuple[float, ...]:
+    n = int(round((stop - start) / step))
+    return tuple(round(start + k * step, 3) for k in range(n + 1))
+
+
+EFFECTS: dict[str, Effect] = {}
+#: bumped by :func:`register`, so that tables built from the registry (parameter specs) are rebuilt
+REGISTRY_VERSION = [0]
+
+
+def register(effect: Effect) -> Effect:
+    """Add (or replace) an effect in the registry; returns it."""
+    EFFECTS[effect.name] = effect
+    REGISTRY_VERSION[0] += 1
+    return effect
+
+
+def unregister(name: str) -> None:
+    """Remove an effect (tests that register a toy effect)."""
+    EFFECTS.pop(name, None)
+    REGISTRY_VERSION[0] += 1
+
+
+for _effect in (
+    Effect("drag_constant", drag_constant, True, "add a constant drag torque c",
+           "seal friction, return-track friction, Coulomb drag",
+           (EffectParameter("c", "c_nm", 0.0, "constant drag torque c", "N*m", simulated=0.05),),
+           coefficient="c",
+           separated_from={"torque_offset": "reverse rotation (or a standstill zero reading of the torque sensors)",
+                           "drag_speed": "a wider speed range",
+                           "load_dependent": "a wider torque range, including light load"}),
+    Effect("drag_speed", drag_speed, True, "add a speed drag c*|w|^p", "oil churning, viscous drag, windage",
+           (EffectParameter("c", "c", 0.0, "speed drag coefficient c (N*m/(rad/s)^p)", simulated=2e-4),
+            EffectParameter("p", "p", 1.0, "speed drag exponent p", low=0.0, high=4.0, simulated=1.5)),
+           coefficient="c", member="p", member_grid=_grid(0.5, 3.0, 0.1), member_bounds=(0.3, 3.5),
+           regressor_scale=lambda params: SPEED_REF_RAD_S ** params["p"],
+           separated_from={"viscosity_temperature": "the same speeds at different oil temperatures"}),
+    Effect("load_dependent", load_dependent, True, "add a load friction c*|T|^q", "bearing load friction, sliding",
+           (EffectParameter("c", "c", 0.0, "load friction coefficient c (N*m/(N*m)^q)", simulated=2e-3),
+            EffectParameter("q", "q", 1.0, "load friction exponent q", low=0.0, high=4.0)),
+           coefficient="c", member="q", member_grid=_grid(0.5, 2.5, 0.1), member_bounds=(0.3, 3.0),
+           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"],
+           separated_from={"torque_gain": "regeneration (torque and speed of opposite sign)",
+                           "viscosity_temperature": "the same torques at different oil temperatures"}),
+    Effect("viscosity_temperature", viscosity_temperature, True,
+           "evaluate the model at the Vogel viscosity eta(theta) instead of eta0", "oil warming / cooling",
+           (EffectParameter("B", "B_k", 0.0, "Vogel B: eta = eta0*exp(B/(theta+C) - B/(theta_ref+C))", "K",
+                            low=0.0, high=1e5, simulated=900.0),
+            EffectParameter("C", "C_k", 95.0, "Vogel C", "K", low=-273.0, low_open=True, high=1e4),
+            EffectParameter("theta_ref", "theta_ref_c", 40.0, "oil temperature at which the viscosity is eta0",
+                            "degC", low=-100.0, high=400.0),
+            EffectParameter("scale", "scale", 1.0, "scale of the viscosity correction: "
+                            "Fr·(1 + scale·((eta/eta0)^0.66 − 1)); 1 = the model at eta(theta)", low=0.0, high=10.0)),
+           coefficient="scale", member="B", member_grid=_grid(100.0, 4000.0, 100.0), member_bounds=(1.0, 6000.0),
+           adaptive=False, needs_temperature=True, scales_fr=True),
+    Effect("torque_offset", torque_offset, False,
+           "input torque sensor zero error (adds offset*sign(w) to the input-referred loss)", "sensor zero error",
+           (EffectParameter("b", "offset_nm", 0.0, "input-referred torque offset", "N*m", simulated=0.05),),
+           coefficient="b", separated_from={"torque_gain": "a wider torque range in both directions"}),
+    Effect("torque_gain", torque_gain, False,
+           "torque sensor gain error (adds gain*T*sign(w) to the input-referred loss)", "sensor calibration",
+           (EffectParameter("g", "gain", 0.0, "relative gain error", low=-0.5, high=0.5, simulated=0.01),),
+           coefficient="g", regressor_scale=lambda params: TORQUE_REF_NM),
+):
+    register(_effect)
+
+
+def separating_data(a: str, b: str) -> str | None:
+    """The data that tells effects ``a`` and ``b`` apart, from either one's descriptor."""
+    return EFFECTS[a].separated_from.get(b) or EFFECTS[b].separated_from.get(a)
 
 
 @dataclass(frozen=True)
@@ -81,18 +259,49 @@ class EffectTerms:
     sensor_nm: object  #: added only to the expected *measured* loss
 
 
-def additive_effects(e: EffectParams, abs_torque, abs_speed, torque, rot_sign) -> EffectTerms:
-    """Sum the enabled additive effects (all but viscosity, which scales the model's Fr part)."""
-    phys = 0.0 * abs_speed
-    sens = 0.0 * abs_speed
-    if e.drag_constant:
-        phys = phys + drag_constant(e.drag_constant_c_nm, abs_torque, abs_speed, torque, rot_sign)
-    if e.drag_speed:
-        phys = phys + drag_speed(e.drag_speed_c, e.drag_speed_p, abs_torque, abs_speed, torque, rot_sign)
-    if e.load_dependent:
-        phys = phys + load_dependent(e.load_dependent_c, e.load_dependent_q, abs_torque, abs_speed, torque, rot_sign)
-    if e.torque_offset:
-        sens = sens + torque_offset(e.torque_offset_offset_nm, abs_torque, abs_speed, torque, rot_sign)
-    if e.torque_gain:
-        sens = sens + torque_gain(e.torque_gain_gain, abs_torque, abs_speed, torque, rot_sign)
+def additive_terms(enabled: Mapping[str, Mapping[str, float]], x: EffectInputs) -> EffectTerms:
+    """Sum the enabled additive effects (``enabled``: name -> short parameters), in registry order;
+    effects that scale the model's Fr part are applied inside the model instead (:func:`fr_scale`)."""
+    phys = 0.0 * x.abs_speed
+    sens = 0.0 * x.abs_speed
+    for name, effect in EFFECTS.items():
+        if name in enabled and not effect.scales_fr:
+            if effect.physical:
+                phys = phys + effect.term(x, **enabled[name])
+            else:
+                sens = sens + effect.term(x, **enabled[name])
     return EffectTerms(phys, sens)
+
+
+def fr_scale(enabled: Mapping[str, Mapping[str, float]], x: EffectInputs):
+    """Factor on the model's Fr part from the enabled Fr-scaling effects (1 when none is enabled)."""
+    scale = 1.0
+    for name, effect in EFFECTS.items():
+        if name in enabled and effect.scales_fr:
+            scale = scale + effect.term(x._replace(fr_part_nm=1.0), **enabled[name])
+    return scale
+
+
+def markdown_table() -> str:
+    """``docs/effects.md``: the registry as a table (regenerate with ``python -m rollergear_ros.effects``)."""
+    lines = ["# Effects the model lacks (the registry)\n",
+             "Generated from `rollergear_ros/effects.py` by `python -m rollergear_ros.effects > docs/effects.md`; "
+             "a test keeps it current. Parameters: short name (in `calibrate --json` and `simulate --effect`) → "
+             "key under `effects.<effect>.` in the parameter file.\n",
+             "| effect | term | kind | parameters | fitted | cause | told apart from |", "|---|---|---|---|---|---|---|"]
+    for e in EFFECTS.values():
+        params = ", ".join(f"`{p.short}` → `{p.key}`" + (f" [{p.unit}]" if p.unit else "") for p in e.parameters)
+        fitted = f"`{e.coefficient}` (linear" + (", adapted online)" if e.adaptive else ")")
+        if e.member:
+            fitted += f", `{e.member}` on {e.member_grid[0]:g}…{e.member_grid[-1]:g}"
+        kind = "loss" if e.physical else "sensor error"
+        if e.needs_temperature:
+            kind += "; needs a varying oil temperature"
+        apart = "; ".join(f"{o}: {d}" for o, d in e.separated_from.items()) or "—"
+        formula = e.formula().replace("``", "`").replace("|", "\\|")
+        lines.append(f"| `{e.name}` | {formula} | {kind} | {params} | {fitted} | {e.cause} | {apart} |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(markdown_table(), end="")

@@ -49,7 +49,7 @@ from typing import Iterable, NamedTuple, Sequence
 
 import numpy as np
 
-from .effects import additive_effects, drag_speed, load_dependent, viscosity_scale
+from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale
 from .model import LossModel, efficiency, rotation_sign, rotation_sign_scalar
 from .params import Config
 
@@ -418,48 +418,27 @@ class Estimate:
 
 # ------------------------------------------------------------------------------------ adaptation
 def adaptive_effects(config: Config) -> tuple[str, ...]:
-    """Accepted effects whose linear coefficient is adapted online (viscosity's B is not linear)."""
-    return tuple(n for n in config.effects.enabled() if n != "viscosity_temperature")
+    """Accepted effects whose linear coefficient is adapted online (registry: ``adaptive``)."""
+    return tuple(n for n in config.effects.enabled() if EFFECTS[n].adaptive)
 
 
 def effect_coefficients(config: Config) -> dict[str, float]:
     """The linear coefficient of each adaptive effect, as configured."""
-    e = config.effects
-    return {"drag_constant": e.drag_constant_c_nm, "drag_speed": e.drag_speed_c,
-            "load_dependent": e.load_dependent_c, "torque_offset": e.torque_offset_offset_nm,
-            "torque_gain": e.torque_gain_gain}
+    return {n: config.effects.params(n)[EFFECTS[n].coefficient] for n in adaptive_effects(config)}
 
 
-# Regressors are normalised so that the RLS covariance is well conditioned.
-_SPEED_REF = 100.0
-_TORQUE_REF = 100.0
-
-
-def regressors(names: Iterable[str], config: Config, abs_torque, abs_speed, torque, rot_sign) -> list:
-    """Normalised regressor of each adaptive effect (works on floats and arrays)."""
-    e = config.effects
+def regressors(names: Iterable[str], config: Config, x: EffectInputs) -> list:
+    """Normalised regressor of each adaptive effect: its term with coefficient 1 over the
+    registry's ``regressor_scale`` (a well-conditioned RLS covariance); floats or arrays."""
     out = []
     for n in names:
-        if n == "drag_constant":
-            out.append(1.0 + 0.0 * abs_speed)
-        elif n == "drag_speed":
-            out.append(drag_speed(1.0, e.drag_speed_p, abs_torque, abs_speed, torque, rot_sign)
-                       / _SPEED_REF ** e.drag_speed_p)
-        elif n == "load_dependent":
-            out.append(load_dependent(1.0, e.load_dependent_q, abs_torque, abs_speed, torque, rot_sign)
-                       / _TORQUE_REF ** e.load_dependent_q)
-        elif n == "torque_offset":
-            out.append(rot_sign + 0.0 * abs_speed)
-        elif n == "torque_gain":
-            out.append(torque * rot_sign / _TORQUE_REF)
+        params = config.effects.params(n)
+        out.append(EFFECTS[n].column(x, params) / EFFECTS[n].regressor_scale(params))
     return out
 
 
 def _scales(names: Iterable[str], config: Config) -> list[float]:
-    e = config.effects
-    s = {"drag_constant": 1.0, "drag_speed": _SPEED_REF ** e.drag_speed_p,
-         "load_dependent": _TORQUE_REF ** e.load_dependent_q, "torque_offset": 1.0, "torque_gain": _TORQUE_REF}
-    return [s[n] for n in names]
+    return [EFFECTS[n].regressor_scale(config.effects.params(n)) for n in names]
 
 
 class RecursiveLeastSquares:
@@ -664,10 +643,16 @@ class Estimator:
                                          est.rls_forgetting, 1.0, est.rls_max_covariance)
         self._scales = scales
         self.detector = ChangeDetector(est.change_block_samples, est.change_threshold_nm)
-        self._additive = any(n != "viscosity_temperature" for n in config.effects.enabled())
-        e = config.effects
-        self._sensor_offset = e.torque_offset_offset_nm if e.torque_offset else 0.0
-        self._sensor_gain = e.torque_gain_gain if e.torque_gain else 0.0
+        self._active = config.effects.active()  # enabled effect -> its parameters
+        self._additive = any(not EFFECTS[n].scales_fr for n in self._active)
+        self._fr_scaling = any(EFFECTS[n].scales_fr for n in self._active)
+        self._needs_temperature = any(EFFECTS[n].needs_temperature for n in self._active)
+        self._sensor = [not EFFECTS[n].physical for n in self.adaptive]
+        # effects with their configured coefficients (all of them when adaptation is off)
+        self._fixed = {n: p for n, p in self._active.items() if n not in self.adaptive}
+        self._fixed_additive = any(not EFFECTS[n].scales_fr for n in self._fixed)
+        self._sensor_offset = self._active.get("torque_offset", {}).get("b", 0.0)
+        self._sensor_gain = self._active.get("torque_gain", {}).get("g", 0.0)
         self.residual_stats = ResidualStats()
         self.estimated = 0
         self.last: Estimate | None = None
@@ -686,15 +671,8 @@ class Estimator:
         return {n: t / s for n, t, s in zip(self.adaptive, self.rls.theta, self._scales)}
 
     def corrected_torque(self, torque_meas):
-        """Drive torque with the accepted sensor errors removed: ``T = (T_meas − b)/(1 + g)``.
-
-        The model and the physical effects see this torque; the measured loss keeps the sensor's
-        reading, so the sensor errors appear there as ``(g·T + b)·sgn ω`` (see :mod:`.effects`).
-        """
-        b, g = self._sensor_offset, self._sensor_gain
-        if b == 0.0 and g == 0.0:
-            return torque_meas
-        return (torque_meas - b) / (1.0 + g)
+        """Drive torque with the accepted torque-sensor errors removed (:func:`.effects.corrected_torque`)."""
+        return corrected_torque(torque_meas, self._sensor_offset, self._sensor_gain)
 
     def screen(self, torque: float, speed: float) -> str | None:
         """Reason a motor sample cannot be estimated, or None."""
@@ -744,13 +722,10 @@ class Estimator:
         t = t_meas if self._sensor_offset == 0.0 and self._sensor_gain == 0.0 else self.corrected_torque(t_meas)
         at, aw = abs(t), abs(w)
         sg = rotation_sign_scalar(w, t)
-        e = self.config.effects
         vscale = 1.0
-        if e.viscosity_temperature:
-            if math.isfinite(s.temperature_c):
-                vscale = 1.0 + e.viscosity_temperature_scale * (viscosity_scale(
-                    e.viscosity_temperature_B_k, e.viscosity_temperature_C_k,
-                    e.viscosity_temperature_theta_ref_c, s.temperature_c) - 1.0)
+        if self._fr_scaling:
+            if math.isfinite(s.temperature_c) or not self._needs_temperature:
+                vscale = fr_scale(self._active, EffectInputs(at, aw, t, sg, s.temperature_c))
             else:
                 self.counts["temperature_missing"] += 1
         mag = self.model.loss_magnitude_scalar(t, w, vscale)
@@ -774,31 +749,31 @@ class Estimator:
         return est
 
     def _effects_scalar(self, at, aw, t, sg) -> tuple[float, float]:
+        """(physical, sensor) contributions of the additive effects: the fixed ones as configured,
+        the adaptive ones with the RLS's current coefficients."""
         if not self._additive:
             return 0.0, 0.0
-        if not self.adaptive:
-            terms = additive_effects(self.config.effects, at, aw, t, sg)
-            return terms.physical_nm, terms.sensor_nm
-        # non-adaptive part (none besides viscosity today) plus the adapted linear terms
-        phi = regressors(self.adaptive, self.config, at, aw, t, sg)
-        phys = sens = 0.0
-        for n, th, f in zip(self.adaptive, self.rls.theta, phi):
-            if n in ("torque_offset", "torque_gain"):
-                sens += th * f
-            else:
-                phys += th * f
+        x = EffectInputs(at, aw, t, sg)
+        if self._fixed_additive:
+            terms = additive_terms(self._fixed, x)
+            phys, sens = terms.physical_nm, terms.sensor_nm
+        else:
+            phys = sens = 0.0
+        if self.adaptive:
+            for is_sensor, th, f in zip(self._sensor, self.rls.theta, regressors(self.adaptive, self.config, x)):
+                if is_sensor:
+                    sens += th * f
+                else:
+                    phys += th * f
         return phys, sens
 
     def _adapt_scalar(self, at, aw, t, sg, y, t_ns) -> None:
-        """RLS on ``y = measured − model``; the detector sees the a-priori error."""
-        if self.adaptive:
-            phi = regressors(self.adaptive, self.config, at, aw, t, sg)
-            err = self.rls.update(phi, y)
-        elif self._additive:
-            terms = additive_effects(self.config.effects, at, aw, t, sg)
-            err = y - terms.physical_nm - terms.sensor_nm
-        else:
-            err = y
+        """RLS on ``y = measured − model − fixed effects``; the detector sees the a-priori error."""
+        if self._fixed_additive:
+            terms = additive_terms(self._fixed, EffectInputs(at, aw, t, sg))
+            y = y - terms.physical_nm - terms.sensor_nm
+        err = self.rls.update(regressors(self.adaptive, self.config, EffectInputs(at, aw, t, sg)), y) \
+            if self.adaptive else y
         self.detector.add(err, t_ns)
 
     # ------------------------------------------------------------------ batch (replay)
@@ -830,14 +805,12 @@ class Estimator:
         torque = self.corrected_torque(torque_meas)
         at, aw = np.abs(torque), np.abs(speed)
         sg = rotation_sign(speed, torque)
-        e = self.config.effects
         vscale = None
-        if e.viscosity_temperature:
-            have_t = np.isfinite(temperature)
+        if self._fr_scaling:
+            have_t = np.isfinite(temperature) if self._needs_temperature else np.ones(len(torque), bool)
             self.counts["temperature_missing"] += int(np.count_nonzero(~have_t))
-            s_eta = viscosity_scale(e.viscosity_temperature_B_k, e.viscosity_temperature_C_k,
-                                    e.viscosity_temperature_theta_ref_c, np.where(have_t, temperature, 0.0))
-            vscale = np.where(have_t, 1.0 + e.viscosity_temperature_scale * (s_eta - 1.0), 1.0)
+            x = EffectInputs(at, aw, torque, sg, np.where(have_t, temperature, 0.0))
+            vscale = np.where(have_t, fr_scale(self._active, x), 1.0)
         res = self.model.evaluate(torque, speed, vscale, breakdown=breakdown)
         mag = res.loss_magnitude_nm
         bad_out = ~np.isnan(out_torque) & (~np.isfinite(out_torque) | (~np.isfinite(out_speed) & ~np.isnan(out_speed)))
@@ -845,20 +818,24 @@ class Estimator:
         with np.errstate(invalid="ignore"):
             meas = np.where(bad_out, np.nan, self.measured_loss(torque_meas, speed, out_torque, out_speed))
         coefficients: dict[str, np.ndarray] = {}
+        x = EffectInputs(at, aw, torque, sg)
         if self.adaptive:
-            phis = regressors(self.adaptive, self.config, at, aw, torque, sg)
-            theta_hist = self._adapt_batch(phis, meas - mag, t_ns)
             phys = np.zeros(len(mag))
             sens = np.zeros(len(mag))
+            if self._fixed_additive:
+                fixed = additive_terms(self._fixed, x)
+                phys, sens = phys + fixed.physical_nm, sens + fixed.sensor_nm
+            phis = regressors(self.adaptive, self.config, x)
+            theta_hist = self._adapt_batch(phis, meas - mag - phys - sens, t_ns)
             for i, (name, phi) in enumerate(zip(self.adaptive, phis)):
                 contrib = theta_hist[:, i] * phi
-                if name in ("torque_offset", "torque_gain"):
+                if self._sensor[i]:
                     sens += contrib
                 else:
                     phys += contrib
                 coefficients[name] = theta_hist[:, i] / self._scales[i]
         else:
-            terms = additive_effects(e, at, aw, torque, sg)
+            terms = additive_terms(self._active, x)
             phys, sens = np.asarray(terms.physical_nm) + 0.0 * mag, np.asarray(terms.sensor_nm) + 0.0 * mag
             y = meas - mag - phys - sens
             ok = np.isfinite(y)

@@ -20,11 +20,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, NamedTuple
+from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import numpy as np
 
-from .params import GearboxParams
+if TYPE_CHECKING:  # the model reads a parameter set; params validates with the model's geometry
+    from .params import GearboxParams
 
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 

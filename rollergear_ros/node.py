@@ -31,7 +31,7 @@ from std_msgs.msg import Float64
 from . import bag as bagmod
 from .diagnostics import STATUS_NAME, InputMonitor, diagnose
 from .estimator import OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE, TORQUE, Estimate, Estimator
-from .params import PARAMETER_SPECS, Config, ParameterError, validate
+from .params import Config, ParameterError, parameter_specs, validate
 
 NAMESPACE = "/rollergear"
 #: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
@@ -71,14 +71,14 @@ class LossEstimatorNode(Node):
         super().__init__("loss_estimator", **kwargs)
         from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 
-        for spec in PARAMETER_SPECS:
+        for spec in parameter_specs():
             try:
                 self.declare_parameter(spec.name, spec.default, _descriptor(spec))
             except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
                 override = self._parameter_overrides.get(spec.name)
                 value = override.value if override is not None else spec.default
                 raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
-        flat = {spec.name: self.get_parameter(spec.name).value for spec in PARAMETER_SPECS}
+        flat = {spec.name: self.get_parameter(spec.name).value for spec in parameter_specs()}
         self.config: Config = validate(flat)  # ParameterError: refused at start-up with the reason
         # the single-threaded executor gives publisher timestamps; the events executor keeps arrival order
         self.pairing = "timestamp" if self.config.node.executor == "single_threaded" else "arrival"
@@ -142,7 +142,7 @@ class LossEstimatorNode(Node):
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
-        changes = {p.name: p.value for p in params if p.name in {s.name for s in PARAMETER_SPECS}}
+        changes = {p.name: p.value for p in params if p.name in {s.name for s in parameter_specs()}}
         if not changes:
             return SetParametersResult(successful=True)
         try:

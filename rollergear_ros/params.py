@@ -1,7 +1,7 @@
 """One typed parameter set for the whole package, validated in one place.
 
-Every parameter is declared once in :data:`PARAMETER_SPECS` with its type, default, unit,
-allowed range and description.  The same table feeds
+Every parameter is declared once (:func:`parameter_specs`; the effects' from the registry of
+:mod:`.effects`) with its type, default, unit, allowed range and description.  The same table feeds
 
 * the YAML loader (``config/gearbox.yaml``, ROS 2 parameter-file format
   ``loss_estimator: ros__parameters: {...}``), which rejects unknown keys;
@@ -22,17 +22,10 @@ from typing import Any, Mapping
 
 import yaml
 
-NODE_NAME = "loss_estimator"
+from .effects import EFFECTS, REGISTRY_VERSION
+from .model import contact_geometry
 
-#: the effect vocabulary of ``interface.md`` (order is the order they are reported in)
-EFFECT_NAMES: tuple[str, ...] = (
-    "drag_constant",
-    "drag_speed",
-    "load_dependent",
-    "viscosity_temperature",
-    "torque_offset",
-    "torque_gain",
-)
+NODE_NAME = "loss_estimator"
 
 
 class ParameterError(ValueError):
@@ -149,38 +142,17 @@ GEARBOX_SPECS: tuple[ParamSpec, ...] = (
        low=0.0, high=1e4),
 )
 
-#: the accepted extra effects (interface.md vocabulary).  ``enabled`` switches each on.
-EFFECT_SPECS: tuple[ParamSpec, ...] = (
-    ParamSpec("effects.drag_constant.enabled", bool, False, "add a constant drag torque c"),
-    ParamSpec("effects.drag_constant.c_nm", float, 0.0, "constant drag torque c", "N*m",
-              low=-1e4, high=1e4),
-    ParamSpec("effects.drag_speed.enabled", bool, False, "add a speed drag c*|w|^p"),
-    ParamSpec("effects.drag_speed.c", float, 0.0, "speed drag coefficient c (N*m/(rad/s)^p)", "",
-              low=-1e4, high=1e4),
-    ParamSpec("effects.drag_speed.p", float, 1.0, "speed drag exponent p", "", low=0.0, high=4.0),
-    ParamSpec("effects.load_dependent.enabled", bool, False, "add a load friction c*|T|^q"),
-    ParamSpec("effects.load_dependent.c", float, 0.0, "load friction coefficient c (N*m/(N*m)^q)", "",
-              low=-1e4, high=1e4),
-    ParamSpec("effects.load_dependent.q", float, 1.0, "load friction exponent q", "", low=0.0, high=4.0),
-    ParamSpec("effects.viscosity_temperature.enabled", bool, False,
-              "evaluate the model at the Vogel viscosity eta(theta) instead of eta0"),
-    ParamSpec("effects.viscosity_temperature.B_k", float, 0.0,
-              "Vogel B: eta = eta0*exp(B/(theta+C) - B/(theta_ref+C))", "K", low=0.0, high=1e5),
-    ParamSpec("effects.viscosity_temperature.C_k", float, 95.0, "Vogel C", "K", low=-273.0,
-              low_open=True, high=1e4),
-    ParamSpec("effects.viscosity_temperature.theta_ref_c", float, 40.0,
-              "oil temperature at which the viscosity is eta0", "degC", low=-100.0, high=400.0),
-    ParamSpec("effects.viscosity_temperature.scale", float, 1.0,
-              "scale of the viscosity correction: Fr·(1 + scale·((eta/eta0)^0.66 − 1)); 1 = the model at eta(theta)",
-              "", low=0.0, high=10.0),
-    ParamSpec("effects.torque_offset.enabled", bool, False,
-              "input torque sensor zero error (adds offset*sign(w) to the input-referred loss)"),
-    ParamSpec("effects.torque_offset.offset_nm", float, 0.0, "input-referred torque offset", "N*m",
-              low=-1e4, high=1e4),
-    ParamSpec("effects.torque_gain.enabled", bool, False,
-              "torque sensor gain error (adds gain*T*sign(w) to the input-referred loss)"),
-    ParamSpec("effects.torque_gain.gain", float, 0.0, "relative gain error", "", low=-0.5, high=0.5),
-)
+def effect_specs() -> tuple[ParamSpec, ...]:
+    """``effects.<name>.enabled`` and ``effects.<name>.<key>`` of every effect in the registry
+    (:mod:`.effects`), in registry order."""
+    specs = []
+    for e in EFFECTS.values():
+        specs.append(ParamSpec(f"effects.{e.name}.enabled", bool, False, e.summary))
+        for q in e.parameters:
+            specs.append(ParamSpec(f"effects.{e.name}.{q.key}", float, q.default, q.description, q.unit,
+                                   low=q.low, high=q.high, low_open=q.low_open))
+    return tuple(specs)
+
 
 ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("estimator.min_torque_for_efficiency_nm", float, 0.2,
@@ -250,8 +222,25 @@ MAP_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("map.both_directions", bool, False, "loss map: also negative speeds (reverse rotation)"),
 )
 
-PARAMETER_SPECS: tuple[ParamSpec, ...] = GEARBOX_SPECS + EFFECT_SPECS + ESTIMATOR_SPECS + NODE_SPECS + MAP_SPECS
-SPEC_BY_NAME: dict[str, ParamSpec] = {s.name: s for s in PARAMETER_SPECS}
+_specs_cache: dict[int, tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]] = {}
+
+
+def parameter_specs() -> tuple[ParamSpec, ...]:
+    """Every parameter of the package, effects from the registry as it is now."""
+    return _spec_tables()[0]
+
+
+def spec_by_name() -> dict[str, ParamSpec]:
+    return _spec_tables()[1]
+
+
+def _spec_tables() -> tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]:
+    version = REGISTRY_VERSION[0]
+    if version not in _specs_cache:
+        _specs_cache.clear()
+        specs = GEARBOX_SPECS + effect_specs() + ESTIMATOR_SPECS + NODE_SPECS + MAP_SPECS
+        _specs_cache[version] = (specs, {spec.name: spec for spec in specs})
+    return _specs_cache[version]
 
 
 @dataclass(frozen=True)
@@ -292,29 +281,24 @@ class GearboxParams:
 
 @dataclass(frozen=True)
 class EffectParams:
-    """Extra loss effects of the ``interface.md`` vocabulary, as accepted by ``calibrate``."""
+    """The extra effects of the registry (:mod:`.effects`): which are enabled (accepted by
+    ``calibrate``) and every effect's parameters, by their keys in the parameter file."""
 
-    drag_constant: bool = False
-    drag_constant_c_nm: float = 0.0
-    drag_speed: bool = False
-    drag_speed_c: float = 0.0
-    drag_speed_p: float = 1.0
-    load_dependent: bool = False
-    load_dependent_c: float = 0.0
-    load_dependent_q: float = 1.0
-    viscosity_temperature: bool = False
-    viscosity_temperature_B_k: float = 0.0
-    viscosity_temperature_C_k: float = 95.0
-    viscosity_temperature_theta_ref_c: float = 40.0
-    viscosity_temperature_scale: float = 1.0
-    torque_offset: bool = False
-    torque_offset_offset_nm: float = 0.0
-    torque_gain: bool = False
-    torque_gain_gain: float = 0.0
+    switches: Mapping[str, bool] = field(default_factory=dict)  #: effect -> enabled
+    values: Mapping[str, Mapping[str, float]] = field(default_factory=dict)  #: effect -> key -> value
 
     def enabled(self) -> tuple[str, ...]:
-        """Names of the enabled effects, in vocabulary order."""
-        return tuple(n for n in EFFECT_NAMES if getattr(self, n))
+        """Names of the enabled effects, in registry order."""
+        return tuple(n for n in EFFECTS if self.switches.get(n, False))
+
+    def params(self, name: str) -> dict[str, float]:
+        """An effect's parameters by their short names (those of its term and of ``calibrate --json``)."""
+        values = self.values.get(name, {})
+        return {q.short: values.get(q.key, q.default) for q in EFFECTS[name].parameters}
+
+    def active(self) -> dict[str, dict[str, float]]:
+        """Enabled effect -> its parameters by short name (what the terms are evaluated with)."""
+        return {n: self.params(n) for n in self.enabled()}
 
 
 @dataclass(frozen=True)
@@ -377,10 +361,18 @@ class Config:
 
     def to_flat(self) -> dict[str, Any]:
         """Dotted-name dictionary of every parameter (the inverse of :func:`validate`)."""
-        return {spec.name: getattr(self._section(spec.name), _attr(spec.name)) for spec in PARAMETER_SPECS}
+        return {spec.name: self.value(spec.name) for spec in parameter_specs()}
 
-    def _section(self, name: str) -> Any:
-        return getattr(self, name.split(".", 1)[0])
+    def value(self, name: str) -> Any:
+        """One parameter by its dotted name."""
+        section, rest = name.split(".", 1)
+        if section == "effects":
+            effect, key = rest.split(".", 1)
+            spec = spec_by_name()[name]
+            if key == "enabled":
+                return self.effects.switches.get(effect, spec.default)
+            return self.effects.values.get(effect, {}).get(key, spec.default)
+        return getattr(getattr(self, section), rest)
 
     def with_values(self, values: Mapping[str, Any]) -> "Config":
         """A new validated config with some dotted parameters changed."""
@@ -389,17 +381,7 @@ class Config:
         return validate(flat)
 
 
-def _attr(dotted: str) -> str:
-    """Dataclass attribute of a dotted name: ``effects.drag_speed.c`` -> ``drag_speed_c``."""
-    section, rest = dotted.split(".", 1)
-    if section == "effects":
-        effect, key = rest.split(".", 1)
-        return effect if key == "enabled" else f"{effect}_{key}"
-    return rest
-
-
-_SECTION_TYPES = {"gearbox": GearboxParams, "effects": EffectParams, "estimator": EstimatorParams,
-                  "node": NodeParams, "map": MapParams}
+_SECTION_TYPES = {"gearbox": GearboxParams, "estimator": EstimatorParams, "node": NodeParams, "map": MapParams}
 
 
 #: URL schemes rerun's gRPC sink accepts (``node.rerun_connect``)
@@ -413,16 +395,28 @@ def validate(values: Mapping[str, Any]) -> Config:
     an error.  Raises :class:`ParameterError` naming the first bad parameter, its value and the
     allowed range.  This is the only place parameters are validated.
     """
-    unknown = sorted(set(values) - set(SPEC_BY_NAME))
+    specs = spec_by_name()
+    unknown = sorted(set(values) - set(specs))
     if unknown:
         close = ", ".join(unknown)
         raise ParameterError(unknown[0], values[unknown[0]],
-                             f"unknown parameter(s) {close}; known: {', '.join(sorted(SPEC_BY_NAME))}")
+                             f"unknown parameter(s) {close}; known: {', '.join(sorted(specs))}")
     checked: dict[str, dict[str, Any]] = {k: {} for k in _SECTION_TYPES}
-    for spec in PARAMETER_SPECS:
+    switches: dict[str, bool] = {}
+    effect_values: dict[str, dict[str, float]] = {}
+    for spec in parameter_specs():
         value = spec.check(values[spec.name]) if spec.name in values else spec.default
-        checked[spec.name.split(".", 1)[0]][_attr(spec.name)] = value
-    config = Config(**{k: _SECTION_TYPES[k](**v) for k, v in checked.items()})
+        section, rest = spec.name.split(".", 1)
+        if section == "effects":
+            effect, key = rest.split(".", 1)
+            if key == "enabled":
+                switches[effect] = value
+            else:
+                effect_values.setdefault(effect, {})[key] = value
+        else:
+            checked[section][rest] = value
+    config = Config(effects=EffectParams(switches, effect_values),
+                    **{k: _SECTION_TYPES[k](**v) for k, v in checked.items()})
     _check_consistency(config)
     return config
 
@@ -436,8 +430,6 @@ def _check_consistency(config: Config) -> None:
     if g.dm2_m <= g.dw_m:
         raise ParameterError("gearbox.dm2_m", g.dm2_m, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m")
     # the Snare term (eq. 21) needs k_j = Ry/Rx >= 1; checked on the derived geometry
-    from .model import contact_geometry  # local import: model imports this module
-
     geo = contact_geometry(g)
     for j, k in ((1, geo.k1), (2, geo.k2)):
         if not (math.isfinite(k) and k >= 1.0):
@@ -453,11 +445,10 @@ def _check_consistency(config: Config) -> None:
         raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm, "must be >= map.speed_min_rpm")
     if config.map.torque_max_nm < config.map.torque_min_nm:
         raise ParameterError("map.torque_max_nm", config.map.torque_max_nm, "must be >= map.torque_min_nm")
-    if config.effects.viscosity_temperature and config.gearbox and (
-        config.effects.viscosity_temperature_theta_ref_c + config.effects.viscosity_temperature_C_k <= 0
-    ):
-        raise ParameterError("effects.viscosity_temperature.C_k", config.effects.viscosity_temperature_C_k,
-                             "theta_ref + C must be > 0")
+    if "viscosity_temperature" in config.effects.enabled():
+        vogel = config.effects.params("viscosity_temperature")
+        if vogel["theta_ref"] + vogel["C"] <= 0:
+            raise ParameterError("effects.viscosity_temperature.C_k", vogel["C"], "theta_ref + C must be > 0")
 
 
 def _flatten(prefix: str, data: Mapping[str, Any], out: dict[str, Any]) -> None:
@@ -524,6 +515,6 @@ def config_to_yaml(config: Config, header: str = "") -> str:
 
 __all__ = [
     "Config", "EffectParams", "EstimatorParams", "GearboxParams", "NodeParams", "ParamSpec",
-    "ParameterError", "PARAMETER_SPECS", "EFFECT_NAMES", "load_config", "validate", "config_to_yaml",
+    "ParameterError", "parameter_specs", "spec_by_name", "load_config", "validate", "config_to_yaml",
     "flat_from_yaml_document",
 ]

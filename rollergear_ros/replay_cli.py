@@ -71,7 +71,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def register_simulate(sub, with_params) -> None:
-    from .simulate import EFFECT_PARAMETERS, PROFILES
+    from .effects import EFFECTS
+    from .simulate import PROFILES
 
     p = with_params(sub.add_parser("simulate", help="write a synthetic rig recording (MCAP) with declared effects"))
     p.add_argument("--out", required=True, metavar="MCAP")
@@ -81,7 +82,7 @@ def register_simulate(sub, with_params) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--effect", action="append", default=[], metavar="NAME[:k=v,...]",
                    help="declared extra effect, repeatable: " + "; ".join(
-                       f"{n}:{','.join(f'{k}={v:g}' for k, v in d.items())}" for n, d in EFFECT_PARAMETERS.items()))
+                       f"{n}:{','.join(f'{k}={v:g}' for k, v in d.items())}" for n, d in ((n, e.simulated_defaults()) for n, e in EFFECTS.items())))
     p.add_argument("--torque-noise", type=float, default=0.01, help="torque sensor noise sigma [N·m]")
     p.add_argument("--noise-ar1", type=float, default=0.0, help="AR(1) coefficient of coloured noise (0 = white)")
     p.add_argument("--output-lag", type=float, default=0.0, help="delay of the output torque channel [s]")

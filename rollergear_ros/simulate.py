@@ -19,21 +19,11 @@ from typing import Callable
 import numpy as np
 
 from .bag import FLOAT64, JOINT_STATE, TEMPERATURE, BagWriter, TopicMap, encode_float64, stamp
+from .effects import EFFECTS, EffectInputs
 from .model import LossModel, rotation_sign
 from .params import Config
 
 RPM = 2.0 * math.pi / 60.0
-
-#: effect name -> (parameter names, defaults) accepted by ``--effect NAME:k=v,...``
-EFFECT_PARAMETERS: dict[str, dict[str, float]] = {
-    "drag_constant": {"c": 0.05},
-    "drag_speed": {"c": 2e-4, "p": 1.5},
-    "load_dependent": {"c": 2e-3, "q": 1.0},
-    "viscosity_temperature": {"B": 900.0, "C": 95.0, "theta_ref": 40.0},
-    "torque_offset": {"b": 0.05},
-    "torque_gain": {"g": 0.01},
-}
-
 
 @dataclass
 class DeclaredEffect:
@@ -42,12 +32,13 @@ class DeclaredEffect:
 
     @classmethod
     def parse(cls, text: str) -> "DeclaredEffect":
-        """``drag_speed:c=2e-4,p=1.5`` (missing values take the defaults of :data:`EFFECT_PARAMETERS`)."""
+        """``drag_speed:c=2e-4,p=1.5``: an effect of the registry with its parameters by their short
+        names; missing values take the registry's ``simulated`` defaults."""
         name, _, rest = text.partition(":")
         name = name.strip()
-        if name not in EFFECT_PARAMETERS:
-            raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECT_PARAMETERS)}")
-        params = dict(EFFECT_PARAMETERS[name])
+        if name not in EFFECTS:
+            raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+        params = EFFECTS[name].simulated_defaults()
         for item in filter(None, (s.strip() for s in rest.split(","))):
             k, _, v = item.partition("=")
             if k not in params:
@@ -207,18 +198,18 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
     gain, offset = 0.0, 0.0
     for eff in opts.effects:
         p = eff.params
-        if eff.name == "drag_constant":
-            extra += p["c"] * active
-        elif eff.name == "drag_speed":
-            extra += p["c"] * aw ** p["p"] * active
-        elif eff.name == "load_dependent":
-            extra += p["c"] * at ** p["q"] * active
-        elif eff.name == "viscosity_temperature":
+        if eff.name == "viscosity_temperature":
+            # the whole model at eta(theta): Fr ∝ U^0.66 ∝ eta^0.66 (eq. 3, 9), written out here
+            # rather than taken from the effect's term, which the estimator and calibrate share
             vscale = np.exp(active * (p["B"] / (theta + p["C"]) - p["B"] / (p["theta_ref"] + p["C"]))) ** 0.66
-        elif eff.name == "torque_offset":
+        elif eff.name == "torque_offset":  # the sensor reads T_meas = (1 + g)·T + b
             offset = p["b"] * active
         elif eff.name == "torque_gain":
             gain = p["g"] * active
+        elif EFFECTS[eff.name].physical:  # any other loss: its term, added to the true loss
+            extra += EFFECTS[eff.name].term(EffectInputs(at, aw, tq, sg, theta), **p) * active
+        else:
+            raise ValueError(f"simulate does not know how the sensor error {eff.name} corrupts a reading")
     model_loss = model.loss_magnitude(tq, w)
     loss_true = model.loss_magnitude(tq, w, vscale) + extra
     out_torque_true = ratio * (tq - loss_true * sg)

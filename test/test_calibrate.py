@@ -145,7 +145,7 @@ def test_calibrated_yaml_is_used_by_replay(tmp_path):
     for png in ("residual_vs_speed.png", "residual_vs_torque.png", "measured_vs_estimated.png"):
         assert (report / png).stat().st_size > 5000
     cal = load_config(out_yaml)
-    assert cal.effects.drag_speed and cal.effects.drag_constant
+    assert {"drag_speed", "drag_constant"} <= set(cal.effects.enabled())
     base, _ = replay(bag, load_config(), show_progress=False)
     after, _ = replay(bag, cal, show_progress=False)
     assert after.residual_rms_nm < 0.2 * base.residual_rms_nm

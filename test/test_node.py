@@ -407,8 +407,11 @@ def test_rerun_streams_to_a_viewer_address(tmp_path):
 
     port = _free_port()
     received = tmp_path / "received.rrd"
+    # its own process group: rerun_cli is a Python wrapper around the viewer binary, and only a
+    # Ctrl-C to the whole group (as a terminal sends it) reaches the binary
     server = subprocess.Popen([sys.executable, "-m", "rerun_cli", "--bind", "127.0.0.1", "--port", str(port),
-                               "--save", str(received)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                               "--save", str(received)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)
     try:
         import socket
 
@@ -425,8 +428,14 @@ def test_rerun_streams_to_a_viewer_address(tmp_path):
         assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
     finally:
         # the node flushed its stream before it exited; on SIGINT the server saves what it received
-        server.send_signal(signal.SIGINT)
-        server.wait(timeout=300)
+        import os
+
+        os.killpg(server.pid, signal.SIGINT)
+        try:
+            server.wait(timeout=300)
+        finally:
+            if server.poll() is None:
+                os.killpg(server.pid, signal.SIGKILL)
     _, loss = float_series(read_rosbags(rec), T.loss_torque)
     assert len(loss) == 10080
     t, streamed = read_rrd_series(received)["/loss/torque_nm"]

@@ -7,7 +7,7 @@ import math
 import pytest
 import yaml
 
-from rollergear_ros.params import (PARAMETER_SPECS, ParameterError, config_to_yaml, load_config, validate)
+from rollergear_ros.params import ParameterError, config_to_yaml, load_config, parameter_specs, validate
 
 from conftest import CONFIG
 
@@ -48,7 +48,7 @@ def test_every_invalid_parameter_is_rejected_with_its_name(name, value):
 
 
 def test_every_numeric_spec_rejects_nan_and_out_of_range():
-    for spec in PARAMETER_SPECS:
+    for spec in parameter_specs():
         if spec.kind in (int, float):
             with pytest.raises(ParameterError, match=spec.name.replace(".", r"\.")):
                 validate({spec.name: math.nan})
@@ -96,8 +96,8 @@ def test_ints_accepted_for_floats_and_integral_floats_for_ints():
 
 def test_dataclass_defaults_equal_the_spec_defaults():
     """The typed dataclasses repeat the specs' defaults; they must not drift apart."""
-    from rollergear_ros.params import Config, PARAMETER_SPECS
+    from rollergear_ros.params import Config, parameter_specs
 
     flat = Config().to_flat()
-    for spec in PARAMETER_SPECS:
+    for spec in parameter_specs():
         assert flat[spec.name] == spec.default, spec.name
