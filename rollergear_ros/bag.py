@@ -18,6 +18,8 @@ from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
+from .errors import BagError
+
 NAMESPACE = "/rollergear"
 
 FLOAT64 = "std_msgs/msg/Float64"
@@ -46,10 +48,6 @@ MSG_DEFINITIONS: dict[str, str] = {
 }
 
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
-
-
-class BagError(Exception):
-    """A bag cannot be used: missing topics, wrong types, not a ROS 2 MCAP, unreadable."""
 
 
 @dataclass(frozen=True)

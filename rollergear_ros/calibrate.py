@@ -41,6 +41,7 @@ import numpy as np
 
 from .bag import TopicMap
 from .effects import EFFECTS, EffectInputs, separating_data
+from .errors import BagError
 from .model import LossModel, rotation_sign
 from .params import Config, ParameterError, config_to_yaml, validate
 
@@ -94,7 +95,7 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
             parts.append((b.t_ns[ok], np.full(int(ok.sum()), i), b.torque_nm[ok], b.speed_rad_s[ok], temp[ok],
                           b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok])))
     if not parts or sum(len(p[0]) for p in parts) == 0:
-        raise ValueError("no samples with a measured output torque and |speed| >= "
+        raise BagError("no samples with a measured output torque and |speed| >= "
                          f"{min_speed_rad_s:g} rad/s: calibration needs the output torque topic")
     cols = [np.concatenate([p[j] for p in parts]) for j in range(7)]
     return SampleData(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6],
@@ -553,7 +554,7 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
     """Run the whole analysis on loaded samples."""
     blocks = make_blocks(data, block_s, folds)
     if len(blocks.y) < 4 * folds:
-        raise ValueError(f"only {len(blocks.y)} blocks of {block_s:g} s: too little data to calibrate")
+        raise BagError(f"only {len(blocks.y)} blocks of {block_s:g} s: too little data to calibrate")
     cal = Calibrator(blocks, delta_nm)
     out = cal.run()
     selected: list[Term] = out["selected"]

@@ -7,8 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from .bag import BagError
-from .cli import UserError, config_from_args
+from .cli import config_from_args
 from .replay_cli import add_topic_options, topics_from_args
 
 
@@ -20,16 +19,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr)
 
-    try:
-        if not args.json:
-            log(f"reading {len(args.bags)} recording(s) …")
-        data = load_samples(args.bags, config, topics_from_args(args),
-                            warn=lambda m: log(f"rollergear: warning: {m}"), progress=not args.json and sys.stderr.isatty())
-        if not args.json:
-            log(f"{len(data.t_ns):,} samples with measured output; analysing …")
-        result = calibrate(data, config, args.delta, args.block_s)
-    except (BagError, ValueError) as exc:
-        raise UserError(str(exc)) from None
+    if not args.json:
+        log(f"reading {len(args.bags)} recording(s) …")
+    data = load_samples(args.bags, config, topics_from_args(args),
+                        warn=lambda m: log(f"rollergear: warning: {m}"), progress=not args.json and sys.stderr.isatty())
+    if not args.json:
+        log(f"{len(data.t_ns):,} samples with measured output; analysing …")
+    result = calibrate(data, config, args.delta, args.block_s)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(calibrated_yaml(result, args.bags))

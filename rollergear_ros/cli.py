@@ -16,13 +16,10 @@ from typing import Sequence
 
 import numpy as np
 
-from .params import Config, ParameterError, load_config
+from .errors import InputFileError, RollergearError, UsageError
+from .params import Config, load_config
 
 DEFAULT_PARAMS = Path(__file__).resolve().parent.parent / "config" / "gearbox.yaml"
-
-
-class UserError(Exception):
-    """A problem with the user's input: printed as one line, exit status 2."""
 
 
 def default_params_path() -> Path | None:
@@ -43,7 +40,7 @@ def config_from_args(args: argparse.Namespace) -> Config:
     if path is None:
         path = default_params_path()
     elif not Path(path).exists():
-        raise UserError(f"parameter file {path} does not exist")
+        raise UsageError(f"parameter file {path} does not exist")
     return load_config(path)
 
 
@@ -63,7 +60,7 @@ def cmd_model(args: argparse.Namespace) -> int:
         torque, speed = _read_points_csv(Path(args.csv))
     else:
         if not args.torque or not args.speed:
-            raise UserError("give --torque and --speed values, or --csv FILE")
+            raise UsageError("give --torque and --speed values, or --csv FILE")
         tt, ww = np.meshgrid(np.asarray(args.torque, float), np.asarray(args.speed, float), indexing="ij")
         torque, speed = tt.ravel(), ww.ravel()
     model = LossModel(config.gearbox, config.estimator.min_torque_for_efficiency_nm,
@@ -97,24 +94,24 @@ def cmd_model(args: argparse.Namespace) -> int:
 def _read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """CSV with a header naming a torque column (``torque``/``torque_nm``/``T``) and a speed column."""
     if not path.exists():
-        raise UserError(f"{path} does not exist")
+        raise InputFileError(f"{path} does not exist")
     with path.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     if not rows:
-        raise UserError(f"{path} has no data rows")
+        raise InputFileError(f"{path} has no data rows")
     cols = {c.strip().lower(): c for c in rows[0]}
     tcol = next((cols[c] for c in ("torque_nm", "torque", "t") if c in cols), None)
     wcol = next((cols[c] for c in ("speed_rad_s", "speed", "omega", "w") if c in cols), None)
     if tcol is None or wcol is None:
-        raise UserError(f"{path}: need columns torque_nm and speed_rad_s (found {', '.join(rows[0])})")
+        raise InputFileError(f"{path}: need columns torque_nm and speed_rad_s (found {', '.join(rows[0])})")
     try:
         t = np.array([float(r[tcol]) for r in rows])
         w = np.array([float(r[wcol]) for r in rows])
     except ValueError as exc:
-        raise UserError(f"{path}: {exc}") from None
+        raise InputFileError(f"{path}: {exc}") from None
     bad = ~(np.isfinite(t) & np.isfinite(w))
     if bad.any():
-        raise UserError(f"{path}: row(s) {', '.join(str(i + 2) for i in np.flatnonzero(bad)[:10])} are not finite")
+        raise InputFileError(f"{path}: row(s) {', '.join(str(i + 2) for i in np.flatnonzero(bad)[:10])} are not finite")
     return t, w
 
 
@@ -133,11 +130,8 @@ def cmd_map(args: argparse.Namespace) -> int:
 
     config = config_from_args(args)
     m = config.map
-    try:
-        speeds = grid(*(args.speed_rpm or (m.speed_min_rpm, m.speed_max_rpm, m.speed_step_rpm)))
-        torques = grid(*(args.torque_nm or (m.torque_min_nm, m.torque_max_nm, m.torque_step_nm)))
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    speeds = grid(*(args.speed_rpm or (m.speed_min_rpm, m.speed_max_rpm, m.speed_step_rpm)))
+    torques = grid(*(args.torque_nm or (m.torque_min_nm, m.torque_max_nm, m.torque_step_nm)))
     if args.both_directions or m.both_directions:
         speeds = np.unique(np.concatenate([-speeds, speeds]))
     out = Path(args.out)
@@ -197,7 +191,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (UserError, ParameterError) as exc:
+    except RollergearError as exc:
         print(f"rollergear: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

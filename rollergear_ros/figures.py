@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .errors import UsageError
 from .model import RPM_PER_RAD_S, LossModel
 from .params import Config, GearboxParams, validate
 
@@ -122,7 +123,7 @@ def loss_map(config: Config, speeds_rpm: Sequence[float], torques_nm: Sequence[f
 def grid(start: float, stop: float, step: float) -> np.ndarray:
     """Inclusive ``start..stop`` in ``step`` increments (rounded to kill float drift)."""
     if step <= 0 or not all(map(math.isfinite, (start, stop, step))) or stop < start:
-        raise ValueError(f"bad grid {start}:{stop}:{step} (need finite start <= stop and step > 0)")
+        raise UsageError(f"bad grid {start}:{stop}:{step} (need finite start <= stop and step > 0)")
     n = int(math.floor((stop - start) / step + 1e-9)) + 1
     return np.round(start + step * np.arange(n), 9)
 

@@ -23,19 +23,10 @@ from typing import Any, Mapping
 import yaml
 
 from .effects import EFFECTS, REGISTRY_VERSION
+from .errors import ParameterError
 from .model import contact_geometry
 
 NODE_NAME = "loss_estimator"
-
-
-class ParameterError(ValueError):
-    """A parameter value is out of range, of the wrong type, unknown, or inconsistent."""
-
-    def __init__(self, name: str, value: Any, allowed: str) -> None:
-        self.name = name
-        self.value = value
-        self.allowed = allowed
-        super().__init__(f"parameter '{name}' = {value!r} is invalid: {allowed}")
 
 
 @dataclass(frozen=True)

@@ -17,8 +17,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from .bag import BagError, inspect_bag
-from .cli import UserError
+from .bag import inspect_bag
+from .errors import UsageError
 from .fastmcap import ReadState, iter_log_time_order
 
 
@@ -28,7 +28,7 @@ def message_class(type_name: str):
         pkg, kind, name = type_name.split("/")
         return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
     except (ValueError, ImportError, AttributeError):
-        raise UserError(f"message type {type_name!r} is not available in this ROS installation") from None
+        raise UsageError(f"message type {type_name!r} is not available in this ROS installation") from None
 
 
 class _Prefetch:
@@ -110,7 +110,7 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     info = inspect_bag(bag)
     selected = {t: ty for t, ty in info.topics.items() if topics is None or t in topics}
     if not selected:
-        raise UserError(f"nothing to play: the bag has {info.describe_topics()}")
+        raise UsageError(f"nothing to play: the bag has {info.describe_topics()}")
     if info.truncated:
         print(f"warning: {bag}: {info.problem}; playing what is readable", file=sys.stderr)
     if not rclpy.ok():
@@ -211,13 +211,11 @@ def cmd_play(args: argparse.Namespace) -> int:
     import rclpy
 
     if not (args.rate > 0):
-        raise UserError("--rate must be > 0")
+        raise UsageError("--rate must be > 0")
     init_for_command_line()
     try:
         play(Path(args.bag), args.rate, args.loop, args.clock, args.topics, args.wait_for_subscribers,
              args.delay, not args.best_effort)
-    except BagError as exc:
-        raise UserError(str(exc)) from None
     finally:
         rclpy.try_shutdown()
     return 0

@@ -7,8 +7,8 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
-from .bag import BagError, TopicMap
-from .cli import UserError, config_from_args
+from .bag import TopicMap
+from .cli import config_from_args
 
 
 def add_topic_options(p: argparse.ArgumentParser) -> None:
@@ -29,15 +29,12 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
 
     config = config_from_args(args)
-    try:
-        effects = [DeclaredEffect.parse(e) for e in args.effect]
-        opts = SimulationOptions(profile=args.profile, rate_hz=args.rate, seed=args.seed, effects=effects,
-                                 torque_noise_nm=args.torque_noise, noise_ar1=args.noise_ar1,
-                                 output_lag_s=args.output_lag, joint_states=args.joint_states,
-                                 step_change_at_s=args.step_change_at)
-        rig = simulate(config, opts)
-    except ValueError as exc:
-        raise UserError(str(exc)) from None
+    effects = [DeclaredEffect.parse(e) for e in args.effect]
+    opts = SimulationOptions(profile=args.profile, rate_hz=args.rate, seed=args.seed, effects=effects,
+                             torque_noise_nm=args.torque_noise, noise_ar1=args.noise_ar1,
+                             output_lag_s=args.output_lag, joint_states=args.joint_states,
+                             step_change_at_s=args.step_change_at)
+    rig = simulate(config, opts)
     if args.duration is not None:
         import numpy as np
 
@@ -57,12 +54,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from .replay import replay
 
     config = config_from_args(args)
-    try:
-        summary, _ = replay(args.bag, config, topics_from_args(args), args.out, args.rrd,
-                            show_progress=None if not args.no_progress else False,
-                            warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr))
-    except BagError as exc:
-        raise UserError(str(exc)) from None
+    summary, _ = replay(args.bag, config, topics_from_args(args), args.out, args.rrd,
+                        show_progress=None if not args.no_progress else False,
+                        warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr))
     print(summary.text())
     for label, path in (("estimates", args.out), ("rerun recording", args.rrd)):
         if path:

@@ -20,6 +20,7 @@ import numpy as np
 
 from .bag import FLOAT64, JOINT_STATE, TEMPERATURE, BagWriter, TopicMap, encode_float64, stamp
 from .effects import EFFECTS, EffectInputs
+from .errors import UsageError
 from .model import LossModel, rotation_sign
 from .params import Config
 
@@ -37,15 +38,18 @@ class DeclaredEffect:
         name, _, rest = text.partition(":")
         name = name.strip()
         if name not in EFFECTS:
-            raise ValueError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+            raise UsageError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
         params = EFFECTS[name].simulated_defaults()
         for item in filter(None, (s.strip() for s in rest.split(","))):
             k, _, v = item.partition("=")
             if k not in params:
-                raise ValueError(f"effect {name} has no parameter {k!r}; it takes {', '.join(params)}")
-            val = float(v)
+                raise UsageError(f"effect {name} has no parameter {k!r}; it takes {', '.join(params)}")
+            try:
+                val = float(v)
+            except ValueError:
+                val = math.nan
             if not math.isfinite(val):
-                raise ValueError(f"effect {name}: {k} must be finite")
+                raise UsageError(f"effect {name}: {k} must be a finite number, not {v!r}")
             params[k] = val
         return cls(name, params)
 
@@ -180,9 +184,9 @@ def _noise(rng: np.random.Generator, n: int, sigma: float, ar1: float) -> np.nda
 def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
     """Run the rig simulation (no file I/O)."""
     if opts.profile not in PROFILES:
-        raise ValueError(f"unknown profile {opts.profile!r}; known: {', '.join(PROFILES)}")
+        raise UsageError(f"unknown profile {opts.profile!r}; known: {', '.join(PROFILES)}")
     if not (opts.rate_hz > 0 and math.isfinite(opts.rate_hz)):
-        raise ValueError("rate must be a positive number of Hz")
+        raise UsageError("rate must be a positive number of Hz")
     prof = PROFILES[opts.profile](opts.rate_hz, opts.seed)
     rng = np.random.default_rng(opts.seed)
     g = config.gearbox
@@ -209,7 +213,7 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
         elif EFFECTS[eff.name].physical:  # any other loss: its term, added to the true loss
             extra += EFFECTS[eff.name].term(EffectInputs(at, aw, tq, sg, theta), **p) * active
         else:
-            raise ValueError(f"simulate does not know how the sensor error {eff.name} corrupts a reading")
+            raise UsageError(f"simulate does not know how the sensor error {eff.name} corrupts a reading")
     model_loss = model.loss_magnitude(tq, w)
     loss_true = model.loss_magnitude(tq, w, vscale) + extra
     out_torque_true = ratio * (tq - loss_true * sg)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .bag import NAMESPACE, TopicMap, decode_float64
-from .cli import UserError
+from .errors import UsageError
 from .diagnostics import LEVEL_NAMES, STATUS_NAME
 from .player import init_for_command_line
 
@@ -117,7 +117,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
     import rclpy
 
     if not (args.period > 0):
-        raise UserError("--period must be > 0")
+        raise UsageError("--period must be > 0")
     init_for_command_line()
     try:
         return watch(args.namespace, args.period, args.count)

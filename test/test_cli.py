@@ -111,3 +111,23 @@ def test_map_grid_from_the_parameter_file(tmp_path):
     bad.write_text("/**/loss_estimator:\n  ros__parameters:\n    map: {speed_min_rpm: 500.0, speed_max_rpm: 100.0}\n")
     proc = run_cli("map", "--params", str(bad), "--out", str(out), check=False)
     assert proc.returncode == 2 and "map.speed_max_rpm" in proc.stderr
+
+
+def test_only_the_error_family_becomes_one_line_and_a_programming_error_a_traceback(monkeypatch, capsys):
+    """``rollergear: error: …`` with exit status 2 is for what users can fix (RollergearError and
+    its subclasses); anything else is a defect and must not be dressed up as bad input."""
+    import pytest
+
+    from rollergear_ros import cli, model
+    from rollergear_ros.errors import BagError, InputFileError, ParameterError, RollergearError, UsageError
+
+    assert all(issubclass(e, RollergearError) for e in (BagError, InputFileError, ParameterError, UsageError))
+    assert cli.main(["model", "--torque", "10", "--speed", "100", "--params", "/nonexistent.yaml"]) == 2
+    assert capsys.readouterr().err.startswith("rollergear: error: ")
+
+    def broken(*args, **kwargs):
+        raise ValueError("a defect, not bad input")
+
+    monkeypatch.setattr(model.LossModel, "evaluate", broken)
+    with pytest.raises(ValueError, match="a defect"):
+        cli.main(["model", "--torque", "10", "--speed", "100"])
