@@ -19,13 +19,7 @@ from mcap.reader import NonSeekingReader, make_reader
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
 from .errors import BagError
-
-NAMESPACE = "/rollergear"
-
-FLOAT64 = "std_msgs/msg/Float64"
-TEMPERATURE = "sensor_msgs/msg/Temperature"
-JOINT_STATE = "sensor_msgs/msg/JointState"
-CLOCK = "rosgraph_msgs/msg/Clock"
+from .interface import NAMESPACE, Channel, MessageType, Metadata, Topic
 
 _HEADER_DEF = """================================================================================
 MSG: std_msgs/Header
@@ -39,11 +33,11 @@ uint32 nanosec
 
 #: ros2msg schema texts (with dependencies, as rosbag2 writes them)
 MSG_DEFINITIONS: dict[str, str] = {
-    FLOAT64: "float64 data\n",
-    TEMPERATURE: "std_msgs/Header header\nfloat64 temperature\nfloat64 variance\n" + _HEADER_DEF,
-    JOINT_STATE: ("std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
+    MessageType.FLOAT64: "float64 data\n",
+    MessageType.TEMPERATURE: "std_msgs/Header header\nfloat64 temperature\nfloat64 variance\n" + _HEADER_DEF,
+    MessageType.JOINT_STATE: ("std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
                   "float64[] effort\n" + _HEADER_DEF),
-    CLOCK: "builtin_interfaces/Time clock\n================================================================================\n"
+    MessageType.CLOCK: "builtin_interfaces/Time clock\n================================================================================\n"
            "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n",
 }
 
@@ -54,23 +48,23 @@ CDR_LE_HEADER = b"\x00\x01\x00\x00"
 class TopicMap:
     """Names of the input and output topics in a bag (defaults: ``interface.md``)."""
 
-    motor_torque: str = NAMESPACE + "/motor/torque"
-    motor_speed: str = NAMESPACE + "/motor/speed"
-    output_torque: str = NAMESPACE + "/output/torque"
-    output_speed: str = NAMESPACE + "/output/speed"
-    oil_temperature: str = NAMESPACE + "/oil/temperature"
-    joint_states: str = "/joint_states"
+    motor_torque: str = f"{NAMESPACE}/{Topic.MOTOR_TORQUE}"
+    motor_speed: str = f"{NAMESPACE}/{Topic.MOTOR_SPEED}"
+    output_torque: str = f"{NAMESPACE}/{Topic.OUTPUT_TORQUE}"
+    output_speed: str = f"{NAMESPACE}/{Topic.OUTPUT_SPEED}"
+    oil_temperature: str = f"{NAMESPACE}/{Topic.OIL_TEMPERATURE}"
+    joint_states: str = Topic.JOINT_STATES
     input_joint: str = "motor"
     output_joint: str = "output"
-    loss_torque: str = NAMESPACE + "/loss/torque"
-    loss_power: str = NAMESPACE + "/loss/power"
-    efficiency: str = NAMESPACE + "/efficiency"
-    residual_torque: str = NAMESPACE + "/residual/torque"
+    loss_torque: str = f"{NAMESPACE}/{Topic.LOSS_TORQUE}"
+    loss_power: str = f"{NAMESPACE}/{Topic.LOSS_POWER}"
+    efficiency: str = f"{NAMESPACE}/{Topic.EFFICIENCY}"
+    residual_torque: str = f"{NAMESPACE}/{Topic.RESIDUAL_TORQUE}"
 
     def float64_inputs(self) -> dict[str, str]:
         """Estimator channel name -> topic, for the Float64 inputs."""
-        return {"motor_torque": self.motor_torque, "motor_speed": self.motor_speed,
-                "output_torque": self.output_torque, "output_speed": self.output_speed}
+        return {Channel.MOTOR_TORQUE: self.motor_torque, Channel.MOTOR_SPEED: self.motor_speed,
+                Channel.OUTPUT_TORQUE: self.output_torque, Channel.OUTPUT_SPEED: self.output_speed}
 
 
 # ------------------------------------------------------------------------------------ decoding
@@ -171,7 +165,7 @@ def _check_mcap(path: Path) -> None:
 
 
 #: metadata record the node writes into its recordings: how it paired the inputs it recorded
-RECORDING_METADATA = "rollergear_recording"
+RECORDING_METADATA = Metadata.RECORDING
 
 
 def read_metadata(path: str | Path, name: str) -> dict[str, str] | None:
@@ -361,7 +355,7 @@ class BagWriter:
 
     def write_float64_series(self, topic: str, t_ns: np.ndarray, values: np.ndarray) -> None:
         """A whole series of Float64 messages (vectorised encoding)."""
-        self.write_fixed(topic, FLOAT64, t_ns, float64_payloads(values))
+        self.write_fixed(topic, MessageType.FLOAT64, t_ns, float64_payloads(values))
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """An MCAP metadata record (string key/values)."""

@@ -50,15 +50,13 @@ from typing import Iterable, NamedTuple, Sequence
 import numpy as np
 
 from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale
+from .interface import Channel
 from .model import LossModel, efficiency, rotation_sign, rotation_sign_scalar
 from .params import Config
 
-TORQUE = "motor_torque"
-SPEED = "motor_speed"
-OUT_TORQUE = "output_torque"
-OUT_SPEED = "output_speed"
-TEMPERATURE = "oil_temperature"
-CHANNELS: tuple[str, ...] = (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED, TEMPERATURE)
+# channel names (defined in .interface) bound as module globals once: the hot paths index by them
+TORQUE, SPEED, OUT_TORQUE, OUT_SPEED, OIL_TEMPERATURE = Channel.ALL
+CHANNELS: tuple[str, ...] = Channel.ALL
 _REQUIRED = (TORQUE, SPEED)
 _OPTIONAL = (OUT_TORQUE, OUT_SPEED)
 _PAIRED = (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED)  #: the channels that pair, in sample order
@@ -143,7 +141,7 @@ class SampleSynchronizer:
     def push(self, channel: str, t_ns: int, value: float) -> Sequence[SyncedSample]:
         """Add one message; returns the samples it completes (usually zero or one)."""
         self.received[channel] += 1
-        if channel == TEMPERATURE:  # held, never paired: it does not move the pairing clock
+        if channel == OIL_TEMPERATURE:  # held, never paired: it does not move the pairing clock
             self.temperature = (t_ns, value)
             return ()
         if self.first_ns is None:
@@ -241,7 +239,7 @@ class SampleSynchronizer:
         cols = {c: values[rows[c]] if c in rows else np.full(n, np.nan) for c in (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED)}
         # zero-order hold of the temperature: the last one received before each sample completed
         temp = np.full(n, np.nan)
-        tpos = idx[TEMPERATURE]
+        tpos = idx[OIL_TEMPERATURE]
         k = np.searchsorted(tpos, complete_at) - 1
         have = k >= 0
         temp_t = np.where(have, t_ns[tpos[np.maximum(k, 0)]] if len(tpos) else 0, 0)
@@ -257,7 +255,7 @@ class SampleSynchronizer:
             for c in self.queues:
                 self.received[c] -= len(self.queues[c])
                 self.queues[c].clear()
-        non_temp = codes != CHANNELS.index(TEMPERATURE)
+        non_temp = codes != CHANNELS.index(OIL_TEMPERATURE)
         if self.first_ns is None:
             self.first_ns = int(t_ns[np.flatnonzero(non_temp)[0]])
         self.latest_ns = max(self.latest_ns, int(t_ns[non_temp][:complete_at.max() + 1].max()))
@@ -267,7 +265,7 @@ class SampleSynchronizer:
                 self._set_active(c, True)
         if OUT_TORQUE not in present and self.received[OUT_TORQUE]:
             self.counts["output_missing"] += n
-        self.received[TEMPERATURE] += len(tpos)
+        self.received[OIL_TEMPERATURE] += len(tpos)
         if len(tpos):
             self.temperature = (int(t_ns[tpos[-1]]), float(values[tpos[-1]]))
         for i in left.tolist():

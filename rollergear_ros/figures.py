@@ -14,7 +14,8 @@ from typing import Sequence
 import numpy as np
 
 from .errors import UsageError
-from .model import RPM_PER_RAD_S, LossModel
+from .interface import RPM_PER_RAD_S
+from .model import LossModel
 from .params import Config, GearboxParams, validate
 
 SPEED_1000_RPM = 1000.0 / RPM_PER_RAD_S  # rad/s

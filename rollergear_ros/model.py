@@ -24,10 +24,11 @@ from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import numpy as np
 
+from .interface import RPM_PER_RAD_S
+
 if TYPE_CHECKING:  # the model reads a parameter set; params validates with the model's geometry
     from .params import GearboxParams
 
-RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 
 #: breakdown keys: the contribution of each friction term and contact to T_loss [N·m]
 BREAKDOWN_KEYS: tuple[str, ...] = ("fr1", "fr2", "tc1", "tc2", "ter1", "ter2", "tb", "fg")

@@ -30,10 +30,10 @@ from std_msgs.msg import Float64
 
 from . import bag as bagmod
 from .diagnostics import STATUS_NAME, InputMonitor, diagnose
-from .estimator import OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE, TORQUE, Estimate, Estimator
+from .estimator import OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, Estimate, Estimator
+from .interface import NAMESPACE, MessageType, Metadata, Topic
 from .params import Config, ParameterError, parameter_specs, validate
 
-NAMESPACE = "/rollergear"
 #: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
 SENSOR_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE,
                         history=HistoryPolicy.KEEP_LAST, depth=1000)
@@ -94,15 +94,15 @@ class LossEstimatorNode(Node):
         self.backlog_discarded = 0  #: input messages queued before the first spin, discarded
         self.executor_kind = node.executor
         topics = bagmod.TopicMap()
-        self.out_topics = {"loss": self.resolve_topic_name("loss/torque"),
-                           "power": self.resolve_topic_name("loss/power"),
-                           "eff": self.resolve_topic_name("efficiency"),
-                           "res": self.resolve_topic_name("residual/torque")}
-        self.pub_loss = self.create_publisher(Float64, "loss/torque", OUTPUT_QOS)
-        self.pub_power = self.create_publisher(Float64, "loss/power", OUTPUT_QOS)
-        self.pub_eff = self.create_publisher(Float64, "efficiency", OUTPUT_QOS)
-        self.pub_res = self.create_publisher(Float64, "residual/torque", OUTPUT_QOS)
-        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.out_topics = {"loss": self.resolve_topic_name(Topic.LOSS_TORQUE),
+                           "power": self.resolve_topic_name(Topic.LOSS_POWER),
+                           "eff": self.resolve_topic_name(Topic.EFFICIENCY),
+                           "res": self.resolve_topic_name(Topic.RESIDUAL_TORQUE)}
+        self.pub_loss = self.create_publisher(Float64, Topic.LOSS_TORQUE, OUTPUT_QOS)
+        self.pub_power = self.create_publisher(Float64, Topic.LOSS_POWER, OUTPUT_QOS)
+        self.pub_eff = self.create_publisher(Float64, Topic.EFFICIENCY, OUTPUT_QOS)
+        self.pub_res = self.create_publisher(Float64, Topic.RESIDUAL_TORQUE, OUTPUT_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, Topic.DIAGNOSTICS, 10)
         self._send_loss, self._send_power, self._send_eff, self._send_res = (
             _raw_publish(p) for p in (self.pub_loss, self.pub_power, self.pub_eff, self.pub_res))
         self.recorder: bagmod.BagWriter | None = None
@@ -112,7 +112,7 @@ class LossEstimatorNode(Node):
                                 and not self.get_parameter("use_sim_time").value)
         if node.record_mcap:
             self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024)
-            self.recorder.add_metadata(bagmod.RECORDING_METADATA, {
+            self.recorder.add_metadata(Metadata.RECORDING, {
                 "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
                 "pairing": self.pairing if self._record_arrival else "timestamp",
                 "sample_period_s": repr(1.0 / node.expected_rate_hz)})
@@ -126,13 +126,12 @@ class LossEstimatorNode(Node):
         with_info = self.executor_kind == "single_threaded"
         input_qos = INPUT_QOS[node.input_qos]
         if node.input_mode == "float64":
-            for channel, rel in ((TORQUE, "motor/torque"), (SPEED, "motor/speed"), (OUT_TORQUE, "output/torque"),
-                                 (OUT_SPEED, "output/speed")):
+            for channel, rel in Topic.OF_CHANNEL.items():
                 self.create_subscription(Float64, rel, self._float_callback(channel, self.resolve_topic_name(rel),
                                                                             with_info), input_qos, raw=True)
         else:
             self.create_subscription(JointState, topics.joint_states, self._joint_state_callback, input_qos)
-        self.create_subscription(Temperature, "oil/temperature", self._temperature_callback, input_qos)
+        self.create_subscription(Temperature, Topic.OIL_TEMPERATURE, self._temperature_callback, input_qos)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(
             f"estimating from {'Float64 topics' if node.input_mode == 'float64' else topics.joint_states}; "
@@ -199,7 +198,7 @@ class LossEstimatorNode(Node):
             counts[channel] += 1
             last[channel] = wall_ns
             if self.recorder is not None:
-                self.recorder.write_raw(topic, bagmod.FLOAT64,
+                self.recorder.write_raw(topic, MessageType.FLOAT64,
                                         t_ns if record_arrival else self.get_clock().now().nanoseconds, raw)
             value = unpack(raw, 4)[0] if raw[1] == 1 else float(bagmod.decode_float64([raw])[0])
             for est in self.estimator.push(channel, t_ns, value):
@@ -222,7 +221,7 @@ class LossEstimatorNode(Node):
         names = list(msg.name)
         node = self.config.node
         if self.recorder is not None:
-            self.recorder.write_raw("/joint_states", bagmod.JOINT_STATE, self.get_clock().now().nanoseconds,
+            self.recorder.write_raw(Topic.JOINT_STATES, MessageType.JOINT_STATE, self.get_clock().now().nanoseconds,
                                     serialize_message(msg))
         for joint, ch_t, ch_w in ((node.input_joint, TORQUE, SPEED), (node.output_joint, OUT_TORQUE, OUT_SPEED)):
             if joint in names:
@@ -237,15 +236,15 @@ class LossEstimatorNode(Node):
 
     def _temperature_callback(self, msg: Temperature) -> None:
         wall = time.time_ns()
-        self.monitor.record(TEMPERATURE, wall)
+        self.monitor.record(OIL_TEMPERATURE, wall)
         if self.recorder is not None:
-            self.recorder.write_raw(self.resolve_topic_name("oil/temperature"), bagmod.TEMPERATURE,
+            self.recorder.write_raw(self.resolve_topic_name(Topic.OIL_TEMPERATURE), MessageType.TEMPERATURE,
                                     wall if self._record_arrival else self.get_clock().now().nanoseconds,
                                     serialize_message(msg))
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         # the stamp keeps the temperature on the inputs' clock in JointState mode (header stamps)
         t_ns = stamp if (stamp and self.config.node.input_mode == "joint_state") else wall
-        self.estimator.push(TEMPERATURE, t_ns, float(msg.temperature))
+        self.estimator.push(OIL_TEMPERATURE, t_ns, float(msg.temperature))
 
     # ------------------------------------------------------------------ outputs
     def _publish(self, est: Estimate) -> None:
@@ -264,9 +263,9 @@ class LossEstimatorNode(Node):
         if self.recorder is not None:
             stamp = self.get_clock().now().nanoseconds
             for key, raw in zip(("loss", "power", "eff"), raws):
-                self.recorder.write_raw(self.out_topics[key], bagmod.FLOAT64, stamp, raw)
+                self.recorder.write_raw(self.out_topics[key], MessageType.FLOAT64, stamp, raw)
             if res_raw is not None:
-                self.recorder.write_raw(self.out_topics["res"], bagmod.FLOAT64, stamp, res_raw)
+                self.recorder.write_raw(self.out_topics["res"], MessageType.FLOAT64, stamp, res_raw)
         if self.rerun is not None:
             self._rr_buffer.append(est)
 

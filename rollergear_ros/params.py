@@ -24,9 +24,9 @@ import yaml
 
 from .effects import EFFECTS, REGISTRY_VERSION
 from .errors import ParameterError
+from .interface import NODE_NAME
 from .model import contact_geometry
 
-NODE_NAME = "loss_estimator"
 
 
 @dataclass(frozen=True)

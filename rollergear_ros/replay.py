@@ -17,10 +17,11 @@ from typing import Callable
 
 import numpy as np
 
-from .bag import (FLOAT64, JOINT_STATE, RECORDING_METADATA, TEMPERATURE, BagError, BagInfo, BagWriter, RawBatch,
-                  TopicMap, decode_float64, decoder_for, inspect_bag, iter_raw_batches, median_period_s, read_metadata)
-from .estimator import (CHANNELS, OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE as CH_TEMPERATURE, TORQUE,
-                        BatchEstimate, Estimator, samples_to_arrays)
+from .bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, decode_float64, decoder_for, inspect_bag,
+                  iter_raw_batches, median_period_s, read_metadata)
+from .estimator import (CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, BatchEstimate, Estimator,
+                        samples_to_arrays)
+from .interface import MessageType, Metadata
 from .params import Config
 
 
@@ -55,7 +56,7 @@ def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
 
     temperature = None
     if topics.oil_temperature in have:
-        need_type(topics.oil_temperature, (TEMPERATURE, FLOAT64))
+        need_type(topics.oil_temperature, (MessageType.TEMPERATURE, MessageType.FLOAT64))
         temperature = (topics.oil_temperature, have[topics.oil_temperature])
     if topics.motor_torque in have or topics.motor_speed in have:
         missing = [t for t in (topics.motor_torque, topics.motor_speed) if t not in have]
@@ -64,11 +65,11 @@ def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
         f64 = {}
         for ch, topic in topics.float64_inputs().items():
             if topic in have:
-                need_type(topic, (FLOAT64,))
+                need_type(topic, (MessageType.FLOAT64,))
                 f64[topic] = ch
         return InputPlan("float64", f64, None, temperature, topics)
     if topics.joint_states in have:
-        need_type(topics.joint_states, (JOINT_STATE,))
+        need_type(topics.joint_states, (MessageType.JOINT_STATE,))
         return InputPlan("joint_state", {}, topics.joint_states, temperature, topics)
     raise BagError(f"{info.path} has none of the input topics ({topics.motor_torque} and {topics.motor_speed} "
                    f"as std_msgs/msg/Float64, or {topics.joint_states} as sensor_msgs/msg/JointState); "
@@ -83,12 +84,12 @@ def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo) -> list[tuple[
     out: list[tuple[int, str, float]] = []
     tp = plan.topics
     temp_topic, temp_type = plan.temperature or (None, None)
-    js_dec = decoder_for(JOINT_STATE, info.schema_texts.get(JOINT_STATE))
-    temp_dec = decoder_for(temp_type, info.schema_texts.get(temp_type)) if temp_type not in (None, FLOAT64) else None
+    js_dec = decoder_for(MessageType.JOINT_STATE, info.schema_texts.get(MessageType.JOINT_STATE))
+    temp_dec = decoder_for(temp_type, info.schema_texts.get(temp_type)) if temp_type not in (None, MessageType.FLOAT64) else None
     for topic, t, data in zip(batch.topics, batch.log_time_ns, batch.data):
         if topic == temp_topic:
             value = decode_float64([data])[0] if temp_dec is None else temp_dec(data).temperature
-            out.append((t, CH_TEMPERATURE, float(value)))
+            out.append((t, OIL_TEMPERATURE, float(value)))
         elif topic == plan.joint_states:
             msg = js_dec(data)
             names = list(msg.name)
@@ -133,7 +134,7 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Call
 
     state = ReadState()
     code_of = {c: i for i, c in enumerate(CHANNELS)}
-    temp_code = code_of[CH_TEMPERATURE]
+    temp_code = code_of[OIL_TEMPERATURE]
     pending: list = []
     count = 0
 
@@ -145,7 +146,7 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Call
             c = code[keep]
             v = np.full(len(keep), np.nan)
             f64 = c != temp_code
-            if plan.temperature and plan.temperature[1] == FLOAT64:
+            if plan.temperature and plan.temperature[1] == MessageType.FLOAT64:
                 f64[:] = True
             if f64.any():
                 try:
@@ -352,7 +353,7 @@ def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tup
     recording ``loss_estimator`` made while pairing by arrival (its ``rollergear_recording``
     metadata; the inputs were logged at the arrival times it paired them by, so replay pairs them
     as the node did), else ``("timestamp", period_s)``."""
-    recording = read_metadata(path, RECORDING_METADATA) if plan.mode == "float64" else None
+    recording = read_metadata(path, Metadata.RECORDING) if plan.mode == "float64" else None
     if recording and recording.get("pairing") == "arrival":
         try:
             node_period_s = float(recording.get("sample_period_s", "nan"))

@@ -18,13 +18,13 @@ from typing import Callable
 
 import numpy as np
 
-from .bag import FLOAT64, JOINT_STATE, TEMPERATURE, BagWriter, TopicMap, encode_float64, stamp
+from .bag import BagWriter, TopicMap, encode_float64, stamp
 from .effects import EFFECTS, EffectInputs
 from .errors import UsageError
+from .interface import RAD_S_PER_RPM, MessageType, Metadata
 from .model import LossModel, rotation_sign
 from .params import Config
 
-RPM = 2.0 * math.pi / 60.0
 
 @dataclass
 class DeclaredEffect:
@@ -90,7 +90,7 @@ def rig_map(rate_hz: float, dwell_s: float = 1.0, bidirectional: bool = False,
             speeds_rpm=(250, 500, 1000, 1500, 2000, 2500), torques_nm=(-60, -30, -10, 5, 10, 30, 60, 90)) -> Profile:
     """Speed plateaus × torque steps (both torque signs: motoring and regeneration)."""
     directions = (1, -1) if bidirectional else (1,)
-    pts = [(d * s * RPM, float(t)) for d in directions for s in speeds_rpm for t in torques_nm]
+    pts = [(d * s * RAD_S_PER_RPM, float(t)) for d in directions for s in speeds_rpm for t in torques_nm]
     return _dwells(pts, dwell_s, rate_hz, ramp_s=0.05)
 
 
@@ -115,7 +115,7 @@ def drive_cycle(rate_hz: float, duration_s: float = 120.0, seed: int = 0) -> Pro
 def warmup(rate_hz: float, duration_s: float = 240.0, theta0_c: float = 20.0, theta1_c: float = 85.0,
            tau_s: float = 70.0, bidirectional: bool = True) -> Profile:
     """Repeating operating points while the oil warms up (first-order, time constant ``tau_s``)."""
-    pts = [(s * RPM * d, tq) for d in ((1, -1) if bidirectional else (1,))
+    pts = [(s * RAD_S_PER_RPM * d, tq) for d in ((1, -1) if bidirectional else (1,))
            for s in (500, 1500, 2500) for tq in (-40.0, 10.0, 50.0)]
     base = _dwells(pts, 1.0, rate_hz, 0.05)
     reps = int(math.ceil(duration_s * rate_hz / len(base.t_s)))
@@ -242,7 +242,7 @@ def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics
              "joint_states": opts.joint_states}
     count = 0
     with BagWriter(path) as bw:
-        bw.add_metadata("rollergear_simulation", {"truth": json.dumps(truth)})
+        bw.add_metadata(Metadata.SIMULATION, {"truth": json.dumps(truth)})
         n = len(rig.t_ns)
         block = 20_000
         temp_every = max(int(round(opts.rate_hz / opts.temperature_rate_hz)), 1)
@@ -255,7 +255,7 @@ def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics
             for i in range(s, e):
                 t = int(rig.t_ns[i])
                 if opts.joint_states:
-                    bw.write_message(topics.joint_states, JOINT_STATE, t, {
+                    bw.write_message(topics.joint_states, MessageType.JOINT_STATE, t, {
                         "header": {"stamp": stamp(t), "frame_id": ""},
                         "name": [topics.input_joint, topics.output_joint], "position": [],
                         "velocity": [float(rig.speed_rad_s[i]), float(rig.out_speed_meas_rad_s[i])],
@@ -264,10 +264,10 @@ def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics
                 else:
                     # channels interleaved sample by sample, as a recorder stores them
                     for name, pl in zip(names, payloads):
-                        bw.write_raw(name, FLOAT64, t, pl[i - s])
+                        bw.write_raw(name, MessageType.FLOAT64, t, pl[i - s])
                     count += 4
                 if i in temp_msgs:
-                    bw.write_message(topics.oil_temperature, TEMPERATURE, t, temp_msgs[i])
+                    bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, t, temp_msgs[i])
                     count += 1
             if progress:
                 progress(e - s)
@@ -284,7 +284,7 @@ def read_truth(path: Path) -> dict:
     """The ``rollergear_simulation`` metadata of a simulated bag (for tests and docs only)."""
     from .bag import read_metadata
 
-    md = read_metadata(path, "rollergear_simulation")
+    md = read_metadata(path, Metadata.SIMULATION)
     if md is None:
         raise KeyError(f"{path} has no rollergear_simulation metadata")
     return json.loads(md["truth"])

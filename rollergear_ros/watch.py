@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bag import NAMESPACE, TopicMap, decode_float64
+from .bag import TopicMap, decode_float64
+from .interface import NAMESPACE, Topic
 from .errors import UsageError
 from .diagnostics import LEVEL_NAMES, STATUS_NAME
 from .player import init_for_command_line
@@ -90,7 +91,7 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
                 window.diagnostic = (status.level[0] if isinstance(status.level, bytes) else int(status.level),
                                      status.message)
 
-    node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 10)
+    node.create_subscription(DiagnosticArray, Topic.DIAGNOSTICS, on_diagnostics, 10)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     topic_of_loss = f"{ns}/{OUTPUT_TOPICS['loss']}"

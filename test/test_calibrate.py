@@ -171,7 +171,8 @@ def test_online_adaptation_follows_a_step_and_alarms_once(tmp_path):
 
 
 def test_calibrate_bad_input(tmp_path):
-    from rollergear_ros.bag import FLOAT64, BagWriter, encode_float64
+    from rollergear_ros.bag import BagWriter, encode_float64
+    from rollergear_ros.interface import MessageType
 
     proc = run_cli("calibrate", str(tmp_path / "none.mcap"), check=False)
     assert proc.returncode == 2 and "does not exist" in proc.stderr
@@ -180,8 +181,8 @@ def test_calibrate_bad_input(tmp_path):
     p = tmp_path / "noout.mcap"
     with BagWriter(p) as bw:
         for i in range(100):
-            bw.write_raw("/rollergear/motor/torque", FLOAT64, 10**9 + i * 10**7, encode_float64(np.array([5.0]))[0])
-            bw.write_raw("/rollergear/motor/speed", FLOAT64, 10**9 + i * 10**7, encode_float64(np.array([50.0]))[0])
+            bw.write_raw("/rollergear/motor/torque", MessageType.FLOAT64, 10**9 + i * 10**7, encode_float64(np.array([5.0]))[0])
+            bw.write_raw("/rollergear/motor/speed", MessageType.FLOAT64, 10**9 + i * 10**7, encode_float64(np.array([50.0]))[0])
     proc = run_cli("calibrate", str(p), "--json", check=False)
     assert proc.returncode == 2 and "output torque" in proc.stderr and proc.stdout == ""
 

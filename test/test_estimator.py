@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from rollergear_ros.diagnostics import ERROR, OK, WARN, InputMonitor, diagnose
-from rollergear_ros.estimator import (CHANNELS, OUT_SPEED, OUT_TORQUE, SPEED, TEMPERATURE, TORQUE, ChangeDetector,
+from rollergear_ros.estimator import (CHANNELS, OUT_SPEED, OUT_TORQUE, SPEED, OIL_TEMPERATURE, TORQUE, ChangeDetector,
                                       Estimator, RecursiveLeastSquares, ResidualStats, SampleSynchronizer,
                                       pairing_tolerance_s, samples_to_arrays)
 from rollergear_ros.params import load_config
@@ -26,7 +26,7 @@ def stream(n: int, outputs: bool = True, temp_every: int = 7, seed: int = 0):
         for c in chans:
             ev.append((CHANNELS.index(c), t, float(rng.normal())))
         if k % temp_every == 3:
-            ev.append((CHANNELS.index(TEMPERATURE), t, 40.0 + k * 0.01))
+            ev.append((CHANNELS.index(OIL_TEMPERATURE), t, 40.0 + k * 0.01))
     codes = np.array([e[0] for e in ev], dtype=np.int8)
     return codes, np.array([e[1] for e in ev], dtype=np.int64), np.array([e[2] for e in ev])
 

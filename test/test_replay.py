@@ -12,7 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rollergear_ros.bag import FLOAT64, BagError, BagWriter, TopicMap, encode_float64, inspect_bag
+from rollergear_ros.bag import BagWriter, TopicMap, encode_float64, inspect_bag
+from rollergear_ros.errors import BagError
+from rollergear_ros.interface import MessageType
 from rollergear_ros.estimator import Estimator
 from rollergear_ros.model import LossModel
 from rollergear_ros.params import load_config
@@ -182,15 +184,15 @@ def _write_bag(path: Path, series: dict[str, tuple[str, np.ndarray]], n: int = 2
     with BagWriter(path) as bw:
         for i in range(n):
             for topic, (type_name, values) in series.items():
-                if type_name == FLOAT64:
-                    bw.write_raw(topic, FLOAT64, int(t[i]), encode_float64(values[i:i + 1])[0])
+                if type_name == MessageType.FLOAT64:
+                    bw.write_raw(topic, MessageType.FLOAT64, int(t[i]), encode_float64(values[i:i + 1])[0])
                 else:
                     bw.write_message(topic, type_name, int(t[i]), values[i])
 
 
 def test_missing_topics_error_lists_what_the_bag_has(tmp_path):
     p = tmp_path / "m.mcap"
-    _write_bag(p, {"/other/torque": (FLOAT64, np.ones(10))}, n=10)
+    _write_bag(p, {"/other/torque": (MessageType.FLOAT64, np.ones(10))}, n=10)
     proc = run_cli("replay", str(p), check=False)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "/other/torque [std_msgs/msg/Float64]" in proc.stderr and T.motor_torque in proc.stderr
@@ -199,7 +201,7 @@ def test_missing_topics_error_lists_what_the_bag_has(tmp_path):
 def test_unexpected_type_names_the_topic(tmp_path):
     p = tmp_path / "t.mcap"
     msg = {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}, "temperature": 1.0, "variance": 0.0}
-    _write_bag(p, {T.motor_torque: ("sensor_msgs/msg/Temperature", [msg] * 5), T.motor_speed: (FLOAT64, np.ones(5))},
+    _write_bag(p, {T.motor_torque: ("sensor_msgs/msg/Temperature", [msg] * 5), T.motor_speed: (MessageType.FLOAT64, np.ones(5))},
                n=5)
     with pytest.raises(BagError, match=f"{T.motor_torque} has type sensor_msgs/msg/Temperature"):
         replay(p, load_config(), show_progress=False)
@@ -235,7 +237,7 @@ def test_nan_and_inf_samples_are_skipped_and_counted(tmp_path, config):
     tq[40] = -np.inf
     tq[50] = 1e9  # implausible
     p = tmp_path / "nan.mcap"
-    _write_bag(p, {T.motor_torque: (FLOAT64, tq), T.motor_speed: (FLOAT64, w)}, n=n)
+    _write_bag(p, {T.motor_torque: (MessageType.FLOAT64, tq), T.motor_speed: (MessageType.FLOAT64, w)}, n=n)
     out = tmp_path / "o.mcap"
     s, _ = replay(p, config, out_mcap=out, show_progress=False)
     assert s.skipped["non_finite"] == 4 and s.skipped["implausible"] == 1
@@ -251,11 +253,11 @@ def test_unpaired_and_missing_output_are_counted(tmp_path, config):
     p = tmp_path / "gap.mcap"
     with BagWriter(p) as bw:
         for i in range(n):
-            bw.write_raw(T.motor_torque, FLOAT64, int(t[i]), encode_float64(np.array([10.0]))[0])
+            bw.write_raw(T.motor_torque, MessageType.FLOAT64, int(t[i]), encode_float64(np.array([10.0]))[0])
             if i % 10 != 5:  # every tenth speed message lost
-                bw.write_raw(T.motor_speed, FLOAT64, int(t[i]), encode_float64(np.array([50.0]))[0])
+                bw.write_raw(T.motor_speed, MessageType.FLOAT64, int(t[i]), encode_float64(np.array([50.0]))[0])
             if i < 100:  # output torque stops half way
-                bw.write_raw(T.output_torque, FLOAT64, int(t[i]), encode_float64(np.array([13.0]))[0])
+                bw.write_raw(T.output_torque, MessageType.FLOAT64, int(t[i]), encode_float64(np.array([13.0]))[0])
     s, _ = replay(p, config, show_progress=False)
     assert s.skipped["unpaired"] == 20
     assert s.skipped["output_missing"] >= 89
@@ -277,7 +279,7 @@ def _separately_logged_bag(path: Path, offset_s: float, jitter_s: float, n: int 
     rows.sort()
     with BagWriter(path) as bw:
         for t, topic, v in rows:
-            bw.write_raw(topic, FLOAT64, t, encode_float64(np.array([v]))[0])
+            bw.write_raw(topic, MessageType.FLOAT64, t, encode_float64(np.array([v]))[0])
     return torque, speed
 
 
@@ -316,7 +318,7 @@ def test_truncated_bag_processes_what_is_readable(tmp_path, config):
 
 def test_topic_remapping(tmp_path, config):
     p = tmp_path / "r.mcap"
-    _write_bag(p, {"/rig/tq": (FLOAT64, np.full(50, 10.0)), "/rig/w": (FLOAT64, np.full(50, 100.0))}, n=50)
+    _write_bag(p, {"/rig/tq": (MessageType.FLOAT64, np.full(50, 10.0)), "/rig/w": (MessageType.FLOAT64, np.full(50, 100.0))}, n=50)
     proc = run_cli("replay", str(p), "--topic-motor-torque", "/rig/tq", "--topic-motor-speed", "/rig/w",
                    "--topic-loss-torque", "/est/loss", "--out", str(tmp_path / "o.mcap"))
     assert "estimated: 50" in proc.stdout
@@ -358,8 +360,8 @@ def test_big_endian_float64_payloads_are_decoded(tmp_path, config):
     with BagWriter(p) as bw:
         for i in range(n):
             t = 10**9 + i * 10**7
-            bw.write_raw(T.motor_torque, FLOAT64, t, b"\x00\x00\x00\x00" + struct.pack(">d", 20.0))
-            bw.write_raw(T.motor_speed, FLOAT64, t, b"\x00\x00\x00\x00" + struct.pack(">d", 100.0))
+            bw.write_raw(T.motor_torque, MessageType.FLOAT64, t, b"\x00\x00\x00\x00" + struct.pack(">d", 20.0))
+            bw.write_raw(T.motor_speed, MessageType.FLOAT64, t, b"\x00\x00\x00\x00" + struct.pack(">d", 100.0))
     s, batches = replay(p, config, show_progress=False, collect=True)
     loss = np.concatenate([b.loss_torque_nm for b in batches])
     assert len(loss) == n
@@ -376,14 +378,14 @@ def test_big_endian_float64_payloads_are_decoded(tmp_path, config):
 def test_a_node_recording_is_paired_as_the_node_paired_it(tmp_path, config, metadata, pairing):
     """``rollergear_recording`` metadata (written by loss_estimator) selects arrival pairing with the
     node's sample period; anything unreadable falls back to pairing by the bag's timestamps."""
-    from rollergear_ros.bag import RECORDING_METADATA
+    from rollergear_ros.interface import Metadata
 
     n = 300
     t = (1_000_000_000 + np.arange(n) * 1_000_000).astype(np.int64)
     p = tmp_path / "node.mcap"
     with BagWriter(p) as bw:
         if metadata is not None:
-            bw.add_metadata(RECORDING_METADATA, metadata)
+            bw.add_metadata(Metadata.RECORDING, metadata)
         bw.write_float64_series(T.motor_torque, t, np.linspace(5.0, 50.0, n))
         bw.write_float64_series(T.motor_speed, t + 50_000, np.full(n, 100.0))
     s, batches = replay(p, config, show_progress=False, collect=True)
