@@ -82,7 +82,9 @@ def run(driver, sut: subprocess.Popen, rate: float, seconds: float, with_outputs
             "cpu_pct": 100.0 * cpu / (n / rate)}
 
 
-def loss_free(driver, sut: subprocess.Popen, rate: float, seconds: float, with_outputs: bool) -> tuple[bool, float, bool]:
+def loss_free(
+    driver, sut: subprocess.Popen, rate: float, seconds: float, with_outputs: bool
+) -> tuple[bool, float, bool]:
     """Whether ``rate`` is sustained without a drop: one transient drop (a scheduling hiccup on
     this 2-core machine) earns a second try, two mean no.  Returns (ok, achieved rate, driver-bound)."""
     for _ in range(2):
@@ -94,8 +96,9 @@ def loss_free(driver, sut: subprocess.Popen, rate: float, seconds: float, with_o
     return False, r["achieved"], False
 
 
-def max_loss_free_rate(driver, sut: subprocess.Popen, with_outputs: bool, seconds: float = 3.0,
-                       ceiling: float = 20000.0) -> tuple[float, bool]:
+def max_loss_free_rate(
+    driver, sut: subprocess.Popen, with_outputs: bool, seconds: float = 3.0, ceiling: float = 20000.0
+) -> tuple[float, bool]:
     """Highest rate with no dropped sample: ramp in 1 k samples/s steps until a rate fails (see
     :func:`loss_free`), then bisect three times (resolution 125 samples/s).  Also says whether the
     driver could not keep up."""
@@ -126,11 +129,18 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--no-outputs", action="store_true", help="publish only motor torque and speed")
-    ap.add_argument("--executor", choices=("events", "single_threaded"), default="events",
-                    help="rclpy executor of both systems under test")
+    ap.add_argument(
+        "--executor",
+        choices=("events", "single_threaded"),
+        default="events",
+        help="rclpy executor of both systems under test",
+    )
     ap.add_argument("--repeat", type=int, default=3, help="interleaved runs of each system (median ratio)")
-    ap.add_argument("--pin", action="store_true",
-                    help="driver on CPU 0, system under test on CPU 1 (so they do not compete for a core)")
+    ap.add_argument(
+        "--pin",
+        action="store_true",
+        help="driver on CPU 0, system under test on CPU 1 (so they do not compete for a core)",
+    )
     args = ap.parse_args()
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
     if args.pin:
@@ -145,11 +155,14 @@ def main() -> None:
 
     rclpy.init()
     node = Node("bench_driver")
-    pubs = [node.create_publisher(Float64, f"/rollergear/{t}", 1000)
-            for t in ("motor/torque", "motor/speed", "output/torque", "output/speed")]
+    pubs = [
+        node.create_publisher(Float64, f"/rollergear/{t}", 1000)
+        for t in ("motor/torque", "motor/speed", "output/torque", "output/speed")
+    ]
     received: list[int] = []
-    node.create_subscription(Float64, "/rollergear/loss/torque", lambda raw: received.append(time.monotonic_ns()),
-                             OUTPUT_QOS, raw=True)
+    node.create_subscription(
+        Float64, "/rollergear/loss/torque", lambda raw: received.append(time.monotonic_ns()), OUTPUT_QOS, raw=True
+    )
     ex = EventsExecutor()
     ex.add_node(node)
     stop = threading.Event()
@@ -165,11 +178,12 @@ def main() -> None:
     kinds = ("echo", "loss_estimator")
     best_of: dict[str, list[float]] = {k: [] for k in kinds}
     for rep in range(args.repeat):
-        for kind in (kinds if rep % 2 == 0 else kinds[::-1]):  # interleaved: drifts hit both alike
+        for kind in kinds if rep % 2 == 0 else kinds[::-1]:  # interleaved: drifts hit both alike
             sut = start_sut(kind, args.executor, 1 if args.pin else None)
             deadline = time.monotonic() + 30
-            while time.monotonic() < deadline and (pubs[0].get_subscription_count() == 0
-                                                   or node.count_publishers("/rollergear/loss/torque") == 0):
+            while time.monotonic() < deadline and (
+                pubs[0].get_subscription_count() == 0 or node.count_publishers("/rollergear/loss/torque") == 0
+            ):
                 time.sleep(0.05)
             time.sleep(1.0)
             run(driver, sut, 200, 1.0, with_outputs)  # warm-up
@@ -178,17 +192,22 @@ def main() -> None:
             sut.send_signal(signal.SIGINT)
             sut.wait(timeout=20)
             best_of[kind].append(best)
-            print(f"run {rep + 1} {kind:15s} 1 kHz: dropped {r1k['dropped']}/{r1k['sent']}, latency p50 "
-                  f"{r1k['p50_us']:.0f} µs, p99 {r1k['p99_us']:.0f} µs, CPU {r1k['cpu_pct']:.0f} % of a core per "
-                  f"1 k samples/s; max loss-free rate {best:.0f} samples/s"
-                  + (" (driver-bound: the publisher could not go faster)" if driver_bound else ""), flush=True)
+            print(
+                f"run {rep + 1} {kind:15s} 1 kHz: dropped {r1k['dropped']}/{r1k['sent']}, latency p50 "
+                f"{r1k['p50_us']:.0f} µs, p99 {r1k['p99_us']:.0f} µs, CPU {r1k['cpu_pct']:.0f} % of a core per "
+                f"1 k samples/s; max loss-free rate {best:.0f} samples/s"
+                + (" (driver-bound: the publisher could not go faster)" if driver_bound else ""),
+                flush=True,
+            )
     stop.set()
     th.join()
     channels = 4 if with_outputs else 2
     ratios = [lo / e if e else float("nan") for lo, e in zip(best_of["loss_estimator"], best_of["echo"])]
-    print(f"executor: {args.executor}{'; driver on CPU 0, SUT on CPU 1' if args.pin else ''}; inputs per sample: "
-          f"{channels} topics; loss_estimator max rate / echo max rate per run: "
-          f"{', '.join(f'{r:.2f}' for r in ratios)}; median {float(np.median(ratios)):.2f} (target >= 0.8)")
+    print(
+        f"executor: {args.executor}{'; driver on CPU 0, SUT on CPU 1' if args.pin else ''}; inputs per sample: "
+        f"{channels} topics; loss_estimator max rate / echo max rate per run: "
+        f"{', '.join(f'{r:.2f}' for r in ratios)}; median {float(np.median(ratios)):.2f} (target >= 0.8)"
+    )
     rclpy.shutdown()
 
 

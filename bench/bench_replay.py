@@ -62,8 +62,11 @@ def main() -> None:
     t0 = time.perf_counter()
     summary, _ = replay(bag, config, out_mcap=out, show_progress=False)
     t_rep = time.perf_counter() - t0
-    print(f"rollergear replay            : {summary.estimated:,} samples, {summary.input_messages:,} messages in "
-          f"{t_rep:6.1f} s = {summary.input_messages / t_rep / 1e3:7.0f} k msg/s; output {out.stat().st_size / 1e6:.0f} MB")
+    print(
+        f"rollergear replay            : {summary.estimated:,} samples, {summary.input_messages:,} messages in "
+        f"{t_rep:6.1f} s = {summary.input_messages / t_rep / 1e3:7.0f} k msg/s; "
+        f"output {out.stat().st_size / 1e6:.0f} MB"
+    )
     print(f"replay rate / raw iteration rate   : {t_raw / t_rep:.2f}x  (target >= 0.5x)")
     print(f"replay speed-up over ros2 decoding : {t_dec / t_rep:.2f}x  (target >= 5x)")
 

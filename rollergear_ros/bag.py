@@ -11,7 +11,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
+from collections.abc import Iterator
 
 import numpy as np
 from mcap.exceptions import McapError
@@ -35,10 +36,12 @@ uint32 nanosec
 MSG_DEFINITIONS: dict[str, str] = {
     MessageType.FLOAT64: "float64 data\n",
     MessageType.TEMPERATURE: "std_msgs/Header header\nfloat64 temperature\nfloat64 variance\n" + _HEADER_DEF,
-    MessageType.JOINT_STATE: ("std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
-                  "float64[] effort\n" + _HEADER_DEF),
-    MessageType.CLOCK: "builtin_interfaces/Time clock\n================================================================================\n"
-           "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n",
+    MessageType.JOINT_STATE: (
+        "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\n"
+        "float64[] effort\n" + _HEADER_DEF
+    ),
+    MessageType.CLOCK: ("builtin_interfaces/Time clock\n" + "=" * 80 + "\n"
+                        "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"),
 }
 
 CDR_LE_HEADER = b"\x00\x01\x00\x00"
@@ -63,8 +66,12 @@ class TopicMap:
 
     def float64_inputs(self) -> dict[str, str]:
         """Estimator channel name -> topic, for the Float64 inputs."""
-        return {Channel.MOTOR_TORQUE: self.motor_torque, Channel.MOTOR_SPEED: self.motor_speed,
-                Channel.OUTPUT_TORQUE: self.output_torque, Channel.OUTPUT_SPEED: self.output_speed}
+        return {
+            Channel.MOTOR_TORQUE: self.motor_torque,
+            Channel.MOTOR_SPEED: self.motor_speed,
+            Channel.OUTPUT_TORQUE: self.output_torque,
+            Channel.OUTPUT_SPEED: self.output_speed,
+        }
 
 
 # ------------------------------------------------------------------------------------ decoding
@@ -99,7 +106,7 @@ def float64_payloads(values: np.ndarray) -> np.ndarray:
 def encode_float64(values: np.ndarray) -> list[bytes]:
     """Encode floats as Float64 CDR payloads (little endian), one ``bytes`` each."""
     raw = float64_payloads(values).tobytes()
-    return [raw[i:i + 12] for i in range(0, len(raw), 12)]
+    return [raw[i : i + 12] for i in range(0, len(raw), 12)]
 
 
 _decoders: dict[str, Any] = {}
@@ -155,13 +162,16 @@ def _check_mcap(path: Path) -> None:
         raise BagError(f"{path} does not exist")
     if path.is_dir():
         mcaps = sorted(path.glob("*.mcap"))
-        raise BagError(f"{path} is a directory; pass the .mcap file inside it"
-                       + (f" (e.g. {mcaps[0]})" if mcaps else ""))
+        raise BagError(
+            f"{path} is a directory; pass the .mcap file inside it" + (f" (e.g. {mcaps[0]})" if mcaps else "")
+        )
     with path.open("rb") as fh:
         magic = fh.read(8)
     if magic != b"\x89MCAP0\r\n":
-        raise BagError(f"{path} is not an MCAP file (bad magic bytes); rosbag2 .db3 (SQLite) bags are not supported, "
-                       "convert them to MCAP")
+        raise BagError(
+            f"{path} is not an MCAP file (bad magic bytes); rosbag2 .db3 (SQLite) bags are not supported, "
+            "convert them to MCAP"
+        )
 
 
 #: metadata record the node writes into its recordings: how it paired the inputs it recorded
@@ -192,16 +202,29 @@ def inspect_bag(path: str | Path) -> BagInfo:
         except (McapError, struct.error, ValueError, EOFError):
             summary = None
         if summary is not None and summary.statistics is not None and summary.chunk_indexes:
-            topics = {c.topic: (summary.schemas[c.schema_id].name if c.schema_id else "") for c in
-                      summary.channels.values()}
+            topics = {
+                c.topic: (summary.schemas[c.schema_id].name if c.schema_id else "") for c in summary.channels.values()
+            }
             texts = {s.name: s.data.decode(errors="replace") for s in summary.schemas.values()}
-            enc = {s.encoding for s in summary.schemas.values()} | {c.message_encoding for c in summary.channels.values()}
+            enc = {s.encoding for s in summary.schemas.values()} | {
+                c.message_encoding for c in summary.channels.values()
+            }
             counts: dict[str, int] = {}
             for cid, n in summary.statistics.channel_message_counts.items():
                 topic = summary.channels[cid].topic
                 counts[topic] = counts.get(topic, 0) + n
-            info = BagInfo(path, topics, counts, texts, True, False, size, size,
-                           summary.statistics.message_start_time, summary.statistics.message_end_time)
+            info = BagInfo(
+                path,
+                topics,
+                counts,
+                texts,
+                True,
+                False,
+                size,
+                size,
+                summary.statistics.message_start_time,
+                summary.statistics.message_end_time,
+            )
             _check_encodings(info, enc)
             return info
     return _scan(path, size)
@@ -233,8 +256,10 @@ def median_period_s(path: str | Path, topic: str, max_messages: int = 2000) -> f
 def _check_encodings(info: BagInfo, encodings: set[str]) -> None:
     foreign = encodings - {"ros2msg", "cdr", ""}
     if foreign:
-        raise BagError(f"{info.path} is not a ROS 2 bag: it uses encodings {', '.join(sorted(foreign))} "
-                       "(expected ros2msg schemas and cdr messages)")
+        raise BagError(
+            f"{info.path} is not a ROS 2 bag: it uses encodings {', '.join(sorted(foreign))} "
+            "(expected ros2msg schemas and cdr messages)"
+        )
 
 
 def _scan(path: Path, size: int) -> BagInfo:
@@ -259,8 +284,19 @@ def _scan(path: Path, size: int) -> BagInfo:
         topic = state.channels[cid][0] if cid in state.channels else "?"
         counts[topic] = counts.get(topic, 0) + k
     encodings = {enc for _n, enc, _d in state.schemas.values()} | {enc for _t, _s, enc in state.channels.values()}
-    info = BagInfo(path, topics, counts, texts, False, state.truncated, size, min(max(state.bytes_read, 8), size),
-                   start or 0, end or 0, state.problem)
+    info = BagInfo(
+        path,
+        topics,
+        counts,
+        texts,
+        False,
+        state.truncated,
+        size,
+        min(max(state.bytes_read, 8), size),
+        start or 0,
+        end or 0,
+        state.problem,
+    )
     _check_encodings(info, encodings)
     return info
 
@@ -274,8 +310,7 @@ class RawBatch:
     data: list[bytes]
 
 
-def iter_raw_batches(info: BagInfo, topics: set[str] | None, batch_size: int = 50_000,
-                     warn=None) -> Iterator[RawBatch]:
+def iter_raw_batches(info: BagInfo, topics: set[str] | None, batch_size: int = 50_000, warn=None) -> Iterator[RawBatch]:
     """Yield batches of raw messages (file order, which for recorders is time order within chunks).
 
     A truncated file yields everything readable; the loss is reported through ``warn``.
@@ -326,13 +361,15 @@ class BagWriter:
         if type_name not in self._schema_ids:
             text = schema_text if schema_text is not None else MSG_DEFINITIONS[type_name]
             self._schema_ids[type_name] = self._writer.register_schema(type_name, "ros2msg", text.encode())
-        cid = self._writer.register_channel(topic, "cdr", self._schema_ids[type_name],
-                                            metadata={"offered_qos_profiles": ""})
+        cid = self._writer.register_channel(
+            topic, "cdr", self._schema_ids[type_name], metadata={"offered_qos_profiles": ""}
+        )
         self._channels[topic] = cid
         return cid
 
-    def write_raw(self, topic: str, type_name: str, log_time_ns: int, data: bytes,
-                  schema_text: str | None = None) -> None:
+    def write_raw(
+        self, topic: str, type_name: str, log_time_ns: int, data: bytes, schema_text: str | None = None
+    ) -> None:
         """One serialized message."""
         self._writer.add_message(self.channel(topic, type_name, schema_text), int(log_time_ns), data)
 
@@ -340,14 +377,17 @@ class BagWriter:
         """Encode a message dict with the type's CDR encoder and write it."""
         self.write_raw(topic, type_name, log_time_ns, encoder_for(type_name)(message))
 
-    def write_fixed(self, topic: str, type_name: str, t_ns: np.ndarray, payloads: np.ndarray,
-                    schema_text: str | None = None) -> None:
+    def write_fixed(
+        self, topic: str, type_name: str, t_ns: np.ndarray, payloads: np.ndarray, schema_text: str | None = None
+    ) -> None:
         """Many messages of one topic whose serialized payloads are the rows of ``payloads``."""
-        self._writer.add_messages(self.channel(topic, type_name, schema_text), np.asarray(t_ns, dtype=np.int64),
-                                  payloads)
+        self._writer.add_messages(
+            self.channel(topic, type_name, schema_text), np.asarray(t_ns, dtype=np.int64), payloads
+        )
 
-    def write_fixed_mixed(self, topics: list[tuple[str, str, str | None]], which: np.ndarray, t_ns: np.ndarray,
-                          payloads: np.ndarray) -> None:
+    def write_fixed_mixed(
+        self, topics: list[tuple[str, str, str | None]], which: np.ndarray, t_ns: np.ndarray, payloads: np.ndarray
+    ) -> None:
         """Messages of several topics in their given (time) order: row i belongs to ``topics[which[i]]``
         (``(topic, type, schema text)``); all payloads have the same length."""
         ids = np.array([self.channel(tp, ty, tx) for tp, ty, tx in topics], dtype=np.int64)
@@ -367,7 +407,7 @@ class BagWriter:
         self.closed = True
         self._writer.close()
 
-    def __enter__(self) -> "BagWriter":
+    def __enter__(self) -> BagWriter:
         return self
 
     def __exit__(self, *exc: Any) -> None:

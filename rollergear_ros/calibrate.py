@@ -35,7 +35,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -147,8 +147,14 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     brk = np.ones(n, bool)
     if n > 1:
         tb = np.floor((t - t[0]) / block_s)
-        brk[1:] = ((tb[1:] != tb[:-1]) | (d.bag_id[1:] != d.bag_id[:-1]) | (np.sign(d.speed[1:]) != np.sign(d.speed[:-1]))
-                   | (np.sign(d.torque[1:]) != np.sign(d.torque[:-1])) | (dt > 5 * typical) | (dt < 0))
+        brk[1:] = (
+            (tb[1:] != tb[:-1])
+            | (d.bag_id[1:] != d.bag_id[:-1])
+            | (np.sign(d.speed[1:]) != np.sign(d.speed[:-1]))
+            | (np.sign(d.torque[1:]) != np.sign(d.torque[:-1]))
+            | (dt > 5 * typical)
+            | (dt < 0)
+        )
     start = np.flatnonzero(brk) if like is None else like.start
     count = np.diff(np.append(start, n))
     if like is not None:
@@ -193,9 +199,11 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     max_blocks = max(int(round(5.0 / block_s)), 1)
     cur, run = 0, 0
     for i in range(1, nb):
-        same = (abs(spd[i] - spd[i - 1]) <= 0.03 * abs(spd[i - 1]) + 1.0
-                and abs(trq[i] - trq[i - 1]) <= 0.03 * abs(trq[i - 1]) + 0.5
-                and d.bag_id[start[i]] == d.bag_id[start[i - 1]])
+        same = (
+            abs(spd[i] - spd[i - 1]) <= 0.03 * abs(spd[i - 1]) + 1.0
+            and abs(trq[i] - trq[i - 1]) <= 0.03 * abs(trq[i - 1]) + 0.5
+            and d.bag_id[start[i]] == d.bag_id[start[i - 1]]
+        )
         run += 1
         if not same or run >= max_blocks:
             cur += 1
@@ -206,13 +214,32 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         dwell, fold = like.dwell, like.fold
     theta = d.temperature
     have_theta = np.isfinite(theta)
-    varies = bool(have_theta.mean() > 0.9 and np.nanmax(theta) - np.nanmin(theta) >= MIN_TEMPERATURE_SPAN_C) \
-        if have_theta.any() else False
+    varies = (
+        bool(have_theta.mean() > 0.9 and np.nanmax(theta) - np.nanmin(theta) >= MIN_TEMPERATURE_SPAN_C)
+        if have_theta.any()
+        else False
+    )
     testable = tuple(n for n, e in EFFECTS.items() if varies or not e.needs_temperature)
     columns = {"dtdt": mean(dtdt * sg), "dwdt": mean(dwdt * sg)}
     x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
-    blocks = Blocks(start, count, ym, mean(d.measured_loss), spd, trq, temp, weight, dwell, fold, columns, {},
-                    inflation, block_s, x, testable)
+    blocks = Blocks(
+        start,
+        count,
+        ym,
+        mean(d.measured_loss),
+        spd,
+        trq,
+        temp,
+        weight,
+        dwell,
+        fold,
+        columns,
+        {},
+        inflation,
+        block_s,
+        x,
+        testable,
+    )
     for name in testable:
         effect = EFFECTS[name]
         if effect.member is None:
@@ -287,15 +314,16 @@ def members(blocks: Blocks, name: str) -> list[Term]:
 class Calibrator:
     """Forward selection over the physical groups on block means (see the module docstring)."""
 
-    def __init__(self, blocks: Blocks, delta_nm: float | None = None, alpha: float = 0.01,
-                 min_improvement: float = 0.02) -> None:
+    def __init__(
+        self, blocks: Blocks, delta_nm: float | None = None, alpha: float = 0.01, min_improvement: float = 0.02
+    ) -> None:
         self.b = blocks
         self.alpha = alpha
         self.min_improvement = min_improvement
         nuis = [blocks.columns["dtdt"], blocks.columns["dwdt"]]
         # drop nuisance columns with no variation (steady data): they would be singular
         self.nuisance = [c for c in nuis if np.sqrt(np.average(c * c, weights=blocks.count)) > 1e-9]
-        rms_meas = float(np.sqrt(np.average(blocks.measured ** 2, weights=blocks.count)))
+        rms_meas = float(np.sqrt(np.average(blocks.measured**2, weights=blocks.count)))
         se_block = float(np.sqrt(np.median(1.0 / blocks.weight)))
         self.delta = delta_nm if delta_nm is not None else max(0.005, 0.02 * rms_meas, 3 * se_block)
         self.rms_measured = rms_meas
@@ -309,14 +337,15 @@ class Calibrator:
     def fit(self, terms: Sequence[Term]) -> Fit:
         x = self.design(terms)
         if x.shape[1] == 0:
-            return Fit(np.zeros(0), np.zeros((0, 0)), float(np.sum(self.b.weight * self.b.y ** 2)),
-                       np.zeros(len(self.b.y)))
+            return Fit(
+                np.zeros(0), np.zeros((0, 0)), float(np.sum(self.b.weight * self.b.y**2)), np.zeros(len(self.b.y))
+            )
         return wls(x, self.b.y, self.b.weight, self.b.dwell)
 
     def wsse(self, terms: Sequence[Term]) -> float:
         x = self.design(terms)
         if x.shape[1] == 0:
-            return float(np.sum(self.b.weight * self.b.y ** 2))
+            return float(np.sum(self.b.weight * self.b.y**2))
         sw = np.sqrt(self.b.weight)
         coef, *_ = np.linalg.lstsq(x * sw[:, None], self.b.y * sw, rcond=1e-12)
         r = self.b.y - x @ coef
@@ -360,14 +389,18 @@ class Calibrator:
                 if t.member is None:
                     continue
                 grid = members(self.b, t.name)
-                scores = [self.wsse(terms[:i] + [g] + terms[i + 1:]) for g in grid]
+                scores = [self.wsse(terms[:i] + [g] + terms[i + 1 :]) for g in grid]
                 j = int(np.argmin(scores))
                 lo_b, hi_b = EFFECTS[t.name].member_bounds
                 step = (grid[1].member - grid[0].member) if len(grid) > 1 else 0.1
                 lo = max(lo_b, grid[j].member - step)
                 hi = min(hi_b, grid[j].member + step)
-                res = minimize_scalar(lambda m: self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1:]),
-                                      bounds=(lo, hi), method="bounded", options={"xatol": step * 1e-3})
+                res = minimize_scalar(
+                    lambda m, i=i, t=t: self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1 :]),
+                    bounds=(lo, hi),
+                    method="bounded",
+                    options={"xatol": step * 1e-3},
+                )
                 best = self._with_member(t, float(res.x)) if res.fun <= scores[j] else grid[j]
                 if t.member is None or abs(best.member - t.member) > step * 1e-2:
                     changed = True
@@ -396,7 +429,7 @@ class Calibrator:
         limit = w0 + 3.84 * max(w0 / dof, 1.0)
 
         def excess(m: float) -> float:
-            return self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1:]) - limit
+            return self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1 :]) - limit
 
         lo_b, hi_b = EFFECTS[t.name].member_bounds
         lo = brentq(excess, lo_b, t.member, xtol=1e-4) if excess(lo_b) > 0 else lo_b
@@ -439,28 +472,48 @@ class Calibrator:
             if z < z_crit:
                 reasons.append(f"not significant (|z| = {z:.1f} < {z_crit:.1f})")
             if lower <= self.delta:
-                reasons.append(f"lower 95 % bound of its RMS contribution {lower:.4g} N·m <= delta {self.delta:.4g} N·m")
+                reasons.append(
+                    f"lower 95 % bound of its RMS contribution {lower:.4g} N·m <= delta {self.delta:.4g} N·m"
+                )
             if improvement <= self.min_improvement:
                 reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
-            twins = [h for cv_h, h, terms_h in scored[1:]
-                     if cv_h <= cv_new * 1.05 + 1e-12 and self._partial_corr(new, terms_h[-1], base) > 0.995]
-            self.log.append(f"step {len(self.log) + 1}: best {g}"
-                            + (f" ({_member_text(new)})" if new.member is not None else "")
-                            + f" (held-out RMSE {cv_new:.4g} vs {cv_now:.4g} N·m), |z| = {z:.1f}, RMS contribution "
-                            f"[{lower:.4g}, {upper:.4g}] N·m"
-                            + (f"; indistinguishable from {', '.join(twins)}" if twins else "")
-                            + (f"; not accepted: {'; '.join(reasons)}" if reasons
-                               else "; ambiguous: kept in the fit, not reported" if twins else "; accepted"))
+            twins = [
+                h
+                for cv_h, h, terms_h in scored[1:]
+                if cv_h <= cv_new * 1.05 + 1e-12 and self._partial_corr(new, terms_h[-1], base) > 0.995
+            ]
+            self.log.append(
+                f"step {len(self.log) + 1}: best {g}"
+                + (f" ({_member_text(new)})" if new.member is not None else "")
+                + f" (held-out RMSE {cv_new:.4g} vs {cv_now:.4g} N·m), |z| = {z:.1f}, RMS contribution "
+                f"[{lower:.4g}, {upper:.4g}] N·m"
+                + (f"; indistinguishable from {', '.join(twins)}" if twins else "")
+                + (
+                    f"; not accepted: {'; '.join(reasons)}"
+                    if reasons
+                    else "; ambiguous: kept in the fit, not reported"
+                    if twins
+                    else "; accepted"
+                )
+            )
             if reasons:
                 break
             # exponents of earlier terms were re-optimised together with the new one
             n_sel = len(selected)
-            selected, provisional = terms[:n_sel], terms[n_sel:len(base)]
+            selected, provisional = terms[:n_sel], terms[n_sel : len(base)]
             if twins:
                 group = sorted([g] + twins)
-                needs = "; ".join(sorted({separating_data(a, b) or "data over a wider range of speed, torque, "
-                                                                   "direction and temperature"
-                                          for a in group for b in group if a < b}))
+                needs = "; ".join(
+                    sorted(
+                        {
+                            separating_data(a, b)
+                            or "data over a wider range of speed, torque, direction and temperature"
+                            for a in group
+                            for b in group
+                            if a < b
+                        }
+                    )
+                )
                 ambiguous.append({"effects": group, "needs": needs, "rms_contribution_nm": [lower, upper]})
                 provisional.append(new)
                 remaining = [r for r in remaining if r not in group]
@@ -484,10 +537,22 @@ class Calibrator:
                 continue
             c, se = self.coefficient(terms, len(terms) - 1)
             rms_col = self.rms_of(terms[-1].column)
-            rejected.append({"name": g, "upper_rms_nm": (abs(c) + 1.96 * se) * rms_col,
-                             "estimate_rms_nm": abs(c) * rms_col, "ambiguous": False})
-        return {"selected": selected, "provisional": provisional, "ranges": ranges, "ambiguous": ambiguous,
-                "rejected": rejected, "unavailable": unavailable}
+            rejected.append(
+                {
+                    "name": g,
+                    "upper_rms_nm": (abs(c) + 1.96 * se) * rms_col,
+                    "estimate_rms_nm": abs(c) * rms_col,
+                    "ambiguous": False,
+                }
+            )
+        return {
+            "selected": selected,
+            "provisional": provisional,
+            "ranges": ranges,
+            "ambiguous": ambiguous,
+            "rejected": rejected,
+            "unavailable": unavailable,
+        }
 
     def _partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
         """|correlation| of two columns after removing the nuisance and base columns (weighted)."""
@@ -517,9 +582,12 @@ def _z_two_sided(alpha: float) -> float:
 def error_stats(err: np.ndarray, measured: np.ndarray, count: np.ndarray) -> dict[str, float]:
     rmse = float(np.sqrt(np.average(err * err, weights=count)))
     rms_meas = float(np.sqrt(np.average(measured * measured, weights=count)))
-    return {"rmse_nm": rmse, "mae_nm": float(np.average(np.abs(err), weights=count)),
-            "max_abs_nm": float(np.max(np.abs(err))) if len(err) else 0.0,
-            "rel_rmse_pct": 100.0 * rmse / rms_meas if rms_meas > 0 else math.nan}
+    return {
+        "rmse_nm": rmse,
+        "mae_nm": float(np.average(np.abs(err), weights=count)),
+        "max_abs_nm": float(np.max(np.abs(err))) if len(err) else 0.0,
+        "rel_rmse_pct": 100.0 * rmse / rms_meas if rms_meas > 0 else math.nan,
+    }
 
 
 # ------------------------------------------------------------------------------------ result
@@ -543,14 +611,24 @@ class CalibrationResult:
 
     def to_json(self) -> dict:
         """The ``interface.md`` object (plus extra keys: delta, rejected, ambiguous, ...)."""
-        return {"verdict": self.verdict, "effects": self.effects, "error_before": self.error_before,
-                "error_after": self.error_after, "holdout": self.holdout, "samples": self.samples,
-                "delta_nm": self.delta_nm, "rejected": self.rejected, "ambiguous": self.ambiguous,
-                "unavailable": self.unavailable, "sample_level_errors": self.sample_level}
+        return {
+            "verdict": self.verdict,
+            "effects": self.effects,
+            "error_before": self.error_before,
+            "error_after": self.error_after,
+            "holdout": self.holdout,
+            "samples": self.samples,
+            "delta_nm": self.delta_nm,
+            "rejected": self.rejected,
+            "ambiguous": self.ambiguous,
+            "unavailable": self.unavailable,
+            "sample_level_errors": self.sample_level,
+        }
 
 
-def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, block_s: float = 0.25,
-              folds: int = 5) -> CalibrationResult:
+def calibrate(
+    data: SampleData, config: Config, delta_nm: float | None = None, block_s: float = 0.25, folds: int = 5
+) -> CalibrationResult:
     """Run the whole analysis on loaded samples."""
     blocks = make_blocks(data, block_s, folds)
     if len(blocks.y) < 4 * folds:
@@ -562,7 +640,7 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
     blocks0, data_c = blocks, data
     if {t.name for t in final} & {"torque_offset", "torque_gain"}:
         cal, final, data_c = _refit_sensor_errors(cal, data, final, config, block_s, folds)
-        selected = final[:len(selected)]
+        selected = final[: len(selected)]
     blocks = cal.b
     pred_before = np.zeros(len(blocks.y))  # the paper's model alone
     # what the calibrated parameter file adds: the accepted effects (fitted with the rest, held out)
@@ -589,8 +667,15 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
                 ci[coef_keys[term.name]] = [min(lo_c, ca - 1.96 * sa), max(hi_c, ca + 1.96 * sa)]
             ci[expo_keys[term.name]] = [lo_m, hi_m]
         rms = cal.rms_of(term.column)
-        effects.append({"name": term.name, "params": term.params(c), "ci95": ci, "rms_contribution_nm": abs(c) * rms,
-                        "rms_contribution_ci95_nm": [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms]})
+        effects.append(
+            {
+                "name": term.name,
+                "params": term.params(c),
+                "ci95": ci,
+                "rms_contribution_nm": abs(c) * rms,
+                "rms_contribution_ci95_nm": [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms],
+            }
+        )
     if out["ambiguous"]:
         verdict = "inconclusive"
     elif selected:
@@ -603,12 +688,16 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
     idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
     s_b = data.residual - pred_before[idx_block]
     s_a = data_c.residual - pred_after[idx_block]
-    sample_level = {"before": error_stats(s_b, data.measured_loss, np.ones(len(s_b))),
-                    "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a)))}
-    holdout = (f"{folds}-fold cross-validation grouped by dwell ({int(blocks.dwell.max()) + 1} dwells of steady operation, "
-               f"at most 5 s each; whole dwells held out, never single rows); errors are of {blocks.block_s:g} s block "
-               f"means of every held-out block, predicted by a fit that did not see its fold "
-               f"({len(blocks.y)} blocks)")
+    sample_level = {
+        "before": error_stats(s_b, data.measured_loss, np.ones(len(s_b))),
+        "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a))),
+    }
+    holdout = (
+        f"{folds}-fold cross-validation grouped by dwell ({int(blocks.dwell.max()) + 1} dwells of steady operation, "
+        f"at most 5 s each; whole dwells held out, never single rows); errors are of {blocks.block_s:g} s block "
+        f"means of every held-out block, predicted by a fit that did not see its fold "
+        f"({len(blocks.y)} blocks)"
+    )
     # a fitted value outside a parameter's physical range (e.g. recordings of different rigs mixed)
     # is not written to the parameter file: the verdict says so
     writable = []
@@ -618,20 +707,46 @@ def calibrate(data: SampleData, config: Config, delta_nm: float | None = None, b
             writable.append(e)
         except ParameterError as exc:
             cal.log.append(f"{e['name']} not written to the parameter file: {exc}")
-            out["rejected"].append({"name": e["name"], "upper_rms_nm": e["rms_contribution_ci95_nm"][1],
-                                    "estimate_rms_nm": e["rms_contribution_nm"], "ambiguous": False,
-                                    "reason": f"fitted value outside the physical range: {exc}"})
+            out["rejected"].append(
+                {
+                    "name": e["name"],
+                    "upper_rms_nm": e["rms_contribution_ci95_nm"][1],
+                    "estimate_rms_nm": e["rms_contribution_nm"],
+                    "ambiguous": False,
+                    "reason": f"fitted value outside the physical range: {exc}",
+                }
+            )
             verdict = "inconclusive"
     effects = writable
     new_config = _calibrated_config(config, effects)
-    return CalibrationResult(verdict, effects, error_stats(err_b, blocks.measured, blocks.count),
-                             error_stats(err_a, blocks.measured, blocks.count), holdout, int(len(data.t_ns)),
-                             cal.delta, out["rejected"], out["ambiguous"], out["unavailable"], cal.log, sample_level,
-                             new_config, blocks, pred_after)
+    return CalibrationResult(
+        verdict,
+        effects,
+        error_stats(err_b, blocks.measured, blocks.count),
+        error_stats(err_a, blocks.measured, blocks.count),
+        holdout,
+        int(len(data.t_ns)),
+        cal.delta,
+        out["rejected"],
+        out["ambiguous"],
+        out["unavailable"],
+        cal.log,
+        sample_level,
+        new_config,
+        blocks,
+        pred_after,
+    )
 
 
-def _refit_sensor_errors(cal: Calibrator, data: SampleData, final: list[Term], config: Config, block_s: float,
-                         folds: int, iterations: int = 3) -> tuple[Calibrator, list[Term], SampleData]:
+def _refit_sensor_errors(
+    cal: Calibrator,
+    data: SampleData,
+    final: list[Term],
+    config: Config,
+    block_s: float,
+    folds: int,
+    iterations: int = 3,
+) -> tuple[Calibrator, list[Term], SampleData]:
     """Torque-sensor errors also corrupt the model's input: refit with ``T = (T_meas − b)/(1 + g)``.
 
     A fixed-point iteration (the correction is second order, so it converges in 2–3 steps); the
@@ -647,10 +762,10 @@ def _refit_sensor_errors(cal: Calibrator, data: SampleData, final: list[Term], c
         b = float(f.coef[k0 + names.index("torque_offset")]) if "torque_offset" in names else 0.0
         g = float(f.coef[k0 + names.index("torque_gain")]) if "torque_gain" in names else 0.0
         t_c = (data.torque - b) / (1.0 + g)
-        corrected = dc_replace(data, torque=t_c, model_loss=model.loss_magnitude(t_c, data.speed),
-                               fr_part=model.fr_part(t_c, data.speed))
-        new = Calibrator(make_blocks(corrected, block_s, folds, like=cal.b), cal.delta, cal.alpha,
-                         cal.min_improvement)
+        corrected = dc_replace(
+            data, torque=t_c, model_loss=model.loss_magnitude(t_c, data.speed), fr_part=model.fr_part(t_c, data.speed)
+        )
+        new = Calibrator(make_blocks(corrected, block_s, folds, like=cal.b), cal.delta, cal.alpha, cal.min_improvement)
         new.log = cal.log
         final = [new._with_member(t, t.member) if t.member is not None else members(new.b, t.name)[0] for t in final]
         cal = new
@@ -670,9 +785,11 @@ def _calibrated_config(config: Config, effects: list[dict]) -> Config:
 
 
 def calibrated_yaml(result: CalibrationResult, sources: Sequence[str]) -> str:
-    header = ("# Written by `rollergear calibrate` from " + ", ".join(map(str, sources)) + "\n"
-              f"# verdict: {result.verdict}; held-out RMSE {result.error_before['rmse_nm']:.4g} -> "
-              f"{result.error_after['rmse_nm']:.4g} N·m\n")
+    header = (
+        "# Written by `rollergear calibrate` from " + ", ".join(map(str, sources)) + "\n"
+        f"# verdict: {result.verdict}; held-out RMSE {result.error_before['rmse_nm']:.4g} -> "
+        f"{result.error_after['rmse_nm']:.4g} N·m\n"
+    )
     return config_to_yaml(result.config, header)
 
 
@@ -689,8 +806,11 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
     before = b.y
     after = b.y - result.pred_after
     plots = []
-    for key, x, label in (("speed", b.speed, "drive speed [rad/s]"), ("torque", b.torque, "drive torque [N·m]"),
-                          ("temperature", b.temperature, "oil temperature [°C]")):
+    for key, x, label in (
+        ("speed", b.speed, "drive speed [rad/s]"),
+        ("torque", b.torque, "drive torque [N·m]"),
+        ("temperature", b.temperature, "oil temperature [°C]"),
+    ):
         if not np.isfinite(x).any():
             continue
         fig, ax = plt.subplots(1, 2, figsize=(11, 4), dpi=100, sharey=True)
@@ -725,20 +845,24 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
     plots.append(p)
 
     eb, ea = result.error_before, result.error_after
-    lines = ["# Calibration report\n", f"Recordings: {', '.join(map(str, sources))}  ",
-             f"Samples used: {result.samples:,} (|ω| ≥ 2 rad/s, measured output torque present)  ",
-             f"Verdict: **{result.verdict.replace('_', ' ')}**  ",
-             f"Practical minimum effect size δ = {result.delta_nm:.4g} N·m (RMS contribution); "
-             f"RMS measured loss {np.sqrt(np.average(b.measured ** 2, weights=b.count)):.4g} N·m\n",
-             "## Error on held-out data\n", result.holdout + ".\n",
-             "| | RMSE [N·m] | MAE [N·m] | max \\|error\\| [N·m] | RMSE / RMS measured loss |",
-             "|---|---|---|---|---|",
-             f"| before (model) | {eb['rmse_nm']:.4g} | {eb['mae_nm']:.4g} | {eb['max_abs_nm']:.4g} | {eb['rel_rmse_pct']:.2f} % |",
-             f"| after (model + accepted effects) | {ea['rmse_nm']:.4g} | {ea['mae_nm']:.4g} | {ea['max_abs_nm']:.4g} | {ea['rel_rmse_pct']:.2f} % |",
-             f"\nReduction of held-out RMSE: {100 * (1 - ea['rmse_nm'] / eb['rmse_nm']) if eb['rmse_nm'] else 0:.1f} %. "
-             f"Per sample (sensor noise included): RMSE {result.sample_level['before']['rmse_nm']:.4g} → "
-             f"{result.sample_level['after']['rmse_nm']:.4g} N·m.\n",
-             "## Accepted effects\n"]
+    lines = [
+        "# Calibration report\n",
+        f"Recordings: {', '.join(map(str, sources))}  ",
+        f"Samples used: {result.samples:,} (|ω| ≥ 2 rad/s, measured output torque present)  ",
+        f"Verdict: **{result.verdict.replace('_', ' ')}**  ",
+        f"Practical minimum effect size δ = {result.delta_nm:.4g} N·m (RMS contribution); "
+        f"RMS measured loss {np.sqrt(np.average(b.measured**2, weights=b.count)):.4g} N·m\n",
+        "## Error on held-out data\n",
+        result.holdout + ".\n",
+        "| | RMSE [N·m] | MAE [N·m] | max \\|error\\| [N·m] | RMSE / RMS measured loss |",
+        "|---|---|---|---|---|",
+        *(f"| {label} | {e['rmse_nm']:.4g} | {e['mae_nm']:.4g} | {e['max_abs_nm']:.4g} | {e['rel_rmse_pct']:.2f} % |"
+          for label, e in (("before (model)", eb), ("after (model + accepted effects)", ea))),
+        f"\nReduction of held-out RMSE: {100 * (1 - ea['rmse_nm'] / eb['rmse_nm']) if eb['rmse_nm'] else 0:.1f} %. "
+        f"Per sample (sensor noise included): RMSE {result.sample_level['before']['rmse_nm']:.4g} → "
+        f"{result.sample_level['after']['rmse_nm']:.4g} N·m.\n",
+        "## Accepted effects\n",
+    ]
     if result.effects:
         lines += ["| effect | parameters | 95 % intervals | RMS contribution [N·m] (95 %) |", "|---|---|---|---|"]
         for e in result.effects:
@@ -752,15 +876,22 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
         lines.append("\n## Effects the data cannot tell apart\n")
         for a in result.ambiguous:
             lo, hi = a["rms_contribution_nm"]
-            lines.append(f"- {' / '.join(a['effects'])}: an effect of RMS {lo:.3g}–{hi:.3g} N·m is there, but these "
-                         f"columns are the same on this data. To separate them record {a['needs']}.")
+            lines.append(
+                f"- {' / '.join(a['effects'])}: an effect of RMS {lo:.3g}–{hi:.3g} N·m is there, but these "
+                f"columns are the same on this data. To separate them record {a['needs']}."
+            )
     lines.append("\n## Groups not accepted (upper 95 % bound of their RMS contribution)\n")
     for r in result.rejected:
-        lines.append(f"- {r['name']}: ≤ {r['upper_rms_nm']:.3g} N·m" + (" (ambiguous, see above)" if r["ambiguous"] else "")
-                     + (f" — {r['reason']}" if r.get("reason") else ""))
+        lines.append(
+            f"- {r['name']}: ≤ {r['upper_rms_nm']:.3g} N·m"
+            + (" (ambiguous, see above)" if r["ambiguous"] else "")
+            + (f" — {r['reason']}" if r.get("reason") else "")
+        )
     for u in result.unavailable:
-        lines.append(f"- {u}: not testable on this data (needs an oil temperature that varies by "
-                     f"≥ {MIN_TEMPERATURE_SPAN_C:g} °C)")
+        lines.append(
+            f"- {u}: not testable on this data (needs an oil temperature that varies by "
+            f"≥ {MIN_TEMPERATURE_SPAN_C:g} °C)"
+        )
     lines.append("\n## Selection log\n")
     lines += [f"- {entry}" for entry in result.log]
     lines.append("\n## Plots\n")

@@ -47,9 +47,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if result.verdict == "no_missing_effect":
         bounds = ", ".join(f"{r['name']} <= {r['upper_rms_nm']:.3g}" for r in result.rejected)
         print(f"  no missing effect larger than delta = {result.delta_nm:.4g} N·m (upper 95 % bounds: {bounds})")
-    print(f"held-out error ({result.samples:,} samples): RMSE {eb['rmse_nm']:.4g} -> {ea['rmse_nm']:.4g} N·m, "
-          f"MAE {eb['mae_nm']:.4g} -> {ea['mae_nm']:.4g} N·m, max {eb['max_abs_nm']:.4g} -> {ea['max_abs_nm']:.4g} N·m, "
-          f"{eb['rel_rmse_pct']:.2f} % -> {ea['rel_rmse_pct']:.2f} % of the measured loss")
+    print(
+        f"held-out error ({result.samples:,} samples): RMSE {eb['rmse_nm']:.4g} -> {ea['rmse_nm']:.4g} N·m, "
+        f"MAE {eb['mae_nm']:.4g} -> {ea['mae_nm']:.4g} N·m, max {eb['max_abs_nm']:.4g} -> {ea['max_abs_nm']:.4g} N·m, "
+        f"{eb['rel_rmse_pct']:.2f} % -> {ea['rel_rmse_pct']:.2f} % of the measured loss"
+    )
     print(f"held out: {result.holdout}")
     if args.out:
         print(f"calibrated parameters: {args.out}")
@@ -59,14 +61,24 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def register_calibrate(sub, with_params) -> None:
-    p = with_params(sub.add_parser("calibrate", help="find effects the model lacks from recordings with measured "
-                                                     "output torque; error before/after on held-out data"))
+    p = with_params(
+        sub.add_parser(
+            "calibrate",
+            help="find effects the model lacks from recordings with measured "
+            "output torque; error before/after on held-out data",
+        )
+    )
     p.add_argument("bags", nargs="+", metavar="BAG")
     p.add_argument("--out", metavar="CALIBRATED.yaml", help="parameter file with the accepted effects")
     p.add_argument("--report", metavar="DIR", help="Markdown report with plots")
     p.add_argument("--json", action="store_true", help="print exactly the interface.md JSON object on stdout")
-    p.add_argument("--delta", type=float, default=None, metavar="NM",
-                   help="practical minimum effect size (RMS N·m); default from the data")
+    p.add_argument(
+        "--delta",
+        type=float,
+        default=None,
+        metavar="NM",
+        help="practical minimum effect size (RMS N·m); default from the data",
+    )
     p.add_argument("--block-s", type=float, default=0.25, help="averaging block length [s]")
     add_topic_options(p)
     p.set_defaults(func=cmd_calibrate)

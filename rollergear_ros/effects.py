@@ -48,7 +48,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, NamedTuple
+from typing import Any, NamedTuple
+from collections.abc import Callable, Mapping
 
 FR_VISCOSITY_EXPONENT = 0.66  # Fr ∝ U^0.66 ∝ η^0.66 (eq. 3, 9)
 #: regressors of the RLS are normalised at these operating points (a well-conditioned covariance)
@@ -288,7 +289,8 @@ def markdown_table() -> str:
              "Generated from `rollergear_ros/effects.py` by `python -m rollergear_ros.effects > docs/effects.md`; "
              "a test keeps it current. Parameters: short name (in `calibrate --json` and `simulate --effect`) → "
              "key under `effects.<effect>.` in the parameter file.\n",
-             "| effect | term | kind | parameters | fitted | cause | told apart from |", "|---|---|---|---|---|---|---|"]
+             "| effect | term | kind | parameters | fitted | cause | told apart from |",
+             "|---|---|---|---|---|---|---|"]
     for e in EFFECTS.values():
         params = ", ".join(f"`{p.short}` → `{p.key}`" + (f" [{p.unit}]" if p.unit else "") for p in e.parameters)
         fitted = f"`{e.coefficient}` (linear" + (", adapted online)" if e.adaptive else ")")

@@ -37,7 +37,10 @@ each channel's arrival offset from the motor torque, averaged over ~16 pairs, is
 the messages of one sample arrive together and near a whole period when they are paired with a
 neighbour's; beyond 0.75 periods the lagging heads are dropped (:meth:`SampleSynchronizer._arrival_skewed`).
 A skew is undone within ~30 samples of live data; a burst itself carries no timing and keeps the
-pairing it was taken with.  The node reports ``unpaired`` counts in ``/diagnostics``.
+pairing it was taken with.  By arrival, an optional channel counts as silent once motor messages
+have kept coming for ``staleness_s`` without it, not when the callback clock jumps: on a busy
+machine the node's own executor may stall inside a sample (all its inputs then wait in the
+middleware's queues and arrive in a burst).  The node reports ``unpaired`` counts in ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -45,7 +48,8 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Iterable, NamedTuple, Sequence
+from typing import NamedTuple
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -285,9 +289,12 @@ class SampleSynchronizer:
             if (self.latest_ns - self.first_ns <= self.staleness_ns
                     and not (self.received[OUT_TORQUE] and self.received[OUT_SPEED])):
                 return out  # start-up: give the optional channels a chance to appear
-            # optional channels that are active but silent: do not hold the motor samples up
+            # optional channels that are active but silent: do not hold the motor samples up.  By
+            # arrival, silence is measured by the motor messages that came since, not by the clock:
+            # a stall of the node's own executor inside a sample is no silence of its inputs
             chans = self._active_channels
-            if len(chans) > 2 and self.latest_ns - t_req > self.staleness_ns:
+            newest = max(q[TORQUE][-1][0], q[SPEED][-1][0]) if self.arrival else self.latest_ns
+            if len(chans) > 2 and newest - t_req > self.staleness_ns:
                 for ch in _OPTIONAL:
                     if self.active[ch] and not q[ch]:
                         self._set_active(ch, False)
@@ -843,10 +850,21 @@ class Estimator:
         residual = meas - (loss + sens)
         eff = efficiency(torque, speed, loss, self.model.min_torque_nm, self.model.min_speed_rad_s)
         self.estimated += len(t_ns)
-        return BatchEstimate(t_ns=t_ns, torque_nm=torque_meas, speed_rad_s=speed, loss_torque_nm=loss * sg,
-                             loss_power_w=loss * aw, efficiency=eff, measured_loss_nm=meas,
-                             residual_nm=residual, temperature_c=temperature, breakdown_nm=res.breakdown_nm, effects_nm=phys,
-                             coefficients=coefficients, alarms_t_ns=list(self.detector.alarm_times_ns))
+        return BatchEstimate(
+            t_ns=t_ns,
+            torque_nm=torque_meas,
+            speed_rad_s=speed,
+            loss_torque_nm=loss * sg,
+            loss_power_w=loss * aw,
+            efficiency=eff,
+            measured_loss_nm=meas,
+            residual_nm=residual,
+            temperature_c=temperature,
+            breakdown_nm=res.breakdown_nm,
+            effects_nm=phys,
+            coefficients=coefficients,
+            alarms_t_ns=list(self.detector.alarm_times_ns),
+        )
 
     def _adapt_batch(self, phis: list[np.ndarray], y: np.ndarray, t_ns: np.ndarray) -> np.ndarray:
         """Run RLS sample by sample (it is order dependent); returns the a-priori θ of each sample."""
@@ -864,4 +882,3 @@ class Estimator:
                 det.add(err, ts[i])
                 stats.add(err)
         return hist
-

@@ -12,7 +12,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -442,21 +442,37 @@ class ChunkedMcapWriter:
             summary_start = self._fh.tell()
             sb = RecordBuilder()
             offsets = []
-            groups = ((0x03, list(self._schemas.values())), (0x04, list(self._channels.values())),
-                      (0x0B, [Statistics(attachment_count=0, channel_count=len(self._channels),
-                                         channel_message_counts=dict(self._counts), chunk_count=len(self._chunk_indexes),
-                                         message_count=self._message_count, message_end_time=self._t_max or 0,
-                                         message_start_time=self._t_min or 0,
-                                         metadata_count=len(self._metadata_indexes), schema_count=len(self._schemas))]),
-                      (0x08, self._chunk_indexes), (0x0D, self._metadata_indexes))
+            groups = (
+                (0x03, list(self._schemas.values())),
+                (0x04, list(self._channels.values())),
+                (
+                    0x0B,
+                    [
+                        Statistics(
+                            attachment_count=0,
+                            channel_count=len(self._channels),
+                            channel_message_counts=dict(self._counts),
+                            chunk_count=len(self._chunk_indexes),
+                            message_count=self._message_count,
+                            message_end_time=self._t_max or 0,
+                            message_start_time=self._t_min or 0,
+                            metadata_count=len(self._metadata_indexes),
+                            schema_count=len(self._schemas),
+                        )
+                    ],
+                ),
+                (0x08, self._chunk_indexes),
+                (0x0D, self._metadata_indexes),
+            )
             for opcode, records in groups:
                 if not records:
                     continue
                 g0 = sb.count
                 for r in records:
                     r.write(sb)
-                offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + g0,
-                                             group_length=sb.count - g0))
+                offsets.append(
+                    SummaryOffset(group_opcode=opcode, group_start=summary_start + g0, group_length=sb.count - g0)
+                )
             summary_offset_start = summary_start + sb.count
             for o in offsets:
                 o.write(sb)

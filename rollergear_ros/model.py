@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Callable
 
 import numpy as np
 
@@ -247,7 +248,7 @@ def evaluate_reference(p: GearboxParams, torque_nm: float, speed_rad_s: float,
     fn = normal_force_n(drive_force_n(torque_nm, p.dm1_m, p.z), a, b)
     v = rolling_speed_m_s(speed_rad_s, p.internal_ratio_effective, p.dw_m)
     terms: dict[str, float] = {}
-    for j, rx, k, rd, f in ((1, geo.rx1, geo.k1, geo.rd1, p.f1), (2, geo.rx2, geo.k2, geo.rd2, p.f2)):
+    for j, rx, k, rd in ((1, geo.rx1, geo.k1, geo.rd1), (2, geo.rx2, geo.k2, geo.rd2)):
         u = speed_parameter(v, eta, rx, p.E_eq_pa)
         w = load_parameter(fn, p.E_eq_pa, rx)
         terms[f"Fr{j}"] = float(rolling_resistance_n(p.E_eq_pa, rx, k, geo.g, u, w))

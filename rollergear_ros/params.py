@@ -18,7 +18,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 import yaml
 
@@ -365,7 +366,7 @@ class Config:
             return self.effects.values.get(effect, {}).get(key, spec.default)
         return getattr(getattr(self, section), rest)
 
-    def with_values(self, values: Mapping[str, Any]) -> "Config":
+    def with_values(self, values: Mapping[str, Any]) -> Config:
         """A new validated config with some dotted parameters changed."""
         flat = self.to_flat()
         flat.update(values)
@@ -417,21 +418,29 @@ def _check_consistency(config: Config) -> None:
     if g.z > g.Z:
         raise ParameterError("gearbox.z", g.z, f"connected balls z must be <= Z = {g.Z}")
     if g.dm1_m <= g.dw_m:
-        raise ParameterError("gearbox.dm1_m", g.dm1_m, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m")
+        raise ParameterError("gearbox.dm1_m", g.dm1_m,
+                             f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m")
     if g.dm2_m <= g.dw_m:
-        raise ParameterError("gearbox.dm2_m", g.dm2_m, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m")
+        raise ParameterError(
+            "gearbox.dm2_m", g.dm2_m, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m"
+        )
     # the Snare term (eq. 21) needs k_j = Ry/Rx >= 1; checked on the derived geometry
     geo = contact_geometry(g)
     for j, k in ((1, geo.k1), (2, geo.k2)):
         if not (math.isfinite(k) and k >= 1.0):
             name = f"gearbox.f{j}"
-            raise ParameterError(name, getattr(g, f"f{j}"),
-                                 f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove")
+            raise ParameterError(
+                name,
+                getattr(g, f"f{j}"),
+                f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove",
+            )
     url = config.node.rerun_connect
     if url and not url.startswith(RERUN_URL_SCHEMES):
-        raise ParameterError("node.rerun_connect", url,
-                             f"a rerun gRPC URL starts with {', '.join(RERUN_URL_SCHEMES)} "
-                             "(e.g. rerun+http://127.0.0.1:9876/proxy)")
+        raise ParameterError(
+            "node.rerun_connect",
+            url,
+            f"a rerun gRPC URL starts with {', '.join(RERUN_URL_SCHEMES)} (e.g. rerun+http://127.0.0.1:9876/proxy)",
+        )
     if config.map.speed_max_rpm < config.map.speed_min_rpm:
         raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm, "must be >= map.speed_min_rpm")
     if config.map.torque_max_nm < config.map.torque_min_nm:
@@ -458,8 +467,9 @@ def flat_from_yaml_document(doc: Any, source: str = "<yaml>") -> dict[str, Any]:
     ``<namespace>/loss_estimator`` or ``/**``.
     """
     if not isinstance(doc, Mapping):
-        raise ParameterError("<file>", source, "a ROS 2 parameter file must be a mapping "
-                             "'loss_estimator: {ros__parameters: {...}}'")
+        raise ParameterError(
+            "<file>", source, "a ROS 2 parameter file must be a mapping 'loss_estimator: {ros__parameters: {...}}'"
+        )
     for key, body in doc.items():
         key_s = str(key)
         if key_s == "/**" or key_s.rstrip("/").split("/")[-1] == NODE_NAME:
@@ -472,8 +482,9 @@ def flat_from_yaml_document(doc: Any, source: str = "<yaml>") -> dict[str, Any]:
             _flatten("", params, out)
             out.pop("use_sim_time", None)  # a standard ROS parameter, handled by rclpy
             return out
-    raise ParameterError("<file>", source, f"no '{NODE_NAME}: ros__parameters:' entry "
-                         f"(found keys: {', '.join(map(str, doc)) or 'none'})")
+    raise ParameterError(
+        "<file>", source, f"no '{NODE_NAME}: ros__parameters:' entry (found keys: {', '.join(map(str, doc)) or 'none'})"
+    )
 
 
 def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
@@ -505,7 +516,17 @@ def config_to_yaml(config: Config, header: str = "") -> str:
 
 
 __all__ = [
-    "Config", "EffectParams", "EstimatorParams", "GearboxParams", "NodeParams", "ParamSpec",
-    "ParameterError", "parameter_specs", "spec_by_name", "load_config", "validate", "config_to_yaml",
+    "Config",
+    "EffectParams",
+    "EstimatorParams",
+    "GearboxParams",
+    "NodeParams",
+    "ParamSpec",
+    "ParameterError",
+    "parameter_specs",
+    "spec_by_name",
+    "load_config",
+    "validate",
+    "config_to_yaml",
     "flat_from_yaml_document",
 ]

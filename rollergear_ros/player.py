@@ -193,9 +193,11 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
 
 
 def init_for_command_line() -> None:
-    """``rclpy.init`` for a command-line tool: Ctrl-C and SIGTERM raise ``KeyboardInterrupt`` in the
-    main thread, which the tool takes as its normal end.  (rclpy's own handler shuts the context down
-    under a running ``publish``, which then fails with ``RCLError: publisher's context is invalid``.)"""
+    """``rclpy.init`` for a command-line tool: Ctrl-C and SIGTERM raise ``KeyboardInterrupt``.
+
+    The main thread takes it as the tool's normal end.  (rclpy's own handler shuts the context down
+    under a running ``publish``, which then fails with ``RCLError: publisher's context is invalid``.)
+    """
     import signal
 
     import rclpy

@@ -13,7 +13,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -61,7 +61,9 @@ def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
     if topics.motor_torque in have or topics.motor_speed in have:
         missing = [t for t in (topics.motor_torque, topics.motor_speed) if t not in have]
         if missing:
-            raise BagError(f"{info.path}: missing input topic {', '.join(missing)}; the bag has: {info.describe_topics()}")
+            raise BagError(
+                f"{info.path}: missing input topic {', '.join(missing)}; the bag has: {info.describe_topics()}"
+            )
         f64 = {}
         for ch, topic in topics.float64_inputs().items():
             if topic in have:
@@ -71,9 +73,11 @@ def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
     if topics.joint_states in have:
         need_type(topics.joint_states, (MessageType.JOINT_STATE,))
         return InputPlan("joint_state", {}, topics.joint_states, temperature, topics)
-    raise BagError(f"{info.path} has none of the input topics ({topics.motor_torque} and {topics.motor_speed} "
-                   f"as std_msgs/msg/Float64, or {topics.joint_states} as sensor_msgs/msg/JointState); "
-                   f"the bag has: {info.describe_topics()}")
+    raise BagError(
+        f"{info.path} has none of the input topics ({topics.motor_torque} and {topics.motor_speed} "
+        f"as std_msgs/msg/Float64, or {topics.joint_states} as sensor_msgs/msg/JointState); "
+        f"the bag has: {info.describe_topics()}"
+    )
 
 
 def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo) -> list[tuple[int, str, float]]:
@@ -85,7 +89,11 @@ def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo) -> list[tuple[
     tp = plan.topics
     temp_topic, temp_type = plan.temperature or (None, None)
     js_dec = decoder_for(MessageType.JOINT_STATE, info.schema_texts.get(MessageType.JOINT_STATE))
-    temp_dec = decoder_for(temp_type, info.schema_texts.get(temp_type)) if temp_type not in (None, MessageType.FLOAT64) else None
+    temp_dec = (
+        decoder_for(temp_type, info.schema_texts.get(temp_type))
+        if temp_type not in (None, MessageType.FLOAT64)
+        else None
+    )
     for topic, t, data in zip(batch.topics, batch.log_time_ns, batch.data):
         if topic == temp_topic:
             value = decode_float64([data])[0] if temp_dec is None else temp_dec(data).temperature
@@ -126,6 +134,7 @@ def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callab
         def write(writer: BagWriter, raw: RawBatch = raw) -> None:
             for tp, tt, d in zip(raw.topics, raw.log_time_ns, raw.data):
                 writer.write_raw(tp, info.topics[tp], tt, d, info.schema_texts.get(info.topics[tp]))
+
         yield InputBatch(codes, t, v, write)
 
 
@@ -179,8 +188,10 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Call
                 for i in keep[lens != 12].tolist():
                     topic, sid, _ = state.channels[int(arrays.channel[i])]
                     type_name = state.schemas[sid][0] if sid in state.schemas else ""
-                    writer.write_raw(topic, type_name, int(arrays.log_time[i]), arrays.payload(i),
-                                     info.schema_texts.get(type_name))
+                    writer.write_raw(
+                        topic, type_name, int(arrays.log_time[i]), arrays.payload(i), info.schema_texts.get(type_name)
+                    )
+
         return InputBatch(np.concatenate(codes).astype(np.int8), np.concatenate(ts), np.concatenate(vals), write)
 
     carry: InputBatch | None = None
@@ -190,8 +201,12 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Call
         times), and hold back messages newer than the oldest channel's last one (not final)."""
         nonlocal carry
         if carry is not None:
-            batch = InputBatch(np.concatenate([carry.codes, batch.codes]), np.concatenate([carry.t_ns, batch.t_ns]),
-                               np.concatenate([carry.values, batch.values]), batch.write_inputs)
+            batch = InputBatch(
+                np.concatenate([carry.codes, batch.codes]),
+                np.concatenate([carry.t_ns, batch.t_ns]),
+                np.concatenate([carry.values, batch.values]),
+                batch.write_inputs,
+            )
         order = np.argsort(batch.t_ns, kind="stable")
         codes, t, v = batch.codes[order], batch.t_ns[order], batch.values[order]
         carry = None
@@ -219,8 +234,12 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Call
             yield in_time_order(assemble(pending), final=False)
             pending, count = [], 0
     if pending or carry is not None:
-        yield in_time_order(assemble(pending) if pending else InputBatch(
-            np.empty(0, np.int8), np.empty(0, np.int64), np.empty(0), lambda w: None), final=True)
+        yield in_time_order(
+            assemble(pending)
+            if pending
+            else InputBatch(np.empty(0, np.int8), np.empty(0, np.int64), np.empty(0), lambda w: None),
+            final=True,
+        )
     if state.truncated:
         warn(f"{info.path}: stopped reading at a damaged or truncated record ({state.problem})")
 
@@ -279,24 +298,34 @@ class ReplaySummary:
     coefficients: dict[str, float] = field(default_factory=dict)
 
     def text(self) -> str:
-        lines = [f"bag: {self.bag}",
-                 f"input messages: {self.input_messages:,} ({self.samples:,} motor torque); "
-                 f"estimated: {self.estimated:,}; log duration {self.duration_s:.1f} s"]
+        lines = [
+            f"bag: {self.bag}",
+            f"input messages: {self.input_messages:,} ({self.samples:,} motor torque); "
+            f"estimated: {self.estimated:,}; log duration {self.duration_s:.1f} s",
+        ]
         if self.pairing == "arrival":
-            lines.append(f"pairing: by arrival, as loss_estimator paired them when it recorded this bag (its sample "
-                         f"period {1e3 * (self.sample_period_s or 0):.3g} ms, arrivals within "
-                         f"{1e3 * self.sync_tolerance_s:.3g} ms)")
+            lines.append(
+                f"pairing: by arrival, as loss_estimator paired them when it recorded this bag (its sample "
+                f"period {1e3 * (self.sample_period_s or 0):.3g} ms, arrivals within "
+                f"{1e3 * self.sync_tolerance_s:.3g} ms)"
+            )
         elif self.sample_period_s:
-            lines.append(f"pairing: sample period {1e3 * self.sample_period_s:.3g} ms, inputs within "
-                         f"{1e3 * self.sync_tolerance_s:.3g} ms form one sample")
+            lines.append(
+                f"pairing: sample period {1e3 * self.sample_period_s:.3g} ms, inputs within "
+                f"{1e3 * self.sync_tolerance_s:.3g} ms form one sample"
+            )
         skipped = {k: v for k, v in self.skipped.items() if v}
         lines.append("skipped: " + (", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in skipped.items()) or "none"))
-        lines.append(f"loss torque: mean {self.mean_loss_nm:.4f} N·m, peak {self.peak_loss_nm:.4f} N·m; "
-                     f"energy lost {self.energy_lost_j:.1f} J; mean efficiency "
-                     + ("n/a" if math.isnan(self.mean_efficiency) else f"{100 * self.mean_efficiency:.2f} %"))
+        lines.append(
+            f"loss torque: mean {self.mean_loss_nm:.4f} N·m, peak {self.peak_loss_nm:.4f} N·m; "
+            f"energy lost {self.energy_lost_j:.1f} J; mean efficiency "
+            + ("n/a" if math.isnan(self.mean_efficiency) else f"{100 * self.mean_efficiency:.2f} %")
+        )
         if self.residual_samples:
-            lines.append(f"residual (measured − estimated loss): RMS {self.residual_rms_nm:.4f} N·m over "
-                         f"{self.residual_samples:,} samples; change alarms: {self.alarms}")
+            lines.append(
+                f"residual (measured − estimated loss): RMS {self.residual_rms_nm:.4f} N·m over "
+                f"{self.residual_samples:,} samples; change alarms: {self.alarms}"
+            )
         if self.coefficients:
             lines.append("adapted coefficients: " + ", ".join(f"{k} {v:.4g}" for k, v in self.coefficients.items()))
         if self.interrupted:
@@ -364,9 +393,17 @@ def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tup
     return "timestamp", period_s
 
 
-def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_mcap: str | Path | None = None,
-           rrd: str | Path | None = None, show_progress: bool | None = None, batch_size: int = 100_000,
-           warn: Callable[[str], None] | None = None, collect: bool = False) -> tuple[ReplaySummary, list[BatchEstimate]]:
+def replay(
+    bag: str | Path,
+    config: Config,
+    topics: TopicMap = TopicMap(),
+    out_mcap: str | Path | None = None,
+    rrd: str | Path | None = None,
+    show_progress: bool | None = None,
+    batch_size: int = 100_000,
+    warn: Callable[[str], None] | None = None,
+    collect: bool = False,
+) -> tuple[ReplaySummary, list[BatchEstimate]]:
     """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``)."""
     warnings: list[str] = []
 
@@ -378,15 +415,20 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
     info = inspect_bag(bag)
     if info.truncated or not info.indexed:
         lost = info.bytes_total - info.bytes_readable
-        _warn(f"{info.path} has no index (summary/footer): a recording cut short? Readable: "
-              f"{info.message_count:,} messages; {lost:,} trailing bytes ({100 * lost / max(info.bytes_total, 1):.1f} %) "
-              "could not be read" if info.truncated else f"{info.path} has no index; read linearly")
+        _warn(
+            f"{info.path} has no index (summary/footer): a recording cut short? Readable: "
+            f"{info.message_count:,} messages; {lost:,} trailing bytes ({100 * lost / max(info.bytes_total, 1):.1f} %) "
+            "could not be read"
+            if info.truncated
+            else f"{info.path} has no index; read linearly"
+        )
     plan = plan_inputs(info, topics)
     period_s = median_period_s(info.path, plan.joint_states or topics.motor_torque)
     pairing, period_s = recorded_pairing(info.path, plan, period_s)
     estimator = Estimator(config, pairing=pairing, sample_period_s=period_s)
-    summary = ReplaySummary(str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s,
-                            pairing=pairing)
+    summary = ReplaySummary(
+        str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
+    )
     writer = BagWriter(out_mcap) if out_mcap else None
     rlog = None
     if rrd:
@@ -434,9 +476,11 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
     summary.skipped = dict(estimator.counts)
     unpaired = summary.skipped.get("unpaired", 0)
     if summary.samples and unpaired > 0.05 * summary.samples:
-        _warn(f"{unpaired:,} of {summary.samples:,} motor messages had no partner within the pairing tolerance of "
-              f"{1e3 * estimator.sync_tolerance_s:.2g} ms: do the input topics share one time base? "
-              "Set estimator.sync_tolerance_s (below half the sample period) if they are logged further apart")
+        _warn(
+            f"{unpaired:,} of {summary.samples:,} motor messages had no partner within the pairing tolerance of "
+            f"{1e3 * estimator.sync_tolerance_s:.2g} ms: do the input topics share one time base? "
+            "Set estimator.sync_tolerance_s (below half the sample period) if they are logged further apart"
+        )
     if acc.n:
         summary.mean_loss_nm = acc.loss_sum / acc.n
         summary.peak_loss_nm = acc.peak
@@ -453,8 +497,16 @@ def replay(bag: str | Path, config: Config, topics: TopicMap = TopicMap(), out_m
     return summary, collected
 
 
-def _emit(estimator: Estimator, paired: tuple[np.ndarray, ...], writer: BagWriter | None, rlog, acc: _Accumulator,
-          collected: list | None, config: Config, tm: TopicMap) -> None:
+def _emit(
+    estimator: Estimator,
+    paired: tuple[np.ndarray, ...],
+    writer: BagWriter | None,
+    rlog,
+    acc: _Accumulator,
+    collected: list | None,
+    config: Config,
+    tm: TopicMap,
+) -> None:
     t, tq, w, tq_out, w_out, theta = paired
     if len(t) == 0:
         return
@@ -470,9 +522,13 @@ def _emit(estimator: Estimator, paired: tuple[np.ndarray, ...], writer: BagWrite
         if has_res.any():
             writer.write_float64_series(tm.residual_torque, b.t_ns[has_res], b.residual_nm[has_res])
     if rlog:
-        series = {"/inputs/torque_nm": b.torque_nm, "/inputs/speed_rad_s": b.speed_rad_s,
-                  "/loss/torque_nm": b.loss_torque_nm, "/loss/power_w": b.loss_power_w,
-                  "/efficiency/efficiency": b.efficiency}
+        series = {
+            "/inputs/torque_nm": b.torque_nm,
+            "/inputs/speed_rad_s": b.speed_rad_s,
+            "/loss/torque_nm": b.loss_torque_nm,
+            "/loss/power_w": b.loss_power_w,
+            "/efficiency/efficiency": b.efficiency,
+        }
         sg = np.sign(b.loss_torque_nm)
         for k, v in b.breakdown_nm.items():
             series[f"/loss/breakdown/{k}_nm"] = v * sg
@@ -480,9 +536,14 @@ def _emit(estimator: Estimator, paired: tuple[np.ndarray, ...], writer: BagWrite
             series["/loss/breakdown/effects_nm"] = b.effects_nm * sg
         rlog.send(b.t_ns, series)
         if has_res.any():
-            rlog.send(b.t_ns[has_res], {"/residual/measured_loss_nm": b.measured_loss_nm[has_res],
-                                        "/residual/estimated_loss_nm": np.abs(b.loss_torque_nm[has_res]),
-                                        "/residual/residual_nm": b.residual_nm[has_res]})
+            rlog.send(
+                b.t_ns[has_res],
+                {
+                    "/residual/measured_loss_nm": b.measured_loss_nm[has_res],
+                    "/residual/estimated_loss_nm": np.abs(b.loss_torque_nm[has_res]),
+                    "/residual/residual_nm": b.residual_nm[has_res],
+                },
+            )
         for name, coef in b.coefficients.items():
             rlog.send(b.t_ns, {f"/adaptation/{name}": coef})
         temps = theta[np.isfinite(theta)]

@@ -74,9 +74,17 @@ def register_simulate(sub, with_params) -> None:
     p.add_argument("--rate", type=float, default=200.0, help="sample rate [Hz] (default 200)")
     p.add_argument("--duration", type=float, help="cut the profile after this many seconds")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--effect", action="append", default=[], metavar="NAME[:k=v,...]",
-                   help="declared extra effect, repeatable: " + "; ".join(
-                       f"{n}:{','.join(f'{k}={v:g}' for k, v in d.items())}" for n, d in ((n, e.simulated_defaults()) for n, e in EFFECTS.items())))
+    p.add_argument(
+        "--effect",
+        action="append",
+        default=[],
+        metavar="NAME[:k=v,...]",
+        help="declared extra effect, repeatable: "
+        + "; ".join(
+            f"{n}:{','.join(f'{k}={v:g}' for k, v in d.items())}"
+            for n, d in ((n, e.simulated_defaults()) for n, e in EFFECTS.items())
+        ),
+    )
     p.add_argument("--torque-noise", type=float, default=0.01, help="torque sensor noise sigma [N·m]")
     p.add_argument("--noise-ar1", type=float, default=0.0, help="AR(1) coefficient of coloured noise (0 = white)")
     p.add_argument("--output-lag", type=float, default=0.0, help="delay of the output torque channel [s]")

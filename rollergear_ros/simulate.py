@@ -14,7 +14,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -32,7 +32,7 @@ class DeclaredEffect:
     params: dict[str, float]
 
     @classmethod
-    def parse(cls, text: str) -> "DeclaredEffect":
+    def parse(cls, text: str) -> DeclaredEffect:
         """``drag_speed:c=2e-4,p=1.5``: an effect of the registry with its parameters by their short
         names; missing values take the registry's ``simulated`` defaults."""
         name, _, rest = text.partition(":")

@@ -27,8 +27,15 @@ from .player import init_for_command_line
 
 _T = TopicMap()
 #: output channel -> topic relative to the node's namespace (``interface.md``)
-OUTPUT_TOPICS = {channel: topic[len(NAMESPACE) + 1:] for channel, topic in (
-    ("loss", _T.loss_torque), ("power", _T.loss_power), ("efficiency", _T.efficiency), ("residual", _T.residual_torque))}
+OUTPUT_TOPICS = {
+    channel: topic[len(NAMESPACE) + 1 :]
+    for channel, topic in (
+        ("loss", _T.loss_torque),
+        ("power", _T.loss_power),
+        ("efficiency", _T.efficiency),
+        ("residual", _T.residual_torque),
+    )
+}
 
 
 @dataclass
@@ -53,8 +60,11 @@ class WatchWindow:
         n = len(values["loss"])
         if n == 0:
             return f"no estimates on {topic_of_loss} in the last {period_s:.1f} s{status}"
-        parts = [f"{n / period_s:7.0f} est/s", f"loss {_mean(values['loss']):.4f} N·m",
-                 f"{_mean(values['power']):.2f} W"]
+        parts = [
+            f"{n / period_s:7.0f} est/s",
+            f"loss {_mean(values['loss']):.4f} N·m",
+            f"{_mean(values['power']):.2f} W",
+        ]
         eff = values["efficiency"]
         if np.isfinite(eff).any():
             parts.append(f"η {100 * _mean(eff):.2f} % (min {100 * np.nanmin(eff):.2f})")
@@ -88,15 +98,18 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
     def on_diagnostics(msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name.endswith(STATUS_NAME):
-                window.diagnostic = (status.level[0] if isinstance(status.level, bytes) else int(status.level),
-                                     status.message)
+                window.diagnostic = (
+                    status.level[0] if isinstance(status.level, bytes) else int(status.level),
+                    status.message,
+                )
 
     node.create_subscription(DiagnosticArray, Topic.DIAGNOSTICS, on_diagnostics, 10)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     topic_of_loss = f"{ns}/{OUTPUT_TOPICS['loss']}"
-    print(f"watching {ns or '/'} (outputs and /diagnostics), a line every {period_s:g} s; Ctrl-C to stop",
-          file=sys.stderr)
+    print(
+        f"watching {ns or '/'} (outputs and /diagnostics), a line every {period_s:g} s; Ctrl-C to stop", file=sys.stderr
+    )
     lines = 0
     try:
         start = time.monotonic()

@@ -8,7 +8,7 @@ import numpy as np
 
 
 def read_rosbags(path: Path) -> dict[str, tuple[np.ndarray, list]]:
-    """topic -> (log times ns, messages) with the rosbags library."""
+    """Topic -> (log times ns, messages) with the rosbags library."""
     from rosbags.highlevel import AnyReader
 
     out: dict[str, tuple[list, list]] = {}
@@ -22,7 +22,7 @@ def read_rosbags(path: Path) -> dict[str, tuple[np.ndarray, list]]:
 
 
 def read_mcap_ros2(path: Path) -> dict[str, tuple[np.ndarray, list]]:
-    """topic -> (log times ns, decoded messages) with mcap + mcap-ros2-support, in log-time order."""
+    """Topic -> (log times ns, decoded messages) with mcap + mcap-ros2-support, in log-time order."""
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 

@@ -1,17 +1,15 @@
-"""Shared fixtures: paths, a default config, and the package's CLI run as a real subprocess."""
+"""Shared fixtures; every test run talks DDS on its own domain, on this machine only."""
 
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
-BAGS = ROOT / "bags"
-CONFIG = ROOT / "config" / "gearbox.yaml"
+from helpers import CONFIG
+
+os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 
 @pytest.fixture(scope="session")
@@ -19,20 +17,3 @@ def config():
     from rollergear_ros.params import load_config
 
     return load_config(CONFIG)
-
-
-def run_cli(*args: str, check: bool = True, timeout: float = 600, env: dict | None = None,
-            cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """Run ``rollergear ARGS`` in a subprocess (the installed console script's code path)."""
-    full_env = dict(os.environ)
-    full_env.update(env or {})
-    proc = subprocess.run([sys.executable, "-m", "rollergear_ros", *args], capture_output=True, text=True,
-                          timeout=timeout, env=full_env, cwd=cwd or ROOT)
-    if check and proc.returncode != 0:
-        raise AssertionError(f"rollergear {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
-    return proc
-
-
-# Each test run talks DDS on its own domain, on this machine only.
-os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

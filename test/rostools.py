@@ -11,7 +11,7 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-from conftest import CONFIG, ROOT
+from helpers import CONFIG, ROOT
 
 
 class NodeProcess:
@@ -33,7 +33,7 @@ class NodeProcess:
         except subprocess.TimeoutExpired:
             self.proc.kill()
             self.stdout, self.stderr = self.proc.communicate()
-            raise AssertionError(f"node did not stop on {sig}:\n{self.stderr}")
+            raise AssertionError(f"node did not stop on {sig}:\n{self.stderr}") from None
         return self.proc.returncode
 
 

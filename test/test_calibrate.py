@@ -18,7 +18,7 @@ from rollergear_ros.params import load_config
 from rollergear_ros.replay import replay
 from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
 
-from conftest import run_cli
+from helpers import run_cli
 
 
 def draw_effect(name: str, rng: np.random.Generator) -> DeclaredEffect:
@@ -88,6 +88,7 @@ def test_undeclared_effects_are_found_recovered_and_removed(tmp_path, names):
     assert result["samples"] > 5000
 
 
+@pytest.mark.slow
 def test_no_missing_effect_over_20_seeds(tmp_path):
     config = load_config()
     verdicts = []
@@ -181,8 +182,11 @@ def test_calibrate_bad_input(tmp_path):
     p = tmp_path / "noout.mcap"
     with BagWriter(p) as bw:
         for i in range(100):
-            bw.write_raw("/rollergear/motor/torque", MessageType.FLOAT64, 10**9 + i * 10**7, encode_float64(np.array([5.0]))[0])
-            bw.write_raw("/rollergear/motor/speed", MessageType.FLOAT64, 10**9 + i * 10**7, encode_float64(np.array([50.0]))[0])
+            bw.write_raw("/rollergear/motor/torque", MessageType.FLOAT64, 10**9 + i * 10**7,
+                         encode_float64(np.array([5.0]))[0])
+            bw.write_raw(
+                "/rollergear/motor/speed", MessageType.FLOAT64, 10**9 + i * 10**7, encode_float64(np.array([50.0]))[0]
+            )
     proc = run_cli("calibrate", str(p), "--json", check=False)
     assert proc.returncode == 2 and "output torque" in proc.stderr and proc.stdout == ""
 
@@ -190,10 +194,11 @@ def test_calibrate_bad_input(tmp_path):
 def test_recordings_of_different_rigs_do_not_crash_and_are_not_written(tmp_path):
     """Mixed recordings (viscosity effect in one, load friction in the other) give physically
     out-of-range fits: reported, never written to the parameter file, verdict inconclusive."""
-    from conftest import BAGS
+    from helpers import BAGS
 
     out = tmp_path / "cal.yaml"
-    proc = run_cli("calibrate", str(BAGS / "warmup.mcap"), str(BAGS / "drive_cycle_joint_states.mcap"),
-                   "--out", str(out))
+    proc = run_cli(
+        "calibrate", str(BAGS / "warmup.mcap"), str(BAGS / "drive_cycle_joint_states.mcap"), "--out", str(out)
+    )
     assert "verdict: inconclusive" in proc.stdout and "outside the physical range" in proc.stdout
     load_config(out)  # the written file is valid

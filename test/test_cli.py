@@ -10,7 +10,7 @@ import pytest
 
 from rollergear_ros.model import BREAKDOWN_KEYS, LossModel
 
-from conftest import run_cli
+from helpers import run_cli
 
 
 def test_model_json_matches_the_library(config):

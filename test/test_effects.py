@@ -85,7 +85,9 @@ def test_a_registered_toy_effect_flows_through_simulate_calibrate_and_replay(toy
     config = load_config(ROOT / "config" / "gearbox.yaml")
     assert "effects.speed_load.c" in {s.name for s in parameter_specs()}
     # simulate: a rig with the new effect, declared by its short names
-    opts = SimulationOptions(profile="rig_map", rate_hz=100.0, seed=3, effects=[DeclaredEffect.parse("speed_load:c=3e-5")])
+    opts = SimulationOptions(
+        profile="rig_map", rate_hz=100.0, seed=3, effects=[DeclaredEffect.parse("speed_load:c=3e-5")]
+    )
     bag = tmp_path / "toy.mcap"
     write_rig_bag(simulate(config, opts), opts, bag)
     # calibrate: found (not declared to it), coefficient within its interval
@@ -106,7 +108,7 @@ def test_a_registered_toy_effect_flows_through_simulate_calibrate_and_replay(toy
     def residual_rms(cfg) -> float:
         _, batches = replay(bag, cfg, show_progress=False, collect=True)
         r = np.concatenate([b.residual_nm for b in batches])
-        return float(np.sqrt(np.nanmean(r[len(r) // 2:] ** 2)))  # after the RLS has settled
+        return float(np.sqrt(np.nanmean(r[len(r) // 2 :] ** 2)))  # after the RLS has settled
 
     before, after = residual_rms(config), residual_rms(calibrated)
     assert after < 0.2 * before, (before, after)

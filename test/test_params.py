@@ -9,7 +9,7 @@ import yaml
 
 from rollergear_ros.params import ParameterError, config_to_yaml, load_config, parameter_specs, validate
 
-from conftest import CONFIG
+from helpers import CONFIG
 
 
 def test_shipped_yaml_is_the_defaults():

@@ -23,7 +23,7 @@ from rollergear_ros.review import read_rrd_series
 from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, read_truth, simulate, write_rig_bag
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
-from conftest import BAGS, ROOT, run_cli
+from helpers import BAGS, ROOT, run_cli
 
 BUNDLED = sorted(BAGS.glob("*.mcap"))
 T = TopicMap()
@@ -47,6 +47,7 @@ def _inputs_from_rosbags(msgs: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return t, np.array([m.effort[k] for m in ms]), np.array([m.velocity[k] for m in ms])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bag", BUNDLED, ids=lambda p: p.stem)
 def test_replay_bundled_bag_matches_model_on_its_inputs(bag, tmp_path, config):
     out, rrd = tmp_path / "out.mcap", tmp_path / "out.rrd"
@@ -163,7 +164,7 @@ def test_streaming_path_equals_batch_path(config):
     chan = {T.motor_torque: "motor_torque", T.motor_speed: "motor_speed", T.output_torque: "output_torque",
             T.output_speed: "output_speed"}
     for topic, (ts, ms) in msgs.items():
-        for i, (t, m) in enumerate(zip(ts.tolist(), ms)):
+        for t, m in zip(ts.tolist(), ms):
             if topic in chan:
                 events.append((t, list(chan).index(topic), chan[topic], m.data))
             else:
@@ -201,8 +202,11 @@ def test_missing_topics_error_lists_what_the_bag_has(tmp_path):
 def test_unexpected_type_names_the_topic(tmp_path):
     p = tmp_path / "t.mcap"
     msg = {"header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": ""}, "temperature": 1.0, "variance": 0.0}
-    _write_bag(p, {T.motor_torque: ("sensor_msgs/msg/Temperature", [msg] * 5), T.motor_speed: (MessageType.FLOAT64, np.ones(5))},
-               n=5)
+    _write_bag(
+        p,
+        {T.motor_torque: ("sensor_msgs/msg/Temperature", [msg] * 5), T.motor_speed: (MessageType.FLOAT64, np.ones(5))},
+        n=5,
+    )
     with pytest.raises(BagError, match=f"{T.motor_torque} has type sensor_msgs/msg/Temperature"):
         replay(p, load_config(), show_progress=False)
 
@@ -272,8 +276,9 @@ def _separately_logged_bag(path: Path, offset_s: float, jitter_s: float, n: int 
     torque = 40.0 * np.sin(k / 50.0)
     speed = 100.0 + 50.0 * np.cos(k / 70.0)
     rows = []
-    for lag, (topic, values) in enumerate(((T.motor_torque, torque), (T.motor_speed, speed),
-                                           (T.output_torque, torque * 11.6))):
+    for lag, (topic, values) in enumerate(
+        ((T.motor_torque, torque), (T.motor_speed, speed), (T.output_torque, torque * 11.6))
+    ):
         t = 1_000_000_000 + (k / rate + lag * offset_s + rng.uniform(0, jitter_s, n)) * 1e9
         rows += [(int(ti), topic, v) for ti, v in zip(t, values)]
     rows.sort()
@@ -318,14 +323,29 @@ def test_truncated_bag_processes_what_is_readable(tmp_path, config):
 
 def test_topic_remapping(tmp_path, config):
     p = tmp_path / "r.mcap"
-    _write_bag(p, {"/rig/tq": (MessageType.FLOAT64, np.full(50, 10.0)), "/rig/w": (MessageType.FLOAT64, np.full(50, 100.0))}, n=50)
-    proc = run_cli("replay", str(p), "--topic-motor-torque", "/rig/tq", "--topic-motor-speed", "/rig/w",
-                   "--topic-loss-torque", "/est/loss", "--out", str(tmp_path / "o.mcap"))
+    _write_bag(
+        p,
+        {"/rig/tq": (MessageType.FLOAT64, np.full(50, 10.0)), "/rig/w": (MessageType.FLOAT64, np.full(50, 100.0))},
+        n=50,
+    )
+    proc = run_cli(
+        "replay",
+        str(p),
+        "--topic-motor-torque",
+        "/rig/tq",
+        "--topic-motor-speed",
+        "/rig/w",
+        "--topic-loss-torque",
+        "/est/loss",
+        "--out",
+        str(tmp_path / "o.mcap"),
+    )
     assert "estimated: 50" in proc.stdout
     got = read_rosbags(tmp_path / "o.mcap")
     assert len(got["/est/loss"][0]) == 50
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_interrupted_replay_leaves_valid_files(tmp_path, config, sig):
     # a long bag so the replay is still running when the signal comes
@@ -334,8 +354,13 @@ def test_interrupted_replay_leaves_valid_files(tmp_path, config, sig):
     big = tmp_path / "big.mcap"
     write_rig_bag(rig, opts, big)
     out, rrd = tmp_path / "o.mcap", tmp_path / "o.rrd"
-    proc = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "replay", str(big), "--out", str(out),
-                             "--rrd", str(rrd)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rollergear_ros", "replay", str(big), "--out", str(out), "--rrd", str(rrd)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
     deadline = time.time() + 60
     while time.time() < deadline and (not out.exists() or out.stat().st_size < 2_000_000):
         time.sleep(0.05)
@@ -368,13 +393,16 @@ def test_big_endian_float64_payloads_are_decoded(tmp_path, config):
     np.testing.assert_allclose(loss, LossModel(config.gearbox).loss_magnitude(20.0, 100.0), rtol=1e-12)
 
 
-@pytest.mark.parametrize("metadata, pairing", [
-    ({"pairing": "arrival", "sample_period_s": "0.001"}, "arrival"),
-    ({"pairing": "arrival", "sample_period_s": "abc"}, "timestamp"),  # unreadable: the bag's own timing
-    ({"pairing": "arrival", "sample_period_s": "-1"}, "timestamp"),
-    ({"pairing": "timestamp", "sample_period_s": "0.001"}, "timestamp"),
-    (None, "timestamp"),
-])
+@pytest.mark.parametrize(
+    "metadata, pairing",
+    [
+        ({"pairing": "arrival", "sample_period_s": "0.001"}, "arrival"),
+        ({"pairing": "arrival", "sample_period_s": "abc"}, "timestamp"),  # unreadable: the bag's own timing
+        ({"pairing": "arrival", "sample_period_s": "-1"}, "timestamp"),
+        ({"pairing": "timestamp", "sample_period_s": "0.001"}, "timestamp"),
+        (None, "timestamp"),
+    ],
+)
 def test_a_node_recording_is_paired_as_the_node_paired_it(tmp_path, config, metadata, pairing):
     """``rollergear_recording`` metadata (written by loss_estimator) selects arrival pairing with the
     node's sample period; anything unreadable falls back to pairing by the bag's timestamps."""
@@ -392,6 +420,8 @@ def test_a_node_recording_is_paired_as_the_node_paired_it(tmp_path, config, meta
     assert s.pairing == pairing and ("pairing: by arrival" in s.text()) == (pairing == "arrival")
     assert s.sync_tolerance_s == pytest.approx(0.002 if pairing == "arrival" else 0.0004)
     assert s.estimated == n
-    np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in batches]),
-                               LossModel(config.gearbox).loss_magnitude(np.linspace(5.0, 50.0, n), np.full(n, 100.0)),
-                               rtol=1e-12)
+    np.testing.assert_allclose(
+        np.concatenate([b.loss_torque_nm for b in batches]),
+        LossModel(config.gearbox).loss_magnitude(np.linspace(5.0, 50.0, n), np.full(n, 100.0)),
+        rtol=1e-12,
+    )

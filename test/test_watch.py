@@ -9,13 +9,14 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 from rollergear_ros.bag import encode_float64
 from rollergear_ros.params import load_config
 from rollergear_ros.replay import replay
 from rollergear_ros.watch import WatchWindow
 
-from conftest import BAGS, CONFIG, ROOT, run_cli
+from helpers import BAGS, CONFIG, ROOT, run_cli
 from rostools import NodeProcess, play
 
 LINE = re.compile(r"(\d+) est/s  loss (\S+) N·m  (\S+) W  η (\S+) % \(min (\S+)\)")
@@ -37,7 +38,9 @@ def test_window_summarises_a_period_and_starts_the_next():
     assert m and m.groups() == ("4", "0.2000", "20.00", "99.00", "99.00"), line
     assert "residual +0.0200 N·m" in line and line.endswith("[WARN] motor_torque at 500 Hz, expected 1000 Hz")
     # the next period starts empty; the latest status is kept
-    assert w.line(1.0, "/rollergear/loss/torque").startswith("no estimates on /rollergear/loss/torque in the last 1.0 s")
+    assert w.line(1.0, "/rollergear/loss/torque").startswith(
+        "no estimates on /rollergear/loss/torque in the last 1.0 s"
+    )
 
 
 def test_window_without_efficiency_or_residual():
@@ -50,12 +53,19 @@ def test_watch_refuses_a_bad_period():
     assert proc.returncode == 2 and "--period must be > 0" in proc.stderr
 
 
+@pytest.mark.ros
+@pytest.mark.slow
 def test_watch_shows_a_running_nodes_estimates_and_status():
     """Node, player and watcher as three processes (the README's terminals): the watcher's lines
     carry estimates within what offline replay computes for the bag, and the node's status."""
     node = NodeProcess()
-    watcher = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "watch"], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    watcher = subprocess.Popen(
+        [sys.executable, "-m", "rollergear_ros", "watch"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
     try:
         play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
         time.sleep(2.5)  # a line with no estimates and the stale-input status
@@ -79,9 +89,11 @@ def test_watch_shows_a_running_nodes_estimates_and_status():
     assert "no estimates on /rollergear/loss/torque" in lines[-1] and "[ERROR] stale input" in lines[-1], out
 
 
+@pytest.mark.ros
 def test_watch_count_ends_by_itself_without_a_node():
     count = 2
     proc = run_cli("watch", "--period", "0.5", "--count", str(count), timeout=30)
     lines = proc.stdout.splitlines()
-    assert len(lines) == count and all("no estimates on /rollergear/loss/torque in the last 0.5 s" in ln
-                                       for ln in lines), proc.stdout
+    assert len(lines) == count and all(
+        "no estimates on /rollergear/loss/torque in the last 0.5 s" in ln for ln in lines
+    ), proc.stdout
