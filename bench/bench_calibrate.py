@@ -15,7 +15,8 @@ from common import long_bag
 
 from rollergear_ros.calibrate import calibrate, load_samples
 from rollergear_ros.effects import EffectInputs
-from rollergear_ros.estimator import Estimator, RecursiveLeastSquares, regressors
+from rollergear_ros.adaptation import RecursiveLeastSquares, regressors
+from rollergear_ros.estimator import Estimator
 from rollergear_ros.params import load_config
 
 

@@ -12,7 +12,9 @@ from .replay_cli import add_topic_options, topics_from_args
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from .calibrate import calibrate, calibrated_yaml, load_samples, write_report
+    from .calibrate import calibrate, calibrated_yaml
+    from .report import write_report
+    from .samples import load_samples
 
     config = config_from_args(args)
 

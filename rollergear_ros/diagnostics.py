@@ -10,7 +10,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from .estimator import CHANNELS, OUT_TORQUE, SKIP_REASONS, SPEED, TORQUE, Estimator
+from .estimator import Estimator
+from .pairing import CHANNELS, OUT_TORQUE, SKIP_REASONS, SPEED, TORQUE
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}

@@ -30,7 +30,8 @@ from std_msgs.msg import Float64
 
 from . import bag as bagmod
 from .diagnostics import STATUS_NAME, InputMonitor, diagnose
-from .estimator import OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, Estimate, Estimator
+from .estimator import Estimate, Estimator
+from .pairing import OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from .interface import NAMESPACE, MessageType, Metadata, Topic
 from .params import Config, ParameterError, parameter_specs, validate
 

@@ -19,8 +19,8 @@ import numpy as np
 
 from .bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, decode_float64, decoder_for, inspect_bag,
                   iter_raw_batches, median_period_s, read_metadata)
-from .estimator import (CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, BatchEstimate, Estimator,
-                        samples_to_arrays)
+from .estimator import BatchEstimate, Estimator
+from .pairing import CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from .interface import MessageType, Metadata
 from .params import Config
 
@@ -453,14 +453,13 @@ def replay(
                 summary.interrupted = True
                 break
             summary.input_messages += len(batch.codes)
-            paired = estimator.sync.push_many(batch.codes, batch.t_ns, batch.values)
-            _emit(estimator, paired, writer, rlog, acc, sink, config, topics)
+            _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values), writer, rlog, acc, sink, config, topics)
             if writer:
                 batch.write_inputs(writer)
             if bar:
                 bar.update(len(batch.codes))
         else:
-            _emit(estimator, samples_to_arrays(estimator.sync.flush()), writer, rlog, acc, sink, config, topics)
+            _emit(estimator.flush(), writer, rlog, acc, sink, config, topics)
     except KeyboardInterrupt:
         summary.interrupted = True
     finally:
@@ -471,7 +470,7 @@ def replay(
             writer.close()
         if rlog:
             rlog.close()
-    summary.samples = estimator.sync.received[TORQUE]
+    summary.samples = estimator.motor_messages
     summary.estimated = estimator.estimated
     summary.skipped = dict(estimator.counts)
     unpaired = summary.skipped.get("unpaired", 0)
@@ -497,20 +496,11 @@ def replay(
     return summary, collected
 
 
-def _emit(
-    estimator: Estimator,
-    paired: tuple[np.ndarray, ...],
-    writer: BagWriter | None,
-    rlog,
-    acc: _Accumulator,
-    collected: list | None,
-    config: Config,
-    tm: TopicMap,
-) -> None:
-    t, tq, w, tq_out, w_out, theta = paired
-    if len(t) == 0:
+def _emit(b: BatchEstimate | None, writer: BagWriter | None, rlog, acc: _Accumulator, collected: list | None,
+          config: Config, tm: TopicMap) -> None:
+    """Hand one batch of estimates to the writers, the summary and the caller."""
+    if b is None:
         return
-    b = estimator.process_batch(t, tq, w, tq_out, w_out, theta)
     acc.add(b)
     if collected is not None:
         collected.append(b)
@@ -546,6 +536,6 @@ def _emit(
             )
         for name, coef in b.coefficients.items():
             rlog.send(b.t_ns, {f"/adaptation/{name}": coef})
-        temps = theta[np.isfinite(theta)]
-        if len(temps):
-            rlog.send(t[np.isfinite(theta)], {"/inputs/oil_temperature_c": temps})
+        have = np.isfinite(b.temperature_c)
+        if have.any():
+            rlog.send(b.t_ns[have], {"/inputs/oil_temperature_c": b.temperature_c[have]})

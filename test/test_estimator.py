@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from rollergear_ros.diagnostics import ERROR, OK, WARN, InputMonitor, diagnose
-from rollergear_ros.estimator import (CHANNELS, OUT_SPEED, OUT_TORQUE, SPEED, OIL_TEMPERATURE, TORQUE, ChangeDetector,
-                                      Estimator, RecursiveLeastSquares, ResidualStats, SampleSynchronizer,
-                                      pairing_tolerance_s, samples_to_arrays)
+from rollergear_ros.adaptation import ChangeDetector, RecursiveLeastSquares, ResidualStats
+from rollergear_ros.estimator import Estimator
+from rollergear_ros.pairing import (CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, SampleSynchronizer,
+                                    pairing_tolerance_s, samples_to_arrays)
 from rollergear_ros.params import load_config
 
 MS = 1_000_000

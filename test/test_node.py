@@ -181,7 +181,7 @@ def test_run_time_change_of_pairing_limits_takes_effect():
     synchroniser at once, and the inputs already queued are kept."""
     from rclpy.parameter import Parameter
 
-    from rollergear_ros.estimator import SPEED, TORQUE
+    from rollergear_ros.pairing import SPEED, TORQUE
     from rollergear_ros.node import LossEstimatorNode
 
     with ros_context() as probe:

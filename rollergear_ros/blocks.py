@@ -1,0 +1,172 @@
+"""Block means of the residual and of every candidate effect's column (steps 2-3 of :mod:`.calibrate`).
+
+Samples are averaged over short blocks (never across a bag, a sign change of ω or T, or a gap);
+blocks are weighted by the inverse variance of their mean and grouped into dwells, which the
+cross-validation folds never split.  The candidate columns come from the effect registry
+(:mod:`.effects`).  No rclpy import.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .effects import EFFECTS, EffectInputs
+from .model import rotation_sign
+from .samples import SampleData
+
+#: an effect that needs the oil temperature is testable when it varies by at least this much
+MIN_TEMPERATURE_SPAN_C = 3.0
+
+
+def groups() -> tuple[str, ...]:
+    """The candidate groups: every effect of the registry, in its order."""
+    return tuple(EFFECTS)
+
+
+@dataclass
+class Blocks:
+    """Block means of the residual and of every candidate column, with weights and dwell groups."""
+
+    start: np.ndarray  # first sample index of each block
+    count: np.ndarray
+    y: np.ndarray  # mean residual
+    measured: np.ndarray  # mean measured loss
+    speed: np.ndarray
+    torque: np.ndarray
+    temperature: np.ndarray
+    weight: np.ndarray  # inverse variance of the block mean
+    dwell: np.ndarray
+    fold: np.ndarray
+    columns: dict[str, np.ndarray]  # nuisance columns dtdt, dwdt; effects without a member, by name
+    grids: dict[str, np.ndarray]  # effect with a member -> (len(member_grid), n_blocks) columns
+    inflation: float
+    block_s: float
+    x: EffectInputs | None = None  # per-sample inputs of the effects' terms
+    testable: tuple[str, ...] = ()  # effects this data can test (a varying temperature where needed)
+
+    def mean(self, values: np.ndarray) -> np.ndarray:
+        return np.add.reduceat(np.broadcast_to(values, self.x.abs_speed.shape), self.start) / self.count
+
+    def column(self, name: str, member: float | None = None) -> np.ndarray:
+        """Block means of an effect's regressor (coefficient 1), at any member (not only the grid's);
+        a sample without an input the effect needs (a missing temperature) contributes 0."""
+        effect = EFFECTS[name]
+        values = effect.column(self.x, effect.defaults(), member)
+        return self.mean(np.where(np.isnan(values), 0.0, values))
+
+
+def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Blocks | None = None) -> Blocks:
+    """Average samples into blocks (see the module docstring) and compute every candidate column.
+
+    ``like``: reuse another block set's boundaries, dwells and folds (same samples, corrected values).
+    """
+    t = d.t_ns.astype(np.float64) * 1e-9
+    sg = rotation_sign(d.speed, d.torque)
+    n = len(t)
+    dt = np.diff(t)
+    typical = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1e-3
+    brk = np.ones(n, bool)
+    if n > 1:
+        tb = np.floor((t - t[0]) / block_s)
+        brk[1:] = (
+            (tb[1:] != tb[:-1])
+            | (d.bag_id[1:] != d.bag_id[:-1])
+            | (np.sign(d.speed[1:]) != np.sign(d.speed[:-1]))
+            | (np.sign(d.torque[1:]) != np.sign(d.torque[:-1]))
+            | (dt > 5 * typical)
+            | (dt < 0)
+        )
+    start = np.flatnonzero(brk) if like is None else like.start
+    count = np.diff(np.append(start, n))
+    if like is not None:
+        brk = np.zeros(n, bool)
+        brk[start] = True
+
+    def mean(x: np.ndarray) -> np.ndarray:
+        return np.add.reduceat(x, start) / count
+
+    y = d.residual
+    ym = mean(y)
+    # derivative columns within each bag (np.gradient over time; zero across breaks)
+    dtdt = np.zeros(n)
+    dwdt = np.zeros(n)
+    for b in np.unique(d.bag_id):
+        idx = np.flatnonzero(d.bag_id == b)
+        if len(idx) > 2:
+            tt = t[idx] + 1e-12 * np.arange(len(idx))
+            dtdt[idx] = np.gradient(d.torque[idx], tt)
+            dwdt[idx] = np.gradient(d.speed[idx], tt)
+    # noise of each block mean: within-block variance, inflated for autocorrelation
+    dev = y - np.repeat(ym, count)
+    var_within = np.add.reduceat(dev * dev, start) / np.maximum(count - 1, 1)
+    same_block = ~brk[1:]
+    if same_block.sum() > 10:
+        a, b_ = dev[:-1][same_block], dev[1:][same_block]
+        rho = float(np.dot(a, b_) / max(np.sqrt(np.dot(a, a) * np.dot(b_, b_)), 1e-300))
+    else:
+        rho = 0.0
+    rho = min(max(rho, 0.0), 0.98)
+    inflation = (1 + rho) / (1 - rho)
+    var_mean = var_within * inflation / count
+    floor = max(float(np.median(var_mean[count > 1])) * 0.05 if np.any(count > 1) else 1e-12, 1e-16)
+    var_mean = np.where(count > 1, np.maximum(var_mean, floor), float(np.max(var_mean)) if len(var_mean) else 1.0)
+    weight = 1.0 / var_mean
+    aw, at = np.abs(d.speed), np.abs(d.torque)
+    spd, trq = mean(d.speed), mean(d.torque)
+    temp = mean(np.nan_to_num(d.temperature, nan=np.nan))
+    # dwells: consecutive blocks at the same operating point (<= 5 s), folds by dwell
+    nb = len(start)
+    dwell = np.zeros(nb, dtype=np.int64)
+    max_blocks = max(int(round(5.0 / block_s)), 1)
+    cur, run = 0, 0
+    for i in range(1, nb):
+        same = (
+            abs(spd[i] - spd[i - 1]) <= 0.03 * abs(spd[i - 1]) + 1.0
+            and abs(trq[i] - trq[i - 1]) <= 0.03 * abs(trq[i - 1]) + 0.5
+            and d.bag_id[start[i]] == d.bag_id[start[i - 1]]
+        )
+        run += 1
+        if not same or run >= max_blocks:
+            cur += 1
+            run = 0
+        dwell[i] = cur
+    fold = dwell % folds
+    if like is not None:
+        dwell, fold = like.dwell, like.fold
+    theta = d.temperature
+    have_theta = np.isfinite(theta)
+    varies = (
+        bool(have_theta.mean() > 0.9 and np.nanmax(theta) - np.nanmin(theta) >= MIN_TEMPERATURE_SPAN_C)
+        if have_theta.any()
+        else False
+    )
+    testable = tuple(n for n, e in EFFECTS.items() if varies or not e.needs_temperature)
+    columns = {"dtdt": mean(dtdt * sg), "dwdt": mean(dwdt * sg)}
+    x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
+    blocks = Blocks(
+        start,
+        count,
+        ym,
+        mean(d.measured_loss),
+        spd,
+        trq,
+        temp,
+        weight,
+        dwell,
+        fold,
+        columns,
+        {},
+        inflation,
+        block_s,
+        x,
+        testable,
+    )
+    for name in testable:
+        effect = EFFECTS[name]
+        if effect.member is None:
+            columns[name] = blocks.column(name)
+        else:
+            blocks.grids[name] = np.stack([blocks.column(name, m) for m in effect.member_grid])
+    return blocks

@@ -1,0 +1,358 @@
+"""Forward selection of the missing effects on block means (steps 4-5 of :mod:`.calibrate`).
+
+Weighted least squares with cluster-robust errors (:func:`wls`), one candidate :class:`Term` per
+effect and member of its grid (:func:`members`), and the :class:`Calibrator` that profiles the
+exponents, cross-validates and accepts, rejects or flags as ambiguous one group per step.
+No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .blocks import Blocks, groups
+from .effects import EFFECTS, separating_data
+
+
+@dataclass
+class Fit:
+    coef: np.ndarray
+    cov: np.ndarray
+    wsse: float
+    pred: np.ndarray
+
+
+def wls(x: np.ndarray, y: np.ndarray, w: np.ndarray, groups: np.ndarray | None = None) -> Fit:
+    """Weighted least squares with a cluster-robust (by ``groups``) sandwich covariance."""
+    sw = np.sqrt(w)
+    xs = x * sw[:, None]
+    ys = y * sw
+    coef, *_ = np.linalg.lstsq(xs, ys, rcond=1e-12)
+    pred = x @ coef
+    r = y - pred
+    bread = np.linalg.pinv(xs.T @ xs)
+    if groups is not None and len(np.unique(groups)) > x.shape[1] + 1:
+        score = x * (w * r)[:, None]
+        ug, inv = np.unique(groups, return_inverse=True)
+        sums = np.zeros((len(ug), x.shape[1]))
+        np.add.at(sums, inv, score)
+        g = len(ug)
+        meat = sums.T @ sums * (g / (g - 1))
+        cov = bread @ meat @ bread
+    else:
+        dof = max(len(y) - x.shape[1], 1)
+        cov = bread * float(np.sum(w * r * r)) / dof
+    return Fit(coef, cov, float(np.sum(w * r * r)), pred)
+
+
+@dataclass
+class Term:
+    """One candidate group at one member (exponent / Vogel B): a column in the design."""
+
+    name: str
+    column: np.ndarray
+    member: float | None = None  # p, q or B
+
+    def params(self, coef: float) -> dict[str, float]:
+        """The effect's parameters (short names, registry order): the fitted coefficient, the
+        profiled member, the defaults for the rest."""
+        effect = EFFECTS[self.name]
+        values = effect.defaults()
+        values[effect.coefficient] = coef
+        if effect.member is not None:
+            values[effect.member] = float(self.member)
+        return values
+
+
+def members(blocks: Blocks, name: str) -> list[Term]:
+    """The candidate terms of one group: one column, or one per member of its grid ([] when the
+    data cannot test it)."""
+    if name not in blocks.testable:
+        return []
+    effect = EFFECTS[name]
+    if effect.member is None:
+        return [Term(name, blocks.columns[name])]
+    return [Term(name, blocks.grids[name][i], float(m)) for i, m in enumerate(effect.member_grid)]
+
+
+class Calibrator:
+    """Forward selection over the physical groups on block means (see the module docstring)."""
+
+    def __init__(
+        self, blocks: Blocks, delta_nm: float | None = None, alpha: float = 0.01, min_improvement: float = 0.02
+    ) -> None:
+        self.b = blocks
+        self.alpha = alpha
+        self.min_improvement = min_improvement
+        nuis = [blocks.columns["dtdt"], blocks.columns["dwdt"]]
+        # drop nuisance columns with no variation (steady data): they would be singular
+        self.nuisance = [c for c in nuis if np.sqrt(np.average(c * c, weights=blocks.count)) > 1e-9]
+        rms_meas = float(np.sqrt(np.average(blocks.measured**2, weights=blocks.count)))
+        se_block = float(np.sqrt(np.median(1.0 / blocks.weight)))
+        self.delta = delta_nm if delta_nm is not None else max(0.005, 0.02 * rms_meas, 3 * se_block)
+        self.rms_measured = rms_meas
+        self.log: list[str] = []
+
+    # -------------------------------------------------------------- helpers
+    def design(self, terms: Sequence[Term], nuisance: bool = True) -> np.ndarray:
+        cols = (self.nuisance if nuisance else []) + [t.column for t in terms]
+        return np.column_stack(cols) if cols else np.zeros((len(self.b.y), 0))
+
+    def fit(self, terms: Sequence[Term]) -> Fit:
+        x = self.design(terms)
+        if x.shape[1] == 0:
+            return Fit(
+                np.zeros(0), np.zeros((0, 0)), float(np.sum(self.b.weight * self.b.y**2)), np.zeros(len(self.b.y))
+            )
+        return wls(x, self.b.y, self.b.weight, self.b.dwell)
+
+    def wsse(self, terms: Sequence[Term]) -> float:
+        x = self.design(terms)
+        if x.shape[1] == 0:
+            return float(np.sum(self.b.weight * self.b.y**2))
+        sw = np.sqrt(self.b.weight)
+        coef, *_ = np.linalg.lstsq(x * sw[:, None], self.b.y * sw, rcond=1e-12)
+        r = self.b.y - x @ coef
+        return float(np.sum(self.b.weight * r * r))
+
+    def cv_predictions(self, terms: Sequence[Term], only_terms: int | None = None) -> np.ndarray:
+        """Prediction of every block from a fit that did not see its fold.
+
+        ``only_terms=n``: the part predicted by the first ``n`` terms alone (what a calibrated
+        parameter file adds), without the nuisance columns and later terms fitted alongside them.
+        """
+        x = self.design(terms)
+        pred = np.zeros(len(self.b.y))
+        if x.shape[1] == 0:
+            return pred
+        cols = slice(None) if only_terms is None else slice(len(self.nuisance), len(self.nuisance) + only_terms)
+        for k in np.unique(self.b.fold):
+            test = self.b.fold == k
+            f = wls(x[~test], self.b.y[~test], self.b.weight[~test])
+            pred[test] = x[test][:, cols] @ f.coef[cols]
+        return pred
+
+    def cv_rmse(self, terms: Sequence[Term]) -> float:
+        e = self.b.y - self.cv_predictions(terms)
+        return float(np.sqrt(np.average(e * e, weights=self.b.count)))
+
+    def rms_of(self, column: np.ndarray) -> float:
+        return float(np.sqrt(np.average(column * column, weights=self.b.count)))
+
+    def _with_member(self, term: Term, member: float) -> Term:
+        return Term(term.name, self.b.column(term.name, member), member)
+
+    def optimise(self, terms: list[Term], passes: int = 3) -> list[Term]:
+        """Coordinate descent over the exponents / Vogel B of the terms (grid, then a bounded refinement)."""
+        from scipy.optimize import minimize_scalar
+
+        terms = list(terms)
+        for _ in range(passes):
+            changed = False
+            for i, t in enumerate(terms):
+                if t.member is None:
+                    continue
+                grid = members(self.b, t.name)
+                scores = [self.wsse(terms[:i] + [g] + terms[i + 1 :]) for g in grid]
+                j = int(np.argmin(scores))
+                lo_b, hi_b = EFFECTS[t.name].member_bounds
+                step = (grid[1].member - grid[0].member) if len(grid) > 1 else 0.1
+                lo = max(lo_b, grid[j].member - step)
+                hi = min(hi_b, grid[j].member + step)
+                res = minimize_scalar(
+                    lambda m, i=i, t=t: self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1 :]),
+                    bounds=(lo, hi),
+                    method="bounded",
+                    options={"xatol": step * 1e-3},
+                )
+                best = self._with_member(t, float(res.x)) if res.fun <= scores[j] else grid[j]
+                if t.member is None or abs(best.member - t.member) > step * 1e-2:
+                    changed = True
+                terms[i] = best
+            if not changed:
+                break
+        return terms
+
+    def best_candidate(self, name: str, base: list[Term]) -> list[Term] | None:
+        """``base`` plus the group's best member, with every exponent re-optimised jointly."""
+        cands = members(self.b, name)
+        if not cands:
+            return None
+        if cands[0].member is None:
+            return self.optimise(base + cands)
+        scores = [self.wsse(base + [c]) for c in cands]
+        return self.optimise(base + [cands[int(np.argmin(scores))]])
+
+    def member_range(self, terms: list[Term], i: int) -> list[float]:
+        """Profile-likelihood 95 % range of term i's exponent (the others held at their optimum)."""
+        from scipy.optimize import brentq
+
+        t = terms[i]
+        w0 = self.wsse(terms)
+        dof = max(len(self.b.y) - len(terms) - len(self.nuisance), 1)
+        limit = w0 + 3.84 * max(w0 / dof, 1.0)
+
+        def excess(m: float) -> float:
+            return self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1 :]) - limit
+
+        lo_b, hi_b = EFFECTS[t.name].member_bounds
+        lo = brentq(excess, lo_b, t.member, xtol=1e-4) if excess(lo_b) > 0 else lo_b
+        hi = brentq(excess, t.member, hi_b, xtol=1e-4) if excess(hi_b) > 0 else hi_b
+        return [float(lo), float(hi)]
+
+    def coefficient(self, terms: list[Term], i: int) -> tuple[float, float]:
+        f = self.fit(terms)
+        k = len(self.nuisance) + i
+        return float(f.coef[k]), float(math.sqrt(max(f.cov[k, k], 0.0)))
+
+    # -------------------------------------------------------------- selection
+    def run(self) -> dict:
+        selected: list[Term] = []  # accepted
+        provisional: list[Term] = []  # best member of each ambiguous set: kept in the fit, not reported
+        ambiguous: list[dict] = []
+        remaining = [g for g in groups() if members(self.b, g)]
+        unavailable = [g for g in groups() if g not in remaining]
+        cv_now = self.cv_rmse([])
+        while remaining:
+            base = selected + provisional
+            scored = []
+            for g in remaining:
+                terms = self.best_candidate(g, base)
+                if terms is not None:
+                    scored.append((self.cv_rmse(terms), g, terms))
+            if not scored:
+                break
+            scored.sort(key=lambda x: x[0])
+            cv_new, g, terms = scored[0]
+            c, se = self.coefficient(terms, len(terms) - 1)
+            new = terms[-1]
+            rms_col = self.rms_of(new.column)
+            z = abs(c) / se if se > 0 else math.inf
+            z_crit = _z_two_sided(self.alpha / len(remaining))
+            lower = max(0.0, abs(c) - 1.96 * se) * rms_col
+            upper = (abs(c) + 1.96 * se) * rms_col
+            improvement = (cv_now - cv_new) / cv_now if cv_now > 0 else 0.0
+            reasons = []
+            if z < z_crit:
+                reasons.append(f"not significant (|z| = {z:.1f} < {z_crit:.1f})")
+            if lower <= self.delta:
+                reasons.append(
+                    f"lower 95 % bound of its RMS contribution {lower:.4g} N·m <= delta {self.delta:.4g} N·m"
+                )
+            if improvement <= self.min_improvement:
+                reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
+            twins = [
+                h
+                for cv_h, h, terms_h in scored[1:]
+                if cv_h <= cv_new * 1.05 + 1e-12 and self._partial_corr(new, terms_h[-1], base) > 0.995
+            ]
+            self.log.append(
+                f"step {len(self.log) + 1}: best {g}"
+                + (f" ({_member_text(new)})" if new.member is not None else "")
+                + f" (held-out RMSE {cv_new:.4g} vs {cv_now:.4g} N·m), |z| = {z:.1f}, RMS contribution "
+                f"[{lower:.4g}, {upper:.4g}] N·m"
+                + (f"; indistinguishable from {', '.join(twins)}" if twins else "")
+                + (
+                    f"; not accepted: {'; '.join(reasons)}"
+                    if reasons
+                    else "; ambiguous: kept in the fit, not reported"
+                    if twins
+                    else "; accepted"
+                )
+            )
+            if reasons:
+                break
+            # exponents of earlier terms were re-optimised together with the new one
+            n_sel = len(selected)
+            selected, provisional = terms[:n_sel], terms[n_sel : len(base)]
+            if twins:
+                group = sorted([g] + twins)
+                needs = "; ".join(
+                    sorted(
+                        {
+                            separating_data(a, b)
+                            or "data over a wider range of speed, torque, direction and temperature"
+                            for a in group
+                            for b in group
+                            if a < b
+                        }
+                    )
+                )
+                ambiguous.append({"effects": group, "needs": needs, "rms_contribution_nm": [lower, upper]})
+                provisional.append(new)
+                remaining = [r for r in remaining if r not in group]
+            else:
+                selected.append(new)
+                remaining.remove(g)
+            cv_now = cv_new
+        # the ambiguous sets stay in the final fit (so the accepted coefficients are not biased)
+        final = selected + provisional
+        ranges = {t.name: self.member_range(final, i) for i, t in enumerate(final) if t.member is not None}
+        rejected = []
+        blocked = {e for a in ambiguous for e in a["effects"]}
+        for g in groups():
+            if g in (t.name for t in selected) or g in unavailable:
+                continue
+            if g in blocked:
+                rejected.append({"name": g, "upper_rms_nm": math.nan, "estimate_rms_nm": math.nan, "ambiguous": True})
+                continue
+            terms = self.best_candidate(g, final)
+            if terms is None:
+                continue
+            c, se = self.coefficient(terms, len(terms) - 1)
+            rms_col = self.rms_of(terms[-1].column)
+            rejected.append(
+                {
+                    "name": g,
+                    "upper_rms_nm": (abs(c) + 1.96 * se) * rms_col,
+                    "estimate_rms_nm": abs(c) * rms_col,
+                    "ambiguous": False,
+                }
+            )
+        return {
+            "selected": selected,
+            "provisional": provisional,
+            "ranges": ranges,
+            "ambiguous": ambiguous,
+            "rejected": rejected,
+            "unavailable": unavailable,
+        }
+
+    def _partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
+        """|correlation| of two columns after removing the nuisance and base columns (weighted)."""
+        w = self.b.weight
+        x = self.design(base)
+
+        def resid(v: np.ndarray) -> np.ndarray:
+            if x.shape[1] == 0:
+                return v
+            return v - x @ wls(x, v, w).coef
+
+        ra, rb = resid(a.column), resid(b.column)
+        den = math.sqrt(float(np.sum(w * ra * ra)) * float(np.sum(w * rb * rb)))
+        return abs(float(np.sum(w * ra * rb))) / den if den > 0 else 1.0
+
+
+def _member_text(t: Term) -> str:
+    return f"{EFFECTS[t.name].member} = {t.member:.3g}"
+
+
+def _z_two_sided(alpha: float) -> float:
+    from scipy.stats import norm
+
+    return float(norm.isf(alpha / 2))
+
+
+def error_stats(err: np.ndarray, measured: np.ndarray, count: np.ndarray) -> dict[str, float]:
+    rmse = float(np.sqrt(np.average(err * err, weights=count)))
+    rms_meas = float(np.sqrt(np.average(measured * measured, weights=count)))
+    return {
+        "rmse_nm": rmse,
+        "mae_nm": float(np.average(np.abs(err), weights=count)),
+        "max_abs_nm": float(np.max(np.abs(err))) if len(err) else 0.0,
+        "rel_rmse_pct": 100.0 * rmse / rms_meas if rms_meas > 0 else math.nan,
+    }
