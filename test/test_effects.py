@@ -112,3 +112,16 @@ def test_a_registered_toy_effect_flows_through_simulate_calibrate_and_replay(toy
 
     before, after = residual_rms(config), residual_rms(calibrated)
     assert after < 0.2 * before, (before, after)
+
+
+def test_interface_doc_names_every_effect_parameter_as_the_registry_does():
+    lines = (ROOT / "docs" / "interface.md").read_text().splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln.strip().startswith("| effect | JSON / simulate |"))
+    rows = {}
+    for line in lines[head + 2:]:
+        if not line.strip().startswith("|"):
+            break
+        name, short, keys = (c.strip() for c in line.strip().strip("|").split("|"))
+        rows[name.strip("`")] = ([c.strip(" `") for c in short.split(",")], [c.strip(" `") for c in keys.split(",")])
+    assert rows == {name: ([p.short for p in e.parameters], [p.key for p in e.parameters])
+                    for name, e in EFFECTS.items()}
