@@ -299,7 +299,7 @@ class SampleSynchronizer:
             times = [q[c][0][0] for c in chans]
             wide = max(times) - min(times) > tol
             if self.arrival:
-                wide = self._arrival_wide(wide, all(len(q[c]) == 1 for c in chans))
+                wide = self._arrival_wide(wide, chans)
             if not wide:
                 if self.arrival and self._arrival_skewed(chans, times):
                     continue
@@ -312,13 +312,13 @@ class SampleSynchronizer:
             if oldest in _REQUIRED:
                 self.counts["unpaired"] += 1
 
-    def _arrival_wide(self, wide: bool, alone: bool) -> bool:
+    def _arrival_wide(self, wide: bool, chans: tuple[str, ...]) -> bool:
         """Arrival pairing: whether a pair whose times are ``wide`` apart is taken as misaligned.
 
         Locked on (after a pair within the tolerance), up to two consecutive wide pairs are
         delivery jitter; the third means a lost message: the oldest head is dropped and the stream
         is unlocked.  Unlocked (at the start of a stream, after a gap, after a resync), a wide pair
-        is misaligned when a channel has more than its head queued (``alone`` is False): a
+        is misaligned when one of the ``chans`` has more than its head queued: a
         subscription that matched before its partner's delivers a backlog that has no partner, and
         it is dropped until the heads pair within the tolerance.  Heads that are the only messages
         queued arrived one after the other with no later message between them: one sample whose
@@ -328,7 +328,7 @@ class SampleSynchronizer:
             self._locked, self._wide = True, 0
             return False
         if not self._locked:
-            return not alone
+            return any(len(self.queues[c]) > 1 for c in chans)
         self._wide += 1
         if self._wide < 3:
             return False

@@ -83,7 +83,7 @@ def _mean(v: np.ndarray) -> float:
 def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out=sys.stdout) -> int:
     """Print one :meth:`WatchWindow.line` per ``period_s`` until Ctrl-C (or ``count`` lines)."""
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
@@ -104,7 +104,9 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
                 )
 
     node.create_subscription(DiagnosticArray, Topic.DIAGNOSTICS, on_diagnostics, 10)
-    executor = SingleThreadedExecutor()
+    # the events executor takes a message for a few µs: a watcher of four 1 kHz topics keeps up
+    # (the single-threaded one manages ~3 k messages/s here, far fewer on a slower machine)
+    executor = EventsExecutor()
     executor.add_node(node)
     topic_of_loss = f"{ns}/{OUTPUT_TOPICS['loss']}"
     print(
