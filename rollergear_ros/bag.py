@@ -17,6 +17,7 @@ from collections.abc import Iterator
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
 from .errors import BagError
@@ -254,7 +255,7 @@ def median_period_s(path: str | Path, topic: str, max_messages: int = 2000) -> f
 
 
 def _check_encodings(info: BagInfo, encodings: set[str]) -> None:
-    foreign = encodings - {"ros2msg", "cdr", ""}
+    foreign = encodings - {SchemaEncoding.ROS2, MessageEncoding.CDR, ""}
     if foreign:
         raise BagError(
             f"{info.path} is not a ROS 2 bag: it uses encodings {', '.join(sorted(foreign))} "
@@ -360,9 +361,9 @@ class BagWriter:
             return self._channels[topic]
         if type_name not in self._schema_ids:
             text = schema_text if schema_text is not None else MSG_DEFINITIONS[type_name]
-            self._schema_ids[type_name] = self._writer.register_schema(type_name, "ros2msg", text.encode())
+            self._schema_ids[type_name] = self._writer.register_schema(type_name, SchemaEncoding.ROS2, text.encode())
         cid = self._writer.register_channel(
-            topic, "cdr", self._schema_ids[type_name], metadata={"offered_qos_profiles": ""}
+            topic, MessageEncoding.CDR, self._schema_ids[type_name], metadata={"offered_qos_profiles": ""}
         )
         self._channels[topic] = cid
         return cid

@@ -10,14 +10,20 @@ every complete chunk before the damage.  No rclpy.
 from __future__ import annotations
 
 import struct
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Iterator
 
 import numpy as np
+from mcap.opcode import Opcode
+from mcap.well_known import Profile
+from mcap.writer import MCAP0_MAGIC as MAGIC
 
-MAGIC = b"\x89MCAP0\r\n"
-OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END, OP_FOOTER = 0x03, 0x04, 0x05, 0x06, 0x0F, 0x02
+# record opcodes as plain ints (compared per record in the numpy fast path)
+OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END, OP_FOOTER = (
+    int(Opcode.SCHEMA), int(Opcode.CHANNEL), int(Opcode.MESSAGE), int(Opcode.CHUNK), int(Opcode.DATA_END),
+    int(Opcode.FOOTER))
 _MSG_FIXED = 2 + 4 + 8 + 8  # channel id, sequence, log time, publish time
 _MSG_HEAD = struct.Struct("<BQHIqq")
 
@@ -161,10 +167,12 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
                 break
             try:
                 if op == OP_CHUNK:
-                    _st, _et, size, _crc = struct.unpack_from("<QQQI", body, 0)
+                    _st, _et, size, crc = struct.unpack_from("<QQQI", body, 0)
                     comp, p = _string(body, 28)
                     n = struct.unpack_from("<Q", body, p)[0]
                     data = _decompress(comp, body[p + 8:p + 8 + n], size)
+                    if crc and zlib.crc32(data) != crc:  # 0: the writer computed none
+                        raise ValueError(f"chunk CRC mismatch (stored {crc:#010x}, data {zlib.crc32(data):#010x})")
                     arrays = parse_records(data, state)
                     state.bytes_read = pos + 9 + ln
                     if len(arrays):
@@ -255,10 +263,13 @@ class ChunkedMcapWriter:
     indexes, summary with schemas, channels, statistics, chunk and metadata indexes, summary
     offsets, footer), which both ``mcap`` and ``rosbags`` read (tested).  :meth:`close` writes the
     summary, so an interrupted program that reaches it leaves a complete file; a killed one leaves
-    every finished chunk readable.
+    every finished chunk readable.  CRCs as the ``mcap`` library writes them by default: each
+    chunk's (of its uncompressed records) and the summary's; the data-section CRC is 0 ("not
+    computed", as the spec allows and ``mcap``'s default ``enable_data_crcs=False`` does), since
+    every chunk is covered already.  The reader here verifies the chunk CRCs it finds.
     """
 
-    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, profile: str = "ros2",
+    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, profile: str = Profile.ROS2,
                  library: str = "rollergear_ros", compression_level: int = 3) -> None:
         import zstandard
         from mcap.data_stream import RecordBuilder
@@ -400,7 +411,7 @@ class ChunkedMcapWriter:
         end = self._end if self._end is not None else 0
         rb = RecordBuilder()
         Chunk(compression="zstd", data=compressed, message_start_time=start, message_end_time=end,
-              uncompressed_crc=0, uncompressed_size=len(data)).write(rb)
+              uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data)).write(rb)
         chunk_blob = rb.end()
         chunk_offset = self._fh.tell()
         self._fh.write(chunk_blob)
@@ -417,7 +428,7 @@ class ChunkedMcapWriter:
             entries[:, 1] = offs[order]
             body = struct.pack("<HI", cid, entries.nbytes) + entries.tobytes()
             index_offsets[cid] = self._fh.tell()
-            self._fh.write(struct.pack("<BQ", 0x07, len(body)) + body)
+            self._fh.write(struct.pack("<BQ", Opcode.MESSAGE_INDEX, len(body)) + body)
         self._chunk_indexes.append(ChunkIndex(
             message_start_time=start, message_end_time=end, chunk_start_offset=chunk_offset,
             chunk_length=len(chunk_blob), message_index_offsets=index_offsets,
@@ -443,10 +454,10 @@ class ChunkedMcapWriter:
             sb = RecordBuilder()
             offsets = []
             groups = (
-                (0x03, list(self._schemas.values())),
-                (0x04, list(self._channels.values())),
+                (Opcode.SCHEMA, list(self._schemas.values())),
+                (Opcode.CHANNEL, list(self._channels.values())),
                 (
-                    0x0B,
+                    Opcode.STATISTICS,
                     [
                         Statistics(
                             attachment_count=0,
@@ -461,8 +472,8 @@ class ChunkedMcapWriter:
                         )
                     ],
                 ),
-                (0x08, self._chunk_indexes),
-                (0x0D, self._metadata_indexes),
+                (Opcode.CHUNK_INDEX, self._chunk_indexes),
+                (Opcode.METADATA_INDEX, self._metadata_indexes),
             )
             for opcode, records in groups:
                 if not records:
@@ -476,9 +487,14 @@ class ChunkedMcapWriter:
             summary_offset_start = summary_start + sb.count
             for o in offsets:
                 o.write(sb)
-            self._fh.write(sb.end())
+            summary = sb.end()
+            self._fh.write(summary)
+            # the summary CRC covers the summary section and the footer's fields before it (MCAP spec)
+            footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
+            summary_crc = zlib.crc32(footer_head, zlib.crc32(summary))
             fb = RecordBuilder()
-            Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=0).write(fb)
+            Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
+                   summary_crc=summary_crc).write(fb)
             self._fh.write(fb.end())
             self._fh.write(MAGIC)
         finally:

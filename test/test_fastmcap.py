@@ -61,3 +61,44 @@ def test_release_count_holds_back_what_the_next_batch_may_precede():
     # unless channel 1 is the slow one that must not hold the others back; then channel 2 (t=5) rules
     assert release_count(t, keys, ignore_key=1) == 5
     assert release_count(t[:0], keys[:0]) == 0
+
+
+def test_writer_stores_the_crcs_that_mcap_validates_and_the_reader_checks_them(tmp_path):
+    """The chunk and summary CRCs are written (the ``mcap`` reader validates them), and a byte
+    flipped inside a chunk's compressed data is found: the read stops there, flagged, instead of
+    yielding garbage."""
+    import pytest
+
+    from rollergear_ros.bag import BagWriter
+
+    path = tmp_path / "crc.mcap"
+    n = 20_000
+    with BagWriter(path, chunk_size=64 * 1024) as bw:
+        for k in range(0, n, 1000):  # one call per 1000 messages: several chunks
+            t = 10**9 + np.arange(k, k + 1000, dtype=np.int64) * 10**6
+            bw.write_float64_series("/x", t, np.arange(k, k + 1000, dtype=float))
+    with path.open("rb") as fh:
+        reader = make_reader(fh, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary.chunk_indexes
+        chunk_crcs = []
+        for ci in summary.chunk_indexes:
+            fh.seek(ci.chunk_start_offset + 1 + 8)
+            chunk_crcs.append(struct.unpack("<QQQI", fh.read(28))[3])
+        assert all(chunk_crcs)
+        assert sum(1 for _ in reader.iter_messages()) == n  # validates every chunk's CRC
+    footer_crc = struct.unpack("<QQI", path.read_bytes()[-8 - 20:-8])[2]
+    assert footer_crc != 0
+    # a byte flipped near the end of the second chunk's compressed data: zstd may decode it to other
+    # values without noticing; the chunk CRC does
+    raw = bytearray(path.read_bytes())
+    ci = summary.chunk_indexes[1]
+    raw[ci.chunk_start_offset + ci.chunk_length - 200] ^= 0x40
+    bad = tmp_path / "flipped.mcap"
+    bad.write_bytes(bytes(raw))
+    state = ReadState()
+    got = sum(len(b[0]) for b in iter_log_time_order(bad, state))
+    assert state.truncated and ("CRC" in state.problem or "damaged" in state.problem), state.problem
+    assert got < n
+    with bad.open("rb") as fh, pytest.raises(Exception):  # noqa: B017 - the reference reader refuses it too
+        sum(1 for _ in make_reader(fh, validate_crcs=True).iter_messages())
