@@ -11,6 +11,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Mapping
+from functools import lru_cache
 from typing import Any
 from collections.abc import Iterator
 
@@ -18,7 +20,6 @@ import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 
 from .errors import BagError
 from .interface import NAMESPACE, Channel, MessageType, Metadata, Topic
@@ -110,23 +111,65 @@ def encode_float64(values: np.ndarray) -> list[bytes]:
     return [raw[i : i + 12] for i in range(0, len(raw), 12)]
 
 
-_decoders: dict[str, Any] = {}
-_encoders: dict[str, Any] = {}
+_decoders: dict[tuple[str, str], Any] = {}
 
 
 def decoder_for(type_name: str, schema_text: str | None = None):
-    """CDR decoder function for a ROS 2 message type (dynamic, from its ros2msg definition)."""
-    if type_name not in _decoders:
-        text = schema_text if schema_text is not None else MSG_DEFINITIONS[type_name]
-        _decoders[type_name] = generate_dynamic(type_name, text)[type_name]
-    return _decoders[type_name]
+    """CDR decoder function for a ROS 2 message type, generated from its ros2msg definition (the
+    bag's own, else the package's) by ``mcap-ros2-support``'s decoder factory."""
+    from mcap.records import Schema
+    from mcap_ros2.decoder import DecoderFactory
+
+    text = schema_text if schema_text is not None else MSG_DEFINITIONS[type_name]
+    key = (type_name, text)
+    if key not in _decoders:
+        schema = Schema(id=len(_decoders) + 1, name=type_name, encoding=SchemaEncoding.ROS2, data=text.encode())
+        _decoders[key] = DecoderFactory().decoder_for(MessageEncoding.CDR, schema)
+    return _decoders[key]
+
+
+@lru_cache(maxsize=1)
+def _typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def _message(store, type_name: str, value: Any):
+    """A ``rosbags`` message of ``type_name`` from a dict (nested dicts for nested messages, lists
+    for sequences; missing fields take their zero value)."""
+    from rosbags.interfaces import Nodetype
+
+    fields = {}
+    for name, (kind, arg) in store.fielddefs[type_name][1]:
+        v = value.get(name) if isinstance(value, Mapping) else None
+        if kind == Nodetype.NAME:
+            fields[name] = _message(store, arg, v or {})
+        elif kind in (Nodetype.SEQUENCE, Nodetype.ARRAY):
+            (sub_kind, sub_arg), _size = arg
+            if sub_kind == Nodetype.NAME:
+                fields[name] = [_message(store, sub_arg, x) for x in v or []]
+            elif sub_arg[0] in ("string", "wstring"):
+                fields[name] = list(v or [])
+            else:
+                fields[name] = np.asarray(v if v is not None else [], dtype=_NUMPY_TYPE.get(sub_arg[0], sub_arg[0]))
+        else:  # a base type
+            fields[name] = v if v is not None else ("" if arg[0] in ("string", "wstring") else 0)
+    return store.types[type_name](**fields)
+
+
+_NUMPY_TYPE = {"byte": "uint8", "char": "uint8", "bool": "bool", "octet": "uint8"}
 
 
 def encoder_for(type_name: str):
-    """CDR encoder function (message dict -> bytes) for a known type."""
-    if type_name not in _encoders:
-        _encoders[type_name] = serialize_dynamic(type_name, MSG_DEFINITIONS[type_name])[type_name]
-    return _encoders[type_name]
+    """CDR encoder (message dict -> bytes, little endian) for a ROS 2 message type, by ``rosbags``'
+    type store for Jazzy."""
+    store = _typestore()
+
+    def encode(message: Mapping[str, Any]) -> bytes:
+        return bytes(store.serialize_cdr(_message(store, type_name, message), type_name))
+
+    return encode
 
 
 def stamp(t_ns: int) -> dict[str, int]:
