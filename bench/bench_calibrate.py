@@ -39,8 +39,8 @@ def main() -> None:
     print(f"samples: {len(data.t_ns):,}; reading + pairing + model: {t_load:.1f} s; analysis: {t_cal:.1f} s; "
           f"total {t_load + t_cal:.1f} s (target <= 20 s)")
     print(f"verdict {result.verdict}: " + ", ".join(
-        f"{e['name']} {e['params']}" for e in result.effects)
-        + f"; held-out RMSE {result.error_before['rmse_nm']:.4g} -> {result.error_after['rmse_nm']:.4g} N·m")
+        f"{e.name} {e.params}" for e in result.effects)
+        + f"; held-out RMSE {result.error_before.rmse_nm:.4g} -> {result.error_after.rmse_nm:.4g} N·m")
 
     cal = config.with_values({"effects.drag_speed.enabled": True, "effects.drag_speed.c": 3e-4,
                               "effects.drag_speed.p": 1.4, "effects.drag_constant.enabled": True,

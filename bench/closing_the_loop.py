@@ -36,9 +36,9 @@ def fmt_truth(effects) -> str:
 
 
 def fmt_found(res) -> str:
-    parts = [f"{e['name']} " + ", ".join(f"{k}={v:.3g}" for k, v in e["params"].items()
+    parts = [f"{e.name} " + ", ".join(f"{k}={v:.3g}" for k, v in e.params.items()
                                          if k not in ("C", "theta_ref")) for e in res.effects]
-    parts += [f"cannot tell apart {' / '.join(a['effects'])}" for a in res.ambiguous]
+    parts += [f"cannot tell apart {' / '.join(a.effects)}" for a in res.ambiguous]
     return "; ".join(parts) or "—"
 
 
@@ -59,7 +59,7 @@ def main() -> None:
     rows.append(([], "bidirectional_map, AR(1) 0.9 noise, 10 ms lag", run(tmp, [], "bidirectional_map", 77,
                                                                           noise_ar1=0.9, output_lag_s=0.01)))
     for effects, profile, res in rows:
-        b, a = res.error_before["rmse_nm"], res.error_after["rmse_nm"]
+        b, a = res.error_before.rmse_nm, res.error_after.rmse_nm
         print(f"| {fmt_truth(effects)} | {profile} | {res.verdict} | {fmt_found(res)} | {b:.4f} → {a:.4f} | "
               f"{100 * (1 - a / b):.0f} % |")
 

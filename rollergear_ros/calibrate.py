@@ -44,26 +44,44 @@ from .model import LossModel
 from .params import Config, ParameterError, config_to_yaml, validate
 from .report import write_report
 from .samples import SampleData, load_samples
-from .selection import Calibrator, Term, error_stats, members
+from .selection import AmbiguousSet, Calibrator, ErrorStats, RejectedEffect, Term, error_stats, members
 
 __all__ = ["CalibrationResult", "SampleData", "calibrate", "calibrated_yaml", "load_samples", "write_report"]
 
 
+@dataclass(frozen=True)
+class FoundEffect:
+    """An accepted effect: its parameters (short names of the registry) with 95 % intervals."""
+
+    name: str
+    params: dict[str, float]
+    ci95: dict[str, list[float]]  #: the coefficient's (covering the member's range) and the member's
+    rms_contribution_nm: float
+    rms_contribution_ci95_nm: list[float]
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "params": self.params, "ci95": self.ci95,
+                "rms_contribution_nm": self.rms_contribution_nm,
+                "rms_contribution_ci95_nm": self.rms_contribution_ci95_nm}
+
+
 @dataclass
 class CalibrationResult:
-    verdict: str
-    effects: list[dict]
-    error_before: dict
-    error_after: dict
-    holdout: str
+    """What ``calibrate`` found; :meth:`to_json` is the ``calibrate --json`` object."""
+
+    verdict: str  #: effects_found | no_missing_effect | inconclusive
+    effects: list[FoundEffect]
+    error_before: ErrorStats  #: held-out, the model alone
+    error_after: ErrorStats  #: held-out, the model with the accepted effects
+    holdout: str  #: how the held-out data was chosen
     samples: int
-    delta_nm: float
-    rejected: list[dict]
-    ambiguous: list[dict]
+    delta_nm: float  #: the practical minimum effect size
+    rejected: list[RejectedEffect]
+    ambiguous: list[AmbiguousSet]
     unavailable: list[str]
     log: list[str]
-    sample_level: dict
-    config: Config
+    sample_level: dict[str, ErrorStats]  #: before/after per sample (sensor noise included)
+    config: Config  #: the input parameters with the accepted effects
     blocks: Blocks | None = None
     pred_after: np.ndarray | None = None
 
@@ -71,16 +89,16 @@ class CalibrationResult:
         """The ``interface.md`` object (plus extra keys: delta, rejected, ambiguous, ...)."""
         return {
             "verdict": self.verdict,
-            "effects": self.effects,
-            "error_before": self.error_before,
-            "error_after": self.error_after,
+            "effects": [e.to_json() for e in self.effects],
+            "error_before": self.error_before.to_json(),
+            "error_after": self.error_after.to_json(),
             "holdout": self.holdout,
             "samples": self.samples,
             "delta_nm": self.delta_nm,
-            "rejected": self.rejected,
-            "ambiguous": self.ambiguous,
+            "rejected": [r.to_json() for r in self.rejected],
+            "ambiguous": [a.to_json() for a in self.ambiguous],
             "unavailable": self.unavailable,
-            "sample_level_errors": self.sample_level,
+            "sample_level_errors": {k: v.to_json() for k, v in self.sample_level.items()},
         }
 
 
@@ -93,8 +111,8 @@ def calibrate(
         raise BagError(f"only {len(blocks.y)} blocks of {block_s:g} s: too little data to calibrate")
     cal = Calibrator(blocks, delta_nm)
     out = cal.run()
-    selected: list[Term] = out["selected"]
-    final = selected + out["provisional"]
+    selected: list[Term] = out.selected
+    final = selected + out.provisional
     blocks0, data_c = blocks, data
     if {t.name for t in final} & {"torque_offset", "torque_gain"}:
         cal, final, data_c = _refit_sensor_errors(cal, data, final, config, block_s, folds)
@@ -114,9 +132,9 @@ def calibrate(
         c = float(full.coef[k0 + i])
         se = float(math.sqrt(max(full.cov[k0 + i, k0 + i], 0.0)))
         ci = {coef_keys[term.name]: [c - 1.96 * se, c + 1.96 * se]}
-        if term.member is not None and term.name in out["ranges"]:
+        if term.member is not None and term.name in out.ranges:
             # the coefficient's interval covers the exponent's range too (c and p are correlated)
-            lo_m, hi_m = out["ranges"][term.name]
+            lo_m, hi_m = out.ranges[term.name]
             for m in (lo_m, hi_m):
                 alt = list(final)
                 alt[i] = cal._with_member(term, m)
@@ -125,20 +143,13 @@ def calibrate(
                 ci[coef_keys[term.name]] = [min(lo_c, ca - 1.96 * sa), max(hi_c, ca + 1.96 * sa)]
             ci[expo_keys[term.name]] = [lo_m, hi_m]
         rms = cal.rms_of(term.column)
-        effects.append(
-            {
-                "name": term.name,
-                "params": term.params(c),
-                "ci95": ci,
-                "rms_contribution_nm": abs(c) * rms,
-                "rms_contribution_ci95_nm": [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms],
-            }
-        )
-    if out["ambiguous"]:
+        effects.append(FoundEffect(term.name, term.params(c), ci, abs(c) * rms,
+                                   [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms]))
+    if out.ambiguous:
         verdict = "inconclusive"
     elif selected:
         verdict = "effects_found"
-    elif all(r["upper_rms_nm"] < cal.delta for r in out["rejected"]):
+    elif all(r.upper_rms_nm < cal.delta for r in out.rejected):
         verdict = "no_missing_effect"
     else:
         verdict = "inconclusive"
@@ -164,16 +175,9 @@ def calibrate(
             _calibrated_config(config, [e])
             writable.append(e)
         except ParameterError as exc:
-            cal.log.append(f"{e['name']} not written to the parameter file: {exc}")
-            out["rejected"].append(
-                {
-                    "name": e["name"],
-                    "upper_rms_nm": e["rms_contribution_ci95_nm"][1],
-                    "estimate_rms_nm": e["rms_contribution_nm"],
-                    "ambiguous": False,
-                    "reason": f"fitted value outside the physical range: {exc}",
-                }
-            )
+            cal.log.append(f"{e.name} not written to the parameter file: {exc}")
+            out.rejected.append(RejectedEffect(e.name, e.rms_contribution_ci95_nm[1], e.rms_contribution_nm,
+                                               reason=f"fitted value outside the physical range: {exc}"))
             verdict = "inconclusive"
     effects = writable
     new_config = _calibrated_config(config, effects)
@@ -185,9 +189,9 @@ def calibrate(
         holdout,
         int(len(data.t_ns)),
         cal.delta,
-        out["rejected"],
-        out["ambiguous"],
-        out["unavailable"],
+        out.rejected,
+        out.ambiguous,
+        out.unavailable,
         cal.log,
         sample_level,
         new_config,
@@ -230,22 +234,22 @@ def _refit_sensor_errors(
     return cal, final, corrected
 
 
-def _calibrated_config(config: Config, effects: list[dict]) -> Config:
+def _calibrated_config(config: Config, effects: list[FoundEffect]) -> Config:
     """``config`` with exactly the accepted effects enabled, at their fitted parameters."""
     flat = {k: v for k, v in config.to_flat().items()}
     for name in groups():
         flat[f"effects.{name}.enabled"] = False
     for e in effects:
-        flat[f"effects.{e['name']}.enabled"] = True
-        for q in EFFECTS[e["name"]].parameters:
-            flat[f"effects.{e['name']}.{q.key}"] = e["params"][q.short]
+        flat[f"effects.{e.name}.enabled"] = True
+        for q in EFFECTS[e.name].parameters:
+            flat[f"effects.{e.name}.{q.key}"] = e.params[q.short]
     return validate(flat)
 
 
 def calibrated_yaml(result: CalibrationResult, sources: Sequence[str]) -> str:
     header = (
         "# Written by `rollergear calibrate` from " + ", ".join(map(str, sources)) + "\n"
-        f"# verdict: {result.verdict}; held-out RMSE {result.error_before['rmse_nm']:.4g} -> "
-        f"{result.error_after['rmse_nm']:.4g} N·m\n"
+        f"# verdict: {result.verdict}; held-out RMSE {result.error_before.rmse_nm:.4g} -> "
+        f"{result.error_after.rmse_nm:.4g} N·m\n"
     )
     return config_to_yaml(result.config, header)

@@ -38,21 +38,21 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     eb, ea = result.error_before, result.error_after
     print(f"verdict: {result.verdict}")
     for e in result.effects:
-        params = ", ".join(f"{k}={v:.4g}" for k, v in e["params"].items())
-        ci = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e["ci95"].items())
-        print(f"  effect {e['name']}: {params}  (95 %: {ci}; RMS contribution {e['rms_contribution_nm']:.4g} N·m)")
+        params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items())
+        ci = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e.ci95.items())
+        print(f"  effect {e.name}: {params}  (95 %: {ci}; RMS contribution {e.rms_contribution_nm:.4g} N·m)")
     for r in result.rejected:
-        if r.get("reason"):
-            print(f"  {r['name']} not accepted: {r['reason']}")
+        if r.reason:
+            print(f"  {r.name} not accepted: {r.reason}")
     for a in result.ambiguous:
-        print(f"  cannot tell apart: {' / '.join(a['effects'])} — record {a['needs']} to separate them")
+        print(f"  cannot tell apart: {' / '.join(a.effects)} — record {a.needs} to separate them")
     if result.verdict == "no_missing_effect":
-        bounds = ", ".join(f"{r['name']} <= {r['upper_rms_nm']:.3g}" for r in result.rejected)
+        bounds = ", ".join(f"{r.name} <= {r.upper_rms_nm:.3g}" for r in result.rejected)
         print(f"  no missing effect larger than delta = {result.delta_nm:.4g} N·m (upper 95 % bounds: {bounds})")
     print(
-        f"held-out error ({result.samples:,} samples): RMSE {eb['rmse_nm']:.4g} -> {ea['rmse_nm']:.4g} N·m, "
-        f"MAE {eb['mae_nm']:.4g} -> {ea['mae_nm']:.4g} N·m, max {eb['max_abs_nm']:.4g} -> {ea['max_abs_nm']:.4g} N·m, "
-        f"{eb['rel_rmse_pct']:.2f} % -> {ea['rel_rmse_pct']:.2f} % of the measured loss"
+        f"held-out error ({result.samples:,} samples): RMSE {eb.rmse_nm:.4g} -> {ea.rmse_nm:.4g} N·m, "
+        f"MAE {eb.mae_nm:.4g} -> {ea.mae_nm:.4g} N·m, max {eb.max_abs_nm:.4g} -> {ea.max_abs_nm:.4g} N·m, "
+        f"{eb.rel_rmse_pct:.2f} % -> {ea.rel_rmse_pct:.2f} % of the measured loss"
     )
     print(f"held out: {result.holdout}")
     if args.out:

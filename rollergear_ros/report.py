@@ -79,36 +79,36 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
         result.holdout + ".\n",
         "| | RMSE [N·m] | MAE [N·m] | max \\|error\\| [N·m] | RMSE / RMS measured loss |",
         "|---|---|---|---|---|",
-        *(f"| {label} | {e['rmse_nm']:.4g} | {e['mae_nm']:.4g} | {e['max_abs_nm']:.4g} | {e['rel_rmse_pct']:.2f} % |"
+        *(f"| {label} | {e.rmse_nm:.4g} | {e.mae_nm:.4g} | {e.max_abs_nm:.4g} | {e.rel_rmse_pct:.2f} % |"
           for label, e in (("before (model)", eb), ("after (model + accepted effects)", ea))),
-        f"\nReduction of held-out RMSE: {100 * (1 - ea['rmse_nm'] / eb['rmse_nm']) if eb['rmse_nm'] else 0:.1f} %. "
-        f"Per sample (sensor noise included): RMSE {result.sample_level['before']['rmse_nm']:.4g} → "
-        f"{result.sample_level['after']['rmse_nm']:.4g} N·m.\n",
+        f"\nReduction of held-out RMSE: {100 * (1 - ea.rmse_nm / eb.rmse_nm) if eb.rmse_nm else 0:.1f} %. "
+        f"Per sample (sensor noise included): RMSE {result.sample_level['before'].rmse_nm:.4g} → "
+        f"{result.sample_level['after'].rmse_nm:.4g} N·m.\n",
         "## Accepted effects\n",
     ]
     if result.effects:
         lines += ["| effect | parameters | 95 % intervals | RMS contribution [N·m] (95 %) |", "|---|---|---|---|"]
         for e in result.effects:
-            pr = ", ".join(f"{k} = {v:.4g}" for k, v in e["params"].items())
-            ci = ", ".join(f"{k} ∈ [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e["ci95"].items())
-            lo, hi = e["rms_contribution_ci95_nm"]
-            lines.append(f"| {e['name']} | {pr} | {ci} | {e['rms_contribution_nm']:.4g} ({lo:.4g}–{hi:.4g}) |")
+            pr = ", ".join(f"{k} = {v:.4g}" for k, v in e.params.items())
+            ci = ", ".join(f"{k} ∈ [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e.ci95.items())
+            lo, hi = e.rms_contribution_ci95_nm
+            lines.append(f"| {e.name} | {pr} | {ci} | {e.rms_contribution_nm:.4g} ({lo:.4g}–{hi:.4g}) |")
     else:
         lines.append("None.")
     if result.ambiguous:
         lines.append("\n## Effects the data cannot tell apart\n")
         for a in result.ambiguous:
-            lo, hi = a["rms_contribution_nm"]
+            lo, hi = a.rms_contribution_nm
             lines.append(
-                f"- {' / '.join(a['effects'])}: an effect of RMS {lo:.3g}–{hi:.3g} N·m is there, but these "
-                f"columns are the same on this data. To separate them record {a['needs']}."
+                f"- {' / '.join(a.effects)}: an effect of RMS {lo:.3g}–{hi:.3g} N·m is there, but these "
+                f"columns are the same on this data. To separate them record {a.needs}."
             )
     lines.append("\n## Groups not accepted (upper 95 % bound of their RMS contribution)\n")
     for r in result.rejected:
         lines.append(
-            f"- {r['name']}: ≤ {r['upper_rms_nm']:.3g} N·m"
-            + (" (ambiguous, see above)" if r["ambiguous"] else "")
-            + (f" — {r['reason']}" if r.get("reason") else "")
+            f"- {r.name}: ≤ {r.upper_rms_nm:.3g} N·m"
+            + (" (ambiguous, see above)" if r.ambiguous else "")
+            + (f" — {r.reason}" if r.reason else "")
         )
     for u in result.unavailable:
         lines.append(

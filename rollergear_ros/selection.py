@@ -18,6 +18,60 @@ from .blocks import Blocks, groups
 from .effects import EFFECTS, separating_data
 
 
+@dataclass(frozen=True)
+class ErrorStats:
+    """Error of a prediction of the measured loss (weighted by samples per block)."""
+
+    rmse_nm: float
+    mae_nm: float
+    max_abs_nm: float
+    rel_rmse_pct: float  #: RMSE / RMS measured loss, %
+
+    def to_json(self) -> dict[str, float]:
+        return {"rmse_nm": self.rmse_nm, "mae_nm": self.mae_nm, "max_abs_nm": self.max_abs_nm,
+                "rel_rmse_pct": self.rel_rmse_pct}
+
+
+@dataclass(frozen=True)
+class RejectedEffect:
+    """An effect not accepted, with the upper 95 % bound of its RMS contribution."""
+
+    name: str
+    upper_rms_nm: float
+    estimate_rms_nm: float
+    ambiguous: bool = False  #: in a set the data cannot tell apart (bounds NaN)
+    reason: str = ""  #: why, when it is not the bound (e.g. a fitted value out of range)
+
+    def to_json(self) -> dict:
+        out = {"name": self.name, "upper_rms_nm": self.upper_rms_nm, "estimate_rms_nm": self.estimate_rms_nm,
+               "ambiguous": self.ambiguous}
+        return out | ({"reason": self.reason} if self.reason else {})
+
+
+@dataclass(frozen=True)
+class AmbiguousSet:
+    """Effects whose columns are the same on this data, and the data that would separate them."""
+
+    effects: list[str]
+    needs: str
+    rms_contribution_nm: list[float]  #: 95 % range of the RMS contribution of the set's best
+
+    def to_json(self) -> dict:
+        return {"effects": self.effects, "needs": self.needs, "rms_contribution_nm": self.rms_contribution_nm}
+
+
+@dataclass
+class Selection:
+    """What forward selection found (:meth:`Calibrator.run`)."""
+
+    selected: list  #: accepted terms, in the order accepted
+    provisional: list  #: the best term of each ambiguous set: kept in the fit, not reported
+    ranges: dict[str, list[float]]  #: profile-likelihood 95 % range of each term's member
+    ambiguous: list[AmbiguousSet]
+    rejected: list[RejectedEffect]
+    unavailable: list[str]  #: effects the data cannot test
+
+
 @dataclass
 class Fit:
     coef: np.ndarray
@@ -210,10 +264,10 @@ class Calibrator:
         return float(f.coef[k]), float(math.sqrt(max(f.cov[k, k], 0.0)))
 
     # -------------------------------------------------------------- selection
-    def run(self) -> dict:
+    def run(self) -> Selection:
         selected: list[Term] = []  # accepted
         provisional: list[Term] = []  # best member of each ambiguous set: kept in the fit, not reported
-        ambiguous: list[dict] = []
+        ambiguous: list[AmbiguousSet] = []
         remaining = [g for g in groups() if members(self.b, g)]
         unavailable = [g for g in groups() if g not in remaining]
         cv_now = self.cv_rmse([])
@@ -282,7 +336,7 @@ class Calibrator:
                         }
                     )
                 )
-                ambiguous.append({"effects": group, "needs": needs, "rms_contribution_nm": [lower, upper]})
+                ambiguous.append(AmbiguousSet(group, needs, [lower, upper]))
                 provisional.append(new)
                 remaining = [r for r in remaining if r not in group]
             else:
@@ -293,34 +347,20 @@ class Calibrator:
         final = selected + provisional
         ranges = {t.name: self.member_range(final, i) for i, t in enumerate(final) if t.member is not None}
         rejected = []
-        blocked = {e for a in ambiguous for e in a["effects"]}
+        blocked = {e for a in ambiguous for e in a.effects}
         for g in groups():
             if g in (t.name for t in selected) or g in unavailable:
                 continue
             if g in blocked:
-                rejected.append({"name": g, "upper_rms_nm": math.nan, "estimate_rms_nm": math.nan, "ambiguous": True})
+                rejected.append(RejectedEffect(g, math.nan, math.nan, ambiguous=True))
                 continue
             terms = self.best_candidate(g, final)
             if terms is None:
                 continue
             c, se = self.coefficient(terms, len(terms) - 1)
             rms_col = self.rms_of(terms[-1].column)
-            rejected.append(
-                {
-                    "name": g,
-                    "upper_rms_nm": (abs(c) + 1.96 * se) * rms_col,
-                    "estimate_rms_nm": abs(c) * rms_col,
-                    "ambiguous": False,
-                }
-            )
-        return {
-            "selected": selected,
-            "provisional": provisional,
-            "ranges": ranges,
-            "ambiguous": ambiguous,
-            "rejected": rejected,
-            "unavailable": unavailable,
-        }
+            rejected.append(RejectedEffect(g, (abs(c) + 1.96 * se) * rms_col, abs(c) * rms_col))
+        return Selection(selected, provisional, ranges, ambiguous, rejected, unavailable)
 
     def _partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
         """|correlation| of two columns after removing the nuisance and base columns (weighted)."""
@@ -347,12 +387,10 @@ def _z_two_sided(alpha: float) -> float:
     return float(norm.isf(alpha / 2))
 
 
-def error_stats(err: np.ndarray, measured: np.ndarray, count: np.ndarray) -> dict[str, float]:
+def error_stats(err: np.ndarray, measured: np.ndarray, count: np.ndarray) -> ErrorStats:
+    """Errors ``err`` of block means (or samples) weighted by ``count``, relative to the measured loss."""
     rmse = float(np.sqrt(np.average(err * err, weights=count)))
     rms_meas = float(np.sqrt(np.average(measured * measured, weights=count)))
-    return {
-        "rmse_nm": rmse,
-        "mae_nm": float(np.average(np.abs(err), weights=count)),
-        "max_abs_nm": float(np.max(np.abs(err))) if len(err) else 0.0,
-        "rel_rmse_pct": 100.0 * rmse / rms_meas if rms_meas > 0 else math.nan,
-    }
+    return ErrorStats(rmse, float(np.average(np.abs(err), weights=count)),
+                      float(np.max(np.abs(err))) if len(err) else 0.0,
+                      100.0 * rmse / rms_meas if rms_meas > 0 else math.nan)

@@ -98,7 +98,7 @@ def test_no_missing_effect_over_20_seeds(tmp_path):
         res = calibrate(load_samples([bag], config), config)
         verdicts.append(res.verdict)
         assert res.effects == [], (seed, res.effects, res.log)
-        assert all(r["upper_rms_nm"] < res.delta_nm for r in res.rejected), (seed, res.rejected)
+        assert all(r.upper_rms_nm < res.delta_nm for r in res.rejected), (seed, res.rejected)
     assert verdicts == ["no_missing_effect"] * 20
 
 

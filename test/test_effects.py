@@ -93,17 +93,17 @@ def test_a_registered_toy_effect_flows_through_simulate_calibrate_and_replay(toy
     # calibrate: found (not declared to it), coefficient within its interval
     result = calibrate(load_samples([bag], config), config)
     assert result.verdict == "effects_found", result.log
-    found = {e["name"]: e for e in result.effects}
+    found = {e.name: e for e in result.effects}
     assert "speed_load" in found, result.log
-    lo, hi = found["speed_load"]["ci95"]["c"]
+    lo, hi = found["speed_load"].ci95["c"]
     assert lo <= 3e-5 <= hi and hi - lo < 0.2 * 3e-5, found["speed_load"]
-    assert result.error_after["rmse_nm"] < 0.2 * result.error_before["rmse_nm"]
+    assert result.error_after.rmse_nm < 0.2 * result.error_before.rmse_nm
     # the parameter file carries it, and replay with it leaves almost no residual
     yaml_path = tmp_path / "calibrated.yaml"
     yaml_path.write_text(calibrated_yaml(result, [str(bag)]))
     calibrated = load_config(yaml_path)
     assert "speed_load" in calibrated.effects.enabled()
-    assert math.isclose(calibrated.effects.params("speed_load")["c"], found["speed_load"]["params"]["c"])
+    assert math.isclose(calibrated.effects.params("speed_load")["c"], found["speed_load"].params["c"])
 
     def residual_rms(cfg) -> float:
         _, batches = replay(bag, cfg, show_progress=False, collect=True)
