@@ -1,0 +1,44 @@
+"""Online adaptation (rollergear_ros.adaptation): RLS, the change detector, residual statistics."""
+
+from __future__ import annotations
+
+
+import numpy as np
+import pytest
+
+from rollergear_ros.adaptation import ChangeDetector, RecursiveLeastSquares, ResidualStats
+
+MS = 1_000_000
+
+def test_change_detector_vectorised_equals_scalar():
+    rng = np.random.default_rng(3)
+    x = rng.normal(0, 0.01, 20000)
+    x[9000:] += 0.05
+    t = np.arange(len(x)) * MS
+    a, b = ChangeDetector(200, 0.02), ChangeDetector(200, 0.02)
+    for xi, ti in zip(x.tolist(), t.tolist()):
+        a.add(xi, ti)
+    b.add_many(x[:777], t[:777])
+    b.add_many(x[777:], t[777:])
+    assert a.alarms == b.alarms == 1 and a.alarm_times_ns == b.alarm_times_ns
+    assert 9000 * MS <= a.alarm_times_ns[0] <= 10000 * MS
+
+
+def test_residual_stats_vectorised_equals_scalar():
+    x = np.random.default_rng(4).normal(0.1, 0.02, 5000)
+    a, b = ResidualStats(), ResidualStats()
+    for xi in x.tolist():
+        a.add(xi)
+    b.add_many(x[:300])
+    b.add_many(x[300:])
+    assert a.count == b.count and a.mean == pytest.approx(b.mean, rel=1e-9) and a.rms == pytest.approx(b.rms, rel=1e-9)
+
+
+def test_rls_tracks_coefficients_with_bounded_covariance():
+    rng = np.random.default_rng(5)
+    rls = RecursiveLeastSquares([0.0, 0.0], 0.999, p0=1.0, max_trace=10.0)
+    for _ in range(5000):
+        phi = [1.0, rng.uniform(0, 2)]
+        rls.update(phi, 0.3 + 0.7 * phi[1] + rng.normal(0, 0.01))
+        assert sum(rls.P[j][j] for j in range(2)) <= 10.0 + 1e-9
+    assert rls.theta[0] == pytest.approx(0.3, abs=0.01) and rls.theta[1] == pytest.approx(0.7, abs=0.01)
