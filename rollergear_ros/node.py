@@ -339,7 +339,7 @@ def main(args: list[str] | None = None) -> int:
         # collector's full passes, which otherwise stall the callbacks for milliseconds at high
         # input rates.  Done before the node exists: its subscriptions must be taken from as soon
         # as they are created, or the first messages of a stream that starts then would be taken
-        # for a backlog and discarded (a full collection takes 16 ms, longer on a loaded machine)
+        # for a backlog and discarded (a full collection takes milliseconds)
         gc.collect()
         gc.freeze()
         node = LossEstimatorNode()

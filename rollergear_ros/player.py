@@ -126,8 +126,7 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
         while time.monotonic() < deadline and any(p.get_subscription_count() == 0 for p in pubs.values()):
             time.sleep(0.02)
         # the subscribers must discover the player as well: a best-effort subscription drops what a
-        # publisher it has not matched yet sends (seen: the first 20-74 samples, 0.2 s after the
-        # player saw its subscribers, on a loaded machine)
+        # publisher it has not matched yet sends (a reliable one gets it resent)
         time.sleep(SUBSCRIBER_SETTLE_S)
     if start_delay > 0:
         time.sleep(start_delay)
