@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from .cli import config_from_args
+from .cli import config_from_args, refuse_overwriting_inputs
 from .replay_cli import add_topic_options, topics_from_args
 
 
@@ -16,6 +16,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from .report import write_report
     from .samples import load_samples
 
+    refuse_overwriting_inputs([*args.bags, args.params], {"--out": args.out})
     config = config_from_args(args)
 
     def log(msg: str) -> None:

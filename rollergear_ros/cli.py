@@ -10,6 +10,7 @@ import argparse
 import csv
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from collections.abc import Sequence
@@ -42,6 +43,22 @@ def config_from_args(args: argparse.Namespace) -> Config:
     elif not Path(path).exists():
         raise UsageError(f"parameter file {path} does not exist")
     return load_config(path)
+
+
+def refuse_overwriting_inputs(inputs: Sequence[str | Path | None], outputs: dict[str, str | Path | None]) -> None:
+    """Refuse, before anything is opened, an output that is the same file as an input (the same
+    path, another path to it, or a hard link): writing it would destroy the recording."""
+    existing = [Path(p) for p in inputs if p is not None and Path(p).exists()]
+    for option, out in outputs.items():
+        if out is None or not Path(out).exists():
+            continue
+        for source in existing:
+            try:
+                same = os.path.samefile(out, source)
+            except OSError:
+                same = False
+            if same:
+                raise UsageError(f"{option} {out} is the input {source}: refusing to overwrite it")
 
 
 def _finite(s: str) -> float:

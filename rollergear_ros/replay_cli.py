@@ -8,7 +8,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from .bag import TopicMap
-from .cli import config_from_args
+from .cli import config_from_args, refuse_overwriting_inputs
 
 
 def add_topic_options(p: argparse.ArgumentParser) -> None:
@@ -28,6 +28,7 @@ def topics_from_args(args: argparse.Namespace) -> TopicMap:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
 
+    refuse_overwriting_inputs([args.params], {"--out": args.out})
     config = config_from_args(args)
     effects = [DeclaredEffect.parse(e) for e in args.effect]
     opts = SimulationOptions(profile=args.profile, rate_hz=args.rate, seed=args.seed, effects=effects,
@@ -53,6 +54,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from .replay import replay
 
+    refuse_overwriting_inputs([args.bag, args.params], {"--out": args.out, "--rrd": args.rrd})
     config = config_from_args(args)
     summary, _ = replay(args.bag, config, topics_from_args(args), args.out, args.rrd,
                         show_progress=None if not args.no_progress else False,

@@ -10,7 +10,7 @@ import pytest
 
 from rollergear_ros.model import BREAKDOWN_KEYS, LossModel
 
-from helpers import run_cli
+from helpers import BAGS, run_cli
 
 
 def test_model_json_matches_the_library(config):
@@ -131,3 +131,30 @@ def test_only_the_error_family_becomes_one_line_and_a_programming_error_a_traceb
     monkeypatch.setattr(model.LossModel, "evaluate", broken)
     with pytest.raises(ValueError, match="a defect"):
         cli.main(["model", "--torque", "10", "--speed", "100"])
+
+
+@pytest.mark.parametrize("command", [
+    ("calibrate", "{bag}", "--out", "{out}"),
+    ("replay", "{bag}", "--out", "{out}"),
+    ("replay", "{bag}", "--rrd", "{out}"),
+])
+@pytest.mark.parametrize("same", ["path", "other_path", "hard_link"])
+def test_an_output_that_is_an_input_is_refused_before_anything_is_written(tmp_path, command, same):
+    """``calibrate x.mcap --out x.mcap`` used to replace the recording with a YAML (exit 0); the
+    same file by another path or a hard link is the same recording."""
+    import os
+    import shutil
+
+    bag = tmp_path / "rec.mcap"
+    shutil.copy(BAGS / "rig_map_drag.mcap", bag)
+    before = bag.read_bytes()
+    out = {"path": bag, "other_path": tmp_path / "." / "sub" / ".." / "rec.mcap",
+           "hard_link": tmp_path / "link.mcap"}[same]
+    (tmp_path / "sub").mkdir()
+    if same == "hard_link":
+        os.link(bag, out)
+    proc = run_cli(*(a.format(bag=bag, out=out) for a in command), check=False)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.startswith("rollergear: error: ") and "refusing to overwrite" in proc.stderr, proc.stderr
+    assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+    assert bag.read_bytes() == before
