@@ -466,3 +466,30 @@ def test_invalid_parameter_file_is_refused_at_start(tmp_path):
     node.stop()
     assert code != 0
     assert "gearbox.f1" in node.stderr and "Traceback" not in node.stderr
+
+
+@pytest.mark.parametrize("case", ["existing_recording", "existing_rrd", "unwritable_rrd"])
+def test_outputs_are_checked_at_start_up_before_any_is_opened(tmp_path, case):
+    """An existing recording is never overwritten (``node.record_mcap:=old.mcap`` used to leave a
+    403-byte file), and an output that cannot be created stops the node at start-up with one line,
+    before the other output is opened (an unwritable ``rerun_rrd`` used to leave the MCAP footless)."""
+    rec, rrd = tmp_path / "rec.mcap", tmp_path / "rec.rrd"
+    old = b"a recording worth keeping"
+    if case == "existing_recording":
+        rec.write_bytes(old)
+    elif case == "existing_rrd":
+        rrd.write_bytes(old)
+    else:
+        rrd = "/proc/rollergear/rec.rrd"
+    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}")
+    code = node.proc.wait(timeout=60)
+    node.stop()
+    assert code == 2 and "Traceback" not in node.stderr, node.stderr
+    errors = [ln for ln in node.stderr.splitlines() if "error" in ln]
+    assert len(errors) == 1 and ("record_mcap" in errors[0]) == (case == "existing_recording"), node.stderr
+    if case == "existing_recording":
+        assert rec.read_bytes() == old
+    else:
+        assert not rec.exists()  # nothing opened
+        if case == "existing_rrd":
+            assert rrd.read_bytes() == old
