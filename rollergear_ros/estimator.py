@@ -20,8 +20,8 @@ from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, _
                          effect_coefficients, regressors)
 from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale
 from .model import LossModel, efficiency, rotation_sign, rotation_sign_scalar
-from .pairing import (ARRIVAL_TOLERANCE_S, TORQUE, SampleSynchronizer, SyncedSample, pairing_tolerance_s,
-                      samples_to_arrays)
+from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, TORQUE, SampleSynchronizer, SyncedSample,
+                      pairing_tolerance_s, samples_to_arrays)
 from .params import Config
 
 
@@ -62,21 +62,23 @@ class Estimator:
     """Model + accepted effects + residual + online adaptation, for one :class:`Config`."""
 
     def __init__(self, config: Config, pairing: str = "timestamp", sample_period_s: float | None = None) -> None:
-        """``pairing``: ``timestamp`` (bags; live with publisher timestamps) or ``arrival`` (see
-        :class:`SampleSynchronizer`); ``sample_period_s``: the motor torque's median message period,
+        """``pairing``: ``timestamp`` (bags; live with publisher timestamps), ``arrival`` or
+        ``arrival_reliable`` (arrival order over a delivery that loses nothing; see
+        :class:`~.pairing.SampleSynchronizer`); ``sample_period_s``: the motor torque's median message period,
         for the automatic pairing tolerance (:func:`pairing_tolerance_s`; 1 ms when not given)."""
         self.config = config
         est = config.estimator
         self.sync_tolerance_s = pairing_tolerance_s(est.sync_tolerance_s, sample_period_s)
         self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s)
         self.ratio = config.gearbox.ratio_effective
-        if pairing == "arrival":
+        if pairing in ARRIVAL_PAIRINGS:
             self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
-            self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s, arrival=True)
+            self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s, arrival=True,
+                                           lossless=pairing == "arrival_reliable")
         elif pairing == "timestamp":
             self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s)
         else:
-            raise ValueError(f"pairing must be 'timestamp' or 'arrival', not {pairing!r}")
+            raise ValueError(f"pairing must be 'timestamp', 'arrival' or 'arrival_reliable', not {pairing!r}")
         self.counts = self.sync.counts  # skip reasons (shared with the synchroniser)
         self.adaptive = adaptive_effects(config) if est.adapt else ()
         coef = effect_coefficients(config)

@@ -32,7 +32,7 @@ from std_msgs.msg import Float64
 from . import bag as bagmod
 from .diagnostics import STATUS_NAME, InputMonitor, diagnose
 from .estimator import Estimate, Estimator
-from .pairing import OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
+from .pairing import ARRIVAL_PAIRINGS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from .interface import NAMESPACE, MessageType, Metadata, Topic
 from .params import Config, ParameterError, parameter_specs, validate
 
@@ -99,10 +99,13 @@ class LossEstimatorNode(Node):
         flat = {spec.name: self.get_parameter(spec.name).value for spec in parameter_specs()}
         self.config: Config = validate(flat)  # ParameterError: refused at start-up with the reason
         # the single-threaded executor gives publisher timestamps; the events executor keeps arrival order
-        self.pairing = "timestamp" if self.config.node.executor == "single_threaded" else "arrival"
+        node = self.config.node
+        if node.executor == "single_threaded":
+            self.pairing = "timestamp"
+        else:  # a reliable, keep-all input loses nothing: arrival order needs no loss detection
+            self.pairing = "arrival_reliable" if node.input_qos == "reliable" else "arrival"
         self.estimator = Estimator(self.config, self.pairing, 1.0 / self.config.node.expected_rate_hz)
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        node = self.config.node
         self.monitor = InputMonitor(time.time_ns())
         self._skips_reported = dict(self.estimator.counts)
         self._alarms_reported = 0
@@ -126,7 +129,7 @@ class LossEstimatorNode(Node):
         self.recorder: bagmod.BagWriter | None = None
         # arrival pairing: inputs are recorded at the very arrival times the estimator paired them by,
         # so that replay of the recording pairs them as the node did (``rollergear_recording`` metadata)
-        self._record_arrival = (self.pairing == "arrival" and node.input_mode == "float64"
+        self._record_arrival = (self.pairing in ARRIVAL_PAIRINGS and node.input_mode == "float64"
                                 and not self.get_parameter("use_sim_time").value)
         # every output is checked before any is opened: a refused one leaves no half-written file
         for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
@@ -190,7 +193,7 @@ class LossEstimatorNode(Node):
         live messages pair by their arrival.  Publisher timestamps (``single_threaded``) and
         JointState header stamps pair the backlog exactly, so it is kept there.
         """
-        if self.pairing != "arrival" or self.config.node.input_mode != "float64":
+        if self.pairing not in ARRIVAL_PAIRINGS or self.config.node.input_mode != "float64":
             return 0
         self._taking_backlog = True
         try:

@@ -60,6 +60,8 @@ _REQUIRED = (TORQUE, SPEED)
 _OPTIONAL = (OUT_TORQUE, OUT_SPEED)
 _PAIRED = (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED)  #: the channels that pair, in sample order
 
+#: the arrival pairings: over best-effort delivery, and over a reliable, keep-all one (nothing lost)
+ARRIVAL_PAIRINGS = ("arrival", "arrival_reliable")
 TEMPERATURE_HOLD_S = 5.0
 ARRIVAL_TOLERANCE_S = 0.002
 AUTO_TOLERANCE_FRACTION = 0.4  #: automatic pairing tolerance as a fraction of the sample period
@@ -105,8 +107,9 @@ class SampleSynchronizer:
     """Pairs header-less input channels by time (see the module docstring for the rule)."""
 
     def __init__(self, sync_tolerance_s: float, staleness_s: float,
-                 temperature_hold_s: float = TEMPERATURE_HOLD_S, arrival: bool = False) -> None:
+                 temperature_hold_s: float = TEMPERATURE_HOLD_S, arrival: bool = False, lossless: bool = False) -> None:
         self.arrival = arrival
+        self.lossless = lossless  # arrival pairing over a delivery that loses nothing: no resync on wide pairs
         self._wide = 0  # consecutive pairs wider than the tolerance (arrival pairing)
         self._locked = False  # arrival pairing: the heads have paired within the tolerance
         # arrival pairing, skew detector: channels observed, their mean arrival offsets from the
@@ -299,7 +302,7 @@ class SampleSynchronizer:
             times = [q[c][0][0] for c in chans]
             wide = max(times) - min(times) > tol
             if self.arrival:
-                wide = self._arrival_wide(wide, chans)
+                wide = self._arrival_wide(wide)
             if not wide:
                 if self.arrival and self._arrival_skewed(chans, times):
                     continue
@@ -312,23 +315,25 @@ class SampleSynchronizer:
             if oldest in _REQUIRED:
                 self.counts["unpaired"] += 1
 
-    def _arrival_wide(self, wide: bool, chans: tuple[str, ...]) -> bool:
+    def _arrival_wide(self, wide: bool) -> bool:
         """Arrival pairing: whether a pair whose times are ``wide`` apart is taken as misaligned.
 
         Locked on (after a pair within the tolerance), up to two consecutive wide pairs are
         delivery jitter; the third means a lost message: the oldest head is dropped and the stream
-        is unlocked.  Unlocked (at the start of a stream, after a gap, after a resync), a wide pair
-        is misaligned when one of the ``chans`` has more than its head queued: a
-        subscription that matched before its partner's delivers a backlog that has no partner, and
-        it is dropped until the heads pair within the tolerance.  Heads that are the only messages
-        queued arrived one after the other with no later message between them: one sample whose
-        callbacks a slow executor spread out (the first callbacks of a process), paired.
+        is unlocked.  Unlocked (at the start of a stream, after a gap, after a resync), every wide
+        pair is misaligned: a subscription that matched before its partner's delivers a backlog that
+        has no partner, and it is dropped until the heads pair within the tolerance.  Over a
+        lossless delivery (``lossless``: reliable, keep all, each topic in order) no message is
+        missing, so a wide pair is never a loss: it is a stall of the executor inside a sample, and
+        first-in first-out is the pairing (a misaligned start is still undone by the skew detector).
         """
         if not wide:
             self._locked, self._wide = True, 0
             return False
+        if self.lossless:
+            return False
         if not self._locked:
-            return any(len(self.queues[c]) > 1 for c in chans)
+            return True
         self._wide += 1
         if self._wide < 3:
             return False

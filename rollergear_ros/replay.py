@@ -20,7 +20,7 @@ import numpy as np
 from .bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, decode_float64, decoder_for, inspect_bag,
                   iter_raw_batches, median_period_s, read_metadata)
 from .estimator import BatchEstimate, Estimator
-from .pairing import CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
+from .pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from .interface import MessageType, Metadata
 from .params import Config
 
@@ -303,7 +303,7 @@ class ReplaySummary:
             f"input messages: {self.input_messages:,} ({self.samples:,} motor torque); "
             f"estimated: {self.estimated:,}; log duration {self.duration_s:.1f} s",
         ]
-        if self.pairing == "arrival":
+        if self.pairing in ARRIVAL_PAIRINGS:
             lines.append(
                 f"pairing: by arrival, as loss_estimator paired them when it recorded this bag (its sample "
                 f"period {1e3 * (self.sample_period_s or 0):.3g} ms, arrivals within "
@@ -383,13 +383,13 @@ def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tup
     metadata; the inputs were logged at the arrival times it paired them by, so replay pairs them
     as the node did), else ``("timestamp", period_s)``."""
     recording = read_metadata(path, Metadata.RECORDING) if plan.mode == "float64" else None
-    if recording and recording.get("pairing") == "arrival":
+    if recording and recording.get("pairing") in ARRIVAL_PAIRINGS:
         try:
             node_period_s = float(recording.get("sample_period_s", "nan"))
         except ValueError:
             node_period_s = math.nan
         if math.isfinite(node_period_s) and node_period_s > 0:
-            return "arrival", node_period_s
+            return recording["pairing"], node_period_s
     return "timestamp", period_s
 
 
