@@ -15,7 +15,7 @@ from common import long_bag
 
 from rollergear_ros.calibrate import calibrate, load_samples
 from rollergear_ros.effects import EffectInputs
-from rollergear_ros.adaptation import RecursiveLeastSquares, regressors
+from rollergear_ros.adaptation import RecursiveLeastSquares, regressor_plan, regressors
 from rollergear_ros.estimator import Estimator
 from rollergear_ros.params import load_config
 
@@ -48,7 +48,8 @@ def main() -> None:
     est = Estimator(cal)
     names = est.adaptive
     rls = RecursiveLeastSquares([0.0] * len(names), 0.9995)
-    phis = [regressors(names, cal, EffectInputs(10.0 + i % 50, 100.0 + i % 200, 10.0, 1.0)) for i in range(20000)]
+    plan = regressor_plan(names, cal)
+    phis = [regressors(plan, EffectInputs(10.0 + i % 50, 100.0 + i % 200, 10.0, 1.0)) for i in range(20000)]
     t0 = time.perf_counter()
     for phi in phis:
         rls.update(phi, 0.1)

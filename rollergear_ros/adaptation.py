@@ -27,14 +27,20 @@ def effect_coefficients(config: Config) -> dict[str, float]:
     return {n: config.effects.params(n)[EFFECTS[n].coefficient] for n in adaptive_effects(config)}
 
 
-def regressors(names: Iterable[str], config: Config, x: EffectInputs) -> list:
-    """Normalised regressor of each adaptive effect: its term with coefficient 1 over the
-    registry's ``regressor_scale`` (a well-conditioned RLS covariance); floats or arrays."""
-    out = []
+def regressor_plan(names: Iterable[str], config: Config) -> list[tuple]:
+    """For each adaptive effect: its term, its parameters with the coefficient set to 1, and the
+    registry's ``regressor_scale`` -- worked out once, so the per-sample path only evaluates."""
+    plan = []
     for n in names:
         params = config.effects.params(n)
-        out.append(EFFECTS[n].column(x, params) / EFFECTS[n].regressor_scale(params))
-    return out
+        plan.append((EFFECTS[n].term, {**params, EFFECTS[n].coefficient: 1.0}, EFFECTS[n].regressor_scale(params)))
+    return plan
+
+
+def regressors(plan: list[tuple], x: EffectInputs) -> list:
+    """Normalised regressor of each adaptive effect of a :func:`regressor_plan`: its term with
+    coefficient 1 over its scale (a well-conditioned RLS covariance); floats or arrays."""
+    return [term(x, **params) / scale for term, params, scale in plan]
 
 
 def _scales(names: Iterable[str], config: Config) -> list[float]:

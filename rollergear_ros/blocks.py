@@ -54,7 +54,9 @@ class Blocks:
         a sample without an input the effect needs (a missing temperature) contributes 0."""
         effect = EFFECTS[name]
         values = effect.column(self.x, effect.defaults(), member)
-        return self.mean(np.where(np.isnan(values), 0.0, values))
+        if effect.needs_temperature:
+            values = np.where(np.isnan(values), 0.0, values)
+        return self.mean(values)
 
 
 def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Blocks | None = None) -> Blocks:

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, _scales, adaptive_effects,
-                         effect_coefficients, regressors)
+                         effect_coefficients, regressor_plan, regressors)
 from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale
 from .model import LossModel, efficiency, rotation_sign, rotation_sign_scalar
 from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, TORQUE, SampleSynchronizer, SyncedSample,
@@ -92,6 +92,7 @@ class Estimator:
         self._fr_scaling = any(EFFECTS[n].scales_fr for n in self._active)
         self._needs_temperature = any(EFFECTS[n].needs_temperature for n in self._active)
         self._sensor = [not EFFECTS[n].physical for n in self.adaptive]
+        self._regressor_plan = regressor_plan(self.adaptive, config)
         # effects with their configured coefficients (all of them when adaptation is off)
         self._fixed = {n: p for n, p in self._active.items() if n not in self.adaptive}
         self._fixed_additive = any(not EFFECTS[n].scales_fr for n in self._fixed)
@@ -223,7 +224,7 @@ class Estimator:
         else:
             phys = sens = 0.0
         if self.adaptive:
-            for is_sensor, th, f in zip(self._sensor, self.rls.theta, regressors(self.adaptive, self.config, x)):
+            for is_sensor, th, f in zip(self._sensor, self.rls.theta, regressors(self._regressor_plan, x)):
                 if is_sensor:
                     sens += th * f
                 else:
@@ -235,7 +236,7 @@ class Estimator:
         if self._fixed_additive:
             terms = additive_terms(self._fixed, EffectInputs(at, aw, t, sg))
             y = y - terms.physical_nm - terms.sensor_nm
-        err = self.rls.update(regressors(self.adaptive, self.config, EffectInputs(at, aw, t, sg)), y) \
+        err = self.rls.update(regressors(self._regressor_plan, EffectInputs(at, aw, t, sg)), y) \
             if self.adaptive else y
         self.detector.add(err, t_ns)
 
@@ -288,7 +289,7 @@ class Estimator:
             if self._fixed_additive:
                 fixed = additive_terms(self._fixed, x)
                 phys, sens = phys + fixed.physical_nm, sens + fixed.sensor_nm
-            phis = regressors(self.adaptive, self.config, x)
+            phis = regressors(self._regressor_plan, x)
             theta_hist = self._adapt_batch(phis, meas - mag - phys - sens, t_ns)
             for i, (name, phi) in enumerate(zip(self.adaptive, phis)):
                 contrib = theta_hist[:, i] * phi
