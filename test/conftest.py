@@ -5,8 +5,14 @@ from __future__ import annotations
 import os
 
 import pytest
+from hypothesis import settings
 
 from helpers import CONFIG
+
+# property tests draw the same examples on every run: a suite that passes once passes every time
+# (a new edge case is found by `--hypothesis-seed=random` runs, not by CI)
+settings.register_profile("deterministic", derandomize=True)
+settings.load_profile("deterministic")
 
 os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
