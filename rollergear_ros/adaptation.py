@@ -43,10 +43,6 @@ def regressors(plan: list[tuple], x: EffectInputs) -> list:
     return [term(x, **params) / scale for term, params, scale in plan]
 
 
-def _scales(names: Iterable[str], config: Config) -> list[float]:
-    return [EFFECTS[n].regressor_scale(config.effects.params(n)) for n in names]
-
-
 class RecursiveLeastSquares:
     """RLS with exponential forgetting and a bounded covariance (anti-windup), pure Python.
 

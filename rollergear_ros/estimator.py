@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, _scales, adaptive_effects,
+from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, adaptive_effects,
                          effect_coefficients, regressor_plan, regressors)
 from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale
 from .model import LossModel, efficiency, rotation_sign, rotation_sign_scalar
@@ -82,17 +82,16 @@ class Estimator:
         self.counts = self.sync.counts  # skip reasons (shared with the synchroniser)
         self.adaptive = adaptive_effects(config) if est.adapt else ()
         coef = effect_coefficients(config)
-        scales = _scales(self.adaptive, config)
-        self.rls = RecursiveLeastSquares([coef[n] * s for n, s in zip(self.adaptive, scales)],
+        self._regressor_plan = regressor_plan(self.adaptive, config)
+        self._scales = [scale for _term, _params, scale in self._regressor_plan]
+        self.rls = RecursiveLeastSquares([coef[n] * s for n, s in zip(self.adaptive, self._scales)],
                                          est.rls_forgetting, 1.0, est.rls_max_covariance)
-        self._scales = scales
         self.detector = ChangeDetector(est.change_block_samples, est.change_threshold_nm)
         self._active = config.effects.active()  # enabled effect -> its parameters
         self._additive = any(not EFFECTS[n].scales_fr for n in self._active)
         self._fr_scaling = any(EFFECTS[n].scales_fr for n in self._active)
         self._needs_temperature = any(EFFECTS[n].needs_temperature for n in self._active)
         self._sensor = [not EFFECTS[n].physical for n in self.adaptive]
-        self._regressor_plan = regressor_plan(self.adaptive, config)
         # effects with their configured coefficients (all of them when adaptation is off)
         self._fixed = {n: p for n, p in self._active.items() if n not in self.adaptive}
         self._fixed_additive = any(not EFFECTS[n].scales_fr for n in self._fixed)
@@ -193,7 +192,11 @@ class Estimator:
             else:
                 self.counts["temperature_missing"] += 1
         mag = self.model.loss_magnitude_scalar(t, w, vscale)
-        phys, sens = self._effects_scalar(at, aw, t, sg)
+        # the effects' inputs, fixed terms and regressors, once per sample for the estimate and the RLS
+        x = EffectInputs(at, aw, t, sg) if self._additive or self.adaptive else None
+        fixed = additive_terms(self._fixed, x) if self._fixed_additive else None
+        phi = regressors(self._regressor_plan, x) if self.adaptive else ()
+        phys, sens = self._effects_scalar(fixed, phi)
         loss = mag + phys
         meas = self._measured_loss_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s)
         if math.isnan(s.out_torque_nm):
@@ -204,7 +207,7 @@ class Estimator:
             meas = math.nan
         residual = meas - (loss + sens) if math.isfinite(meas) else math.nan
         if math.isfinite(residual):
-            self._adapt_scalar(at, aw, t, sg, meas - mag, s.t_ns)
+            self._adapt_scalar(fixed, phi, meas - mag, s.t_ns)
             self.residual_stats.add(residual)
         self.estimated += 1
         est = Estimate(s.t_ns, t_meas, w, loss * sg, loss * aw, self.model.efficiency_scalar(t, w, loss), meas,
@@ -212,32 +215,24 @@ class Estimator:
         self.last = est
         return est
 
-    def _effects_scalar(self, at, aw, t, sg) -> tuple[float, float]:
-        """(physical, sensor) contributions of the additive effects: the fixed ones as configured,
-        the adaptive ones with the RLS's current coefficients."""
+    def _effects_scalar(self, fixed, phi) -> tuple[float, float]:
+        """(physical, sensor) contributions of the additive effects: the ``fixed`` terms as
+        configured, the adaptive ones (regressors ``phi``) with the RLS's current coefficients."""
         if not self._additive:
             return 0.0, 0.0
-        x = EffectInputs(at, aw, t, sg)
-        if self._fixed_additive:
-            terms = additive_terms(self._fixed, x)
-            phys, sens = terms.physical_nm, terms.sensor_nm
-        else:
-            phys = sens = 0.0
-        if self.adaptive:
-            for is_sensor, th, f in zip(self._sensor, self.rls.theta, regressors(self._regressor_plan, x)):
-                if is_sensor:
-                    sens += th * f
-                else:
-                    phys += th * f
+        phys, sens = (fixed.physical_nm, fixed.sensor_nm) if fixed is not None else (0.0, 0.0)
+        for is_sensor, th, f in zip(self._sensor, self.rls.theta, phi):
+            if is_sensor:
+                sens += th * f
+            else:
+                phys += th * f
         return phys, sens
 
-    def _adapt_scalar(self, at, aw, t, sg, y, t_ns) -> None:
+    def _adapt_scalar(self, fixed, phi, y, t_ns) -> None:
         """RLS on ``y = measured − model − fixed effects``; the detector sees the a-priori error."""
-        if self._fixed_additive:
-            terms = additive_terms(self._fixed, EffectInputs(at, aw, t, sg))
-            y = y - terms.physical_nm - terms.sensor_nm
-        err = self.rls.update(regressors(self._regressor_plan, EffectInputs(at, aw, t, sg)), y) \
-            if self.adaptive else y
+        if fixed is not None:
+            y = y - fixed.physical_nm - fixed.sensor_nm
+        err = self.rls.update(phi, y) if self.adaptive else y
         self.detector.add(err, t_ns)
 
     # ------------------------------------------------------------------ batch (replay)
