@@ -291,8 +291,8 @@ class SampleSynchronizer:
             # arrival, silence is measured by the motor messages that came since, not by the clock:
             # a stall of the node's own executor inside a sample is no silence of its inputs
             chans = self._active_channels
-            newest = max(q[TORQUE][-1][0], q[SPEED][-1][0]) if self.arrival else self.latest_ns
-            if len(chans) > 2 and newest - t_req > self.staleness_ns:
+            if len(chans) > 2 and (max(q[TORQUE][-1][0], q[SPEED][-1][0]) if self.arrival
+                                   else self.latest_ns) - t_req > self.staleness_ns:
                 for ch in _OPTIONAL:
                     if self.active[ch] and not q[ch]:
                         self._set_active(ch, False)
