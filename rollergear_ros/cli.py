@@ -70,7 +70,8 @@ def _finite(s: str) -> float:
 
 # ---------------------------------------------------------------------------------- model
 def cmd_model(args: argparse.Namespace) -> int:
-    from .model import BREAKDOWN_KEYS, LossModel
+    from .model import BREAKDOWN_KEYS
+    from .operating_points import evaluate_points
 
     config = config_from_args(args)
     if args.csv:
@@ -80,31 +81,46 @@ def cmd_model(args: argparse.Namespace) -> int:
             raise UsageError("give --torque and --speed values, or --csv FILE")
         tt, ww = np.meshgrid(np.asarray(args.torque, float), np.asarray(args.speed, float), indexing="ij")
         torque, speed = tt.ravel(), ww.ravel()
-    model = LossModel(config.gearbox, config.estimator.min_torque_for_efficiency_nm,
-                      config.estimator.min_speed_for_efficiency_rad_s)
-    res = model.evaluate(torque, speed)
+    res = evaluate_points(config, torque, speed, args.oil_temperature_c)
+
+    def number(v: float) -> float | None:
+        return None if math.isnan(v) else float(v)
+
     points = []
     for i in range(len(torque)):
         points.append({
             "torque_nm": float(torque[i]), "speed_rad_s": float(speed[i]),
-            "loss_torque_nm": float(res.loss_torque_nm[i]), "loss_power_w": float(res.loss_power_w[i]),
-            "efficiency": None if math.isnan(res.efficiency[i]) else float(res.efficiency[i]),
-            "breakdown_nm": {k: float(res.breakdown_nm[k][i]) for k in BREAKDOWN_KEYS},
+            "loss_torque_nm": number(res.loss_torque_nm[i]), "loss_power_w": number(res.loss_power_w[i]),
+            "efficiency": number(res.efficiency[i]),
+            "breakdown_nm": {k: number(res.breakdown_nm[k][i]) for k in BREAKDOWN_KEYS},
+            "model_nm": number(res.model_nm[i]),
+            "effects_nm": {k: number(v[i]) for k, v in res.effects_nm.items()},
         })
     if args.json:
-        json.dump({"points": points}, sys.stdout, indent=1)
+        json.dump({"points": points, "effects": list(res.effects_nm), "oil_temperature_c": args.oil_temperature_c,
+                   "skipped": res.skipped}, sys.stdout, indent=1)
         sys.stdout.write("\n")
         return 0
-    head = f"{'T [N·m]':>10} {'ω [rad/s]':>10} {'T_loss [N·m]':>13} {'P_loss [W]':>11} {'η [%]':>8}  dominant term"
+    head = (f"{'T [N·m]':>10} {'ω [rad/s]':>10} {'T_loss [N·m]':>13} {'P_loss [W]':>11} {'η [%]':>8} "
+            f"{'model [%]':>9}  dominant term")
     print(head)
     print("-" * len(head))
     for p in points:
-        bd = p["breakdown_nm"]
-        dom = max(bd, key=lambda k: abs(bd[k]))
-        share = 100.0 * bd[dom] / max(sum(bd.values()), 1e-300)
+        if p["loss_torque_nm"] is None:
+            print(f"{p['torque_nm']:>10.4g} {p['speed_rad_s']:>10.4g}  skipped: outside the estimator's "
+                  "plausible range (estimator.max_abs_*)")
+            continue
+        terms = {**p["breakdown_nm"], **p["effects_nm"]}
+        dom = max(terms, key=lambda k: abs(terms[k]))
+        total = abs(p["loss_torque_nm"])
+        share = 100.0 * terms[dom] / max(total, 1e-300)
+        model_share = 100.0 * p["model_nm"] / max(total, 1e-300)
         eta = "n/a" if p["efficiency"] is None else f"{100 * p['efficiency']:.3f}"
         print(f"{p['torque_nm']:>10.4g} {p['speed_rad_s']:>10.4g} {p['loss_torque_nm']:>13.5f} "
-              f"{p['loss_power_w']:>11.4f} {eta:>8}  {dom} ({share:.0f} %)")
+              f"{p['loss_power_w']:>11.4f} {eta:>8} {model_share:>9.1f}  {dom} ({share:.0f} %)")
+    if res.effects_nm:
+        print(f"accepted effects of the parameter file: {', '.join(res.effects_nm)} "
+              "(model [%]: the paper's model's share of the loss)")
     return 0
 
 
@@ -143,23 +159,45 @@ def cmd_figures(args: argparse.Namespace) -> int:
 
 
 def cmd_map(args: argparse.Namespace) -> int:
-    from .figures import grid, write_loss_map
+    from .lossmap import (build_map, coverage_warning, grid, map_comments, plot_map, reverse_path, vtlm_problems,
+                          write_vtlm)
 
     config = config_from_args(args)
     m = config.map
-    speeds = grid(*(args.speed_rpm or (m.speed_min_rpm, m.speed_max_rpm, m.speed_step_rpm)))
+    speeds = grid(*(args.speed_rpm or (m.speed_min_rpm, m.last_speed_rpm(config.gearbox), m.speed_step_rpm)))
     torques = grid(*(args.torque_nm or (m.torque_min_nm, m.torque_max_nm, m.torque_step_nm)))
-    if args.both_directions or m.both_directions:
-        speeds = np.unique(np.concatenate([-speeds, speeds]))
     out = Path(args.out)
-    png = None if args.no_plot else out.with_suffix(".png")
-    rows = write_loss_map(config, speeds, torques, out, png)
-    eta = rows[:, 3]
-    print(f"wrote {out} ({len(rows)} points: {len(speeds)} speeds x {len(torques)} torques)"
-          + (f" and {png}" if png else ""))
-    if np.isfinite(eta).any():
-        print(f"efficiency {100 * np.nanmin(eta):.2f} … {100 * np.nanmax(eta):.2f} %, "
-              f"max loss {rows[:, 2].max():.4f} N·m")
+    refuse_overwriting_inputs([args.params, *args.recording], {"--out": out})
+    params_path = Path(args.params) if args.params else default_params_path()
+    maps = [(out, build_map(config, speeds, torques, args.oil_temperature_c))]
+    if args.both_directions or m.both_directions:
+        maps.append((reverse_path(out), build_map(config, speeds, torques, args.oil_temperature_c, reverse=True)))
+    for path, loss_map in maps:
+        problems = vtlm_problems(loss_map)
+        if problems:
+            raise UsageError(f"{path} would not be a valid VECTO loss map: {'; '.join(problems)}")
+        write_vtlm(loss_map, path, map_comments(config, params_path, args.oil_temperature_c, loss_map.reverse))
+        png = None if args.no_plot else path.with_suffix(".png")
+        if png is not None:
+            plot_map(loss_map, png, config.estimator.min_torque_for_efficiency_nm)
+        eta = loss_map.efficiency
+        print(f"wrote {path} ({len(speeds)} speeds 0…{speeds.max():g} rpm x {len(torques)} torques"
+              f"{', reverse rotation' if loss_map.reverse else ''})" + (f" and {png}" if png else ""))
+        if np.isfinite(eta).any():
+            model_share = 100.0 * float(np.sum(loss_map.model_nm)) / max(float(np.sum(loss_map.loss_nm)), 1e-300)
+            print(f"  efficiency {100 * np.nanmin(eta):.2f} … {100 * np.nanmax(eta):.2f} %, "
+                  f"max loss {loss_map.loss_nm.max():.4f} N·m; the paper's model: {model_share:.0f} % of the loss")
+    for bag in args.recording:
+        from .replay import replay
+
+        _summary, batches = replay(bag, config, show_progress=False, collect=True)
+        torque = np.concatenate([b.torque_nm for b in batches]) if batches else np.zeros(0)
+        speed = np.concatenate([b.speed_rad_s for b in batches]) if batches else np.zeros(0)
+        warning = coverage_warning(maps[0][1], torque, speed, str(bag))
+        if warning:
+            print(f"rollergear: warning: {warning}", file=sys.stderr)
+        else:
+            print(f"{bag}: every sample lies inside the map")
     return 0
 
 
@@ -177,6 +215,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--torque", type=_finite, nargs="+", metavar="NM", help="drive torques [N·m] (signed)")
     p.add_argument("--speed", type=_finite, nargs="+", metavar="RAD_S", help="drive speeds [rad/s] (signed)")
     p.add_argument("--csv", metavar="FILE", help="CSV with torque_nm, speed_rad_s columns")
+    p.add_argument("--oil-temperature-c", type=_finite, metavar="DEGC",
+                   help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=cmd_model)
 
@@ -184,14 +224,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, metavar="DIR")
     p.set_defaults(func=cmd_figures)
 
-    p = with_params(sub.add_parser("map", help="VECTO-layout loss map CSV + efficiency contour PNG"))
-    p.add_argument("--out", default="lossmap.csv", metavar="CSV")
+    p = with_params(sub.add_parser("map", help="VECTO loss map (.vtlm) of the calibrated model + efficiency/loss PNG"))
+    p.add_argument("--out", default="lossmap.vtlm", metavar="VTLM",
+                   help="the map (VECTO CSV layout); its PNG goes next to it (default: lossmap.vtlm)")
     p.add_argument("--speed-rpm", type=_finite, nargs=3, metavar=("START", "STOP", "STEP"),
-                   help="speed grid (default: the map section of the parameter file, 0 3000 100)")
+                   help="speed grid, >= 0 (default: the map section of the parameter file, 0 to the rated speed)")
     p.add_argument("--torque-nm", type=_finite, nargs=3, metavar=("START", "STOP", "STEP"),
-                   help="torque grid (default: the map section of the parameter file, -100 100 5)")
-    p.add_argument("--both-directions", action="store_true", help="also negative speeds (reverse rotation)")
-    p.add_argument("--no-plot", action="store_true")
+                   help="torque grid, both signs (default: the map section of the parameter file, -100 100 5)")
+    p.add_argument("--both-directions", action="store_true",
+                   help="also reverse rotation, to a second file NAME_reverse.vtlm (VECTO maps have speeds >= 0)")
+    p.add_argument("--oil-temperature-c", type=_finite, metavar="DEGC",
+                   help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
+    p.add_argument("--recording", action="append", default=[], metavar="BAG",
+                   help="warn when this recording visited operating points outside the map (repeatable)")
+    p.add_argument("--no-plot", action="store_true", help="no PNG")
     p.set_defaults(func=cmd_map)
 
     for register in _EXTRA_COMMANDS:

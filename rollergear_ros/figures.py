@@ -1,4 +1,4 @@
-"""The paper's sensitivity study (Figs. 6–11) and the loss map for energy managers, as PNG/CSV.
+"""The paper's sensitivity study (Figs. 6–11) as PNG and CSV (the loss map: :mod:`.lossmap`).
 
 Pure numpy/matplotlib over :class:`~rollergear_ros.model.LossModel`; no rclpy.
 """
@@ -6,14 +6,11 @@ Pure numpy/matplotlib over :class:`~rollergear_ros.model.LossModel`; no rclpy.
 from __future__ import annotations
 
 import csv
-import math
 from dataclasses import replace
 from pathlib import Path
-from collections.abc import Sequence
 
 import numpy as np
 
-from .errors import UsageError
 from .interface import RPM_PER_RAD_S
 from .model import LossModel
 from .params import Config, GearboxParams, validate
@@ -105,59 +102,3 @@ def write_figures(config: Config, out_dir: Path) -> list[Path]:
             wr.writerow([f"{t[i]:.6g}"] + [f"{curves[k][lab][i]:.8g}" for k, lab in cols])
     paths.append(csv_path)
     return paths
-
-
-# ------------------------------------------------------------------------------------ loss map
-VECTO_HEADER = ("Input Speed [rpm]", "Input Torque [Nm]", "Torque Loss [Nm]")
-
-
-def loss_map(config: Config, speeds_rpm: Sequence[float], torques_nm: Sequence[float]) -> np.ndarray:
-    """Rows ``(speed_rpm, torque_nm, torque_loss_nm, efficiency)`` over the grid (loss ≥ 0, input-referred)."""
-    model = LossModel(config.gearbox, config.estimator.min_torque_for_efficiency_nm,
-                      config.estimator.min_speed_for_efficiency_rad_s)
-    s, t = np.meshgrid(np.asarray(speeds_rpm, float), np.asarray(torques_nm, float), indexing="ij")
-    w = s / RPM_PER_RAD_S
-    res = model.evaluate(t.ravel(), w.ravel(), breakdown=False)
-    return np.column_stack([s.ravel(), t.ravel(), res.loss_magnitude_nm, res.efficiency])
-
-
-def grid(start: float, stop: float, step: float) -> np.ndarray:
-    """Inclusive ``start..stop`` in ``step`` increments (rounded to kill float drift)."""
-    if step <= 0 or not all(map(math.isfinite, (start, stop, step))) or stop < start:
-        raise UsageError(f"bad grid {start}:{stop}:{step} (need finite start <= stop and step > 0)")
-    n = int(math.floor((stop - start) / step + 1e-9)) + 1
-    return np.round(start + step * np.arange(n), 9)
-
-
-def write_loss_map(config: Config, speeds_rpm: np.ndarray, torques_nm: np.ndarray, csv_path: Path,
-                   png_path: Path | None) -> np.ndarray:
-    """Write the VECTO-layout CSV (and an efficiency contour PNG); returns the rows."""
-    rows = loss_map(config, speeds_rpm, torques_nm)
-    csv_path.parent.mkdir(parents=True, exist_ok=True)
-    with csv_path.open("w", newline="") as fh:
-        wr = csv.writer(fh)
-        wr.writerow(VECTO_HEADER)
-        for s, t, loss, _ in rows:
-            wr.writerow([f"{s:.6g}", f"{t:.6g}", f"{loss:.6g}"])
-    if png_path is not None:
-        plt = _plt()
-        ns, nt = len(speeds_rpm), len(torques_nm)
-        eta = rows[:, 3].reshape(ns, nt) * 100.0
-        fig, ax = plt.subplots(figsize=(7.5, 5), dpi=110)
-        if ns > 1 and nt > 1:
-            finite = eta[np.isfinite(eta)]
-            lo = max(float(np.nanmin(finite)) if finite.size else 90.0, 90.0)
-            levels = np.unique(np.round(np.linspace(lo, 100.0, 12), 2))
-            cs = ax.contourf(np.asarray(speeds_rpm), np.asarray(torques_nm), eta.T, levels=levels, cmap="viridis",
-                             extend="min")
-            ax.contour(np.asarray(speeds_rpm), np.asarray(torques_nm), eta.T, levels=levels, colors="k",
-                       linewidths=0.4)
-            fig.colorbar(cs, ax=ax, label="efficiency [%]")
-        ax.set_xlabel("input speed [rpm]")
-        ax.set_ylabel("input torque [N·m]  (negative: regeneration)")
-        ax.set_title("Roller gearing gearbox – efficiency map (white: undefined)")
-        fig.tight_layout()
-        png_path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(png_path)
-        plt.close(fig)
-    return rows

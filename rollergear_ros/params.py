@@ -132,6 +132,8 @@ GEARBOX_SPECS: tuple[ParamSpec, ...] = (
        low_open=True, high=10.0),
     _g("ratio", 0.0, "", "speed ratio input/output; 0 = dm2/dm1. Only used when output speed is not measured",
        low=0.0, high=1e4),
+    _g("rated_speed_rpm", 3000.0, "rpm", "rated input speed (the loss map's last speed by default)",
+       low=0.0, low_open=True, high=1e6),
 )
 
 def effect_specs() -> tuple[ParamSpec, ...]:
@@ -205,13 +207,15 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
 
 MAP_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("map.speed_min_rpm", float, 0.0, "loss map: first input speed", "rpm", low=0.0, high=1e6),
-    ParamSpec("map.speed_max_rpm", float, 3000.0, "loss map: last input speed", "rpm", low=0.0, high=1e6),
+    ParamSpec("map.speed_max_rpm", float, 0.0, "loss map: last input speed; 0 = gearbox.rated_speed_rpm", "rpm",
+              low=0.0, high=1e6),
     ParamSpec("map.speed_step_rpm", float, 100.0, "loss map: speed step", "rpm", low=0.0, low_open=True, high=1e6),
     ParamSpec("map.torque_min_nm", float, -100.0, "loss map: first input torque (negative: regeneration)", "N*m",
               low=-1e6, high=1e6),
     ParamSpec("map.torque_max_nm", float, 100.0, "loss map: last input torque", "N*m", low=-1e6, high=1e6),
     ParamSpec("map.torque_step_nm", float, 5.0, "loss map: torque step", "N*m", low=0.0, low_open=True, high=1e6),
-    ParamSpec("map.both_directions", bool, False, "loss map: also negative speeds (reverse rotation)"),
+    ParamSpec("map.both_directions", bool, False,
+              "loss map: also reverse rotation, written to a second file (<name>_reverse.vtlm)"),
 )
 
 _specs_cache: dict[int, tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]] = {}
@@ -259,6 +263,7 @@ class GearboxParams:
     ellipse_a: float = 1.1552
     ellipse_b: float = 1.1502
     ratio: float = 0.0
+    rated_speed_rpm: float = 3000.0
 
     @property
     def internal_ratio_effective(self) -> float:
@@ -333,12 +338,16 @@ class MapParams:
     """Grid of ``rollergear map`` (the command's options override it)."""
 
     speed_min_rpm: float = 0.0
-    speed_max_rpm: float = 3000.0
+    speed_max_rpm: float = 0.0  #: 0: the gearbox's rated speed
     speed_step_rpm: float = 100.0
     torque_min_nm: float = -100.0
     torque_max_nm: float = 100.0
     torque_step_nm: float = 5.0
     both_directions: bool = False
+
+    def last_speed_rpm(self, gearbox: GearboxParams) -> float:
+        """The map's last speed: ``speed_max_rpm``, or the rated speed when that is 0."""
+        return self.speed_max_rpm if self.speed_max_rpm > 0 else gearbox.rated_speed_rpm
 
 
 @dataclass(frozen=True)
@@ -441,8 +450,9 @@ def _check_consistency(config: Config) -> None:
             url,
             f"a rerun gRPC URL starts with {', '.join(RERUN_URL_SCHEMES)} (e.g. rerun+http://127.0.0.1:9876/proxy)",
         )
-    if config.map.speed_max_rpm < config.map.speed_min_rpm:
-        raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm, "must be >= map.speed_min_rpm")
+    if config.map.last_speed_rpm(g) < config.map.speed_min_rpm:
+        raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm,
+                             "must be >= map.speed_min_rpm (0: gearbox.rated_speed_rpm)")
     if config.map.torque_max_nm < config.map.torque_min_nm:
         raise ParameterError("map.torque_max_nm", config.map.torque_max_nm, "must be >= map.torque_min_nm")
     if "viscosity_temperature" in config.effects.enabled():

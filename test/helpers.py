@@ -10,6 +10,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 BAGS = ROOT / "bags"
 CONFIG = ROOT / "config" / "gearbox.yaml"
+#: ``../shared`` beside the project (public real data with provenance); ROLLERGEAR_SHARED overrides
+SHARED = Path(os.environ.get("ROLLERGEAR_SHARED", ROOT.parent / "shared"))
+REALDATA = SHARED / "realdata"
 
 
 def run_cli(*args: str, check: bool = True, timeout: float = 600, env: dict | None = None,

@@ -82,35 +82,24 @@ def test_figures_written(tmp_path):
     assert round(100 * eta[i100], 3) == pytest.approx(99.569, abs=1e-3)
 
 
-def test_map_csv_parses_and_matches_the_model(tmp_path, config):
-    out = tmp_path / "map.csv"
-    run_cli("map", "--out", str(out), "--speed-rpm", "0", "2000", "500", "--torque-nm", "-50", "50", "25",
-            "--both-directions")
-    rows = list(csv.reader(out.open()))
-    assert rows[0] == ["Input Speed [rpm]", "Input Torque [Nm]", "Torque Loss [Nm]"]
-    data = np.array(rows[1:], dtype=float)
-    assert len(data) == 9 * 5  # speeds -2000..2000 (9) x torques (5)
-    assert (data[:, 0] < 0).any() and (data[:, 1] < 0).any()
-    lm = LossModel(config.gearbox)
-    expect = lm.loss_magnitude(data[:, 1], data[:, 0] * 2 * np.pi / 60)
-    np.testing.assert_allclose(data[:, 2], expect, rtol=1e-5, atol=1e-9)
-    assert (tmp_path / "map.png").stat().st_size > 10_000
+def test_model_uses_the_accepted_effects_of_the_parameter_file(tmp_path):
+    """``model --params calibrated.yaml`` evaluates what the estimator does (the paper's model plus
+    the accepted effects) and shows each effect's share."""
+    from rollergear_ros.params import config_to_yaml, load_config
 
-
-def test_map_grid_from_the_parameter_file(tmp_path):
-    p = tmp_path / "grid.yaml"
-    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    map: {speed_min_rpm: 500.0, speed_max_rpm: 1500.0, "
-                 "speed_step_rpm: 500.0, torque_min_nm: -20.0, torque_max_nm: 20.0, torque_step_nm: 10.0, "
-                 "both_directions: true}\n")
-    out = tmp_path / "m.csv"
-    run_cli("map", "--out", str(out), "--params", str(p), "--no-plot")
-    data = np.array(list(csv.reader(out.open()))[1:], dtype=float)
-    assert sorted(set(data[:, 0])) == [-1500, -1000, -500, 500, 1000, 1500]
-    assert sorted(set(data[:, 1])) == [-20, -10, 0, 10, 20]
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("/**/loss_estimator:\n  ros__parameters:\n    map: {speed_min_rpm: 500.0, speed_max_rpm: 100.0}\n")
-    proc = run_cli("map", "--params", str(bad), "--out", str(out), check=False)
-    assert proc.returncode == 2 and "map.speed_max_rpm" in proc.stderr
+    params = tmp_path / "calibrated.yaml"
+    params.write_text(config_to_yaml(load_config(None, {"effects.drag_speed.enabled": True,
+                                                         "effects.drag_speed.c": 2e-4, "effects.drag_speed.p": 1.5})))
+    args = ("model", "--torque", "10", "50", "--speed", "100", "--params", str(params))
+    points = json.loads(run_cli(*args, "--json").stdout)["points"]
+    bare = json.loads(run_cli("model", "--torque", "10", "50", "--speed", "100", "--json").stdout)["points"]
+    for p, b in zip(points, bare):
+        assert p["effects_nm"]["drag_speed"] == pytest.approx(2e-4 * 100 ** 1.5, rel=1e-12)
+        assert p["model_nm"] == pytest.approx(abs(b["loss_torque_nm"]), rel=1e-12)
+        assert abs(p["loss_torque_nm"]) == pytest.approx(b["model_nm"] + 0.2, rel=1e-12)
+    table = run_cli(*args).stdout
+    assert "model [%]" in table and "drag_speed (" in table
+    assert "accepted effects of the parameter file: drag_speed" in table
 
 
 def test_only_the_error_family_becomes_one_line_and_a_programming_error_a_traceback(monkeypatch, capsys):
