@@ -45,6 +45,7 @@ class Blocks:
     block_s: float
     x: EffectInputs | None = None  # per-sample inputs of the effects' terms
     testable: tuple[str, ...] = ()  # effects this data can test (a varying temperature where needed)
+    steady_state: bool = False  # rows of steady-state tables: a block and a dwell each, equal weights
 
     def mean(self, values: np.ndarray) -> np.ndarray:
         return np.add.reduceat(np.broadcast_to(values, self.x.abs_speed.shape), self.start) / self.count
@@ -63,6 +64,9 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     """Average samples into blocks (see the module docstring) and compute every candidate column.
 
     ``like``: reuse another block set's boundaries, dwells and folds (same samples, corrected values).
+    Steady-state rows (``d.steady_state``) are dwell means already: each is a block and a dwell of
+    its own, weighted equally (a table says nothing about its noise), folds every ``folds``-th row;
+    sensor errors are not candidates there (a table holds losses, not a torque sensor's readings).
     """
     t = d.t_ns.astype(np.float64) * 1e-9
     sg = rotation_sign(d.speed, d.torque)
@@ -94,7 +98,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     # derivative columns within each bag (np.gradient over time; zero across breaks)
     dtdt = np.zeros(n)
     dwdt = np.zeros(n)
-    for b in np.unique(d.bag_id):
+    for b in np.unique(d.bag_id) if not d.steady_state else ():  # a table's rows have no time derivatives
         idx = np.flatnonzero(d.bag_id == b)
         if len(idx) > 2:
             tt = t[idx] + 1e-12 * np.arange(len(idx))
@@ -114,7 +118,10 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     var_mean = var_within * inflation / count
     floor = max(float(np.median(var_mean[count > 1])) * 0.05 if np.any(count > 1) else 1e-12, 1e-16)
     var_mean = np.where(count > 1, np.maximum(var_mean, floor), float(np.max(var_mean)) if len(var_mean) else 1.0)
-    weight = 1.0 / var_mean
+    if d.steady_state:
+        weight, inflation = np.ones(len(start)), 1.0
+    else:
+        weight = 1.0 / var_mean
     aw, at = np.abs(d.speed), np.abs(d.torque)
     spd, trq = mean(d.speed), mean(d.torque)
     temp = mean(np.nan_to_num(d.temperature, nan=np.nan))
@@ -134,6 +141,8 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
             cur += 1
             run = 0
         dwell[i] = cur
+    if d.steady_state:
+        dwell = np.arange(nb, dtype=np.int64)
     fold = dwell % folds
     if like is not None:
         dwell, fold = like.dwell, like.fold
@@ -144,7 +153,8 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         if have_theta.any()
         else False
     )
-    testable = tuple(n for n, e in EFFECTS.items() if varies or not e.needs_temperature)
+    testable = tuple(n for n, e in EFFECTS.items()
+                     if (varies or not e.needs_temperature) and (e.physical or not d.steady_state))
     columns = {"dtdt": mean(dtdt * sg), "dwdt": mean(dwdt * sg)}
     x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
     blocks = Blocks(
@@ -164,6 +174,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         block_s,
         x,
         testable,
+        d.steady_state,
     )
     for name in testable:
         effect = EFFECTS[name]

@@ -46,7 +46,8 @@ from .report import write_report
 from .samples import SampleData, load_samples
 from .selection import AmbiguousSet, Calibrator, ErrorStats, RejectedEffect, Term, error_stats, members
 
-__all__ = ["CalibrationResult", "SampleData", "calibrate", "calibrated_yaml", "load_samples", "write_report"]
+__all__ = ["Adequacy", "CalibrationResult", "SampleData", "calibrate", "calibrated_yaml", "load_samples",
+           "write_report"]
 
 
 @dataclass(frozen=True)
@@ -63,6 +64,46 @@ class FoundEffect:
         return {"name": self.name, "params": self.params, "ci95": self.ci95,
                 "rms_contribution_nm": self.rms_contribution_nm,
                 "rms_contribution_ci95_nm": self.rms_contribution_ci95_nm}
+
+
+@dataclass(frozen=True)
+class Adequacy:
+    """Which share of the measured loss the paper's model and each accepted effect explain
+    (means over all samples, relative to the mean measured loss), said in words."""
+
+    model_share_pct: float  #: the paper's model (0 when switched off)
+    effects_share_pct: dict[str, float]  #: accepted effect -> its share (sensor errors included)
+    unexplained_pct: float  #: what neither explains (mean error after)
+    paper_model: bool  #: the paper's model was part of the fit (``estimator.paper_model``)
+    statement: str
+
+    def to_json(self) -> dict:
+        return {"model_share_pct": self.model_share_pct, "effects_share_pct": self.effects_share_pct,
+                "unexplained_pct": self.unexplained_pct, "paper_model": self.paper_model,
+                "statement": self.statement}
+
+
+def adequacy(model_mean_nm: float, measured_mean_nm: float, effects_mean_nm: dict[str, float],
+             paper_model: bool) -> Adequacy:
+    """The shares of the measured loss, and a sentence a reader of the report can act on."""
+    scale = 100.0 / measured_mean_nm if measured_mean_nm > 0 else math.nan
+    model = model_mean_nm * scale
+    effects = {n: v * scale for n, v in effects_mean_nm.items()}
+    rest = 100.0 - model - sum(effects.values())
+    listed = ", ".join(f"{n} {v:.0f} %" for n, v in effects.items()) or "no accepted effect"
+    if not paper_model:
+        text = (f"the paper's ball-track model is switched off (estimator.paper_model: false); the accepted effects "
+                f"explain the loss: {listed}")
+    elif model > 150.0:
+        text = (f"the ball-track model predicts {model:.0f} % of the measured loss: it does not describe this "
+                f"gearbox (the accepted effects must cancel most of it: {listed}); try estimator.paper_model: false")
+    elif model < 50.0:
+        text = f"the ball-track model explains {model:.0f} % of this gearbox's loss; the rest is {listed}"
+    else:
+        text = f"the ball-track model explains {model:.0f} % of the loss; {listed}"
+    if abs(rest) >= 1.0:
+        text += f"; {rest:.0f} % is unexplained"
+    return Adequacy(model, effects, rest, paper_model, text)
 
 
 @dataclass
@@ -82,6 +123,7 @@ class CalibrationResult:
     log: list[str]
     sample_level: dict[str, ErrorStats]  #: before/after per sample (sensor noise included)
     config: Config  #: the input parameters with the accepted effects
+    adequacy: Adequacy | None = None
     blocks: Blocks | None = None
     pred_after: np.ndarray | None = None
 
@@ -99,6 +141,7 @@ class CalibrationResult:
             "ambiguous": [a.to_json() for a in self.ambiguous],
             "unavailable": self.unavailable,
             "sample_level_errors": {k: v.to_json() for k, v in self.sample_level.items()},
+            "adequacy": self.adequacy.to_json() if self.adequacy else None,
         }
 
 
@@ -162,6 +205,11 @@ def calibrate(
         "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a))),
     }
     holdout = (
+        f"{folds}-fold cross-validation over the rows of the steady-state table(s) (each row a dwell mean, "
+        f"weighted equally; fold k holds every {folds}th row, so every fold spans the map); errors are of the "
+        f"rows' losses predicted by a fit that did not see them ({len(blocks.y)} rows; no sensor noise model: "
+        "a table's rows are taken as exact means)"
+        if blocks.steady_state else
         f"{folds}-fold cross-validation grouped by dwell ({int(blocks.dwell.max()) + 1} dwells of steady operation, "
         f"at most 5 s each; whole dwells held out, never single rows); errors are of {blocks.block_s:g} s block "
         f"means of every held-out block, predicted by a fit that did not see its fold "
@@ -181,6 +229,11 @@ def calibrate(
             verdict = "inconclusive"
     effects = writable
     new_config = _calibrated_config(config, effects)
+    written = {e.name for e in effects}
+    contributions = {term.name: float(np.sum(blocks.count * full.coef[k0 + i] * term.column)) / len(data.t_ns)
+                     for i, term in enumerate(selected) if term.name in written}
+    fit_adequacy = adequacy(float(np.mean(data.model_loss)), float(np.mean(data.measured_loss)), contributions,
+                            config.estimator.paper_model)
     return CalibrationResult(
         verdict,
         effects,
@@ -195,6 +248,7 @@ def calibrate(
         cal.log,
         sample_level,
         new_config,
+        fit_adequacy,
         blocks,
         pred_after,
     )
@@ -216,7 +270,7 @@ def _refit_sensor_errors(
     """
     from dataclasses import replace as dc_replace
 
-    model = LossModel(config.gearbox)
+    model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
     names = [t.name for t in final]
     for _ in range(iterations):
         f = cal.fit(final)

@@ -13,8 +13,10 @@ from .replay_cli import add_topic_options, topics_from_args
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibrate import calibrate, calibrated_yaml
+    from .errors import UsageError
     from .report import write_report
-    from .samples import load_samples
+    from .samples import load_samples, table_samples
+    from .tables import is_table
 
     refuse_overwriting_inputs([*args.bags, args.params], {"--out": args.out})
     config = config_from_args(args)
@@ -22,12 +24,23 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr)
 
+    tables = [is_table(p) for p in args.bags]
+    if any(tables) and not all(tables):
+        raise UsageError("give either recordings or steady-state tables (.vtlm), not both: a table's rows are "
+                         "dwell means, a recording's samples are not")
+
+    def warn(msg: str) -> None:
+        log(f"rollergear: warning: {msg}")
+
     if not args.json:
-        log(f"reading {len(args.bags)} recording(s) …")
-    data = load_samples(args.bags, config, topics_from_args(args),
-                        warn=lambda m: log(f"rollergear: warning: {m}"), progress=not args.json and sys.stderr.isatty())
+        log(f"reading {len(args.bags)} {'table' if all(tables) else 'recording'}(s) …")
+    if all(tables):
+        data = table_samples(args.bags, config, warn=warn)
+    else:
+        data = load_samples(args.bags, config, topics_from_args(args), warn=warn,
+                            progress=not args.json and sys.stderr.isatty())
     if not args.json:
-        log(f"{len(data.t_ns):,} samples with measured output; analysing …")
+        log(f"{len(data.t_ns):,} {'rows' if data.steady_state else 'samples with measured output'}; analysing …")
     result = calibrate(data, config, args.delta, args.block_s)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
@@ -56,6 +69,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         f"{eb.rel_rmse_pct:.2f} % -> {ea.rel_rmse_pct:.2f} % of the measured loss"
     )
     print(f"held out: {result.holdout}")
+    if result.adequacy:
+        print(f"adequacy: {result.adequacy.statement}")
     if args.out:
         print(f"calibrated parameters: {args.out}")
     if report:
@@ -71,7 +86,8 @@ def register_calibrate(sub, with_params) -> None:
             "output torque; error before/after on held-out data",
         )
     )
-    p.add_argument("bags", nargs="+", metavar="BAG")
+    p.add_argument("bags", nargs="+", metavar="BAG",
+                   help="recordings (MCAP) with measured output torque, or steady-state tables (VECTO .vtlm)")
     p.add_argument("--out", metavar="CALIBRATED.yaml", help="parameter file with the accepted effects")
     p.add_argument("--report", metavar="DIR", help="Markdown report with plots")
     p.add_argument("--json", action="store_true", help="print exactly the interface.md JSON object on stdout")

@@ -56,6 +56,7 @@ class BatchEstimate:
     effects_nm: np.ndarray | None = None  #: physical effects part of the loss magnitude
     coefficients: dict[str, np.ndarray] = field(default_factory=dict)  #: adapted, per sample
     alarms_t_ns: list[int] = field(default_factory=list)
+    loss_magnitude_nm: np.ndarray | None = None  #: |loss| also at standstill, where the signed loss is 0
 
 
 class Estimator:
@@ -69,7 +70,8 @@ class Estimator:
         self.config = config
         est = config.estimator
         self.sync_tolerance_s = pairing_tolerance_s(est.sync_tolerance_s, sample_period_s)
-        self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s)
+        self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s,
+                               est.paper_model)
         self.ratio = config.gearbox.ratio_effective
         if pairing in ARRIVAL_PAIRINGS:
             self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
@@ -318,6 +320,7 @@ class Estimator:
             effects_nm=phys,
             coefficients=coefficients,
             alarms_t_ns=list(self.detector.alarm_times_ns),
+            loss_magnitude_nm=loss,
         )
 
     def _adapt_batch(self, phis: list[np.ndarray], y: np.ndarray, t_ns: np.ndarray) -> np.ndarray:

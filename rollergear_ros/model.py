@@ -288,7 +288,9 @@ class LossModel:
     EXP_TER_T = 1.33
 
     def __init__(self, params: GearboxParams, min_torque_for_efficiency_nm: float = 0.2,
-                 min_speed_for_efficiency_rad_s: float = 0.5) -> None:
+                 min_speed_for_efficiency_rad_s: float = 0.5, enabled: bool = True) -> None:
+        """``enabled = False``: the paper's model switched off (every coefficient 0), for a gearbox
+        it does not describe, whose loss is then only the accepted effects (``estimator.paper_model``)."""
         self.params = params
         self.min_torque_nm = float(min_torque_for_efficiency_nm)
         self.min_speed_rad_s = float(min_speed_for_efficiency_rad_s)
@@ -310,6 +312,9 @@ class LossModel:
             coef[f"ter{j}"] = lever_s / p.dw_m * float(hysteresis_torque_nm(p.dw_m, fn1, k))
         coef["tb"] = lever_s / p.dw_m * ball_friction_torque_nm(p.mu_b, p.Fg_n, p.dw_m)
         coef["fg"] = lever_s * p.Fg_n / 2.0
+        if not enabled:
+            coef = dict.fromkeys(coef, 0.0)
+        self.enabled = enabled
         self.coefficients = coef
         self.k_fr = coef["fr1"] + coef["fr2"]
         self.k_tc = coef["tc1"] + coef["tc2"]

@@ -82,7 +82,7 @@ def evaluate_points(config: Config, torque_nm, speed_rad_s, temperature_c: float
         estimator = Estimator(effects)
         batch = estimator.process_batch(np.arange(n, dtype=np.int64), torque, speed, temperature=theta)
         magnitude = np.full(n, np.nan)
-        magnitude[batch.t_ns.astype(np.intp)] = np.abs(batch.loss_torque_nm)
+        magnitude[batch.t_ns.astype(np.intp)] = batch.loss_magnitude_nm
         return magnitude, estimator, batch
 
     magnitude, estimator, batch = run(cfg)

@@ -165,6 +165,9 @@ ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("estimator.max_abs_speed_rad_s", float, 2000.0,
               "|w| above this is implausible: the sample is skipped", "rad/s", low=0.0, low_open=True,
               high=1e6),
+    ParamSpec("estimator.paper_model", bool, True,
+              "include the paper's ball-track model; false: the loss is only the accepted effects (a gearbox the "
+              "paper does not describe, e.g. an axle's loss map)"),
     ParamSpec("estimator.adapt", bool, True,
               "update the coefficients of the accepted effects online by RLS when output torque is measured"),
     ParamSpec("estimator.rls_forgetting", float, 0.9995, "RLS forgetting factor lambda", "",
@@ -308,6 +311,7 @@ class EstimatorParams:
     staleness_s: float = 0.1
     max_abs_torque_nm: float = 5000.0
     max_abs_speed_rad_s: float = 2000.0
+    paper_model: bool = True
     adapt: bool = True
     rls_forgetting: float = 0.9995
     rls_max_covariance: float = 1e6

@@ -70,8 +70,9 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
     eb, ea = result.error_before, result.error_after
     lines = [
         "# Calibration report\n",
-        f"Recordings: {', '.join(map(str, sources))}  ",
-        f"Samples used: {result.samples:,} (|ω| ≥ 2 rad/s, measured output torque present)  ",
+        f"{'Tables' if b.steady_state else 'Recordings'}: {', '.join(map(str, sources))}  ",
+        (f"Rows used: {result.samples:,} (steady-state operating points)  " if b.steady_state else
+         f"Samples used: {result.samples:,} (|ω| ≥ 2 rad/s, measured output torque present)  "),
         f"Verdict: **{result.verdict.replace('_', ' ')}**  ",
         f"Practical minimum effect size δ = {result.delta_nm:.4g} N·m (RMS contribution); "
         f"RMS measured loss {np.sqrt(np.average(b.measured**2, weights=b.count)):.4g} N·m\n",
@@ -84,6 +85,7 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
         f"\nReduction of held-out RMSE: {100 * (1 - ea.rmse_nm / eb.rmse_nm) if eb.rmse_nm else 0:.1f} %. "
         f"Per sample (sensor noise included): RMSE {result.sample_level['before'].rmse_nm:.4g} → "
         f"{result.sample_level['after'].rmse_nm:.4g} N·m.\n",
+        *([f"**Model adequacy:** {result.adequacy.statement}.\n"] if result.adequacy else []),
         "## Accepted effects\n",
     ]
     if result.effects:

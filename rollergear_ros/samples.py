@@ -1,4 +1,5 @@
-"""Loading recordings for calibration: replay through the bare model, keep samples with a measured loss.
+"""Loading data for calibration: recordings replayed through the bare model (samples with a
+measured loss), or steady-state tables (:mod:`.tables`, one sample per operating point).
 
 Next to :mod:`.replay`, whose estimator it runs (no effects, no adaptation).  No rclpy import.
 """
@@ -30,6 +31,7 @@ class SampleData:
     model_loss: np.ndarray
     fr_part: np.ndarray
     skipped: dict[str, int] = field(default_factory=dict)
+    steady_state: bool = False  #: rows of steady-state tables (dwell means), not a time series
 
     @property
     def residual(self) -> np.ndarray:
@@ -44,7 +46,7 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
 
     base = validate({k: v for k, v in config.to_flat().items() if not k.startswith("effects.")}
                     | {"estimator.adapt": False})
-    model = LossModel(base.gearbox)
+    model = LossModel(base.gearbox, enabled=base.estimator.paper_model)
     parts = []
     skipped: dict[str, int] = {}
     for i, bag in enumerate(bags):
@@ -62,3 +64,38 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
     cols = [np.concatenate([p[j] for p in parts]) for j in range(7)]
     return SampleData(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6],
                       model.fr_part(cols[2], cols[3]), skipped)
+
+
+def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[str], None] | None = None) -> SampleData:
+    """Steady-state tables as samples: one per row, its measured loss the table's (a dwell mean).
+
+    Rows outside the estimator's plausible range (``estimator.max_abs_*``) are skipped and
+    counted, as the estimator skips such samples; the model is the paper's unless
+    ``estimator.paper_model`` switches it off.
+    """
+    from .tables import read_table
+
+    model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
+    est = config.estimator
+    parts = []
+    implausible = 0
+    for i, path in enumerate(paths):
+        table = read_table(path)
+        keep = ((np.abs(table.torque_nm) <= est.max_abs_torque_nm)
+                & (np.abs(table.speed_rad_s) <= est.max_abs_speed_rad_s))
+        if not keep.all():
+            implausible += int(np.count_nonzero(~keep))
+            if warn:
+                warn(f"{path}: {np.count_nonzero(~keep)} of {len(keep)} rows beyond estimator.max_abs_torque_nm "
+                     f"({est.max_abs_torque_nm:g} N·m) or max_abs_speed_rad_s: skipped (raise them in the "
+                     "parameter file for this gearbox)")
+        parts.append((table.speed_rad_s[keep], table.torque_nm[keep], table.loss_nm[keep], table.temperature_c[keep],
+                      np.full(int(keep.sum()), i)))
+    speed, torque, loss, temperature, bag_id = (np.concatenate([p[j] for p in parts]) for j in range(5))
+    if len(speed) == 0:
+        raise BagError(f"no rows of {', '.join(map(str, paths))} within the estimator's plausible range")
+    # nominal times 1 s apart: every row is its own block and dwell (see blocks.make_blocks)
+    t_ns = np.arange(len(speed), dtype=np.int64) * 1_000_000_000
+    return SampleData(t_ns, bag_id, torque, speed, temperature, loss, model.loss_magnitude(torque, speed),
+                      model.fr_part(torque, speed), {"implausible": implausible} if implausible else {},
+                      steady_state=True)

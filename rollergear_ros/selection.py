@@ -146,7 +146,8 @@ class Calibrator:
         # drop nuisance columns with no variation (steady data): they would be singular
         self.nuisance = [c for c in nuis if np.sqrt(np.average(c * c, weights=blocks.count)) > 1e-9]
         rms_meas = float(np.sqrt(np.average(blocks.measured**2, weights=blocks.count)))
-        se_block = float(np.sqrt(np.median(1.0 / blocks.weight)))
+        # a table's rows carry no noise estimate (equal weights): delta from the measured loss alone
+        se_block = 0.0 if blocks.steady_state else float(np.sqrt(np.median(1.0 / blocks.weight)))
         self.delta = delta_nm if delta_nm is not None else max(0.005, 0.02 * rms_meas, 3 * se_block)
         self.rms_measured = rms_meas
         self.log: list[str] = []

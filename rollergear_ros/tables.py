@@ -1,0 +1,122 @@
+"""Steady-state tables: one row per operating point, a dwell mean (no time series, no sensor noise).
+
+Today: VECTO transmission loss maps (``.vtlm``), read by VECTO's own rules
+(``VectoCSVFile`` + ``TransmissionLossMapReader``): ``,`` delimiter, ``.`` decimal mark, lines
+starting with ``#`` are comments and a cell ends at ``#``; one header line whose ``[unit]`` parts
+name the units (rpm, Nm) -- a header of numbers means no header and the columns by position, as
+VECTO falls back to; the columns ``Input Speed`` [rpm], ``Input Torque`` [N·m] (negative:
+overrun) and ``Torque Loss`` [N·m], input-referred, ≥ 0; further columns (``Eff``) ignored;
+at least four rows.  Bad files raise :class:`~.errors.InputFileError` with one line naming the
+file, the line and what is wrong.  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputFileError
+from .interface import RPM_PER_RAD_S
+
+__all__ = ["SteadyStateTable", "is_table", "read_table", "read_vtlm"]
+
+VTLM_COLUMNS = (("Input Speed", "rpm"), ("Input Torque", "Nm"), ("Torque Loss", "Nm"))
+_UNIT = re.compile(r"\[(.*?)\]")
+_UNIT_SPELLINGS = {"rpm": {"rpm", "1/min", "min-1", "min^-1"}, "Nm": {"nm", "n·m", "n*m", "n m"}}
+MIN_ROWS = 4
+
+
+@dataclass
+class SteadyStateTable:
+    """Operating points with their measured input-referred loss."""
+
+    path: Path
+    speed_rad_s: np.ndarray
+    torque_nm: np.ndarray
+    loss_nm: np.ndarray
+    temperature_c: np.ndarray  #: NaN where the table has none
+    line: np.ndarray  #: line number of each row in the file (for messages)
+
+
+def is_table(path: str | Path) -> bool:
+    """Whether ``path`` is read as a steady-state table (by its suffix)."""
+    return Path(path).suffix.lower() == ".vtlm"
+
+
+def read_table(path: str | Path) -> SteadyStateTable:
+    """Read a steady-state table (the format by its suffix)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(f"{path} does not exist")
+    if path.suffix.lower() == ".vtlm":
+        return read_vtlm(path)
+    raise InputFileError(f"{path}: not a steady-state table this package reads (.vtlm)")
+
+
+def _cells(line: str) -> list[str]:
+    return [c.split("#", 1)[0].strip() for c in line.split(",")]
+
+
+def _number(text: str) -> float | None:
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def read_vtlm(path: str | Path) -> SteadyStateTable:
+    """A VECTO ``.vtlm`` loss map (see the module docstring for the rules)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise InputFileError(f"{path}: not a text file ({exc.reason})") from None
+    lines = [(k, ln) for k, ln in enumerate(text.splitlines(), start=1)
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise InputFileError(f"{path}: no header and no data (a VECTO loss map has Input Speed, Input Torque, "
+                             "Torque Loss)")
+    first_no, first = lines[0]
+    header = _cells(first)
+    if all(_number(c) is not None for c in header if c):
+        index = [0, 1, 2]  # no header: by position, as VECTO reads it
+        data_lines = lines
+    else:
+        names = [_UNIT.sub("", c).strip() for c in header]
+        index = []
+        for name, unit in VTLM_COLUMNS:
+            if name not in names:
+                raise InputFileError(f"{path}: line {first_no}: no column {name!r} in the header "
+                                     f"({', '.join(c for c in header if c)})")
+            i = names.index(name)
+            given = _UNIT.search(header[i])
+            if given and given.group(1).strip().lower() not in _UNIT_SPELLINGS[unit]:
+                raise InputFileError(f"{path}: line {first_no}: column {name!r} is in [{given.group(1)}]; "
+                                     f"a VECTO loss map has it in [{unit}]")
+            index.append(i)
+        data_lines = lines[1:]
+    rows, numbers = [], []
+    for k, ln in data_lines:
+        cells = _cells(ln)
+        values = [_number(cells[i]) if i < len(cells) else None for i in index]
+        if any(v is None for v in values):
+            columns = ", ".join(str(i + 1) for i in index)
+            raise InputFileError(f"{path}: line {k}: expected numbers in columns {columns}, got {ln.strip()!r}")
+        rows.append(values)
+        numbers.append(k)
+    data = np.array(rows, dtype=float).reshape(-1, 3)
+    line = np.array(numbers, dtype=np.int64)
+    if len(data) < MIN_ROWS:
+        raise InputFileError(f"{path}: {len(data)} data rows; a loss map has at least {MIN_ROWS}")
+    for col, what in ((0, "input speed"), (1, "input torque"), (2, "torque loss")):
+        bad = ~np.isfinite(data[:, col])
+        if bad.any():
+            raise InputFileError(f"{path}: line {line[bad][0]}: {what} is not finite")
+    if (data[:, 0] < 0).any():
+        raise InputFileError(f"{path}: line {line[data[:, 0] < 0][0]}: negative input speed (VECTO: 0 … 1e6 rpm)")
+    if (data[:, 2] < 0).any():
+        raise InputFileError(f"{path}: line {line[data[:, 2] < 0][0]}: negative torque loss (a loss is >= 0)")
+    return SteadyStateTable(path, data[:, 0] / RPM_PER_RAD_S, data[:, 1], data[:, 2], np.full(len(data), np.nan), line)

@@ -1,0 +1,134 @@
+"""Steady-state tables: reading VECTO loss maps, and closing the loop on them."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rollergear_ros.errors import InputFileError
+from rollergear_ros.tables import read_table
+
+from helpers import REALDATA, run_cli
+
+VECTO = REALDATA / "vecto_generic_lossmaps"
+AXLE_40T = VECTO / "40t_long_haul_truck" / "Axle.vtlm"
+needs_realdata = pytest.mark.skipif(not AXLE_40T.exists(), reason=f"no shared real data at {VECTO}")
+HEADER = "Input Speed [rpm],Input Torque [Nm],Torque Loss [Nm]\n"
+ROWS = "0,-100,2\n0,100,2\n1000,-100,3\n1000,100,3\n"
+
+
+def test_a_vtlm_is_read_by_vectos_rules(tmp_path):
+    path = tmp_path / "m.vtlm"
+    path.write_text("# a comment\n" + HEADER.replace("\n", ",Eff [-]\n") + "0,-100,2,0.98\n# in between\n"
+                    "0,100,2 # cut at the hash\n1000,-100,3,\n1000,100,3,0.97\n")
+    t = read_table(path)
+    np.testing.assert_allclose(t.speed_rad_s, np.array([0, 0, 1000, 1000]) * 2 * np.pi / 60)
+    np.testing.assert_array_equal(t.torque_nm, [-100, 100, -100, 100])
+    np.testing.assert_array_equal(t.loss_nm, [2, 2, 3, 3])
+    np.testing.assert_array_equal(t.line, [3, 5, 6, 7])
+    # no header: the columns by position, as VECTO falls back to
+    bare = tmp_path / "bare.vtlm"
+    bare.write_text(ROWS)
+    np.testing.assert_array_equal(read_table(bare).loss_nm, [2, 2, 3, 3])
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("Input Speed [rpm],Input Torque [Nm]\n" + ROWS, "no column 'Torque Loss'"),
+    (HEADER.replace("[rpm]", "[rad/s]") + ROWS, "[rad/s]; a VECTO loss map has it in [rpm]"),
+    (HEADER + ROWS + "2000,x,3\n", "line 6: expected numbers"),
+    (HEADER + "0,-100,2\n0,100,2\n1000,100,3\n", "3 data rows"),
+    (HEADER + ROWS + "-500,10,1\n", "line 6: negative input speed"),
+    (HEADER + ROWS + "500,10,-1\n", "line 6: negative torque loss"),
+    (HEADER + ROWS + "500,nan,1\n", "line 6: input torque is not finite"),
+    ("", "no header and no data"),
+])
+def test_bad_tables_are_one_line_naming_the_file_and_line(tmp_path, text, message):
+    path = tmp_path / "bad.vtlm"
+    path.write_text(text)
+    with pytest.raises(InputFileError) as err:
+        read_table(path)
+    assert message in str(err.value) and str(path) in str(err.value)
+    proc = run_cli("calibrate", str(path), check=False)
+    assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_recordings_and_tables_are_not_mixed(tmp_path):
+    path = tmp_path / "m.vtlm"
+    path.write_text(HEADER + ROWS)
+    from helpers import BAGS
+
+    proc = run_cli("calibrate", str(path), str(BAGS / "rig_map.mcap"), check=False)
+    assert proc.returncode == 2 and "not both" in proc.stderr
+
+
+def _params(tmp_path, paper_model: bool):
+    p = tmp_path / f"axle_{paper_model}.yaml"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    estimator: "
+                 f"{{paper_model: {str(paper_model).lower()}, max_abs_torque_nm: 40000.0}}\n")
+    return p
+
+
+@needs_realdata
+def test_the_40t_axle_map_is_found_to_be_40_plus_0_015_abs_torque(tmp_path):
+    """VECTO's generic 40 t axle map is exactly 40 + 0.015·|T| N·m: with the paper's model switched
+    off, calibrate finds drag_constant c = 40 and load_dependent c = 0.015, q = 1 and nothing else;
+    the written parameter file gives the energy manager the same map back."""
+    cal = tmp_path / "axle_cal.yaml"
+    proc = run_cli("calibrate", str(AXLE_40T), "--params", str(_params(tmp_path, False)), "--json", "--out", str(cal))
+    result = json.loads(proc.stdout)
+    assert result["verdict"] == "effects_found"
+    found = {e["name"]: e["params"] for e in result["effects"]}
+    assert set(found) == {"drag_constant", "load_dependent"}
+    assert found["drag_constant"]["c"] == pytest.approx(40.0, rel=0.01)
+    assert found["load_dependent"]["c"] == pytest.approx(0.015, rel=0.01)
+    assert found["load_dependent"]["q"] == pytest.approx(1.0, rel=0.01)
+    assert result["error_after"]["rel_rmse_pct"] < 0.1 < 50 < result["error_before"]["rel_rmse_pct"]
+    assert "rows of the steady-state table" in result["holdout"]
+    adequacy = result["adequacy"]
+    assert adequacy["paper_model"] is False and adequacy["model_share_pct"] == 0
+    assert sum(adequacy["effects_share_pct"].values()) == pytest.approx(100.0, abs=0.1)
+    # the calibrated parameter file in the map: the axle's map again
+    out = tmp_path / "axle.vtlm"
+    run_cli("map", "--params", str(cal), "--out", str(out), "--no-plot", "--speed-rpm", "0", "2000", "250",
+            "--torque-nm", "-5000", "35000", "2500")
+    rows = np.array([ln.split(",") for ln in out.read_text().splitlines()
+                     if not ln.startswith("#")][1:], dtype=float)
+    np.testing.assert_allclose(rows[:, 2], 40 + 0.015 * np.abs(rows[:, 1]), rtol=0.01)
+
+
+@needs_realdata
+def test_with_the_papers_model_on_the_axle_says_the_model_does_not_describe_it(tmp_path):
+    """The paper's ball-track model with this package's gearbox at 35 kN·m: calibrate still
+    closes the loop, and the adequacy statement says plainly that the model is the wrong one."""
+    proc = run_cli("calibrate", str(AXLE_40T), "--params", str(_params(tmp_path, True)), "--json")
+    result = json.loads(proc.stdout)
+    adequacy = result["adequacy"]
+    assert adequacy["paper_model"] is True and adequacy["model_share_pct"] > 150
+    assert "does not describe this gearbox" in adequacy["statement"]
+    assert "estimator.paper_model: false" in adequacy["statement"]
+    assert result["error_after"]["rmse_nm"] < result["error_before"]["rmse_nm"]
+
+
+def test_an_undeclared_effect_in_a_table_from_the_full_model_is_found(tmp_path, config):
+    """A table made by the whole model plus a speed drag (the way a rig would measure it, not
+    through the calibrator's columns): calibrate finds drag_speed with its exponent, nothing else."""
+    from rollergear_ros.model import evaluate_reference
+
+    speeds = np.arange(100, 3001, 100.0)
+    torques = np.arange(-100, 101, 10.0)
+    lines = [HEADER.strip()]
+    for n in speeds:
+        w = n * 2 * np.pi / 60
+        for t in torques:
+            loss = abs(evaluate_reference(config.gearbox, t, w)["T_loss"]) + 3e-4 * w ** 1.4
+            lines.append(f"{n:g},{t:g},{loss:.9g}")
+    table = tmp_path / "drag.vtlm"
+    table.write_text("\n".join(lines) + "\n")
+    result = json.loads(run_cli("calibrate", str(table), "--json").stdout)
+    assert result["verdict"] == "effects_found"
+    assert [e["name"] for e in result["effects"]] == ["drag_speed"]
+    params = result["effects"][0]["params"]
+    assert params["c"] == pytest.approx(3e-4, rel=0.02) and params["p"] == pytest.approx(1.4, abs=0.02)
+    assert result["adequacy"]["paper_model"] is True
