@@ -8,23 +8,26 @@ import sys
 from pathlib import Path
 
 from .cli import config_from_args, refuse_overwriting_inputs
-from .replay_cli import add_topic_options, topics_from_args
+from .replay_cli import add_channels_option, add_topic_options, topics_from_args
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from .calibrate import calibrate, calibrated_yaml
+    from .channelmap import load_channel_map
+    from .importer import as_mcap
     from .errors import UsageError
     from .report import write_report
     from .samples import load_samples, table_samples
     from .tables import is_table
 
-    refuse_overwriting_inputs([*args.bags, args.params], {"--out": args.out})
+    refuse_overwriting_inputs([*args.bags, args.params, args.channels], {"--out": args.out})
     config = config_from_args(args)
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr)
 
-    tables = [is_table(p) for p in args.bags]
+    cmap = load_channel_map(args.channels) if args.channels else None
+    tables = [is_table(p, cmap) for p in args.bags]
     if any(tables) and not all(tables):
         raise UsageError("give either recordings or steady-state tables (.vtlm), not both: a table's rows are "
                          "dwell means, a recording's samples are not")
@@ -34,11 +37,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     if not args.json:
         log(f"reading {len(args.bags)} {'table' if all(tables) else 'recording'}(s) …")
+    topics = topics_from_args(args)
     if all(tables):
-        data = table_samples(args.bags, config, warn=warn)
+        data = table_samples(args.bags, config, warn=warn, cmap=cmap)
     else:
-        data = load_samples(args.bags, config, topics_from_args(args), warn=warn,
-                            progress=not args.json and sys.stderr.isatty())
+        with as_mcap(args.bags, args.channels, topics, note=None if args.json else log) as bags:
+            data = load_samples(bags, config, topics, warn=warn, progress=not args.json and sys.stderr.isatty())
     if not args.json:
         log(f"{len(data.t_ns):,} {'rows' if data.steady_state else 'samples with measured output'}; analysing …")
     result = calibrate(data, config, args.delta, args.block_s)
@@ -87,7 +91,8 @@ def register_calibrate(sub, with_params) -> None:
         )
     )
     p.add_argument("bags", nargs="+", metavar="BAG",
-                   help="recordings (MCAP) with measured output torque, or steady-state tables (VECTO .vtlm)")
+                   help="recordings with measured output torque (MCAP, rosbag2, or CSV/Parquet/MDF4/TDMS with "
+                   "--channels), or steady-state tables (VECTO .vtlm, or CSV/Parquet with a steady_state map)")
     p.add_argument("--out", metavar="CALIBRATED.yaml", help="parameter file with the accepted effects")
     p.add_argument("--report", metavar="DIR", help="Markdown report with plots")
     p.add_argument("--json", action="store_true", help="print exactly the interface.md JSON object on stdout")
@@ -99,6 +104,7 @@ def register_calibrate(sub, with_params) -> None:
         help="practical minimum effect size (RMS N·m); default from the data",
     )
     p.add_argument("--block-s", type=float, default=0.25, help="averaging block length [s]")
+    add_channels_option(p)
     add_topic_options(p)
     p.set_defaults(func=cmd_calibrate)
 

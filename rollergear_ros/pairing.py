@@ -16,7 +16,8 @@ motor torque's median message period (:func:`pairing_tolerance_s`), which also p
 separate publishers or recorders logged a fraction of a period apart.  An optional channel silent
 for longer than ``staleness_s`` no longer holds up the motor samples (they are estimated without a
 residual and counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
-is dropped as ``unpaired``.  During the first ``staleness_s`` of a stream, samples wait for the
+is dropped as ``unpaired`` (over a lossless arrival delivery within :data:`LOSSLESS_HOLD_S`: a late
+partner there was held up, not lost).  During the first ``staleness_s`` of a stream, samples wait for the
 optional channels to show up, so a log's first samples already carry their measured output.
 
 Arrival pairing (``arrival=True``, for a live executor that gives no publisher timestamps, so
@@ -63,6 +64,9 @@ _PAIRED = (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED)  #: the channels that pair, in 
 #: the arrival pairings: over best-effort delivery, and over a reliable, keep-all one (nothing lost)
 ARRIVAL_PAIRINGS = ("arrival", "arrival_reliable")
 TEMPERATURE_HOLD_S = 5.0
+#: arrival pairing over a lossless delivery: how long a motor message waits for its partner.  Nothing
+#: is lost, so a partner that is late was delayed (one topic's delivery held up under load), not dropped
+LOSSLESS_HOLD_S = 5.0
 ARRIVAL_TOLERANCE_S = 0.002
 AUTO_TOLERANCE_FRACTION = 0.4  #: automatic pairing tolerance as a fraction of the sample period
 FALLBACK_PERIOD_S = 0.001  #: assumed sample period when it is unknown (1 kHz)
@@ -117,10 +121,12 @@ class SampleSynchronizer:
         self._skew_chans: tuple[str, ...] = ()
         self._skew_mean: list[float] = []
         self._skew_n = 0
+        self._skew_last: list[int] = []  # each observed channel's time in the previous pair
         self._period_ns = 0.0
         self._last_pair_ns: int | None = None
         self.tolerance_ns = int(round(sync_tolerance_s * 1e9))
         self.staleness_ns = int(round(staleness_s * 1e9))
+        self._set_hold()
         self.temperature_hold_ns = int(round(temperature_hold_s * 1e9))
         self.queues: dict[str, deque] = {c: deque() for c in _REQUIRED + _OPTIONAL}
         self.active: dict[str, bool] = {TORQUE: True, SPEED: True, OUT_TORQUE: False, OUT_SPEED: False}
@@ -135,6 +141,13 @@ class SampleSynchronizer:
         """Change the pairing tolerance and the staleness limit; queued messages are kept."""
         self.tolerance_ns = int(round(sync_tolerance_s * 1e9))
         self.staleness_ns = int(round(staleness_s * 1e9))
+        self._set_hold()
+
+    def _set_hold(self) -> None:
+        """How long a motor message waits for its partner: ``staleness_s``, or over a lossless
+        arrival delivery at least :data:`LOSSLESS_HOLD_S`."""
+        hold = max(self.staleness_ns, int(LOSSLESS_HOLD_S * 1e9)) if self.arrival and self.lossless else 0
+        self.hold_ns = max(self.staleness_ns, hold)
 
     def _set_active(self, channel: str, active: bool) -> None:
         self.active[channel] = active
@@ -171,13 +184,13 @@ class SampleSynchronizer:
                 head = (qt or qs)[0][0]
             else:
                 return ()
-            if self.latest_ns - head <= self.staleness_ns:
+            if self.latest_ns - head <= self.hold_ns:
                 return ()
         return self._drain()
 
     def flush(self) -> list[SyncedSample]:
         """At the end of a log: emit what can still be paired, count the rest as unpaired."""
-        self.latest_ns += 2 * max(self.tolerance_ns, self.staleness_ns) + 1
+        self.latest_ns += 2 * max(self.tolerance_ns, self.hold_ns) + 1
         out = self._drain()
         for ch in _REQUIRED:
             self.counts["unpaired"] += len(self.queues[ch])
@@ -351,8 +364,18 @@ class SampleSynchronizer:
         period.  Messages of one sample arrive together (mean offset ~0); a pairing one sample off
         has a mean offset of a whole period.  A spread of the means beyond ``SKEW_LIMIT`` x the
         period drops the heads of the channels that lag the most advanced one; channels published
-        at independent phases settle at an offset within ±0.25 periods after one such drop.
+        at independent phases settle at an offset within ±0.25 periods after one such drop.  A
+        pair whose late messages came in a burst (each within ``SKEW_MIN_PERIOD_NS`` of its
+        channel's previous one) while the earlier ones did not -- one topic's delivery held up and
+        released while the others kept coming -- carries no timing and is not observed.
         """
+        prev, self._skew_last = self._skew_last, times
+        if len(prev) == len(times):
+            burst = [0 <= t - p < SKEW_MIN_PERIOD_NS for t, p in zip(times, prev)]
+            if any(burst) and not all(burst) and (min(t for t, b in zip(times, burst) if b)
+                                                  > max(t for t, b in zip(times, burst) if not b)):
+                self._last_pair_ns = times[0]
+                return False
         t0 = times[0]
         last, self._last_pair_ns = self._last_pair_ns, t0
         period = self._period_ns
@@ -378,12 +401,13 @@ class SampleSynchronizer:
                 self.queues[ch].popleft()
                 if ch in _REQUIRED:
                     self.counts["unpaired"] += 1
-        self._skew_chans = ()  # observe the new pairing afresh
+        self._skew_chans, self._skew_last = (), []  # observe the new pairing afresh
         return True
 
     def _expire_required(self) -> None:
-        """Drop motor messages whose partner has not come within the staleness limit."""
-        limit = self.latest_ns - self.staleness_ns
+        """Drop motor messages whose partner has not come within the staleness limit (the
+        longer hold of a lossless delivery)."""
+        limit = self.latest_ns - self.hold_ns
         for ch in _REQUIRED:
             qq = self.queues[ch]
             while qq and qq[0][0] < limit:

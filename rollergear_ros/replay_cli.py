@@ -51,14 +51,22 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_channels_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--channels", metavar="MAP.yaml",
+                   help="channel map for CSV, Parquet, MDF4 or TDMS inputs (format in docs/interface.md)")
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
+    from .importer import as_mcap
     from .replay import replay
 
     refuse_overwriting_inputs([args.bag, args.params], {"--out": args.out, "--rrd": args.rrd})
     config = config_from_args(args)
-    summary, _ = replay(args.bag, config, topics_from_args(args), args.out, args.rrd,
-                        show_progress=None if not args.no_progress else False,
-                        warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr))
+    topics = topics_from_args(args)
+    with as_mcap([args.bag], args.channels, topics, note=lambda m: print(m, file=sys.stderr)) as (bag,):
+        summary, _ = replay(bag, config, topics, args.out, args.rrd,
+                            show_progress=None if not args.no_progress else False,
+                            warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr))
     print(summary.text())
     for label, path in (("estimates", args.out), ("rerun recording", args.rrd)):
         if path:
@@ -97,13 +105,35 @@ def register_simulate(sub, with_params) -> None:
 
 
 def register_replay(sub, with_params) -> None:
-    p = with_params(sub.add_parser("replay", help="replay a recorded bag through the estimator"))
-    p.add_argument("bag", metavar="BAG")
+    p = with_params(sub.add_parser("replay", help="replay a recording through the estimator"))
+    p.add_argument("bag", metavar="BAG", help="MCAP, rosbag2 folder or .db3, or CSV/Parquet/MDF4/TDMS with --channels")
     p.add_argument("--out", metavar="OUT.mcap", help="output MCAP (inputs + estimates)")
     p.add_argument("--rrd", metavar="OUT.rrd", help="rerun recording with a review blueprint")
     p.add_argument("--no-progress", action="store_true")
+    add_channels_option(p)
     add_topic_options(p)
     p.set_defaults(func=cmd_replay)
 
 
-REGISTER = [register_simulate, register_replay]
+def cmd_import(args: argparse.Namespace) -> int:
+    from .importer import import_source
+
+    refuse_overwriting_inputs([args.source, args.channels], {"--out": args.out})
+    summary = import_source(args.source, args.out, args.channels, topics_from_args(args))
+    print(summary.text())
+    return 0
+
+
+def register_import(sub, with_params) -> None:
+    p = sub.add_parser("import", help="convert a rosbag2 bag or a CSV/Parquet/MDF4/TDMS file to a ROS 2 MCAP",
+                       description="Convert a recording to a ROS 2 MCAP with the interface's topics, for play, the "
+                       "node and anything that reads MCAP. Example: rollergear import rig.mf4 --channels rig.yaml "
+                       "--out rig.mcap")
+    p.add_argument("source", metavar="SRC", help="rosbag2 folder, metadata.yaml or .db3; or CSV/Parquet/MDF4/TDMS")
+    p.add_argument("--out", required=True, metavar="OUT.mcap")
+    add_channels_option(p)
+    add_topic_options(p)
+    p.set_defaults(func=cmd_import)
+
+
+REGISTER = [register_simulate, register_replay, register_import]

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from .bag import TopicMap
+from .channelmap import ChannelMap
 from .errors import BagError
 from .model import LossModel
 from .params import Config, validate
@@ -66,12 +67,14 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
                       model.fr_part(cols[2], cols[3]), skipped)
 
 
-def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[str], None] | None = None) -> SampleData:
+def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[str], None] | None = None,
+                  cmap: ChannelMap | None = None) -> SampleData:
     """Steady-state tables as samples: one per row, its measured loss the table's (a dwell mean).
 
     Rows outside the estimator's plausible range (``estimator.max_abs_*``) are skipped and
     counted, as the estimator skips such samples; the model is the paper's unless
-    ``estimator.paper_model`` switches it off.
+    ``estimator.paper_model`` switches it off.  Each file, and each value of the map's group
+    column, is a gearbox state of its own (``bag_id``).
     """
     from .tables import read_table
 
@@ -79,8 +82,11 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     est = config.estimator
     parts = []
     implausible = 0
+    states: dict[tuple[int, str], int] = {}
     for i, path in enumerate(paths):
-        table = read_table(path)
+        table = read_table(path, cmap, config.gearbox.ratio_effective)
+        if table.dropped and warn:
+            warn(f"{path}: {table.dropped} rows without a finite torque, speed or loss: skipped")
         keep = ((np.abs(table.torque_nm) <= est.max_abs_torque_nm)
                 & (np.abs(table.speed_rad_s) <= est.max_abs_speed_rad_s))
         if not keep.all():
@@ -89,8 +95,10 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
                 warn(f"{path}: {np.count_nonzero(~keep)} of {len(keep)} rows beyond estimator.max_abs_torque_nm "
                      f"({est.max_abs_torque_nm:g} N·m) or max_abs_speed_rad_s: skipped (raise them in the "
                      "parameter file for this gearbox)")
+        group = table.group if table.group is not None else np.full(len(keep), "")
+        state = np.array([states.setdefault((i, g), len(states)) for g in group[keep]], dtype=np.int64)
         parts.append((table.speed_rad_s[keep], table.torque_nm[keep], table.loss_nm[keep], table.temperature_c[keep],
-                      np.full(int(keep.sum()), i)))
+                      state))
     speed, torque, loss, temperature, bag_id = (np.concatenate([p[j] for p in parts]) for j in range(5))
     if len(speed) == 0:
         raise BagError(f"no rows of {', '.join(map(str, paths))} within the estimator's plausible range")

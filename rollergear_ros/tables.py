@@ -1,6 +1,10 @@
 """Steady-state tables: one row per operating point, a dwell mean (no time series, no sensor noise).
 
-Today: VECTO transmission loss maps (``.vtlm``), read by VECTO's own rules
+Two kinds.  CSV or Parquet with a channel map of ``format: steady_state`` (:mod:`.channelmap`):
+the measured loss from a ``loss_torque`` column, or from ``output_torque`` (with ``output_speed``,
+or the map's ``ratio``, or the gearbox's) as ``(T_in·ω_in − T_out·ω_out)/|ω_in|``, or from
+``efficiency`` (``|T|(1 − η)`` driving, ``|T|(1/η − 1)`` regenerating); a ``group`` column keeps
+gearbox states apart.  And VECTO transmission loss maps (``.vtlm``), read by VECTO's own rules
 (``VectoCSVFile`` + ``TransmissionLossMapReader``): ``,`` delimiter, ``.`` decimal mark, lines
 starting with ``#`` are comments and a cell ends at ``#``; one header line whose ``[unit]`` parts
 name the units (rpm, Nm) -- a header of numbers means no header and the columns by position, as
@@ -18,8 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .channelmap import ChannelMap
 from .errors import InputFileError
-from .interface import RPM_PER_RAD_S
+from .interface import RPM_PER_RAD_S, Channel
 
 __all__ = ["SteadyStateTable", "is_table", "read_table", "read_vtlm"]
 
@@ -39,21 +44,65 @@ class SteadyStateTable:
     loss_nm: np.ndarray
     temperature_c: np.ndarray  #: NaN where the table has none
     line: np.ndarray  #: line number of each row in the file (for messages)
+    group: np.ndarray | None = None  #: gearbox state of each row (the map's group column)
+    dropped: int = 0  #: rows without a finite torque, speed or loss (e.g. a loss from output torque at standstill)
 
 
-def is_table(path: str | Path) -> bool:
-    """Whether ``path`` is read as a steady-state table (by its suffix)."""
-    return Path(path).suffix.lower() == ".vtlm"
+def is_table(path: str | Path, cmap: ChannelMap | None = None) -> bool:
+    """Whether ``path`` is read as a steady-state table: a ``.vtlm``, or any file with a
+    ``format: steady_state`` channel map."""
+    return Path(path).suffix.lower() == ".vtlm" or (cmap is not None and cmap.format == "steady_state")
 
 
-def read_table(path: str | Path) -> SteadyStateTable:
-    """Read a steady-state table (the format by its suffix)."""
+def read_table(path: str | Path, cmap: ChannelMap | None = None, ratio: float | None = None) -> SteadyStateTable:
+    """Read a steady-state table; ``ratio``: the gearbox's, when neither output speed nor the map gives one."""
     path = Path(path)
     if not path.exists():
         raise InputFileError(f"{path} does not exist")
     if path.suffix.lower() == ".vtlm":
         return read_vtlm(path)
-    raise InputFileError(f"{path}: not a steady-state table this package reads (.vtlm)")
+    if cmap is None or cmap.format != "steady_state":
+        raise InputFileError(f"{path}: a steady-state table is a .vtlm, or CSV/Parquet with a channel map of "
+                             "format: steady_state")
+    if path.suffix.lower() not in (".csv", ".parquet"):
+        raise InputFileError(f"{path}: steady-state tables are read from CSV or Parquet ({path.suffix!r})")
+    return _read_mapped(path, cmap, ratio)
+
+
+def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadyStateTable:
+    from .timeseries import arrow_table, numeric_column
+
+    table = arrow_table(path, cmap)
+    col = {name: spec.to_si(numeric_column(path, name, spec, table)) for name, spec in cmap.channels.items()}
+    torque, speed = col[Channel.MOTOR_TORQUE], col[Channel.MOTOR_SPEED]
+    if "loss_torque" in col:
+        loss = col["loss_torque"]
+    elif Channel.OUTPUT_TORQUE in col:
+        r = cmap.ratio or ratio
+        w_out = col.get(Channel.OUTPUT_SPEED, speed / r if r else np.full(len(speed), np.nan))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            loss = (torque * speed - col[Channel.OUTPUT_TORQUE] * w_out) / np.abs(speed)
+    else:
+        eta = col["efficiency"]
+        bad = ~((eta > 0) & (eta <= 1))
+        if bad.any():
+            raise InputFileError(f"{path}: data row {int(np.flatnonzero(bad)[0]) + 1}: efficiency "
+                                 f"{eta[bad][0]:.4g} is not in (0, 1] (after the map's unit)")
+        driving = torque * speed > 0
+        loss = np.where(driving, np.abs(torque) * (1 - eta), np.abs(torque) * (1 / eta - 1))
+    line = np.arange(len(torque), dtype=np.int64) + 2  # after a header line
+    ok = np.isfinite(torque) & np.isfinite(speed) & np.isfinite(loss)
+    if not ok.any():
+        raise InputFileError(f"{path}: no row with finite torque, speed and loss (a loss from output torque needs "
+                             "|speed| > 0)")
+    theta = col.get(Channel.OIL_TEMPERATURE, np.full(len(torque), np.nan))
+    group = None
+    if cmap.group is not None:
+        group = np.asarray(table.column(cmap.group).to_pylist(), dtype=object)[ok].astype(str)
+    if len(np.flatnonzero(ok)) < MIN_ROWS:
+        raise InputFileError(f"{path}: {int(ok.sum())} usable rows; a table needs at least {MIN_ROWS}")
+    return SteadyStateTable(path, speed[ok], torque[ok], loss[ok], theta[ok], line[ok], group,
+                            int(np.count_nonzero(~ok)))
 
 
 def _cells(line: str) -> list[str]:

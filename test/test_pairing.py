@@ -225,3 +225,28 @@ def test_pairing_tolerance_is_explicit_or_a_fraction_of_the_period():
     assert Estimator(load_config(), sample_period_s=0.005).sync.tolerance_ns == 2_000_000
     assert Estimator(load_config(), "arrival", 0.01).sync.tolerance_ns == 4_000_000
     assert Estimator(load_config(), "arrival", 0.001).sync.tolerance_ns == 2_000_000  # at least 2 ms
+
+
+@pytest.mark.parametrize("late", [TORQUE, SPEED])
+@pytest.mark.parametrize("held_ms", [20, 60, 150, 1000])
+def test_lossless_arrival_pairing_waits_for_a_topic_whose_delivery_was_held_up(late, held_ms):
+    """Over a reliable, keep-all delivery one topic's messages are held up (a busy machine; a
+    repair of the reliable protocol) for ``held_ms`` and then arrive in one burst while the other
+    topic kept coming: nothing is lost, so nothing is dropped and every sample is paired with its
+    own partner (the skew detector does not mistake the burst for a skew, the motor messages wait
+    longer than ``staleness_s``)."""
+    sync = SampleSynchronizer(0.0004, 0.1, arrival=True, lossless=True)
+    other = SPEED if late == TORQUE else TORQUE
+    events = []
+    for k in range(3000):
+        t = 10**9 + k * MS
+        events.append((t, other, k))
+        released = 10**9 + (500 + held_ms) * MS if 500 <= k < 500 + held_ms else t
+        events.append((released + 1_000, late, k))
+    events.sort(key=lambda e: e[0])
+    out = []
+    for t, channel, k in events:
+        out += sync.push(channel, t, float(k))
+    out += sync.flush()
+    assert sync.counts["unpaired"] == 0 and len(out) == 3000
+    assert _skewed(out) == []

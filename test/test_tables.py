@@ -132,3 +132,40 @@ def test_an_undeclared_effect_in_a_table_from_the_full_model_is_found(tmp_path, 
     params = result["effects"][0]["params"]
     assert params["c"] == pytest.approx(3e-4, rel=0.02) and params["p"] == pytest.approx(1.4, abs=0.02)
     assert result["adequacy"]["paper_model"] is True
+
+
+def test_a_steady_state_csv_with_efficiency_in_percent_and_two_gears(tmp_path, config):
+    """A supplier's table: operating points with an efficiency column in %, speeds in rpm, torque in
+    kN·m, two gears in a group column; made by the whole model plus a constant drag of 0.3 N·m
+    (written with pyarrow).  calibrate finds the drag and nothing else."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    from rollergear_ros.model import evaluate_reference
+
+    rows = {"gear": [], "n_rpm": [], "T_knm": [], "eta_pct": []}
+    for gear in ("1", "2"):
+        for n in np.arange(200, 3001, 200.0):
+            for t in np.concatenate([np.arange(-100, 0, 10.0), np.arange(10, 101, 10.0)]):
+                w = n * 2 * np.pi / 60
+                loss = abs(evaluate_reference(config.gearbox, t, w)["T_loss"]) + 0.3
+                eta = (abs(t) - loss) / abs(t) if t > 0 else abs(t) / (abs(t) + loss)
+                rows["gear"].append(gear)
+                rows["n_rpm"].append(n)
+                rows["T_knm"].append(t / 1e3)
+                rows["eta_pct"].append(100 * eta)
+    pacsv.write_csv(pa.table(rows), tmp_path / "supplier.csv")
+    cmap = tmp_path / "supplier.yaml"
+    cmap.write_text("format: steady_state\nmotor_torque: {column: T_knm, unit: kN*m}\n"
+                    "motor_speed: {column: n_rpm, unit: rpm}\nefficiency: {column: eta_pct, unit: '%'}\n"
+                    "group: {column: gear}\n")
+    result = json.loads(run_cli("calibrate", str(tmp_path / "supplier.csv"), "--channels", str(cmap),
+                                "--json").stdout)
+    assert result["verdict"] == "effects_found"
+    assert [e["name"] for e in result["effects"]] == ["drag_constant"]
+    assert result["effects"][0]["params"]["c"] == pytest.approx(0.3, rel=0.01)
+    assert result["samples"] == len(rows["gear"])
+    # an efficiency outside (0, 1] after the unit is refused with the row
+    cmap.write_text(cmap.read_text().replace("unit: '%'", "unit: '1'"))
+    proc = run_cli("calibrate", str(tmp_path / "supplier.csv"), "--channels", str(cmap), check=False)
+    assert proc.returncode == 2 and "data row 1: efficiency" in proc.stderr

@@ -1,0 +1,163 @@
+"""Channel maps: which column of a non-ROS file is which input, in which unit (``interface.md``).
+
+A channel map is a YAML file given as ``--channels MAP.yaml``::
+
+    format: timeseries            # timeseries | steady_state
+    time: {column: t, unit: s}    # s | ms | us | ns | datetime (ISO 8601 strings)
+    motor_torque: {column: T_in, unit: N*m}
+    motor_speed: {column: n_in, unit: rpm}
+    output_torque: {column: T_out, unit: N*m, scale: -1}
+    oil_temperature: {column: T_oil, unit: degC}
+    ratio: 5.875
+    group: {column: gear}
+
+Values are converted to SI as ``value_SI = (value·factor + offset)·scale`` (the offset only for
+temperatures).  Everything wrong in a map is one :class:`~.errors.InputFileError` line naming the
+map, the key and what is wrong.  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from .errors import InputFileError
+from .interface import Channel
+
+__all__ = ["ChannelMap", "ChannelSpec", "UNITS", "load_channel_map", "unit_matches"]
+
+_TORQUE = {"N*m": (1.0, 0.0), "N*mm": (1e-3, 0.0), "kN*m": (1e3, 0.0), "lbf*ft": (1.3558179483314004, 0.0)}
+_SPEED = {"rad/s": (1.0, 0.0), "rpm": (2.0 * math.pi / 60.0, 0.0), "rev/s": (2.0 * math.pi, 0.0),
+          "deg/s": (math.pi / 180.0, 0.0)}
+_TEMPERATURE = {"degC": (1.0, 0.0), "K": (1.0, -273.15), "degF": (5.0 / 9.0, -32.0 * 5.0 / 9.0)}
+#: channel -> unit -> (factor, offset) to SI (N·m, rad/s, °C, 1, ns)
+UNITS: dict[str, dict[str, tuple[float, float]]] = {
+    Channel.MOTOR_TORQUE: _TORQUE, Channel.OUTPUT_TORQUE: _TORQUE, "loss_torque": _TORQUE,
+    Channel.MOTOR_SPEED: _SPEED, Channel.OUTPUT_SPEED: _SPEED,
+    Channel.OIL_TEMPERATURE: _TEMPERATURE,
+    "efficiency": {"%": (0.01, 0.0), "1": (1.0, 0.0)},
+    "time": {"s": (1e9, 0.0), "ms": (1e6, 0.0), "us": (1e3, 0.0), "ns": (1.0, 0.0), "datetime": (1.0, 0.0)},
+}
+#: other spellings of the units, as files write them
+_ALIASES = {"nm": "N*m", "n·m": "N*m", "n.m": "N*m", "n m": "N*m", "nmm": "N*mm", "n·mm": "N*mm", "knm": "kN*m",
+            "kn·m": "kN*m", "lbf·ft": "lbf*ft", "ft*lbf": "lbf*ft", "lb-ft": "lbf*ft", "1/min": "rpm", "min-1": "rpm",
+            "rad/sec": "rad/s", "°c": "degC", "c": "degC", "degc": "degC", "celsius": "degC", "k": "K",
+            "°f": "degF", "degf": "degF", "sec": "s", "µs": "us", "-": "1", "percent": "%"}
+STEADY_LOSS_CHANNELS = ("loss_torque", Channel.OUTPUT_TORQUE, "efficiency")
+FORMATS = ("timeseries", "steady_state")
+
+
+def _canonical(unit: str) -> str:
+    u = str(unit).strip()
+    return _ALIASES.get(u.lower(), u)
+
+
+def unit_matches(channel: str, file_unit: str | None, map_unit: str) -> bool:
+    """Whether a unit a file's metadata states agrees with the map's (empty: nothing stated)."""
+    if not file_unit or not str(file_unit).strip():
+        return True
+    canonical = _canonical(file_unit)
+    return canonical == map_unit or UNITS.get(channel, {}).get(canonical) == UNITS[channel][map_unit]
+
+
+@dataclass(frozen=True)
+class ChannelSpec:
+    """One channel: its column (or ``group/channel`` in TDMS), unit and scale."""
+
+    channel: str
+    column: str
+    unit: str
+    scale: float = 1.0
+
+    def to_si(self, values: np.ndarray) -> np.ndarray:
+        factor, offset = UNITS[self.channel][self.unit]
+        return (np.asarray(values, dtype=np.float64) * factor + offset) * self.scale
+
+
+@dataclass(frozen=True)
+class ChannelMap:
+    """A validated channel map."""
+
+    path: Path
+    format: str
+    channels: dict[str, ChannelSpec]  #: channel -> spec (only those the file has)
+    time: ChannelSpec | None = None
+    ratio: float | None = None
+    group: str | None = None  #: column whose value tells gearbox states apart
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def columns(self) -> list[str]:
+        """Every column the map reads."""
+        cols = [s.column for s in self.channels.values()]
+        if self.time is not None and self.time.column not in cols:
+            cols.insert(0, self.time.column)
+        if self.group is not None:
+            cols.append(self.group)
+        return cols
+
+
+def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
+    if not isinstance(value, dict) or "column" not in value:
+        raise InputFileError(f"{path}: {key}: expected {{column: NAME, unit: UNIT}}, got {value!r}")
+    unknown = set(value) - {"column", "unit", "scale"}
+    if unknown:
+        raise InputFileError(f"{path}: {key}: unknown key(s) {', '.join(sorted(unknown))} (column, unit, scale)")
+    allowed = UNITS[key]
+    if "unit" not in value:
+        raise InputFileError(f"{path}: {key}: no unit (one of {', '.join(allowed)})")
+    unit = _canonical(value["unit"])
+    if unit not in allowed:
+        raise InputFileError(f"{path}: {key}: unknown unit {value['unit']!r} (one of {', '.join(allowed)})")
+    scale = value.get("scale", 1.0)
+    if isinstance(scale, bool) or not isinstance(scale, int | float) or not math.isfinite(scale) or scale == 0:
+        raise InputFileError(f"{path}: {key}: scale must be a finite non-zero number, got {scale!r}")
+    return ChannelSpec(key, str(value["column"]), unit, float(scale))
+
+
+def load_channel_map(path: str | Path) -> ChannelMap:
+    """Read and validate a channel map (see the module docstring)."""
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(f"channel map {path} does not exist")
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        raise InputFileError(f"{path}: {where}not valid YAML ({getattr(exc, 'problem', exc)})") from None
+    if not isinstance(doc, dict):
+        raise InputFileError(f"{path}: a channel map is a YAML mapping (format, time, motor_torque, …)")
+    known = set(UNITS) | {"format", "ratio", "group"}
+    unknown = sorted(set(doc) - known)
+    if unknown:
+        raise InputFileError(f"{path}: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+    fmt = doc.get("format", "timeseries")
+    if fmt not in FORMATS:
+        raise InputFileError(f"{path}: format: {fmt!r} is not one of {', '.join(FORMATS)}")
+    channels = {k: _spec(path, k, v) for k, v in doc.items() if k in UNITS and k != "time"}
+    for needed in (Channel.MOTOR_TORQUE, Channel.MOTOR_SPEED):
+        if needed not in channels:
+            raise InputFileError(f"{path}: no {needed} channel (every file needs motor_torque and motor_speed)")
+    time = _spec(path, "time", doc["time"]) if "time" in doc else None
+    if fmt == "timeseries":
+        if time is None:
+            raise InputFileError(f"{path}: a timeseries map needs time: {{column: …, unit: s|ms|us|ns|datetime}}")
+        steady_only = [k for k in ("loss_torque", "efficiency") if k in channels]
+        if steady_only:
+            raise InputFileError(f"{path}: {', '.join(steady_only)} belong to format: steady_state")
+    elif not any(k in channels for k in STEADY_LOSS_CHANNELS):
+        raise InputFileError(f"{path}: a steady_state map needs loss_torque, output_torque or efficiency")
+    ratio = doc.get("ratio")
+    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float) or not ratio > 0):
+        raise InputFileError(f"{path}: ratio must be a number > 0, got {ratio!r}")
+    group = doc.get("group")
+    if group is not None:
+        if not isinstance(group, dict) or set(group) != {"column"}:
+            raise InputFileError(f"{path}: group: expected {{column: NAME}}, got {group!r}")
+        group = str(group["column"])
+    return ChannelMap(path, fmt, channels, time, None if ratio is None else float(ratio), group)

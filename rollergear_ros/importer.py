@@ -1,0 +1,189 @@
+"""Data in: any supported source -> one ROS 2 MCAP with the interface's topics.
+
+``rollergear import SRC --out OUT.mcap`` and, behind it, every command that reads recordings
+(``replay``, ``calibrate``): a source that is not already an MCAP bag is converted first, so
+that one reader (:mod:`.bag`) and one estimator see everything.  Sources, by what ``SRC`` is:
+
+* a ROS 2 MCAP file: used as it is;
+* a rosbag2 folder (``metadata.yaml``; MCAP or SQLite ``.db3`` storage, split into several
+  files or not), a folder of split ``.mcap`` files without metadata, or a single ``.db3``:
+  read with ``rosbags``; the input topics are copied message by message (raw CDR, untouched);
+* CSV, Parquet, MDF4 or TDMS with a channel map (:mod:`.channelmap`, :mod:`.timeseries`):
+  the channels in SI on the motor torque's time base, Float64 topics plus
+  ``sensor_msgs/Temperature`` for the oil; the resampling rule and the source go into the
+  ``rollergear_import`` metadata record.
+
+No rclpy import.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .bag import MSG_DEFINITIONS, BagWriter, TopicMap, float64_payloads, stamp
+from .channelmap import load_channel_map
+from .errors import InputFileError, UsageError
+from .interface import Channel, MessageType
+from .timeseries import TIMESERIES_SUFFIXES, align, read_series
+
+__all__ = ["ImportSummary", "as_mcap", "import_source", "is_mcap", "source_kind"]
+
+IMPORT_METADATA = "rollergear_import"
+RESAMPLING_RULE = ("paired channels on the motor torque's time stamps: taken as they are where they coincide, "
+                   "else linear interpolation between the two neighbouring samples (no extrapolation: NaN "
+                   "outside a channel's span); oil temperature at its own time stamps, at most 10 Hz")
+
+
+@dataclass
+class ImportSummary:
+    """What an import wrote."""
+
+    source: Path
+    kind: str  #: MCAP | rosbag2 | CSV | Parquet | MDF4 | TDMS
+    out: Path
+    messages: int
+    samples: int  #: motor torque messages
+    resampled: list[str] = field(default_factory=list)
+    topics: dict[str, int] = field(default_factory=dict)  #: topic -> messages copied (rosbag2)
+
+    def text(self) -> str:
+        how = f"; resampled onto the motor torque's time base: {', '.join(self.resampled)}" if self.resampled else ""
+        return (f"imported {self.source} ({self.kind}): {self.samples:,} samples, {self.messages:,} messages "
+                f"-> {self.out}{how}")
+
+
+def is_mcap(path: str | Path) -> bool:
+    p = Path(path)
+    return p.is_file() and p.suffix.lower() == ".mcap"
+
+
+def source_kind(path: str | Path) -> str:
+    """MCAP | rosbag2 | CSV | Parquet | MDF4 | TDMS, by what ``path`` is."""
+    p = Path(path)
+    if not p.exists():
+        raise InputFileError(f"{p} does not exist")
+    if p.is_dir() or p.name == "metadata.yaml" or p.suffix.lower() == ".db3":
+        return "rosbag2"
+    if p.suffix.lower() == ".mcap":
+        return "MCAP"
+    kind = TIMESERIES_SUFFIXES.get(p.suffix.lower())
+    if kind is None:
+        raise InputFileError(f"{p}: not a recording this package reads (MCAP, a rosbag2 folder or .db3, "
+                             f"or {', '.join(sorted(TIMESERIES_SUFFIXES))} with --channels MAP.yaml)")
+    return kind
+
+
+def import_source(src: str | Path, out: str | Path, channels: str | Path | None = None,
+                  topics: TopicMap = TopicMap()) -> ImportSummary:
+    """Convert ``src`` to the MCAP ``out`` (see the module docstring)."""
+    src, out = Path(src), Path(out)
+    kind = source_kind(src)
+    if kind == "MCAP":
+        raise UsageError(f"{src} is already an MCAP recording: replay, calibrate and play read it directly")
+    if kind == "rosbag2":
+        return _import_rosbag2(src, out, topics)
+    if channels is None:
+        raise UsageError(f"{src}: a {kind} file needs a channel map (--channels MAP.yaml, see docs/interface.md)")
+    return _import_timeseries(src, kind, out, channels, topics)
+
+
+# ------------------------------------------------------------------------------------ rosbag2
+def _rosbag2_paths(src: Path) -> list[Path]:
+    """What rosbags' AnyReader opens: the bag folder, or each file of a split bag without metadata."""
+    if src.name == "metadata.yaml":
+        return [src.parent]
+    if src.is_dir() and not (src / "metadata.yaml").exists():
+        files = sorted(src.glob("*.mcap")) or sorted(src.glob("*.db3"))
+        if not files:
+            raise InputFileError(f"{src}: a folder without metadata.yaml and without .mcap/.db3 files")
+        return files
+    return [src]
+
+
+def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2.errors import ReaderError as Rosbag2Error
+
+    wanted = {topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed,
+              topics.oil_temperature, topics.joint_states}
+    counts: dict[str, int] = {}
+    try:
+        with AnyReader(_rosbag2_paths(src)) as reader:
+            connections = [c for c in reader.connections if c.topic in wanted]
+            if not any(c.topic in (topics.motor_torque, topics.joint_states) for c in connections):
+                found = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
+                raise InputFileError(f"{src}: no input topics {topics.motor_torque} or {topics.joint_states} "
+                                     f"(topics: {found})")
+            with BagWriter(out) as bw:
+                bw.add_metadata(IMPORT_METADATA, {"source": str(src), "kind": "rosbag2"})
+                for con, t_ns, raw in reader.messages(connections=connections):
+                    if con.msgtype not in MSG_DEFINITIONS:
+                        raise InputFileError(f"{src}: {con.topic} is {con.msgtype}, not an input type "
+                                             f"({', '.join(sorted(MSG_DEFINITIONS))})")
+                    bw.write_raw(con.topic, con.msgtype, t_ns, bytes(raw))
+                    counts[con.topic] = counts.get(con.topic, 0) + 1
+    except (Rosbag2Error, FileNotFoundError, ValueError) as exc:
+        raise InputFileError(f"{src}: not a rosbag2 bag rosbags can read ({exc})") from None
+    samples = counts.get(topics.motor_torque, counts.get(topics.joint_states, 0))
+    return ImportSummary(src, "rosbag2", out, sum(counts.values()), samples, topics=counts)
+
+
+# ------------------------------------------------------------------------------------ time series
+def _import_timeseries(src: Path, kind: str, out: Path, channels: str | Path, topics: TopicMap) -> ImportSummary:
+    cmap = load_channel_map(channels)
+    aligned = align(read_series(src, cmap))
+    names = [c for c in Channel.PAIRED if c in aligned.values]
+    topic_of = topics.float64_inputs()
+    n, k = len(aligned.t_ns), len(names)
+    # channels interleaved sample by sample, as a recorder stores them
+    payloads = float64_payloads(np.stack([aligned.values[c] for c in names], axis=1).ravel())
+    which = np.tile(np.arange(k), n)
+    t_ns = np.repeat(aligned.t_ns, k)
+    float_topics = [(topic_of[c], MessageType.FLOAT64, None) for c in names]
+    temp = aligned.temperature
+    with BagWriter(out) as bw:
+        bw.add_metadata(IMPORT_METADATA, {
+            "source": str(src), "kind": kind, "channel_map": Path(channels).read_text(encoding="utf-8"),
+            "resampling": RESAMPLING_RULE, "resampled": json.dumps(aligned.resampled)})
+        # in log-time order across topics: each temperature before the samples at and after its time
+        done = 0
+        for t, v in zip(*(([], []) if temp is None else (temp.t_ns.tolist(), temp.values.tolist()))):
+            upto = int(np.searchsorted(t_ns, t, side="left"))
+            if upto > done:
+                bw.write_fixed_mixed(float_topics, which[done:upto], t_ns[done:upto], payloads[done:upto])
+                done = upto
+            bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, t,
+                             {"header": {"stamp": stamp(t), "frame_id": "oil"}, "temperature": v, "variance": 0.0})
+        if len(t_ns) > done:
+            bw.write_fixed_mixed(float_topics, which[done:], t_ns[done:], payloads[done:])
+    written = n * k + (0 if temp is None else len(temp.t_ns))
+    return ImportSummary(src, kind, out, written, n, aligned.resampled)
+
+
+@contextmanager
+def as_mcap(sources: Sequence[str | Path], channels: str | Path | None = None,
+            topics: TopicMap = TopicMap(), note: Callable[[str], None] | None = None) -> Iterator[list[Path]]:
+    """MCAP paths for ``sources``: MCAP files as they are, the others imported into a temporary
+    folder that is removed afterwards (``note`` is told about each import)."""
+    kinds = [source_kind(s) for s in sources]
+    if all(k == "MCAP" for k in kinds):
+        yield [Path(s) for s in sources]
+        return
+    with tempfile.TemporaryDirectory(prefix="rollergear_import_") as tmp:
+        paths = []
+        for i, (src, kind) in enumerate(zip(sources, kinds)):
+            if kind == "MCAP":
+                paths.append(Path(src))
+                continue
+            summary = import_source(src, Path(tmp) / f"{i}_{Path(src).stem}.mcap", channels, topics)
+            if note:
+                note(summary.text())
+            paths.append(summary.out)
+        yield paths

@@ -1,0 +1,266 @@
+"""Time series from non-ROS files -- CSV, Parquet, ASAM MDF4, NI TDMS -- through a channel map.
+
+One reader per format behind :func:`read_series` (the format by the file's suffix), each with the
+format's own library: ``pyarrow`` (CSV, Parquet), ``asammdf`` (MDF4), ``nptdms`` (TDMS).  Every
+channel comes back in SI units with its own time base; :func:`align` puts them on the motor
+torque's time base by the offline rule:
+
+* a channel whose samples fall on the motor torque's time stamps is taken as it is;
+* any other (a 100 Hz speed beside a 1 kHz torque, a CSV whose slower columns have empty cells)
+  is **linearly interpolated between its two neighbouring samples** -- one sample of look-ahead,
+  which offline replay can afford; nothing is extrapolated: before a channel's first and after its
+  last sample it is NaN (such samples are skipped and counted by the estimator);
+* the oil temperature keeps its own time stamps (at most 10 per second); the estimator holds it
+  (zero-order, up to 5 s), as the live node does -- which never looks ahead.
+
+A missing column, a unit the file's metadata contradicts, or a time that runs backwards is one
+:class:`~.errors.InputFileError` line naming the file and the channel.  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .channelmap import ChannelMap, ChannelSpec, unit_matches
+from .errors import InputFileError
+from .interface import Channel
+
+__all__ = ["Aligned", "Series", "TIMESERIES_SUFFIXES", "align", "arrow_table", "numeric_column", "read_series"]
+
+TIMESERIES_SUFFIXES = {".csv": "CSV", ".parquet": "Parquet", ".mf4": "MDF4", ".mdf": "MDF4", ".tdms": "TDMS"}
+TEMPERATURE_MAX_RATE_HZ = 10.0
+
+
+@dataclass
+class Series:
+    """One channel's samples in SI units on its own time base (int64 ns, non-decreasing)."""
+
+    t_ns: np.ndarray
+    values: np.ndarray
+
+
+@dataclass
+class Aligned:
+    """The paired channels on the motor torque's time base, and the oil temperature on its own."""
+
+    t_ns: np.ndarray
+    values: dict[str, np.ndarray]  #: paired channel -> values at ``t_ns`` (NaN: no sample there)
+    temperature: Series | None
+    resampled: list[str]  #: channels that were interpolated (for the import's metadata)
+
+
+def read_series(path: str | Path, cmap: ChannelMap) -> dict[str, Series]:
+    """Every channel of the map from ``path``, in SI, each on its own time base."""
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(f"{path} does not exist")
+    kind = TIMESERIES_SUFFIXES.get(path.suffix.lower())
+    if kind is None:
+        raise InputFileError(f"{path}: unknown time-series format {path.suffix!r} "
+                             f"(one of {', '.join(sorted(TIMESERIES_SUFFIXES))})")
+    if cmap.format != "timeseries":
+        raise InputFileError(f"{path}: the channel map {cmap.path} is for format: {cmap.format}, not timeseries")
+    reader = {"CSV": _read_arrow, "Parquet": _read_arrow, "MDF4": _read_mdf4, "TDMS": _read_tdms}[kind]
+    series = reader(path, cmap)
+    for name, s in series.items():
+        back = np.flatnonzero(np.diff(s.t_ns) < 0)
+        if back.size:
+            raise InputFileError(f"{path}: {name} ({cmap.channels[name].column}): time runs backwards after "
+                                 f"sample {int(back[0])} (time must not decrease)")
+    return series
+
+
+# ------------------------------------------------------------------------------------ CSV / Parquet
+def _header(path: Path) -> list[str]:
+    with path.open(newline="", encoding="utf-8-sig") as fh:
+        return next(csv.reader(fh), [])
+
+
+def arrow_table(path: Path, cmap: ChannelMap):
+    """The map's columns of a CSV or Parquet file as a ``pyarrow.Table`` (a missing column: one line)."""
+    import pyarrow as pa
+
+    wanted = sorted(set(cmap.columns()))
+    if path.suffix.lower() == ".csv":
+        import pyarrow.csv as pacsv
+
+        _require(path, cmap, _header(path))
+        try:
+            return pacsv.read_csv(path, convert_options=pacsv.ConvertOptions(include_columns=wanted))
+        except pa.ArrowInvalid as exc:
+            raise InputFileError(f"{path}: {exc}") from None
+    import pyarrow.parquet as pq
+
+    try:
+        available = pq.read_schema(path).names
+    except pa.ArrowInvalid as exc:
+        raise InputFileError(f"{path}: not a Parquet file ({exc})") from None
+    _require(path, cmap, available)
+    return pq.read_table(path, columns=wanted)
+
+
+def numeric_column(path: Path, name: str, spec: ChannelSpec, table) -> np.ndarray:
+    """A numeric column as float64 (null -> NaN); anything else is one line naming the channel."""
+    import pyarrow as pa
+
+    col = table.column(spec.column)
+    if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type) or pa.types.is_null(col.type)):
+        raise InputFileError(f"{path}: {name} ({spec.column}): not numbers (column type {col.type})")
+    return col.to_numpy(zero_copy_only=False).astype(np.float64)
+
+
+def _read_arrow(path: Path, cmap: ChannelMap) -> dict[str, Series]:
+    table = arrow_table(path, cmap)
+    t_col = table.column(cmap.time.column)
+    t_valid = ~np.asarray(t_col.is_null())
+    t_ns = _time_ns(path, cmap.time, t_col)
+    back = np.flatnonzero(np.diff(t_ns[t_valid]) < 0)
+    if back.size:
+        raise InputFileError(f"{path}: time ({cmap.time.column}) runs backwards after data row {int(back[0]) + 1} "
+                             "(time must not decrease)")
+    out = {}
+    for name, spec in cmap.channels.items():
+        values = numeric_column(path, name, spec, table)
+        present = t_valid & ~np.asarray(table.column(spec.column).is_null())  # empty cell: no sample here
+        out[name] = Series(t_ns[present], spec.to_si(values[present]))
+    return out
+
+
+def _require(path: Path, cmap: ChannelMap, available: list[str]) -> None:
+    specs = [("time", cmap.time.column)] if cmap.time is not None else []
+    specs += [(name, spec.column) for name, spec in cmap.channels.items()]
+    specs += [("group", cmap.group)] if cmap.group is not None else []
+    for name, column in specs:
+        if column not in available:
+            raise InputFileError(f"{path}: no column {column!r} for {name} (the file has: "
+                                 f"{', '.join(available[:20])}{' …' if len(available) > 20 else ''})")
+
+
+def _time_ns(path: Path, spec: ChannelSpec, column) -> np.ndarray:
+    """A time column as int64 ns (numbers in the map's unit, or ISO 8601 date-times)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if spec.unit == "datetime":
+        if pa.types.is_string(column.type) or pa.types.is_large_string(column.type):
+            try:
+                column = pc.strptime(column, format="%Y-%m-%dT%H:%M:%S", unit="ns", error_is_null=False)
+            except pa.ArrowInvalid:
+                column = pc.cast(column, pa.timestamp("ns"))
+        if not pa.types.is_timestamp(column.type):
+            raise InputFileError(f"{path}: time ({spec.column}) is not ISO 8601 date-times (type {column.type})")
+        return pc.cast(pc.cast(column, pa.timestamp("ns")), pa.int64()).to_numpy(zero_copy_only=False)
+    if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
+        raise InputFileError(f"{path}: time ({spec.column}) is not numbers in {spec.unit} (type {column.type}); "
+                             "ISO 8601 date-times need unit: datetime")
+    values = column.to_numpy(zero_copy_only=False).astype(np.float64)
+    return np.round(spec.to_si(values)).astype(np.int64)
+
+
+# ------------------------------------------------------------------------------------ MDF4
+def _read_mdf4(path: Path, cmap: ChannelMap) -> dict[str, Series]:
+    from asammdf import MDF
+
+    try:
+        mdf = MDF(path)
+    except Exception as exc:  # noqa: BLE001 - asammdf raises many types for a file that is not MDF
+        raise InputFileError(f"{path}: not an MDF file asammdf can read ({exc})") from None
+    try:
+        names = set(mdf.channels_db)
+        out = {}
+        for name, spec in cmap.channels.items():
+            if spec.column not in names:
+                raise InputFileError(f"{path}: no channel {spec.column!r} for {name}")
+            signal = mdf.get(spec.column)
+            if not unit_matches(name, signal.unit, spec.unit):
+                raise InputFileError(f"{path}: {name} ({spec.column}) is in {signal.unit!r} by the file's metadata, "
+                                     f"the channel map says {spec.unit}")
+            t_ns = np.round(np.asarray(signal.timestamps, dtype=np.float64) * 1e9).astype(np.int64)
+            out[name] = Series(t_ns, spec.to_si(signal.samples))
+        return out
+    finally:
+        mdf.close()
+
+
+# ------------------------------------------------------------------------------------ TDMS
+def _read_tdms(path: Path, cmap: ChannelMap) -> dict[str, Series]:
+    from nptdms import TdmsFile
+
+    try:
+        tdms = TdmsFile.read(path)
+    except Exception as exc:  # noqa: BLE001 - nptdms raises many types for a file that is not TDMS
+        raise InputFileError(f"{path}: not a TDMS file nptdms can read ({exc})") from None
+
+    def channel(name: str, column: str):
+        group, _, chan = column.partition("/")
+        try:
+            return tdms[group][chan]
+        except KeyError:
+            raise InputFileError(f"{path}: no channel {column!r} for {name} "
+                                 "(TDMS channels are named group/channel)") from None
+
+    base = None
+    if cmap.time is not None and "/" in cmap.time.column:
+        base = np.round(cmap.time.to_si(channel("time", cmap.time.column)[:])).astype(np.int64)
+    out = {}
+    for name, spec in cmap.channels.items():
+        ch = channel(name, spec.column)
+        unit = ch.properties.get("unit_string")
+        if not unit_matches(name, unit, spec.unit):
+            raise InputFileError(f"{path}: {name} ({spec.column}) is in {unit!r} by the file's metadata, "
+                                 f"the channel map says {spec.unit}")
+        values = np.asarray(ch[:], dtype=np.float64)
+        if base is not None and len(base) == len(values):
+            t_ns = base
+        elif "wf_increment" in ch.properties:
+            t_ns = np.round(np.asarray(ch.time_track(), dtype=np.float64) * 1e9).astype(np.int64)
+        else:
+            raise InputFileError(f"{path}: {name} ({spec.column}) has no time: no wf_increment property and no "
+                                 "time channel (time: {column: group/channel}) of its length")
+        out[name] = Series(t_ns, spec.to_si(values))
+    return out
+
+
+# ------------------------------------------------------------------------------------ alignment
+def align(series: dict[str, Series]) -> Aligned:
+    """The paired channels on the motor torque's time base (see the module docstring)."""
+    base = series[Channel.MOTOR_TORQUE]
+    values = {Channel.MOTOR_TORQUE: base.values}
+    resampled = []
+    for name in Channel.PAIRED[1:]:
+        s = series.get(name)
+        if s is None:
+            continue
+        if len(s.t_ns) == len(base.t_ns) and np.array_equal(s.t_ns, base.t_ns):
+            values[name] = s.values
+            continue
+        resampled.append(name)
+        values[name] = _interpolate(s, base.t_ns)
+    temperature = series.get(Channel.OIL_TEMPERATURE)
+    if temperature is not None and len(temperature.t_ns) > 1:
+        keep = _decimate(temperature.t_ns, TEMPERATURE_MAX_RATE_HZ)
+        temperature = Series(temperature.t_ns[keep], temperature.values[keep])
+    return Aligned(base.t_ns, values, temperature, resampled)
+
+
+def _interpolate(s: Series, t_ns: np.ndarray) -> np.ndarray:
+    """Linear between neighbouring samples; NaN outside the channel's span (no extrapolation)."""
+    if len(s.t_ns) == 0:
+        return np.full(len(t_ns), np.nan)
+    t0 = s.t_ns[0]
+    x = (s.t_ns - t0).astype(np.float64)
+    xi = (t_ns - t0).astype(np.float64)
+    out = np.interp(xi, x, s.values)
+    out[(t_ns < s.t_ns[0]) | (t_ns > s.t_ns[-1])] = np.nan
+    return out
+
+
+def _decimate(t_ns: np.ndarray, max_rate_hz: float) -> np.ndarray:
+    """Indices of samples at least ``1/max_rate_hz`` apart (the first of each interval)."""
+    period = int(1e9 / max_rate_hz)
+    slot = (t_ns - t_ns[0]) // period
+    return np.flatnonzero(np.r_[True, slot[1:] != slot[:-1]])

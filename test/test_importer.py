@@ -1,0 +1,253 @@
+"""Data in: CSV, Parquet, MDF4 and TDMS (written by each format's own library) and rosbag2 bags
+(written by rosbags) -> import -> MCAP read back with mcap and with rosbags."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rollergear_ros.errors import InputFileError
+from rollergear_ros.importer import import_source
+
+from bagtools import float_series, read_mcap_ros2, read_rosbags
+from helpers import BAGS, REALDATA, run_cli
+
+RPM = 2 * np.pi / 60
+N = 3000  # 3 s at 1 kHz
+
+
+@pytest.fixture(scope="module")
+def signals():
+    """A rig's channels in SI (the truth) and the file units they are written in."""
+    t = np.arange(N) * 1e-3
+    torque = 40 + 20 * np.sin(2 * np.pi * 0.7 * t)  # N·m
+    speed = 150 + 30 * np.cos(2 * np.pi * 0.3 * t)  # rad/s
+    out_torque = -(torque - 0.3) * 1.368  # a reaction torque, sign flipped by the sensor mounting
+    out_speed = speed / 1.368
+    temperature = 40 + 5 * t  # °C
+    return {"t": t, "torque": torque, "speed": speed, "out_torque": out_torque, "out_speed": out_speed,
+            "temperature": temperature}
+
+
+def write_map(path, **extra):
+    lines = ["format: timeseries", "time: {column: t_ms, unit: ms}",
+             "motor_torque: {column: T_in, unit: N*mm}", "motor_speed: {column: n_in, unit: rpm}",
+             "output_torque: {column: T_out, unit: N*m, scale: -1}", "output_speed: {column: w_out, unit: rad/s}",
+             "oil_temperature: {column: T_oil, unit: degF}"]
+    lines += [f"{k}: {v}" for k, v in extra.items()]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def file_columns(s):
+    """The channels in the file's units (N·mm, rpm, °F, ms, output torque sign flipped)."""
+    return {"t_ms": s["t"] * 1e3, "T_in": s["torque"] * 1e3, "n_in": s["speed"] / RPM, "T_out": -s["out_torque"],
+            "w_out": s["out_speed"], "T_oil": s["temperature"] * 9 / 5 + 32}
+
+
+def check_round_trip(mcap_path, s, resampled_speed: bool = False):
+    """Both readers see the SI values at the torque's times."""
+    for messages in (read_mcap_ros2(mcap_path), read_rosbags(mcap_path)):
+        t, torque = float_series(messages, "/rollergear/motor/torque")
+        np.testing.assert_array_equal(t, np.round(s["t"] * 1e9).astype(np.int64))
+        np.testing.assert_allclose(torque, s["torque"], rtol=1e-12)
+        _, speed = float_series(messages, "/rollergear/motor/speed")
+        np.testing.assert_allclose(speed, s["speed"], rtol=1e-3 if resampled_speed else 1e-12)
+        _, out_torque = float_series(messages, "/rollergear/output/torque")
+        np.testing.assert_allclose(out_torque, s["out_torque"], rtol=1e-12)
+        _, out_speed = float_series(messages, "/rollergear/output/speed")
+        np.testing.assert_allclose(out_speed, s["out_speed"], rtol=1e-12)
+        tt, temps = messages["/rollergear/oil/temperature"]
+        theta = np.array([m.temperature for m in temps])
+        assert 29 <= len(theta) <= 31  # 3 s at 10 Hz
+        np.testing.assert_allclose(theta, 40 + 5 * tt * 1e-9, rtol=1e-9)
+
+
+def test_csv_round_trip(tmp_path, signals):
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    src = tmp_path / "rig.csv"
+    pacsv.write_csv(pa.table(file_columns(signals)), src)
+    summary = import_source(src, tmp_path / "rig.mcap", write_map(tmp_path / "map.yaml"))
+    assert summary.kind == "CSV" and summary.samples == N and summary.resampled == []
+    check_round_trip(tmp_path / "rig.mcap", signals)
+
+
+def test_parquet_round_trip(tmp_path, signals):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    src = tmp_path / "rig.parquet"
+    pq.write_table(pa.table(file_columns(signals)), src)
+    import_source(src, tmp_path / "rig.mcap", write_map(tmp_path / "map.yaml"))
+    check_round_trip(tmp_path / "rig.mcap", signals)
+
+
+def test_mdf4_with_channels_at_different_rates(tmp_path, signals):
+    """A 1 kHz torque beside a 100 Hz speed (CAN) and a 10 Hz temperature, each in its own group."""
+    from asammdf import MDF, Signal
+
+    s, cols = signals, file_columns(signals)
+    t = s["t"]
+    slow = slice(None, None, 10)
+    mdf = MDF(version="4.10")
+    mdf.append([Signal(cols["T_in"], t, name="T_in", unit="Nmm"), Signal(cols["T_out"], t, name="T_out", unit="Nm"),
+                Signal(cols["w_out"], t, name="w_out", unit="rad/s")])
+    mdf.append([Signal(cols["n_in"][slow], t[slow], name="n_in", unit="rpm")])
+    mdf.append([Signal(cols["T_oil"][::100], t[::100], name="T_oil", unit="°F")])
+    src = tmp_path / "rig.mf4"
+    mdf.save(src, overwrite=True)
+    summary = import_source(src, tmp_path / "rig.mcap", write_map(tmp_path / "map.yaml"))
+    assert summary.kind == "MDF4" and summary.resampled == ["motor_speed"]
+    messages = read_mcap_ros2(tmp_path / "rig.mcap")
+    _, speed = float_series(messages, "/rollergear/motor/speed")
+    # linear interpolation of the 100 Hz samples, NaN after the last one (no extrapolation)
+    last = t[slow][-1]
+    inside = t <= last + 1e-12
+    expect = np.interp(t[inside], t[slow], s["speed"][slow])
+    np.testing.assert_allclose(speed[inside], expect, rtol=1e-12)
+    assert np.isnan(speed[~inside]).all() and (~inside).sum() == 9
+    np.testing.assert_allclose(speed[inside], s["speed"][inside], rtol=1e-3)  # the cosine itself
+    # the unit in the file's metadata is checked against the map
+    bad = MDF(version="4.10")
+    bad.append([Signal(cols["T_in"], t, name="T_in", unit="Nmm"), Signal(cols["n_in"], t, name="n_in", unit="rad/s")])
+    bad.save(tmp_path / "bad.mf4", overwrite=True)
+    with pytest.raises(InputFileError, match=r"motor_speed \(n_in\) is in 'rad/s' by the file's metadata"):
+        import_source(tmp_path / "bad.mf4", tmp_path / "bad.mcap", tmp_path / "map.yaml")
+
+
+def test_tdms_round_trip(tmp_path, signals):
+    from nptdms import ChannelObject, TdmsWriter
+
+    cols = file_columns(signals)
+    units = {"T_in": "Nmm", "n_in": "rpm", "T_out": "Nm", "w_out": "rad/s", "T_oil": "degF"}
+    src = tmp_path / "rig.tdms"
+    with TdmsWriter(src) as writer:
+        writer.write_segment([ChannelObject("rig", name, cols[name],
+                                            properties={"unit_string": unit, "wf_increment": 1e-3,
+                                                        "wf_start_offset": 0.0}) for name, unit in units.items()])
+    cmap = tmp_path / "map.yaml"
+    cmap.write_text(write_map(tmp_path / "m0.yaml").read_text().replace("column: ", "column: rig/")
+                    .replace("{column: rig/t_ms, unit: ms}", "{column: t, unit: s}"))
+    summary = import_source(src, tmp_path / "rig.mcap", cmap)
+    assert summary.kind == "TDMS"
+    check_round_trip(tmp_path / "rig.mcap", signals)
+
+
+@pytest.mark.parametrize(("mutate", "message"), [
+    (lambda m: m.replace("unit: rpm", "unit: furlongs"), "unknown unit 'furlongs'"),
+    (lambda m: m.replace("column: n_in", "column: n_missing"), "no column 'n_missing' for motor_speed"),
+    (lambda m: m.replace("motor_speed: {column: n_in, unit: rpm}\n", ""), "no motor_speed channel"),
+    (lambda m: m.replace("format: timeseries", "format: sometimes"), "not one of timeseries, steady_state"),
+    (lambda m: m + "speed_of_light: 3\n", "unknown key(s) speed_of_light"),
+    (lambda m: m.replace("{column: T_oil, unit: degF}", "[T_oil]"), "expected {column: NAME, unit: UNIT}"),
+])
+def test_bad_channel_maps_are_one_line(tmp_path, signals, mutate, message):
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    src = tmp_path / "rig.csv"
+    pacsv.write_csv(pa.table(file_columns(signals)), src)
+    cmap = write_map(tmp_path / "map.yaml")
+    cmap.write_text(mutate(cmap.read_text()))
+    proc = run_cli("import", str(src), "--channels", str(cmap), "--out", str(tmp_path / "o.mcap"), check=False)
+    assert proc.returncode == 2 and message in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+    assert not (tmp_path / "o.mcap").exists()
+
+
+def test_time_that_runs_backwards_is_refused(tmp_path, signals):
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    cols = file_columns(signals)
+    cols["t_ms"] = cols["t_ms"].copy()
+    cols["t_ms"][100] = cols["t_ms"][50]
+    pacsv.write_csv(pa.table(cols), tmp_path / "rig.csv")
+    proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(write_map(tmp_path / "m.yaml")),
+                   "--out", str(tmp_path / "o.mcap"), check=False)
+    assert proc.returncode == 2 and "time (t_ms) runs backwards after data row 100" in proc.stderr
+
+
+def _rosbag2(tmp_path, storage: str):
+    """The bundled drag recording rewritten as a rosbag2 bag by rosbags' own writer."""
+    from mcap.reader import make_reader
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    out = tmp_path / f"bag_{storage}"
+    plugin = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}[storage]
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(out, version=8, storage_plugin=plugin) as writer, (BAGS / "rig_map_drag.mcap").open("rb") as fh:
+        conns = {}
+        for schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
+            if channel.topic not in conns:
+                conns[channel.topic] = writer.add_connection(channel.topic, schema.name, typestore=store)
+            writer.write(conns[channel.topic], message.log_time, message.data)
+    return out
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_rosbag2_replays_like_the_mcap_it_was_made_from(tmp_path, storage):
+    bag = _rosbag2(tmp_path, storage)
+    a = run_cli("calibrate", str(BAGS / "rig_map_drag.mcap"), "--json").stdout
+    b = run_cli("calibrate", str(bag), "--json").stdout
+    assert json.loads(a) == json.loads(b)
+    run_cli("import", str(bag), "--out", str(tmp_path / "imported.mcap"))
+    original, imported = read_mcap_ros2(BAGS / "rig_map_drag.mcap"), read_rosbags(tmp_path / "imported.mcap")
+    for topic in ("/rollergear/motor/torque", "/rollergear/output/torque"):
+        t0, v0 = float_series(original, topic)
+        t1, v1 = float_series(imported, topic)
+        np.testing.assert_array_equal(t0, t1)
+        np.testing.assert_array_equal(v0, v1)
+
+
+FIXTURES = REALDATA / "rosbag2_test_fixtures"
+
+
+@pytest.mark.skipif(not FIXTURES.exists(), reason=f"no shared real data at {FIXTURES}")
+@pytest.mark.parametrize(("bag", "topic"), [
+    ("rosbag2_py/test/resources/sqlite3/talker", "/topic (std_msgs/msg/String)"),
+    ("rosbag2_py/test/resources/sqlite3/talker/talker.db3", "/rosout (rcl_interfaces/msg/Log)"),
+    ("rosbag2_py/test/resources/mcap/talker/metadata.yaml", "/topic (std_msgs/msg/String)"),
+    ("rosbag2_py/test/resources/mcap/reindex_test_bags/multiple_files", "/chatter"),
+])
+def test_rosbag2_fixtures_without_input_topics_say_which_topics_they_have(bag, topic):
+    """ros2/rosbag2's own test bags (SQLite, MCAP, a split bag without metadata): read by both
+    storage plugins, and refused in one line naming the topics they do have."""
+    proc = run_cli("replay", str(FIXTURES / bag), check=False)
+    assert proc.returncode == 2 and "no input topics" in proc.stderr and topic in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+
+
+def test_calibrate_on_a_channel_mapped_csv_finds_what_the_mcap_gives(tmp_path):
+    """The bundled drag recording exported to a rig-DAQ style CSV (rpm, N·mm, seconds) is
+    calibrated through its channel map to the effect the MCAP gives."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    messages = read_mcap_ros2(BAGS / "rig_map_drag.mcap")
+    t, torque = float_series(messages, "/rollergear/motor/torque")
+    cols = {"time_s": (t - t[0]) * 1e-9, "torque_nmm": torque * 1e3}
+    for topic, name in (("/rollergear/motor/speed", "speed_rpm"), ("/rollergear/output/torque", "out_torque_nm"),
+                        ("/rollergear/output/speed", "out_speed_rpm")):
+        tt, v = float_series(messages, topic)
+        np.testing.assert_array_equal(tt, t)  # the recording logs the four channels at the same times
+        cols[name] = v / RPM if name.endswith("rpm") else v
+    pacsv.write_csv(pa.table(cols), tmp_path / "daq.csv")
+    cmap = tmp_path / "daq.yaml"
+    cmap.write_text("time: {column: time_s, unit: s}\nmotor_torque: {column: torque_nmm, unit: N*mm}\n"
+                    "motor_speed: {column: speed_rpm, unit: rpm}\noutput_torque: {column: out_torque_nm, unit: N*m}\n"
+                    "output_speed: {column: out_speed_rpm, unit: rpm}\n")
+    from_csv = json.loads(run_cli("calibrate", str(tmp_path / "daq.csv"), "--channels", str(cmap), "--json").stdout)
+    from_mcap = json.loads(run_cli("calibrate", str(BAGS / "rig_map_drag.mcap"), "--json").stdout)
+    assert from_csv["verdict"] == from_mcap["verdict"] == "effects_found"
+    assert [e["name"] for e in from_csv["effects"]] == [e["name"] for e in from_mcap["effects"]]
+    for a, b in zip(from_csv["effects"], from_mcap["effects"]):
+        for k in a["params"]:
+            assert a["params"][k] == pytest.approx(b["params"][k], rel=1e-6)
+    # and replay reads it too
+    out = run_cli("replay", str(tmp_path / "daq.csv"), "--channels", str(cmap), "--no-progress")
+    assert "imported" in out.stderr and f"{len(t):,}" in out.stdout
