@@ -15,6 +15,7 @@ effect                     contribution to the measured loss [N·m]      kind
 ``drag_constant``          ``c``                                        loss (seal, return track)
 ``drag_speed``             ``c·|ω|^p``                                  loss (churning, windage)
 ``load_dependent``         ``c·|T|^q``                                  loss (bearing load, sliding)
+``load_speed``             ``c·|T|·|ω|^p``                              loss (load × speed: mesh sliding, power loss)
 ``viscosity_temperature``  ``scale·T_Fr·(s(θ) − 1)``, ``s = (η(θ)/η0)^0.66``  loss (oil warming), scales Fr
 ``torque_offset``          ``b·sgn(ω)``                                 sensor zero error
 ``torque_gain``            ``g·T·sgn(ω)``                               sensor gain error
@@ -82,6 +83,11 @@ def drag_speed(x: EffectInputs, c, p):
 def load_dependent(x: EffectInputs, c, q):
     """Load-dependent friction: ``ΔT = c·|T|^q`` (bearing load friction, sliding)."""
     return c * x.abs_torque ** q
+
+
+def load_speed(x: EffectInputs, c, p):
+    """Load-speed friction: ``ΔT = c·|T|·|ω|^p`` (a loss power ∝ transmitted power·|ω|^(p−1): mesh sliding)."""
+    return c * x.abs_torque * x.abs_speed ** p
 
 
 def viscosity_scale(b_k, c_k, theta_ref_c, theta_c):
@@ -224,6 +230,15 @@ for _effect in (
            regressor_scale=lambda params: TORQUE_REF_NM ** params["q"],
            separated_from={"torque_gain": "regeneration (torque and speed of opposite sign)",
                            "viscosity_temperature": "the same torques at different oil temperatures"}),
+    Effect("load_speed", load_speed, True, "add a load-speed friction c*|T|*|w|^p",
+           "load- and speed-dependent sliding (gear mesh), a loss power proportional to the transmitted power",
+           (EffectParameter("c", "c", 0.0, "load-speed coefficient c (N*m/(N*m*(rad/s)^p))", simulated=2e-5),
+            EffectParameter("p", "p", 1.0, "load-speed exponent p of |w|", low=0.0, high=4.0)),
+           coefficient="c", member="p", member_grid=_grid(0.5, 2.0, 0.1), member_bounds=(0.3, 2.5),
+           regressor_scale=lambda params: TORQUE_REF_NM * SPEED_REF_RAD_S ** params["p"],
+           separated_from={"load_dependent": "the same torques at several speeds",
+                           "drag_speed": "the same speeds at several torques, including light load",
+                           "torque_gain": "regeneration (torque and speed of opposite sign)"}),
     Effect("viscosity_temperature", viscosity_temperature, True,
            "evaluate the model at the Vogel viscosity eta(theta) instead of eta0", "oil warming / cooling",
            (EffectParameter("B", "B_k", 0.0, "Vogel B: eta = eta0*exp(B/(theta+C) - B/(theta_ref+C))", "K",

@@ -31,6 +31,9 @@ def draw_effect(name: str, rng: np.random.Generator) -> DeclaredEffect:
     elif name == "load_dependent":
         e = rng.uniform(0.8, 1.5)
         p = {"c": rng.uniform(0.1, 0.5) / 90.0 ** e, "q": e}
+    elif name == "load_speed":
+        e = rng.uniform(0.8, 1.5)
+        p = {"c": rng.uniform(0.1, 0.5) / (90.0 * 250.0 ** e), "p": e}
     elif name == "viscosity_temperature":
         p = {"B": rng.uniform(500, 1500), "C": 95.0, "theta_ref": 40.0}
     elif name == "torque_offset":
@@ -54,10 +57,11 @@ def calibrate_json(*bags, extra=()) -> dict:
 
 
 TRUTH_KEYS = {"drag_constant": {"c": "c"}, "drag_speed": {"c": "c", "p": "p"}, "load_dependent": {"c": "c", "q": "q"},
+              "load_speed": {"c": "c", "p": "p"},
               "viscosity_temperature": {"B": "B"}, "torque_offset": {"b": "b"}, "torque_gain": {"g": "g"}}
 
-CASES = [["drag_constant"], ["drag_speed"], ["load_dependent"], ["viscosity_temperature"], ["torque_offset"],
-         ["torque_gain"], ["drag_speed", "torque_offset"], ["load_dependent", "drag_constant"]]
+CASES = [["drag_constant"], ["drag_speed"], ["load_dependent"], ["load_speed"], ["viscosity_temperature"],
+         ["torque_offset"], ["torque_gain"], ["drag_speed", "torque_offset"], ["load_dependent", "drag_constant"]]
 
 
 @pytest.mark.parametrize("names", CASES, ids=lambda n: "+".join(n))

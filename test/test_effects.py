@@ -30,6 +30,7 @@ X = EffectInputs(abs_torque=np.array([2.0, 40.0]), abs_speed=np.array([10.0, 200
     ("drag_constant", {"c": 0.04}, 0.04 + 0.0 * X.abs_speed),
     ("drag_speed", {"c": 3e-4, "p": 1.4}, 3e-4 * X.abs_speed ** 1.4),
     ("load_dependent", {"c": 2e-3, "q": 1.2}, 2e-3 * X.abs_torque ** 1.2),
+    ("load_speed", {"c": 2e-5, "p": 1.3}, 2e-5 * X.abs_torque * X.abs_speed ** 1.3),
     ("viscosity_temperature", {"B": 700.0, "C": 95.0, "theta_ref": 40.0, "scale": 1.0},
      X.fr_part_nm * (np.exp(700.0 / (X.temperature_c + 95.0) - 700.0 / 135.0) ** 0.66 - 1.0)),
     ("torque_offset", {"b": 0.05}, 0.05 * X.rot_sign),
@@ -65,16 +66,17 @@ def test_docs_table_is_the_registry():
 
 
 def speed_load(x: EffectInputs, c):
-    """Speed-load friction: ``ΔT = c·|ω|·|T|`` (a toy effect for the registry test)."""
-    return c * x.abs_speed * x.abs_torque
+    """Speed-root-load friction: ``ΔT = c·|ω|·|T|^0.5`` (a toy effect for the registry test, unlike
+    every effect of the registry)."""
+    return c * x.abs_speed * x.abs_torque ** 0.5
 
 
 @pytest.fixture
 def toy_effect():
     effect = effects.register(Effect(
-        "speed_load", speed_load, True, "add a speed-load friction c*|w|*|T|", "toy",
+        "speed_load", speed_load, True, "add a speed-root-load friction c*|w|*|T|^0.5", "toy",
         (EffectParameter("c", "c", 0.0, "speed-load coefficient", simulated=2e-5),), coefficient="c",
-        regressor_scale=lambda params: effects.SPEED_REF_RAD_S * effects.TORQUE_REF_NM))
+        regressor_scale=lambda params: effects.SPEED_REF_RAD_S * effects.TORQUE_REF_NM ** 0.5))
     try:
         yield effect
     finally:
@@ -86,7 +88,7 @@ def test_a_registered_toy_effect_flows_through_simulate_calibrate_and_replay(toy
     assert "effects.speed_load.c" in {s.name for s in parameter_specs()}
     # simulate: a rig with the new effect, declared by its short names
     opts = SimulationOptions(
-        profile="rig_map", rate_hz=100.0, seed=3, effects=[DeclaredEffect.parse("speed_load:c=3e-5")]
+        profile="rig_map", rate_hz=100.0, seed=3, effects=[DeclaredEffect.parse("speed_load:c=2e-4")]
     )
     bag = tmp_path / "toy.mcap"
     write_rig_bag(simulate(config, opts), opts, bag)
@@ -96,7 +98,7 @@ def test_a_registered_toy_effect_flows_through_simulate_calibrate_and_replay(toy
     found = {e.name: e for e in result.effects}
     assert "speed_load" in found, result.log
     lo, hi = found["speed_load"].ci95["c"]
-    assert lo <= 3e-5 <= hi and hi - lo < 0.2 * 3e-5, found["speed_load"]
+    assert lo <= 2e-4 <= hi and hi - lo < 0.2 * 2e-4, found["speed_load"]
     assert result.error_after.rmse_nm < 0.2 * result.error_before.rmse_nm
     # the parameter file carries it, and replay with it leaves almost no residual
     yaml_path = tmp_path / "calibrated.yaml"

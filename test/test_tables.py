@@ -169,3 +169,21 @@ def test_a_steady_state_csv_with_efficiency_in_percent_and_two_gears(tmp_path, c
     cmap.write_text(cmap.read_text().replace("unit: '%'", "unit: '1'"))
     proc = run_cli("calibrate", str(tmp_path / "supplier.csv"), "--channels", str(cmap), check=False)
     assert proc.returncode == 2 and "data row 1: efficiency" in proc.stderr
+
+
+def test_an_undeclared_load_speed_effect_in_a_table_is_found_and_nothing_else(tmp_path, config):
+    """A table from the whole model plus a load-speed friction c·|T|·|ω|^p (both torque signs)."""
+    from rollergear_ros.model import evaluate_reference
+
+    lines = [HEADER.strip()]
+    for n in np.arange(100, 3001, 100.0):
+        w = n * 2 * np.pi / 60
+        for t in np.arange(-100, 101, 10.0):
+            loss = abs(evaluate_reference(config.gearbox, t, w)["T_loss"]) + 2e-5 * abs(t) * w ** 1.2
+            lines.append(f"{n:g},{t:g},{loss:.9g}")
+    (tmp_path / "ls.vtlm").write_text("\n".join(lines) + "\n")
+    result = json.loads(run_cli("calibrate", str(tmp_path / "ls.vtlm"), "--json").stdout)
+    assert result["verdict"] == "effects_found"
+    assert [e["name"] for e in result["effects"]] == ["load_speed"]
+    params = result["effects"][0]["params"]
+    assert params["c"] == pytest.approx(2e-5, rel=0.02) and params["p"] == pytest.approx(1.2, abs=0.02)
