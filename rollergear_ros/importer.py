@@ -38,7 +38,7 @@ __all__ = ["ImportSummary", "as_mcap", "import_source", "is_mcap", "source_kind"
 IMPORT_METADATA = "rollergear_import"
 RESAMPLING_RULE = ("paired channels on the motor torque's time stamps: taken as they are where they coincide, "
                    "else linear interpolation between the two neighbouring samples (no extrapolation: NaN "
-                   "outside a channel's span); oil temperature at its own time stamps, at most 10 Hz")
+                   "outside a channel's span); oil temperature at its own time stamps, at most 1 Hz")
 
 
 @dataclass

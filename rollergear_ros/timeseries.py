@@ -10,7 +10,8 @@ torque's time base by the offline rule:
   is **linearly interpolated between its two neighbouring samples** -- one sample of look-ahead,
   which offline replay can afford; nothing is extrapolated: before a channel's first and after its
   last sample it is NaN (such samples are skipped and counted by the estimator);
-* the oil temperature keeps its own time stamps (at most 10 per second); the estimator holds it
+* the oil temperature keeps its own time stamps (at most one per second: oil warms over minutes,
+  and each temperature message splits the MCAP's vectorised writing of the samples); the estimator holds it
   (zero-order, up to 5 s), as the live node does -- which never looks ahead.
 
 A missing column, a unit the file's metadata contradicts, or a time that runs backwards is one
@@ -32,7 +33,7 @@ from .interface import Channel
 __all__ = ["Aligned", "Series", "TIMESERIES_SUFFIXES", "align", "arrow_table", "numeric_column", "read_series"]
 
 TIMESERIES_SUFFIXES = {".csv": "CSV", ".parquet": "Parquet", ".mf4": "MDF4", ".mdf": "MDF4", ".tdms": "TDMS"}
-TEMPERATURE_MAX_RATE_HZ = 10.0
+TEMPERATURE_MAX_RATE_HZ = 1.0
 
 
 @dataclass

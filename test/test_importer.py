@@ -61,7 +61,7 @@ def check_round_trip(mcap_path, s, resampled_speed: bool = False):
         np.testing.assert_allclose(out_speed, s["out_speed"], rtol=1e-12)
         tt, temps = messages["/rollergear/oil/temperature"]
         theta = np.array([m.temperature for m in temps])
-        assert 29 <= len(theta) <= 31  # 3 s at 10 Hz
+        assert len(theta) == 3  # 3 s at (at most) 1 Hz
         np.testing.assert_allclose(theta, 40 + 5 * tt * 1e-9, rtol=1e-9)
 
 
