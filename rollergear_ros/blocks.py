@@ -8,7 +8,7 @@ cross-validation folds never split.  The candidate columns come from the effect 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -46,18 +46,26 @@ class Blocks:
     x: EffectInputs | None = None  # per-sample inputs of the effects' terms
     testable: tuple[str, ...] = ()  # effects this data can test (a varying temperature where needed)
     steady_state: bool = False  # rows of steady-state tables: a block and a dwell each, equal weights
+    _columns: dict = field(default_factory=dict, repr=False)  # (effect, member) -> block means, computed once
 
     def mean(self, values: np.ndarray) -> np.ndarray:
         return np.add.reduceat(np.broadcast_to(values, self.x.abs_speed.shape), self.start) / self.count
 
     def column(self, name: str, member: float | None = None) -> np.ndarray:
         """Block means of an effect's regressor (coefficient 1), at any member (not only the grid's);
-        a sample without an input the effect needs (a missing temperature) contributes 0."""
+        a sample without an input the effect needs (a missing temperature) contributes 0.  Each
+        (effect, member) is computed once: the selection asks for the same ones at every step."""
+        key = (name, member)
+        cached = self._columns.get(key)
+        if cached is not None:
+            return cached
         effect = EFFECTS[name]
         values = effect.column(self.x, effect.defaults(), member)
         if effect.needs_temperature:
             values = np.where(np.isnan(values), 0.0, values)
-        return self.mean(values)
+        cached = self._columns[key] = self.mean(values)
+        cached.flags.writeable = False  # shared by every caller
+        return cached
 
 
 def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Blocks | None = None) -> Blocks:
