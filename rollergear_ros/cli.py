@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .errors import InputFileError, RollergearError, UsageError
+from .interface import package_version
 from .params import Config, load_config
 
 DEFAULT_PARAMS = Path(__file__).resolve().parent.parent / "config" / "gearbox.yaml"
@@ -202,9 +203,25 @@ def cmd_map(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------- parser
+#: one example per subcommand, shown at the end of its --help
+EXAMPLES = {
+    "model": "rollergear model --torque 1 10 50 --speed 104.72 --params calibrated.yaml",
+    "figures": "rollergear figures --out figures/",
+    "map": "rollergear map --params calibrated.yaml --out lossmap.vtlm --both-directions",
+    "simulate": "rollergear simulate --out rig.mcap --profile bidirectional_map --effect drag_speed:c=3e-4,p=1.4",
+    "replay": "rollergear replay rig.mcap --params calibrated.yaml --out estimates.mcap --rrd review.rrd",
+    "import": "rollergear import rig.mf4 --channels rig.yaml --out rig.mcap",
+    "calibrate": "rollergear calibrate rig.mcap --out calibrated.yaml --report report/",
+    "play": "rollergear play rig.mcap --rate 5 --loop",
+    "watch": "rollergear watch --period 1",
+}
+CONTRACT = "Topics, message types, the calibrate --json object and channel maps: docs/interface.md."
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="rollergear", description="Roller gearing gearbox loss model, "
-                                 "replay, calibration and ROS 2 tools.")
+                                 "replay, calibration and ROS 2 tools.", epilog=CONTRACT)
+    ap.add_argument("--version", action="version", version=f"rollergear {package_version()}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     def with_params(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -221,7 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_model)
 
     p = with_params(sub.add_parser("figures", help="the paper's sensitivity study (Figs. 6-11) as PNG"))
-    p.add_argument("--out", required=True, metavar="DIR")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for fig06.png … fig11.png and figures.csv")
     p.set_defaults(func=cmd_figures)
 
     p = with_params(sub.add_parser("map", help="VECTO loss map (.vtlm) of the calibrated model + efficiency/loss PNG"))
@@ -242,6 +259,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     for register in _EXTRA_COMMANDS:
         register(sub, with_params)
+    for name, parser in sub.choices.items():
+        parser.formatter_class = argparse.RawDescriptionHelpFormatter
+        parser.epilog = "\n".join(filter(None, (parser.epilog, f"example:\n  {EXAMPLES[name]}" if name in EXAMPLES
+                                                else None, CONTRACT)))
     return ap
 
 

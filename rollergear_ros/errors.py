@@ -21,6 +21,18 @@ class ParameterError(RollergearError, ValueError):
         self.allowed = allowed
         super().__init__(f"parameter '{name}' = {value!r} is invalid: {allowed}")
 
+    @classmethod
+    def broken_file(cls, path: str, exc: Exception) -> ParameterError:
+        """A parameter file that is not YAML: one line with the file, line and column."""
+        err = cls("<file>", path, "")
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else path
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        context = getattr(exc, "context", None)
+        err.args = (f"{where}: not valid YAML: {problem}" + (f" ({' '.join(str(context).split())})"
+                                                             if context else ""),)
+        return err
+
 
 class BagError(RollergearError):
     """A recording cannot be used: missing topics, wrong types, not a ROS 2 MCAP, unreadable, or

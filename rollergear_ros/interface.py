@@ -65,8 +65,19 @@ class Metadata:
     SIMULATION = "rollergear_simulation"  #: written by ``simulate``: the ground truth (tests only)
 
 
+def package_version() -> str:
+    """The installed package's version (``setup.py``), as written into outputs and ``--version``."""
+    try:
+        from importlib.metadata import version
+
+        return version("rollergear_ros")
+    except Exception:  # noqa: BLE001 - a source tree that is not installed
+        return "unknown (source tree)"
+
+
 #: 1 rpm in rad/s, and its inverse
 RAD_S_PER_RPM = 2.0 * math.pi / 60.0
 RPM_PER_RAD_S = 60.0 / (2.0 * math.pi)
 
-__all__ = ["Channel", "MessageType", "Metadata", "NAMESPACE", "NODE_NAME", "RAD_S_PER_RPM", "RPM_PER_RAD_S", "Topic"]
+__all__ = ["Channel", "MessageType", "Metadata", "NAMESPACE", "NODE_NAME", "RAD_S_PER_RPM", "RPM_PER_RAD_S", "Topic",
+           "package_version"]

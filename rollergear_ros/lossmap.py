@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UsageError
-from .interface import RPM_PER_RAD_S
+from .interface import RPM_PER_RAD_S, package_version
 from .operating_points import PointLosses, evaluate_points
 from .params import Config
 
@@ -104,13 +104,7 @@ def map_comments(config: Config, params_path: Path | None, temperature_c: float 
     """The ``#`` lines of a written map: ratio, parameter source, calibration, temperature, date."""
     from .effects import EFFECTS
 
-    try:
-        from importlib.metadata import version
-
-        package = version("rollergear_ros")
-    except Exception:  # noqa: BLE001 - running from a source tree that is not installed
-        package = "source tree"
-    lines = [f"rollergear_ros {package}: roller gearing gearbox loss map (input-referred torque loss)",
+    lines = [f"rollergear_ros {package_version()}: roller gearing gearbox loss map (input-referred torque loss)",
              f"ratio (input/output speed) {config.gearbox.ratio_effective:.6g}",
              f"parameters: {params_path if params_path else 'built-in defaults'}"]
     if params_path is not None and Path(params_path).exists():

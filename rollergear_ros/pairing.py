@@ -78,6 +78,10 @@ SKEW_GAIN = 1.0 / 16.0
 SKEW_LIMIT = 0.75
 SKEW_MIN_PAIRS = 8
 SKEW_MIN_PERIOD_NS = 100_000
+#: over a lossless delivery a skew can only come from a start that is out of step (subscriptions
+#: matched apart): the detector acts during the first this-many timed pairs of a stream only, so
+#: that delivery jitter on a busy machine never costs a sample later on
+LOSSLESS_SKEW_WINDOW = 500
 
 #: reasons a sample is not estimated (or estimated without a residual)
 SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
@@ -121,6 +125,7 @@ class SampleSynchronizer:
         self._skew_chans: tuple[str, ...] = ()
         self._skew_mean: list[float] = []
         self._skew_n = 0
+        self._timed_pairs = 0  # pairs observed with timing since the stream (re)started
         self._skew_last: list[int] = []  # each observed channel's time in the previous pair
         self._period_ns = 0.0
         self._last_pair_ns: int | None = None
@@ -165,7 +170,7 @@ class SampleSynchronizer:
             if t_ns - self.latest_ns > self.staleness_ns and not any(self.queues.values()):
                 # a new stream after a clean end (nothing half-paired): its topics may start out of
                 # step.  A gap inside a sample is an executor stall, not a new stream.
-                self._locked = False
+                self._locked, self._timed_pairs = False, 0
             self.latest_ns = t_ns
         q = self.queues
         q[channel].append((t_ns, value))
@@ -367,7 +372,9 @@ class SampleSynchronizer:
         at independent phases settle at an offset within ±0.25 periods after one such drop.  A
         pair whose late messages came in a burst (each within ``SKEW_MIN_PERIOD_NS`` of its
         channel's previous one) while the earlier ones did not -- one topic's delivery held up and
-        released while the others kept coming -- carries no timing and is not observed.
+        released while the others kept coming -- carries no timing and is not observed.  Over a
+        lossless delivery (nothing is ever missing) it acts only during the first
+        :data:`LOSSLESS_SKEW_WINDOW` timed pairs of a stream, where a start out of step is undone.
         """
         prev, self._skew_last = self._skew_last, times
         if len(prev) == len(times):
@@ -390,7 +397,10 @@ class SampleSynchronizer:
         for i in range(1, len(times)):
             mean[i] += SKEW_GAIN * (max(-period, min(period, times[i] - t0)) - mean[i])
         self._skew_n += 1
-        if self._skew_n < SKEW_MIN_PAIRS or period < SKEW_MIN_PERIOD_NS:
+        if period < SKEW_MIN_PERIOD_NS:
+            return False
+        self._timed_pairs += 1
+        if self._skew_n < SKEW_MIN_PAIRS or (self.lossless and self._timed_pairs > LOSSLESS_SKEW_WINDOW):
             return False
         lead = max(mean)
         limit = SKEW_LIMIT * period

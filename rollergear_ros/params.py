@@ -403,9 +403,22 @@ def validate(values: Mapping[str, Any]) -> Config:
     specs = spec_by_name()
     unknown = sorted(set(values) - set(specs))
     if unknown:
-        close = ", ".join(unknown)
-        raise ParameterError(unknown[0], values[unknown[0]],
-                             f"unknown parameter(s) {close}; known: {', '.join(sorted(specs))}")
+        import difflib
+
+        name = unknown[0]
+        section, _, key = name.rpartition(".")
+        same = sorted(s for s in specs if s.rpartition(".")[0] == section)
+        # the key against the keys of its own section; a misplaced key against every full name
+        near = [f"{section}.{k}" for k in difflib.get_close_matches(key, [s.rpartition(".")[2] for s in same],
+                                                                     n=3, cutoff=0.6)]
+        near = near or [s for s in specs if s.rpartition(".")[2] == key]
+        if near:
+            hint = "did you mean " + " or ".join(f"'{n}'" for n in near) + "?"
+        else:
+            hint = (f"the keys of '{section}' are {', '.join(same)}" if same else
+                    f"the sections are {', '.join(sorted({s.split('.')[0] for s in specs}))}")
+        more = f" (and {len(unknown) - 1} more unknown: {', '.join(unknown[1:4])})" if len(unknown) > 1 else ""
+        raise ParameterError(name, values[name], f"unknown parameter; {hint}{more}")
     checked: dict[str, dict[str, Any]] = {k: {} for k in _SECTION_TYPES}
     switches: dict[str, bool] = {}
     effect_values: dict[str, dict[str, float]] = {}
@@ -509,7 +522,7 @@ def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | N
         try:
             doc = yaml.safe_load(text)
         except yaml.YAMLError as exc:
-            raise ParameterError("<file>", str(path), f"is not valid YAML: {exc}") from None
+            raise ParameterError.broken_file(str(path), exc) from None
         flat = flat_from_yaml_document(doc, str(path))
     if overrides:
         flat.update(overrides)

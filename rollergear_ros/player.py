@@ -224,7 +224,7 @@ def cmd_play(args: argparse.Namespace) -> int:
 
 def register_play(sub, with_params) -> None:  # noqa: ARG001
     p = sub.add_parser("play", help="publish a recorded bag over ROS 2 with its original timing")
-    p.add_argument("bag", metavar="BAG")
+    p.add_argument("bag", metavar="BAG", help="ROS 2 MCAP recording (rollergear import converts other formats)")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
     p.add_argument("--loop", action="store_true", help="play again and again")
     p.add_argument("--clock", action="store_true", help="publish /clock with the bag's time (use_sim_time)")

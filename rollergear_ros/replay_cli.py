@@ -79,11 +79,12 @@ def register_simulate(sub, with_params) -> None:
     from .simulate import PROFILES
 
     p = with_params(sub.add_parser("simulate", help="write a synthetic rig recording (MCAP) with declared effects"))
-    p.add_argument("--out", required=True, metavar="MCAP")
-    p.add_argument("--profile", choices=sorted(PROFILES), default="rig_map")
+    p.add_argument("--out", required=True, metavar="MCAP", help="the recording to write")
+    p.add_argument("--profile", choices=sorted(PROFILES), default="rig_map",
+                   help="operating profile: a rig map (forward or both directions), a drive cycle, a warm-up")
     p.add_argument("--rate", type=float, default=200.0, help="sample rate [Hz] (default 200)")
     p.add_argument("--duration", type=float, help="cut the profile after this many seconds")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="random seed of the sensor noise and the drive cycle")
     p.add_argument(
         "--effect",
         action="append",
@@ -109,7 +110,7 @@ def register_replay(sub, with_params) -> None:
     p.add_argument("bag", metavar="BAG", help="MCAP, rosbag2 folder or .db3, or CSV/Parquet/MDF4/TDMS with --channels")
     p.add_argument("--out", metavar="OUT.mcap", help="output MCAP (inputs + estimates)")
     p.add_argument("--rrd", metavar="OUT.rrd", help="rerun recording with a review blueprint")
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_channels_option(p)
     add_topic_options(p)
     p.set_defaults(func=cmd_replay)
@@ -130,7 +131,7 @@ def register_import(sub, with_params) -> None:
                        "node and anything that reads MCAP. Example: rollergear import rig.mf4 --channels rig.yaml "
                        "--out rig.mcap")
     p.add_argument("source", metavar="SRC", help="rosbag2 folder, metadata.yaml or .db3; or CSV/Parquet/MDF4/TDMS")
-    p.add_argument("--out", required=True, metavar="OUT.mcap")
+    p.add_argument("--out", required=True, metavar="OUT.mcap", help="the ROS 2 MCAP to write")
     add_channels_option(p)
     add_topic_options(p)
     p.set_defaults(func=cmd_import)

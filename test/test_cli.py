@@ -147,3 +147,21 @@ def test_an_output_that_is_an_input_is_refused_before_anything_is_written(tmp_pa
     assert proc.stderr.startswith("rollergear: error: ") and "refusing to overwrite" in proc.stderr, proc.stderr
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
     assert bag.read_bytes() == before
+
+
+def test_version_help_texts_and_an_example_for_every_subcommand():
+    from rollergear_ros import cli
+
+    assert run_cli("--version").stdout.strip() == f"rollergear {cli.package_version()}"
+    cli._load_extra_commands()
+    parser = cli.build_parser()
+    commands = parser._subparsers._group_actions[0].choices
+    assert set(commands) == set(cli.EXAMPLES)
+    for name, sub in commands.items():
+        undocumented = [a.dest for a in sub._actions if not a.help]
+        assert undocumented == [], (name, undocumented)
+        text = sub.format_help()
+        assert f"example:\n  {cli.EXAMPLES[name]}" in text and "docs/interface.md" in text
+        # the example parses
+        example = cli.EXAMPLES[name].split()[1:]
+        assert parser.parse_args(example).command == name

@@ -9,7 +9,7 @@ import yaml
 
 from rollergear_ros.params import ParameterError, config_to_yaml, load_config, parameter_specs, validate
 
-from helpers import CONFIG
+from helpers import CONFIG, run_cli
 
 
 def test_shipped_yaml_is_the_defaults():
@@ -101,3 +101,27 @@ def test_dataclass_defaults_equal_the_spec_defaults():
     flat = Config().to_flat()
     for spec in parameter_specs():
         assert flat[spec.name] == spec.default, spec.name
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("    gearbox: {dw: 0.006}\n", "did you mean 'gearbox.dw_m'?"),
+    ("    node: {staleness_s: 0.2}\n", "did you mean 'estimator.staleness_s'?"),
+    ("    gearbox: {zzzq: 1}\n", "the keys of 'gearbox' are gearbox.E_eq_pa"),
+    ("    nodes: {x: 1}\n", "the sections are effects, estimator, gearbox, map, node"),
+])
+def test_a_typo_gets_a_suggestion_not_every_key(tmp_path, text, message):
+    from rollergear_ros.errors import ParameterError
+
+    p = tmp_path / "p.yaml"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n" + text)
+    with pytest.raises(ParameterError) as err:
+        load_config(p)
+    assert message in str(err.value) and "known:" not in str(err.value)
+
+
+def test_broken_yaml_is_one_line_with_file_line_and_column(tmp_path):
+    p = tmp_path / "broken.yaml"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    gearbox: {dw_m: 0.006\n    estimator: x\n")
+    proc = run_cli("model", "--torque", "1", "--speed", "1", "--params", str(p), check=False)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1
+    assert f"{p}:4:14: not valid YAML" in proc.stderr
