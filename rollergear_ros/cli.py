@@ -213,6 +213,7 @@ EXAMPLES = {
     "import": "rollergear import rig.mf4 --channels rig.yaml --out rig.mcap",
     "calibrate": "rollergear calibrate rig.mcap --out calibrated.yaml --report report/",
     "play": "rollergear play rig.mcap --rate 5 --loop",
+    "fleet": "rollergear fleet calibrate fleet/ --out fleet_out/ --workers 2",
     "watch": "rollergear watch --period 1",
 }
 CONTRACT = "Topics, message types, the calibrate --json object and channel maps: docs/interface.md."
@@ -291,8 +292,8 @@ def _load_extra_commands() -> None:
         return
     import importlib
 
-    for name in ("rollergear_ros.replay_cli", "rollergear_ros.calibrate_cli", "rollergear_ros.player",
-                 "rollergear_ros.watch"):
+    for name in ("rollergear_ros.replay_cli", "rollergear_ros.calibrate_cli", "rollergear_ros.fleet_cli",
+                 "rollergear_ros.player", "rollergear_ros.watch"):
         try:
             mod = importlib.import_module(name)
         except ModuleNotFoundError as exc:

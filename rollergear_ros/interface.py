@@ -62,6 +62,7 @@ class Metadata:
     """Names of the MCAP metadata records the package writes."""
 
     RECORDING = "rollergear_recording"  #: written by the node: how it paired its inputs
+    GEARBOX = "rollergear"  #: key ``gearbox_id``: which gearbox a recording is of (fleets)
     SIMULATION = "rollergear_simulation"  #: written by ``simulate``: the ground truth (tests only)
 
 

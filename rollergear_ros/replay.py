@@ -285,10 +285,17 @@ class ReplaySummary:
     mean_loss_nm: float = math.nan
     peak_loss_nm: float = math.nan
     energy_lost_j: float = 0.0
+    energy_in_j: float = 0.0  #: ∫|T_in·ω_in| dt, the energy through the gearbox
+    #: over the samples with a measured loss: the energy through the gearbox and the measured energy lost
+    energy_in_measured_j: float = 0.0
+    energy_lost_measured_j: float = 0.0
     mean_efficiency: float = math.nan
     residual_rms_nm: float = math.nan
+    residual_mean_nm: float = math.nan
     residual_samples: int = 0
     duration_s: float = 0.0
+    start_ns: int | None = None  #: first estimated sample
+    end_ns: int | None = None  #: last estimated sample
     alarms: int = 0
     interrupted: bool = False
     sync_tolerance_s: float = math.nan  #: the pairing tolerance used
@@ -342,6 +349,10 @@ class _Accumulator:
         self.loss_sum = 0.0
         self.peak = 0.0
         self.energy = 0.0
+        self.energy_in = 0.0
+        self.energy_in_meas = 0.0
+        self.energy_lost_meas = 0.0
+        self.res_sum = 0.0
         self.eta_sum = 0.0
         self.eta_n = 0
         self.res_sq = 0.0
@@ -368,12 +379,20 @@ class _Accumulator:
         # integrate P·dt; gaps longer than 5 sample periods (missing data) are not integrated
         dt = np.where((dt > 0) & (dt <= 5 * max(self.dt_ns, 1.0)), dt, 0.0)
         self.energy += float(np.sum(b.loss_power_w * dt) * 1e-9)
+        p_in = np.abs(b.torque_nm * b.speed_rad_s)
+        self.energy_in += float(np.sum(p_in * dt) * 1e-9)
+        meas = np.isfinite(b.measured_loss_nm)
+        if meas.any():
+            self.energy_in_meas += float(np.sum(p_in[meas] * dt[meas]) * 1e-9)
+            p_lost = b.measured_loss_nm[meas] * np.abs(b.speed_rad_s[meas])
+            self.energy_lost_meas += float(np.sum(p_lost * dt[meas]) * 1e-9)
         self.last_t = int(t[-1])
         eta = b.efficiency[np.isfinite(b.efficiency)]
         self.eta_sum += float(eta.sum())
         self.eta_n += len(eta)
         r = b.residual_nm[np.isfinite(b.residual_nm)]
         self.res_sq += float(np.sum(r * r))
+        self.res_sum += float(np.sum(r))
         self.res_n += len(r)
 
 
@@ -484,11 +503,16 @@ def replay(
         summary.mean_loss_nm = acc.loss_sum / acc.n
         summary.peak_loss_nm = acc.peak
         summary.energy_lost_j = acc.energy
+        summary.energy_in_j = acc.energy_in
+        summary.energy_in_measured_j = acc.energy_in_meas
+        summary.energy_lost_measured_j = acc.energy_lost_meas
         summary.duration_s = ((acc.last_t or 0) - (acc.first_t or 0)) * 1e-9
+        summary.start_ns, summary.end_ns = acc.first_t, acc.last_t
     if acc.eta_n:
         summary.mean_efficiency = acc.eta_sum / acc.eta_n
     if acc.res_n:
         summary.residual_rms_nm = math.sqrt(acc.res_sq / acc.res_n)
+        summary.residual_mean_nm = acc.res_sum / acc.res_n
         summary.residual_samples = acc.res_n
     summary.alarms = estimator.detector.alarms
     summary.coefficients = estimator.coefficients()

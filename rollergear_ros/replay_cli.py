@@ -9,6 +9,7 @@ from pathlib import Path
 
 from .bag import TopicMap
 from .cli import config_from_args, refuse_overwriting_inputs
+from .errors import UsageError
 
 
 def add_topic_options(p: argparse.ArgumentParser) -> None:
@@ -30,6 +31,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     refuse_overwriting_inputs([args.params], {"--out": args.out})
     config = config_from_args(args)
+    if args.fleet:
+        return _simulate_fleet(args, config)
     effects = [DeclaredEffect.parse(e) for e in args.effect]
     opts = SimulationOptions(profile=args.profile, rate_hz=args.rate, seed=args.seed, effects=effects,
                              torque_noise_nm=args.torque_noise, noise_ar1=args.noise_ar1,
@@ -74,12 +77,32 @@ def cmd_replay(args: argparse.Namespace) -> int:
     return 130 if summary.interrupted else 0
 
 
+def _simulate_fleet(args: argparse.Namespace, config) -> int:
+    from tqdm import tqdm
+
+    from .fleetsim import simulate_fleet
+
+    if args.fleet < 1 or args.days < 1:
+        raise UsageError("--fleet and --days must be at least 1")
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()):
+        raise UsageError(f"{out} is not empty: a fleet goes into a new folder")
+    with tqdm(total=args.fleet * args.days, unit="log", file=sys.stderr, disable=not sys.stderr.isatty()) as bar:
+        truth = simulate_fleet(config, out, args.fleet, args.days, rate_hz=args.rate, seed=args.seed,
+                               progress=bar.update)
+    print(f"wrote {args.fleet} gearboxes x {args.days} daily logs to {out} (truth: {out / 'fleet_truth.json'}; "
+          f"{len(truth['gearboxes'])} drifting)")
+    return 0
+
+
 def register_simulate(sub, with_params) -> None:
     from .effects import EFFECTS
     from .simulate import PROFILES
 
     p = with_params(sub.add_parser("simulate", help="write a synthetic rig recording (MCAP) with declared effects"))
-    p.add_argument("--out", required=True, metavar="MCAP", help="the recording to write")
+    p.add_argument("--out", required=True, metavar="MCAP", help="the recording to write (with --fleet: a folder)")
+    p.add_argument("--fleet", type=int, metavar="N", help="a fleet: N gearboxes x --days daily logs, a few drifting")
+    p.add_argument("--days", type=int, default=8, help="days of a simulated fleet (default 8)")
     p.add_argument("--profile", choices=sorted(PROFILES), default="rig_map",
                    help="operating profile: a rig map (forward or both directions), a drive cycle, a warm-up")
     p.add_argument("--rate", type=float, default=200.0, help="sample rate [Hz] (default 200)")

@@ -232,8 +232,9 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
 
 
 def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics: TopicMap = TopicMap(),
-                  progress: Callable[[int], None] | None = None) -> int:
-    """Write a simulated rig to a ROS 2 MCAP; returns the number of messages written."""
+                  progress: Callable[[int], None] | None = None, gearbox_id: str | None = None) -> int:
+    """Write a simulated rig to a ROS 2 MCAP; returns the number of messages written.  ``gearbox_id``
+    goes into the ``rollergear`` metadata record, as a fleet's logger writes it."""
     truth = {"profile": opts.profile, "seed": opts.seed, "rate_hz": opts.rate_hz,
              "effects": [{"name": e.name, "params": e.params} for e in opts.effects],
              "torque_noise_nm": opts.torque_noise_nm, "noise_ar1": opts.noise_ar1,
@@ -243,6 +244,8 @@ def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics
     count = 0
     with BagWriter(path) as bw:
         bw.add_metadata(Metadata.SIMULATION, {"truth": json.dumps(truth)})
+        if gearbox_id is not None:
+            bw.add_metadata(Metadata.GEARBOX, {"gearbox_id": gearbox_id})
         n = len(rig.t_ns)
         block = 20_000
         temp_every = max(int(round(opts.rate_hz / opts.temperature_rate_hz)), 1)

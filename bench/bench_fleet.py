@@ -1,0 +1,76 @@
+#!/usr/bin/env python3
+"""Fleet replay on a Dask LocalCluster against the same recordings replayed one after another.
+
+Baseline measured in the same run: ``replay`` of each recording in this process, one after the
+other.  Then ``rollergear fleet replay`` on a ``LocalCluster`` of ``--workers`` processes (its
+start-up not counted; a fresh output folder each time), and the scheduler's overhead per
+recording: trivial tasks submitted and gathered the same way, per task.
+
+Usage: python bench/bench_fleet.py [--recordings 8] [--minutes 5] [--workers 2] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+from common import long_bag
+
+from rollergear_ros.fleet import dask_client, discover, run_replay
+from rollergear_ros.params import load_config
+from rollergear_ros.replay import replay
+
+
+def _nothing(i: int) -> int:
+    return i
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--recordings", type=int, default=8)
+    ap.add_argument("--minutes", type=float, default=5.0)
+    ap.add_argument("--rate", type=float, default=1000.0)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--keep", type=Path)
+    args = ap.parse_args()
+    work = args.keep or Path(tempfile.mkdtemp(prefix="rollergear_bench_"))
+    one = long_bag(work / f"rig_{args.minutes:g}min_{args.rate:g}hz.mcap", args.minutes, args.rate,
+                   ["drag_constant:c=0.05"])
+    logs = work / "fleet"
+    for i in range(args.recordings):
+        dst = logs / f"gb{i % 4:02d}" / f"log{i:03d}.mcap"
+        if not dst.exists():
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(one, dst)
+    recs = discover([str(logs)])
+    config = load_config()
+    samples = 0
+    t0 = time.perf_counter()
+    for r in recs:
+        s, _ = replay(r.path, config, show_progress=False)
+        samples += s.samples
+    sequential = time.perf_counter() - t0
+    print(f"{len(recs)} recordings x {args.minutes:g} min at {args.rate:g} Hz ({samples:,} samples): one after another "
+          f"in one process {sequential:.2f} s = {samples / sequential / 1e3:.0f} k samples/s")
+    with dask_client(workers=args.workers) as client:
+        client.gather(client.map(_nothing, range(args.workers * 4)))  # workers warm
+        out = work / "out"
+        shutil.rmtree(out, ignore_errors=True)
+        t0 = time.perf_counter()
+        rows, ran = run_replay(recs, out, client, config)
+        fleet = time.perf_counter() - t0
+        assert ran == len(recs) and all(r["status"] == "ok" for r in rows)
+        n = 200
+        t0 = time.perf_counter()
+        client.gather(client.map(_nothing, range(n), pure=False))
+        overhead = (time.perf_counter() - t0) / n
+    print(f"fleet replay on a LocalCluster of {args.workers} worker processes: {fleet:.2f} s = "
+          f"{samples / fleet / 1e3:.0f} k samples/s -> {sequential / fleet:.2f}x one after another; "
+          f"scheduler overhead {1e3 * overhead:.1f} ms per task ({n} trivial tasks)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,71 @@
+"""``rollergear fleet replay|calibrate``: many recordings on Dask, the fleet table, the drift report."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from .cli import config_from_args
+from .errors import UsageError
+
+DAY_S = 86_400
+
+
+def cmd_fleet(args: argparse.Namespace) -> int:
+    from .fleet import dask_client, discover, run_calibrate, run_replay
+    from .fleet_report import drift, write_fleet_report
+
+    config = config_from_args(args)
+    if args.workers is not None and args.workers < 1:
+        raise UsageError("--workers must be at least 1")
+    if not args.window_days > 0:
+        raise UsageError("--window-days must be > 0")
+
+    def note(msg: str) -> None:
+        print(msg, file=sys.stderr)
+
+    recs = discover(args.logs, args.group_by)
+    out = Path(args.out)
+    note(f"{len(recs)} recordings of {len({r.gearbox_id for r in recs})} gearboxes")
+    with dask_client(args.scheduler, args.workers, note) as client:
+        if args.action == "replay":
+            rows, ran = run_replay(recs, out, client, config, args.channels, progress=sys.stderr.isatty(), note=note)
+        else:
+            rows, ran = run_calibrate(recs, out, client, config, int(args.window_days * DAY_S * 1e9), args.channels,
+                                      progress=sys.stderr.isatty(), note=note)
+    failed = [r for r in rows if r.get("status") != "ok"]
+    print(f"{args.action}: {ran} run now, {len(rows)} rows in {out}; {len(failed)} failed")
+    for r in failed[:10]:
+        print(f"  failed: {r.get('recording') or r.get('gearbox_id')}: {r.get('reason')}")
+    if args.action == "calibrate":
+        for g in drift(rows):
+            if g.drifts:
+                print(f"  drift: {g.sentence()}")
+    print(f"report: {write_fleet_report(out)}")
+    return 0
+
+
+def register_fleet(sub, with_params) -> None:
+    p = with_params(sub.add_parser(
+        "fleet", help="replay or calibrate a fleet's recordings on Dask: fleet table, drift, report",
+        description="Many recordings on a Dask cluster (a LocalCluster of worker processes unless --scheduler): "
+        "DIR/fleet.parquet (replay: a row per recording) or DIR/fleet_calibrate.parquet (a row per gearbox and "
+        "window), DIR/report.md with the drift ranking, DIR/maps/<gearbox>.vtlm. A rerun with the same --out "
+        "skips what is done."))
+    p.add_argument("action", choices=("replay", "calibrate"), help="replay each recording, or calibrate each "
+                   "gearbox per time window (and find drift)")
+    p.add_argument("logs", nargs="+", metavar="LOGS", help="files, folders or globs, local or fsspec URLs "
+                   "(s3://… where the filesystem package is installed)")
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for the tables, the report and the maps")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (default: a LocalCluster)")
+    p.add_argument("--workers", type=int, metavar="N", help="LocalCluster worker processes (default: the cores)")
+    p.add_argument("--channels", metavar="MAP.yaml", help="channel map for CSV/Parquet/MDF4/TDMS recordings")
+    p.add_argument("--group-by", choices=("auto", "folder", "metadata"), default="auto",
+                   help="gearbox identity: metadata gearbox_id, else the folder (auto); or only one of them")
+    p.add_argument("--window-days", type=float, default=1.0, metavar="DAYS",
+                   help="calibration window (default 1 day)")
+    p.set_defaults(func=cmd_fleet)
+
+
+REGISTER = [register_fleet]

@@ -1,0 +1,131 @@
+"""Fleets on a real Dask ``LocalCluster`` (worker processes): the fleet table equals single-process
+replay, drifting gearboxes are found with their effect and day, bad recordings are failed rows,
+a killed worker's task is retried, a resumed run does no work twice."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import threading
+import time
+
+import pytest
+
+from rollergear_ros.fleet import FLEET_TABLE, dask_client, discover, read_table, run_calibrate, run_replay
+from rollergear_ros.fleet_report import drift, write_fleet_report
+from rollergear_ros.fleetsim import DAY_NS, simulate_fleet
+from rollergear_ros.params import load_config
+from rollergear_ros.replay import replay
+
+from helpers import CONFIG
+from rostools import wait_for
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fleet")
+    truth = simulate_fleet(load_config(CONFIG), out, gearboxes=6, days=6, rate_hz=100.0, seed=3)
+    return out, truth
+
+
+@pytest.fixture(scope="module")
+def client():
+    with dask_client(workers=2) as c:
+        yield c
+
+
+def test_fleet_replay_equals_single_process_replay_of_each_recording(fleet, client, tmp_path):
+    logs, _ = fleet
+    recs = discover([str(logs)])
+    assert len(recs) == 36 and {r.gearbox_id for r in recs} == {f"gb{g:02d}" for g in range(6)}
+    rows, ran = run_replay(recs, tmp_path, client, load_config(CONFIG))
+    assert ran == 36 and len(rows) == 36 and all(r["status"] == "ok" for r in rows)
+    by_path = {r["recording"]: r for r in rows}
+    config = load_config(CONFIG)
+    for rec in recs[::5]:
+        s, _ = replay(rec.path, config, show_progress=False)
+        row = by_path[rec.path]
+        assert (row["samples"], row["estimated"], row["start_ns"]) == (s.samples, s.estimated, s.start_ns)
+        assert row["energy_lost_j"] == s.energy_lost_j and row["mean_efficiency"] == s.mean_efficiency
+        assert row["residual_rms_nm"] == s.residual_rms_nm and row["gearbox_id"] == rec.gearbox_id
+    assert read_table(tmp_path / FLEET_TABLE) == rows  # the table on disk
+
+
+def test_drifting_gearboxes_are_found_with_their_effect_and_day_and_no_healthy_one(fleet, client, tmp_path):
+    logs, truth = fleet
+    rows, _ = run_calibrate(discover([str(logs)]), tmp_path, client, load_config(CONFIG), DAY_NS)
+    assert len(rows) == 36 and all(r["status"] == "ok" for r in rows)
+    found = {g.gearbox_id: g for g in drift(rows) if g.drifts}
+    assert set(found) == set(truth["gearboxes"]), (sorted(found), truth["gearboxes"])
+    for gid, t in truth["gearboxes"].items():
+        (d,) = found[gid].drifts
+        assert d.effect == t["effect"]
+        assert abs((d.since_ns - truth["start_ns"]) // DAY_NS - t["from_day"]) <= 1
+    report = write_fleet_report(tmp_path).read_text()
+    for gid in truth["gearboxes"]:
+        assert f"| {gid} |" in report and (tmp_path / "maps" / f"{gid}.vtlm").exists()
+    assert (tmp_path / "drift.png").stat().st_size > 10_000
+
+
+def test_bad_recordings_are_failed_rows_and_the_rest_go_on(fleet, client, tmp_path):
+    logs, _ = fleet
+    mixed = tmp_path / "logs" / "gb99"
+    mixed.mkdir(parents=True)
+    shutil.copy(logs / "gb00" / "day00.mcap", mixed / "good.mcap")
+    data = (logs / "gb00" / "day01.mcap").read_bytes()
+    (mixed / "truncated.mcap").write_bytes(data[: len(data) // 3])
+    (mixed / "foreign.mcap").write_text("not a recording\n")
+    rows, _ = run_replay(discover([str(tmp_path / "logs")]), tmp_path / "out", client, load_config(CONFIG))
+    status = {os.path.basename(r["recording"]): (r["status"], r["reason"]) for r in rows}
+    assert status["good.mcap"] == ("ok", "")
+    assert status["foreign.mcap"][0] == "failed" and "MCAP" in status["foreign.mcap"][1]
+    # a truncated recording replays as far as it is readable (replay warns); its row says how much
+    truncated = next(r for r in rows if r["recording"].endswith("truncated.mcap"))
+    assert truncated["status"] == "ok" and 0 < truncated["samples"] < 10080
+
+
+def test_a_resumed_run_does_no_work_twice(fleet, client, tmp_path):
+    logs, _ = fleet
+    recs = discover([str(logs / "gb01")])
+    rows, ran = run_replay(recs[:3], tmp_path, client, load_config(CONFIG))
+    assert ran == 3
+    rows, ran = run_replay(recs, tmp_path, client, load_config(CONFIG))
+    assert ran == len(recs) - 3 and len(rows) == len(recs)
+    assert len({r["key"] for r in rows}) == len(recs)
+    rows, ran = run_replay(recs, tmp_path, client, load_config(CONFIG))
+    assert ran == 0 and len(rows) == len(recs)
+
+
+def test_a_killed_workers_task_is_retried_and_the_table_is_complete(fleet, tmp_path):
+    """A worker process is killed while it runs a task (seen running on it first): the task runs
+    again elsewhere and every recording has its row."""
+    logs, _ = fleet
+    recs = discover([str(logs)])
+    result: dict = {}
+    with dask_client(workers=2) as c:
+        run = threading.Thread(target=lambda: result.update(
+            rows=run_replay(recs, tmp_path, c, load_config(CONFIG))[0]))
+        run.start()
+        busy: dict = {}
+
+        def some_worker_busy() -> bool:
+            busy.update({w: ks for w, ks in c.processing().items() if ks})
+            return bool(busy)
+
+        assert wait_for(some_worker_busy, 60), "no task ever ran"
+        victim = next(iter(busy))
+        pid = c.run(os.getpid, workers=[victim])[victim]
+        os.kill(pid, 9)
+        run.join(300)
+        assert not run.is_alive()
+        deadline = time.monotonic() + 60
+        while victim in c.scheduler_info()["workers"] and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert victim not in c.scheduler_info()["workers"]
+    rows = result["rows"]
+    assert len(rows) == len(recs) and all(r["status"] == "ok" for r in rows)
+    assert {r["key"] for r in rows} == {r.key for r in recs}
+    assert json.loads(json.dumps(rows[0]))  # plain values, JSON-able
