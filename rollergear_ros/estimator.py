@@ -76,7 +76,7 @@ class Estimator:
         if pairing in ARRIVAL_PAIRINGS:
             self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
             self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s, arrival=True,
-                                           lossless=pairing == "arrival_reliable")
+                                           lossless=pairing == "arrival_reliable", sample_period_s=sample_period_s)
         elif pairing == "timestamp":
             self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s)
         else:

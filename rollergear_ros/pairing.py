@@ -78,6 +78,10 @@ SKEW_GAIN = 1.0 / 16.0
 SKEW_LIMIT = 0.75
 SKEW_MIN_PAIRS = 8
 SKEW_MIN_PERIOD_NS = 100_000
+#: over a lossless delivery, a pair whose messages arrived further apart than this many periods was held up
+#: in delivery (one topic stalled), which says nothing about a skew
+SKEW_MAX_OFFSET_PERIODS = 20
+SKEW_HELD_UP_NS = 10_000_000  #: ... and never less than this (the arrival period may be a catch-up's)
 #: over a lossless delivery a skew can only come from a start that is out of step (subscriptions
 #: matched apart): the detector acts during the first this-many timed pairs of a stream only, so
 #: that delivery jitter on a busy machine never costs a sample later on
@@ -115,8 +119,12 @@ class SampleSynchronizer:
     """Pairs header-less input channels by time (see the module docstring for the rule)."""
 
     def __init__(self, sync_tolerance_s: float, staleness_s: float,
-                 temperature_hold_s: float = TEMPERATURE_HOLD_S, arrival: bool = False, lossless: bool = False) -> None:
+                 temperature_hold_s: float = TEMPERATURE_HOLD_S, arrival: bool = False, lossless: bool = False,
+                 sample_period_s: float | None = None) -> None:
+        """``sample_period_s``: the stream's nominal sample period, when known (arrival pairing: the
+        skew detector never takes less than half of it for the period, see :meth:`_arrival_skewed`)."""
         self.arrival = arrival
+        self._period_floor_ns = 0.5 * sample_period_s * 1e9 if sample_period_s and sample_period_s > 0 else 0.0
         self.lossless = lossless  # arrival pairing over a delivery that loses nothing: no resync on wide pairs
         self._wide = 0  # consecutive pairs wider than the tolerance (arrival pairing)
         self._locked = False  # arrival pairing: the heads have paired within the tolerance
@@ -367,7 +375,8 @@ class SampleSynchronizer:
         message), so it is told by its mean: each channel's arrival offset from the motor torque
         (clipped to ± one period), averaged over the last ~16 pairs, against the mean sample
         period.  Messages of one sample arrive together (mean offset ~0); a pairing one sample off
-        has a mean offset of a whole period.  A spread of the means beyond ``SKEW_LIMIT`` x the
+        has a mean offset of a whole period (the mean arrival period, at least half the nominal sample
+        period when it is known).  A spread of the means beyond ``SKEW_LIMIT`` x the
         period drops the heads of the channels that lag the most advanced one; channels published
         at independent phases settle at an offset within ±0.25 periods after one such drop.  A
         pair whose late messages came in a burst (each within ``SKEW_MIN_PERIOD_NS`` of its
@@ -388,7 +397,13 @@ class SampleSynchronizer:
         period = self._period_ns
         if last is not None and 0 < t0 - last <= self.staleness_ns:
             period = self._period_ns = period + SKEW_GAIN * ((t0 - last) - period) if period else float(t0 - last)
-        # an offset counts at most one period: a stall between two callbacks is not a skew
+        # a node catching up takes its queued samples faster than they were sent: the arrival period
+        # then shrinks and the normal spread of one sample's messages would look like a skew
+        period = max(period, self._period_floor_ns)
+        # an offset counts at most one period: a stall between two callbacks is not a skew; and over a
+        # lossless delivery a pair whose messages arrived many periods apart was held up, not skewed
+        if self.lossless and max(times) - min(times) > max(SKEW_MAX_OFFSET_PERIODS * period, SKEW_HELD_UP_NS):
+            return False
         if chans is not self._skew_chans:
             self._skew_chans, self._skew_n = chans, 1
             self._skew_mean = [max(-period, min(period, float(t - t0))) for t in times]
