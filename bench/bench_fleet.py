@@ -6,12 +6,19 @@ other.  Then ``rollergear fleet replay`` on a ``LocalCluster`` of ``--workers`` 
 start-up not counted; a fresh output folder each time), and the scheduler's overhead per
 recording: trivial tasks submitted and gathered the same way, per task.
 
-Usage: python bench/bench_fleet.py [--recordings 8] [--minutes 5] [--workers 2] [--keep DIR]
+Usage: python bench/bench_fleet.py [--recordings 16] [--minutes 10] [--workers 2] [--keep DIR]
 """
 
 from __future__ import annotations
 
-import argparse
+import os
+
+# the replay gains nothing from OpenBLAS threads (measured: 3.34 s with them on 2 cores at 194 % CPU,
+# 3.18 s without at 99 %); Dask's workers run with one thread each, so the baseline does too
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
 import shutil
 import tempfile
 import time
@@ -28,10 +35,16 @@ def _nothing(i: int) -> int:
     return i
 
 
+def _warm() -> None:
+    """Import what a replay task needs (a worker's one-time start-up, not counted per recording)."""
+    import rollergear_ros.importer  # noqa: F401
+    import rollergear_ros.replay  # noqa: F401
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--recordings", type=int, default=8)
-    ap.add_argument("--minutes", type=float, default=5.0)
+    ap.add_argument("--recordings", type=int, default=16)
+    ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--keep", type=Path)
@@ -56,7 +69,7 @@ def main() -> None:
     print(f"{len(recs)} recordings x {args.minutes:g} min at {args.rate:g} Hz ({samples:,} samples): one after another "
           f"in one process {sequential:.2f} s = {samples / sequential / 1e3:.0f} k samples/s")
     with dask_client(workers=args.workers) as client:
-        client.gather(client.map(_nothing, range(args.workers * 4)))  # workers warm
+        client.run(_warm)  # workers warm: imports done once per worker process
         out = work / "out"
         shutil.rmtree(out, ignore_errors=True)
         t0 = time.perf_counter()
