@@ -1,4 +1,5 @@
 #!/usr/bin/env python3
+# ruff: noqa: E402 - the thread limits must be set before numpy is imported
 """Fleet replay on a Dask LocalCluster against the same recordings replayed one after another.
 
 Baseline measured in the same run: ``replay`` of each recording in this process, one after the
@@ -18,7 +19,7 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import argparse  # noqa: E402
+import argparse
 import shutil
 import tempfile
 import time
