@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from common import best_of
 
 from rollergear_ros.calibrate import calibrate
 from rollergear_ros.importer import import_source
@@ -43,15 +44,6 @@ def signals(n: int, rate_hz: float) -> dict[str, np.ndarray]:
             "T_oil": 40 + 30 * (1 - np.exp(-t / 900))}
 
 
-def timed(fn, repeat: int = 2) -> float:
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--minutes", type=float, default=60.0)
@@ -59,6 +51,7 @@ def main() -> None:
     ap.add_argument("--keep", type=Path)
     args = ap.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="rollergear_bench_"))
+    work.mkdir(parents=True, exist_ok=True)
     n = int(args.minutes * 60 * args.rate)
     s = signals(n, args.rate)
     cmap = work / "map.yaml"
@@ -94,9 +87,9 @@ def main() -> None:
     for label, src, baseline_label, baseline in (
             ("MDF4", mf4, "asammdf reading the channels", asammdf_alone),
             ("CSV", csv, "pyarrow.csv.read_csv", lambda: pacsv.read_csv(csv))):
-        t_base = timed(baseline)
+        t_base = best_of(baseline, 2)
         out = work / f"{label}.mcap"
-        t_imp = timed(lambda src=src, out=out: import_source(src, out, cmap))
+        t_imp = best_of(lambda src=src, out=out: import_source(src, out, cmap), 2)
         print(f"import {label}: {t_imp:.2f} s = {n / t_imp / 1e3:.0f} k samples/s ({4 * n / t_imp / 1e6:.1f} M msg/s, "
               f"{out.stat().st_size / 1e6:.0f} MB MCAP); {baseline_label} alone: {t_base:.2f} s -> "
               f"{t_base / t_imp:.2f}x its speed")

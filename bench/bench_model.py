@@ -7,22 +7,13 @@ Usage: python bench/bench_model.py [--samples N]
 from __future__ import annotations
 
 import argparse
-import math
-import time
 
 import numpy as np
 
+from common import best_of
+
 from rollergear_ros.model import LossModel
 from rollergear_ros.params import load_config
-
-
-def best_of(fn, repeat: int = 5) -> float:
-    best = math.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def main() -> None:

@@ -31,3 +31,13 @@ def long_bag(path: Path, minutes: float, rate_hz: float, effects: list[str] = ()
     write_rig_bag(rig, opts, path)
     print(f"generated {path} ({path.stat().st_size / 1e6:.0f} MB, {n:,} samples) in {time.perf_counter() - t0:.0f} s")
     return path
+
+
+def best_of(fn, repeat: int = 5) -> float:
+    """The fastest of ``repeat`` calls of ``fn`` [s]."""
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
