@@ -33,7 +33,7 @@ from .errors import InputFileError, UsageError
 from .interface import Channel, MessageType
 from .timeseries import TIMESERIES_SUFFIXES, align, read_series
 
-__all__ = ["ImportSummary", "as_mcap", "import_source", "is_mcap", "source_kind"]
+__all__ = ["ImportSummary", "as_mcap", "import_source", "source_kind"]
 
 IMPORT_METADATA = "rollergear_import"
 RESAMPLING_RULE = ("paired channels on the motor torque's time stamps: taken as they are where they coincide, "
@@ -57,11 +57,6 @@ class ImportSummary:
         how = f"; resampled onto the motor torque's time base: {', '.join(self.resampled)}" if self.resampled else ""
         return (f"imported {self.source} ({self.kind}): {self.samples:,} samples, {self.messages:,} messages "
                 f"-> {self.out}{how}")
-
-
-def is_mcap(path: str | Path) -> bool:
-    p = Path(path)
-    return p.is_file() and p.suffix.lower() == ".mcap"
 
 
 def source_kind(path: str | Path) -> str:

@@ -31,12 +31,12 @@ from .errors import UsageError
 from .interface import RPM_PER_RAD_S, package_version
 from .operating_points import PointLosses, evaluate_points
 from .params import Config
+from .tables import MIN_ROWS
 
 __all__ = ["VECTO_HEADER", "LossMap", "build_map", "coverage_warning", "grid", "map_comments", "plot_map",
            "reverse_path", "vtlm_problems", "write_vtlm"]
 
 VECTO_HEADER = ("Input Speed [rpm]", "Input Torque [Nm]", "Torque Loss [Nm]")
-MIN_ROWS = 4  #: VECTO: "at least four lines with numeric values"
 
 
 @dataclass

@@ -31,7 +31,7 @@ __all__ = ["SteadyStateTable", "is_table", "read_table", "read_vtlm"]
 VTLM_COLUMNS = (("Input Speed", "rpm"), ("Input Torque", "Nm"), ("Torque Loss", "Nm"))
 _UNIT = re.compile(r"\[(.*?)\]")
 _UNIT_SPELLINGS = {"rpm": {"rpm", "1/min", "min-1", "min^-1"}, "Nm": {"nm", "n·m", "n*m", "n m"}}
-MIN_ROWS = 4
+MIN_ROWS = 4  #: VECTO: "at least four lines with numeric values" (also what a written map must hold)
 
 
 @dataclass
