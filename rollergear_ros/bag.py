@@ -18,7 +18,7 @@ from collections.abc import Iterator
 
 import numpy as np
 from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader, make_reader
+from mcap.reader import make_reader
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
 from .errors import BagError
@@ -77,22 +77,40 @@ class TopicMap:
 
 
 # ------------------------------------------------------------------------------------ decoding
-def decode_float64(payloads: list[bytes]) -> np.ndarray:
-    """Decode Float64 CDR payloads (4-byte encapsulation + float64) to an array, vectorised."""
+def float64_problem(payload: bytes) -> str | None:
+    """Why ``payload`` is not a CDR ``std_msgs/msg/Float64`` (None: it is one)."""
+    if len(payload) < 12:
+        return f"payload of {len(payload)} bytes (a Float64 message has 12)"
+    if payload[0] != 0 or payload[1] > 1:
+        return f"CDR encapsulation {payload[:2].hex()} is not plain CDR (0000 or 0001)"
+    return None
+
+
+def decode_float64(payloads: list[bytes], problems: list[tuple[int, str]] | None = None) -> np.ndarray:
+    """Decode Float64 CDR payloads (4-byte encapsulation + float64) to an array, vectorised.
+
+    A malformed payload (:func:`float64_problem`) raises :class:`BagError`; when ``problems`` is
+    given it decodes to NaN instead and ``(index, reason)`` is appended.
+    """
     n = len(payloads)
     if n == 0:
         return np.empty(0)
     blob = b"".join(payloads)
     if len(blob) == 12 * n:
         raw = np.frombuffer(blob, dtype=np.uint8).reshape(n, 12)
-        if np.all(raw[:, 1] == 1):  # little endian CDR
+        if np.all(raw[:, 1] == 1) and not raw[:, 0].any():  # little endian CDR
             return raw[:, 4:].copy().view("<f8").ravel()
-    # mixed or padded payloads: one at a time
+    # mixed, padded or malformed payloads: one at a time
     out = np.empty(n)
     for i, p in enumerate(payloads):
-        if len(p) < 12:
-            raise BagError(f"Float64 payload of {len(p)} bytes is too short")
-        out[i] = struct.unpack("<d" if p[1] == 1 else ">d", p[4:12])[0]
+        problem = float64_problem(p)
+        if problem is None:
+            out[i] = struct.unpack("<d" if p[1] == 1 else ">d", p[4:12])[0]
+        elif problems is None:
+            raise BagError(f"malformed Float64 message: {problem}")
+        else:
+            out[i] = np.nan
+            problems.append((i, problem))
     return out
 
 
@@ -209,6 +227,8 @@ def _check_mcap(path: Path) -> None:
         raise BagError(
             f"{path} is a directory; pass the .mcap file inside it" + (f" (e.g. {mcaps[0]})" if mcaps else "")
         )
+    if not path.is_file():  # a FIFO or a device would block or never end
+        raise BagError(f"{path} is not a regular file")
     with path.open("rb") as fh:
         magic = fh.read(8)
     if magic != b"\x89MCAP0\r\n":
@@ -243,9 +263,9 @@ def inspect_bag(path: str | Path) -> BagInfo:
     with path.open("rb") as fh:
         try:
             summary = make_reader(fh).get_summary()
-        except (McapError, struct.error, ValueError, EOFError):
+        except (McapError, struct.error, ValueError, EOFError, OSError):  # OSError: shorter than a footer
             summary = None
-        if summary is not None and summary.statistics is not None and summary.chunk_indexes:
+        if summary is not None and summary.statistics is not None:
             topics = {
                 c.topic: (summary.schemas[c.schema_id].name if c.schema_id else "") for c in summary.channels.values()
             }
@@ -354,29 +374,33 @@ class RawBatch:
     data: list[bytes]
 
 
-def iter_raw_batches(info: BagInfo, topics: set[str] | None, batch_size: int = 50_000, warn=None) -> Iterator[RawBatch]:
+def iter_raw_batches(info: BagInfo, topics: set[str] | None, batch_size: int = 50_000, state=None
+                     ) -> Iterator[RawBatch]:
     """Yield batches of raw messages (file order, which for recorders is time order within chunks).
 
-    A truncated file yields everything readable; the loss is reported through ``warn``.
+    Reads with :func:`~rollergear_ros.fastmcap.iter_message_arrays`: damaged spans are skipped and
+    listed in ``state.damaged`` (a :class:`~rollergear_ros.fastmcap.ReadState`).
     """
-    with info.path.open("rb") as fh:
-        reader = NonSeekingReader(fh, record_size_limit=None)
-        tp: list[str] = []
-        lt: list[int] = []
-        dd: list[bytes] = []
-        try:
-            for _schema, channel, message in reader.iter_messages(topics=topics, log_time_order=False):
-                tp.append(channel.topic)
-                lt.append(message.log_time)
-                dd.append(message.data)
-                if len(tp) >= batch_size:
-                    yield RawBatch(tp, lt, dd)
-                    tp, lt, dd = [], [], []
-        except (McapError, struct.error, ValueError, EOFError, KeyError) as exc:
-            if warn:
-                warn(f"{info.path}: stopped reading at a damaged or truncated record ({type(exc).__name__}: {exc})")
-        if tp:
+    from .fastmcap import ReadState, iter_message_arrays
+
+    state = state if state is not None else ReadState()
+    tp: list[str] = []
+    lt: list[int] = []
+    dd: list[bytes] = []
+    for arrays in iter_message_arrays(info.path, state):
+        names = {cid: topic for cid, (topic, _sid, _enc) in state.channels.items()}
+        for i, (cid, t) in enumerate(zip(arrays.channel.tolist(), arrays.log_time.tolist())):
+            topic = names.get(cid)
+            if topic is None or (topics is not None and topic not in topics):
+                continue
+            tp.append(topic)
+            lt.append(t)
+            dd.append(arrays.payload(i))
+        if len(tp) >= batch_size:
             yield RawBatch(tp, lt, dd)
+            tp, lt, dd = [], [], []
+    if tp:
+        yield RawBatch(tp, lt, dd)
 
 
 # ------------------------------------------------------------------------------------ writing
@@ -384,13 +408,13 @@ class BagWriter:
     """Writes a ROS 2 MCAP bag (``ros2`` profile, ``ros2msg`` schemas, ``cdr`` messages).
 
     Whole series of equal-sized messages (Float64 outputs, copied inputs) are added with numpy
-    (:class:`~rollergear_ros.fastmcap.ChunkedMcapWriter`).  Used as a context manager; :meth:`close`
+    (:class:`~rollergear_ros.mcapwriter.ChunkedMcapWriter`).  Used as a context manager; :meth:`close`
     (also on error or interrupt) writes the summary and footer, so everything added so far stays
     readable.
     """
 
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024) -> None:
-        from .fastmcap import ChunkedMcapWriter
+        from .mcapwriter import ChunkedMcapWriter
 
         self.path = Path(path)
         self._writer = ChunkedMcapWriter(self.path, chunk_size=chunk_size)

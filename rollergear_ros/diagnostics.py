@@ -92,6 +92,8 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
         values.append((f"skipped {r.replace('_', ' ')}", f"{total} (+{new})"))
         if new and r in ("non_finite", "implausible"):
             reasons.append((WARN, f"{new} samples with {r.replace('_', ' ')} input skipped"))
+        elif new and r in ("malformed", "duplicate"):
+            reasons.append((WARN, f"{new} {r} input messages skipped"))
         elif new and r == "unpaired":
             reasons.append((WARN, f"{new} input messages without partner (dropped or late)"))
     last = estimator.last

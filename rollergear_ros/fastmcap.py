@@ -9,6 +9,7 @@ every complete chunk before the damage.  No rclpy.
 
 from __future__ import annotations
 
+import os
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -17,13 +18,14 @@ from collections.abc import Iterator
 
 import numpy as np
 from mcap.opcode import Opcode
-from mcap.well_known import Profile
 from mcap.writer import MCAP0_MAGIC as MAGIC
 
+from .errors import BagError
+
 # record opcodes as plain ints (compared per record in the numpy fast path)
-OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_DATA_END, OP_FOOTER = (
-    int(Opcode.SCHEMA), int(Opcode.CHANNEL), int(Opcode.MESSAGE), int(Opcode.CHUNK), int(Opcode.DATA_END),
-    int(Opcode.FOOTER))
+OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX, OP_DATA_END, OP_FOOTER = (
+    int(Opcode.SCHEMA), int(Opcode.CHANNEL), int(Opcode.MESSAGE), int(Opcode.CHUNK), int(Opcode.MESSAGE_INDEX),
+    int(Opcode.DATA_END), int(Opcode.FOOTER))
 _MSG_FIXED = 2 + 4 + 8 + 8  # channel id, sequence, log time, publish time
 _MSG_HEAD = struct.Struct("<BQHIqq")
 
@@ -48,20 +50,69 @@ class MessageArrays:
     def float64(self, rows: np.ndarray) -> np.ndarray:
         """Decode the given rows as little-endian CDR Float64 payloads (12 bytes), vectorised."""
         off = self.offset[rows]
-        if not (np.all(self.length[rows] >= 12) and np.all(self.buf[off + 1] == 1)):
+        if not (np.all(self.length[rows] >= 12) and np.all(self.buf[off + 1] == 1) and not self.buf[off].any()):
             raise ValueError("not little-endian Float64 CDR payloads")
         return self.buf[off[:, None] + np.arange(4, 12)].copy().view("<f8").ravel()
 
 
+#: bounds on what a record may declare, so that a damaged or hostile length costs neither memory nor time
+MAX_CHUNK_BYTES = 256 << 20  # a decompressed chunk (recorders write 1–4 MB)
+MAX_COMPRESSION_RATIO = 1000  # declared uncompressed / compressed size; real messages stay far below
+CHUNK_COMPRESSIONS = ("", "zstd", "lz4")
+_LOOSE_BLOCK = 1 << 20  # messages outside chunks are parsed this many bytes at a time
+_SCAN_WINDOW = 1 << 22  # resynchronisation scans the file in windows of this size
+_DATA_END_RECORD = bytes([int(Opcode.DATA_END)]) + (4).to_bytes(8, "little")
+
+
+@dataclass
+class DamagedSpan:
+    """A stretch of a file that could not be read; reading went on after it (or the file ended)."""
+
+    start_byte: int
+    end_byte: int
+    reason: str
+    start_ns: int | None = None  #: the lost messages' log times (the chunk's own, else the neighbours')
+    end_ns: int | None = None
+    messages_lost: int | None = None  #: from the damaged chunk's message index; None: not known
+
+    def text(self) -> str:
+        if self.start_ns is not None and self.end_ns is not None:
+            when = f"log time {_time_text(self.start_ns)} to {_time_text(self.end_ns)}"
+        else:
+            when = "log time unknown"
+        lost = "an unknown number of messages" if self.messages_lost is None else f"{self.messages_lost:,} messages"
+        return (f"bytes {self.start_byte:,}–{self.end_byte:,} ({self.end_byte - self.start_byte:,} bytes, {when}) "
+                f"unreadable: {self.reason}; {lost} lost")
+
+
+def _time_text(t_ns: int) -> str:
+    """A log time for people: UTC date and time for wall-clock stamps, seconds for others."""
+    if t_ns >= 10**17:  # after 1973: a wall-clock stamp
+        import datetime as dt
+
+        return dt.datetime.fromtimestamp(t_ns * 1e-9, dt.UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + " UTC"
+    return f"{t_ns * 1e-9:.3f} s"
+
+
 @dataclass
 class ReadState:
-    """What a linear read has seen so far."""
+    """What a linear read has seen so far: schemas, channels, and every damaged span it skipped."""
 
     schemas: dict[int, tuple[str, str, bytes]] = field(default_factory=dict)  # id -> (name, encoding, data)
     channels: dict[int, tuple[str, int, str]] = field(default_factory=dict)  # id -> (topic, schema id, encoding)
     bytes_read: int = 0
-    truncated: bool = False
-    problem: str = ""
+    truncated: bool = False  #: the read did not reach the data-end record
+    problem: str = ""  #: why it did not
+    damaged: list[DamagedSpan] = field(default_factory=list)
+    bad_log_times: int = 0  #: messages skipped because their log time is beyond 2⁶³ − 1 ns
+    last_log_time: int | None = None  #: of the last message yielded
+
+    def damage_report(self) -> list[str]:
+        """One line per damaged span, and one for skipped log times."""
+        lines = [s.text() for s in self.damaged]
+        if self.bad_log_times:
+            lines.append(f"{self.bad_log_times:,} messages with a log time beyond 2^63 - 1 ns skipped")
+        return lines
 
 
 def _string(b: bytes, pos: int) -> tuple[str, int]:
@@ -124,75 +175,230 @@ def parse_records(data: bytes, state: ReadState) -> MessageArrays:
     if not chans:
         e = np.empty(0, dtype=np.int64)
         return MessageArrays(np.empty(0, dtype=np.uint16), e, e, e, buf)
-    return MessageArrays(np.concatenate(chans), np.concatenate(times), np.concatenate(offs), np.concatenate(lens), buf)
+    arrays = MessageArrays(np.concatenate(chans), np.concatenate(times), np.concatenate(offs), np.concatenate(lens),
+                           buf)
+    bad = arrays.log_time < 0  # unsigned log times beyond 2⁶³ − 1: no ROS time, and no int64 to compute with
+    if bad.any():
+        state.bad_log_times += int(bad.sum())
+        keep = ~bad
+        arrays = MessageArrays(arrays.channel[keep], arrays.log_time[keep], arrays.offset[keep],
+                               arrays.length[keep], buf)
+    return arrays
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    """Decompress a chunk's records into at most ``size`` bytes (more is damage, not memory spent)."""
     if compression == "":
         return data
     if compression == "zstd":
         import zstandard
 
+        declared = zstandard.frame_content_size(data)
+        if declared not in (-1, size):
+            raise ValueError(f"zstd frame holds {declared:,} bytes, the chunk declares {size:,}")
         return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        import lz4.frame
+    import lz4.frame
 
-        return lz4.frame.decompress(data)
-    raise ValueError(f"unsupported chunk compression {compression!r}")
+    return lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size + 1)
+
+
+def _chunk_header(body: bytes, record_length: int | None = None) -> tuple[int, int, int, int, str, int, int]:
+    """A chunk record's fields, each checked: (start, end, uncompressed size, CRC, compression,
+    offset of the compressed records, their length).  ``body`` may be only the record's start when
+    ``record_length`` gives its whole length."""
+    length = len(body) if record_length is None else record_length
+    if len(body) < 40 or length < 40:
+        raise ValueError("chunk record too short")
+    start_ns, end_ns, size, crc = struct.unpack_from("<QQQI", body, 0)
+    n_name = struct.unpack_from("<I", body, 28)[0]
+    if n_name > 16:
+        raise ValueError("chunk compression name too long")
+    compression = body[32:32 + n_name].decode("ascii", errors="replace")
+    if compression not in CHUNK_COMPRESSIONS:
+        raise ValueError(f"unsupported chunk compression {compression!r}")
+    p = 32 + n_name + 8
+    if p > len(body):
+        raise ValueError("chunk record too short")
+    n = struct.unpack_from("<Q", body, p - 8)[0]
+    if p + n > length:
+        raise ValueError(f"chunk declares {n:,} compressed bytes, its record holds {length - p:,}")
+    if size > MAX_CHUNK_BYTES or (compression and size > MAX_COMPRESSION_RATIO * n + 65536):
+        raise ValueError(f"chunk declares {size:,} bytes uncompressed from {n:,} (beyond the reader's bounds)")
+    return start_ns, end_ns, size, crc, compression, p, n
+
+
+def chunk_records(body: bytes) -> bytes:
+    """The records inside a chunk record's body: decompressed within bounds, size and CRC checked."""
+    _s, _e, size, crc, compression, p, n = _chunk_header(body)
+    try:
+        data = _decompress(compression, body[p:p + n], size)
+    except Exception as exc:  # noqa: BLE001 - each codec raises its own error class
+        raise ValueError(f"{compression} decompression failed ({exc})") from None
+    if len(data) != size:
+        raise ValueError(f"chunk decompresses to {len(data):,} bytes, declares {size:,}")
+    if crc and zlib.crc32(data) != crc:  # 0: the writer computed none
+        raise ValueError(f"chunk CRC mismatch (stored {crc:#010x}, data {zlib.crc32(data):#010x})")
+    return data
+
+
+def _plausible_chunk(fh, offset: int, file_size: int) -> bool:
+    """Whether a chunk record starts at ``offset``: every field of its header consistent (a
+    byte pattern that random data matches with a probability of about 2⁻⁶⁰)."""
+    fh.seek(offset)
+    head = fh.read(9 + 32 + 16 + 8)
+    if len(head) < 9 + 40 or head[0] != OP_CHUNK:
+        return False
+    ln = int.from_bytes(head[1:9], "little")
+    if offset + 9 + ln > file_size:
+        return False
+    try:
+        start_ns, end_ns, _size, _crc, _comp, p, n = _chunk_header(head[9:], ln)
+    except (ValueError, struct.error):
+        return False
+    return start_ns <= end_ns and p + n == ln
+
+
+def find_next_chunk(fh, start: int, file_size: int) -> int | None:
+    """Offset of the first chunk (or data-end) record at or after ``start`` — where a read resumes
+    after damage; None when there is none."""
+    chunk_op = bytes([OP_CHUNK])
+    pos = start
+    while pos < file_size:
+        fh.seek(pos)
+        block = fh.read(min(_SCAN_WINDOW + 64, file_size - pos))
+        end_at = block.find(_DATA_END_RECORD, 0, _SCAN_WINDOW)
+        limit = end_at if end_at >= 0 else min(_SCAN_WINDOW, len(block))
+        i = block.find(chunk_op, 0, limit)
+        while i >= 0:
+            if _plausible_chunk(fh, pos + i, file_size):
+                return pos + i
+            i = block.find(chunk_op, i + 1, limit)
+        if end_at >= 0:
+            return pos + end_at
+        pos += _SCAN_WINDOW
+    return None
+
+
+def _loose_records(fh, pos: int, file_size: int) -> bytes:
+    """A run of schema, channel and message records outside chunks starting at ``pos`` (whole
+    records, up to about :data:`_LOOSE_BLOCK` bytes), so unchunked files parse in runs too."""
+    fh.seek(pos)
+    block = fh.read(min(_LOOSE_BLOCK, file_size - pos))
+    p = 0
+    while p + 9 <= len(block):
+        ln = int.from_bytes(block[p + 1:p + 9], "little")
+        if block[p] not in (OP_MESSAGE, OP_SCHEMA, OP_CHANNEL) or p + 9 + ln > len(block):
+            break
+        p += 9 + ln
+    if p == 0:  # one record larger than the block (its length is within the file: checked by the caller)
+        fh.seek(pos)
+        return fh.read(9 + int.from_bytes(block[1:9], "little"))
+    return block[:p]
+
+
+def _message_index_count(body: bytes) -> int | None:
+    """Messages a message-index record lists (16 bytes per entry), None if it is malformed."""
+    if len(body) < 6:
+        return None
+    n = struct.unpack_from("<I", body, 2)[0]
+    return n // 16 if n % 16 == 0 and 6 + n <= len(body) else None
 
 
 def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Iterator[MessageArrays]:
-    """Linear read of an MCAP file, one :class:`MessageArrays` per chunk (or per loose message run).
+    """Linear read of an MCAP file, one :class:`MessageArrays` per chunk (or per run of loose messages).
 
-    Stops at the data-end record; on a truncated or damaged file it stops at the first bad record
-    and sets ``state.truncated`` (everything before it has been yielded).
+    Every length a record declares is bounded by the file size (and a chunk's decompressed size by
+    :data:`MAX_CHUNK_BYTES`) before anything is allocated; chunk CRCs are verified.  A damaged
+    record is skipped: the read resumes at the next chunk (found by :func:`find_next_chunk`) and
+    the skipped span — bytes, log times, messages lost when the chunk's message index tells — is
+    added to ``state.damaged``.  A file that ends early sets ``state.truncated``.
     """
     state = state if state is not None else ReadState()
-    with Path(path).open("rb") as fh:
+    path = Path(path)
+    if not path.is_file():
+        raise BagError(f"{path} is not a regular file")
+    with path.open("rb") as fh:
+        file_size = os.fstat(fh.fileno()).st_size
         if fh.read(8) != MAGIC:
-            raise ValueError(f"{path} is not an MCAP file")
+            raise BagError(f"{path} is not an MCAP file")
         pos = 8
+        after_damage: DamagedSpan | None = None  # message-index records right after it count its losses
         while True:
-            head = fh.read(9)
-            if len(head) < 9:
+            if pos + 9 > file_size:
                 state.truncated = True
                 state.problem = "file ends without a data-end record"
+                if pos < file_size:
+                    _damaged(state, pos, file_size, "the file ends inside a record")
                 break
+            fh.seek(pos)
+            head = fh.read(9)
             op = head[0]
             ln = int.from_bytes(head[1:], "little")
-            body = fh.read(ln)
-            if len(body) < ln:
-                state.truncated = True
-                state.problem = f"record at byte {pos} is cut short"
-                break
-            try:
-                if op == OP_CHUNK:
-                    _st, _et, size, crc = struct.unpack_from("<QQQI", body, 0)
-                    comp, p = _string(body, 28)
-                    n = struct.unpack_from("<Q", body, p)[0]
-                    data = _decompress(comp, body[p + 8:p + 8 + n], size)
-                    if crc and zlib.crc32(data) != crc:  # 0: the writer computed none
-                        raise ValueError(f"chunk CRC mismatch (stored {crc:#010x}, data {zlib.crc32(data):#010x})")
-                    arrays = parse_records(data, state)
-                    state.bytes_read = pos + 9 + ln
-                    if len(arrays):
-                        yield arrays
-                elif op == OP_MESSAGE:
-                    arrays = parse_records(head + body, state)
-                    state.bytes_read = pos + 9 + ln
-                    yield arrays
-                elif op == OP_SCHEMA:
-                    _schema(body, state)
-                elif op == OP_CHANNEL:
-                    _channel(body, state)
-                elif op in (OP_DATA_END, OP_FOOTER):
-                    state.bytes_read = pos + 9 + ln
+            end = pos + 9 + ln
+            if op == 0 or end > file_size:
+                reason = ("invalid record (opcode 0)" if op == 0
+                          else f"a record declares {ln:,} bytes, beyond the end of the file")
+                nxt = find_next_chunk(fh, pos + 1, file_size)
+                after_damage = _damaged(state, pos, nxt if nxt is not None else file_size, reason)
+                if nxt is None:
+                    state.truncated = True
+                    state.problem = f"{reason} (byte {pos:,}); nothing readable after it"
                     break
-            except Exception as exc:  # noqa: BLE001 - damaged data (bad lengths, decompression): stop there
-                state.truncated = True
-                state.problem = f"damaged record at byte {pos}: {exc}"
-                break
-            pos += 9 + ln
+                pos = nxt
+                continue
+            try:
+                arrays = None
+                if op == OP_CHUNK:
+                    body = fh.read(ln)
+                    arrays = parse_records(chunk_records(body), state)
+                elif op in (OP_MESSAGE, OP_SCHEMA, OP_CHANNEL):
+                    run = _loose_records(fh, pos, file_size)
+                    arrays = parse_records(run, state)
+                    end = pos + len(run)
+                elif op == OP_MESSAGE_INDEX and after_damage is not None:
+                    count = _message_index_count(fh.read(ln))
+                    if count is not None:
+                        after_damage.messages_lost = (after_damage.messages_lost or 0) + count
+                    pos = end
+                    continue
+                elif op in (OP_DATA_END, OP_FOOTER):
+                    state.bytes_read = end
+                    break
+            except Exception as exc:  # noqa: BLE001 - damaged data (bad fields, decompression, CRC): skip the record
+                after_damage = _damaged(state, pos, end, str(exc) or type(exc).__name__, fh if op == OP_CHUNK else None)
+                pos = end
+                continue
+            after_damage = None
+            state.bytes_read = pos = end
+            if arrays is not None and len(arrays):
+                _close_gap(state, int(arrays.log_time.min()))
+                state.last_log_time = int(arrays.log_time.max())
+                yield arrays
+        _close_gap(state, None)
+
+
+def _damaged(state: ReadState, start: int, end: int, reason: str, fh=None) -> DamagedSpan:
+    """Record a damaged span; a chunk's own header gives its log-time range when it is intact."""
+    span = DamagedSpan(start, end, reason)
+    if fh is not None:
+        fh.seek(start + 9)
+        try:
+            start_ns, end_ns, *_ = _chunk_header(fh.read(min(end - start - 9, 64)), end - start - 9)
+            if 0 <= start_ns <= end_ns < 2**63:
+                span.start_ns, span.end_ns = start_ns, end_ns
+        except (ValueError, struct.error):
+            pass
+    if span.start_ns is None:
+        span.start_ns = state.last_log_time
+    state.damaged.append(span)
+    return span
+
+
+def _close_gap(state: ReadState, next_log_time: int | None) -> None:
+    """Spans known only by their neighbours end at the first message read after them."""
+    for span in state.damaged:
+        if span.end_ns is None:
+            span.end_ns = next_log_time if next_log_time is not None else state.last_log_time
 
 
 def release_count(t_sorted: np.ndarray, keys_sorted: np.ndarray, ignore_key: int | None = None) -> int:
@@ -238,269 +444,3 @@ def iter_log_time_order(path: str | Path, state: ReadState | None = None
         carry_t, carry_c, carry_p = t[cut:], c[cut:], payloads[cut:]
     if len(carry_t):
         yield carry_t, carry_c, carry_p
-
-
-# ------------------------------------------------------------------------------------ writing
-def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> np.ndarray:
-    """Message records (one row each, sequence numbers left 0) for payloads of equal length."""
-    n, plen = payload.shape
-    rows = np.empty((n, 9 + _MSG_FIXED + plen), dtype=np.uint8)
-    rows[:, 0] = OP_MESSAGE
-    rows[:, 1:9] = np.frombuffer(struct.pack("<Q", _MSG_FIXED + plen), dtype=np.uint8)
-    rows[:, 9:11] = np.ascontiguousarray(channel_id, dtype="<u2").view(np.uint8).reshape(n, 2)
-    rows[:, 11:15] = 0
-    lt = np.ascontiguousarray(log_time, dtype="<i8").view(np.uint8).reshape(n, 8)
-    rows[:, 15:23] = lt
-    rows[:, 23:31] = lt
-    rows[:, 31:] = payload
-    return rows
-
-
-class ChunkedMcapWriter:
-    """A ROS 2 MCAP writer that takes whole arrays of equal-sized messages at once.
-
-    Produces the same file structure as the ``mcap`` library's writer (chunks with message
-    indexes, summary with schemas, channels, statistics, chunk and metadata indexes, summary
-    offsets, footer), which both ``mcap`` and ``rosbags`` read (tested).  :meth:`close` writes the
-    summary, so an interrupted program that reaches it leaves a complete file; a killed one leaves
-    every finished chunk readable.  CRCs as the ``mcap`` library writes them by default: each
-    chunk's (of its uncompressed records) and the summary's; the data-section CRC is 0 ("not
-    computed", as the spec allows and ``mcap``'s default ``enable_data_crcs=False`` does), since
-    every chunk is covered already.  The reader here verifies the chunk CRCs it finds.  Chunks are
-    zstd level 1: on streams of Float64 messages 3x faster to compress than level 3 and no larger.
-    """
-
-    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, profile: str = Profile.ROS2,
-                 library: str = "rollergear_ros", compression_level: int = 1) -> None:
-        import zstandard
-        from mcap.data_stream import RecordBuilder
-        from mcap.records import Header
-
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = self.path.open("wb")
-        self._zstd = zstandard.ZstdCompressor(level=compression_level)
-        self.chunk_size = chunk_size
-        self._schemas: dict[int, object] = {}
-        self._channels: dict[int, object] = {}
-        self._chunk_indexes: list = []
-        self._metadata_indexes: list = []
-        self._chunk = bytearray()  # record bytes of the open chunk
-        self._index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # channel -> [(log times, offsets)]
-        self._single: dict[int, tuple[list[int], list[int]]] = {}  # the same for messages added one by one
-        self._size = 0
-        self._start = self._end = None
-        self._counts: dict[int, int] = {}
-        self._seq: dict[int, int] = {}
-        self._message_count = 0
-        self._t_min: int | None = None
-        self._t_max: int | None = None
-        self.closed = False
-        self._fh.write(MAGIC)
-        rb = RecordBuilder()
-        Header(profile=profile, library=library).write(rb)
-        self._fh.write(rb.end())
-
-    # -------------------------------------------------------------- registration
-    def register_schema(self, name: str, encoding: str, data: bytes) -> int:
-        from mcap.records import Schema
-
-        sid = len(self._schemas) + 1
-        self._schemas[sid] = Schema(id=sid, name=name, encoding=encoding, data=data)
-        self._write_record(self._schemas[sid])
-        return sid
-
-    def register_channel(self, topic: str, message_encoding: str, schema_id: int, metadata: dict | None = None) -> int:
-        from mcap.records import Channel
-
-        cid = len(self._channels) + 1
-        self._channels[cid] = Channel(id=cid, topic=topic, message_encoding=message_encoding, schema_id=schema_id,
-                                      metadata=dict(metadata or {}))
-        self._write_record(self._channels[cid])
-        self._counts[cid] = 0
-        self._seq[cid] = 0
-        return cid
-
-    def _write_record(self, record) -> None:
-        """Schema/channel records go into the open chunk (as the mcap writer does)."""
-        from mcap.data_stream import RecordBuilder
-
-        rb = RecordBuilder()
-        record.write(rb)
-        data = rb.end()
-        self._chunk += data
-        self._size += len(data)
-
-    # -------------------------------------------------------------- messages
-    def add_messages(self, channel_id: int | np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> None:
-        """Add ``n`` messages whose payloads are the rows of ``payload`` (n × L uint8), in this order.
-
-        ``channel_id`` is one id for all rows, or an array with one id per row (interleaved topics).
-        """
-        n = len(log_time)
-        if n == 0:
-            return
-        log_time = np.asarray(log_time, dtype=np.int64)
-        ids = np.broadcast_to(np.asarray(channel_id, dtype=np.int64), (n,))
-        rows = message_rows(ids, log_time, payload)
-        rec = rows.shape[1]
-        offsets = self._size + rec * np.arange(n, dtype=np.int64)
-        for cid in np.unique(ids).tolist():
-            sel = ids == cid
-            k = int(sel.sum())
-            seq = self._seq[cid] + np.arange(1, k + 1, dtype=np.int64)
-            rows[sel, 11:15] = (seq & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(k, 4)
-            self._seq[cid] += k
-            self._index.setdefault(cid, []).append((log_time[sel], offsets[sel]))
-            self._counts[cid] += k
-        self._chunk += rows.reshape(-1).data
-        self._size += rows.size
-        self._message_count += n
-        lo, hi = int(np.min(log_time)), int(np.max(log_time))
-        self._start = lo if self._start is None else min(self._start, lo)
-        self._end = hi if self._end is None else max(self._end, hi)
-        self._t_min = lo if self._t_min is None else min(self._t_min, lo)
-        self._t_max = hi if self._t_max is None else max(self._t_max, hi)
-        if self._size >= self.chunk_size:
-            self.flush_chunk()
-
-    def add_message(self, channel_id: int, log_time: int, data: bytes) -> None:
-        """Add one message (plain Python: ~1 µs, for recorders that get messages one by one)."""
-        seq = self._seq[channel_id] = self._seq[channel_id] + 1
-        rec = _MSG_HEAD.pack(OP_MESSAGE, _MSG_FIXED + len(data), channel_id, seq & 0xFFFFFFFF, log_time, log_time)
-        times, offs = self._single.setdefault(channel_id, ([], []))
-        times.append(log_time)
-        offs.append(self._size)
-        self._chunk += rec
-        self._chunk += data
-        self._size += len(rec) + len(data)
-        self._counts[channel_id] += 1
-        self._message_count += 1
-        if self._start is None or log_time < self._start:
-            self._start = log_time
-        if self._end is None or log_time > self._end:
-            self._end = log_time
-        if self._t_min is None or log_time < self._t_min:
-            self._t_min = log_time
-        if self._t_max is None or log_time > self._t_max:
-            self._t_max = log_time
-        if self._size >= self.chunk_size:
-            self.flush_chunk()
-
-    def add_metadata(self, name: str, data: dict[str, str]) -> None:
-        from mcap.data_stream import RecordBuilder
-        from mcap.records import Metadata, MetadataIndex
-
-        self.flush_chunk()
-        rb = RecordBuilder()
-        Metadata(name=name, metadata=dict(data)).write(rb)
-        blob = rb.end()
-        offset = self._fh.tell()
-        self._fh.write(blob)
-        self._metadata_indexes.append(MetadataIndex(offset=offset, length=len(blob), name=name))
-
-    def flush_chunk(self) -> None:
-        """Compress and write the open chunk with its message indexes."""
-        from mcap.data_stream import RecordBuilder
-        from mcap.records import Chunk, ChunkIndex
-
-        if not self._chunk:
-            return
-        data = self._chunk
-        compressed = self._zstd.compress(data)
-        start = self._start if self._start is not None else 0
-        end = self._end if self._end is not None else 0
-        rb = RecordBuilder()
-        Chunk(compression="zstd", data=compressed, message_start_time=start, message_end_time=end,
-              uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data)).write(rb)
-        chunk_blob = rb.end()
-        chunk_offset = self._fh.tell()
-        self._fh.write(chunk_blob)
-        index_offsets: dict[int, int] = {}
-        index_start = self._fh.tell()
-        for cid, (times, offs) in self._single.items():
-            self._index.setdefault(cid, []).append((np.array(times, dtype=np.int64), np.array(offs, dtype=np.int64)))
-        for cid in sorted(self._index):
-            times = np.concatenate([t for t, _ in self._index[cid]])
-            offs = np.concatenate([o for _, o in self._index[cid]])
-            order = np.argsort(times, kind="stable")
-            entries = np.empty((len(times), 2), dtype="<u8")
-            entries[:, 0] = times[order]
-            entries[:, 1] = offs[order]
-            body = struct.pack("<HI", cid, entries.nbytes) + entries.tobytes()
-            index_offsets[cid] = self._fh.tell()
-            self._fh.write(struct.pack("<BQ", Opcode.MESSAGE_INDEX, len(body)) + body)
-        self._chunk_indexes.append(ChunkIndex(
-            message_start_time=start, message_end_time=end, chunk_start_offset=chunk_offset,
-            chunk_length=len(chunk_blob), message_index_offsets=index_offsets,
-            message_index_length=self._fh.tell() - index_start, compression="zstd",
-            compressed_size=len(compressed), uncompressed_size=len(data)))
-        self._chunk, self._index, self._single, self._size = bytearray(), {}, {}, 0
-        self._start = self._end = None
-
-    def close(self) -> None:
-        """Write the last chunk, the summary and the footer (idempotent)."""
-        from mcap.data_stream import RecordBuilder
-        from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
-
-        if self.closed:
-            return
-        self.closed = True
-        try:
-            self.flush_chunk()
-            rb = RecordBuilder()
-            DataEnd(data_section_crc=0).write(rb)
-            self._fh.write(rb.end())
-            summary_start = self._fh.tell()
-            sb = RecordBuilder()
-            offsets = []
-            groups = (
-                (Opcode.SCHEMA, list(self._schemas.values())),
-                (Opcode.CHANNEL, list(self._channels.values())),
-                (
-                    Opcode.STATISTICS,
-                    [
-                        Statistics(
-                            attachment_count=0,
-                            channel_count=len(self._channels),
-                            channel_message_counts=dict(self._counts),
-                            chunk_count=len(self._chunk_indexes),
-                            message_count=self._message_count,
-                            message_end_time=self._t_max or 0,
-                            message_start_time=self._t_min or 0,
-                            metadata_count=len(self._metadata_indexes),
-                            schema_count=len(self._schemas),
-                        )
-                    ],
-                ),
-                (Opcode.CHUNK_INDEX, self._chunk_indexes),
-                (Opcode.METADATA_INDEX, self._metadata_indexes),
-            )
-            for opcode, records in groups:
-                if not records:
-                    continue
-                g0 = sb.count
-                for r in records:
-                    r.write(sb)
-                offsets.append(
-                    SummaryOffset(group_opcode=opcode, group_start=summary_start + g0, group_length=sb.count - g0)
-                )
-            summary_offset_start = summary_start + sb.count
-            for o in offsets:
-                o.write(sb)
-            summary = sb.end()
-            self._fh.write(summary)
-            # the summary CRC covers the summary section and the footer's fields before it (MCAP spec)
-            footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
-            summary_crc = zlib.crc32(footer_head, zlib.crc32(summary))
-            fb = RecordBuilder()
-            Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
-                   summary_crc=summary_crc).write(fb)
-            self._fh.write(fb.end())
-            self._fh.write(MAGIC)
-        finally:
-            self._fh.flush()
-            import os
-
-            os.fsync(self._fh.fileno())
-            self._fh.close()

@@ -225,7 +225,13 @@ class LossEstimatorNode(Node):
             if self.recorder is not None:
                 self.recorder.write_raw(topic, MessageType.FLOAT64,
                                         t_ns if record_arrival else self.get_clock().now().nanoseconds, raw)
-            value = unpack(raw, 4)[0] if raw[1] == 1 else float(bagmod.decode_float64([raw])[0])
+            if len(raw) >= 12 and raw[1] == 1 and raw[0] == 0:
+                value = unpack(raw, 4)[0]
+            elif bagmod.float64_problem(raw) is None:
+                value = float(bagmod.decode_float64([raw])[0])
+            else:  # not a Float64 payload: counted (diagnostics warn), never decoded as garbage
+                self.estimator.counts["malformed"] += 1
+                return
             for est in self.estimator.push(channel, t_ns, value):
                 self._publish(est)
 

@@ -87,9 +87,10 @@ SKEW_HELD_UP_NS = 10_000_000  #: ... and never less than this (the arrival perio
 #: that delivery jitter on a busy machine never costs a sample later on
 LOSSLESS_SKEW_WINDOW = 500
 
-#: reasons a sample is not estimated (or estimated without a residual)
+#: reasons a sample is not estimated (or estimated without a residual); ``malformed`` and
+#: ``duplicate`` count input messages that were never paired (not a Float64, a repeat)
 SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
-                                 "output_non_finite", "temperature_missing")
+                                 "output_non_finite", "temperature_missing", "malformed", "duplicate")
 
 
 def pairing_tolerance_s(sync_tolerance_s: float, sample_period_s: float | None) -> float:

@@ -13,12 +13,13 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
-from .bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, decode_float64, decoder_for, inspect_bag,
-                  iter_raw_batches, median_period_s, read_metadata)
+from .bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, decode_float64, decoder_for, float64_problem,
+                  inspect_bag, iter_raw_batches, median_period_s, read_metadata)
 from .estimator import BatchEstimate, Estimator
 from .pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from .interface import MessageType, Metadata
@@ -45,6 +46,19 @@ class InputPlan:
         return t
 
 
+def _check_float64_schema(info: BagInfo, topic: str) -> None:
+    """A schema named ``std_msgs/msg/Float64`` must define ``float64 data`` (else its payloads
+    would be decoded as something they are not)."""
+    text = info.schema_texts.get(MessageType.FLOAT64)
+    if text is None:
+        return
+    fields = [line.split("#")[0].strip() for line in text.split("=" * 80)[0].splitlines()]
+    fields = [" ".join(f.split()) for f in fields if f]
+    if fields != ["float64 data"]:
+        shown = "; ".join(fields)[:120]
+        raise BagError(f"topic {topic}: its schema {MessageType.FLOAT64} defines '{shown}', not 'float64 data'")
+
+
 def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
     """Check the bag has the inputs (with the right types); raise :class:`BagError` saying what it has."""
     have = info.topics
@@ -68,6 +82,7 @@ def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
         for ch, topic in topics.float64_inputs().items():
             if topic in have:
                 need_type(topic, (MessageType.FLOAT64,))
+                _check_float64_schema(info, topic)
                 f64[topic] = ch
         return InputPlan("float64", f64, None, temperature, topics)
     if topics.joint_states in have:
@@ -80,33 +95,125 @@ def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
     )
 
 
-def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo) -> list[tuple[int, str, float]]:
-    """Decode a raw batch of a JointState recording into ``(time, channel, value)`` in file order.
+def _cdr_problem(payload: bytes) -> str | None:
+    """Why a payload is not plain CDR (the encapsulation header ROS 2 writes); None if it is."""
+    if len(payload) < 4 or payload[0] != 0 or payload[1] > 1:
+        return f"CDR encapsulation {payload[:2].hex()} is not plain CDR (0000 or 0001)"
+    return None
 
-    Float64 recordings take the vectorised path (:func:`_float64_batches`); non-finite values are kept.
+
+def _decode_temperature(payload: bytes, plan: InputPlan, info: BagInfo) -> tuple[float, str | None]:
+    """An oil temperature message (Float64 or sensor_msgs/Temperature) -> (°C, problem or None)."""
+    temp_type = plan.temperature[1]
+    if temp_type == MessageType.FLOAT64:
+        problem = float64_problem(payload)
+        return (math.nan, problem) if problem else (float(decode_float64([payload])[0]), None)
+    problem = _cdr_problem(payload)
+    if problem:
+        return math.nan, problem
+    try:
+        return float(decoder_for(temp_type, info.schema_texts.get(temp_type))(payload).temperature), None
+    except Exception as exc:  # noqa: BLE001 - the CDR decoder raises assorted errors on a bad payload
+        return math.nan, f"cannot decode {temp_type} ({type(exc).__name__})"
+
+
+def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo,
+                 problems: InputProblems | None = None) -> tuple[list[tuple[int, str, float]], set[int]]:
+    """Decode a raw batch of a JointState recording into ``(time, channel, value)`` in file order,
+    and the indices of the messages that could not be decoded.
+
+    Float64 recordings take the vectorised path (:func:`_float64_batches`); non-finite values are
+    kept.  A message that cannot be decoded is skipped and added to ``problems`` (raised without).
     """
     out: list[tuple[int, str, float]] = []
+    bad: set[int] = set()
     tp = plan.topics
-    temp_topic, temp_type = plan.temperature or (None, None)
+    temp_topic = plan.temperature[0] if plan.temperature else None
     js_dec = decoder_for(MessageType.JOINT_STATE, info.schema_texts.get(MessageType.JOINT_STATE))
-    temp_dec = (
-        decoder_for(temp_type, info.schema_texts.get(temp_type))
-        if temp_type not in (None, MessageType.FLOAT64)
-        else None
-    )
-    for topic, t, data in zip(batch.topics, batch.log_time_ns, batch.data):
+    for i, (topic, t, data) in enumerate(zip(batch.topics, batch.log_time_ns, batch.data)):
         if topic == temp_topic:
-            value = decode_float64([data])[0] if temp_dec is None else temp_dec(data).temperature
-            out.append((t, OIL_TEMPERATURE, float(value)))
+            value, problem = _decode_temperature(data, plan, info)
+            if problem is None:
+                out.append((t, OIL_TEMPERATURE, value))
         elif topic == plan.joint_states:
-            msg = js_dec(data)
-            names = list(msg.name)
-            for joint, ch_t, ch_w in ((tp.input_joint, TORQUE, SPEED), (tp.output_joint, OUT_TORQUE, OUT_SPEED)):
-                if joint in names:
-                    k = names.index(joint)
-                    out.append((t, ch_t, float(msg.effort[k]) if k < len(msg.effort) else math.nan))
-                    out.append((t, ch_w, float(msg.velocity[k]) if k < len(msg.velocity) else math.nan))
-    return out
+            problem = _cdr_problem(data)
+            if problem is None:
+                try:
+                    msg = js_dec(data)
+                except Exception as exc:  # noqa: BLE001 - the CDR decoder raises assorted errors
+                    problem = f"cannot decode {MessageType.JOINT_STATE} ({type(exc).__name__})"
+            if problem is None:
+                names = list(msg.name)
+                for joint, ch_t, ch_w in ((tp.input_joint, TORQUE, SPEED), (tp.output_joint, OUT_TORQUE, OUT_SPEED)):
+                    if joint in names:
+                        k = names.index(joint)
+                        out.append((t, ch_t, float(msg.effort[k]) if k < len(msg.effort) else math.nan))
+                        out.append((t, ch_w, float(msg.velocity[k]) if k < len(msg.velocity) else math.nan))
+        else:
+            problem = None
+        if problem is not None:
+            if problems is None:
+                raise BagError(f"{topic} at log time {t} ns: {problem}")
+            problems.add("malformed", topic, t, problem)
+            bad.add(i)
+    return out, bad
+
+
+class InputProblems:
+    """Input messages replay skips (``malformed``, ``duplicate``: added to the estimator's skip
+    counts) or flags (log time going backwards on a topic), with the first few of each for the warning."""
+
+    EXAMPLES = 3
+
+    def __init__(self, counts: dict[str, int], plan: InputPlan) -> None:
+        self.counts = counts
+        self.backwards = 0
+        self.examples: dict[str, list[str]] = {}
+        self.topic_of = {CHANNELS.index(ch): topic for topic, ch in plan.float64.items()}
+        if plan.temperature:
+            self.topic_of[CHANNELS.index(OIL_TEMPERATURE)] = plan.temperature[0]
+        self._last_t = np.full(len(CHANNELS), np.iinfo(np.int64).min, dtype=np.int64)
+        self._last_v = np.full(len(CHANNELS), np.nan)
+
+    def add(self, kind: str, topic: str, t_ns: int, reason: str, n: int = 1) -> None:
+        if kind == "backwards":
+            self.backwards += n
+        else:
+            self.counts[kind] = self.counts.get(kind, 0) + n
+        shown = self.examples.setdefault(kind, [])
+        if len(shown) < self.EXAMPLES:
+            shown.append(f"{topic} at log time {t_ns} ns{': ' + reason if reason else ''}")
+
+    def check_order(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """Which messages (in file order) to keep: a repeat of its topic's previous message (same
+        log time, same value) is a duplicate and skipped; a log time before its topic's previous
+        one is counted as going backwards (and kept: replay orders by log time)."""
+        keep = np.ones(len(codes), dtype=bool)
+        for code in np.unique(codes).tolist():
+            idx = np.flatnonzero(codes == code)
+            tt, vv = t_ns[idx], values[idx]
+            pt = np.concatenate([self._last_t[code:code + 1], tt[:-1]])
+            pv = np.concatenate([self._last_v[code:code + 1], vv[:-1]])
+            dup = (tt == pt) & ((vv == pv) | (np.isnan(vv) & np.isnan(pv)))
+            back = tt < pt
+            topic = self.topic_of.get(code, CHANNELS[code])
+            for kind, mask, why in (("duplicate", dup, "same log time and value as the one before"),
+                                    ("backwards", back, "log time before the previous message's")):
+                if mask.any():
+                    self.add(kind, topic, int(tt[mask][0]), why, int(mask.sum()))
+            keep[idx[dup]] = False
+            self._last_t[code], self._last_v[code] = tt[-1], vv[-1]
+        return keep
+
+    def warnings(self) -> list[str]:
+        lines = []
+        for kind, what in (("malformed", "malformed input messages skipped"),
+                           ("duplicate", "duplicated input messages skipped"),
+                           ("backwards", "input messages whose log time goes backwards on their topic")):
+            n = self.backwards if kind == "backwards" else self.counts.get(kind, 0)
+            if n:
+                lines.append(f"{n:,} {what} (first: {'; '.join(self.examples.get(kind, []))})")
+        return lines
 
 
 @dataclass
@@ -119,29 +226,49 @@ class InputBatch:
     write_inputs: Callable[[BagWriter], None]
 
 
-def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None]):
-    """Batches of decoded inputs: Float64 bags through the numpy chunk reader, others record by record."""
-    if plan.mode == "float64":
-        yield from _float64_batches(info, plan, batch_size, warn)
-        return
+def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None],
+                   problems: InputProblems):
+    """Batches of decoded inputs: Float64 bags through the numpy chunk reader, others record by record.
+
+    Damaged spans of the file are skipped, malformed and duplicated messages too (``problems``);
+    each is reported through ``warn`` when the read ends.
+    """
+    from .fastmcap import ReadState
+
+    state = ReadState()
+    try:
+        if plan.mode == "float64":
+            yield from _float64_batches(info, plan, batch_size, state, problems)
+        else:
+            yield from _decoded_batches(info, plan, batch_size, state, problems)
+    finally:
+        for line in state.damage_report() + problems.warnings():
+            warn(f"{info.path}: {line}")
+        if state.truncated and not state.damaged:
+            warn(f"{info.path}: stopped reading: {state.problem}")
+
+
+def _decoded_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems):
     code_of = {c: i for i, c in enumerate(CHANNELS)}
-    for raw in iter_raw_batches(info, plan.all_topics, batch_size, warn=warn):
-        events = decode_batch(raw, plan, info)
+    for raw in iter_raw_batches(info, plan.all_topics, batch_size, state):
+        events, bad = decode_batch(raw, plan, info, problems)
         codes = np.array([code_of[c] for _, c, _ in events], dtype=np.int8)
         t = np.array([e[0] for e in events], dtype=np.int64)
         v = np.array([e[2] for e in events], dtype=float)
+        keep = problems.check_order(codes, t, v)
+        codes, t, v = codes[keep], t[keep], v[keep]
 
-        def write(writer: BagWriter, raw: RawBatch = raw) -> None:
-            for tp, tt, d in zip(raw.topics, raw.log_time_ns, raw.data):
-                writer.write_raw(tp, info.topics[tp], tt, d, info.schema_texts.get(info.topics[tp]))
+        def write(writer: BagWriter, raw: RawBatch = raw, bad: set[int] = bad) -> None:
+            for i, (tp, tt, d) in enumerate(zip(raw.topics, raw.log_time_ns, raw.data)):
+                if i not in bad:
+                    writer.write_raw(tp, info.topics[tp], tt, d, info.schema_texts.get(info.topics[tp]))
 
         yield InputBatch(codes, t, v, write)
 
 
-def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None]):
-    from .fastmcap import ReadState, iter_message_arrays, release_count
+def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems):
+    from .fastmcap import iter_message_arrays, release_count
 
-    state = ReadState()
     code_of = {c: i for i, c in enumerate(CHANNELS)}
     temp_code = code_of[OIL_TEMPERATURE]
     pending: list = []
@@ -154,21 +281,34 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Call
             keep = np.flatnonzero(code >= 0)
             c = code[keep]
             v = np.full(len(keep), np.nan)
+            good = np.ones(len(keep), dtype=bool)
             f64 = c != temp_code
             if plan.temperature and plan.temperature[1] == MessageType.FLOAT64:
                 f64[:] = True
             if f64.any():
                 try:
                     v[f64] = arrays.float64(keep[f64])
-                except ValueError:  # big-endian or padded payloads: one by one
-                    v[f64] = decode_float64([arrays.payload(i) for i in keep[f64].tolist()])
-            if (~f64).any():
-                dec = decoder_for(plan.temperature[1], info.schema_texts.get(plan.temperature[1]))
-                v[~f64] = [float(dec(arrays.payload(i)).temperature) for i in keep[~f64].tolist()]
-            codes.append(c)
-            ts.append(arrays.log_time[keep])
-            vals.append(v)
-            writes.append((arrays, keep))
+                except ValueError:  # big-endian, padded or malformed payloads: one by one
+                    rows = np.flatnonzero(f64)
+                    found: list[tuple[int, str]] = []
+                    v[rows] = decode_float64([arrays.payload(i) for i in keep[rows].tolist()], found)
+                    for j, reason in found:
+                        good[rows[j]] = False
+                        problems.add("malformed", problems.topic_of[int(c[rows[j]])],
+                                     int(arrays.log_time[keep[rows[j]]]), reason)
+            for j in np.flatnonzero(~f64).tolist():
+                v[j], reason = _decode_temperature(arrays.payload(int(keep[j])), plan, info)
+                if reason:
+                    good[j] = False
+                    problems.add("malformed", plan.temperature[0], int(arrays.log_time[keep[j]]), reason)
+            decodable = keep[good]  # what the output copies: every message a reader can decode
+            t = arrays.log_time[keep]
+            sub = np.flatnonzero(good)
+            good[sub[~problems.check_order(c[sub], t[sub], v[sub])]] = False
+            codes.append(c[good])
+            ts.append(t[good])
+            vals.append(v[good])
+            writes.append((arrays, decodable))
 
         def write(writer: BagWriter) -> None:
             """Copy the input messages in file order; equal-sized payloads go in with one numpy call."""
@@ -240,14 +380,15 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Call
             else InputBatch(np.empty(0, np.int8), np.empty(0, np.int64), np.empty(0), lambda w: None),
             final=True,
         )
-    if state.truncated:
-        warn(f"{info.path}: stopped reading at a damaged or truncated record ({state.problem})")
 
 
 class GracefulStop:
     """SIGINT/SIGTERM set a flag that long loops check between batches (files stay consistent).
 
-    A second signal raises ``KeyboardInterrupt`` at once.  Only active in the main thread.
+    Installed before any output is opened, so a signal at any moment leaves complete files.  A
+    second signal stops at once (``KeyboardInterrupt``) — but not inside :meth:`critical`, where
+    one batch's estimates and inputs are written together: there it waits for the section's end.
+    Only active in the main thread.
     """
 
     def __init__(self) -> None:
@@ -255,15 +396,31 @@ class GracefulStop:
         import threading
 
         self.requested = False
+        self._forced = False
+        self._critical = 0
         self._old: dict[int, object] = {}
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
                 self._old[sig] = signal.signal(sig, self._handler)
 
     def _handler(self, signum, frame) -> None:  # noqa: ARG002
-        if self.requested:
+        if not self.requested:
+            self.requested = True
+        elif self._critical:
+            self._forced = True
+        else:
             raise KeyboardInterrupt
-        self.requested = True
+
+    @contextmanager
+    def critical(self, raise_after: bool = True) -> Iterator[None]:
+        """A section a second signal does not cut in two (it stops at the section's end)."""
+        self._critical += 1
+        try:
+            yield
+        finally:
+            self._critical -= 1
+        if raise_after and self._forced and not self._critical:
+            raise KeyboardInterrupt
 
     def restore(self) -> None:
         import signal
@@ -424,6 +581,15 @@ def replay(
     collect: bool = False,
 ) -> tuple[ReplaySummary, list[BatchEstimate]]:
     """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``)."""
+    stop = GracefulStop()  # first: from here on a signal leaves complete files
+    try:
+        return _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect, stop)
+    finally:
+        stop.restore()
+
+
+def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect,
+            stop: GracefulStop) -> tuple[ReplaySummary, list[BatchEstimate]]:
     warnings: list[str] = []
 
     def _warn(msg: str) -> None:
@@ -445,50 +611,54 @@ def replay(
     period_s = median_period_s(info.path, plan.joint_states or topics.motor_torque)
     pairing, period_s = recorded_pairing(info.path, plan, period_s)
     estimator = Estimator(config, pairing=pairing, sample_period_s=period_s)
+    problems = InputProblems(estimator.counts, plan)
     summary = ReplaySummary(
         str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
     )
-    writer = BagWriter(out_mcap) if out_mcap else None
-    rlog = None
-    if rrd:
-        from .review import RerunLog
-
-        rlog = RerunLog("rollergear_replay", rrd)
     acc = _Accumulator()
     collected: list[BatchEstimate] = []
     total = sum(info.counts.get(t, 0) for t in plan.all_topics)
     if show_progress is None:
         show_progress = sys.stderr.isatty()
-    bar = None
-    if show_progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=total, unit="msg", unit_scale=True, desc="replay", file=sys.stderr)
-    stop = GracefulStop()
     sink = collected if collect else None
+    writer = rlog = bar = None
     try:
-        for batch in _input_batches(info, plan, batch_size, _warn):
+        with stop.critical():  # outputs are opened whole
+            writer = BagWriter(out_mcap) if out_mcap else None
+            if rrd:
+                from .review import RerunLog
+
+                rlog = RerunLog("rollergear_replay", rrd)
+        if show_progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, unit="msg", unit_scale=True, desc="replay", file=sys.stderr)
+        for batch in _input_batches(info, plan, batch_size, _warn, problems):
             if stop.requested:
                 summary.interrupted = True
                 break
-            summary.input_messages += len(batch.codes)
-            _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values), writer, rlog, acc, sink, config, topics)
-            if writer:
-                batch.write_inputs(writer)
+            with stop.critical():  # one batch's estimates and inputs, both or neither
+                summary.input_messages += len(batch.codes)
+                _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values), writer, rlog, acc, sink, config,
+                      topics)
+                if writer:
+                    batch.write_inputs(writer)
             if bar:
                 bar.update(len(batch.codes))
         else:
-            _emit(estimator.flush(), writer, rlog, acc, sink, config, topics)
+            with stop.critical():
+                _emit(estimator.flush(), writer, rlog, acc, sink, config, topics)
     except KeyboardInterrupt:
         summary.interrupted = True
     finally:
-        stop.restore()
-        if bar:
-            bar.close()
-        if writer:
-            writer.close()
-        if rlog:
-            rlog.close()
+        with stop.critical(raise_after=False):  # outputs are closed whole, whatever comes
+            if bar:
+                bar.close()
+            if writer:
+                writer.close()
+            if rlog:
+                rlog.close()
+    summary.interrupted |= stop.requested  # a signal near the end is not ignored either
     summary.samples = estimator.motor_messages
     summary.estimated = estimator.estimated
     summary.skipped = dict(estimator.counts)

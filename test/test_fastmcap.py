@@ -5,10 +5,11 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from rollergear_ros.fastmcap import ReadState, iter_log_time_order, release_count
+from rollergear_ros.fastmcap import ReadState, iter_log_time_order, iter_message_arrays, release_count
 
 
 def _lagging_recording(path, n: int = 3000, chunk_size: int = 4096) -> None:
@@ -67,8 +68,6 @@ def test_writer_stores_the_crcs_that_mcap_validates_and_the_reader_checks_them(t
     """The chunk and summary CRCs are written (the ``mcap`` reader validates them), and a byte
     flipped inside a chunk's compressed data is found: the read stops there, flagged, instead of
     yielding garbage."""
-    import pytest
-
     from rollergear_ros.bag import BagWriter
 
     path = tmp_path / "crc.mcap"
@@ -90,7 +89,7 @@ def test_writer_stores_the_crcs_that_mcap_validates_and_the_reader_checks_them(t
     footer_crc = struct.unpack("<QQI", path.read_bytes()[-8 - 20:-8])[2]
     assert footer_crc != 0
     # a byte flipped near the end of the second chunk's compressed data: zstd may decode it to other
-    # values without noticing; the chunk CRC does
+    # values without noticing; the chunk CRC does.  That chunk is skipped and reported, the rest read
     raw = bytearray(path.read_bytes())
     ci = summary.chunk_indexes[1]
     raw[ci.chunk_start_offset + ci.chunk_length - 200] ^= 0x40
@@ -98,7 +97,151 @@ def test_writer_stores_the_crcs_that_mcap_validates_and_the_reader_checks_them(t
     bad.write_bytes(bytes(raw))
     state = ReadState()
     got = sum(len(b[0]) for b in iter_log_time_order(bad, state))
-    assert state.truncated and ("CRC" in state.problem or "damaged" in state.problem), state.problem
-    assert got < n
+    lost = sum(summary.statistics.channel_message_counts.values()) - got
+    assert not state.truncated and len(state.damaged) == 1
+    span = state.damaged[0]
+    assert "CRC" in span.reason or "decompression failed" in span.reason, span.reason
+    assert (span.start_byte, span.end_byte) == (ci.chunk_start_offset, ci.chunk_start_offset + ci.chunk_length)
+    assert (span.start_ns, span.end_ns) == (ci.message_start_time, ci.message_end_time)
+    assert span.messages_lost == lost > 0
     with bad.open("rb") as fh, pytest.raises(Exception):  # noqa: B017 - the reference reader refuses it too
         sum(1 for _ in make_reader(fh, validate_crcs=True).iter_messages())
+
+
+def _f64(v: float) -> bytes:
+    """A little-endian CDR Float64 payload."""
+    return b"\x00\x01\x00\x00" + struct.pack("<d", float(v))
+
+
+def _twenty_chunks(path, n: int = 20_000) -> list:
+    """A Float64 recording of ``n`` messages in 20 chunks written by the ``mcap`` library; its chunk indexes."""
+    with open(path, "wb") as fh:
+        w = Writer(fh, chunk_size=10**9)
+        w.start(profile="ros2", library="test")
+        sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+        cid = w.register_channel("/x", "cdr", sid)
+        per = n // 20
+        for k in range(n):
+            w.add_message(cid, 10**9 + k * 10**6, _f64(k), 10**9 + k * 10**6)
+            if (k + 1) % per == 0:
+                w._Writer__finalize_chunk()  # noqa: SLF001 - 20 equal chunks
+        w.finish()
+    with open(path, "rb") as fh:
+        return make_reader(fh).get_summary().chunk_indexes
+
+
+def _values(path, state) -> np.ndarray:
+    from rollergear_ros.bag import decode_float64
+
+    return np.concatenate([np.empty(0)] + [decode_float64(p) for _t, _c, p in iter_log_time_order(path, state)])
+
+
+@pytest.mark.parametrize("where", ["compressed data", "chunk length", "crc"])
+def test_one_damaged_chunk_is_skipped_and_reported_and_the_rest_read(tmp_path, where):
+    """A flipped byte in chunk 2 of 20 costs that chunk only (it used to end the read): the read
+    resynchronises on the next chunk and reports the span's bytes, log times and messages lost."""
+    path = tmp_path / "ok.mcap"
+    chunks = _twenty_chunks(path)
+    raw = bytearray(path.read_bytes())
+    ci = chunks[1]
+    at = {"compressed data": ci.chunk_start_offset + ci.chunk_length // 2,
+          "chunk length": ci.chunk_start_offset + 3,  # the record's length field: the next record misaligns
+          "crc": ci.chunk_start_offset + 9 + 24}[where]
+    raw[at] ^= 0x10
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(raw))
+    state = ReadState()
+    values = _values(bad, state)
+    expected = np.delete(np.arange(20_000, dtype=float), np.arange(1000, 2000))
+    np.testing.assert_array_equal(values, expected)
+    assert len(state.damaged) == 1 and not state.truncated
+    span = state.damaged[0]
+    assert span.start_byte == ci.chunk_start_offset
+    assert span.end_byte >= ci.chunk_start_offset + ci.chunk_length
+    assert span.end_byte <= chunks[2].chunk_start_offset
+    # the log times of what was lost: the chunk's own (or its neighbours' when its header is hit)
+    assert span.start_ns <= ci.message_start_time and span.end_ns >= ci.message_end_time
+    assert span.end_ns <= chunks[2].message_start_time
+    if where != "chunk length":  # the chunk's message index follows it: the count is known
+        assert span.messages_lost == 1000
+    assert "unreadable" in span.text() and "bytes" in span.text()
+
+
+@pytest.mark.parametrize("mutation", ["length", "huge chunk", "magic only", "random"])
+def test_hostile_lengths_cost_neither_memory_nor_time(tmp_path, mutation):
+    """Lengths are bounded by the file size and a chunk's declared size by the reader's bounds."""
+    import resource
+    import time
+
+    from rollergear_ros.fastmcap import MAX_CHUNK_BYTES
+
+    path = tmp_path / "ok.mcap"
+    chunks = _twenty_chunks(path, 2000)
+    raw = bytearray(path.read_bytes())
+    if mutation == "length":  # a record declaring 2^63 bytes
+        raw[chunks[0].chunk_start_offset + 1:chunks[0].chunk_start_offset + 9] = struct.pack("<Q", 2**63)
+    elif mutation == "huge chunk":  # a chunk declaring 1 GiB of records
+        raw[chunks[0].chunk_start_offset + 9 + 16:chunks[0].chunk_start_offset + 9 + 24] = struct.pack("<Q", 2**30)
+    elif mutation == "magic only":
+        raw = raw[:8] + bytes(20)
+    else:
+        raw = raw[:8] + bytearray(np.random.default_rng(7).integers(0, 256, 1 << 20, dtype=np.uint8).tobytes())
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(raw))
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    state = ReadState()
+    t0 = time.process_time()
+    _values(bad, state)
+    assert time.process_time() - t0 < 30  # a scan of 1 MB, not a decompression of a GiB
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss0 < MAX_CHUNK_BYTES // 1024 // 4
+    assert state.damaged or state.truncated
+
+
+def test_log_times_beyond_int64_are_skipped_and_counted(tmp_path):
+    path = tmp_path / "t.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="ros2", library="test")
+        sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+        cid = w.register_channel("/x", "cdr", sid)
+        for k, t in enumerate([10**9, 2**63 + 5, 2 * 10**9, 2**64 - 1, 3 * 10**9]):
+            w.add_message(cid, t, _f64(k), 0)
+        w.finish()
+    state = ReadState()
+    np.testing.assert_array_equal(_values(path, state), [0.0, 2.0, 4.0])
+    assert state.bad_log_times == 2 and "2^63" in state.damage_report()[0]
+
+
+def test_an_unchunked_file_reads_fast_and_complete(tmp_path):
+    """Messages outside chunks (``use_chunking=False``) are parsed in runs, not one by one."""
+    from mcap.writer import CompressionType
+
+    from rollergear_ros.bag import inspect_bag
+
+    path = tmp_path / "flat.mcap"
+    n = 50_000
+    with open(path, "wb") as fh:
+        w = Writer(fh, use_chunking=False, compression=CompressionType.NONE)
+        w.start(profile="ros2", library="test")
+        sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+        cid = w.register_channel("/x", "cdr", sid)
+        for k in range(n):
+            w.add_message(cid, 10**9 + k, _f64(k), 0)
+        w.finish()
+    info = inspect_bag(path)
+    assert info.indexed and info.counts == {"/x": n}  # its summary is used, no "has no index"
+    state = ReadState()
+    chunks = list(iter_message_arrays(path, state))
+    assert len(chunks) < 10  # runs of ~1 MB, not 50 000 single messages
+    np.testing.assert_array_equal(_values(path, ReadState()), np.arange(n, dtype=float))
+
+
+def test_a_fifo_is_refused_not_waited_on(tmp_path):
+    import os
+
+    from rollergear_ros.errors import BagError
+
+    fifo = tmp_path / "pipe.mcap"
+    os.mkfifo(fifo)
+    with pytest.raises(BagError, match="not a regular file"):
+        list(iter_message_arrays(fifo))
