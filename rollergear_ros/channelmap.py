@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
+from . import safeyaml
 from .errors import InputFileError
 from .interface import Channel
 
@@ -125,11 +125,9 @@ def load_channel_map(path: str | Path) -> ChannelMap:
     if not path.exists():
         raise InputFileError(f"channel map {path} does not exist")
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        raise InputFileError(f"{path}: {where}not valid YAML ({getattr(exc, 'problem', exc)})") from None
+        doc = safeyaml.load(path)
+    except safeyaml.YamlProblem as problem:
+        raise InputFileError(f"channel map {problem}") from None
     if not isinstance(doc, dict):
         raise InputFileError(f"{path}: a channel map is a YAML mapping (format, time, motor_torque, …)")
     known = set(UNITS) | {"format", "ratio", "group"}

@@ -19,19 +19,21 @@ class ParameterError(RollergearError, ValueError):
         self.name = name
         self.value = value
         self.allowed = allowed
-        super().__init__(f"parameter '{name}' = {value!r} is invalid: {allowed}")
+        super().__init__(f"parameter '{name}' = {_shown(value)} is invalid: {allowed}")
 
     @classmethod
-    def broken_file(cls, path: str, exc: Exception) -> ParameterError:
-        """A parameter file that is not YAML: one line with the file, line and column."""
+    def broken_file(cls, path: str, problem: Exception) -> ParameterError:
+        """A parameter file that cannot be read as YAML: one line, with file, line and column
+        where known (``problem`` is a :class:`~rollergear_ros.safeyaml.YamlProblem`)."""
         err = cls("<file>", path, "")
-        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
-        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark else path
-        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
-        context = getattr(exc, "context", None)
-        err.args = (f"{where}: not valid YAML: {problem}" + (f" ({' '.join(str(context).split())})"
-                                                             if context else ""),)
+        err.args = (str(problem),)
         return err
+
+
+def _shown(value: Any, limit: int = 80) -> str:
+    """``repr(value)``, shortened: an error line never echoes a huge value."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit - 20]}… ({len(text):,} characters)"
 
 
 class BagError(RollergearError):

@@ -23,6 +23,8 @@ from collections.abc import Mapping
 
 import yaml
 
+from . import safeyaml
+
 from .effects import EFFECTS, REGISTRY_VERSION
 from .errors import ParameterError
 from .interface import NODE_NAME
@@ -518,11 +520,10 @@ def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | N
     """Load and validate a parameter YAML (``None``: the defaults), with optional dotted overrides."""
     flat: dict[str, Any] = {}
     if path is not None:
-        text = Path(path).read_text(encoding="utf-8")
         try:
-            doc = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise ParameterError.broken_file(str(path), exc) from None
+            doc = safeyaml.load(path)
+        except safeyaml.YamlProblem as problem:
+            raise ParameterError.broken_file(str(path), problem) from None
         flat = flat_from_yaml_document(doc, str(path))
     if overrides:
         flat.update(overrides)

@@ -125,3 +125,42 @@ def test_broken_yaml_is_one_line_with_file_line_and_column(tmp_path):
     proc = run_cli("model", "--torque", "1", "--speed", "1", "--params", str(p), check=False)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1
     assert f"{p}:4:14: not valid YAML" in proc.stderr
+
+
+def _laughs(levels: int = 9) -> str:
+    lines = ['a0: &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]']
+    for k in range(1, levels):
+        lines.append(f"a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 10) + "]")
+    return "\n".join(lines) + f"\nloss_estimator: {{ros__parameters: {{gearbox: {{dw_m: *a{levels - 1}}}}}}}\n"
+
+
+@pytest.mark.parametrize(("content", "message"), [
+    (_laughs(), "anchors and aliases"),  # a billion laughs: 10^9 strings once expanded (it grew to 8.7 GB)
+    ("loss_estimator: " + "[" * 100_000 + "]" * 100_000 + "\n", "nested deeper than 32 levels"),  # RecursionError
+    (b"loss_estimator: {ros__parameters: {gearbox: {dw_m: 0.006}}}\n# caf\xe9\n", "not UTF-8 text (byte 0xe9)"),
+    ("loss_estimator: {ros__parameters: {gearbox: {dw_m: 0.006}}}\n" + "#" * (1 << 20) + "\n", "larger than 1024 KiB"),
+    ("loss_estimator: {ros__parameters: {gearbox: {dw_m: '" + "x" * 200_000 + "'}}}\n", "(200,002 characters)"),
+])
+def test_hostile_parameter_files_are_one_short_line(tmp_path, content, message):
+    """Hostile YAML costs neither memory, recursion nor an endless read, and the error line never
+    echoes a huge value."""
+    p = tmp_path / "hostile.yaml"
+    p.write_bytes(content if isinstance(content, bytes) else content.encode())
+    proc = run_cli("model", "--torque", "1", "--speed", "1", "--params", str(p), check=False, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert message in proc.stderr and proc.stderr.count("\n") == 1 and len(proc.stderr) < 400, proc.stderr
+
+
+@pytest.mark.parametrize("target", ["/dev/zero", "directory", "fifo"])
+def test_a_parameter_file_that_is_not_a_regular_file_is_refused(tmp_path, target):
+    import os
+
+    if target == "directory":
+        path = str(tmp_path)
+    elif target == "fifo":
+        path = str(tmp_path / "params.fifo")
+        os.mkfifo(path)
+    else:
+        path = target
+    proc = run_cli("model", "--torque", "1", "--speed", "1", "--params", path, check=False, timeout=120)
+    assert proc.returncode == 2 and "is not a regular file" in proc.stderr and proc.stderr.count("\n") == 1

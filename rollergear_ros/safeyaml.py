@@ -1,0 +1,87 @@
+"""Small YAML files (parameter files, channel maps) read within bounds.
+
+A parameter file is a few kilobytes of plain mappings.  What is not — a billion-laughs file whose
+aliases expand to gigabytes, a 100 000-deep nesting that exhausts the recursion limit, ``/dev/zero``
+or a FIFO that never ends, bytes that are not UTF-8 — is refused with one line saying where,
+before PyYAML builds anything.  Anchors and aliases are refused outright: ROS 2's own parameter
+parser (rcl) rejects them too, so a file the CLI accepted would not start the node.  No rclpy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+MAX_BYTES = 1 << 20  #: a parameter file or channel map larger than this is not one
+MAX_DEPTH = 32  #: mappings and sequences nested deeper than this are refused
+
+
+@dataclass
+class YamlProblem(Exception):
+    """Why a YAML file was refused; ``where`` is ``path:line:column`` when a place is known."""
+
+    where: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.where}: {self.message}"
+
+
+def read_text(path: str | Path) -> str:
+    """The file's text: a regular file of at most :data:`MAX_BYTES` bytes of UTF-8."""
+    path = Path(path)
+    if not path.exists():
+        raise YamlProblem(str(path), "does not exist")
+    if not path.is_file():
+        raise YamlProblem(str(path), "is not a regular file" + (" (a directory)" if path.is_dir() else ""))
+    with path.open("rb") as fh:
+        data = fh.read(MAX_BYTES + 1)  # a size that stat() under-reports (/proc) is bounded too
+    if len(data) > MAX_BYTES:
+        raise YamlProblem(str(path), f"larger than {MAX_BYTES // 1024} KiB: not a parameter file or channel map")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        column = exc.start - (data.rfind(b"\n", 0, exc.start) + 1) + 1
+        raise YamlProblem(f"{path}:{line}:{column}", f"not UTF-8 text (byte 0x{data[exc.start]:02x})") from None
+
+
+def _where(path: str | Path, mark) -> str:
+    return f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
+
+
+def check_structure(text: str, path: str | Path) -> None:
+    """Refuse anchors, aliases and nesting beyond :data:`MAX_DEPTH` by walking the parser's events
+    (iterative: no recursion, nothing composed)."""
+    depth = 0
+    for event in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None):
+            raise YamlProblem(_where(path, event.start_mark),
+                              "anchors and aliases (&name, *name) are not supported (ROS 2 refuses them too)")
+        if isinstance(event, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise YamlProblem(_where(path, event.start_mark), f"nested deeper than {MAX_DEPTH} levels")
+        elif isinstance(event, yaml.CollectionEndEvent):
+            depth -= 1
+
+
+def load(path: str | Path) -> Any:
+    """The YAML document in ``path``, within the bounds above; :class:`YamlProblem` otherwise
+    (also for YAML syntax errors, with line and column)."""
+    text = read_text(path)
+    try:
+        check_structure(text, path)
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        context = getattr(exc, "context", None)
+        raise YamlProblem(_where(path, mark), "not valid YAML: " + problem
+                          + (f" ({' '.join(str(context).split())})" if context else "")) from None
+
+
+__all__ = ["MAX_BYTES", "MAX_DEPTH", "YamlProblem", "check_structure", "load", "read_text"]
