@@ -7,7 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from .cli import config_from_args, refuse_overwriting_inputs
+from .cli import config_from_args
+from .paths import check_output_file, check_output_folder, refuse_overwriting_inputs
 from .replay_cli import add_channels_option, add_topic_options, topics_from_args
 
 
@@ -21,6 +22,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from .tables import is_table
 
     refuse_overwriting_inputs([*args.bags, args.params, args.channels], {"--out": args.out})
+    check_output_file("--out", args.out)  # now, not after the whole analysis
+    check_output_folder("--report", args.report)
     config = config_from_args(args)
 
     def log(msg: str) -> None:

@@ -10,7 +10,6 @@ import argparse
 import csv
 import json
 import math
-import os
 import sys
 from pathlib import Path
 from collections.abc import Sequence
@@ -20,6 +19,7 @@ import numpy as np
 from .errors import InputFileError, RollergearError, UsageError
 from .interface import package_version
 from .params import Config, load_config
+from .paths import check_input_file, check_output_file, check_output_folder, refuse_overwriting_inputs
 
 DEFAULT_PARAMS = Path(__file__).resolve().parent.parent / "config" / "gearbox.yaml"
 
@@ -46,22 +46,6 @@ def config_from_args(args: argparse.Namespace) -> Config:
     return load_config(path)
 
 
-def refuse_overwriting_inputs(inputs: Sequence[str | Path | None], outputs: dict[str, str | Path | None]) -> None:
-    """Refuse, before anything is opened, an output that is the same file as an input (the same
-    path, another path to it, or a hard link): writing it would destroy the recording."""
-    existing = [Path(p) for p in inputs if p is not None and Path(p).exists()]
-    for option, out in outputs.items():
-        if out is None or not Path(out).exists():
-            continue
-        for source in existing:
-            try:
-                same = os.path.samefile(out, source)
-            except OSError:
-                same = False
-            if same:
-                raise UsageError(f"{option} {out} is the input {source}: refusing to overwrite it")
-
-
 def _finite(s: str) -> float:
     v = float(s)
     if not math.isfinite(v):
@@ -76,6 +60,7 @@ def cmd_model(args: argparse.Namespace) -> int:
 
     config = config_from_args(args)
     if args.csv:
+        check_input_file("--csv", args.csv)
         torque, speed = _read_points_csv(Path(args.csv))
     else:
         if not args.torque or not args.speed:
@@ -153,6 +138,7 @@ def _read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def cmd_figures(args: argparse.Namespace) -> int:
     from .figures import write_figures
 
+    check_output_folder("--out", args.out)
     paths = write_figures(config_from_args(args), Path(args.out))
     for p in paths:
         print(p)
@@ -169,6 +155,7 @@ def cmd_map(args: argparse.Namespace) -> int:
     torques = grid(*(args.torque_nm or (m.torque_min_nm, m.torque_max_nm, m.torque_step_nm)))
     out = Path(args.out)
     refuse_overwriting_inputs([args.params, *args.recording], {"--out": out})
+    check_output_file("--out", out)
     params_path = Path(args.params) if args.params else default_params_path()
     maps = [(out, build_map(config, speeds, torques, args.oil_temperature_c))]
     if args.both_directions or m.both_directions:
@@ -284,6 +271,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as exc:
+        if exc.filename is None:  # not about a file: a defect, shown as one
+            raise
+        # the file system refused (disk full, permissions changed during the run): one line
+        print(f"rollergear: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
 
 
 def _load_extra_commands() -> None:

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from .cli import config_from_args
 from .errors import UsageError
+from .paths import check_output_folder
 
 DAY_S = 86_400
 
@@ -25,6 +26,7 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     def note(msg: str) -> None:
         print(msg, file=sys.stderr)
 
+    check_output_folder("--out", args.out)
     recs = discover(args.logs, args.group_by)
     out = Path(args.out)
     note(f"{len(recs)} recordings of {len({r.gearbox_id for r in recs})} gearboxes")

@@ -8,7 +8,8 @@ from dataclasses import fields
 from pathlib import Path
 
 from .bag import TopicMap
-from .cli import config_from_args, refuse_overwriting_inputs
+from .cli import config_from_args
+from .paths import check_output_file, check_output_folder, refuse_overwriting_inputs
 from .errors import UsageError
 
 
@@ -30,6 +31,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
 
     refuse_overwriting_inputs([args.params], {"--out": args.out})
+    (check_output_folder if args.fleet else check_output_file)("--out", args.out)
     config = config_from_args(args)
     if args.fleet:
         return _simulate_fleet(args, config)
@@ -64,6 +66,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from .replay import replay
 
     refuse_overwriting_inputs([args.bag, args.params], {"--out": args.out, "--rrd": args.rrd})
+    check_output_file("--out", args.out)
+    check_output_file("--rrd", args.rrd)
     config = config_from_args(args)
     topics = topics_from_args(args)
     with as_mcap([args.bag], args.channels, topics, note=lambda m: print(m, file=sys.stderr)) as (bag,):
@@ -143,6 +147,7 @@ def cmd_import(args: argparse.Namespace) -> int:
     from .importer import import_source
 
     refuse_overwriting_inputs([args.source, args.channels], {"--out": args.out})
+    check_output_file("--out", args.out)
     summary = import_source(args.source, args.out, args.channels, topics_from_args(args))
     print(summary.text())
     return 0

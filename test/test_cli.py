@@ -165,3 +165,26 @@ def test_version_help_texts_and_an_example_for_every_subcommand():
         # the example parses
         example = cli.EXAMPLES[name].split()[1:]
         assert parser.parse_args(example).command == name
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["replay", "{bag}", "--out", "{dir}"], "--out {dir} is a folder; give a file name"),
+    (["replay", "{bag}", "--out", "/proc/rollergear.mcap"], "cannot write in /proc"),
+    (["replay", "{bag}", "--rrd", "/proc/rollergear.rrd"], "cannot write in /proc"),
+    (["calibrate", "{bag}", "--out", "/proc/rollergear.yaml"], "cannot write in /proc"),  # before the analysis
+    (["calibrate", "{bag}", "--report", "{file}"], "--report {file} is a file; give a folder"),
+    (["figures", "--out", "{file}"], "--out {file} is a file; give a folder"),
+    (["model", "--csv", "{dir}"], "--csv {dir} is a folder; give a file"),
+    (["map", "--out", "{dir}"], "--out {dir} is a folder; give a file name"),
+    (["simulate", "--out", "/proc/sim.mcap"], "cannot write in /proc"),
+    (["simulate", "--fleet", "2", "--days", "1", "--out", "{file}"], "--out {file} is a file; give a folder"),
+    (["fleet", "replay", "{bag}", "--out", "{file}"], "--out {file} is a file; give a folder"),
+    (["model", "--torque", "1", "--speed", "1", "--params", "{dir}"], "is not a regular file"),
+])
+def test_an_output_that_cannot_be_written_is_one_line_before_any_work(tmp_path, args, message):
+    """File-system errors used to be tracebacks, calibrate's after the whole analysis (its result lost)."""
+    names = {"bag": str(BAGS / "rig_map_drag.mcap"), "dir": str(tmp_path), "file": str(tmp_path / "a_file")}
+    (tmp_path / "a_file").write_text("x")
+    proc = run_cli(*[a.format(**names) for a in args], check=False, timeout=300)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert proc.stderr.count("\n") == 1 and message.format(**names) in proc.stderr, proc.stderr
