@@ -395,6 +395,32 @@ _SECTION_TYPES = {"gearbox": GearboxParams, "estimator": EstimatorParams, "node"
 RERUN_URL_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")
 
 
+def rerun_url_problem(url: str) -> str | None:
+    """What is wrong with a rerun gRPC URL ('' = off is fine), parsed, not prefix-matched: one of
+    :data:`RERUN_URL_SCHEMES`, a host, a valid port, and no user-info (``…:9876@evil/`` would send
+    the data to host ``evil``)."""
+    from urllib.parse import urlsplit
+
+    if not url:
+        return None
+    if any(c.isspace() or ord(c) < 32 for c in url):
+        return "a URL has no spaces or control characters"
+    try:
+        parts = urlsplit(url)
+        port = parts.port
+    except ValueError as exc:
+        return f"not a valid URL ({exc})"
+    if parts.scheme + "://" not in RERUN_URL_SCHEMES:
+        return f"a rerun gRPC URL starts with {', '.join(RERUN_URL_SCHEMES)}"
+    if "@" in parts.netloc:
+        return "a rerun URL has no user-info (user@host): the part after '@' would be the host"
+    if not parts.hostname:
+        return "the URL names no host"
+    if port is not None and not 0 < port < 65536:
+        return f"port {port} is out of range"
+    return None
+
+
 def validate(values: Mapping[str, Any]) -> Config:
     """Check every parameter (range, type, cross-parameter consistency) and build a :class:`Config`.
 
@@ -462,13 +488,10 @@ def _check_consistency(config: Config) -> None:
                 getattr(g, f"f{j}"),
                 f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove",
             )
-    url = config.node.rerun_connect
-    if url and not url.startswith(RERUN_URL_SCHEMES):
-        raise ParameterError(
-            "node.rerun_connect",
-            url,
-            f"a rerun gRPC URL starts with {', '.join(RERUN_URL_SCHEMES)} (e.g. rerun+http://127.0.0.1:9876/proxy)",
-        )
+    problem = rerun_url_problem(config.node.rerun_connect)
+    if problem:
+        raise ParameterError("node.rerun_connect", config.node.rerun_connect,
+                             f"{problem} (e.g. rerun+http://127.0.0.1:9876/proxy)")
     if config.map.last_speed_rpm(g) < config.map.speed_min_rpm:
         raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm,
                              "must be >= map.speed_min_rpm (0: gearbox.rated_speed_rpm)")

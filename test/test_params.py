@@ -164,3 +164,25 @@ def test_a_parameter_file_that_is_not_a_regular_file_is_refused(tmp_path, target
         path = target
     proc = run_cli("model", "--torque", "1", "--speed", "1", "--params", path, check=False, timeout=120)
     assert proc.returncode == 2 and "is not a regular file" in proc.stderr and proc.stderr.count("\n") == 1
+
+
+@pytest.mark.parametrize(("url", "ok"), [
+    ("", True),
+    ("rerun+http://127.0.0.1:9876/proxy", True),
+    ("rerun+https://viewer.example.org/proxy", True),
+    ("rerun://localhost:9876", True),
+    ("rerun+http://127.0.0.1:9876@evil/proxy", False),  # passed the old prefix check; its host is 'evil'
+    ("rerun+http://user:pw@127.0.0.1:9876/proxy", False),
+    ("rerun+http://127.0.0.1:99999/proxy", False),
+    ("rerun+http://127.0.0.1:port/proxy", False),
+    ("rerun+http:///proxy", False),
+    ("rerun+http://127.0.0.1:9876/pro xy", False),
+    ("http://127.0.0.1:9876/proxy", False),
+    ("file:///etc/passwd", False),
+])
+def test_the_rerun_url_is_parsed_not_prefix_matched(url, ok):
+    if ok:
+        assert validate({"node.rerun_connect": url}).node.rerun_connect == url
+    else:
+        with pytest.raises(ParameterError, match="node.rerun_connect"):
+            validate({"node.rerun_connect": url})
