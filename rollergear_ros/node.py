@@ -71,6 +71,37 @@ def check_new_output(name: str, path: str) -> None:
         raise ParameterError(name, path, f"cannot be created: {exc.strerror or exc}") from None
 
 
+def _ros_standard_parameter(name: str) -> bool:
+    """Parameters rclpy itself declares or reads (not the package's)."""
+    return name in ("use_sim_time", "start_type_description_service") or name.startswith("qos_overrides.")
+
+
+def params_files(args: list[str]) -> list[str]:
+    """The ``--params-file`` arguments of a command line's ROS arguments."""
+    files, in_ros = [], False
+    for i, a in enumerate(args):
+        if a == "--ros-args":
+            in_ros = True
+        elif a == "--":
+            in_ros = False
+        elif in_ros and a == "--params-file" and i + 1 < len(args):
+            files.append(args[i + 1])
+    return files
+
+
+def check_params_files(args: list[str]) -> None:
+    """Read each ``--params-file`` as the CLI does (:func:`~rollergear_ros.params.load_config`)
+    before rcl parses it: what rcl refuses gets one line naming file, line and column, and what rcl
+    drops silently (``dw_m: []``, a typo'd key, a file without this node's section) is refused
+    instead of starting the node on the defaults."""
+    from .params import load_config
+
+    for path in params_files(args):
+        if not Path(path).exists():
+            raise ParameterError("--params-file", path, "does not exist")
+        load_config(path)
+
+
 def _descriptor(spec) -> ParameterDescriptor:
     d = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]" if spec.unit else spec.description,
                             read_only=spec.read_only, additional_constraints=spec.allowed_text())
@@ -89,7 +120,14 @@ class LossEstimatorNode(Node):
         super().__init__("loss_estimator", **kwargs)
         from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 
+        from rclpy.parameter import Parameter
+
         for spec in parameter_specs():
+            override = self._parameter_overrides.get(spec.name)
+            if spec.kind is float and override is not None and override.type_ == Parameter.Type.INTEGER:
+                # ``expected_rate_hz: 500`` means 500.0, as the CLI reads it
+                self._parameter_overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE,
+                                                                 float(override.value))
             try:
                 self.declare_parameter(spec.name, spec.default, _descriptor(spec))
             except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
@@ -97,6 +135,10 @@ class LossEstimatorNode(Node):
                 value = override.value if override is not None else spec.default
                 raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
         flat = {spec.name: self.get_parameter(spec.name).value for spec in parameter_specs()}
+        # an override of no declared parameter (``-p gearbox.dw_mm:=0.1``) would be ignored by
+        # rclpy, the node running on the default: validate() refuses it with "did you mean"
+        flat.update({name: p.value for name, p in self._parameter_overrides.items()
+                     if name not in flat and not _ros_standard_parameter(name)})
         self.config: Config = validate(flat)  # ParameterError: refused at start-up with the reason
         # the single-threaded executor gives publisher timestamps; the events executor keeps arrival order
         node = self.config.node
@@ -361,7 +403,15 @@ def make_executor(kind: str, context=None):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``loss_estimator``: spin until Ctrl-C/SIGTERM, then close the files cleanly."""
-    rclpy.init(args=args)
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+
+    try:
+        check_params_files(sys.argv if args is None else args)
+        rclpy.init(args=args)
+    except (ParameterError, rclpy_implementation.RCLError) as exc:
+        # rcl's own message ends with its source locations: not the user's business
+        print(f"loss_estimator: error: {str(exc).split(', at /')[0].strip()}", file=sys.stderr)
+        return 2
     node = None
     code = 0
     try:

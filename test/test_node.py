@@ -480,6 +480,41 @@ def test_invalid_parameter_file_is_refused_at_start(tmp_path):
     assert "gearbox.f1" in node.stderr and "Traceback" not in node.stderr
 
 
+@pytest.mark.parametrize(("file_text", "param", "message"), [
+    # rcl refuses these with a traceback (anchors, no ros__parameters, a list, non-UTF-8) ...
+    (b"a: &x {ros__parameters: {gearbox: {z: 6}}}\nloss_estimator: *x\n", None, "anchors and aliases"),
+    (b"loss_estimator:\n  gearbox: {z: 6}\n", None, "must contain 'ros__parameters'"),
+    (b"- 1\n- 2\n", None, "must be a mapping"),
+    (b"loss_estimator:\n  ros__parameters: {gearbox: {z: 6}}\n# caf\xe9\n", None, "not UTF-8 text"),
+    # ... and drops these silently, the node starting on the defaults
+    (b"loss_estimator:\n  ros__parameters: {gearbox: {dw_m: []}}\n", None, "'gearbox.dw_m' = []"),
+    (b"loss_estimator:\n  ros__parameters: {gearbox: {dw_mm: 0.1}}\n", None, "did you mean 'gearbox.dw_m'"),
+    (None, "gearbox.dw_mm:=0.1", "did you mean 'gearbox.dw_m'"),
+])
+def test_start_up_refuses_what_would_run_on_defaults_or_crash(tmp_path, file_text, param, message):
+    params = tmp_path / "p.yaml"
+    if file_text is not None:
+        params.write_bytes(file_text)
+    node = NodeProcess(*([param] if param else []), params_file=params if file_text is not None else CONFIG)
+    code = node.proc.wait(timeout=60)
+    node.stop()
+    assert code == 2 and "Traceback" not in node.stderr, node.stderr
+    errors = [ln for ln in node.stderr.splitlines() if ln.strip()]
+    assert len(errors) == 1 and errors[0].startswith("loss_estimator: error:") and message in errors[0], errors
+
+
+def test_an_integer_for_a_float_parameter_is_accepted(tmp_path):
+    """``expected_rate_hz: 500`` (in a file or with -p) used to stop the node: rclpy took 500 for an
+    integer; the CLI reads it as 500.0, and so does the node now."""
+    params = tmp_path / "p.yaml"
+    params.write_text("loss_estimator:\n  ros__parameters:\n    node: {expected_rate_hz: 500}\n")
+    node = NodeProcess("estimator.max_abs_torque_nm:=1000", params_file=params)
+    for line in node.proc.stderr:  # a condition, not a duration: the node's start-up line
+        if "estimating from" in line or "error" in line:
+            break
+    assert node.stop() == 0 and "estimating from" in line, line + node.stderr
+
+
 @pytest.mark.parametrize("case", ["existing_recording", "existing_rrd", "unwritable_rrd"])
 def test_outputs_are_checked_at_start_up_before_any_is_opened(tmp_path, case):
     """An existing recording is never overwritten (``node.record_mcap:=old.mcap`` used to leave a
