@@ -18,6 +18,10 @@ LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
 #: the node's ``/diagnostics`` status is named ``<node name>: STATUS_NAME``
 STATUS_NAME = "roller gearbox losses"
 STARTUP_GRACE_S = 5.0
+#: an executor lag beyond this share of what the input queue holds is an overload (WARN)
+OVERLOAD_QUEUE_SHARE = 0.5
+#: the lag taken as "holding" a reliable keep-all input (no queue to overflow; its publisher waits)
+RELIABLE_LAG_S = 1.0
 
 
 @dataclass
@@ -59,8 +63,16 @@ def _fmt(x: float, digits: int = 4) -> str:
 
 def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estimator: Estimator,
              expected_rate_hz: float, min_efficiency_warn: float, previous_skips: dict[str, int],
-             previous_alarms: int) -> DiagnosticReport:
-    """Level (worst reason wins), one-line message and the key/value pairs of the status."""
+             previous_alarms: int, busy_fraction: float = 0.0, executor_lag_s: float = 0.0,
+             queue_depth: int | None = None) -> DiagnosticReport:
+    """Level (worst reason wins), one-line message and the key/value pairs of the status.
+
+    Overload: ``executor_lag_s`` is how long the executor takes to reach an event queued behind the
+    inputs (``busy_fraction`` the share of time spent in input callbacks).  A best-effort input
+    queue of ``queue_depth`` messages holds ``queue_depth / expected_rate_hz`` seconds; an executor
+    running half of that behind is about to lose messages the node never sees (and so cannot
+    count), so that is a WARN.  ``None``: a reliable keep-all input (the publisher waits instead).
+    """
     est = estimator.config.estimator
     stale_after_s = max(est.staleness_s, 10.0 / expected_rate_hz)
     reasons: list[tuple[int, str]] = []
@@ -73,6 +85,8 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
         values.append((f"{ch} age [s]", "never" if last is None else _fmt(age, 3)))
         values.append((f"{ch} messages", str(monitor.counts[ch])))
         required = ch in (TORQUE, SPEED)
+        if required:  # each estimate takes one message of each: the rest were not estimated
+            values.append((f"{ch} not estimated", str(max(monitor.counts[ch] - estimator.estimated, 0))))
         if required:
             if last is None:
                 level = WARN if since_start < STARTUP_GRACE_S else ERROR
@@ -83,6 +97,14 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
                 reasons.append((WARN, f"{ch} at {rates.get(ch, 0.0):.0f} Hz, expected {expected_rate_hz:.0f} Hz"))
         elif ch == OUT_TORQUE and last is not None and age > stale_after_s:
             reasons.append((WARN, f"measured output stale ({age:.2f} s): no residual"))
+    values.append(("input callbacks busy [%]", _fmt(100 * busy_fraction, 3)))
+    values.append(("executor lag [s]", _fmt(executor_lag_s, 3)))
+    limit_s = OVERLOAD_QUEUE_SHARE * (queue_depth / expected_rate_hz if queue_depth else RELIABLE_LAG_S)
+    if executor_lag_s > limit_s:
+        lost = " its input queues overflow: messages are lost before it sees them" if queue_depth else \
+            " the publishers are slowed down"
+        reasons.append((WARN, f"overloaded: the node runs {executor_lag_s:.2f} s behind its inputs "
+                              f"(callbacks busy {100 * busy_fraction:.0f} %);{lost}"))
     values.append(("expected rate [Hz]", _fmt(expected_rate_hz)))
     values.append(("stale after [s]", _fmt(stale_after_s, 3)))
     values.append(("samples estimated", str(estimator.estimated)))

@@ -15,6 +15,7 @@ from __future__ import annotations
 import gc
 import struct
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -45,6 +46,7 @@ RELIABLE_INPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durabili
 INPUT_QOS = {"sensor_data": SENSOR_QOS, "reliable": RELIABLE_INPUT_QOS}
 OUTPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=200)
 _PACK = struct.Struct("<4sd").pack
+HEARTBEAT_S = 0.1  #: period of the executor heartbeat timer (executor lag in /diagnostics)
 _CDR = bagmod.CDR_LE_HEADER
 
 
@@ -199,7 +201,17 @@ class LossEstimatorNode(Node):
         else:
             self.create_subscription(JointState, topics.joint_states, self._joint_state_callback, input_qos)
         self.create_subscription(Temperature, Topic.OIL_TEMPERATURE, self._temperature_callback, input_qos)
-        self.create_timer(1.0, self._publish_diagnostics)
+        # /diagnostics from a thread of its own: an executor flooded with input callbacks starves
+        # its timers (a 1 s timer stalled ~5 s at 5 kHz), exactly when the report matters
+        self.busy_ns = 0  #: time spent in input callbacks (saturation: /diagnostics)
+        self._busy_reported = (time.time_ns(), 0)
+        # executor lag: a heartbeat timer queued behind the input events fires as late as they are
+        # taken (inputs wait as long; a full best-effort queue drops them)
+        self._heartbeat_ns = time.time_ns()
+        self.create_timer(HEARTBEAT_S, self._heartbeat)
+        self._diagnostics_stop = threading.Event()
+        self._diagnostics_thread = threading.Thread(target=self._diagnostics_loop, name="diagnostics", daemon=True)
+        self._diagnostics_thread.start()
         self.get_logger().info(
             f"estimating from {'Float64 topics' if node.input_mode == 'float64' else topics.joint_states}; "
             f"effects: {', '.join(self.config.effects.enabled()) or 'none'}; executor: {self.executor_kind}; "
@@ -281,11 +293,13 @@ class LossEstimatorNode(Node):
             def cb_info(raw: bytes, info) -> None:
                 wall = time_ns()
                 handle(raw, info["source_timestamp"] or wall, wall)
+                self.busy_ns += time_ns() - wall
             return cb_info
 
         def cb(raw: bytes) -> None:
             wall = time_ns()
             handle(raw, wall, wall)
+            self.busy_ns += time_ns() - wall
         return cb
 
     def _joint_state_callback(self, msg: JointState) -> None:
@@ -306,6 +320,7 @@ class LossEstimatorNode(Node):
                 for channel, value in ((ch_t, effort), (ch_w, velocity)):
                     for est in self.estimator.push(channel, t_ns, float(value)):
                         self._publish(est)
+        self.busy_ns += time.time_ns() - wall
 
     def _temperature_callback(self, msg: Temperature) -> None:
         wall = time.time_ns()
@@ -359,11 +374,33 @@ class LossEstimatorNode(Node):
             self.rerun.send(t[ok], {"/residual/residual_nm": res[ok],
                                     "/residual/measured_loss_nm": np.array([e.measured_loss_nm for e in buf])[ok]})
 
+    def _heartbeat(self) -> None:
+        self._heartbeat_ns = time.time_ns()
+
+    def executor_lag_s(self) -> float:
+        """How far the executor is behind: the heartbeat's age beyond its period."""
+        return max(0.0, (time.time_ns() - self._heartbeat_ns) * 1e-9 - HEARTBEAT_S)
+
+    def _diagnostics_loop(self) -> None:
+        while not self._diagnostics_stop.wait(1.0):
+            try:
+                self._publish_diagnostics()
+            except Exception as exc:  # noqa: BLE001 - a report that fails must not end the reports
+                if self._diagnostics_stop.is_set() or not self.context.ok():
+                    return
+                self.get_logger().warn(f"diagnostics: {type(exc).__name__}: {exc}")
+
     def _publish_diagnostics(self) -> None:
         now = time.time_ns()
         node = self.config.node
+        then, busy_then = self._busy_reported
+        busy = self.busy_ns
+        self._busy_reported = (now, busy)
+        depth = INPUT_QOS[node.input_qos].depth if node.input_qos == "sensor_data" else None
         report = diagnose(now, self.monitor, self.monitor.rates(now), self.estimator, node.expected_rate_hz,
-                          node.min_efficiency_warn, self._skips_reported, self._alarms_reported)
+                          node.min_efficiency_warn, self._skips_reported, self._alarms_reported,
+                          busy_fraction=(busy - busy_then) / max(now - then, 1), executor_lag_s=self.executor_lag_s(),
+                          queue_depth=depth)
         self._skips_reported = dict(self.estimator.counts)
         self._alarms_reported = self.estimator.detector.alarms
         status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: {STATUS_NAME}",
@@ -379,6 +416,9 @@ class LossEstimatorNode(Node):
     def close(self) -> None:
         """Flush and close the recordings, the MCAP first (safe to call twice).  A rerun viewer
         that cannot be reached costs its data, with a warning, never the MCAP or a traceback."""
+        self._diagnostics_stop.set()
+        if self._diagnostics_thread.is_alive() and self._diagnostics_thread is not threading.current_thread():
+            self._diagnostics_thread.join(timeout=10)
         if self.recorder is not None:
             self.recorder.close()
             self.recorder = None

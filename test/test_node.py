@@ -145,6 +145,49 @@ def test_diagnostics_report_rates_and_a_stale_input():
     assert all(lv < 2 for lv, _, _ in healthy)
 
 
+def test_an_overload_is_reported_while_the_reports_keep_their_pace():
+    """A flood of inputs (the player looping a bag as fast as it can, best effort): the node falls
+    behind and says so (WARN, with how far behind), and /diagnostics keeps its 1 Hz — its timer
+    used to starve behind the input callbacks for 4-9 s, exactly while it had something to say."""
+    import subprocess
+    import sys
+
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from helpers import ROOT
+
+    node = NodeProcess()
+    with ros_context() as probe:
+        reports: list = []  # (arrival, status)
+        probe.create_subscription(DiagnosticArray, "/diagnostics",
+                                  lambda m: reports.extend((time.monotonic(), s) for s in m.status), 10)
+        assert wait_for(lambda: reports, 60), "the node reports"
+        flood = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "play", str(BAGS / "warmup.mcap"), "--rate",
+                                  "1000", "--loop", "--best-effort"], cwd=ROOT, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.PIPE, text=True)
+
+        def during_flood() -> list:
+            return [(t, s) for t, s in reports if float({kv.key: kv.value for kv in s.values}
+                                                        .get("motor_torque rate [Hz]", 0)) > 0]
+
+        def overloaded() -> list:
+            return [s for _, s in during_flood() if "overloaded" in s.message]
+        try:  # a condition: an overload reported and eight reports while the inputs arrived
+            assert wait_for(lambda: overloaded() and len(during_flood()) >= 8, 300), [s.message for _, s in reports]
+        finally:
+            flood.send_signal(signal.SIGINT)
+            flood.communicate(timeout=60)
+    assert node.stop() == 0, node.stderr
+    arrivals = np.array([t for t, _ in during_flood()])
+    assert np.diff(arrivals).max() < 3.0, np.diff(arrivals)  # 1 s apart, not 4-9 s
+    status = overloaded()[0]
+    values = {kv.key: kv.value for kv in status.values}
+    assert status.level == b"\x01" and float(values["executor lag [s]"]) > 0.5  # half a 1000-deep queue at 1 kHz
+    # received vs estimated per input: what was taken and not estimated is counted
+    for ch in ("motor_torque", "motor_speed"):
+        assert int(values[f"{ch} not estimated"]) == int(values[f"{ch} messages"]) - int(values["samples estimated"])
+
+
 def test_parameter_changes_are_validated_and_refused_with_the_reason():
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import SetParameters
