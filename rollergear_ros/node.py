@@ -469,7 +469,14 @@ def main(args: list[str] | None = None) -> int:
         node.discard_start_up_backlog(executor)
         # spin_once with a timeout: EventsExecutor.spin() never returns on this rclpy version
         while rclpy.ok():
-            executor.spin_once(timeout_sec=0.1)
+            try:
+                executor.spin_once(timeout_sec=0.1)
+            except RuntimeError:
+                # a signal shut the context down under an executor busy with a backlog: the
+                # EventsExecutor then fails to hand it a callback's argument; that is the end
+                if rclpy.ok():
+                    raise
+                break
     except ParameterError as exc:
         print(f"loss_estimator: error: {exc}", file=sys.stderr)
         code = 2

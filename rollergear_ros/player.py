@@ -84,16 +84,53 @@ class PlayStats:
                 f"{self.late_over_5ms} more than 5 ms late{held}")
 
 
-#: with ``--wait-for-subscribers``: pause after every topic has a subscriber, before the first message
+#: after the subscribers have matched, before the first message: they must discover the player as
+#: well (a best-effort subscription drops what a publisher it has not matched yet sends)
 SUBSCRIBER_SETTLE_S = 1.0
+#: by default, how long the player waits for the subscribers already in the ROS graph to match
+GRAPH_WAIT_S = 5.0
 #: at the end: how long reliable subscribers may take to acknowledge the last messages
 FINAL_ACK_TIMEOUT_S = 60.0
 
 
+def wait_for_graph(node, pubs: dict, bound_s: float, every_topic_s: float = 0.0) -> str:
+    """Wait until every subscriber the ROS graph shows on the played topics has matched the
+    player's publishers (a node started first then gets the first message), then
+    :data:`SUBSCRIBER_SETTLE_S` for the subscribers to match the player in turn; at most
+    ``bound_s`` (with ``every_topic_s`` > 0: until every topic has a subscriber, at most that
+    long).  Returns what it found, for the user.
+
+    The graph fills as discovery proceeds: a node that is running is in it within about 0.3 s
+    (sometimes ~3 s), so an empty graph is waited on for the whole bound.
+    """
+    deadline = time.monotonic() + max(bound_s, every_topic_s)
+    while time.monotonic() < deadline:
+        graph = {t: node.count_subscribers(t) for t in pubs}
+        matched = {t: p.get_subscription_count() for t, p in pubs.items()}
+        all_matched = all(matched[t] >= graph[t] for t in pubs)
+        if every_topic_s > 0:
+            if all(matched.values()):
+                break
+        elif any(graph.values()) and all_matched:
+            break
+        time.sleep(0.02)
+    else:
+        missing = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+        return (f"no subscriber matched {', '.join(sorted(missing))} within {max(bound_s, every_topic_s):g} s"
+                if len(missing) < len(pubs) else f"no subscriber within {max(bound_s, every_topic_s):g} s")
+    time.sleep(SUBSCRIBER_SETTLE_S)
+    n = sum(p.get_subscription_count() for p in pubs.values())
+    return f"{n} subscription(s) matched"
+
+
 def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, topics: list[str] | None = None,
          wait_for_subscribers: float = 0.0, start_delay: float = 0.0, reliable: bool = True,
-         quiet: bool = False) -> PlayStats:
+         quiet: bool = False, wait_for_graph_s: float = GRAPH_WAIT_S) -> PlayStats:
     """Publish the bag in log-time order at ``rate`` times real time.
+
+    First waits (:func:`wait_for_graph`, at most ``wait_for_graph_s``; 0: not at all) for the
+    subscribers already running to match, or with ``wait_for_subscribers`` > 0 until every topic
+    has one.
 
     Reliable publishers keep every message until each reliable subscriber has it: a subscriber
     that keeps all (``node.input_qos: reliable``) and falls behind holds the player back
@@ -121,18 +158,18 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     publish_failed = rclpy_implementation.RCLError
     pubs = {t: node.create_publisher(message_class(ty), t, qos) for t, ty in selected.items()}
     clock_pub = node.create_publisher(Clock, "/clock", 10) if clock else None
-    if wait_for_subscribers > 0:
-        deadline = time.monotonic() + wait_for_subscribers
-        while time.monotonic() < deadline and any(p.get_subscription_count() == 0 for p in pubs.values()):
-            time.sleep(0.02)
-        # the subscribers must discover the player as well: a best-effort subscription drops what a
-        # publisher it has not matched yet sends (a reliable one gets it resent)
-        time.sleep(SUBSCRIBER_SETTLE_S)
-    if start_delay > 0:
-        time.sleep(start_delay)
     stats = PlayStats()
     late_5ms = 5_000_000
     try:
+        if wait_for_subscribers > 0 or wait_for_graph_s > 0:
+            found = wait_for_graph(node, pubs, wait_for_graph_s, wait_for_subscribers)
+            if not quiet:
+                print(f"play: {found}", file=sys.stderr)
+        if start_delay > 0:
+            time.sleep(start_delay)
+        if not quiet:
+            print(f"play: publishing {sum(info.counts.get(t, 0) for t in selected):,} messages on {len(selected)} "
+                  f"topics at {rate:g}x{' (looping)' if loop else ''}", file=sys.stderr, flush=True)
         while True:
             state = ReadState()
             reader = _Prefetch(bag, state)
@@ -216,7 +253,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     init_for_command_line()
     try:
         play(Path(args.bag), args.rate, args.loop, args.clock, args.topics, args.wait_for_subscribers,
-             args.delay, not args.best_effort)
+             args.delay, not args.best_effort, wait_for_graph_s=0.0 if args.no_wait else GRAPH_WAIT_S)
     finally:
         rclpy.try_shutdown()
     return 0
@@ -230,8 +267,11 @@ def register_play(sub, with_params) -> None:  # noqa: ARG001
     p.add_argument("--clock", action="store_true", help="publish /clock with the bag's time (use_sim_time)")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
     p.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="S",
-                   help="wait up to S seconds until every topic has a subscriber, then "
-                        f"{SUBSCRIBER_SETTLE_S:g} s for them to discover the player")
+                   help="wait up to S seconds until every topic has a subscriber (for a node started after "
+                        "the player), then " f"{SUBSCRIBER_SETTLE_S:g} s for them to discover the player")
+    p.add_argument("--no-wait", action="store_true",
+                   help=f"start at once; by default the player first waits (at most {GRAPH_WAIT_S:g} s) until the "
+                        "subscribers already running have matched, so that they get the first message")
     p.add_argument("--delay", type=float, default=0.0, metavar="S", help="sleep S seconds before playing")
     p.add_argument("--best-effort", action="store_true", help="publish best effort instead of reliable")
     p.set_defaults(func=cmd_play)

@@ -400,6 +400,31 @@ def test_player_loops_with_the_bag_timing_and_stops_cleanly_on_ctrl_c(tmp_path):
         assert 0.8 * (n - 1) * period_s < span < 3 * (n - 1) * period_s, span
 
 
+def test_play_into_a_running_node_loses_nothing_at_the_start(tmp_path):
+    """20 plays of a short bag into a node that is already running (its default, best-effort
+    inputs): every sample of every play is estimated.  The player used to start publishing before
+    it had matched the node's subscriptions and lost the first 0.35-2.7 s."""
+    from rollergear_ros.bag import BagWriter
+
+    bag = tmp_path / "short.mcap"
+    n = 50
+    t = 10**18 + np.arange(n, dtype=np.int64) * 10_000_000  # 100 Hz, 0.5 s
+    with BagWriter(bag) as bw:
+        bw.write_float64_series(T.motor_torque, t, np.full(n, 20.0))
+        bw.write_float64_series(T.motor_speed, t, np.full(n, 150.0))
+    node = NodeProcess()
+    try:
+        with ros_context() as probe_node:
+            probe = FloatProbe(probe_node, T.loss_torque)
+            probe.wait_matched()  # the node is running (and the probe hears it) before the first play
+            for k in range(1, 21):
+                play(bag)  # the default: wait for the subscribers already in the graph
+                assert wait_for(lambda k=k: len(probe) >= k * n, 60), f"play {k}: {len(probe) - (k - 1) * n} of {n}"
+            assert len(probe) == 20 * n
+    finally:
+        assert node.stop() == 0, node.stderr
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_player_interrupted_while_publishing_ends_cleanly(sig):
     """A signal that arrives during a publish (4 k messages/s) ends the player with exit code 0 and
@@ -411,8 +436,10 @@ def test_player_interrupted_while_publishing_ends_cleanly(sig):
     from helpers import ROOT
 
     player = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "play", str(BAGS / "rig_map.mcap"), "--rate",
-                               "20", "--loop"], stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    time.sleep(2.0)
+                               "20", "--loop", "--no-wait"], stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    started = player.stderr.readline()  # a condition: the player says it starts publishing
+    assert "play: publishing" in started, started
+    time.sleep(0.5)  # into the publishing loop (it plays for minutes)
     assert player.poll() is None
     player.send_signal(sig)
     _, err = player.communicate(timeout=20)
