@@ -250,47 +250,43 @@ def read_metadata(path: str | Path, name: str) -> dict[str, str] | None:
             for md in make_reader(fh).iter_metadata():
                 if md.name == name:
                     return dict(md.metadata)
-    except (McapError, struct.error, ValueError, EOFError, KeyError, OSError):
+    except SUMMARY_ERRORS:
         return None
     return None
 
 
+#: what the ``mcap`` library raises on a damaged summary (lengths, offsets and ids it trusts)
+SUMMARY_ERRORS = (McapError, struct.error, ValueError, EOFError, KeyError, IndexError, OSError, OverflowError)
+
+
+def _from_summary(path: Path, size: int, summary) -> BagInfo:
+    """The bag's topics, types and counts from its summary (KeyError when the summary contradicts itself)."""
+    topics = {c.topic: (summary.schemas[c.schema_id].name if c.schema_id else "") for c in summary.channels.values()}
+    texts = {s.name: s.data.decode(errors="replace") for s in summary.schemas.values()}
+    enc = {s.encoding for s in summary.schemas.values()} | {c.message_encoding for c in summary.channels.values()}
+    counts: dict[str, int] = {}
+    for cid, n in summary.statistics.channel_message_counts.items():
+        topic = summary.channels[cid].topic
+        counts[topic] = counts.get(topic, 0) + n
+    info = BagInfo(path, topics, counts, texts, True, False, size, size, summary.statistics.message_start_time,
+                   summary.statistics.message_end_time)
+    _check_encodings(info, enc)
+    return info
+
+
 def inspect_bag(path: str | Path) -> BagInfo:
-    """Read the bag's summary; without one (a recording cut by a crash) scan what is readable."""
+    """Read the bag's summary; without a usable one (a recording cut by a crash, a damaged
+    summary) scan what is readable."""
     path = Path(path)
     _check_mcap(path)
     size = path.stat().st_size
     with path.open("rb") as fh:
         try:
             summary = make_reader(fh).get_summary()
-        except (McapError, struct.error, ValueError, EOFError, OSError):  # OSError: shorter than a footer
-            summary = None
-        if summary is not None and summary.statistics is not None:
-            topics = {
-                c.topic: (summary.schemas[c.schema_id].name if c.schema_id else "") for c in summary.channels.values()
-            }
-            texts = {s.name: s.data.decode(errors="replace") for s in summary.schemas.values()}
-            enc = {s.encoding for s in summary.schemas.values()} | {
-                c.message_encoding for c in summary.channels.values()
-            }
-            counts: dict[str, int] = {}
-            for cid, n in summary.statistics.channel_message_counts.items():
-                topic = summary.channels[cid].topic
-                counts[topic] = counts.get(topic, 0) + n
-            info = BagInfo(
-                path,
-                topics,
-                counts,
-                texts,
-                True,
-                False,
-                size,
-                size,
-                summary.statistics.message_start_time,
-                summary.statistics.message_end_time,
-            )
-            _check_encodings(info, enc)
-            return info
+            if summary is not None and summary.statistics is not None:
+                return _from_summary(path, size, summary)
+        except SUMMARY_ERRORS:  # OSError: shorter than a footer
+            pass
     return _scan(path, size)
 
 

@@ -304,6 +304,24 @@ def _message_index_count(body: bytes) -> int | None:
     return n // 16 if n % 16 == 0 and 6 + n <= len(body) else None
 
 
+def preload_summary(path: str | Path, state: ReadState) -> None:
+    """Take the schemas and channels of the file's summary, when it has a readable one: a damaged
+    chunk may have held the only schema or channel record of messages in later chunks."""
+    from mcap.reader import make_reader
+
+    try:
+        with Path(path).open("rb") as fh:
+            summary = make_reader(fh).get_summary()
+    except Exception:  # noqa: BLE001 - no usable summary: the records in the data section will do
+        return
+    if summary is None:
+        return
+    for s in summary.schemas.values():
+        state.schemas.setdefault(s.id, (s.name, s.encoding, s.data))
+    for c in summary.channels.values():
+        state.channels.setdefault(c.id, (c.topic, c.schema_id, c.message_encoding))
+
+
 def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Iterator[MessageArrays]:
     """Linear read of an MCAP file, one :class:`MessageArrays` per chunk (or per run of loose messages).
 
@@ -336,10 +354,15 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
             ln = int.from_bytes(head[1:], "little")
             end = pos + 9 + ln
             if op == 0 or end > file_size:
-                reason = ("invalid record (opcode 0)" if op == 0
-                          else f"a record declares {ln:,} bytes, beyond the end of the file")
                 nxt = find_next_chunk(fh, pos + 1, file_size)
-                after_damage = _damaged(state, pos, nxt if nxt is not None else file_size, reason)
+                if op == 0:
+                    reason = "invalid record (opcode 0)"
+                elif nxt is None:
+                    reason = "the file ends inside this record (cut short)"
+                else:
+                    reason = f"a record declares {ln:,} bytes, beyond the end of the file"
+                after_damage = _damaged(state, pos, nxt if nxt is not None else file_size, reason,
+                                        fh if op == OP_CHUNK and end > file_size else None, ln)
                 if nxt is None:
                     state.truncated = True
                     state.problem = f"{reason} (byte {pos:,}); nothing readable after it"
@@ -365,7 +388,8 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
                     state.bytes_read = end
                     break
             except Exception as exc:  # noqa: BLE001 - damaged data (bad fields, decompression, CRC): skip the record
-                after_damage = _damaged(state, pos, end, str(exc) or type(exc).__name__, fh if op == OP_CHUNK else None)
+                after_damage = _damaged(state, pos, end, str(exc) or type(exc).__name__,
+                                        fh if op == OP_CHUNK else None, ln)
                 pos = end
                 continue
             after_damage = None
@@ -377,13 +401,14 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
         _close_gap(state, None)
 
 
-def _damaged(state: ReadState, start: int, end: int, reason: str, fh=None) -> DamagedSpan:
-    """Record a damaged span; a chunk's own header gives its log-time range when it is intact."""
+def _damaged(state: ReadState, start: int, end: int, reason: str, fh=None, record_length: int = 0) -> DamagedSpan:
+    """Record a damaged span; a chunk's own header (a chunk record of ``record_length`` bytes at
+    ``start``, read through ``fh``) gives its log-time range when it is intact."""
     span = DamagedSpan(start, end, reason)
     if fh is not None:
         fh.seek(start + 9)
         try:
-            start_ns, end_ns, *_ = _chunk_header(fh.read(min(end - start - 9, 64)), end - start - 9)
+            start_ns, end_ns, *_ = _chunk_header(fh.read(64), record_length)
             if 0 <= start_ns <= end_ns < 2**63:
                 span.start_ns, span.end_ns = start_ns, end_ns
         except (ValueError, struct.error):

@@ -413,12 +413,20 @@ class LossEstimatorNode(Node):
         self.pub_diag.publish(arr)
 
     # ------------------------------------------------------------------ shutdown
-    def close(self) -> None:
-        """Flush and close the recordings, the MCAP first (safe to call twice).  A rerun viewer
-        that cannot be reached costs its data, with a warning, never the MCAP or a traceback."""
+    def _stop_diagnostics(self) -> None:
         self._diagnostics_stop.set()
         if self._diagnostics_thread.is_alive() and self._diagnostics_thread is not threading.current_thread():
             self._diagnostics_thread.join(timeout=10)
+
+    def destroy_node(self) -> None:
+        """Stop the diagnostics thread before its publisher goes away, then destroy the node."""
+        self._stop_diagnostics()
+        super().destroy_node()
+
+    def close(self) -> None:
+        """Flush and close the recordings, the MCAP first (safe to call twice).  A rerun viewer
+        that cannot be reached costs its data, with a warning, never the MCAP or a traceback."""
+        self._stop_diagnostics()
         if self.recorder is not None:
             self.recorder.close()
             self.recorder = None

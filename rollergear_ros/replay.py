@@ -233,9 +233,10 @@ def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callab
     Damaged spans of the file are skipped, malformed and duplicated messages too (``problems``);
     each is reported through ``warn`` when the read ends.
     """
-    from .fastmcap import ReadState
+    from .fastmcap import ReadState, preload_summary
 
     state = ReadState()
+    preload_summary(info.path, state)
     try:
         if plan.mode == "float64":
             yield from _float64_batches(info, plan, batch_size, state, problems)
@@ -320,14 +321,18 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
                     meta = []
                     for cid in cids:
                         topic, sid, _ = state.channels[cid]
-                        type_name = state.schemas[sid][0] if sid in state.schemas else ""
+                        type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
                         meta.append((topic, type_name, info.schema_texts.get(type_name)))
+                    typed = np.array([bool(m[1]) for m in meta])  # a type lost with a damaged chunk: not copied
                     which = np.searchsorted(np.array(cids), arrays.channel[fixed])
+                    fixed, which = fixed[typed[which]], (np.cumsum(typed) - 1)[which[typed[which]]]
                     payload = arrays.buf[arrays.offset[fixed][:, None] + np.arange(12)]
-                    writer.write_fixed_mixed(meta, which, arrays.log_time[fixed], payload)
+                    writer.write_fixed_mixed([m for m in meta if m[1]], which, arrays.log_time[fixed], payload)
                 for i in keep[lens != 12].tolist():
                     topic, sid, _ = state.channels[int(arrays.channel[i])]
-                    type_name = state.schemas[sid][0] if sid in state.schemas else ""
+                    type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
+                    if not type_name:
+                        continue
                     writer.write_raw(
                         topic, type_name, int(arrays.log_time[i]), arrays.payload(i), info.schema_texts.get(type_name)
                     )

@@ -77,8 +77,15 @@ def read_series(path: str | Path, cmap: ChannelMap) -> dict[str, Series]:
 
 # ------------------------------------------------------------------------------------ CSV / Parquet
 def _header(path: Path) -> list[str]:
-    with path.open(newline="", encoding="utf-8-sig") as fh:
-        return next(csv.reader(fh), [])
+    """The CSV's column names (its first row)."""
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            return next(csv.reader(fh), [])
+    except UnicodeDecodeError as exc:
+        raise InputFileError(f"{path}: the header is not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at "
+                             f"offset {exc.start})") from None
+    except csv.Error as exc:
+        raise InputFileError(f"{path}: the header is not a CSV row ({exc})") from None
 
 
 def arrow_table(path: Path, cmap: ChannelMap):
@@ -159,7 +166,13 @@ def _time_ns(path: Path, spec: ChannelSpec, column) -> np.ndarray:
         raise InputFileError(f"{path}: time ({spec.column}) is not numbers in {spec.unit} (type {column.type}); "
                              "ISO 8601 date-times need unit: datetime")
     values = column.to_numpy(zero_copy_only=False).astype(np.float64)
-    return np.round(spec.to_si(values)).astype(np.int64)
+    t = np.round(spec.to_si(values))
+    present = ~np.asarray(column.is_null())  # empty cells are rows without a sample (the caller skips them)
+    bad = present & ~(np.abs(t) < 2.0**63)
+    if bad.any():
+        raise InputFileError(f"{path}: time ({spec.column}) is not a finite time at data row "
+                             f"{int(np.flatnonzero(bad)[0]) + 1} ({float(values[bad][0])!r} {spec.unit})")
+    return np.where(present, t, 0).astype(np.int64)
 
 
 # ------------------------------------------------------------------------------------ MDF4

@@ -171,6 +171,31 @@ def test_time_that_runs_backwards_is_refused(tmp_path, signals):
     assert proc.returncode == 2 and "time (t_ms) runs backwards after data row 100" in proc.stderr
 
 
+@pytest.mark.parametrize(("value", "shown"), [(float("inf"), "inf"), (-1e30, "-1e+30")])
+def test_a_time_that_is_not_a_finite_time_is_refused(tmp_path, signals, value, shown):
+    """An infinite or out-of-range time used to become an arbitrary int64 (numpy's invalid cast).
+    (``nan`` is one of pyarrow's null spellings: an empty cell, a row without a sample.)"""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    cols = file_columns(signals)
+    cols["t_ms"] = cols["t_ms"].copy()
+    cols["t_ms"][7] = value
+    pacsv.write_csv(pa.table(cols), tmp_path / "rig.csv")
+    proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(write_map(tmp_path / "m.yaml")),
+                   "--out", str(tmp_path / "o.mcap"), check=False)
+    assert proc.returncode == 2 and f"time (t_ms) is not a finite time at data row 8 ({shown} ms)" in proc.stderr, \
+        proc.stderr
+
+
+def test_a_csv_header_that_is_not_utf8_is_one_line(tmp_path):
+    (tmp_path / "rig.csv").write_bytes(b"t_ms,T_\xe9in\n1,2\n")
+    proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(write_map(tmp_path / "m.yaml")),
+                   "--out", str(tmp_path / "o.mcap"), check=False)
+    assert proc.returncode == 2 and "the header is not UTF-8 text (byte 0xe9" in proc.stderr
+    assert proc.stderr.count("\n") == 1, proc.stderr
+
+
 def _rosbag2(tmp_path, storage: str):
     """The bundled drag recording rewritten as a rosbag2 bag by rosbags' own writer."""
     from mcap.reader import make_reader

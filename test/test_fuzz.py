@@ -1,0 +1,56 @@
+"""A bounded fuzz run over the MCAP reader (through replay), the channel-map/CSV import and the
+parameter loader: random truncations, flipped bytes, hostile lengths and hostile YAML end in a
+result or one clear error, never a traceback, a hang or unbounded memory, and every MCAP written
+is valid.  ``bench/fuzz.py`` runs the same cases for as long as one likes."""
+
+from __future__ import annotations
+
+import pytest
+
+from fuzzer import Fuzzer
+
+CASES_PER_TARGET = 150  # ~7 s here, well under a minute on a machine five times slower
+
+
+def test_fuzz_the_readers_and_the_parameter_loader(tmp_path):
+    report = Fuzzer(tmp_path, seed=2026).run(CASES_PER_TARGET)
+    assert not report.failures, report.text()
+    assert report.cases == 4 * CASES_PER_TARGET
+    # the cases exercise both ends: damaged inputs that still give a result, and refusals
+    assert report.outcomes.get("mcap result", 0) and report.outcomes.get("mcap refused", 0), report.text()
+    assert report.outcomes.get("params refused", 0) and report.outcomes.get("csv refused", 0), report.text()
+
+
+@pytest.mark.parametrize(("seed", "cases", "found"), [
+    (1, 3, "a CSV header that is not UTF-8: UnicodeDecodeError"),
+    (1, 36, "a channel without its schema record (in a damaged chunk): KeyError copying the inputs"),
+    (11, 66, "a damaged summary: OverflowError in the mcap library's summary reader"),
+    (14, 62, "a summary whose statistics count a channel it does not define: KeyError"),
+])
+def test_cases_the_fuzzer_once_found_stay_fixed(tmp_path, seed, cases, found):
+    """Each of these runs ends with the case that raised the traceback named in ``found``."""
+    report = Fuzzer(tmp_path, seed=seed).run(cases)
+    assert not report.failures, f"{found}: {report.text()}"
+
+
+@pytest.mark.parametrize("what", ["crash", "invalid output"])
+def test_the_fuzzer_reports_what_it_is_for(tmp_path, what):
+    """The fuzzer itself can fail: a traceback and an invalid output file are reported."""
+    fuzzer = Fuzzer(tmp_path, seed=1)
+
+    def crash(k: int) -> str:
+        raise KeyError("a defect")
+
+    def invalid_output(k: int) -> str:
+        from fuzzer import mcap_output_problem
+
+        bad = tmp_path / "half.mcap"
+        bad.write_bytes(fuzzer.seeds["mcap"].read_bytes()[:300])
+        problem = mcap_output_problem(bad)
+        if problem:
+            raise AssertionError(problem)
+        return "result"
+
+    fuzzer.targets = {"target": crash if what == "crash" else invalid_output}
+    report = fuzzer.run(2)
+    assert len(report.failures) == 2 and report.outcomes == {"target crash": 2}, report.text()
