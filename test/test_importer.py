@@ -173,8 +173,11 @@ def test_time_that_runs_backwards_is_refused(tmp_path, signals):
 
 @pytest.mark.parametrize(("value", "shown"), [(float("inf"), "inf"), (-1e30, "-1e+30")])
 def test_a_time_that_is_not_a_finite_time_is_refused(tmp_path, signals, value, shown):
-    """An infinite or out-of-range time used to become an arbitrary int64 (numpy's invalid cast).
-    (``nan`` is one of pyarrow's null spellings: an empty cell, a row without a sample.)"""
+    """An infinite or out-of-range time is refused: it used to become an arbitrary int64.
+
+    (numpy's invalid cast; ``nan`` is one of pyarrow's null spellings: an empty cell, a row
+    without a sample.)
+    """
     import pyarrow as pa
     import pyarrow.csv as pacsv
 
