@@ -64,6 +64,8 @@ def source_kind(path: str | Path) -> str:
     p = Path(path)
     if not p.exists():
         raise InputFileError(f"{p} does not exist")
+    if not (p.is_dir() or p.is_file()):  # a FIFO or a device would block or never end
+        raise InputFileError(f"{p} is not a regular file")
     if p.is_dir() or p.name == "metadata.yaml" or p.suffix.lower() == ".db3":
         return "rosbag2"
     if p.suffix.lower() == ".mcap":

@@ -59,6 +59,8 @@ def read_table(path: str | Path, cmap: ChannelMap | None = None, ratio: float | 
     path = Path(path)
     if not path.exists():
         raise InputFileError(f"{path} does not exist")
+    if not path.is_file():  # a folder, a FIFO or a device
+        raise InputFileError(f"{path} is not a regular file")
     if path.suffix.lower() == ".vtlm":
         return read_vtlm(path)
     if cmap is None or cmap.format != "steady_state":

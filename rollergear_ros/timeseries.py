@@ -59,6 +59,8 @@ def read_series(path: str | Path, cmap: ChannelMap) -> dict[str, Series]:
     path = Path(path)
     if not path.exists():
         raise InputFileError(f"{path} does not exist")
+    if not path.is_file():  # a folder, a FIFO or a device
+        raise InputFileError(f"{path} is not a regular file")
     kind = TIMESERIES_SUFFIXES.get(path.suffix.lower())
     if kind is None:
         raise InputFileError(f"{path}: unknown time-series format {path.suffix!r} "

@@ -188,3 +188,21 @@ def test_an_output_that_cannot_be_written_is_one_line_before_any_work(tmp_path, 
     proc = run_cli(*[a.format(**names) for a in args], check=False, timeout=300)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
     assert proc.stderr.count("\n") == 1 and message.format(**names) in proc.stderr, proc.stderr
+
+
+@pytest.mark.parametrize("name", ["rig.csv", "map.vtlm", "rig.mcap"])
+@pytest.mark.parametrize("command", ["replay", "calibrate", "import"])
+def test_a_fifo_as_input_is_refused_not_waited_on(tmp_path, name, command):
+    """A FIFO (or a device) given as a recording or table used to block for ever."""
+    import os
+
+    fifo = tmp_path / name
+    os.mkfifo(fifo)
+    cmap = tmp_path / "m.yaml"
+    cmap.write_text("format: timeseries\ntime: {column: t, unit: s}\nmotor_torque: {column: a, unit: N*m}\n"
+                    "motor_speed: {column: b, unit: rad/s}\n")
+    args = [command, str(fifo)] + (["--channels", str(cmap)] if name.endswith(".csv") else [])
+    args += ["--out", str(tmp_path / "o.mcap")] if command == "import" else []
+    proc = run_cli(*args, check=False, timeout=120)
+    assert proc.returncode == 2 and "is not a regular file" in proc.stderr and "Traceback" not in proc.stderr, \
+        proc.stderr
