@@ -4,8 +4,10 @@
 Generates the recording (motor + output torque and speed, oil temperature at 10 Hz: 14.4 M
 messages for an hour) unless --bag is given, then times:
   1. raw iteration with the ``mcap`` reader (no decoding), file order;
-  2. decoding message by message with ``mcap-ros2-support`` (on a slice, extrapolated);
-  3. ``rollergear replay`` (decode + pair + estimate + write the output MCAP).
+  2. raw iteration with ``rosbags``' AnyReader (no deserialisation);
+  3. decoding message by message with ``mcap-ros2-support`` (on a slice, extrapolated);
+  4. ``rollergear replay`` without an output file (what a fleet task does; #13's per-core target);
+  5. ``rollergear replay`` (decode + pair + estimate + write the output MCAP).
 Usage: python bench/bench_replay.py [--minutes 60] [--rate 1000] [--keep DIR]
 """
 
@@ -69,6 +71,16 @@ def main() -> None:
     t_raw = time.perf_counter() - t0
     print(f"raw mcap iteration           : {n_raw:,} messages in {t_raw:6.1f} s = {n_raw / t_raw / 1e3:7.0f} k msg/s")
 
+    from rosbags.highlevel import AnyReader
+
+    t0 = time.perf_counter()
+    n_rb = 0
+    with AnyReader([bag]) as reader:
+        for _ in reader.messages():  # raw bytes, no deserialisation
+            n_rb += 1
+    t_rb = time.perf_counter() - t0
+    print(f"raw rosbags iteration        : {n_rb:,} messages in {t_rb:6.1f} s = {n_rb / t_rb / 1e3:7.0f} k msg/s")
+
     from mcap_ros2.decoder import DecoderFactory
 
     limit = min(n_raw, 1_000_000)
@@ -82,6 +94,12 @@ def main() -> None:
     t_dec = (time.perf_counter() - t0) * n_raw / n_dec
     print(f"mcap-ros2-support decode     : {n_dec / (t_dec * n_dec / n_raw) / 1e3:7.0f} k msg/s "
           f"(measured on {n_dec:,}, extrapolated to {t_dec:.1f} s)")
+
+    t0 = time.perf_counter()
+    bare, _ = replay(bag, config, show_progress=False)  # what a fleet task does: no output file
+    t_bare = time.perf_counter() - t0
+    print(f"replay without output (fleet): {bare.input_messages:,} messages in {t_bare:6.1f} s = "
+          f"{bare.input_messages / t_bare / 1e3:7.0f} k msg/s = {t_rb / t_bare:.2f}x raw rosbags (target >= 1 M msg/s)")
 
     out = work / "hour_estimates.mcap"
     t0 = time.perf_counter()
