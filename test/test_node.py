@@ -307,8 +307,10 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
     # can tell a pairing one sample off.  The player is a fixture here, not under test: it runs at a
     # higher priority where the test may give one (root), so that a busy machine does not preempt it
     # between a sample's messages -- publisher timestamps cannot pair a sample split that way (README)
+    # --no-wait: the player must not wait for the node (its default), the node joins a running stream
     player = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "play", str(BAGS / "rig_map.mcap"), "--rate",
-                               "5"], stderr=subprocess.PIPE, text=True, cwd=ROOT, preexec_fn=_raise_priority)
+                               "5", "--no-wait"], stderr=subprocess.PIPE, text=True, cwd=ROOT,
+                              preexec_fn=_raise_priority)
     time.sleep(3.0)
     node = NodeProcess(f"node.record_mcap:={rec}", f"node.executor:={executor}")
     player.wait(timeout=120)
