@@ -77,13 +77,18 @@ class TopicMap:
 
 
 # ------------------------------------------------------------------------------------ decoding
+def cdr_problem(payload: bytes) -> str | None:
+    """Why a payload does not start with the plain CDR encapsulation ROS 2 writes (None: it does)."""
+    if len(payload) < 4 or payload[0] != 0 or payload[1] > 1:
+        return f"CDR encapsulation {payload[:2].hex()} is not plain CDR (0000 or 0001)"
+    return None
+
+
 def float64_problem(payload: bytes) -> str | None:
     """Why ``payload`` is not a CDR ``std_msgs/msg/Float64`` (None: it is one)."""
     if len(payload) < 12:
         return f"payload of {len(payload)} bytes (a Float64 message has 12)"
-    if payload[0] != 0 or payload[1] > 1:
-        return f"CDR encapsulation {payload[:2].hex()} is not plain CDR (0000 or 0001)"
-    return None
+    return cdr_problem(payload)
 
 
 def decode_float64(payloads: list[bytes], problems: list[tuple[int, str]] | None = None) -> np.ndarray:

@@ -18,8 +18,8 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from .bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, decode_float64, decoder_for, float64_problem,
-                  inspect_bag, iter_raw_batches, median_period_s, read_metadata)
+from .bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, cdr_problem, decode_float64, decoder_for,
+                  float64_problem, inspect_bag, iter_raw_batches, median_period_s, read_metadata)
 from .estimator import BatchEstimate, Estimator
 from .pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from .interface import MessageType, Metadata
@@ -95,20 +95,13 @@ def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
     )
 
 
-def _cdr_problem(payload: bytes) -> str | None:
-    """Why a payload is not plain CDR (the encapsulation header ROS 2 writes); None if it is."""
-    if len(payload) < 4 or payload[0] != 0 or payload[1] > 1:
-        return f"CDR encapsulation {payload[:2].hex()} is not plain CDR (0000 or 0001)"
-    return None
-
-
 def _decode_temperature(payload: bytes, plan: InputPlan, info: BagInfo) -> tuple[float, str | None]:
     """An oil temperature message (Float64 or sensor_msgs/Temperature) -> (°C, problem or None)."""
     temp_type = plan.temperature[1]
     if temp_type == MessageType.FLOAT64:
         problem = float64_problem(payload)
         return (math.nan, problem) if problem else (float(decode_float64([payload])[0]), None)
-    problem = _cdr_problem(payload)
+    problem = cdr_problem(payload)
     if problem:
         return math.nan, problem
     try:
@@ -136,7 +129,7 @@ def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo,
             if problem is None:
                 out.append((t, OIL_TEMPERATURE, value))
         elif topic == plan.joint_states:
-            problem = _cdr_problem(data)
+            problem = cdr_problem(data)
             if problem is None:
                 try:
                     msg = js_dec(data)

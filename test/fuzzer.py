@@ -111,6 +111,19 @@ def mcap_output_problem(path: Path) -> str | None:
     return None
 
 
+def _writes_valid_mcap(out: Path, write: Callable[[], object]) -> str:
+    """Run ``write``, which may write the MCAP ``out``: whatever it wrote, also when it raised, must
+    be valid (the file is removed afterwards)."""
+    try:
+        write()
+    finally:
+        problem = mcap_output_problem(out)
+        out.unlink(missing_ok=True)
+        if problem:
+            raise AssertionError(f"invalid output MCAP {out.name}: {problem}")
+    return "result"
+
+
 class _Timeout(Exception):
     pass
 
@@ -142,27 +155,14 @@ class Fuzzer:
         src = self.workdir / f"case{k}.mcap"
         src.write_bytes(mutate_bytes(self.seeds["mcap"].read_bytes(), self.rng))
         out = self.workdir / f"case{k}_out.mcap"
-        try:
-            replay(src, self.config, out_mcap=out, show_progress=False, warn=lambda m: None)
-        finally:
-            problem = mcap_output_problem(out)
-            out.unlink(missing_ok=True)
-            if problem:
-                raise AssertionError(f"invalid output MCAP: {problem}")
-        return "result"
+        return _writes_valid_mcap(out, lambda: replay(src, self.config, out_mcap=out, show_progress=False,
+                                                      warn=lambda m: None))
 
     def _import(self, csv: Path, cmap: Path, k: int) -> str:
         from rollergear_ros.importer import import_source
 
         out = self.workdir / f"case{k}_import.mcap"
-        try:
-            import_source(csv, out, cmap)
-        finally:
-            problem = mcap_output_problem(out)
-            out.unlink(missing_ok=True)
-            if problem:
-                raise AssertionError(f"invalid imported MCAP: {problem}")
-        return "result"
+        return _writes_valid_mcap(out, lambda: import_source(csv, out, cmap))
 
     def _csv_case(self, k: int) -> str:
         csv = self.workdir / f"case{k}.csv"
