@@ -27,7 +27,9 @@ out of order, and callback times spread under load); only when three consecutive
 than ``max(sync_tolerance_s, 2 ms)`` apart is the stream taken to be misaligned by a lost message,
 and the oldest head is dropped (``unpaired``) to re-synchronise.  That leniency applies once the
 stream is locked on (a pair within the tolerance).  Unlocked -- at the start, after a resync, and
-after a gap longer than ``staleness_s`` with nothing queued -- a wide pair is dropped at once, so the
+after a gap longer than ``staleness_s`` with nothing queued (over a lossless delivery only when the
+messages after it come at the sample rate, not in a stalled executor's catch-up burst:
+:meth:`SampleSynchronizer._decide_gap`) -- a wide pair is dropped at once, so the
 backlog of a topic whose subscription matched before its partner's (a node started while a bag
 plays) is not paired with the wrong samples.  Below ~500 Hz a lost message mispairs two samples
 before the resync.  Above it, neighbouring samples lie within 2 ms of each other, so a pairing one
@@ -86,6 +88,9 @@ SKEW_HELD_UP_NS = 10_000_000  #: ... and never less than this (the arrival perio
 #: matched apart): the detector acts during the first this-many timed pairs of a stream only, so
 #: that delivery jitter on a busy machine never costs a sample later on
 LOSSLESS_SKEW_WINDOW = 500
+#: over a lossless delivery, how many messages of one channel after a gap tell an executor stall (they
+#: come in a burst) from a new stream (at its sample rate): :meth:`SampleSynchronizer._decide_gap`
+STALL_BURST_MESSAGES = 4
 
 #: reasons a sample is not estimated (or estimated without a residual); ``malformed`` and
 #: ``duplicate`` count input messages that were never paired (not a Float64, a repeat)
@@ -138,6 +143,8 @@ class SampleSynchronizer:
         self._skew_last: list[int] = []  # each observed channel's time in the previous pair
         self._period_ns = 0.0
         self._last_pair_ns: int | None = None
+        self._gap_ns: int | None = None  # lossless arrival pairing: a gap to be told stall or new stream
+        self._gap_msgs: dict[str, int] = {}  # ... and each channel's messages since it
         self.tolerance_ns = int(round(sync_tolerance_s * 1e9))
         self.staleness_ns = int(round(staleness_s * 1e9))
         self._set_hold()
@@ -163,6 +170,23 @@ class SampleSynchronizer:
         hold = max(self.staleness_ns, int(LOSSLESS_HOLD_S * 1e9)) if self.arrival and self.lossless else 0
         self.hold_ns = max(self.staleness_ns, hold)
 
+    def _decide_gap(self, channel: str, t_ns: int) -> None:
+        """Over a lossless arrival delivery, after a gap with nothing queued: a new stream or a stall?
+
+        The executor of a node that stalled takes what the middleware queued meanwhile in one burst,
+        far faster than the publisher sent it; a new stream arrives at its sample rate.  When one
+        channel has delivered :data:`STALL_BURST_MESSAGES` messages since the gap, they decide: in
+        less than half their nominal span (``(n - 1)`` sample periods), the gap was a stall and the
+        stream and its pairing go on (a catch-up is no start out of step); otherwise it is a new stream.
+        """
+        n = self._gap_msgs[channel] = self._gap_msgs.get(channel, 0) + 1
+        if n < STALL_BURST_MESSAGES:
+            return
+        period = 2.0 * self._period_floor_ns or self._period_ns or FALLBACK_PERIOD_S * 1e9
+        if t_ns - self._gap_ns >= 0.5 * period * (n - 1):
+            self._locked, self._timed_pairs = False, 0
+        self._gap_ns = None
+
     def _set_active(self, channel: str, active: bool) -> None:
         self.active[channel] = active
         self._active_channels = tuple(c for c in _PAIRED if self.active[c])
@@ -175,11 +199,17 @@ class SampleSynchronizer:
             return ()
         if self.first_ns is None:
             self.first_ns = t_ns
+        if self._gap_ns is not None:
+            self._decide_gap(channel, t_ns)
         if t_ns > self.latest_ns:
             if t_ns - self.latest_ns > self.staleness_ns and not any(self.queues.values()):
                 # a new stream after a clean end (nothing half-paired): its topics may start out of
-                # step.  A gap inside a sample is an executor stall, not a new stream.
-                self._locked, self._timed_pairs = False, 0
+                # step.  A gap inside a sample is an executor stall, not a new stream.  Over a
+                # lossless delivery the messages after the gap decide (_decide_gap)
+                if self.arrival and self.lossless:
+                    self._gap_ns, self._gap_msgs = t_ns, {}
+                else:
+                    self._locked, self._timed_pairs = False, 0
             self.latest_ns = t_ns
         q = self.queues
         q[channel].append((t_ns, value))

@@ -277,14 +277,18 @@ def test_lossless_arrival_pairing_never_drops_after_the_start_however_the_arriva
     assert _skewed(out) == []
 
 
-def test_lossless_arrival_pairing_of_a_busy_machines_recorded_arrivals_drops_nothing():
+@pytest.mark.parametrize("events", ["held_up_delivery_events.npz", "held_up_twice_events.npz"])
+def test_lossless_arrival_pairing_of_a_busy_machines_recorded_arrivals_drops_nothing(events):
     """The arrival times (and order) of the 40 320 input messages a node received in a stress run
-    (``data/held_up_delivery_events.npz``, from its own recording: rig_map played at 5x, reliable,
-    keep all, a busy 2-core machine): the node stalled for 0.34 s, the motor torque's delivery was
-    held up for 0.68 s and came in a burst, then everything caught up faster than 1 kHz.  Nothing
-    was lost, so every one of the 10 080 samples pairs with its own partners (the skew detector
-    once took the catch-up for a skew and dropped 7 samples)."""
-    data = np.load(Path(__file__).parent / "data" / "held_up_delivery_events.npz")
+    (``data/*.npz``, each from its own recording: rig_map or rig_map_drag played at 5x, reliable,
+    keep all, a busy 2-core machine).  ``held_up_delivery``: the node stalled for 0.34 s, the motor
+    torque's delivery was held up for 0.68 s and came in a burst, then everything caught up faster
+    than 1 kHz (the skew detector once took the catch-up for a skew and dropped 7 samples).
+    ``held_up_twice``: the node stalled 0.34 s with nothing queued, the motor torque's delivery was
+    held up 0.85 s and the speed's 50 ms (the stall was once taken for a new stream, which re-armed
+    the skew detector: 2 samples dropped, 137 paired one speed ahead).  Nothing was lost, so every
+    one of the 10 080 samples pairs with its own partners."""
+    data = np.load(Path(__file__).parent / "data" / events)
     t_ns = np.cumsum(data["dt_ns"])
     sync = SampleSynchronizer(0.002, 0.1, arrival=True, lossless=True, sample_period_s=0.001)
     seen = dict.fromkeys(range(4), 0)
@@ -295,3 +299,24 @@ def test_lossless_arrival_pairing_of_a_busy_machines_recorded_arrivals_drops_not
     out += sync.flush()
     assert sync.counts["unpaired"] == 0 and len(out) == 10080
     assert all(s.torque_nm == s.speed_rad_s == s.out_torque_nm == s.out_speed_rad_s for s in out)
+
+
+def test_lossless_arrival_pairing_undoes_the_skewed_start_of_a_new_stream_after_a_gap():
+    """Reliable, keep all: a stream of 2000 samples, 2 s of silence, then a new publisher whose speed
+    topic matched 3 samples after its torque (those 3 torque messages have no partner).  The messages
+    after the gap come at the sample rate, so it is a new stream, not a stall: the skew detector acts
+    on it again (its window counts from the new start) and undoes the pairing three samples off."""
+    sync = SampleSynchronizer(0.002, 0.1, arrival=True, lossless=True, sample_period_s=0.001)
+    out = []
+    for k in range(2000):
+        out += sync.push(TORQUE, k * MS, float(k))
+        out += sync.push(SPEED, k * MS + 10_000, float(k))
+    start = 4000 * MS
+    for k in range(3000):
+        out += sync.push(TORQUE, start + k * MS, float(10_000 + k))
+        if k >= 3:
+            out += sync.push(SPEED, start + k * MS + 10_000, float(10_000 + k))
+    out += sync.flush()
+    skewed = _skewed(out)
+    assert skewed and min(skewed) >= 10_000 and max(skewed) < 10_000 + 50, "undone within 50 samples"
+    assert sync.counts["unpaired"] == 3 and len(out) == 2000 + 2997
