@@ -171,10 +171,10 @@ class LossEstimatorNode(Node):
         self._send_loss, self._send_power, self._send_eff, self._send_res = (
             _raw_publish(p) for p in (self.pub_loss, self.pub_power, self.pub_eff, self.pub_res))
         self.recorder: bagmod.BagWriter | None = None
-        # arrival pairing: inputs are recorded at the very arrival times the estimator paired them by,
-        # so that replay of the recording pairs them as the node did (``rollergear_recording`` metadata)
-        self._record_arrival = (self.pairing in ARRIVAL_PAIRINGS and node.input_mode == "float64"
-                                and not self.get_parameter("use_sim_time").value)
+        # Float64 inputs are recorded at the very times the estimator paired them by (publisher
+        # timestamps, or arrival times), so that replay of the recording pairs them as the node did
+        # (``rollergear_recording`` metadata); under sim time the recording keeps one clock: ROS time
+        self._record_pairing_time = (node.input_mode == "float64" and not self.get_parameter("use_sim_time").value)
         # every output is checked before any is opened: a refused one leaves no half-written file
         for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
             if path:
@@ -183,7 +183,9 @@ class LossEstimatorNode(Node):
             self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024)
             self.recorder.add_metadata(Metadata.RECORDING, {
                 "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
-                "pairing": self.pairing if self._record_arrival else "timestamp",
+                "pairing": self.pairing if self._record_pairing_time else "timestamp",
+                "input_log_time": ("arrival" if self.pairing in ARRIVAL_PAIRINGS else "source_timestamp")
+                if self._record_pairing_time else "receive",
                 "sample_period_s": repr(1.0 / node.expected_rate_hz)})
         self.rerun = None
         self._rr_buffer: list[Estimate] = []
@@ -268,7 +270,7 @@ class LossEstimatorNode(Node):
         counts, last = self.monitor.counts, self.monitor.last_ns
         unpack = struct.Struct("<d").unpack_from
         time_ns = time.time_ns
-        record_arrival = self._record_arrival
+        record_pairing_time = self._record_pairing_time
 
         def handle(raw: bytes, t_ns: int, wall_ns: int) -> None:
             if self._taking_backlog:
@@ -278,7 +280,7 @@ class LossEstimatorNode(Node):
             last[channel] = wall_ns
             if self.recorder is not None:
                 self.recorder.write_raw(topic, MessageType.FLOAT64,
-                                        t_ns if record_arrival else self.get_clock().now().nanoseconds, raw)
+                                        t_ns if record_pairing_time else self.get_clock().now().nanoseconds, raw)
             if len(raw) >= 12 and raw[1] == 1 and raw[0] == 0:
                 value = unpack(raw, 4)[0]
             elif bagmod.float64_problem(raw) is None:
@@ -327,7 +329,7 @@ class LossEstimatorNode(Node):
         self.monitor.record(OIL_TEMPERATURE, wall)
         if self.recorder is not None:
             self.recorder.write_raw(self.resolve_topic_name(Topic.OIL_TEMPERATURE), MessageType.TEMPERATURE,
-                                    wall if self._record_arrival else self.get_clock().now().nanoseconds,
+                                    wall if self._record_pairing_time else self.get_clock().now().nanoseconds,
                                     serialize_message(msg))
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         # the stamp keeps the temperature on the inputs' clock in JointState mode (header stamps)

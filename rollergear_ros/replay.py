@@ -552,12 +552,15 @@ class _Accumulator:
 
 
 def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tuple[str, float | None]:
-    """How to pair the bag's Float64 inputs: ``("arrival", the node's sample period)`` for a
-    recording ``loss_estimator`` made while pairing by arrival (its ``rollergear_recording``
-    metadata; the inputs were logged at the arrival times it paired them by, so replay pairs them
-    as the node did), else ``("timestamp", period_s)``."""
+    """How to pair the bag's Float64 inputs, and the sample period that sets the tolerance.
+
+    A recording ``loss_estimator`` made (its ``rollergear_recording`` metadata) logged its inputs
+    at the times it paired them by -- arrival times, or publisher timestamps -- so replay pairs them
+    as the node did: by its pairing and its sample period.  Any other bag: ``("timestamp", period_s)``.
+    """
     recording = read_metadata(path, Metadata.RECORDING) if plan.mode == "float64" else None
-    if recording and recording.get("pairing") in ARRIVAL_PAIRINGS:
+    if recording and (recording.get("pairing") in ARRIVAL_PAIRINGS
+                      or recording.get("input_log_time") == "source_timestamp"):
         try:
             node_period_s = float(recording.get("sample_period_s", "nan"))
         except ValueError:
