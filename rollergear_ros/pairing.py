@@ -171,7 +171,7 @@ class SampleSynchronizer:
         self.hold_ns = max(self.staleness_ns, hold)
 
     def _decide_gap(self, channel: str, t_ns: int) -> None:
-        """Over a lossless arrival delivery, after a gap with nothing queued: a new stream or a stall?
+        """Over a lossless arrival delivery, after a gap with nothing queued: is it a new stream or a stall.
 
         The executor of a node that stalled takes what the middleware queued meanwhile in one burst,
         far faster than the publisher sent it; a new stream arrives at its sample rate.  When one

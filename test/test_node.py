@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from rollergear_ros.bag import TopicMap, inspect_bag
-from rollergear_ros.model import LossModel
 from rollergear_ros.params import load_config
 from rollergear_ros.replay import replay
 
