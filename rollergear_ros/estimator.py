@@ -58,6 +58,20 @@ class BatchEstimate:
     alarms_t_ns: list[int] = field(default_factory=list)
     loss_magnitude_nm: np.ndarray | None = None  #: |loss| also at standstill, where the signed loss is 0
 
+    def select(self, keep: np.ndarray) -> BatchEstimate:
+        """The estimates where ``keep`` (a boolean mask) is true."""
+        def pick(a):
+            return None if a is None else a[keep]
+
+        t = self.t_ns[keep]
+        lo, hi = (int(t[0]), int(t[-1])) if len(t) else (0, -1)
+        return BatchEstimate(
+            t, self.torque_nm[keep], self.speed_rad_s[keep], self.loss_torque_nm[keep], self.loss_power_w[keep],
+            self.efficiency[keep], self.measured_loss_nm[keep], self.residual_nm[keep], pick(self.temperature_c),
+            {k: v[keep] for k, v in self.breakdown_nm.items()}, pick(self.effects_nm),
+            {k: v[keep] for k, v in self.coefficients.items()}, [a for a in self.alarms_t_ns if lo <= a <= hi],
+            pick(self.loss_magnitude_nm))
+
 
 class Estimator:
     """Model + accepted effects + residual + online adaptation, for one :class:`Config`."""

@@ -106,6 +106,10 @@ class ReadState:
     damaged: list[DamagedSpan] = field(default_factory=list)
     bad_log_times: int = 0  #: messages skipped because their log time is beyond 2⁶³ − 1 ns
     last_log_time: int | None = None  #: of the last message yielded
+    #: read only the chunks whose messages may lie in this ``(first, last)`` log-time range (each
+    #: chunk's header says its range; the others are skipped unread: a time slice of a long recording)
+    log_time_range: tuple[int, int] | None = None
+    chunks_skipped: int = 0  #: chunks outside ``log_time_range``, not read
 
     def damage_report(self) -> list[str]:
         """One line per damaged span, and one for skipped log times."""
@@ -372,6 +376,11 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
             try:
                 arrays = None
                 if op == OP_CHUNK:
+                    if state.log_time_range is not None and _outside(fh.read(64), ln, state.log_time_range):
+                        state.chunks_skipped += 1
+                        state.bytes_read = pos = end
+                        continue
+                    fh.seek(pos + 9)
                     body = fh.read(ln)
                     arrays = parse_records(chunk_records(body), state)
                 elif op in (OP_MESSAGE, OP_SCHEMA, OP_CHANNEL):
@@ -399,6 +408,16 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
                 state.last_log_time = int(arrays.log_time.max())
                 yield arrays
         _close_gap(state, None)
+
+
+def _outside(head: bytes, record_length: int, log_time_range: tuple[int, int]) -> bool:
+    """Whether a chunk (``head``: the start of its record) holds only messages outside the range;
+    a header that cannot be read says nothing (the chunk is read, and its damage reported)."""
+    try:
+        start_ns, end_ns = _chunk_header(head, record_length)[:2]
+    except (ValueError, struct.error):
+        return False
+    return end_ns < log_time_range[0] or start_ns > log_time_range[1]
 
 
 def _damaged(state: ReadState, start: int, end: int, reason: str, fh=None, record_length: int = 0) -> DamagedSpan:

@@ -9,7 +9,10 @@ calibrate of a single recording; results land in ``DIR/fleet.parquet`` (replay: 
 recording) or ``DIR/fleet_calibrate.parquet`` (one row per gearbox and window) as they finish,
 rewritten atomically, so an interrupted run keeps what it did and a rerun with the same
 ``--out`` skips every recording already in the table (keyed by path, size and modification
-time).  A recording that cannot be read is a ``failed`` row with its reason; the rest go on.
+time).  A long recording is replayed in time slices (:func:`time_slices`, one task each, so that
+a task stays well under a minute); its row is made of theirs when the last one lands, and the
+slices done are kept in ``DIR/fleet_slices.parquet`` so that a resumed run does not redo them.
+A recording that cannot be read is a ``failed`` row with its reason; the rest go on.
 The drift report is :mod:`.fleet_report`.  No rclpy import.
 """
 
@@ -30,11 +33,15 @@ from .errors import RollergearError, UsageError
 from .interface import Metadata
 from .params import Config, config_to_yaml
 
-__all__ = ["FLEET_TABLE", "CALIBRATE_TABLE", "Recording", "dask_client", "discover", "read_table", "run_calibrate",
-           "run_replay"]
+__all__ = ["FLEET_TABLE", "CALIBRATE_TABLE", "SLICES_TABLE", "SLICE_MESSAGES", "Recording", "combine_slices",
+           "dask_client", "discover", "read_table", "run_calibrate", "run_replay", "time_slices"]
 
 FLEET_TABLE = "fleet.parquet"
 CALIBRATE_TABLE = "fleet_calibrate.parquet"
+SLICES_TABLE = "fleet_slices.parquet"  #: the time slices done of recordings not yet complete
+#: a recording of more messages is replayed in time slices of about this many: a task then takes
+#: ~10 s here (replay without outputs: ~3 M messages/s per core), under a minute on a machine 5x slower
+SLICE_MESSAGES = 30_000_000
 SOURCE_SUFFIXES = (".mcap", ".db3", ".csv", ".parquet", ".mf4", ".mdf", ".tdms")
 GLOB_CHARS = set("*?[")
 
@@ -48,6 +55,8 @@ class Recording:
     size: int
     mtime: float
     start_ns: int | None = None  #: first message (MCAP summary), for time windows
+    end_ns: int | None = None  #: last message (MCAP summary), for time slices
+    messages: int | None = None  #: message count (MCAP summary), for time slices
 
     @property
     def key(self) -> str:
@@ -79,31 +88,43 @@ def discover(logs: Sequence[str], group_by: str = "auto") -> list[Recording]:
             url = p if local else fs.unstrip_protocol(p)
             mtime = info.get("mtime") or info.get("LastModified") or info.get("updated") or 0.0
             mtime = mtime.timestamp() if hasattr(mtime, "timestamp") else float(mtime)
-            gid, start = _identity(url, local, group_by)
-            found[url] = Recording(url, gid, int(info.get("size") or 0), mtime, start)
+            gid, span = _identity(url, local, group_by)
+            found[url] = Recording(url, gid, int(info.get("size") or 0), mtime, *span)
     if not found:
         raise UsageError(f"no recordings under {', '.join(map(str, logs))} ({', '.join(SOURCE_SUFFIXES)})")
     return sorted(found.values(), key=lambda r: (r.gearbox_id, r.start_ns or 0, r.path))
 
 
-def _identity(url: str, local: bool, group_by: str) -> tuple[str, int | None]:
-    """Gearbox id and start time of a recording (metadata and summary of a local MCAP)."""
+def _identity(url: str, local: bool, group_by: str) -> tuple[str, tuple[int | None, int | None, int | None]]:
+    """Gearbox id and (start, end, message count) of a recording (metadata and summary of a local MCAP)."""
     folder = Path(url.rstrip("/")).parent.name or "fleet"
-    gid, start = None, None
+    gid, span = None, (None, None, None)
     if local and url.lower().endswith(".mcap"):
         from .bag import inspect_bag, read_metadata
 
         try:
             record = read_metadata(url, Metadata.GEARBOX) or {}
             gid = record.get("gearbox_id")
-            start = inspect_bag(url).start_ns or None
+            info = inspect_bag(url)
+            if info.start_ns:
+                span = (info.start_ns, info.end_ns, info.message_count) if info.indexed else (info.start_ns, None, None)
         except RollergearError:
             pass  # a damaged recording: it fails in its task, with the reason
     if group_by == "folder":
         gid = folder
     elif group_by == "metadata" and not gid:
         raise UsageError(f"{url} has no '{Metadata.GEARBOX}' metadata record with a gearbox_id (--group-by metadata)")
-    return gid or folder, start
+    return gid or folder, span
+
+
+def time_slices(rec: Recording, slice_messages: int = SLICE_MESSAGES) -> list[tuple[int | None, int | None]]:
+    """The time slices ``[start, end)`` (``None``: open) a recording is replayed in: one, unless
+    its MCAP summary counts more than ``slice_messages`` messages; then equal spans of log time."""
+    if not (rec.messages and rec.start_ns and rec.end_ns) or rec.messages <= slice_messages:
+        return [(None, None)]
+    n = math.ceil(rec.messages / slice_messages)
+    edges = [rec.start_ns + (rec.end_ns - rec.start_ns) * i // n for i in range(1, n)]
+    return list(zip([None, *edges], [*edges, None]))
 
 
 @contextmanager
@@ -128,19 +149,23 @@ def _failed(row: dict, exc: BaseException) -> dict:
     return row | {"status": "failed", "reason": reason}
 
 
-def replay_task(rec: Recording, config: Config, channels: str | None) -> dict:
-    """Replay one recording; the fleet table's row for it (``failed`` with the reason when it cannot)."""
+def replay_task(rec: Recording, config: Config, channels: str | None,
+                window: tuple[int | None, int | None] = (None, None), part: str = "") -> dict:
+    """Replay one recording, or one time slice of it (``window``; ``part``: e.g. ``2/5``); the
+    fleet table's row for it (``failed`` with the reason when it cannot)."""
     from .importer import as_mcap
     from .replay import replay
 
     row = {"gearbox_id": rec.gearbox_id, "recording": rec.path, "key": rec.key, "status": "ok", "reason": ""}
+    if part:
+        row |= {"key": f"{rec.key}|slice {part}", "recording_key": rec.key, "slice": part}
     t0 = time.perf_counter()
     try:
         with _local(rec.path) as local, as_mcap([local], channels) as (bag,):
-            s, _ = replay(bag, config, show_progress=False)
+            s, _ = replay(bag, config, show_progress=False, window_ns=None if window == (None, None) else window)
     except Exception as exc:  # noqa: BLE001 - one bad recording must not stop the fleet; the row says why
         return _failed(row, exc) | {"seconds": time.perf_counter() - t0}
-    if s.estimated == 0:
+    if s.estimated == 0 and not part:
         return row | {"status": "failed", "reason": "no sample could be estimated", "samples": s.samples,
                       "seconds": time.perf_counter() - t0}
     return row | {
@@ -151,9 +176,53 @@ def replay_task(rec: Recording, config: Config, channels: str | None) -> dict:
         "efficiency_energy": 1.0 - s.energy_lost_j / s.energy_in_j if s.energy_in_j > 0 else math.nan,
         "efficiency_measured": (1.0 - s.energy_lost_measured_j / s.energy_in_measured_j
                                 if s.energy_in_measured_j > 0 else math.nan),
+        "energy_in_measured_j": s.energy_in_measured_j, "energy_lost_measured_j": s.energy_lost_measured_j,
+        "efficiency_samples": s.efficiency_samples, "residual_samples": s.residual_samples,
         "residual_mean_nm": s.residual_mean_nm, "residual_rms_nm": s.residual_rms_nm, "alarms": s.alarms,
         "seconds": time.perf_counter() - t0,
     }
+
+
+def combine_slices(parts: Sequence[dict]) -> dict:
+    """A recording's row from the rows of its time slices (in order): sums, and means weighted by
+    the samples they are over.  One slice is the row itself."""
+    if len(parts) == 1:
+        return {k: v for k, v in parts[0].items() if k not in ("recording_key", "slice")}
+    first = parts[0]
+    row = {"gearbox_id": first["gearbox_id"], "recording": first["recording"], "key": first["recording_key"],
+           "status": "ok", "reason": "", "slices": len(parts)}
+    failed = [p for p in parts if p["status"] != "ok"]
+    if failed:
+        return row | {"status": "failed", "reason": f"slice {failed[0]['slice']}: {failed[0]['reason']}",
+                      "seconds": sum(p.get("seconds") or 0.0 for p in parts)}
+
+    def total(key: str):
+        return sum(p[key] for p in parts)
+
+    def mean(key: str, weight: str) -> float:
+        n = sum(p[weight] for p in parts if p[weight])
+        return sum(p[key] * p[weight] for p in parts if p[weight]) / n if n else math.nan
+
+    starts = [p["start_ns"] for p in parts if p["start_ns"] is not None]
+    ends = [p["end_ns"] for p in parts if p["end_ns"] is not None]
+    row |= {key: total(key) for key in ("samples", "estimated", "skipped", "energy_in_j", "energy_lost_j",
+                                        "energy_in_measured_j", "energy_lost_measured_j", "efficiency_samples",
+                                        "residual_samples", "alarms", "seconds")}
+    if row["estimated"] == 0:
+        return row | {"status": "failed", "reason": "no sample could be estimated"}
+    rms = [(p["residual_rms_nm"] ** 2, p["residual_samples"]) for p in parts if p["residual_samples"]]
+    n_res = sum(n for _, n in rms)
+    row |= {
+        "start_ns": min(starts), "end_ns": max(ends), "duration_s": (max(ends) - min(starts)) * 1e-9,
+        "mean_efficiency": mean("mean_efficiency", "efficiency_samples"),
+        "mean_loss_nm": mean("mean_loss_nm", "estimated"),
+        "efficiency_energy": 1.0 - row["energy_lost_j"] / row["energy_in_j"] if row["energy_in_j"] > 0 else math.nan,
+        "efficiency_measured": (1.0 - row["energy_lost_measured_j"] / row["energy_in_measured_j"]
+                                if row["energy_in_measured_j"] > 0 else math.nan),
+        "residual_mean_nm": mean("residual_mean_nm", "residual_samples"),
+        "residual_rms_nm": math.sqrt(sum(m * n for m, n in rms) / n_res) if n_res else math.nan,
+    }
+    return row
 
 
 def calibrate_task(gearbox_id: str, window: int, window_ns: int, recs: Sequence[Recording], config: Config,
@@ -252,49 +321,101 @@ def _has_bokeh() -> bool:
     return importlib.util.find_spec("bokeh") is not None
 
 
-def _run(client, table: Path, tasks: list[tuple[str, Callable, tuple]], progress: bool, what: str,
-         note: Callable[[str], None]) -> tuple[list[dict], int]:
-    """Run ``(key, function, args)`` tasks not yet in ``table``; rows land as they finish."""
+#: a unit of the fleet table: its key and the tasks (key, function, arguments) that make its row
+Unit = tuple[str, list[tuple[str, Callable, tuple]]]
+
+
+def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note: Callable[[str], None],
+         parts_table: Path | None = None) -> tuple[list[dict], int]:
+    """Run the units not yet in ``table``; a unit's row (:func:`combine_slices` of its tasks' rows)
+    lands when its last task does.  ``parts_table`` keeps the rows of the tasks of units not yet
+    complete (a resumed run does not redo them)."""
     from dask.distributed import as_completed
     from tqdm import tqdm
 
     rows = read_table(table)
     done = {r["key"] for r in rows}
-    todo = [t for t in tasks if t[0] not in done]
-    skipped = len(tasks) - len(todo)
+    todo = [u for u in units if u[0] not in done]
+    skipped = len(units) - len(todo)
     if skipped:
-        note(f"{skipped} of {len(tasks)} {what} already in {table}: not done again")
+        note(f"{skipped} of {len(units)} {what} already in {table}: not done again")
     if not todo:
         return rows, 0
-    futures = [client.submit(fn, *args, key=f"rollergear-{abs(hash(key))}-{i}", pure=False)
-               for i, (key, fn, args) in enumerate(todo)]
-    failed = samples = 0
+    kept = {r["key"]: r for r in read_table(parts_table)} if parts_table else {}
+    parts = {key: {k: kept[k] for k, _, _ in tasks if k in kept} for key, tasks in todo}
+    if kept:
+        note(f"{sum(map(len, parts.values()))} time slices already in {parts_table}: not done again")
+    unit_of: dict = {}
+    futures = []
+    for key, tasks in todo:
+        for part_key, fn, args in tasks:
+            if part_key not in parts[key]:
+                future = client.submit(fn, *args, key=f"rollergear-{abs(hash(part_key))}-{len(futures)}", pure=False)
+                unit_of[future.key] = (key, part_key)
+                futures.append(future)
+    tasks_of = {key: [k for k, _, _ in tasks] for key, tasks in todo}
+    failed = samples = finished = 0
     t0 = time.perf_counter()
     last_write = 0.0
-    with tqdm(total=len(futures), unit=what[:-1] if what.endswith("s") else what, file=sys.stderr,
-              disable=not progress, mininterval=0.2) as bar:
+
+    def complete(key: str) -> None:
+        nonlocal failed, finished
+        row = combine_slices([parts[key][k] for k in tasks_of[key]])
+        rows.append(row)
+        failed += row["status"] != "ok"
+        finished += 1
+
+    for key in tasks_of:  # units whose tasks were all done before an interruption
+        if len(parts[key]) == len(tasks_of[key]):
+            complete(key)
+    with tqdm(total=len(futures), unit="task", file=sys.stderr, disable=not progress, mininterval=0.2) as bar:
         for future in as_completed(futures):
+            key, part_key = unit_of[future.key]
             row = future.result()
-            rows.append(row)
-            failed += row["status"] != "ok"
+            parts[key][part_key] = row
             samples += int(row.get("samples") or 0)
+            if len(parts[key]) == len(tasks_of[key]):
+                complete(key)
             bar.update(1)
             running = sum(f.status == "pending" for f in futures)
-            bar.set_postfix(failed=failed, running=min(running, len(client.scheduler_info()["workers"])),
-                            samples_per_s=f"{samples / max(time.perf_counter() - t0, 1e-9):,.0f}")
+            bar.set_postfix({what: f"{finished}/{len(todo)}", "failed": failed,
+                             "running": min(running, len(client.scheduler_info()["workers"])),
+                             "samples_per_s": f"{samples / max(time.perf_counter() - t0, 1e-9):,.0f}"})
             if time.perf_counter() - last_write > 1.0 or bar.n == len(futures):
-                _write_table(table, rows)
+                _write_tables(table, rows, parts_table, parts, tasks_of)
                 last_write = time.perf_counter()
-    _write_table(table, rows)
+    _write_tables(table, rows, parts_table, parts, tasks_of)
     return rows, len(todo)
 
 
+def _write_tables(table: Path, rows: list[dict], parts_table: Path | None, parts: dict, tasks_of: dict) -> None:
+    """The table, and the parts of the units not yet complete (none: the parts table goes)."""
+    _write_table(table, rows)
+    if parts_table is None:
+        return
+    pending = [r for key, got in parts.items() if len(got) < len(tasks_of[key]) for r in got.values()]
+    if pending:
+        _write_table(parts_table, pending)
+    elif parts_table.exists():
+        parts_table.unlink()
+
+
 def run_replay(recs: Sequence[Recording], out_dir: Path, client, config: Config, channels: str | None = None,
-               progress: bool = False, note: Callable[[str], None] = lambda m: None) -> tuple[list[dict], int]:
-    """Replay every recording on the cluster; returns the table's rows and how many were run now."""
+               progress: bool = False, note: Callable[[str], None] = lambda m: None,
+               slice_messages: int = SLICE_MESSAGES) -> tuple[list[dict], int]:
+    """Replay every recording on the cluster (a long one in time slices of about ``slice_messages``
+    messages); returns the table's rows and how many recordings were run now."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    tasks = [(r.key, replay_task, (r, config, channels)) for r in recs]
-    return _run(client, out_dir / FLEET_TABLE, tasks, progress, "recordings", note)
+    units: list[Unit] = []
+    for r in recs:
+        windows = time_slices(r, slice_messages)
+        if len(windows) == 1:
+            units.append((r.key, [(r.key, replay_task, (r, config, channels))]))
+        else:
+            n = len(windows)
+            units.append((r.key, [(f"{r.key}|slice {i}/{n}", replay_task, (r, config, channels, w, f"{i}/{n}"))
+                                  for i, w in enumerate(windows, 1)]))
+    return _run(client, out_dir / FLEET_TABLE, units, progress, "recordings", note, out_dir / SLICES_TABLE)
 
 
 def run_calibrate(recs: Sequence[Recording], out_dir: Path, client, config: Config, window_ns: int,
@@ -306,7 +427,9 @@ def run_calibrate(recs: Sequence[Recording], out_dir: Path, client, config: Conf
     for r in recs:
         start = r.start_ns if r.start_ns is not None else int(r.mtime * 1e9)
         groups.setdefault((r.gearbox_id, start // window_ns), []).append(r)
-    tasks = [(_window_key(gid, w, rs), calibrate_task, (gid, w, window_ns, rs, config, channels))
-             for (gid, w), rs in sorted(groups.items())]
-    return _run(client, out_dir / CALIBRATE_TABLE, tasks, progress, "windows", note)
+    units: list[Unit] = []
+    for (gid, w), rs in sorted(groups.items()):
+        key = _window_key(gid, w, rs)
+        units.append((key, [(key, calibrate_task, (gid, w, window_ns, rs, config, channels))]))
+    return _run(client, out_dir / CALIBRATE_TABLE, units, progress, "windows", note)
 

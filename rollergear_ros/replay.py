@@ -20,6 +20,7 @@ import numpy as np
 
 from .bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, cdr_problem, decode_float64, decoder_for,
                   float64_problem, inspect_bag, iter_raw_batches, median_period_s, read_metadata)
+from .errors import UsageError
 from .estimator import BatchEstimate, Estimator
 from .pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from .interface import MessageType, Metadata
@@ -220,7 +221,7 @@ class InputBatch:
 
 
 def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None],
-                   problems: InputProblems):
+                   problems: InputProblems, log_time_range: tuple[int, int] | None = None):
     """Batches of decoded inputs: Float64 bags through the numpy chunk reader, others record by record.
 
     Damaged spans of the file are skipped, malformed and duplicated messages too (``problems``);
@@ -228,7 +229,7 @@ def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callab
     """
     from .fastmcap import ReadState, preload_summary
 
-    state = ReadState()
+    state = ReadState(log_time_range=log_time_range)
     preload_summary(info.path, state)
     try:
         if plan.mode == "float64":
@@ -380,6 +381,83 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
         )
 
 
+class TimeWindow:
+    """A time slice ``[start_ns, end_ns)`` of a recording (``None``: open), replayed on its own.
+
+    The estimator is fed the messages from :data:`SLICE_LEAD_NS` before the slice to as much after
+    its end, so that pairing, the start-up hold and the samples completed late are as in a replay of
+    the whole recording; only estimates whose sample time lies in the slice are kept.  The counts
+    (samples, input messages, skips, change alarms) are those taken while the slice's own messages
+    were pushed.  Slices of one recording therefore add up to the whole replay, except that each
+    slice's online adaptation and change detector start from the parameter file (as a recording's do).
+    """
+
+    def __init__(self, start_ns: int | None, end_ns: int | None) -> None:
+        self.start_ns, self.end_ns = start_ns, end_ns
+        self.done = False  #: the lead-out has been read: stop reading
+        self.input_messages = 0
+        self.samples = 0
+        self._at_start: tuple[dict[str, int], int] | None = None  # (skip counts, alarms) when the slice began
+        self._at_end: tuple[dict[str, int], int] | None = None
+
+    def read_range(self) -> tuple[int, int] | None:
+        """The log-time range to read (chunks outside it are skipped unread)."""
+        lo = -(2**63) if self.start_ns is None else self.start_ns - SLICE_LEAD_NS
+        hi = 2**63 - 1 if self.end_ns is None else self.end_ns + SLICE_LEAD_NS
+        return lo, hi
+
+    def split(self, batch: InputBatch, estimator) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """The batch's messages before, inside and after the slice, in that order (counts are
+        snapshot where the slice begins and ends)."""
+        t = batch.t_ns
+        lo = -(2**63) if self.start_ns is None else self.start_ns
+        hi = 2**63 - 1 if self.end_ns is None else self.end_ns
+        phase = (t >= lo).astype(np.int8) + (t >= hi)
+        for p in (0, 1, 2):
+            sel = phase == p
+            if p >= 1 and self._at_start is None and (sel.any() or p == 2):
+                self._at_start = (dict(estimator.counts), estimator.detector.alarms)
+            if p == 2 and sel.any() and self._at_end is None:
+                self._at_end = (dict(estimator.counts), estimator.detector.alarms)
+            if not sel.any():
+                continue
+            codes = batch.codes[sel]
+            if p == 1:
+                self.input_messages += len(codes)
+                self.samples += int(np.count_nonzero(codes == 0))
+            if p == 2 and int(t[sel].max()) >= hi + SLICE_LEAD_NS:
+                self.done = True
+            yield codes, t[sel], batch.values[sel]
+
+    def keep(self, b: BatchEstimate | None, acc: _Accumulator) -> BatchEstimate | None:
+        """The estimates of samples inside the slice (one before it primes the energy integral)."""
+        if b is None or len(b.t_ns) == 0:
+            return b
+        t = b.t_ns
+        inside = np.ones(len(t), bool)
+        if self.start_ns is not None:
+            before = t < self.start_ns
+            if before.any():
+                acc.prime(int(t[before].max()))
+            inside &= ~before
+        if self.end_ns is not None:
+            inside &= t < self.end_ns
+        return b if inside.all() else b.select(inside)
+
+    def finish(self, summary: ReplaySummary, estimator, acc: _Accumulator) -> None:
+        """The slice's own counts in ``summary``."""
+        counts_now = (dict(estimator.counts), estimator.detector.alarms)
+        start = self._at_start or ({k: 0 for k in counts_now[0]}, 0)
+        if self.start_ns is None:
+            start = ({k: 0 for k in counts_now[0]}, 0)
+        end = self._at_end or counts_now
+        summary.skipped = {k: end[0][k] - start[0].get(k, 0) for k in end[0]}
+        summary.alarms = end[1] - start[1]
+        summary.samples = self.samples
+        summary.input_messages = self.input_messages
+        summary.estimated = acc.n
+
+
 class GracefulStop:
     """SIGINT/SIGTERM set a flag that long loops check between batches (files stay consistent).
 
@@ -448,6 +526,7 @@ class ReplaySummary:
     residual_rms_nm: float = math.nan
     residual_mean_nm: float = math.nan
     residual_samples: int = 0
+    efficiency_samples: int = 0  #: estimates with a finite efficiency (the mean's weight)
     duration_s: float = 0.0
     start_ns: int | None = None  #: first estimated sample
     end_ns: int | None = None  #: last estimated sample
@@ -496,6 +575,11 @@ class ReplaySummary:
         return "\n".join(lines)
 
 
+#: a time slice is read from this long before its start to as long after its end (pairing and the
+#: start-up hold settle within ``staleness_s``; samples whose messages straddle the end complete)
+SLICE_LEAD_NS = 2_000_000_000
+
+
 class _Accumulator:
     """Running sums for the summary."""
 
@@ -515,6 +599,10 @@ class _Accumulator:
         self.last_t: int | None = None
         self.first_t: int | None = None
         self.dt_ns = 0
+
+    def prime(self, last_t_ns: int) -> None:
+        """A sample before a time slice: the slice's first sample integrates from it."""
+        self.last_t = last_t_ns
 
     def add(self, b: BatchEstimate) -> None:
         if len(b.t_ns) == 0:
@@ -580,17 +668,26 @@ def replay(
     batch_size: int = 100_000,
     warn: Callable[[str], None] | None = None,
     collect: bool = False,
+    window_ns: tuple[int | None, int | None] | None = None,
 ) -> tuple[ReplaySummary, list[BatchEstimate]]:
-    """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``)."""
+    """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``).
+
+    ``window_ns``: a time slice ``[start, end)`` of the recording (``None``: open): only its samples
+    are estimated and summed up, so that the slices of a long recording, replayed apart, add up to
+    it (:class:`TimeWindow`).  Not with outputs (``out_mcap``, ``rrd``).
+    """
+    if window_ns is not None and (out_mcap or rrd):
+        raise UsageError("a time slice of a recording is replayed without outputs")
     stop = GracefulStop()  # first: from here on a signal leaves complete files
     try:
-        return _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect, stop)
+        return _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect, stop,
+                       TimeWindow(*window_ns) if window_ns is not None else None)
     finally:
         stop.restore()
 
 
 def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect,
-            stop: GracefulStop) -> tuple[ReplaySummary, list[BatchEstimate]]:
+            stop: GracefulStop, window: TimeWindow | None) -> tuple[ReplaySummary, list[BatchEstimate]]:
     warnings: list[str] = []
 
     def _warn(msg: str) -> None:
@@ -634,10 +731,17 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
             from tqdm import tqdm
 
             bar = tqdm(total=total, unit="msg", unit_scale=True, desc="replay", file=sys.stderr)
-        for batch in _input_batches(info, plan, batch_size, _warn, problems):
+        for batch in _input_batches(info, plan, batch_size, _warn, problems,
+                                    window.read_range() if window else None):
             if stop.requested:
                 summary.interrupted = True
                 break
+            if window is not None:  # a time slice: its lead-in, its samples, its lead-out
+                for codes, t, v in window.split(batch, estimator):
+                    _emit(window.keep(estimator.push_many(codes, t, v), acc), None, None, acc, sink, config, topics)
+                if window.done:
+                    break
+                continue
             with stop.critical():  # one batch's estimates and inputs, both or neither
                 summary.input_messages += len(batch.codes)
                 _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values), writer, rlog, acc, sink, config,
@@ -648,7 +752,8 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                 bar.update(len(batch.codes))
         else:
             with stop.critical():
-                _emit(estimator.flush(), writer, rlog, acc, sink, config, topics)
+                _emit(window.keep(estimator.flush(), acc) if window else estimator.flush(), writer, rlog, acc, sink,
+                      config, topics)
     except KeyboardInterrupt:
         summary.interrupted = True
     finally:
@@ -663,6 +768,9 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
     summary.samples = estimator.motor_messages
     summary.estimated = estimator.estimated
     summary.skipped = dict(estimator.counts)
+    summary.alarms = estimator.detector.alarms
+    if window is not None:
+        window.finish(summary, estimator, acc)
     unpaired = summary.skipped.get("unpaired", 0)
     if summary.samples and unpaired > 0.05 * summary.samples:
         _warn(
@@ -681,11 +789,11 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
         summary.start_ns, summary.end_ns = acc.first_t, acc.last_t
     if acc.eta_n:
         summary.mean_efficiency = acc.eta_sum / acc.eta_n
+        summary.efficiency_samples = acc.eta_n
     if acc.res_n:
         summary.residual_rms_nm = math.sqrt(acc.res_sq / acc.res_n)
         summary.residual_mean_nm = acc.res_sum / acc.res_n
         summary.residual_samples = acc.res_n
-    summary.alarms = estimator.detector.alarms
     summary.coefficients = estimator.coefficients()
     summary.warnings = warnings
     return summary, collected

@@ -54,6 +54,20 @@ def test_log_time_order_equals_the_mcap_reader(tmp_path):
     assert got == ref
 
 
+def test_a_log_time_range_reads_only_the_chunks_that_may_hold_it(tmp_path):
+    """A time slice of a long recording: chunks wholly outside the range are skipped unread (their
+    header says their log times), every message inside it is still read."""
+    path = tmp_path / "lagging.mcap"
+    _lagging_recording(path)
+    every = [(int(t), int(c)) for a in iter_message_arrays(path) for t, c in zip(a.log_time, a.channel)]
+    lo, hi = 2_000_000_000, 2_500_000_000
+    state = ReadState(log_time_range=(lo, hi))
+    got = [(int(t), int(c)) for a in iter_message_arrays(path, state) for t, c in zip(a.log_time, a.channel)]
+    assert state.chunks_skipped > 0 and len(got) < len(every) / 2
+    assert sorted(m for m in got if lo <= m[0] <= hi) == sorted(m for m in every if lo <= m[0] <= hi)
+    assert not state.damaged
+
+
 def test_release_count_holds_back_what_the_next_batch_may_precede():
     t = np.array([1, 2, 3, 4, 5, 6], dtype=np.int64)
     keys = np.array([0, 1, 0, 0, 2, 0])

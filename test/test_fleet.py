@@ -1,6 +1,7 @@
 """Fleets on a real Dask ``LocalCluster`` (worker processes): the fleet table equals single-process
 replay, drifting gearboxes are found with their effect and day, bad recordings are failed rows,
-a killed worker's task is retried, a resumed run does no work twice."""
+a killed worker's task is retried, a resumed run does no work twice, long recordings run in
+time slices that add up to them."""
 
 from __future__ import annotations
 
@@ -10,15 +11,18 @@ import shutil
 import threading
 import time
 
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 
-from rollergear_ros.fleet import FLEET_TABLE, dask_client, discover, read_table, run_calibrate, run_replay
+from rollergear_ros.fleet import (FLEET_TABLE, SLICES_TABLE, dask_client, discover, read_table, replay_task,
+                                  run_calibrate, run_replay, time_slices)
 from rollergear_ros.fleet_report import drift, write_fleet_report
 from rollergear_ros.fleetsim import DAY_NS, simulate_fleet
 from rollergear_ros.params import load_config
 from rollergear_ros.replay import replay
 
-from helpers import CONFIG
+from helpers import BAGS, CONFIG
 from rostools import wait_for
 
 pytestmark = pytest.mark.slow
@@ -52,6 +56,43 @@ def test_fleet_replay_equals_single_process_replay_of_each_recording(fleet, clie
         assert row["energy_lost_j"] == s.energy_lost_j and row["mean_efficiency"] == s.mean_efficiency
         assert row["residual_rms_nm"] == s.residual_rms_nm and row["gearbox_id"] == rec.gearbox_id
     assert read_table(tmp_path / FLEET_TABLE) == rows  # the table on disk
+
+
+def test_long_recordings_are_replayed_in_time_slices_that_add_up_to_them(client, tmp_path):
+    """Recordings of more than ``slice_messages`` messages are replayed in time slices, a task each;
+    each recording's row, made of its slices' rows, equals a single-process replay of it."""
+    recs = discover([str(BAGS)])
+    slices = {r.path: len(time_slices(r, 20_000)) for r in recs}
+    assert sorted(slices.values()) == [1, 3, 3, 5]  # 13 200, 40 824 (x2) and 98 400 messages
+    rows, ran = run_replay(recs, tmp_path, client, load_config(CONFIG), slice_messages=20_000)
+    assert ran == len(recs) and len(rows) == len(recs) and all(r["status"] == "ok" for r in rows)
+    config = load_config(CONFIG)
+    for row in rows:
+        s, _ = replay(row["recording"], config, show_progress=False)
+        assert row.get("slices") == (slices[row["recording"]] if slices[row["recording"]] > 1 else None)
+        assert (row["samples"], row["estimated"], row["skipped"]) == (s.samples, s.estimated, sum(s.skipped.values()))
+        assert (row["start_ns"], row["end_ns"], row["duration_s"]) == (s.start_ns, s.end_ns, s.duration_s)
+        for field in ("energy_in_j", "energy_lost_j", "mean_efficiency", "mean_loss_nm", "residual_mean_nm",
+                      "residual_rms_nm"):
+            assert row[field] == pytest.approx(getattr(s, field), rel=1e-9), field
+    assert not (tmp_path / SLICES_TABLE).exists()  # every recording complete: no slices kept
+
+
+def test_a_resumed_run_does_not_redo_the_slices_done(client, tmp_path):
+    """A run stopped after two of a recording's five slices: the rerun runs the other three only."""
+    (rec,) = discover([str(BAGS / "warmup.mcap")])
+    config = load_config(CONFIG)
+    windows = time_slices(rec, 20_000)
+    assert len(windows) == 5
+    done = [replay_task(rec, config, None, w, f"{i}/5") for i, w in enumerate(windows[:2], 1)]
+    done[0]["energy_lost_j"] += 1000.0  # a mark: the slice's row is taken, not recomputed
+    pq.write_table(pa.Table.from_pylist(done), tmp_path / SLICES_TABLE)
+    notes: list[str] = []
+    rows, ran = run_replay([rec], tmp_path, client, config, slice_messages=20_000, note=notes.append)
+    assert ran == 1 and "2 time slices already in" in " ".join(notes)
+    s, _ = replay(rec.path, config, show_progress=False)
+    assert rows[0]["energy_lost_j"] == pytest.approx(s.energy_lost_j + 1000.0, rel=1e-9)
+    assert rows[0]["samples"] == s.samples and not (tmp_path / SLICES_TABLE).exists()
 
 
 def test_drifting_gearboxes_are_found_with_their_effect_and_day_and_no_healthy_one(fleet, client, tmp_path):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from rollergear_ros.bag import BagWriter, TopicMap, encode_float64, inspect_bag
-from rollergear_ros.errors import BagError
+from rollergear_ros.errors import BagError, UsageError
 from rollergear_ros.interface import MessageType
 from rollergear_ros.estimator import Estimator
 from rollergear_ros.model import LossModel
@@ -82,6 +82,64 @@ def test_replay_bundled_bag_matches_model_on_its_inputs(bag, tmp_path, config):
     bd = sum(series[f"/loss/breakdown/{k}_nm"][1] for k in ("fr1", "fr2", "tc1", "tc2", "ter1", "ter2", "tb", "fg"))
     np.testing.assert_allclose(bd, expect.loss_torque_nm, rtol=1e-9)
     assert "/residual/residual_nm" in series and "/inputs/speed_rad_s" in series
+
+
+@pytest.mark.parametrize("batch_size", [100_000, 300])
+@pytest.mark.parametrize("bag", sorted(BAGS.glob("*.mcap")), ids=lambda p: p.stem)
+def test_time_slices_of_a_recording_add_up_to_its_replay(bag, batch_size, config):
+    """A long recording replayed in four time slices apart (fleet tasks): counts, sums and the
+    estimates themselves equal one replay of the whole -- the slices' lead-in and lead-out pair
+    the samples at their edges as the whole replay does, also where a read batch ends at an edge.
+
+    The bundled parameters accept no effect, so there is no adaptation to start afresh; change
+    alarms are each slice's own (a slice's detector starts from the parameter file).
+    """
+    whole, estimates = replay(bag, config, show_progress=False, collect=True)
+    info = inspect_bag(bag)
+    edges = [info.start_ns + (info.end_ns - info.start_ns) * i // 4 for i in range(1, 4)]
+    slices = [replay(bag, config, show_progress=False, collect=True, window_ns=w, batch_size=batch_size)
+              for w in zip([None, *edges], [*edges, None])]
+    for field in ("samples", "estimated", "input_messages", "residual_samples", "efficiency_samples"):
+        assert sum(getattr(s, field) for s, _ in slices) == getattr(whole, field), field
+    assert {k: sum(s.skipped[k] for s, _ in slices) for k in whole.skipped} == whole.skipped
+    for field in ("energy_in_j", "energy_lost_j", "energy_in_measured_j", "energy_lost_measured_j"):
+        assert sum(getattr(s, field) for s, _ in slices) == pytest.approx(getattr(whole, field), rel=1e-12), field
+    assert (slices[0][0].start_ns, slices[-1][0].end_ns) == (whole.start_ns, whole.end_ns)
+    for name in ("t_ns", "torque_nm", "speed_rad_s", "loss_torque_nm", "residual_nm"):
+        joined = np.concatenate([getattr(b, name) for _, bs in slices for b in bs])
+        np.testing.assert_array_equal(joined, np.concatenate([getattr(b, name) for b in estimates]), err_msg=name)
+    assert all(s.samples > 0 for s, _ in slices)
+
+
+def test_time_slices_pair_the_samples_that_straddle_their_edges(tmp_path, config):
+    """Speed and the outputs logged 3 ms after the motor torque (100 Hz; the tolerance is 4 ms),
+    a chunk per message, and slice edges 1 ms after a torque message: each sample at an edge is
+    estimated once, by the slice its torque lies in -- its partners are read by that slice's
+    lead-out, the next slice's lead-in reads the torque (even when it sits in a chunk of its own)."""
+    n, period = 1200, 10_000_000
+    t = 1_000_000_000 + np.arange(n, dtype=np.int64) * period
+    rng = np.random.default_rng(5)
+    path = tmp_path / "spread.mcap"
+    with BagWriter(path, chunk_size=1) as bw:  # a chunk per message: a torque may end one
+        for k in range(n):
+            bw.write_raw(T.motor_torque, MessageType.FLOAT64, int(t[k]), encode_float64([rng.uniform(5, 50)])[0])
+            for topic, value in ((T.motor_speed, rng.uniform(50, 300)), (T.output_torque, rng.uniform(10, 100)),
+                                 (T.output_speed, rng.uniform(10, 100))):
+                bw.write_raw(topic, MessageType.FLOAT64, int(t[k]) + 3_000_000, encode_float64([value])[0])
+    whole, estimates = replay(path, config, show_progress=False, collect=True)
+    assert whole.estimated == n and whole.skipped["unpaired"] == 0
+    edges = [int(t[k]) + 1_000_000 for k in range(60, n, 240)]
+    slices = [replay(path, config, show_progress=False, collect=True, window_ns=w, batch_size=50)
+              for w in zip([None, *edges], [*edges, None])]
+    assert [s.skipped["unpaired"] for s, _ in slices] == [0] * len(slices)
+    assert sum(s.estimated for s, _ in slices) == n
+    joined = np.concatenate([b.loss_torque_nm for _, bs in slices for b in bs])
+    np.testing.assert_array_equal(joined, np.concatenate([b.loss_torque_nm for b in estimates]))
+
+
+def test_a_time_slice_is_replayed_without_outputs(tmp_path, config):
+    with pytest.raises(UsageError, match="without outputs"):
+        replay(BAGS / "rig_map.mcap", config, out_mcap=tmp_path / "x.mcap", window_ns=(None, 10))
 
 
 def test_rrd_has_review_blueprint(tmp_path):
