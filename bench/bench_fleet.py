@@ -5,9 +5,10 @@
 Baseline measured in the same run: ``replay`` of each recording in this process, one after the
 other.  Then ``rollergear fleet replay`` on a ``LocalCluster`` of ``--workers`` processes (its
 start-up not counted; a fresh output folder each time), and the scheduler's overhead per
-recording: trivial tasks submitted and gathered the same way, per task.
+recording: trivial tasks submitted and gathered the same way, per task.  Last, one recording
+replayed in time slices on the cluster (``--slices`` tasks) against its replay in this process.
 
-Usage: python bench/bench_fleet.py [--recordings 16] [--minutes 10] [--workers 2] [--keep DIR]
+Usage: python bench/bench_fleet.py [--recordings 16] [--minutes 10] [--workers 2] [--slices 4] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--slices", type=int, default=4)
     ap.add_argument("--keep", type=Path)
     args = ap.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="rollergear_bench_"))
@@ -81,9 +83,21 @@ def main() -> None:
         t0 = time.perf_counter()
         client.gather(client.map(_nothing, range(n), pure=False))
         overhead = (time.perf_counter() - t0) / n
+        (long,) = discover([str(one)])
+        t0 = time.perf_counter()
+        whole, _ = replay(one, config, show_progress=False)
+        alone = time.perf_counter() - t0
+        out = work / "out_sliced"
+        shutil.rmtree(out, ignore_errors=True)
+        t0 = time.perf_counter()
+        rows, _ = run_replay([long], out, client, config, slice_messages=-(-long.messages // args.slices))
+        sliced = time.perf_counter() - t0
+        assert rows[0]["status"] == "ok" and rows[0]["slices"] == args.slices and rows[0]["samples"] == whole.samples
     print(f"fleet replay on a LocalCluster of {args.workers} worker processes: {fleet:.2f} s = "
           f"{samples / fleet / 1e3:.0f} k samples/s -> {sequential / fleet:.2f}x one after another; "
           f"scheduler overhead {1e3 * overhead:.1f} ms per task ({n} trivial tasks)")
+    print(f"one recording ({whole.samples:,} samples): replay in this process {alone:.2f} s; fleet replay in "
+          f"{args.slices} time slices {sliced:.2f} s -> {alone / sliced:.2f}x")
 
 
 if __name__ == "__main__":
