@@ -384,16 +384,19 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
 class TimeWindow:
     """A time slice ``[start_ns, end_ns)`` of a recording (``None``: open), replayed on its own.
 
-    The estimator is fed the messages from :data:`SLICE_LEAD_NS` before the slice to as much after
-    its end, so that pairing, the start-up hold and the samples completed late are as in a replay of
-    the whole recording; only estimates whose sample time lies in the slice are kept.  The counts
+    The estimator is fed the messages from ``lead_ns`` before the slice to as much after its end --
+    twice the longest the estimator holds anything: the oil temperature (5 s), a motor message
+    waiting for its partner (``staleness_s``; 5 s over a lossless arrival delivery) -- so that the
+    samples at the slice's edges are paired, and carry the temperature, as in a replay of the whole
+    recording; only estimates whose sample time lies in the slice are kept.  The counts
     (samples, input messages, skips, change alarms) are those taken while the slice's own messages
     were pushed.  Slices of one recording therefore add up to the whole replay, except that each
     slice's online adaptation and change detector start from the parameter file (as a recording's do).
     """
 
-    def __init__(self, start_ns: int | None, end_ns: int | None) -> None:
+    def __init__(self, start_ns: int | None, end_ns: int | None, lead_ns: int) -> None:
         self.start_ns, self.end_ns = start_ns, end_ns
+        self.lead_ns = lead_ns
         self.done = False  #: the lead-out has been read: stop reading
         self.input_messages = 0
         self.samples = 0
@@ -402,8 +405,8 @@ class TimeWindow:
 
     def read_range(self) -> tuple[int, int] | None:
         """The log-time range to read (chunks outside it are skipped unread)."""
-        lo = -(2**63) if self.start_ns is None else self.start_ns - SLICE_LEAD_NS
-        hi = 2**63 - 1 if self.end_ns is None else self.end_ns + SLICE_LEAD_NS
+        lo = -(2**63) if self.start_ns is None else self.start_ns - self.lead_ns
+        hi = 2**63 - 1 if self.end_ns is None else self.end_ns + self.lead_ns
         return lo, hi
 
     def split(self, batch: InputBatch, estimator) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -415,7 +418,7 @@ class TimeWindow:
         phase = (t >= lo).astype(np.int8) + (t >= hi)
         for p in (0, 1, 2):
             sel = phase == p
-            if p >= 1 and self._at_start is None and (sel.any() or p == 2):
+            if p >= 1 and self._at_start is None and sel.any():
                 self._at_start = (dict(estimator.counts), estimator.detector.alarms)
             if p == 2 and sel.any() and self._at_end is None:
                 self._at_end = (dict(estimator.counts), estimator.detector.alarms)
@@ -425,7 +428,7 @@ class TimeWindow:
             if p == 1:
                 self.input_messages += len(codes)
                 self.samples += int(np.count_nonzero(codes == 0))
-            if p == 2 and int(t[sel].max()) >= hi + SLICE_LEAD_NS:
+            if p == 2 and int(t[sel].max()) >= hi + self.lead_ns:
                 self.done = True
             yield codes, t[sel], batch.values[sel]
 
@@ -575,11 +578,6 @@ class ReplaySummary:
         return "\n".join(lines)
 
 
-#: a time slice is read from this long before its start to as long after its end (pairing and the
-#: start-up hold settle within ``staleness_s``; samples whose messages straddle the end complete)
-SLICE_LEAD_NS = 2_000_000_000
-
-
 class _Accumulator:
     """Running sums for the summary."""
 
@@ -681,13 +679,13 @@ def replay(
     stop = GracefulStop()  # first: from here on a signal leaves complete files
     try:
         return _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect, stop,
-                       TimeWindow(*window_ns) if window_ns is not None else None)
+                       window_ns)
     finally:
         stop.restore()
 
 
 def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect,
-            stop: GracefulStop, window: TimeWindow | None) -> tuple[ReplaySummary, list[BatchEstimate]]:
+            stop: GracefulStop, window_ns) -> tuple[ReplaySummary, list[BatchEstimate]]:
     warnings: list[str] = []
 
     def _warn(msg: str) -> None:
@@ -710,6 +708,10 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
     pairing, period_s = recorded_pairing(info.path, plan, period_s)
     estimator = Estimator(config, pairing=pairing, sample_period_s=period_s)
     problems = InputProblems(estimator.counts, plan)
+    window = None
+    if window_ns is not None:
+        sync = estimator.sync
+        window = TimeWindow(*window_ns, lead_ns=2 * max(sync.hold_ns, sync.temperature_hold_ns))
     summary = ReplaySummary(
         str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
     )
@@ -736,20 +738,20 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
             if stop.requested:
                 summary.interrupted = True
                 break
-            if window is not None:  # a time slice: its lead-in, its samples, its lead-out
+            if window is not None:  # a time slice (no outputs): its lead-in, its samples, its lead-out
                 for codes, t, v in window.split(batch, estimator):
                     _emit(window.keep(estimator.push_many(codes, t, v), acc), None, None, acc, sink, config, topics)
-                if window.done:
-                    break
-                continue
-            with stop.critical():  # one batch's estimates and inputs, both or neither
-                summary.input_messages += len(batch.codes)
-                _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values), writer, rlog, acc, sink, config,
-                      topics)
-                if writer:
-                    batch.write_inputs(writer)
+            else:
+                with stop.critical():  # one batch's estimates and inputs, both or neither
+                    summary.input_messages += len(batch.codes)
+                    _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values), writer, rlog, acc, sink,
+                          config, topics)
+                    if writer:
+                        batch.write_inputs(writer)
             if bar:
                 bar.update(len(batch.codes))
+            if window is not None and window.done:
+                break
         else:
             with stop.critical():
                 _emit(window.keep(estimator.flush(), acc) if window else estimator.flush(), writer, rlog, acc, sink,

@@ -115,24 +115,30 @@ def test_time_slices_pair_the_samples_that_straddle_their_edges(tmp_path, config
     """Speed and the outputs logged 3 ms after the motor torque (100 Hz; the tolerance is 4 ms),
     a chunk per message, and slice edges 1 ms after a torque message: each sample at an edge is
     estimated once, by the slice its torque lies in -- its partners are read by that slice's
-    lead-out, the next slice's lead-in reads the torque (even when it sits in a chunk of its own)."""
+    lead-out, the next slice's lead-in reads the torque (even when it sits in a chunk of its own).
+    Samples skipped (a NaN torque) just before an edge count in the slice they lie in only."""
     n, period = 1200, 10_000_000
     t = 1_000_000_000 + np.arange(n, dtype=np.int64) * period
     rng = np.random.default_rng(5)
     path = tmp_path / "spread.mcap"
+    edge_samples = range(60, n, 240)
+    nan_samples = {k - d for k in edge_samples for d in (3, 5)}
     with BagWriter(path, chunk_size=1) as bw:  # a chunk per message: a torque may end one
         for k in range(n):
-            bw.write_raw(T.motor_torque, MessageType.FLOAT64, int(t[k]), encode_float64([rng.uniform(5, 50)])[0])
+            torque = math.nan if k in nan_samples else rng.uniform(5, 50)
+            bw.write_raw(T.motor_torque, MessageType.FLOAT64, int(t[k]), encode_float64([torque])[0])
             for topic, value in ((T.motor_speed, rng.uniform(50, 300)), (T.output_torque, rng.uniform(10, 100)),
                                  (T.output_speed, rng.uniform(10, 100))):
                 bw.write_raw(topic, MessageType.FLOAT64, int(t[k]) + 3_000_000, encode_float64([value])[0])
     whole, estimates = replay(path, config, show_progress=False, collect=True)
-    assert whole.estimated == n and whole.skipped["unpaired"] == 0
-    edges = [int(t[k]) + 1_000_000 for k in range(60, n, 240)]
+    assert whole.estimated == n - len(nan_samples) and whole.skipped["unpaired"] == 0
+    assert whole.skipped["non_finite"] == len(nan_samples)
+    edges = [int(t[k]) + 1_000_000 for k in edge_samples]
     slices = [replay(path, config, show_progress=False, collect=True, window_ns=w, batch_size=50)
               for w in zip([None, *edges], [*edges, None])]
     assert [s.skipped["unpaired"] for s, _ in slices] == [0] * len(slices)
-    assert sum(s.estimated for s, _ in slices) == n
+    assert [s.skipped["non_finite"] for s, _ in slices] == [2] * (len(slices) - 1) + [0]
+    assert sum(s.estimated for s, _ in slices) == whole.estimated
     joined = np.concatenate([b.loss_torque_nm for _, bs in slices for b in bs])
     np.testing.assert_array_equal(joined, np.concatenate([b.loss_torque_nm for b in estimates]))
 
