@@ -346,14 +346,18 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
     # the publisher timestamps the node received (the recording's input log times), by bag index,
     # of the four channels that pair (a sample waits for its measured output too)
     topics = (T.motor_torque, T.motor_speed, T.output_torque, T.output_speed)
+    # (as nanoseconds after the first one: float64 holds those exactly, not times since 1970)
     stamps = np.full((len(topics), len(tq)), np.nan)
+    first_ns = min(int(float_series(recorded, topic)[0].min()) for topic in topics)
     for row, topic in zip(stamps, topics):
         values = float_series(bag, topic)[1]
         assert len(np.unique(values)) == len(values) == len(tq)
         index = dict(zip(values.tolist(), range(len(values))))
         t, v = float_series(recorded, topic)
-        row[[index[x] for x in v.tolist()]] = t
-    tol_ns = 1e9 * pairing_tolerance_s(config.estimator.sync_tolerance_s, 1.0 / config.node.expected_rate_hz)
+        row[[index[x] for x in v.tolist()]] = (t.astype(np.int64) - first_ns).astype(float)
+    # the synchroniser's own tolerance, in whole nanoseconds
+    tol_ns = int(round(1e9 * pairing_tolerance_s(config.estimator.sync_tolerance_s,
+                                                 1.0 / config.node.expected_rate_hz)))
     # clearly stamped: all four received, within the tolerance of each other, and each further than
     # it from every channel's message of the neighbouring samples
     clear = stamps.max(axis=0) - stamps.min(axis=0) <= tol_ns  # NaN (not received): False
