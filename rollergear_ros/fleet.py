@@ -173,14 +173,18 @@ def replay_task(rec: Recording, config: Config, channels: str | None,
         "estimated": s.estimated, "skipped": sum(s.skipped.values()), "energy_in_j": s.energy_in_j,
         "energy_lost_j": s.energy_lost_j, "mean_efficiency": s.mean_efficiency, "mean_loss_nm": s.mean_loss_nm,
         # energy efficiencies: estimated, and measured where output torque was recorded
-        "efficiency_energy": 1.0 - s.energy_lost_j / s.energy_in_j if s.energy_in_j > 0 else math.nan,
-        "efficiency_measured": (1.0 - s.energy_lost_measured_j / s.energy_in_measured_j
-                                if s.energy_in_measured_j > 0 else math.nan),
+        "efficiency_energy": _energy_efficiency(s.energy_in_j, s.energy_lost_j),
+        "efficiency_measured": _energy_efficiency(s.energy_in_measured_j, s.energy_lost_measured_j),
         "energy_in_measured_j": s.energy_in_measured_j, "energy_lost_measured_j": s.energy_lost_measured_j,
         "efficiency_samples": s.efficiency_samples, "residual_samples": s.residual_samples,
         "residual_mean_nm": s.residual_mean_nm, "residual_rms_nm": s.residual_rms_nm, "alarms": s.alarms,
         "seconds": time.perf_counter() - t0,
     }
+
+
+def _energy_efficiency(energy_in_j: float, energy_lost_j: float) -> float:
+    """Energy out over energy in (NaN when nothing went through)."""
+    return 1.0 - energy_lost_j / energy_in_j if energy_in_j > 0 else math.nan
 
 
 def combine_slices(parts: Sequence[dict]) -> dict:
@@ -216,9 +220,8 @@ def combine_slices(parts: Sequence[dict]) -> dict:
         "start_ns": min(starts), "end_ns": max(ends), "duration_s": (max(ends) - min(starts)) * 1e-9,
         "mean_efficiency": mean("mean_efficiency", "efficiency_samples"),
         "mean_loss_nm": mean("mean_loss_nm", "estimated"),
-        "efficiency_energy": 1.0 - row["energy_lost_j"] / row["energy_in_j"] if row["energy_in_j"] > 0 else math.nan,
-        "efficiency_measured": (1.0 - row["energy_lost_measured_j"] / row["energy_in_measured_j"]
-                                if row["energy_in_measured_j"] > 0 else math.nan),
+        "efficiency_energy": _energy_efficiency(row["energy_in_j"], row["energy_lost_j"]),
+        "efficiency_measured": _energy_efficiency(row["energy_in_measured_j"], row["energy_lost_measured_j"]),
         "residual_mean_nm": mean("residual_mean_nm", "residual_samples"),
         "residual_rms_nm": math.sqrt(sum(m * n for m, n in rms) / n_res) if n_res else math.nan,
     }

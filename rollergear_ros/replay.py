@@ -450,9 +450,9 @@ class TimeWindow:
     def finish(self, summary: ReplaySummary, estimator, acc: _Accumulator) -> None:
         """The slice's own counts in ``summary``."""
         counts_now = (dict(estimator.counts), estimator.detector.alarms)
-        start = self._at_start or ({k: 0 for k in counts_now[0]}, 0)
-        if self.start_ns is None:
-            start = ({k: 0 for k in counts_now[0]}, 0)
+        # an open start counts from zero (what decoding counted before the first push is the slice's)
+        zero = ({k: 0 for k in counts_now[0]}, 0)
+        start = zero if self.start_ns is None or self._at_start is None else self._at_start
         end = self._at_end or counts_now
         summary.skipped = {k: end[0][k] - start[0].get(k, 0) for k in end[0]}
         summary.alarms = end[1] - start[1]
