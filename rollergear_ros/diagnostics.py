@@ -31,6 +31,8 @@ class InputMonitor:
     start_ns: int
     counts: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
     last_ns: dict[str, int | None] = field(default_factory=lambda: {c: None for c in CHANNELS})
+    #: messages the middleware lost (gaps in the publishers' sequence numbers; arrival pairing only)
+    lost: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
     _window_counts: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
     _window_start_ns: int = 0
 
@@ -70,8 +72,9 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
     Overload: ``executor_lag_s`` is how long the executor takes to reach an event queued behind the
     inputs (``busy_fraction`` the share of time spent in input callbacks).  A best-effort input
     queue of ``queue_depth`` messages holds ``queue_depth / expected_rate_hz`` seconds; an executor
-    running half of that behind is about to lose messages the node never sees (and so cannot
-    count), so that is a WARN.  ``None``: a reliable keep-all input (the publisher waits instead).
+    running half of that behind is about to lose the oldest of them, so that is a WARN (by arrival,
+    the node counts what was lost, from the publishers' sequence numbers: ``lost in delivery``).
+    ``None``: a reliable keep-all input (the publisher waits instead).
     """
     est = estimator.config.estimator
     stale_after_s = max(est.staleness_s, 10.0 / expected_rate_hz)
@@ -84,6 +87,7 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
         values.append((f"{ch} rate [Hz]", _fmt(rates.get(ch, 0.0))))
         values.append((f"{ch} age [s]", "never" if last is None else _fmt(age, 3)))
         values.append((f"{ch} messages", str(monitor.counts[ch])))
+        values.append((f"{ch} lost in delivery", str(monitor.lost[ch])))
         required = ch in (TORQUE, SPEED)
         if required:  # each estimate takes one message of each: the rest were not estimated
             values.append((f"{ch} not estimated", str(max(monitor.counts[ch] - estimator.estimated, 0))))
@@ -101,7 +105,7 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
     values.append(("executor lag [s]", _fmt(executor_lag_s, 3)))
     limit_s = OVERLOAD_QUEUE_SHARE * (queue_depth / expected_rate_hz if queue_depth else RELIABLE_LAG_S)
     if executor_lag_s > limit_s:
-        lost = " its input queues overflow: messages are lost before it sees them" if queue_depth else \
+        lost = " its input queues overflow: the oldest messages are lost" if queue_depth else \
             " the publishers are slowed down"
         reasons.append((WARN, f"overloaded: the node runs {executor_lag_s:.2f} s behind its inputs "
                               f"(callbacks busy {100 * busy_fraction:.0f} %);{lost}"))
@@ -116,6 +120,9 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
             reasons.append((WARN, f"{new} samples with {r.replace('_', ' ')} input skipped"))
         elif new and r in ("malformed", "duplicate"):
             reasons.append((WARN, f"{new} {r} input messages skipped"))
+        elif new and r == "lost":
+            reasons.append((WARN, f"overloaded: {new} samples lost in delivery (the node fell a whole "
+                                  "best-effort input queue behind)"))
         elif new and r == "unpaired":
             reasons.append((WARN, f"{new} input messages without partner (dropped or late)"))
     last = estimator.last

@@ -20,8 +20,8 @@ from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, a
                          effect_coefficients, regressor_plan, regressors)
 from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale
 from .model import LossModel, efficiency, rotation_sign, rotation_sign_scalar
-from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, TORQUE, SampleSynchronizer, SyncedSample,
-                      pairing_tolerance_s, samples_to_arrays)
+from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
+                      SyncedSample, is_lost, lost_mask, pairing_tolerance_s, samples_to_arrays)
 from .params import Config
 
 
@@ -78,9 +78,10 @@ class Estimator:
 
     def __init__(self, config: Config, pairing: str = "timestamp", sample_period_s: float | None = None) -> None:
         """``pairing``: ``timestamp`` (bags; live with publisher timestamps), ``arrival`` or
-        ``arrival_reliable`` (arrival order over a delivery that loses nothing; see
-        :class:`~.pairing.SampleSynchronizer`); ``sample_period_s``: the motor torque's median message period,
-        for the automatic pairing tolerance (:func:`pairing_tolerance_s`; 1 ms when not given)."""
+        ``arrival_reliable`` / ``arrival_sequenced`` (arrival order over a delivery that loses
+        nothing, or whose losses are filled in; see :class:`~.pairing.SampleSynchronizer`);
+        ``sample_period_s``: the motor torque's median message period, for the automatic pairing
+        tolerance (:func:`pairing_tolerance_s`; 1 ms when not given)."""
         self.config = config
         est = config.estimator
         self.sync_tolerance_s = pairing_tolerance_s(est.sync_tolerance_s, sample_period_s)
@@ -90,11 +91,11 @@ class Estimator:
         if pairing in ARRIVAL_PAIRINGS:
             self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
             self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s, arrival=True,
-                                           lossless=pairing == "arrival_reliable", sample_period_s=sample_period_s)
+                                           lossless=pairing in LOSSLESS_PAIRINGS, sample_period_s=sample_period_s)
         elif pairing == "timestamp":
             self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s)
         else:
-            raise ValueError(f"pairing must be 'timestamp', 'arrival' or 'arrival_reliable', not {pairing!r}")
+            raise ValueError(f"pairing must be 'timestamp' or one of {', '.join(ARRIVAL_PAIRINGS)}, not {pairing!r}")
         self.counts = self.sync.counts  # skip reasons (shared with the synchroniser)
         self.adaptive = adaptive_effects(config) if est.adapt else ()
         coef = effect_coefficients(config)
@@ -137,7 +138,7 @@ class Estimator:
     def screen(self, torque: float, speed: float) -> str | None:
         """Reason a motor sample cannot be estimated, or None."""
         if not (math.isfinite(torque) and math.isfinite(speed)):
-            return "non_finite"
+            return "lost" if is_lost(torque) or is_lost(speed) else "non_finite"
         est = self.config.estimator
         if abs(torque) > est.max_abs_torque_nm or abs(speed) > est.max_abs_speed_rad_s:
             return "implausible"
@@ -271,7 +272,10 @@ class Estimator:
         finite = np.isfinite(torque) & np.isfinite(speed)
         with np.errstate(invalid="ignore"):
             plausible = (np.abs(torque) <= est.max_abs_torque_nm) & (np.abs(speed) <= est.max_abs_speed_rad_s)
-        self.counts["non_finite"] += int(np.count_nonzero(~finite))
+        if not finite.all():
+            lost = lost_mask(torque) | lost_mask(speed)
+            self.counts["lost"] += int(np.count_nonzero(lost))
+            self.counts["non_finite"] += int(np.count_nonzero(~finite & ~lost))
         self.counts["implausible"] += int(np.count_nonzero(finite & ~plausible))
         keep = finite & plausible
         t_ns, torque, speed = np.asarray(t_ns)[keep], torque[keep], speed[keep]

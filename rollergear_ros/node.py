@@ -33,7 +33,9 @@ from std_msgs.msg import Float64
 from . import bag as bagmod
 from .diagnostics import STATUS_NAME, InputMonitor, diagnose
 from .estimator import Estimate, Estimator
-from .pairing import ARRIVAL_PAIRINGS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
+from .intake import InputTaker
+from .pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
+                      SequenceGaps)
 from .interface import NAMESPACE, MessageType, Metadata, Topic
 from .params import Config, ParameterError, parameter_specs, validate
 
@@ -48,6 +50,10 @@ OUTPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryP
 _PACK = struct.Struct("<4sd").pack
 HEARTBEAT_S = 0.1  #: period of the executor heartbeat timer (executor lag in /diagnostics)
 _CDR = bagmod.CDR_LE_HEADER
+_LOST_RAW = _PACK(_CDR, LOST_VALUE)
+#: a gap in a publisher's sequence numbers longer than this is not filled with placeholders message
+#: by message (a node frozen for minutes): the pairing restarts as for a new stream instead
+MAX_PLACEHOLDERS = 100_000
 
 
 def _raw_publish(publisher):
@@ -146,8 +152,9 @@ class LossEstimatorNode(Node):
         node = self.config.node
         if node.executor == "single_threaded":
             self.pairing = "timestamp"
-        else:  # a reliable, keep-all input loses nothing: arrival order needs no loss detection
-            self.pairing = "arrival_reliable" if node.input_qos == "reliable" else "arrival"
+        else:  # a reliable, keep-all input loses nothing; over best effort the publishers'
+            # sequence numbers tell what was lost (filled in with placeholders: _push_lost)
+            self.pairing = "arrival_reliable" if node.input_qos == "reliable" else "arrival_sequenced"
         self.estimator = Estimator(self.config, self.pairing, 1.0 / self.config.node.expected_rate_hz)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.monitor = InputMonitor(time.time_ns())
@@ -158,6 +165,14 @@ class LossEstimatorNode(Node):
         self._taking_backlog = False
         self.backlog_discarded = 0  #: input messages queued before the first spin, discarded
         self.executor_kind = node.executor
+        # the events executor gives no message info: the inputs are taken in a thread of their own
+        # (with it), under this lock, which a parameter change takes too
+        self._input_lock = threading.Lock()
+        self.inputs = InputTaker(self, self._input_lock) if node.executor == "events" else None
+        self._sequence_gaps = {c: SequenceGaps() for c in Topic.OF_CHANNEL}
+        self._last_input_ns: dict[str, int] = {}
+        self._input_handles: dict[str, Any] = {}  # input thread's subscriptions, by channel
+        self._interleaved_warned = False
         topics = bagmod.TopicMap()
         self.out_topics = {"loss": self.resolve_topic_name(Topic.LOSS_TORQUE),
                            "power": self.resolve_topic_name(Topic.LOSS_POWER),
@@ -194,22 +209,24 @@ class LossEstimatorNode(Node):
 
             self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None)
             self.create_timer(0.5, self._flush_rerun)
-        with_info = self.executor_kind == "single_threaded"
         input_qos = INPUT_QOS[node.input_qos]
         if node.input_mode == "float64":
             for channel, rel in Topic.OF_CHANNEL.items():
-                self.create_subscription(Float64, rel, self._float_callback(channel, self.resolve_topic_name(rel),
-                                                                            with_info), input_qos, raw=True)
+                self._input_handles[channel] = self._subscribe(
+                    Float64, rel, self._float_callback(channel, self.resolve_topic_name(rel)), input_qos, raw=True)
         else:
-            self.create_subscription(JointState, topics.joint_states, self._joint_state_callback, input_qos)
-        self.create_subscription(Temperature, Topic.OIL_TEMPERATURE, self._temperature_callback, input_qos)
+            self._subscribe(JointState, topics.joint_states, lambda msg, _info=None: self._joint_state_callback(msg),
+                            input_qos)
+        self._subscribe(Temperature, Topic.OIL_TEMPERATURE, lambda msg, _info=None: self._temperature_callback(msg),
+                        input_qos)
         # /diagnostics from a thread of its own: an executor flooded with input callbacks starves
         # its timers (a 1 s timer stalled ~5 s at 5 kHz), exactly when the report matters
         self.busy_ns = 0  #: time spent in input callbacks (saturation: /diagnostics)
         self._busy_reported = (time.time_ns(), 0)
         # executor lag: a heartbeat timer queued behind the input events fires as late as they are
-        # taken (inputs wait as long; a full best-effort queue drops them)
+        # taken (single_threaded; the events node's input thread measures how long inputs waited)
         self._heartbeat_ns = time.time_ns()
+        self._input_lag = (0, 0)  # (when, how long the message taken then had waited), input thread
         self.create_timer(HEARTBEAT_S, self._heartbeat)
         self._diagnostics_stop = threading.Event()
         self._diagnostics_thread = threading.Thread(target=self._diagnostics_loop, name="diagnostics", daemon=True)
@@ -220,11 +237,22 @@ class LossEstimatorNode(Node):
             f"input QoS: {node.input_qos}"
             + (f"; recording {node.record_mcap}" if self.recorder else ""))
 
+    def _subscribe(self, msg_type, topic: str, callback, qos, raw: bool = False):
+        """An input subscription: ``callback(message, info)``, on the input thread (events executor;
+        returns its handle) or on the executor."""
+        if self.inputs is not None:
+            return self.inputs.subscribe(msg_type, topic, qos, callback, raw=raw)
+        return self.create_subscription(msg_type, topic, callback, qos, raw=raw)
+
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
         changes = {p.name: p.value for p in params if p.name in {s.name for s in parameter_specs()}}
         if not changes:
             return SetParametersResult(successful=True)
+        with self._input_lock:  # never between two messages of one sample's push
+            return self._change_parameters(changes)
+
+    def _change_parameters(self, changes: dict[str, Any]) -> SetParametersResult:
         try:
             new = self.config.with_values(changes)
         except ParameterError as exc:
@@ -239,6 +267,14 @@ class LossEstimatorNode(Node):
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ inputs
+    def start_inputs(self, executor) -> int:
+        """Discard the start-up backlog (:meth:`discard_start_up_backlog`), then start the input
+        thread (events executor); returns how many messages were discarded."""
+        discarded = self.discard_start_up_backlog(executor)
+        if self.inputs is not None:
+            self.inputs.start()
+        return discarded
+
     def discard_start_up_backlog(self, executor) -> int:
         """Take and discard the Float64 inputs queued before the executor first spins (arrival
         pairing only); returns how many.
@@ -256,7 +292,10 @@ class LossEstimatorNode(Node):
             idle = 0
             while idle < 3:  # a few empty takes in a row: the queues are drained
                 before = self.backlog_discarded
-                executor.spin_once(timeout_sec=0.0)
+                if self.inputs is not None:
+                    self.inputs.take_round_robin(deliver=True)  # the callbacks count and discard
+                else:
+                    executor.spin_once(timeout_sec=0.0)
                 idle = idle + 1 if self.backlog_discarded == before else 0
         finally:
             self._taking_backlog = False
@@ -265,8 +304,12 @@ class LossEstimatorNode(Node):
                                    "(a running stream: their arrival order cannot pair them)")
         return self.backlog_discarded
 
-    def _float_callback(self, channel: str, topic: str, with_info: bool):
-        """The hot path: one Float64 message (raw CDR bytes) -> estimator -> outputs."""
+    def _float_callback(self, channel: str, topic: str):
+        """The hot path: one Float64 message (raw CDR bytes) -> estimator -> outputs.
+
+        Paired by the publisher's timestamp (``single_threaded``) or by arrival (``events``; the
+        messages the middleware lost, told by the gaps in the publisher's sequence numbers, are
+        pushed as placeholders in their place: :meth:`_push_lost`)."""
         counts, last = self.monitor.counts, self.monitor.last_ns
         unpack = struct.Struct("<d").unpack_from
         time_ns = time.time_ns
@@ -291,18 +334,53 @@ class LossEstimatorNode(Node):
             for est in self.estimator.push(channel, t_ns, value):
                 self._publish(est)
 
-        if with_info:
-            def cb_info(raw: bytes, info) -> None:
+        if self.pairing not in ARRIVAL_PAIRINGS:
+            def cb_timestamp(raw: bytes, info) -> None:
                 wall = time_ns()
                 handle(raw, info["source_timestamp"] or wall, wall)
                 self.busy_ns += time_ns() - wall
-            return cb_info
+            return cb_timestamp
 
-        def cb(raw: bytes) -> None:
-            wall = time_ns()
-            handle(raw, wall, wall)
+        lost_before = self._sequence_gaps[channel].lost_before
+        last_input = self._last_input_ns
+
+        def cb_arrival(raw: bytes, info) -> None:
+            wall = t_ns = time_ns()
+            self._input_lag = (wall, wall - (info["received_timestamp"] or wall))
+            lost = lost_before(info["publication_sequence_number"])
+            if lost and not self._taking_backlog:
+                t_ns = self._push_lost(channel, topic, lost, wall)
+            last_input[channel] = t_ns
+            handle(raw, t_ns, wall)
             self.busy_ns += time_ns() - wall
-        return cb
+        return cb_arrival
+
+    def _push_lost(self, channel: str, topic: str, lost: int, t_ns: int) -> int:
+        """``lost`` messages of ``channel`` were lost just before the one taken at ``t_ns``: push
+        (and record) a placeholder for each (:data:`~rollergear_ros.pairing.LOST_VALUE`), 1 ns
+        apart just before it, so that first-in first-out pairing stays aligned.  Returns the time
+        for the message itself (moved on by at most ``lost`` ns where the channel's previous message
+        leaves no room: the times on a topic must grow for replay to keep this order)."""
+        handle = self._input_handles.get(channel)
+        if handle is not None and handle.get_publisher_count() > 1:
+            # two publishers' numbers interleave: a gap between them is no loss
+            if not self._interleaved_warned:
+                self._interleaved_warned = True
+                self.get_logger().warn(f"{topic} has {handle.get_publisher_count()} publishers: messages "
+                                       "lost in delivery cannot be told (one publisher per input topic)")
+            return t_ns
+        self.monitor.lost[channel] += lost
+        if lost > MAX_PLACEHOLDERS:
+            self.estimator.sync.restart()
+            return t_ns
+        t_ns = max(t_ns, self._last_input_ns.get(channel, t_ns) + lost + 1)
+        for t_i in range(t_ns - lost, t_ns):
+            if self.recorder is not None:
+                self.recorder.write_raw(topic, MessageType.FLOAT64, t_i if self._record_pairing_time
+                                        else self.get_clock().now().nanoseconds, _LOST_RAW)
+            for est in self.estimator.push(channel, t_i, LOST_VALUE):
+                self._publish(est)
+        return t_ns
 
     def _joint_state_callback(self, msg: JointState) -> None:
         wall = time.time_ns()
@@ -364,7 +442,8 @@ class LossEstimatorNode(Node):
             return
         import numpy as np
 
-        buf, self._rr_buffer = self._rr_buffer, []
+        with self._input_lock:
+            buf, self._rr_buffer = self._rr_buffer, []
         t = np.array([e.t_ns for e in buf], dtype=np.int64)
         series = {"/inputs/torque_nm": [e.torque_nm for e in buf], "/inputs/speed_rad_s": [e.speed_rad_s for e in buf],
                   "/loss/torque_nm": [e.loss_torque_nm for e in buf], "/loss/power_w": [e.loss_power_w for e in buf],
@@ -380,8 +459,12 @@ class LossEstimatorNode(Node):
         self._heartbeat_ns = time.time_ns()
 
     def executor_lag_s(self) -> float:
-        """How far the executor is behind: the heartbeat's age beyond its period."""
-        return max(0.0, (time.time_ns() - self._heartbeat_ns) * 1e-9 - HEARTBEAT_S)
+        """How far the node is behind: the heartbeat's age beyond its period, or (input thread) how
+        long the last message taken in the past second had waited since the middleware received it."""
+        now = time.time_ns()
+        taken_ns, waited_ns = self._input_lag
+        waited = waited_ns * 1e-9 if now - taken_ns < 1_000_000_000 else 0.0
+        return max(0.0, (now - self._heartbeat_ns) * 1e-9 - HEARTBEAT_S, waited)
 
     def _diagnostics_loop(self) -> None:
         while not self._diagnostics_stop.wait(1.0):
@@ -421,13 +504,18 @@ class LossEstimatorNode(Node):
             self._diagnostics_thread.join(timeout=10)
 
     def destroy_node(self) -> None:
-        """Stop the diagnostics thread before its publisher goes away, then destroy the node."""
+        """Stop the input and diagnostics threads before their subscriptions and publisher go away,
+        then destroy the node."""
+        if self.inputs is not None:
+            self.inputs.destroy()
         self._stop_diagnostics()
         super().destroy_node()
 
     def close(self) -> None:
         """Flush and close the recordings, the MCAP first (safe to call twice).  A rerun viewer
         that cannot be reached costs its data, with a warning, never the MCAP or a traceback."""
+        if self.inputs is not None:
+            self.inputs.stop()  # nothing is written to the recording after this
         self._stop_diagnostics()
         if self.recorder is not None:
             self.recorder.close()
@@ -476,9 +564,11 @@ def main(args: list[str] | None = None) -> int:
         executor = make_executor(node.executor_kind)
         executor.add_node(node)
         gc.freeze()  # and the node's own objects (no collection: it would delay the first take)
-        node.discard_start_up_backlog(executor)
+        node.start_inputs(executor)
         # spin_once with a timeout: EventsExecutor.spin() never returns on this rclpy version
         while rclpy.ok():
+            if node.inputs is not None and node.inputs.error is not None:
+                raise node.inputs.error
             try:
                 executor.spin_once(timeout_sec=0.1)
             except RuntimeError:

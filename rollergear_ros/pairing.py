@@ -48,6 +48,7 @@ middleware's queues and arrive in a burst).  The node reports ``unpaired`` count
 from __future__ import annotations
 
 import math
+import struct
 from collections import deque
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -63,8 +64,11 @@ _REQUIRED = (TORQUE, SPEED)
 _OPTIONAL = (OUT_TORQUE, OUT_SPEED)
 _PAIRED = (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED)  #: the channels that pair, in sample order
 
-#: the arrival pairings: over best-effort delivery, and over a reliable, keep-all one (nothing lost)
-ARRIVAL_PAIRINGS = ("arrival", "arrival_reliable")
+#: the arrival pairings: over best-effort delivery; over a reliable, keep-all one (nothing lost); and
+#: over best-effort delivery whose losses are filled in from the publishers' sequence numbers
+#: (:data:`LOST_VALUE` placeholders: nothing missing either)
+ARRIVAL_PAIRINGS = ("arrival", "arrival_reliable", "arrival_sequenced")
+LOSSLESS_PAIRINGS = ("arrival_reliable", "arrival_sequenced")
 TEMPERATURE_HOLD_S = 5.0
 #: arrival pairing over a lossless delivery: how long a motor message waits for its partner.  Nothing
 #: is lost, so a partner that is late was delayed (one topic's delivery held up under load), not dropped
@@ -95,7 +99,54 @@ STALL_BURST_MESSAGES = 4
 #: reasons a sample is not estimated (or estimated without a residual); ``malformed`` and
 #: ``duplicate`` count input messages that were never paired (not a Float64, a repeat)
 SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
-                                 "output_non_finite", "temperature_missing", "malformed", "duplicate")
+                                 "output_non_finite", "temperature_missing", "malformed", "duplicate", "lost")
+
+#: a message the middleware lost, known from a gap in its publisher's sequence numbers: the live
+#: node pushes (and records) one NaN with this payload per lost message, in its place, so that first-in
+#: first-out pairing stays aligned across the loss and replay of the recording pairs as the node did.
+#: A sample with a lost motor input is skipped as ``lost``; a lost output leaves it without a residual
+LOST_BITS = 0x7FF8_0000_4C4F_5354  # a quiet NaN whose payload reads "LOST"
+LOST_VALUE: float = struct.unpack("<d", struct.pack("<Q", LOST_BITS))[0]
+
+
+def is_lost(value: float) -> bool:
+    """Whether ``value`` is the placeholder of a lost message (:data:`LOST_VALUE`, bit for bit)."""
+    return value != value and struct.pack("<d", value) == _LOST_BYTES
+
+
+_LOST_BYTES = struct.pack("<Q", LOST_BITS)
+
+
+def lost_mask(values: np.ndarray) -> np.ndarray:
+    """:func:`is_lost` of each element of a float64 array."""
+    return np.ascontiguousarray(values, dtype=np.float64).view(np.uint64) == np.uint64(LOST_BITS)
+
+
+class SequenceGaps:
+    """Messages lost on one topic, from the publication sequence numbers of those received.
+
+    A publisher numbers its messages 1, 2, 3, ...; a best-effort delivery that drops some (a
+    keep-last history overwritten while the node was behind: Fast DDS reports no "sample lost"
+    for that) leaves a gap.  A number that does not follow on (equal or smaller) is a new writer:
+    a restarted publisher; nothing is counted for it.
+    """
+
+    def __init__(self) -> None:
+        self.last: int | None = None
+        self.lost = 0  #: messages lost so far
+
+    def lost_before(self, sequence: int | None) -> int:
+        """How many messages were lost just before the one numbered ``sequence`` (0 for the first,
+        for an unnumbered one and for a new writer's)."""
+        last = self.last
+        if sequence is None or sequence <= 0:
+            return 0
+        self.last = sequence
+        if last is None or sequence <= last:
+            return 0
+        n = sequence - last - 1
+        self.lost += n
+        return n
 
 
 def pairing_tolerance_s(sync_tolerance_s: float, sample_period_s: float | None) -> float:
@@ -186,6 +237,16 @@ class SampleSynchronizer:
         if t_ns - self._gap_ns >= 0.5 * period * (n - 1):
             self._locked, self._timed_pairs = False, 0
         self._gap_ns = None
+
+    def restart(self) -> None:
+        """Begin a new stream: what is queued is dropped (motor messages as ``unpaired``) and the
+        pairing starts unlocked, as after a clean end (a gap too long to fill with placeholders)."""
+        for ch, qq in self.queues.items():
+            if ch in _REQUIRED:
+                self.counts["unpaired"] += len(qq)
+            qq.clear()
+        self._locked, self._timed_pairs, self._wide = False, 0, 0
+        self._skew_chans, self._skew_last, self._gap_ns = (), [], None
 
     def _set_active(self, channel: str, active: bool) -> None:
         self.active[channel] = active
@@ -357,6 +418,11 @@ class SampleSynchronizer:
             if any(not q[c] for c in chans):
                 return out
             times = [q[c][0][0] for c in chans]
+            if self.arrival and any(is_lost(q[c][0][1]) for c in chans):
+                # a lost message's placeholder pairs in its place: its time (that of the message
+                # after it) says nothing about the pairing, so neither tolerance nor skew applies
+                out.append(self._sample(times[0], {c: q[c].popleft()[1] for c in chans}))
+                continue
             wide = max(times) - min(times) > tol
             if self.arrival:
                 wide = self._arrival_wide(wide)
@@ -425,12 +491,13 @@ class SampleSynchronizer:
                 return False
         t0 = times[0]
         last, self._last_pair_ns = self._last_pair_ns, t0
+        # a node catching up takes its queued samples faster than they were sent: such a burst carries
+        # no timing (where one topic's queue is longer, one sample's messages are taken far apart)
+        if last is not None and 0 <= t0 - last < max(self._period_floor_ns, SKEW_MIN_PERIOD_NS):
+            return False
         period = self._period_ns
         if last is not None and 0 < t0 - last <= self.staleness_ns:
             period = self._period_ns = period + SKEW_GAIN * ((t0 - last) - period) if period else float(t0 - last)
-        # a node catching up takes its queued samples faster than they were sent: the arrival period
-        # then shrinks and the normal spread of one sample's messages would look like a skew
-        period = max(period, self._period_floor_ns)
         # an offset counts at most one period: a stall between two callbacks is not a skew; and over a
         # lossless delivery a pair whose messages arrived many periods apart was held up, not skewed
         if self.lossless and max(times) - min(times) > max(SKEW_MAX_OFFSET_PERIODS * period, SKEW_HELD_UP_NS):

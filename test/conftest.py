@@ -18,6 +18,14 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(100 + os.getpid() % 100))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 
+@pytest.fixture(autouse=True)
+def _no_node_outlives_its_test():
+    yield
+    from rostools import NodeProcess
+
+    NodeProcess.kill_leftovers()
+
+
 @pytest.fixture(scope="session")
 def config():
     from rollergear_ros.params import load_config

@@ -15,7 +15,10 @@ from helpers import CONFIG, ROOT
 
 
 class NodeProcess:
-    """``loss_estimator`` in a subprocess, stopped with SIGINT (or another signal)."""
+    """``loss_estimator`` in a subprocess, stopped with SIGINT (or another signal); one a failing
+    test left running is killed after it (``conftest``), so it cannot answer the next test's player."""
+
+    started: list[NodeProcess] = []
 
     def __init__(self, *params: str, params_file: Path = CONFIG, args: tuple[str, ...] = ()) -> None:
         cmd = [sys.executable, "-m", "rollergear_ros.node", *args, "--ros-args", "--params-file", str(params_file)]
@@ -24,6 +27,15 @@ class NodeProcess:
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
                                      env=dict(os.environ))
         self.stdout = self.stderr = ""
+        NodeProcess.started.append(self)
+
+    @classmethod
+    def kill_leftovers(cls) -> None:
+        for node in cls.started:
+            if node.proc.poll() is None:
+                node.proc.kill()
+                node.proc.communicate()
+        cls.started.clear()
 
     def stop(self, sig: int = signal.SIGINT, timeout: float = 20.0) -> int:
         if self.proc.poll() is None:

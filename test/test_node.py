@@ -181,7 +181,10 @@ def test_an_overload_is_reported_while_the_reports_keep_their_pace():
     assert np.diff(arrivals).max() < 3.0, np.diff(arrivals)  # 1 s apart, not 4-9 s
     status = overloaded()[0]
     values = {kv.key: kv.value for kv in status.values}
-    assert status.level == b"\x01" and float(values["executor lag [s]"]) > 0.5  # half a 1000-deep queue at 1 kHz
+    # the oldest messages of the overflowing queues were lost: counted, by input, from the publisher's
+    # sequence numbers, and the samples they belonged to skipped as lost
+    assert status.level == b"\x01" and int(values["motor_torque lost in delivery"]) > 0
+    assert int(values["motor_speed lost in delivery"]) > 0 and int(values["skipped lost"].split()[0]) > 0
     # received vs estimated per input: what was taken and not estimated is counted
     for ch in ("motor_torque", "motor_speed"):
         assert int(values[f"{ch} not estimated"]) == int(values[f"{ch} messages"]) - int(values["samples estimated"])
@@ -269,7 +272,7 @@ def test_start_up_backlog_of_a_running_stream_is_discarded():
                 for p in pubs:
                     p.publish(Float64(data=10.0 + k))
             time.sleep(0.3)
-            assert node.discard_start_up_backlog(executor) > 300
+            assert node.start_inputs(executor) > 300
             assert node.estimator.estimated == 0 and sum(node.monitor.counts.values()) == 0
             for k in range(300):  # then live at ~1 kHz
                 for p in pubs:
@@ -283,6 +286,94 @@ def test_start_up_backlog_of_a_running_stream_is_discarded():
         finally:
             executor.shutdown()
             node.destroy_node()
+
+
+def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inputs(tmp_path):
+    """Arrival pairing over best-effort delivery: a node that falls a whole queue behind loses the
+    oldest messages of each topic -- a different number on each -- and nothing in their arrival
+    tells.  The publishers' sequence numbers do: every lost message is pushed (and recorded) as a
+    placeholder in its place, so no estimate joins one topic's message from before the loss with
+    another's from after it, the samples with a lost input are counted ``lost``, and replay of the
+    recording gives exactly what the node published."""
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64
+
+    from rollergear_ros.node import SENSOR_QOS, LossEstimatorNode, make_executor
+    from rollergear_ros.pairing import SPEED, TORQUE
+
+    rec = tmp_path / "lost.mcap"
+    depth = SENSOR_QOS.depth
+    last_k = depth + 700
+    # sample k is (torque 10 + k/1000, speed 50 + k/1000): each input is known by its value
+    torque_of, speed_of = (lambda k: 10.0 + 1e-3 * k), (lambda k: 50.0 + 1e-3 * k)
+    with ros_context() as probe:
+        seen = {T.motor_torque: [], T.motor_speed: []}
+        for topic in seen:  # a fence: the node's queue has what this deep probe has
+            probe.create_subscription(Float64, topic, lambda m, topic=topic: seen[topic].append(m.data),
+                                      QoSProfile(depth=3 * depth, reliability=ReliabilityPolicy.BEST_EFFORT))
+        node = LossEstimatorNode(context=probe.context,
+                                 parameter_overrides=[Parameter("node.record_mcap", value=str(rec))])
+        executor = make_executor("events", context=probe.context)
+        try:
+            executor.add_node(node)
+            node.start_inputs(executor)
+            qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+            pub_t, pub_w = (probe.create_publisher(Float64, t, qos) for t in (T.motor_torque, T.motor_speed))
+            assert wait_for(lambda: pub_t.get_subscription_count() == pub_w.get_subscription_count() == 2, 20)
+
+            def publish(pub, k):
+                pub.publish(Float64(data=(torque_of if pub is pub_t else speed_of)(k)))
+
+            def sent(topic, k):  # the probe has received the message of sample k
+                return wait_for(lambda: seen[topic] and seen[topic][-1] >= (
+                    torque_of if topic == T.motor_torque else speed_of)(k) - 1e-9, 30)
+
+            for k in range(200):  # a running stream, paced
+                publish(pub_t, k)
+                publish(pub_w, k)
+                time.sleep(0.001)
+            assert wait_for(lambda: node.estimator.estimated >= 150 and node.monitor.counts[SPEED] == 200, 30)
+            # the node stalls; its queues overflow: torque loses samples 200..(200 + 300), speed 200..(200 + 200)
+            with node._input_lock:
+                for k in range(200, depth + 500 + 1):
+                    publish(pub_t, k)
+                    if k <= depth + 400:
+                        publish(pub_w, k)
+                assert sent(T.motor_torque, depth + 500) and sent(T.motor_speed, depth + 400)
+            queued = {TORQUE: depth + 501, SPEED: depth + 401}  # published so far, by topic
+            assert wait_for(lambda: all(node.monitor.counts[ch] + node.monitor.lost[ch] == n
+                                        for ch, n in queued.items()), 30), (node.monitor.counts, node.monitor.lost)
+            for k in range(depth + 401, depth + 501):
+                publish(pub_w, k)
+            for k in range(depth + 501, last_k + 1):
+                publish(pub_t, k)
+                publish(pub_w, k)
+                time.sleep(0.001)
+            assert wait_for(lambda: all(node.monitor.counts[ch] + node.monitor.lost[ch] == last_k + 1
+                                        for ch in (TORQUE, SPEED)), 60), (node.monitor.counts, node.monitor.lost)
+            with node._input_lock:
+                counts, lost, estimated = dict(node.estimator.counts), dict(node.monitor.lost), node.estimator.estimated
+        finally:
+            node.close()
+            executor.shutdown()
+            node.destroy_node()
+    recorded = read_rosbags(rec)
+    received = {ch: {round(1000 * (v - base)) for v in float_series(recorded, topic)[1].tolist() if v == v}
+                for ch, topic, base in ((TORQUE, T.motor_torque, 10.0), (SPEED, T.motor_speed, 50.0))}
+    missing = {ch: set(range(last_k + 1)) - got for ch, got in received.items()}
+    assert lost == {**lost, TORQUE: len(missing[TORQUE]), SPEED: len(missing[SPEED])}
+    assert len(missing[TORQUE]) >= 300 and len(missing[SPEED]) >= 200, "nothing was lost: nothing tested"
+    assert missing[TORQUE] != missing[SPEED]
+    # every estimate from its own sample's inputs; the samples with a lost input counted as such
+    summary, batches = replay(rec, load_config(CONFIG), show_progress=False, collect=True)
+    k_t = np.round(1000 * (np.concatenate([b.torque_nm for b in batches]) - 10.0)).astype(int)
+    k_w = np.round(1000 * (np.concatenate([b.speed_rad_s for b in batches]) - 50.0)).astype(int)
+    assert np.array_equal(k_t, k_w), f"{np.sum(k_t != k_w)} estimates from inputs of different samples"
+    assert counts["lost"] == len(missing[TORQUE] | missing[SPEED]) == summary.skipped["lost"]
+    assert estimated == len(k_t) >= last_k + 1 - counts["lost"] - 10
+    np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in batches]),
+                               float_series(recorded, T.loss_torque)[1], rtol=1e-12, atol=1e-15)
 
 
 @pytest.mark.parametrize("executor", ["single_threaded", "events"])
@@ -328,7 +419,7 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
     assert len(loss) > 1000
     config = load_config(CONFIG)
     summary, own = replay(rec, config, show_progress=False, collect=True)
-    assert summary.pairing == ("timestamp" if executor == "single_threaded" else "arrival")
+    assert summary.pairing == ("timestamp" if executor == "single_threaded" else "arrival_sequenced")
     np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in own]), loss, rtol=1e-12, atol=1e-15)
     # each estimate's inputs, as indices into the bag (by value); best-effort delivery may lose
     # inputs (their samples are then not estimated), never pair them wrongly

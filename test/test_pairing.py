@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from rollergear_ros.estimator import Estimator
-from rollergear_ros.pairing import (CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, SampleSynchronizer,
-                                    pairing_tolerance_s, samples_to_arrays)
+from rollergear_ros.pairing import (CHANNELS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
+                                    SampleSynchronizer, SequenceGaps, is_lost, lost_mask, pairing_tolerance_s,
+                                    samples_to_arrays)
 from rollergear_ros.params import load_config
 
 MS = 1_000_000
@@ -320,3 +321,70 @@ def test_lossless_arrival_pairing_undoes_the_skewed_start_of_a_new_stream_after_
     skewed = _skewed(out)
     assert skewed and min(skewed) >= 10_000 and max(skewed) < 10_000 + 50, "undone within 50 samples"
     assert sync.counts["unpaired"] == 3 and len(out) == 2000 + 2997
+
+
+def test_sequence_gaps_count_the_messages_lost_between_those_received():
+    gaps = SequenceGaps()
+    assert [gaps.lost_before(s) for s in (1, 2, 5, 6, 10)] == [0, 0, 2, 0, 3]
+    assert gaps.lost == 5
+    # a restarted publisher numbers from 1 again: a new writer, nothing lost; unnumbered: unknown
+    assert [gaps.lost_before(s) for s in (1, 3, None, 4)] == [0, 1, 0, 0]
+    assert gaps.lost == 6
+
+
+def test_a_lost_messages_placeholder_is_known_by_its_bits_only():
+    assert is_lost(LOST_VALUE) and not is_lost(float("nan")) and not is_lost(1.0)
+    values = np.array([1.0, np.nan, LOST_VALUE, -np.inf])
+    assert lost_mask(values).tolist() == [False, False, True, False]
+    # it survives the recording: a Float64 payload decoded back is the same placeholder
+    from rollergear_ros.bag import decode_float64, float64_payloads
+
+    assert lost_mask(decode_float64([bytes(r) for r in float64_payloads(values)])).tolist() == [False, False, True,
+                                                                                                  False]
+
+
+@pytest.mark.parametrize("lossless", [False, True])
+def test_placeholders_keep_arrival_pairing_aligned_across_a_burst_loss(lossless):
+    """A node a whole queue behind loses the oldest messages of each topic, a different number on
+    each (torque 200..500, speed 200..400), and then takes what is left round-robin, a few microseconds
+    apart: with a placeholder in place of every lost message, every sample pairs with its own
+    inputs and the samples with a lost input are skipped as ``lost``; without them first-in
+    first-out pairs torque k with speed k - 100 for the rest of the catch-up."""
+    def run(placeholders: bool):
+        est = Estimator(load_config(), "arrival_sequenced" if lossless else "arrival", 1e-3)
+        out = []
+        t = 1_000_000_000
+        for k in range(200):
+            out += est.push(TORQUE, t, 10 + k * 1e-3)
+            out += est.push(SPEED, t + 5_000, 50 + k * 1e-3)
+            t += 1_000_000
+        t += 1_300_000_000  # the stall; then the catch-up, round-robin
+        left = {TORQUE: list(range(501, 1501)), SPEED: list(range(401, 1401))}
+        lost = {TORQUE: 301, SPEED: 201}
+        while left[TORQUE] or left[SPEED]:
+            for ch, base in ((TORQUE, 10), (SPEED, 50)):
+                if not left[ch]:
+                    continue
+                if lost[ch] and placeholders:
+                    for i in range(lost[ch]):
+                        out += est.push(ch, t - lost[ch] + i, LOST_VALUE)
+                lost[ch] = 0
+                out += est.push(ch, t, base + left[ch].pop(0) * 1e-3)
+                t += 8_000
+        for k in range(1401, 1501):
+            out += est.push(SPEED, t, 50 + k * 1e-3)
+            t += 8_000
+        for k in range(1501, 1700):  # live again
+            out += est.push(TORQUE, t, 10 + k * 1e-3)
+            out += est.push(SPEED, t + 5_000, 50 + k * 1e-3)
+            t += 1_000_000
+        k_t = np.round((np.array([e.torque_nm for e in out]) - 10) * 1000).astype(int)
+        k_w = np.round((np.array([e.speed_rad_s for e in out]) - 50) * 1000).astype(int)
+        return k_t, k_w, est.counts
+
+    k_t, k_w, counts = run(placeholders=True)
+    assert np.array_equal(k_t, k_w)
+    assert counts["lost"] == 301 and counts["unpaired"] == 0
+    assert len(k_t) == 1700 - 301
+    k_t, k_w, _ = run(placeholders=False)
+    assert np.sum(k_t != k_w) > 50  # what the placeholders prevent
