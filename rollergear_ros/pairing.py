@@ -39,10 +39,14 @@ each channel's arrival offset from the motor torque, averaged over ~16 pairs, is
 the messages of one sample arrive together and near a whole period when they are paired with a
 neighbour's; beyond 0.75 periods the lagging heads are dropped (:meth:`SampleSynchronizer._arrival_skewed`).
 A skew is undone within ~30 samples of live data; a burst itself carries no timing and keeps the
-pairing it was taken with.  By arrival, an optional channel counts as silent once motor messages
-have kept coming for ``staleness_s`` without it, not when the callback clock jumps: on a busy
-machine the node's own executor may stall inside a sample (all its inputs then wait in the
-middleware's queues and arrive in a burst).  The node reports ``unpaired`` counts in ``/diagnostics``.
+pairing it was taken with.  Over best-effort delivery with the publishers' sequence numbers
+(``arrival_sequenced``, the live node's default) every lost message is pushed as a placeholder
+(:data:`LOST_VALUE`) in its place: nothing is then missing, the lossless rules apply, and a pair
+with a placeholder is taken first in, first out whatever its times.  By arrival, an optional channel
+counts as silent once motor messages have kept coming for ``staleness_s`` without it, not when the
+callback clock jumps: on a busy machine the node's own executor may stall inside a sample (all
+its inputs then wait in the middleware's queues and arrive in a burst).  The node reports
+``unpaired`` and ``lost`` counts in ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -472,10 +476,12 @@ class SampleSynchronizer:
         message), so it is told by its mean: each channel's arrival offset from the motor torque
         (clipped to ± one period), averaged over the last ~16 pairs, against the mean sample
         period.  Messages of one sample arrive together (mean offset ~0); a pairing one sample off
-        has a mean offset of a whole period (the mean arrival period, at least half the nominal sample
-        period when it is known).  A spread of the means beyond ``SKEW_LIMIT`` x the
-        period drops the heads of the channels that lag the most advanced one; channels published
-        at independent phases settle at an offset within ±0.25 periods after one such drop.  A
+        has a mean offset of a whole period (the mean arrival period).  A pair that came less than
+        half the nominal sample period after the previous one (when it is known; else
+        ``SKEW_MIN_PERIOD_NS``) was taken in a catch-up and is not observed.  A spread of the means
+        beyond ``SKEW_LIMIT`` x the period drops the heads of the channels that lag the most advanced
+        one; channels published at independent phases settle at an offset within ±0.25 periods after
+        one such drop.  A
         pair whose late messages came in a burst (each within ``SKEW_MIN_PERIOD_NS`` of its
         channel's previous one) while the earlier ones did not -- one topic's delivery held up and
         released while the others kept coming -- carries no timing and is not observed.  Over a
