@@ -245,6 +245,18 @@ def _check_mcap(path: Path) -> None:
 
 #: metadata record the node writes into its recordings: how it paired the inputs it recorded
 RECORDING_METADATA = Metadata.RECORDING
+#: the metadata record rosbag2's MCAP storage plugin writes (key ``serialized_metadata``: its YAML)
+ROSBAG2_METADATA = "rosbag2"
+
+
+def offered_qos_yaml(reliable: bool, depth: int, transient_local: bool = False) -> str:
+    """One publisher's QoS as rosbag2 stores it in ``offered_qos_profiles`` (rmw enum values: history
+    1 keep last, reliability 1 reliable / 2 best effort, durability 1 transient local / 2 volatile;
+    infinite deadline, lifespan and lease as 0, automatic liveliness)."""
+    zero = "\n    sec: 0\n    nsec: 0"
+    return (f"- history: 1\n  depth: {depth}\n  reliability: {1 if reliable else 2}\n"
+            f"  durability: {1 if transient_local else 2}\n  deadline:{zero}\n  lifespan:{zero}\n"
+            f"  liveliness: 1\n  liveliness_lease_duration:{zero}\n  avoid_ros_namespace_conventions: false")
 
 
 def read_metadata(path: str | Path, name: str) -> dict[str, str] | None:
@@ -411,16 +423,26 @@ class BagWriter:
     Whole series of equal-sized messages (Float64 outputs, copied inputs) are added with numpy
     (:class:`~rollergear_ros.mcapwriter.ChunkedMcapWriter`).  Used as a context manager; :meth:`close`
     (also on error or interrupt) writes the summary and footer, so everything added so far stays
-    readable.
+    readable.  ``time_ordered``: messages are held back and written in log-time order across topics
+    (:class:`~rollergear_ros.mcapwriter.TimeOrderBuffer`; :meth:`release` writes what is older than
+    a watermark, :meth:`close` the rest), as streaming readers need; a recorder that writes as
+    messages come passes False.  ``offered_qos``: topic -> the QoS profiles its publisher offers
+    (:func:`offered_qos_yaml`), stored as rosbag2 does.  :meth:`close` adds rosbag2's own metadata
+    record (``rosbag2``: ``serialized_metadata``), so ``ros2 bag info`` shows topics, counts and QoS.
     """
 
-    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024) -> None:
-        from .mcapwriter import ChunkedMcapWriter
+    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, time_ordered: bool = True,
+                 offered_qos: Mapping[str, str] | None = None) -> None:
+        from .mcapwriter import ChunkedMcapWriter, TimeOrderBuffer
 
         self.path = Path(path)
         self._writer = ChunkedMcapWriter(self.path, chunk_size=chunk_size)
+        self._held = TimeOrderBuffer(self._writer) if time_ordered else None
+        self._sink = self._held if time_ordered else self._writer
         self._schema_ids: dict[str, int] = {}
         self._channels: dict[str, int] = {}
+        self._types: dict[str, str] = {}
+        self._offered_qos = dict(offered_qos or {})
         self.closed = False
 
     def channel(self, topic: str, type_name: str, schema_text: str | None = None) -> int:
@@ -430,17 +452,22 @@ class BagWriter:
         if type_name not in self._schema_ids:
             text = schema_text if schema_text is not None else MSG_DEFINITIONS[type_name]
             self._schema_ids[type_name] = self._writer.register_schema(type_name, SchemaEncoding.ROS2, text.encode())
-        cid = self._writer.register_channel(
-            topic, MessageEncoding.CDR, self._schema_ids[type_name], metadata={"offered_qos_profiles": ""}
-        )
+        cid = self._writer.register_channel(topic, MessageEncoding.CDR, self._schema_ids[type_name],
+                                            metadata={"offered_qos_profiles": self._offered_qos.get(topic, "")})
         self._channels[topic] = cid
+        self._types[topic] = type_name
         return cid
+
+    def release(self, up_to_ns: int) -> None:
+        """``time_ordered``: write the held messages whose log time is at most ``up_to_ns``."""
+        if self._held is not None:
+            self._held.release(up_to_ns)
 
     def write_raw(
         self, topic: str, type_name: str, log_time_ns: int, data: bytes, schema_text: str | None = None
     ) -> None:
         """One serialized message."""
-        self._writer.add_message(self.channel(topic, type_name, schema_text), int(log_time_ns), data)
+        self._sink.add_message(self.channel(topic, type_name, schema_text), int(log_time_ns), data)
 
     def write_message(self, topic: str, type_name: str, log_time_ns: int, message: dict) -> None:
         """Encode a message dict with the type's CDR encoder and write it."""
@@ -450,7 +477,7 @@ class BagWriter:
         self, topic: str, type_name: str, t_ns: np.ndarray, payloads: np.ndarray, schema_text: str | None = None
     ) -> None:
         """Many messages of one topic whose serialized payloads are the rows of ``payloads``."""
-        self._writer.add_messages(
+        self._sink.add_messages(
             self.channel(topic, type_name, schema_text), np.asarray(t_ns, dtype=np.int64), payloads
         )
 
@@ -460,7 +487,7 @@ class BagWriter:
         """Messages of several topics in their given (time) order: row i belongs to ``topics[which[i]]``
         (``(topic, type, schema text)``); all payloads have the same length."""
         ids = np.array([self.channel(tp, ty, tx) for tp, ty, tx in topics], dtype=np.int64)
-        self._writer.add_messages(ids[np.asarray(which)], np.asarray(t_ns, dtype=np.int64), payloads)
+        self._sink.add_messages(ids[np.asarray(which)], np.asarray(t_ns, dtype=np.int64), payloads)
 
     def write_float64_series(self, topic: str, t_ns: np.ndarray, values: np.ndarray) -> None:
         """A whole series of Float64 messages (vectorised encoding)."""
@@ -474,7 +501,34 @@ class BagWriter:
         if self.closed:
             return
         self.closed = True
-        self._writer.close()
+        try:
+            if self._held is not None:
+                self._held.release()
+            self._writer.add_metadata(ROSBAG2_METADATA, {"serialized_metadata": self._rosbag2_metadata()})
+        finally:
+            self._writer.close()
+
+    def _rosbag2_metadata(self) -> str:
+        """rosbag2's ``BagMetadata`` (version 9, Jazzy) of what was written, as YAML."""
+        import yaml
+
+        w = self._writer
+        start = w._t_min if w._t_min is not None else 0
+        duration = (w._t_max - start) if w._t_max is not None else 0
+        counts = {topic: int(w._counts.get(cid, 0)) for topic, cid in self._channels.items()}
+        total = sum(counts.values())
+        topics = [{"topic_metadata": {"name": topic, "type": self._types[topic], "serialization_format": "cdr",
+                                      "offered_qos_profiles": self._offered_qos.get(topic, ""),
+                                      "type_description_hash": ""},
+                   "message_count": counts[topic]} for topic in self._channels]
+        info = {"version": 9, "storage_identifier": "mcap", "duration": {"nanoseconds": duration},
+                "starting_time": {"nanoseconds_since_epoch": start}, "message_count": total,
+                "topics_with_message_count": topics, "compression_format": "", "compression_mode": "",
+                "relative_file_paths": [self.path.name],
+                "files": [{"path": self.path.name, "starting_time": {"nanoseconds_since_epoch": start},
+                           "duration": {"nanoseconds": duration}, "message_count": total}],
+                "custom_data": {}, "ros_distro": "jazzy"}
+        return yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False)
 
     def __enter__(self) -> BagWriter:
         return self

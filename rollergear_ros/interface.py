@@ -64,6 +64,11 @@ class Metadata:
     RECORDING = "rollergear_recording"  #: written by the node: how it paired its inputs
     GEARBOX = "rollergear"  #: key ``gearbox_id``: which gearbox a recording is of (fleets)
     SIMULATION = "rollergear_simulation"  #: written by ``simulate``: the ground truth (tests only)
+    PROVENANCE = "rollergear_provenance"  #: written by ``replay --out``: what made the estimates
+
+
+#: depth of the node's (reliable, volatile, keep-last) output publishers
+OUTPUT_QUEUE_DEPTH = 200
 
 
 def package_version() -> str:

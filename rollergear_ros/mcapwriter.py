@@ -64,6 +64,7 @@ class ChunkedMcapWriter:
         self._chunk = bytearray()  # record bytes of the open chunk
         self._index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # channel -> [(log times, offsets)]
         self._single: dict[int, tuple[list[int], list[int]]] = {}  # the same for messages added one by one
+        self._mixed: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (channels, log times, offsets)
         self._size = 0
         self._start = self._end = None
         self._counts: dict[int, int] = {}
@@ -112,23 +113,46 @@ class ChunkedMcapWriter:
         """Add ``n`` messages whose payloads are the rows of ``payload`` (n × L uint8), in this order.
 
         ``channel_id`` is one id for all rows, or an array with one id per row (interleaved topics).
+        A chunk is closed whenever it reaches ``chunk_size``, also inside one call (so that no chunk
+        spans a whole recording added at once).
         """
         n = len(log_time)
         if n == 0:
             return
         log_time = np.asarray(log_time, dtype=np.int64)
         ids = np.broadcast_to(np.asarray(channel_id, dtype=np.int64), (n,))
+        rec = 9 + _MSG_FIXED + payload.shape[1]
+        start = 0
+        while start < n:
+            stop = min(n, start + max(1, -(-(self.chunk_size - self._size) // rec)))
+            self._add_rows(ids[start:stop], log_time[start:stop], payload[start:stop])
+            start = stop
+
+    def _add_rows(self, ids: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> None:
+        n = len(log_time)
         rows = message_rows(ids, log_time, payload)
         rec = rows.shape[1]
         offsets = self._size + rec * np.arange(n, dtype=np.int64)
-        for cid in np.unique(ids).tolist():
-            sel = ids == cid
-            k = int(sel.sum())
-            seq = self._seq[cid] + np.arange(1, k + 1, dtype=np.int64)
-            rows[sel, 11:15] = (seq & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(k, 4)
-            self._seq[cid] += k
-            self._index.setdefault(cid, []).append((log_time[sel], offsets[sel]))
-            self._counts[cid] += k
+        if ids[0] == ids[-1] and (ids == ids[0]).all():  # one topic
+            cid = int(ids[0])
+            seq = self._seq[cid] + np.arange(1, n + 1, dtype=np.int64)
+            self._seq[cid] += n
+            self._counts[cid] += n
+            self._index.setdefault(cid, []).append((log_time, offsets))
+        else:  # interleaved topics: each one's sequence numbers count on; indexed by channel at the chunk's end
+            order = np.argsort(ids, kind="stable")
+            sorted_ids = ids[order]
+            starts = np.concatenate([[0], np.flatnonzero(np.diff(sorted_ids)) + 1])
+            counts = np.diff(np.concatenate([starts, [n]]))
+            cids = sorted_ids[starts].tolist()
+            base = np.array([self._seq[c] for c in cids], dtype=np.int64)
+            seq = np.empty(n, dtype=np.int64)
+            seq[order] = np.repeat(base - starts, counts) + np.arange(1, n + 1, dtype=np.int64)
+            for c, k in zip(cids, counts.tolist()):
+                self._seq[c] += k
+                self._counts[c] += k
+            self._mixed.append((np.array(ids), log_time, offsets))
+        rows[:, 11:15] = (seq & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
         self._chunk += rows.reshape(-1).data
         self._size += rows.size
         self._message_count += n
@@ -196,6 +220,12 @@ class ChunkedMcapWriter:
         index_start = self._fh.tell()
         for cid, (times, offs) in self._single.items():
             self._index.setdefault(cid, []).append((np.array(times, dtype=np.int64), np.array(offs, dtype=np.int64)))
+        if self._mixed:
+            ids, times, offs = (np.concatenate(parts) for parts in zip(*self._mixed))
+            order = np.argsort(ids, kind="stable")
+            bounds = np.flatnonzero(np.diff(ids[order])) + 1
+            for group in np.split(order, bounds):
+                self._index.setdefault(int(ids[group[0]]), []).append((times[group], offs[group]))
         for cid in sorted(self._index):
             times = np.concatenate([t for t, _ in self._index[cid]])
             offs = np.concatenate([o for _, o in self._index[cid]])
@@ -211,7 +241,7 @@ class ChunkedMcapWriter:
             chunk_length=len(chunk_blob), message_index_offsets=index_offsets,
             message_index_length=self._fh.tell() - index_start, compression="zstd",
             compressed_size=len(compressed), uncompressed_size=len(data)))
-        self._chunk, self._index, self._single, self._size = bytearray(), {}, {}, 0
+        self._chunk, self._index, self._single, self._mixed, self._size = bytearray(), {}, {}, [], 0
         self._start = self._end = None
 
     def close(self) -> None:
@@ -280,3 +310,68 @@ class ChunkedMcapWriter:
 
             os.fsync(self._fh.fileno())
             self._fh.close()
+
+
+class TimeOrderBuffer:
+    """Holds messages back and hands them to a :class:`ChunkedMcapWriter` in log-time order.
+
+    Streaming readers (Foxglove, ``ros2 bag play``) read a file front to back and want its messages
+    in log-time order across topics; a replay produces each batch's estimates topic by topic, and a
+    sample completes a little after its inputs arrived.  :meth:`release` writes what is older than a
+    watermark (nothing later can be older than that), :meth:`release` with none writes the rest.
+    Equal-sized payloads stay numpy arrays throughout; messages of other sizes go one by one.
+    """
+
+    def __init__(self, writer: ChunkedMcapWriter) -> None:
+        self._writer = writer
+        self._fixed: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (channel ids, log times, payload rows)
+        self._single: list[tuple[int, int, bytes]] = []  # (channel id, log time, payload)
+
+    def __len__(self) -> int:
+        return sum(len(t) for _, t, _ in self._fixed) + len(self._single)
+
+    def add_messages(self, channel_id: int | np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> None:
+        log_time = np.asarray(log_time, dtype=np.int64)
+        ids = np.broadcast_to(np.asarray(channel_id, dtype=np.int64), log_time.shape).copy()
+        if len(log_time):
+            self._fixed.append((ids, log_time, payload))
+
+    def add_message(self, channel_id: int, log_time: int, data: bytes) -> None:
+        self._single.append((channel_id, log_time, data))
+
+    def release(self, up_to_ns: int | None = None) -> None:
+        """Write, in log-time order (the order added among equal times), every message whose log
+        time is at most ``up_to_ns`` (all of them when None); keep the rest."""
+        if not self._fixed and not self._single:
+            return
+        groups: dict[int, list] = {}
+        for ids, t, pl in self._fixed:
+            groups.setdefault(pl.shape[1], []).append((ids, t, pl))
+        merged = [tuple(np.concatenate(parts) for parts in zip(*items)) for items in groups.values()]
+        single = self._single
+        times = [t for _, t, _ in merged] + [np.array([m[1] for m in single], dtype=np.int64)]
+        source = np.concatenate([np.full(len(t), g, dtype=np.int64) for g, t in enumerate(times[:-1])]
+                                + [np.full(len(single), -1, dtype=np.int64)])
+        index = np.concatenate([np.arange(len(t), dtype=np.int64) for t in times])
+        t_all = np.concatenate(times)
+        order = np.argsort(t_all, kind="stable")
+        n_out = len(order) if up_to_ns is None else int(np.searchsorted(t_all[order], up_to_ns, side="right"))
+        out = order[:n_out]
+        src, idx = source[out], index[out]
+        starts = np.concatenate([[0], np.flatnonzero(np.diff(src)) + 1, [len(out)]]).tolist() if len(out) else [0]
+        for a, b in zip(starts[:-1], starts[1:]):
+            g = int(src[a])
+            if g < 0:
+                for j in idx[a:b].tolist():
+                    self._writer.add_message(*single[j])
+            else:
+                ids, t, pl = merged[g]
+                sel = idx[a:b]
+                self._writer.add_messages(ids[sel], t[sel], pl[sel])
+        rest = order[n_out:]
+        self._fixed = []
+        for g, (ids, t, pl) in enumerate(merged):
+            sel = np.sort(index[rest][source[rest] == g])
+            if len(sel):
+                self._fixed.append((ids[sel], t[sel], pl[sel]))
+        self._single = [single[j] for j in np.sort(index[rest][source[rest] == -1]).tolist()]

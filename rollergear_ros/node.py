@@ -36,7 +36,7 @@ from .estimator import Estimate, Estimator
 from .intake import InputTaker
 from .pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
                       SequenceGaps)
-from .interface import NAMESPACE, MessageType, Metadata, Topic
+from .interface import NAMESPACE, OUTPUT_QUEUE_DEPTH, MessageType, Metadata, Topic
 from .params import Config, ParameterError, parameter_specs, validate
 
 #: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
@@ -46,7 +46,8 @@ SENSOR_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=Du
 RELIABLE_INPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
                                 history=HistoryPolicy.KEEP_ALL)
 INPUT_QOS = {"sensor_data": SENSOR_QOS, "reliable": RELIABLE_INPUT_QOS}
-OUTPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST, depth=200)
+OUTPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                        depth=OUTPUT_QUEUE_DEPTH)
 _PACK = struct.Struct("<4sd").pack
 HEARTBEAT_S = 0.1  #: period of the executor heartbeat timer (executor lag in /diagnostics)
 _CDR = bagmod.CDR_LE_HEADER
@@ -195,7 +196,10 @@ class LossEstimatorNode(Node):
             if path:
                 check_new_output(name, path)
         if node.record_mcap:
-            self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024)
+            # written as the messages come (in arrival order), with the QoS the outputs are offered with
+            output_qos = bagmod.offered_qos_yaml(reliable=True, depth=OUTPUT_QUEUE_DEPTH)
+            self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024, time_ordered=False,
+                                             offered_qos={t: output_qos for t in self.out_topics.values()})
             self.recorder.add_metadata(Metadata.RECORDING, {
                 "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
                 "pairing": self.pairing if self._record_pairing_time else "timestamp",

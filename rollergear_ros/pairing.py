@@ -16,7 +16,7 @@ motor torque's median message period (:func:`pairing_tolerance_s`), which also p
 separate publishers or recorders logged a fraction of a period apart.  An optional channel silent
 for longer than ``staleness_s`` no longer holds up the motor samples (they are estimated without a
 residual and counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
-is dropped as ``unpaired`` (over a lossless arrival delivery within :data:`LOSSLESS_HOLD_S`: a late
+is dropped as ``unpaired`` (over a lossless arrival delivery both wait :data:`LOSSLESS_HOLD_S`: a late
 partner there was held up, not lost).  During the first ``staleness_s`` of a stream, samples wait for the
 optional channels to show up, so a log's first samples already carry their measured output.
 
@@ -411,10 +411,12 @@ class SampleSynchronizer:
                 return out  # start-up: give the optional channels a chance to appear
             # optional channels that are active but silent: do not hold the motor samples up.  By
             # arrival, silence is measured by the motor messages that came since, not by the clock:
-            # a stall of the node's own executor inside a sample is no silence of its inputs
+            # a stall of the node's own executor inside a sample is no silence of its inputs; and
+            # over a lossless delivery an output is waited for as long as a motor partner (its
+            # delivery may be held up, e.g. by a repair of the reliable protocol)
             chans = self._active_channels
             if len(chans) > 2 and (max(q[TORQUE][-1][0], q[SPEED][-1][0]) if self.arrival
-                                   else self.latest_ns) - t_req > self.staleness_ns:
+                                   else self.latest_ns) - t_req > self.hold_ns:
                 for ch in _OPTIONAL:
                     if self.active[ch] and not q[ch]:
                         self._set_active(ch, False)

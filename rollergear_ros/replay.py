@@ -19,7 +19,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from .bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, cdr_problem, decode_float64, decoder_for,
-                  float64_problem, inspect_bag, iter_raw_batches, median_period_s, read_metadata)
+                  float64_problem, inspect_bag, iter_raw_batches, median_period_s, offered_qos_yaml, read_metadata)
 from .errors import UsageError
 from .estimator import BatchEstimate, Estimator
 from .pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
@@ -716,6 +716,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
         str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
     )
     acc = _Accumulator()
+    hold_ns = 2 * max(estimator.sync.hold_ns, estimator.sync.tolerance_ns)
     collected: list[BatchEstimate] = []
     total = sum(info.counts.get(t, 0) for t in plan.all_topics)
     if show_progress is None:
@@ -724,7 +725,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
     writer = rlog = bar = None
     try:
         with stop.critical():  # outputs are opened whole
-            writer = BagWriter(out_mcap) if out_mcap else None
+            writer = _output_writer(out_mcap, info, config, topics) if out_mcap else None
             if rrd:
                 from .review import RerunLog
 
@@ -748,6 +749,8 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                           config, topics)
                     if writer:
                         batch.write_inputs(writer)
+                        if len(batch.t_ns):  # no later estimate can be older than its inputs' hold
+                            writer.release(int(batch.t_ns.max()) - hold_ns)
             if bar:
                 bar.update(len(batch.codes))
             if window is not None and window.done:
@@ -799,6 +802,29 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
     summary.coefficients = estimator.coefficients()
     summary.warnings = warnings
     return summary, collected
+
+
+def _output_writer(path: str | Path, info: BagInfo, config: Config, topics: TopicMap) -> BagWriter:
+    """The estimates' MCAP: in log-time order, the outputs with the QoS the node offers them with,
+    and its provenance (metadata ``rollergear_provenance``: package version, source recording,
+    parameters with the accepted effects, command line)."""
+    import datetime
+
+    from .interface import OUTPUT_QUEUE_DEPTH, package_version
+    from .params import config_to_yaml
+
+    qos = offered_qos_yaml(reliable=True, depth=OUTPUT_QUEUE_DEPTH)
+    outputs = (topics.loss_torque, topics.loss_power, topics.efficiency, topics.residual_torque)
+    writer = BagWriter(path, offered_qos={t: qos for t in outputs})
+    source = Path(info.path)
+    writer.add_metadata(Metadata.PROVENANCE, {
+        "package": "rollergear_ros", "version": package_version(),
+        "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "source": str(source.resolve()), "source_bytes": str(info.bytes_total),
+        "source_messages": str(info.message_count),
+        "accepted_effects": ", ".join(config.effects.enabled()) or "none",
+        "parameters": config_to_yaml(config), "command": " ".join(sys.argv)})
+    return writer
 
 
 def _emit(b: BatchEstimate | None, writer: BagWriter | None, rlog, acc: _Accumulator, collected: list | None,

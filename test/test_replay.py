@@ -47,6 +47,36 @@ def _inputs_from_rosbags(msgs: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray
     return t, np.array([m.effort[k] for m in ms]), np.array([m.velocity[k] for m in ms])
 
 
+def _check_streamable_with_provenance(out, bag, config) -> None:
+    """An output MCAP a streaming reader can take front to back (messages in log-time order across
+    topics, chunks one after another in time) that says what made it: the provenance record and
+    rosbag2's own metadata record, with the outputs' offered QoS."""
+    import yaml
+    from mcap.reader import make_reader
+
+    from rollergear_ros.params import load_config
+
+    with open(out, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        times = np.array([m.log_time for _, _, m in reader.iter_messages(log_time_order=False)])
+        meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert np.all(np.diff(times) >= 0), "output messages not in log-time order"
+    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+    assert len(chunks) > 1 and all(b.message_start_time >= a.message_end_time for a, b in zip(chunks, chunks[1:]))
+    prov = meta["rollergear_provenance"]
+    assert Path(prov["source"]) == Path(bag).resolve() and int(prov["source_bytes"]) == Path(bag).stat().st_size
+    assert prov["version"] and prov["accepted_effects"] == (", ".join(config.effects.enabled()) or "none")
+    params = out.with_name("provenance.yaml")
+    params.write_text(prov["parameters"])
+    assert load_config(params) == config  # the parameters, whole
+    info = yaml.safe_load(meta["rosbag2"]["serialized_metadata"])["rosbag2_bagfile_information"]
+    assert info["message_count"] == len(times)
+    qos = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"]
+           for t in info["topics_with_message_count"]}
+    assert yaml.safe_load(qos[T.loss_torque])[0]["reliability"] == 1  # reliable, as the node offers it
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("bag", BUNDLED, ids=lambda p: p.stem)
 def test_replay_bundled_bag_matches_model_on_its_inputs(bag, tmp_path, config):
@@ -74,6 +104,7 @@ def test_replay_bundled_bag_matches_model_on_its_inputs(bag, tmp_path, config):
         for topic in inputs:
             assert len(got[topic][0]) == len(inputs[topic][0])
 
+    _check_streamable_with_provenance(out, bag, config)
     series = read_rrd_series(rrd)
     t_r, v_r = series["/loss/torque_nm"]
     np.testing.assert_array_equal(t_r, t_in)
