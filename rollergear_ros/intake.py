@@ -16,6 +16,7 @@ that a parameter change on the executor never meets a half-pushed sample.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -77,15 +78,18 @@ class InputTaker:
             pending = still
         return taken
 
-    def start(self) -> None:
-        """Start taking (once)."""
+    def start(self, ready: Callable[[], bool] | None = None) -> None:
+        """Start taking (once); with ``ready``, only once it returns True (the messages wait in
+        the middleware's queues meanwhile)."""
         if self._thread is None:
-            self._thread = threading.Thread(target=self._run, name="inputs", daemon=True)
+            self._thread = threading.Thread(target=self._run, args=(ready,), name="inputs", daemon=True)
             self._thread.start()
 
-    def _run(self) -> None:
+    def _run(self, ready: Callable[[], bool] | None) -> None:
         context = self._node.context
         try:
+            while ready is not None and not ready() and not self._stopping and context.ok():
+                time.sleep(0.002)
             with context.handle:
                 wait_set = _rclpy.WaitSet(len(self._inputs), 1, 0, 0, 0, 0, context.handle)
             while not self._stopping and context.ok():

@@ -276,7 +276,10 @@ class LossEstimatorNode(Node):
         thread (events executor); returns how many messages were discarded."""
         discarded = self.discard_start_up_backlog(executor)
         if self.inputs is not None:
-            self.inputs.start()
+            # under sim time the inputs are stamped with the ROS clock: not before /clock has set it
+            # (the executor takes /clock; the input thread would otherwise stamp the first ones 0)
+            sim_time = self.get_parameter("use_sim_time").value
+            self.inputs.start(ready=(lambda: self.get_clock().now().nanoseconds > 0) if sim_time else None)
         return discarded
 
     def discard_start_up_backlog(self, executor) -> int:
