@@ -512,10 +512,10 @@ class BagWriter:
         """rosbag2's ``BagMetadata`` (version 9, Jazzy) of what was written, as YAML."""
         import yaml
 
-        w = self._writer
-        start = w._t_min if w._t_min is not None else 0
-        duration = (w._t_max - start) if w._t_max is not None else 0
-        counts = {topic: int(w._counts.get(cid, 0)) for topic, cid in self._channels.items()}
+        start, end = self._writer.log_time_range or (0, 0)
+        duration = end - start
+        by_id = self._writer.channel_counts
+        counts = {topic: by_id.get(cid, 0) for topic, cid in self._channels.items()}
         total = sum(counts.values())
         topics = [{"topic_metadata": {"name": topic, "type": self._types[topic], "serialization_format": "cdr",
                                       "offered_qos_profiles": self._offered_qos.get(topic, ""),

@@ -60,9 +60,9 @@ class InputTaker:
         self._inputs.append(_Input(handle, msg_type, raw, callback))
         return handle
 
-    def take_round_robin(self, deliver: bool = True) -> int:
-        """Take every message queued now, one of each subscription in turn; hand each to its
-        callback (``deliver``) or discard it.  Returns how many were taken."""
+    def take_round_robin(self) -> int:
+        """Take every message queued now, one of each subscription in turn, and hand each to its
+        callback.  Returns how many were taken."""
         taken = 0
         pending = self._inputs
         while pending:
@@ -73,8 +73,7 @@ class InputTaker:
                     continue
                 still.append(sub)
                 taken += 1
-                if deliver:
-                    sub.callback(got[0], got[1])
+                sub.callback(got[0], got[1])
             pending = still
         return taken
 

@@ -187,6 +187,16 @@ class ChunkedMcapWriter:
         if self._size >= self.chunk_size:
             self.flush_chunk()
 
+    @property
+    def channel_counts(self) -> dict[int, int]:
+        """Messages written so far, by channel id (the Statistics record's)."""
+        return dict(self._counts)
+
+    @property
+    def log_time_range(self) -> tuple[int, int] | None:
+        """First and last log time written so far (None before the first message)."""
+        return None if self._t_min is None else (self._t_min, self._t_max)
+
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         from mcap.data_stream import RecordBuilder
         from mcap.records import Metadata, MetadataIndex

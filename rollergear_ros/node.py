@@ -300,7 +300,7 @@ class LossEstimatorNode(Node):
             while idle < 3:  # a few empty takes in a row: the queues are drained
                 before = self.backlog_discarded
                 if self.inputs is not None:
-                    self.inputs.take_round_robin(deliver=True)  # the callbacks count and discard
+                    self.inputs.take_round_robin()  # the callbacks count and discard
                 else:
                     executor.spin_once(timeout_sec=0.0)
                 idle = idle + 1 if self.backlog_discarded == before else 0

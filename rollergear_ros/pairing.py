@@ -110,15 +110,13 @@ SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "outpu
 #: first-out pairing stays aligned across the loss and replay of the recording pairs as the node did.
 #: A sample with a lost motor input is skipped as ``lost``; a lost output leaves it without a residual
 LOST_BITS = 0x7FF8_0000_4C4F_5354  # a quiet NaN whose payload reads "LOST"
-LOST_VALUE: float = struct.unpack("<d", struct.pack("<Q", LOST_BITS))[0]
+_LOST_BYTES = struct.pack("<Q", LOST_BITS)
+LOST_VALUE: float = struct.unpack("<d", _LOST_BYTES)[0]
 
 
 def is_lost(value: float) -> bool:
     """Whether ``value`` is the placeholder of a lost message (:data:`LOST_VALUE`, bit for bit)."""
     return value != value and struct.pack("<d", value) == _LOST_BYTES
-
-
-_LOST_BYTES = struct.pack("<Q", LOST_BITS)
 
 
 def lost_mask(values: np.ndarray) -> np.ndarray:
@@ -137,7 +135,6 @@ class SequenceGaps:
 
     def __init__(self) -> None:
         self.last: int | None = None
-        self.lost = 0  #: messages lost so far
 
     def lost_before(self, sequence: int | None) -> int:
         """How many messages were lost just before the one numbered ``sequence`` (0 for the first,
@@ -148,9 +145,7 @@ class SequenceGaps:
         self.last = sequence
         if last is None or sequence <= last:
             return 0
-        n = sequence - last - 1
-        self.lost += n
-        return n
+        return sequence - last - 1
 
 
 def pairing_tolerance_s(sync_tolerance_s: float, sample_period_s: float | None) -> float:

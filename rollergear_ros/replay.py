@@ -716,7 +716,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
         str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
     )
     acc = _Accumulator()
-    hold_ns = 2 * max(estimator.sync.hold_ns, estimator.sync.tolerance_ns)
+    release_lag_ns = 2 * max(estimator.sync.hold_ns, estimator.sync.tolerance_ns)  # output held back
     collected: list[BatchEstimate] = []
     total = sum(info.counts.get(t, 0) for t in plan.all_topics)
     if show_progress is None:
@@ -750,7 +750,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                     if writer:
                         batch.write_inputs(writer)
                         if len(batch.t_ns):  # no later estimate can be older than its inputs' hold
-                            writer.release(int(batch.t_ns.max()) - hold_ns)
+                            writer.release(int(batch.t_ns.max()) - release_lag_ns)
             if bar:
                 bar.update(len(batch.codes))
             if window is not None and window.done:
