@@ -32,7 +32,7 @@ Procedure (after ``shared/closing-the-loop.md``):
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -146,20 +146,26 @@ class CalibrationResult:
 
 
 def calibrate(
-    data: SampleData, config: Config, delta_nm: float | None = None, block_s: float = 0.25, folds: int = 5
+    data: SampleData, config: Config, delta_nm: float | None = None, block_s: float = 0.25, folds: int = 5,
+    stage: Callable[[str], None] | None = None,
 ) -> CalibrationResult:
-    """Run the whole analysis on loaded samples."""
+    """Run the whole analysis on loaded samples; ``stage`` is told what it is doing (a progress bar)."""
+    stage = stage or (lambda text: None)
+    stage("block means")
     blocks = make_blocks(data, block_s, folds)
     if len(blocks.y) < 4 * folds:
         raise BagError(f"only {len(blocks.y)} blocks of {block_s:g} s: too little data to calibrate")
     cal = Calibrator(blocks, delta_nm)
+    cal.stage = stage
     out = cal.run()
     selected: list[Term] = out.selected
     final = selected + out.provisional
     blocks0, data_c = blocks, data
     if {t.name for t in final} & {"torque_offset", "torque_gain"}:
+        stage("refit at the corrected torque")
         cal, final, data_c = _refit_sensor_errors(cal, data, final, config, block_s, folds)
         selected = final[: len(selected)]
+    stage("held-out errors and intervals")
     blocks = cal.b
     pred_before = np.zeros(len(blocks.y))  # the paper's model alone
     # what the calibrated parameter file adds: the accepted effects (fitted with the rest, held out)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from .cli import config_from_args
 from .paths import check_output_file, check_output_folder, refuse_overwriting_inputs
+from .progress import TimedProgress
 from .replay_cli import add_channels_option, add_topic_options, topics_from_args
 
 
@@ -48,7 +49,14 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             data = load_samples(bags, config, topics, warn=warn, progress=not args.json and sys.stderr.isatty())
     if not args.json:
         log(f"{len(data.t_ns):,} {'rows' if data.steady_state else 'samples with measured output'}; analysing …")
-    result = calibrate(data, config, args.delta, args.block_s)
+    with TimedProgress("analysis", unit=" steps", unit_scale=False,
+                       enabled=not args.json and sys.stderr.isatty()) as bar:
+
+        def stage(text: str) -> None:
+            bar.stage = text
+            bar.update(1)
+
+        result = calibrate(data, config, args.delta, args.block_s, stage=stage)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(calibrated_yaml(result, args.bags))

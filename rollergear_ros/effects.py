@@ -34,7 +34,7 @@ Adding an effect
    their YAML key, short name, default, unit and range; ``physical``; ``coefficient``; for a
    nonlinear parameter ``member`` with its grid and bounds; ``regressor_scale`` when the RLS needs
    a normalised column; ``separated_from`` for effects whose columns look alike, with the data
-   that tells them apart.
+   that tells them apart; ``plotted_against``, the variable the report draws its curve over.
 3. Tests: the function against its formula, and a recording simulated with the effect declared
    that ``calibrate`` finds (``test/test_effects.py`` shows both, for a toy effect registered at
    run time).
@@ -162,6 +162,7 @@ class Effect:
     needs_temperature: bool = False  #: testable only when the oil temperature varies (≥ 3 °C)
     scales_fr: bool = False  #: applied as a factor on the model's Fr part (the estimator's viscosity path)
     separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
+    plotted_against: str = "speed"  #: the report draws its fitted curve over "speed", "torque" or "temperature"
 
     def parameter(self, short: str) -> EffectParameter:
         return next(p for p in self.parameters if p.short == short)
@@ -227,7 +228,7 @@ for _effect in (
            (EffectParameter("c", "c", 0.0, "load friction coefficient c (N*m/(N*m)^q)", simulated=2e-3),
             EffectParameter("q", "q", 1.0, "load friction exponent q", low=0.0, high=4.0)),
            coefficient="c", member="q", member_grid=_grid(0.5, 2.5, 0.1), member_bounds=(0.3, 3.0),
-           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"],
+           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="torque",
            separated_from={"torque_gain": "regeneration (torque and speed of opposite sign)",
                            "viscosity_temperature": "the same torques at different oil temperatures"}),
     Effect("load_speed", load_speed, True, "add a load-speed friction c*|T|*|w|^p",
@@ -249,15 +250,16 @@ for _effect in (
             EffectParameter("scale", "scale", 1.0, "scale of the viscosity correction: "
                             "Fr·(1 + scale·((eta/eta0)^0.66 − 1)); 1 = the model at eta(theta)", low=0.0, high=10.0)),
            coefficient="scale", member="B", member_grid=_grid(100.0, 4000.0, 100.0), member_bounds=(1.0, 6000.0),
-           adaptive=False, needs_temperature=True, scales_fr=True),
+           adaptive=False, needs_temperature=True, scales_fr=True, plotted_against="temperature"),
     Effect("torque_offset", torque_offset, False,
            "input torque sensor zero error (adds offset*sign(w) to the input-referred loss)", "sensor zero error",
            (EffectParameter("b", "offset_nm", 0.0, "input-referred torque offset", "N*m", simulated=0.05),),
-           coefficient="b", separated_from={"torque_gain": "a wider torque range in both directions"}),
+           coefficient="b", separated_from={"torque_gain": "a wider torque range in both directions"},
+           plotted_against="torque"),
     Effect("torque_gain", torque_gain, False,
            "torque sensor gain error (adds gain*T*sign(w) to the input-referred loss)", "sensor calibration",
            (EffectParameter("g", "gain", 0.0, "relative gain error", low=-0.5, high=0.5, simulated=0.01),),
-           coefficient="g", regressor_scale=lambda params: TORQUE_REF_NM),
+           coefficient="g", regressor_scale=lambda params: TORQUE_REF_NM, plotted_against="torque"),
 ):
     register(_effect)
 

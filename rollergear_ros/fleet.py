@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -334,7 +333,8 @@ def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note
     lands when its last task does.  ``parts_table`` keeps the rows of the tasks of units not yet
     complete (a resumed run does not redo them)."""
     from dask.distributed import as_completed
-    from tqdm import tqdm
+
+    from .progress import TimedProgress
 
     rows = read_table(table)
     done = {r["key"] for r in rows}
@@ -371,7 +371,7 @@ def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note
     for key in tasks_of:  # units whose tasks were all done before an interruption
         if len(parts[key]) == len(tasks_of[key]):
             complete(key)
-    with tqdm(total=len(futures), unit="task", file=sys.stderr, disable=not progress, mininterval=0.2) as bar:
+    with TimedProgress("fleet", len(futures), "task", enabled=progress) as bar:
         for future in as_completed(futures):
             key, part_key = unit_of[future.key]
             row = future.result()
@@ -381,10 +381,10 @@ def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note
                 complete(key)
             bar.update(1)
             running = sum(f.status == "pending" for f in futures)
-            bar.set_postfix({what: f"{finished}/{len(todo)}", "failed": failed,
-                             "running": min(running, len(client.scheduler_info()["workers"])),
-                             "samples_per_s": f"{samples / max(time.perf_counter() - t0, 1e-9):,.0f}"})
-            if time.perf_counter() - last_write > 1.0 or bar.n == len(futures):
+            bar.stage = (f"{what} {finished}/{len(todo)}, failed {failed}, running "
+                         f"{min(running, len(client.scheduler_info()['workers']))}, "
+                         f"{samples / max(time.perf_counter() - t0, 1e-9):,.0f} samples/s")
+            if time.perf_counter() - last_write > 1.0:
                 _write_tables(table, rows, parts_table, parts, tasks_of)
                 last_write = time.perf_counter()
     _write_tables(table, rows, parts_table, parts, tasks_of)

@@ -20,6 +20,7 @@ from pathlib import Path
 from .bag import inspect_bag
 from .errors import UsageError
 from .fastmcap import ReadState, iter_log_time_order
+from .progress import TimedProgress
 
 
 def message_class(type_name: str):
@@ -159,6 +160,7 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     pubs = {t: node.create_publisher(message_class(ty), t, qos) for t, ty in selected.items()}
     clock_pub = node.create_publisher(Clock, "/clock", 10) if clock else None
     stats = PlayStats()
+    bar = None
     late_5ms = 5_000_000
     try:
         if wait_for_subscribers > 0 or wait_for_graph_s > 0:
@@ -167,9 +169,13 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
                 print(f"play: {found}", file=sys.stderr)
         if start_delay > 0:
             time.sleep(start_delay)
+        total = sum(info.counts.get(t, 0) for t in selected)
         if not quiet:
-            print(f"play: publishing {sum(info.counts.get(t, 0) for t in selected):,} messages on {len(selected)} "
+            print(f"play: publishing {total:,} messages on {len(selected)} "
                   f"topics at {rate:g}x{' (looping)' if loop else ''}", file=sys.stderr, flush=True)
+        # the bar reads the count from a thread of its own: the publishing loop only counts
+        bar = TimedProgress("play", None if loop else total, "msg", read=lambda: stats.messages,
+                            enabled=not quiet and sys.stderr.isatty()).start()
         while True:
             state = ReadState()
             reader = _Prefetch(bag, state)
@@ -222,6 +228,8 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     except KeyboardInterrupt:
         pass
     finally:
+        if bar is not None:
+            bar.close()
         node.destroy_node()
     if not quiet:
         print(f"played {bag}: {stats.text()}", file=sys.stderr)

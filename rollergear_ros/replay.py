@@ -25,6 +25,7 @@ from .estimator import BatchEstimate, Estimator
 from .pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from .interface import MessageType, Metadata
 from .params import Config
+from .progress import TimedProgress
 
 
 @dataclass
@@ -540,6 +541,7 @@ class ReplaySummary:
     pairing: str = "timestamp"  #: ``arrival`` for a recording of the node that paired by arrival
     warnings: list[str] = field(default_factory=list)
     coefficients: dict[str, float] = field(default_factory=dict)
+    summary_png: str | None = None  #: the summary picture, when one was drawn
 
     def text(self) -> str:
         lines = [
@@ -597,6 +599,7 @@ class _Accumulator:
         self.last_t: int | None = None
         self.first_t: int | None = None
         self.dt_ns = 0
+        self.trace = None  #: a :class:`.replay_plot.SummaryTrace` when a summary picture is drawn
 
     def prime(self, last_t_ns: int) -> None:
         """A sample before a time slice: the slice's first sample integrates from it."""
@@ -605,6 +608,8 @@ class _Accumulator:
     def add(self, b: BatchEstimate) -> None:
         if len(b.t_ns) == 0:
             return
+        if self.trace is not None:
+            self.trace.add(b)
         mag = np.abs(b.loss_torque_nm)
         self.n += len(mag)
         self.loss_sum += float(mag.sum())
@@ -667,25 +672,29 @@ def replay(
     warn: Callable[[str], None] | None = None,
     collect: bool = False,
     window_ns: tuple[int | None, int | None] | None = None,
+    summary_png: str | Path | None = None,
 ) -> tuple[ReplaySummary, list[BatchEstimate]]:
     """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``).
+
+    ``summary_png``: draw the summary picture there (:mod:`.replay_plot`), also of an interrupted
+    replay (what was processed).
 
     ``window_ns``: a time slice ``[start, end)`` of the recording (``None``: open): only its samples
     are estimated and summed up, so that the slices of a long recording, replayed apart, add up to
     it (:class:`TimeWindow`).  Not with outputs (``out_mcap``, ``rrd``).
     """
-    if window_ns is not None and (out_mcap or rrd):
+    if window_ns is not None and (out_mcap or rrd or summary_png):
         raise UsageError("a time slice of a recording is replayed without outputs")
     stop = GracefulStop()  # first: from here on a signal leaves complete files
     try:
         return _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect, stop,
-                       window_ns)
+                       window_ns, summary_png)
     finally:
         stop.restore()
 
 
 def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect,
-            stop: GracefulStop, window_ns) -> tuple[ReplaySummary, list[BatchEstimate]]:
+            stop: GracefulStop, window_ns, summary_png) -> tuple[ReplaySummary, list[BatchEstimate]]:
     warnings: list[str] = []
 
     def _warn(msg: str) -> None:
@@ -719,9 +728,11 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
     release_lag_ns = 2 * max(estimator.sync.hold_ns, estimator.sync.tolerance_ns)  # output held back
     collected: list[BatchEstimate] = []
     total = sum(info.counts.get(t, 0) for t in plan.all_topics)
-    if show_progress is None:
-        show_progress = sys.stderr.isatty()
     sink = collected if collect else None
+    if summary_png:
+        from .replay_plot import SummaryTrace
+
+        acc.trace = SummaryTrace(info.counts.get(plan.joint_states or topics.motor_torque, 0))
     writer = rlog = bar = None
     try:
         with stop.critical():  # outputs are opened whole
@@ -730,10 +741,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                 from .review import RerunLog
 
                 rlog = RerunLog("rollergear_replay", rrd)
-        if show_progress:
-            from tqdm import tqdm
-
-            bar = tqdm(total=total, unit="msg", unit_scale=True, desc="replay", file=sys.stderr)
+        bar = TimedProgress("replay", total, "msg", enabled=show_progress).start()
         for batch in _input_batches(info, plan, batch_size, _warn, problems,
                                     window.read_range() if window else None):
             if stop.requested:
@@ -751,8 +759,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                         batch.write_inputs(writer)
                         if len(batch.t_ns):  # no later estimate can be older than its inputs' hold
                             writer.release(int(batch.t_ns.max()) - release_lag_ns)
-            if bar:
-                bar.update(len(batch.codes))
+            bar.update(len(batch.codes))
             if window is not None and window.done:
                 break
         else:
@@ -801,6 +808,14 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
         summary.residual_samples = acc.res_n
     summary.coefficients = estimator.coefficients()
     summary.warnings = warnings
+    if acc.trace is not None and acc.n:
+        from .replay_plot import plot_summary
+
+        try:  # a picture of what was processed, also after an interrupt; a second one abandons it
+            summary.summary_png = str(plot_summary(acc.trace, config, summary_png, f"replay of {Path(bag).name}"))
+        except KeyboardInterrupt:
+            _warn(f"interrupted: no summary picture {summary_png}")
+        summary.interrupted |= stop.requested
     return summary, collected
 
 

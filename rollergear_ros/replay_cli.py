@@ -11,6 +11,7 @@ from .bag import TopicMap
 from .cli import config_from_args
 from .paths import check_output_file, check_output_folder, refuse_overwriting_inputs
 from .errors import UsageError
+from .progress import TimedProgress
 
 
 def add_topic_options(p: argparse.ArgumentParser) -> None:
@@ -40,20 +41,29 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                              torque_noise_nm=args.torque_noise, noise_ar1=args.noise_ar1,
                              output_lag_s=args.output_lag, joint_states=args.joint_states,
                              step_change_at_s=args.step_change_at)
-    rig = simulate(config, opts)
-    if args.duration is not None:
-        import numpy as np
-
-        keep = (rig.t_ns - rig.t_ns[0]) <= args.duration * 1e9
-        for f in fields(rig):
-            v = getattr(rig, f.name)
-            if isinstance(v, np.ndarray) and len(v) == len(keep):
-                setattr(rig, f.name, v[keep])
-    n = write_rig_bag(rig, opts, Path(args.out), topics_from_args(args))
+    with TimedProgress("simulate", unit="sample") as bar:
+        bar.stage = "the model along the profile"
+        rig = _cut(simulate(config, opts), args.duration)
+        bar.set_total(len(rig.t_ns))
+        bar.stage = "writing"
+        n = write_rig_bag(rig, opts, Path(args.out), topics_from_args(args), progress=bar.update)
     dur = (rig.t_ns[-1] - rig.t_ns[0]) * 1e-9
     print(f"wrote {args.out}: {n:,} messages, {dur:.1f} s at {args.rate:g} Hz, profile {args.profile}, "
           f"effects: {', '.join(e.name for e in effects) or 'none'}")
     return 0
+
+
+def _cut(rig, duration_s: float | None):
+    """The rig's samples of the first ``duration_s`` seconds (None: all)."""
+    if duration_s is not None:
+        import numpy as np
+
+        keep = (rig.t_ns - rig.t_ns[0]) <= duration_s * 1e9
+        for f in fields(rig):
+            v = getattr(rig, f.name)
+            if isinstance(v, np.ndarray) and len(v) == len(keep):
+                setattr(rig, f.name, v[keep])
+    return rig
 
 
 def add_channels_option(p: argparse.ArgumentParser) -> None:
@@ -65,25 +75,36 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from .importer import as_mcap
     from .replay import replay
 
-    refuse_overwriting_inputs([args.bag, args.params], {"--out": args.out, "--rrd": args.rrd})
+    png = summary_png_path(args)
+    refuse_overwriting_inputs([args.bag, args.params], {"--out": args.out, "--rrd": args.rrd, "--png": png})
     check_output_file("--out", args.out)
     check_output_file("--rrd", args.rrd)
+    check_output_file("--png", png)
     config = config_from_args(args)
     topics = topics_from_args(args)
     with as_mcap([args.bag], args.channels, topics, note=lambda m: print(m, file=sys.stderr)) as (bag,):
         summary, _ = replay(bag, config, topics, args.out, args.rrd,
                             show_progress=None if not args.no_progress else False,
-                            warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr))
+                            warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr), summary_png=png)
     print(summary.text())
-    for label, path in (("estimates", args.out), ("rerun recording", args.rrd)):
+    for label, path in (("estimates", args.out), ("rerun recording", args.rrd),
+                        ("summary picture", summary.summary_png)):
         if path:
             print(f"{label}: {path}")
     return 130 if summary.interrupted else 0
 
 
-def _simulate_fleet(args: argparse.Namespace, config) -> int:
-    from tqdm import tqdm
+def summary_png_path(args: argparse.Namespace) -> str | None:
+    """``--png``, else beside ``--out`` (or ``--rrd``) with the suffix ``.png``; ``--no-png``: none."""
+    if args.no_png:
+        return None
+    if args.png:
+        return args.png
+    beside = args.out or args.rrd
+    return str(Path(beside).with_suffix(".png")) if beside else None
 
+
+def _simulate_fleet(args: argparse.Namespace, config) -> int:
     from .fleetsim import simulate_fleet
 
     if args.fleet < 1 or args.days < 1:
@@ -91,7 +112,7 @@ def _simulate_fleet(args: argparse.Namespace, config) -> int:
     out = Path(args.out)
     if out.exists() and any(out.iterdir()):
         raise UsageError(f"{out} is not empty: a fleet goes into a new folder")
-    with tqdm(total=args.fleet * args.days, unit="log", file=sys.stderr, disable=not sys.stderr.isatty()) as bar:
+    with TimedProgress("simulate fleet", args.fleet * args.days, "log") as bar:
         truth = simulate_fleet(config, out, args.fleet, args.days, rate_hz=args.rate, seed=args.seed,
                                progress=bar.update)
     print(f"wrote {args.fleet} gearboxes x {args.days} daily logs to {out} (truth: {out / 'fleet_truth.json'}; "
@@ -137,6 +158,10 @@ def register_replay(sub, with_params) -> None:
     p.add_argument("bag", metavar="BAG", help="MCAP, rosbag2 folder or .db3, or CSV/Parquet/MDF4/TDMS with --channels")
     p.add_argument("--out", metavar="OUT.mcap", help="output MCAP (inputs + estimates)")
     p.add_argument("--rrd", metavar="OUT.rrd", help="rerun recording with a review blueprint")
+    p.add_argument("--png", metavar="SUMMARY.png",
+                   help="summary picture: loss, efficiency and residual over time, operating points over the "
+                   "efficiency map (default: beside --out or --rrd, as .png)")
+    p.add_argument("--no-png", action="store_true", help="no summary picture")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_channels_option(p)
     add_topic_options(p)

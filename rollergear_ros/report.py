@@ -10,32 +10,45 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .blocks import MIN_TEMPERATURE_SPAN_C
+from .effects import EFFECTS
 
 if TYPE_CHECKING:
-    from .calibrate import CalibrationResult
+    from .calibrate import CalibrationResult, FoundEffect
     from .samples import SampleData
 
 
-def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sources: Sequence[str]) -> Path:
-    """Markdown report with PNG plots."""
+#: the residual over time is drawn as at most this many points (block means, evenly thinned)
+MAX_TIME_POINTS = 20_000
+_AXES = {"speed": ("speed", "drive speed [rad/s]"), "torque": ("torque", "drive torque [N·m]"),
+         "temperature": ("temperature", "oil temperature [°C]")}
+
+
+def _pyplot():
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    out_dir.mkdir(parents=True, exist_ok=True)
+    return plt
+
+
+def _save(fig, path: Path, plots: list[Path]) -> None:
+    fig.tight_layout()
+    fig.savefig(path)
+    _pyplot().close(fig)
+    plots.append(path)
+
+
+def _residual_scatter(result: CalibrationResult, out_dir: Path, plots: list[Path]) -> None:
+    """Residual before/after over speed, torque and (when the report can test it) oil temperature."""
+    plt = _pyplot()
     b = result.blocks
-    assert b is not None and result.pred_after is not None
-    before = b.y
-    after = b.y - result.pred_after
-    plots = []
-    for key, x, label in (
-        ("speed", b.speed, "drive speed [rad/s]"),
-        ("torque", b.torque, "drive torque [N·m]"),
-        ("temperature", b.temperature, "oil temperature [°C]"),
-    ):
-        if not np.isfinite(x).any():
-            continue
+    before, after = b.y, b.y - result.pred_after
+    temperature_testable = any(EFFECTS[n].needs_temperature for n in b.testable if n in EFFECTS)
+    for key, (attr, label) in _AXES.items():
+        x = getattr(b, attr)
+        if not np.isfinite(x).any() or (key == "temperature" and not temperature_testable):
+            continue  # an untestable check gets no plot
         fig, ax = plt.subplots(1, 2, figsize=(11, 4), dpi=100, sharey=True)
         ax[0].scatter(x, before, s=4, alpha=0.5)
         ax[0].set_title("before: measured − model")
@@ -45,12 +58,85 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
             a.axhline(0, color="k", lw=0.5)
             a.set_xlabel(label)
             a.grid(alpha=0.3)
-        ax[0].set_ylabel(f"residual, {b.block_s:g} s block means [N·m]")
-        fig.tight_layout()
-        p = out_dir / f"residual_vs_{key}.png"
-        fig.savefig(p)
-        plt.close(fig)
-        plots.append(p)
+        ax[0].set_ylabel(_residual_label(b))
+        _save(fig, out_dir / f"residual_vs_{key}.png", plots)
+
+
+def _residual_label(b) -> str:
+    return "residual, table rows [N·m]" if b.steady_state else f"residual, {b.block_s:g} s block means [N·m]"
+
+
+def effect_band(result: CalibrationResult, effect: FoundEffect) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An accepted effect's fitted contribution per block and its 95 % band: ``(fitted, low, high)`` [N·m].
+
+    ``c·column`` at the fitted member, the band from the coefficient's 95 % interval as the report's
+    table states it (from the joint fit with the other effects, widened over the member's range,
+    see :func:`.calibrate.calibrate`).
+    """
+    spec = EFFECTS[effect.name]
+    column = result.blocks.column(effect.name, effect.params.get(spec.member) if spec.member else None)
+    c_lo, c_hi = effect.ci95[spec.coefficient]
+    a, b_ = c_lo * column, c_hi * column
+    return effect.params[spec.coefficient] * column, np.minimum(a, b_), np.maximum(a, b_)
+
+
+def _effect_curves(result: CalibrationResult, out_dir: Path, plots: list[Path]) -> None:
+    """Per accepted effect: its fitted contribution over the variable it depends on, with its 95 %
+    band, over the blocks' partial residual (the residual minus the other accepted effects)."""
+    plt = _pyplot()
+    b = result.blocks
+    for effect in result.effects:
+        attr, label = _AXES[EFFECTS[effect.name].plotted_against]
+        x = getattr(b, attr)
+        ok = np.isfinite(x)
+        if not ok.any():
+            continue
+        fitted, lo, hi = effect_band(result, effect)
+        partial = b.y - result.pred_after + fitted
+        fig, ax = plt.subplots(figsize=(7, 4.5), dpi=100)
+        ax.scatter(x[ok], partial[ok], s=4, alpha=0.35, color="0.5",
+                   label="residual minus the other accepted effects")
+        ax.vlines(x[ok], lo[ok], hi[ok], color="tab:red", alpha=0.25, lw=2,
+                  label="95 % interval of the coefficient, per block")
+        ax.scatter(x[ok], fitted[ok], s=3, color="tab:red", label="fitted contribution")
+        params = ", ".join(f"{k} = {v:.3g}" for k, v in effect.params.items())
+        formula = EFFECTS[effect.name].formula().split(" (")[0].replace("``", "")
+        ax.set_title(f"{effect.name}: {formula}\n{params}", fontsize=9)
+        ax.set_xlabel(label)
+        ax.set_ylabel("contribution to the measured loss [N·m]")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        _save(fig, out_dir / f"effect_{effect.name}.png", plots)
+
+
+def _residual_over_time(result: CalibrationResult, data: SampleData, out_dir: Path, plots: list[Path]) -> None:
+    """Residual before and after over the recordings' time (block means); not for tables (no time)."""
+    b = result.blocks
+    if b.steady_state:
+        return
+    plt = _pyplot()
+    t0 = data.t_ns[b.start]
+    t_s = (t0 - t0.min()) * 1e-9
+    keep = np.arange(0, len(t_s), max(1, len(t_s) // MAX_TIME_POINTS))
+    fig, ax = plt.subplots(2, 1, figsize=(11, 5), dpi=100, sharex=True, sharey=True)
+    ax[0].plot(t_s[keep], b.y[keep], ".", ms=2, alpha=0.6)
+    ax[0].set_title("before: measured − model")
+    ax[1].plot(t_s[keep], (b.y - result.pred_after)[keep], ".", ms=2, alpha=0.6, color="tab:green")
+    ax[1].set_title("after: measured − (model + accepted effects), held-out predictions")
+    for a in ax:
+        a.axhline(0, color="k", lw=0.5)
+        a.set_ylabel("[N·m]")
+        a.grid(alpha=0.3)
+    ax[1].set_xlabel("time since the first sample [s]" + (" (recordings one after another)"
+                                                            if len(np.unique(data.bag_id)) > 1 else ""))
+    fig.suptitle(_residual_label(b), fontsize=10)
+    _save(fig, out_dir / "residual_over_time.png", plots)
+
+
+def _measured_vs_estimated(result: CalibrationResult, out_dir: Path, plots: list[Path]) -> None:
+    plt = _pyplot()
+    b = result.blocks
     fig, ax = plt.subplots(figsize=(6, 5), dpi=100)
     model_mean = b.measured - b.y
     ax.scatter(b.measured, model_mean, s=4, alpha=0.5, label="model")
@@ -61,11 +147,20 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
     ax.set_ylabel("estimated loss [N·m]")
     ax.legend()
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    p = out_dir / "measured_vs_estimated.png"
-    fig.savefig(p)
-    plt.close(fig)
-    plots.append(p)
+    _save(fig, out_dir / "measured_vs_estimated.png", plots)
+
+
+def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sources: Sequence[str]) -> Path:
+    """Markdown report with PNG plots: residual before/after over the inputs and over time, each
+    accepted effect's curve with its 95 % band, measured against estimated loss."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    b = result.blocks
+    assert b is not None and result.pred_after is not None
+    plots: list[Path] = []
+    _residual_scatter(result, out_dir, plots)
+    _residual_over_time(result, data, out_dir, plots)
+    _effect_curves(result, out_dir, plots)
+    _measured_vs_estimated(result, out_dir, plots)
 
     eb, ea = result.error_before, result.error_after
     lines = [

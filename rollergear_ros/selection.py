@@ -9,7 +9,7 @@ No rclpy import.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -151,6 +151,7 @@ class Calibrator:
         self.delta = delta_nm if delta_nm is not None else max(0.005, 0.02 * rms_meas, 3 * se_block)
         self.rms_measured = rms_meas
         self.log: list[str] = []
+        self.stage: Callable[[str], None] = lambda text: None  #: told what the selection is doing
 
     # -------------------------------------------------------------- helpers
     def design(self, terms: Sequence[Term], nuisance: bool = True) -> np.ndarray:
@@ -276,6 +277,7 @@ class Calibrator:
             base = selected + provisional
             scored = []
             for g in remaining:
+                self.stage(f"step {len(self.log) + 1}: trying {g}")
                 terms = self.best_candidate(g, base)
                 if terms is not None:
                     scored.append((self.cv_rmse(terms), g, terms))
@@ -346,6 +348,7 @@ class Calibrator:
             cv_now = cv_new
         # the ambiguous sets stay in the final fit (so the accepted coefficients are not biased)
         final = selected + provisional
+        self.stage("exponent intervals")
         ranges = {t.name: self.member_range(final, i) for i, t in enumerate(final) if t.member is not None}
         rejected = []
         blocked = {e for a in ambiguous for e in a.effects}

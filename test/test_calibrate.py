@@ -147,14 +147,43 @@ def test_calibrated_yaml_is_used_by_replay(tmp_path):
     assert "verdict: effects_found" in proc.stdout
     text = (report / "report.md").read_text()
     assert "| before (model) |" in text and "| after (model + accepted effects) |" in text
-    for png in ("residual_vs_speed.png", "residual_vs_torque.png", "measured_vs_estimated.png"):
+    for png in ("residual_vs_speed.png", "residual_vs_torque.png", "measured_vs_estimated.png",
+                "residual_over_time.png", "effect_drag_speed.png", "effect_drag_constant.png"):
         assert (report / png).stat().st_size > 5000
+        assert f"![{png[:-4]}]({png})" in text
+    # the oil temperature does not vary in this recording: the report calls the check untestable
+    # and draws no plot for it
+    assert "viscosity_temperature: not testable" in text
+    assert not (report / "residual_vs_temperature.png").exists()
     cal = load_config(out_yaml)
     assert {"drag_speed", "drag_constant"} <= set(cal.effects.enabled())
     base, _ = replay(bag, load_config(), show_progress=False)
     after, _ = replay(bag, cal, show_progress=False)
     assert after.residual_rms_nm < 0.2 * base.residual_rms_nm
     assert after.mean_loss_nm > base.mean_loss_nm  # the estimate now includes the drags
+
+
+def test_report_draws_the_fitted_effect_with_a_band_that_holds_the_declared_one(tmp_path):
+    """The report's effect curve: the fitted contribution per block within its 95 % band, and the
+    declared effect (evaluated at its true parameters) inside that band."""
+    from rollergear_ros.effects import EFFECTS
+    from rollergear_ros.report import effect_band, write_report
+
+    declared = DeclaredEffect.parse("drag_speed:c=3e-4,p=1.4")
+    bag = make_bag(tmp_path, [declared], seed=11)
+    config = load_config()
+    data = load_samples([bag], config)
+    result = calibrate(data, config)
+    (found,) = result.effects
+    fitted, low, high = effect_band(result, found)
+    assert np.all(low <= fitted) and np.all(fitted <= high)
+    truth = 3e-4 * result.blocks.column("drag_speed", 1.4)
+    assert np.mean((low <= truth) & (truth <= high)) > 0.95
+    big = truth > 0.1  # the band is a 95 % interval, not the whole plot
+    assert np.median((high - low)[big] / truth[big]) < 0.1
+    write_report(result, data, tmp_path / "report", [str(bag)])
+    assert (tmp_path / "report" / "effect_drag_speed.png").stat().st_size > 5000
+    assert EFFECTS["drag_speed"].plotted_against == "speed"
 
 
 def test_online_adaptation_follows_a_step_and_alarms_once(tmp_path):

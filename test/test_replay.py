@@ -179,6 +179,43 @@ def test_a_time_slice_is_replayed_without_outputs(tmp_path, config):
         replay(BAGS / "rig_map.mcap", config, out_mcap=tmp_path / "x.mcap", window_ns=(None, 10))
 
 
+@pytest.mark.parametrize("batch_size", [100_000, 997])
+def test_summary_picture_holds_the_replay_in_bounded_bins(tmp_path, config, batch_size):
+    """The summary trace of a replay: every estimate counted once in its time bin, the bins' sums,
+    minima and maxima those of the estimates (whatever the batches, across the bins' doubling),
+    at most 2 x TIME_BINS bins; the PNG is written and the CLI writes it beside --out."""
+    from rollergear_ros.replay_plot import SummaryTrace
+
+    bag = BAGS / "rig_map_drag.mcap"
+    _, batches = replay(bag, config, show_progress=False, collect=True)
+    trace = SummaryTrace(sum(len(b.t_ns) for b in batches), bins=50)
+    for b in batches:
+        for part in range(0, len(b.t_ns), batch_size):
+            trace.add(b.select(np.arange(len(b.t_ns)) // batch_size == part // batch_size))
+    t_ns = np.concatenate([b.t_ns for b in batches])
+    loss = np.abs(np.concatenate([b.loss_torque_nm for b in batches]))
+    residual = np.concatenate([b.residual_nm for b in batches])
+    assert trace.width_ns > 10_000_000 and trace.count["loss_nm"].sum() == len(loss)
+    bins = (t_ns - t_ns[0]) // trace.width_ns
+    assert bins.max() < 100
+    for key, v in (("loss_nm", loss), ("residual_nm", residual)):
+        ok = np.isfinite(v)
+        t_s, mean, low, high = trace.series(key)
+        expect = [v[ok][bins[ok] == i] for i in np.unique(bins[ok])]
+        np.testing.assert_allclose(mean, [e.mean() for e in expect], rtol=1e-9)
+        np.testing.assert_array_equal(low, [e.min() for e in expect])
+        np.testing.assert_array_equal(high, [e.max() for e in expect])
+    speed, torque = trace.operating_points()
+    assert 0 < len(speed) <= 20_000 and len(speed) == len(torque)
+
+    summary, _ = replay(bag, config, show_progress=False, summary_png=tmp_path / "s.png")
+    assert summary.summary_png == str(tmp_path / "s.png")
+    png = tmp_path / "s.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 50_000
+    proc = run_cli("replay", str(bag), "--out", str(tmp_path / "est.mcap"), "--no-progress")
+    assert f"summary picture: {tmp_path / 'est.png'}" in proc.stdout and (tmp_path / "est.png").exists()
+
+
 def test_rrd_has_review_blueprint(tmp_path):
     from rerun.chunk import RrdReader
 

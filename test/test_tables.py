@@ -126,9 +126,14 @@ def test_an_undeclared_effect_in_a_table_from_the_full_model_is_found(tmp_path, 
             lines.append(f"{n:g},{t:g},{loss:.9g}")
     table = tmp_path / "drag.vtlm"
     table.write_text("\n".join(lines) + "\n")
-    result = json.loads(run_cli("calibrate", str(table), "--json").stdout)
+    report = tmp_path / "report"
+    result = json.loads(run_cli("calibrate", str(table), "--json", "--report", str(report)).stdout)
     assert result["verdict"] == "effects_found"
     assert [e["name"] for e in result["effects"]] == ["drag_speed"]
+    # the report of a table: the effect's curve, residuals over the inputs, none over time
+    plots = {p.name for p in report.glob("*.png")}
+    assert {"effect_drag_speed.png", "residual_vs_speed.png", "residual_vs_torque.png"} <= plots
+    assert "residual_over_time.png" not in plots
     params = result["effects"][0]["params"]
     assert params["c"] == pytest.approx(3e-4, rel=0.02) and params["p"] == pytest.approx(1.4, abs=0.02)
     assert result["adequacy"]["paper_model"] is True

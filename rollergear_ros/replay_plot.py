@@ -1,0 +1,206 @@
+"""The replay's summary picture, for people without the viewer: one PNG per replayed recording.
+
+Left, over time: the loss torque (mean per time bin, with the bin's range), the efficiency in %,
+and -- where output torque was measured -- the measured against the estimated loss and the
+residual.  Right: the recording's operating points over the efficiency map of the model the
+replay used (the paper's model plus the accepted effects, :func:`.operating_points.evaluate_points`).
+
+:class:`SummaryTrace` collects what the picture needs while the replay runs, in bounded memory
+(a fixed number of time bins; an evenly thinned sample of operating points), so a day-long
+recording draws as fast as a minute.  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import UsageError
+from .estimator import BatchEstimate
+from .operating_points import evaluate_points, only, temperature_effects
+from .params import Config
+
+__all__ = ["SummaryTrace", "plot_summary"]
+
+#: time bins of the traces at least (a PNG is ~1 500 px wide)
+TIME_BINS = 1000
+#: operating points drawn over the map at most
+MAX_POINTS = 20_000
+#: grid of the efficiency map behind the operating points
+MAP_GRID = 61
+
+
+class SummaryTrace:
+    """Per time bin: count, sum, min and max of the loss torque magnitude, the efficiency, the
+    measured loss and the residual; and every ``stride``-th sample's operating point.
+
+    The bins start 10 ms wide at the first sample and double (neighbours merged) whenever the
+    recording outgrows ``2·bins`` of them, so the trace holds ``bins``–``2·bins`` bins whatever
+    its length, without knowing it beforehand.
+    """
+
+    SERIES = ("loss_nm", "efficiency_pct", "measured_nm", "residual_nm")
+
+    def __init__(self, samples: int, bins: int = TIME_BINS, max_points: int = MAX_POINTS) -> None:
+        self.start_ns: int | None = None
+        self.width_ns = 10_000_000
+        self.capacity = 2 * bins
+        self.stride = max(1, math.ceil(samples / max_points))
+        self._seen = 0
+        self.count = {k: np.zeros(self.capacity) for k in self.SERIES}
+        self.total = {k: np.zeros(self.capacity) for k in self.SERIES}
+        self.low = {k: np.full(self.capacity, np.inf) for k in self.SERIES}
+        self.high = {k: np.full(self.capacity, -np.inf) for k in self.SERIES}
+        self.points: list[tuple[np.ndarray, np.ndarray]] = []
+        self.temperatures: list[np.ndarray] = []
+
+    def _coarsen(self) -> None:
+        """Double the bin width: bins 2k and 2k+1 become bin k."""
+        half = self.capacity // 2
+        for stats, merge, empty in ((self.count, np.add, 0.0), (self.total, np.add, 0.0),
+                                    (self.low, np.minimum, np.inf), (self.high, np.maximum, -np.inf)):
+            for key, v in stats.items():
+                stats[key] = np.concatenate([merge(v[0::2], v[1::2]), np.full(half, empty)])
+        self.width_ns *= 2
+
+    def add(self, b: BatchEstimate) -> None:
+        """One batch of estimates (in time order across batches, as the estimator gives them)."""
+        n = len(b.t_ns)
+        if not n:
+            return
+        t = np.asarray(b.t_ns, np.int64)
+        if self.start_ns is None:
+            self.start_ns = int(t[0])
+        while (int(t.max()) - self.start_ns) // self.width_ns >= self.capacity:
+            self._coarsen()
+        where = np.clip((t - self.start_ns) // self.width_ns, 0, self.capacity - 1)
+        values = {"loss_nm": np.abs(b.loss_torque_nm), "efficiency_pct": 100.0 * b.efficiency,
+                  "measured_nm": b.measured_loss_nm, "residual_nm": b.residual_nm}
+        for key, v in values.items():
+            ok = np.isfinite(v)
+            if not ok.any():
+                continue
+            w, v = where[ok], v[ok]
+            self.count[key] += np.bincount(w, minlength=self.capacity)
+            self.total[key] += np.bincount(w, weights=v, minlength=self.capacity)
+            np.minimum.at(self.low[key], w, v)
+            np.maximum.at(self.high[key], w, v)
+        take = np.arange((-self._seen) % self.stride, n, self.stride)
+        self._seen += n
+        self.points.append((b.speed_rad_s[take], b.torque_nm[take]))
+        if b.temperature_c is not None:
+            theta = b.temperature_c[take]
+            self.temperatures.append(theta[np.isfinite(theta)])
+
+    def series(self, key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(time_s, mean, low, high)`` of the bins that hold samples of ``key``."""
+        c = self.count[key]
+        ok = c > 0
+        t_s = (np.flatnonzero(ok) + 0.5) * self.width_ns * 1e-9
+        return t_s, self.total[key][ok] / c[ok], self.low[key][ok], self.high[key][ok]
+
+    def operating_points(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(speed_rad_s, torque_nm)`` of the thinned samples."""
+        if not self.points:
+            return np.empty(0), np.empty(0)
+        return (np.concatenate([p[0] for p in self.points]), np.concatenate([p[1] for p in self.points]))
+
+    def median_temperature_c(self) -> float | None:
+        t = np.concatenate(self.temperatures) if self.temperatures else np.empty(0)
+        return float(np.median(t)) if len(t) else None
+
+
+def _efficiency_map(config: Config, speed: np.ndarray, torque: np.ndarray, temperature_c: float | None):
+    """The efficiency [%] of the replay's model on a grid over the visited points, and a note of
+    what was left out (effects needing a temperature the recording does not have)."""
+    w_hi = max(float(np.max(np.abs(speed))), 1.0) * 1.05
+    t_hi = max(float(np.max(np.abs(torque))), 1.0) * 1.05
+    w_lo = -w_hi if (speed < 0).any() else 0.0
+    t_lo = -t_hi if (torque < 0).any() else 0.0
+    ws, ts = np.linspace(w_lo, w_hi, MAP_GRID), np.linspace(t_lo, t_hi, MAP_GRID)
+    w, t = np.meshgrid(ws, ts, indexing="ij")
+    note = ""
+    needing = temperature_effects(config)
+    if needing and temperature_c is None:
+        config = only(config, tuple(n for n in config.effects.enabled() if n not in needing))
+        note = f" (without {', '.join(needing)}: no oil temperature recorded)"
+    try:
+        eta = evaluate_points(config, t.ravel(), w.ravel(), temperature_c).efficiency.reshape(w.shape)
+    except UsageError:
+        return ws, ts, None, note
+    return ws, ts, 100.0 * eta, note + (f" at {temperature_c:.0f} °C" if temperature_c is not None and needing else "")
+
+
+def plot_summary(trace: SummaryTrace, config: Config, png_path: str | Path, title: str) -> Path:
+    """Draw the summary picture (see the module docstring) to ``png_path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    has_residual = trace.count["residual_nm"].any()
+    rows = 3 if has_residual else 2
+    fig = plt.figure(figsize=(15, 3 + 2.4 * rows), dpi=100)
+    grid = fig.add_gridspec(rows, 2, width_ratios=(1.7, 1))
+    axes = [fig.add_subplot(grid[0, 0])]
+    axes += [fig.add_subplot(grid[i, 0], sharex=axes[0]) for i in range(1, rows)]
+
+    def draw(ax, key: str, label: str, color: str) -> None:
+        t_s, mean, low, high = trace.series(key)
+        if len(t_s):
+            ax.fill_between(t_s, low, high, color=color, alpha=0.2, lw=0, step="mid")
+            ax.plot(t_s, mean, color=color, lw=0.9, label=label)
+
+    draw(axes[0], "loss_nm", "estimated loss (bin mean, range shaded)", "tab:red")
+    if has_residual:
+        draw(axes[0], "measured_nm", "measured loss", "0.3")
+    axes[0].set_ylabel("loss torque [N·m]")
+    axes[0].legend(fontsize=8, loc="upper right")
+    draw(axes[1], "efficiency_pct", "efficiency", "tab:blue")
+    axes[1].set_ylabel("efficiency [%]")
+    if has_residual:
+        draw(axes[2], "residual_nm", "residual", "tab:green")
+        axes[2].axhline(0.0, color="k", lw=0.5)
+        axes[2].set_ylabel("residual: measured −\nestimated loss [N·m]")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    axes[-1].set_xlabel("time since the start of the recording [s]")
+
+    ax_map = fig.add_subplot(grid[:, 1])
+    speed, torque = trace.operating_points()
+    if len(speed):
+        ws, ts, eta, note = _efficiency_map(config, speed, torque, trace.median_temperature_c())
+        if eta is not None and np.isfinite(eta).any():
+            finite = eta[np.isfinite(eta)]
+            lo = max(math.floor(float(np.percentile(finite, 2))), 50)
+            levels = np.round(np.linspace(lo, 100.0, 11), 2)
+            cs = ax_map.contourf(ws, ts, eta.T, levels=levels, cmap="viridis", extend="min")
+            fig.colorbar(cs, ax=ax_map, label="efficiency of the model [%]")
+        ax_map.scatter(speed, torque, s=2, color="tab:red", alpha=0.3, label="operating points (thinned)")
+        ax_map.set_title(f"operating points over the efficiency map{note}", fontsize=9)
+        ax_map.axhline(0.0, color="w", lw=0.6)
+        ax_map.axvline(0.0, color="w", lw=0.6)
+        for x, y, label in ((0.98, 0.98, "motoring"), (0.02, 0.02, "motoring"),
+                            (0.02, 0.98, "regenerating"), (0.98, 0.02, "regenerating")):
+            if (x > 0.5 or (speed < 0).any()) and (y > 0.5 or (torque < 0).any()):
+                ax_map.text(x, y, label, transform=ax_map.transAxes, ha="right" if x > 0.5 else "left",
+                            va="top" if y > 0.5 else "bottom", fontsize=8, color="w",
+                            bbox={"facecolor": "0.2", "alpha": 0.5, "linewidth": 0})
+        ax_map.legend(fontsize=8, loc="lower center")
+    ax_map.set_xlabel("drive speed [rad/s]")
+    ax_map.set_ylabel("drive torque [N·m]")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    out = Path(png_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    partial = out.with_name(f".{out.name}.partial")
+    try:  # whole or not at all: an interrupt leaves no half-written picture
+        fig.savefig(partial, format="png")
+        os.replace(partial, out)
+    finally:
+        plt.close(fig)
+        partial.unlink(missing_ok=True)
+    return out
