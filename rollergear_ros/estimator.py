@@ -37,6 +37,9 @@ class Estimate:
     efficiency: float  #: NaN where undefined
     measured_loss_nm: float  #: NaN without measured output
     residual_nm: float  #: measured − expected measured loss; NaN without measured output
+    out_torque_nm: float = math.nan  #: the measured output torque it was paired with (NaN: none)
+    out_speed_rad_s: float = math.nan  #: the measured output speed (NaN: none)
+    temperature_c: float = math.nan  #: the oil temperature (NaN: none)
 
 
 @dataclass
@@ -57,6 +60,8 @@ class BatchEstimate:
     coefficients: dict[str, np.ndarray] = field(default_factory=dict)  #: adapted, per sample
     alarms_t_ns: list[int] = field(default_factory=list)
     loss_magnitude_nm: np.ndarray | None = None  #: |loss| also at standstill, where the signed loss is 0
+    out_torque_nm: np.ndarray | None = None  #: measured output torque (NaN where none)
+    out_speed_rad_s: np.ndarray | None = None  #: measured output speed (NaN where none)
 
     def select(self, keep: np.ndarray) -> BatchEstimate:
         """The estimates where ``keep`` (a boolean mask) is true."""
@@ -70,7 +75,7 @@ class BatchEstimate:
             self.efficiency[keep], self.measured_loss_nm[keep], self.residual_nm[keep], pick(self.temperature_c),
             {k: v[keep] for k, v in self.breakdown_nm.items()}, pick(self.effects_nm),
             {k: v[keep] for k, v in self.coefficients.items()}, [a for a in self.alarms_t_ns if lo <= a <= hi],
-            pick(self.loss_magnitude_nm))
+            pick(self.loss_magnitude_nm), pick(self.out_torque_nm), pick(self.out_speed_rad_s))
 
 
 class Estimator:
@@ -228,7 +233,7 @@ class Estimator:
             self.residual_stats.add(residual)
         self.estimated += 1
         est = Estimate(s.t_ns, t_meas, w, loss * sg, loss * aw, self.model.efficiency_scalar(t, w, loss), meas,
-                       residual)
+                       residual, s.out_torque_nm, s.out_speed_rad_s, s.temperature_c)
         self.last = est
         return est
 
@@ -339,6 +344,8 @@ class Estimator:
             coefficients=coefficients,
             alarms_t_ns=list(self.detector.alarm_times_ns),
             loss_magnitude_nm=loss,
+            out_torque_nm=out_torque,
+            out_speed_rad_s=out_speed,
         )
 
     def _adapt_batch(self, phis: list[np.ndarray], y: np.ndarray, t_ns: np.ndarray) -> np.ndarray:

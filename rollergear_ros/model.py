@@ -321,6 +321,11 @@ class LossModel:
         self.k_ter = coef["ter1"] + coef["ter2"]
         self.k_0 = coef["tb"] + coef["fg"]
 
+    def nonzero_terms(self) -> tuple[str, ...]:
+        """The breakdown terms whose coefficient is not 0 (``tb`` and ``fg`` are 0 without a ball
+        pressure force ``Fg``; every term with the paper's model switched off)."""
+        return tuple(k for k, c in self.coefficients.items() if c != 0.0)
+
     # ---------------------------------------------------------------- vectorised
     def loss_magnitude(self, torque_nm, speed_rad_s, viscosity_scale=None) -> np.ndarray:
         """``T_loss ≥ 0`` [N·m] for arrays (eq. 22–30); ``viscosity_scale`` multiplies the Fr terms."""

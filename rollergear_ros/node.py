@@ -209,9 +209,10 @@ class LossEstimatorNode(Node):
         self.rerun = None
         self._rr_buffer: list[Estimate] = []
         if node.rerun_rrd or node.rerun_connect:
-            from .review import RerunLog
+            from .review import RerunLog, SkipEvents
 
             self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None)
+            self._rr_skips = SkipEvents()
             self.create_timer(0.5, self._flush_rerun)
         input_qos = INPUT_QOS[node.input_qos]
         if node.input_mode == "float64":
@@ -445,22 +446,28 @@ class LossEstimatorNode(Node):
             self._rr_buffer.append(est)
 
     def _flush_rerun(self) -> None:
+        """The estimates since the last flush to rerun, with the samples skipped meanwhile as an event."""
         if not self._rr_buffer or self.rerun is None:
             return
         import numpy as np
 
+        from .estimator import BatchEstimate
+
         with self._input_lock:
             buf, self._rr_buffer = self._rr_buffer, []
+            skipped = self._rr_skips.since_last(self.estimator.counts)
+            alarms = list(self.estimator.detector.alarm_times_ns)
+
+        def column(name: str) -> np.ndarray:
+            return np.array([getattr(e, name) for e in buf], dtype=np.float64)
+
         t = np.array([e.t_ns for e in buf], dtype=np.int64)
-        series = {"/inputs/torque_nm": [e.torque_nm for e in buf], "/inputs/speed_rad_s": [e.speed_rad_s for e in buf],
-                  "/loss/torque_nm": [e.loss_torque_nm for e in buf], "/loss/power_w": [e.loss_power_w for e in buf],
-                  "/efficiency/efficiency": [e.efficiency for e in buf]}
-        self.rerun.send(t, {k: np.asarray(v) for k, v in series.items()})
-        res = np.array([e.residual_nm for e in buf])
-        ok = np.isfinite(res)
-        if ok.any():
-            self.rerun.send(t[ok], {"/residual/residual_nm": res[ok],
-                                    "/residual/measured_loss_nm": np.array([e.measured_loss_nm for e in buf])[ok]})
+        self.rerun.send_estimates(BatchEstimate(
+            t, column("torque_nm"), column("speed_rad_s"), column("loss_torque_nm"), column("loss_power_w"),
+            column("efficiency"), column("measured_loss_nm"), column("residual_nm"), column("temperature_c"),
+            alarms_t_ns=alarms, out_torque_nm=column("out_torque_nm"), out_speed_rad_s=column("out_speed_rad_s")))
+        if skipped:
+            self.rerun.events([int(t[-1])], [skipped], "WARN")
 
     def _heartbeat(self) -> None:
         self._heartbeat_ns = time.time_ns()

@@ -738,9 +738,11 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
         with stop.critical():  # outputs are opened whole
             writer = _output_writer(out_mcap, info, config, topics) if out_mcap else None
             if rrd:
-                from .review import RerunLog
+                from .review import RerunLog, SkipEvents
 
-                rlog = RerunLog("rollergear_replay", rrd)
+                rlog = RerunLog("rollergear_replay", rrd, breakdown_terms=estimator.model.nonzero_terms(),
+                                with_effects=bool(config.effects.enabled()))
+                skip_events = SkipEvents()
         bar = TimedProgress("replay", total, "msg", enabled=show_progress).start()
         for batch in _input_batches(info, plan, batch_size, _warn, problems,
                                     window.read_range() if window else None):
@@ -749,12 +751,14 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                 break
             if window is not None:  # a time slice (no outputs): its lead-in, its samples, its lead-out
                 for codes, t, v in window.split(batch, estimator):
-                    _emit(window.keep(estimator.push_many(codes, t, v), acc), None, None, acc, sink, config, topics)
+                    _emit(window.keep(estimator.push_many(codes, t, v), acc), None, None, acc, sink, topics)
             else:
                 with stop.critical():  # one batch's estimates and inputs, both or neither
                     summary.input_messages += len(batch.codes)
                     _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values), writer, rlog, acc, sink,
-                          config, topics)
+                          topics)
+                    if rlog and len(batch.t_ns):
+                        _skip_event(rlog, skip_events, estimator, int(batch.t_ns.max()))
                     if writer:
                         batch.write_inputs(writer)
                         if len(batch.t_ns):  # no later estimate can be older than its inputs' hold
@@ -765,7 +769,9 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
         else:
             with stop.critical():
                 _emit(window.keep(estimator.flush(), acc) if window else estimator.flush(), writer, rlog, acc, sink,
-                      config, topics)
+                      topics)
+                if rlog and acc.last_t is not None:
+                    _skip_event(rlog, skip_events, estimator, acc.last_t)
     except KeyboardInterrupt:
         summary.interrupted = True
     finally:
@@ -843,7 +849,7 @@ def _output_writer(path: str | Path, info: BagInfo, config: Config, topics: Topi
 
 
 def _emit(b: BatchEstimate | None, writer: BagWriter | None, rlog, acc: _Accumulator, collected: list | None,
-          config: Config, tm: TopicMap) -> None:
+          tm: TopicMap) -> None:
     """Hand one batch of estimates to the writers, the summary and the caller."""
     if b is None:
         return
@@ -858,30 +864,11 @@ def _emit(b: BatchEstimate | None, writer: BagWriter | None, rlog, acc: _Accumul
         if has_res.any():
             writer.write_float64_series(tm.residual_torque, b.t_ns[has_res], b.residual_nm[has_res])
     if rlog:
-        series = {
-            "/inputs/torque_nm": b.torque_nm,
-            "/inputs/speed_rad_s": b.speed_rad_s,
-            "/loss/torque_nm": b.loss_torque_nm,
-            "/loss/power_w": b.loss_power_w,
-            "/efficiency/efficiency": b.efficiency,
-        }
-        sg = np.sign(b.loss_torque_nm)
-        for k, v in b.breakdown_nm.items():
-            series[f"/loss/breakdown/{k}_nm"] = v * sg
-        if b.effects_nm is not None and config.effects.enabled():
-            series["/loss/breakdown/effects_nm"] = b.effects_nm * sg
-        rlog.send(b.t_ns, series)
-        if has_res.any():
-            rlog.send(
-                b.t_ns[has_res],
-                {
-                    "/residual/measured_loss_nm": b.measured_loss_nm[has_res],
-                    "/residual/estimated_loss_nm": np.abs(b.loss_torque_nm[has_res]),
-                    "/residual/residual_nm": b.residual_nm[has_res],
-                },
-            )
-        for name, coef in b.coefficients.items():
-            rlog.send(b.t_ns, {f"/adaptation/{name}": coef})
-        have = np.isfinite(b.temperature_c)
-        if have.any():
-            rlog.send(b.t_ns[have], {"/inputs/oil_temperature_c": b.temperature_c[have]})
+        rlog.send_estimates(b)
+
+
+def _skip_event(rlog, skip_events, estimator: Estimator, t_ns: int) -> None:
+    """The samples skipped since the last event, as a warning on the rerun timeline at ``t_ns``."""
+    text = skip_events.since_last(estimator.counts)
+    if text:
+        rlog.events([t_ns], [text], "WARN")

@@ -7,8 +7,8 @@ with ``datetime64[ns]``; recordings are read back with ``rerun.chunk.RrdReader``
 from __future__ import annotations
 
 import uuid
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from collections.abc import Mapping
 
 import numpy as np
 
@@ -16,43 +16,117 @@ TIMELINE = "log_time"
 #: longest a closing recording waits for a streamed viewer to take the data (seconds)
 FLUSH_TIMEOUT_S = 10.0
 
-#: entity -> (legend name) for the series a reviewer wants
+#: the entities, one tree per unit (a view each): what a reviewer compares shares an axis
+DRIVE_TORQUE = "/inputs/torque/drive_nm"
+OUTPUT_TORQUE = "/inputs/torque/output_nm"
+DRIVE_SPEED = "/inputs/speed/drive_rad_s"
+OUTPUT_SPEED = "/inputs/speed/output_rad_s"
+OIL_TEMPERATURE = "/inputs/temperature/oil_c"
+LOSS_TORQUE = "/loss/torque/total_nm"
+BREAKDOWN = "/loss/torque/breakdown"  #: + ``/<term>_nm`` and ``/effects_nm``
+LOSS_POWER = "/loss/power/total_w"
+EFFICIENCY = "/efficiency/efficiency_pct"
+MEASURED_LOSS = "/residual/measured_loss_nm"
+ESTIMATED_LOSS = "/residual/estimated_loss_nm"
+RESIDUAL = "/residual/residual_nm"
+ADAPTATION = "/adaptation"  #: + ``/<effect>``
+EVENTS = "/events"  #: change alarms, skipped samples, stale inputs (text log on the timeline)
+
+#: entity -> legend name
 SERIES: dict[str, str] = {
-    "/inputs/torque_nm": "drive torque [N·m]",
-    "/inputs/speed_rad_s": "drive speed [rad/s]",
-    "/inputs/oil_temperature_c": "oil temperature [°C]",
-    "/loss/torque_nm": "loss torque (signed) [N·m]",
-    "/loss/power_w": "loss power [W]",
-    "/efficiency/efficiency": "efficiency [-]",
-    "/residual/measured_loss_nm": "measured loss [N·m]",
-    "/residual/estimated_loss_nm": "estimated loss [N·m]",
-    "/residual/residual_nm": "residual (measured − estimated) [N·m]",
+    DRIVE_TORQUE: "drive torque [N·m]",
+    OUTPUT_TORQUE: "output torque, measured [N·m]",
+    DRIVE_SPEED: "drive speed [rad/s]",
+    OUTPUT_SPEED: "output speed, measured [rad/s]",
+    OIL_TEMPERATURE: "oil temperature [°C]",
+    LOSS_TORQUE: "loss torque (signed) [N·m]",
+    LOSS_POWER: "loss power [W]",
+    EFFICIENCY: "efficiency [%]",
+    MEASURED_LOSS: "measured loss [N·m]",
+    ESTIMATED_LOSS: "estimated loss [N·m]",
+    RESIDUAL: "residual (measured − estimated) [N·m]",
 }
 
 
 def blueprint():
-    """The layout a reviewer wants open at once."""
+    """The layout a reviewer wants open at once: a view per unit, events below."""
     import rerun.blueprint as rrb
 
     return rrb.Blueprint(
-        rrb.Grid(
-            rrb.TimeSeriesView(origin="/inputs", name="Drive torque, speed, oil temperature"),
-            rrb.TimeSeriesView(origin="/loss", name="Loss torque and its breakdown"),
-            rrb.TimeSeriesView(origin="/efficiency", name="Efficiency"),
-            rrb.TimeSeriesView(origin="/residual", name="Measured vs estimated loss, residual"),
-            rrb.TimeSeriesView(origin="/adaptation", name="Adapted effect coefficients"),
-            grid_columns=2,
+        rrb.Vertical(
+            rrb.Grid(
+                rrb.TimeSeriesView(origin="/inputs/torque", name="Torque: drive and output [N·m]"),
+                rrb.TimeSeriesView(origin="/inputs/speed", name="Speed: drive and output [rad/s]"),
+                rrb.TimeSeriesView(origin="/loss/torque", name="Loss torque and its breakdown [N·m]"),
+                rrb.TimeSeriesView(origin="/loss/power", name="Loss power [W]"),
+                rrb.TimeSeriesView(origin="/efficiency", name="Efficiency [%]"),
+                rrb.TimeSeriesView(origin="/residual", name="Measured vs estimated loss, residual [N·m]"),
+                rrb.TimeSeriesView(origin="/inputs/temperature", name="Oil temperature [°C]"),
+                rrb.TimeSeriesView(origin=ADAPTATION, name="Adapted effect coefficients"),
+                grid_columns=2,
+            ),
+            rrb.TextLogView(origin=EVENTS, name="Events: change alarms, skipped samples, stale inputs"),
+            row_shares=[4, 1],
         ),
         rrb.TimePanel(state="collapsed"),
         collapse_panels=False,
     )
 
 
+def estimate_series(b, breakdown_terms: Iterable[str] = (), with_effects: bool = False
+                    ) -> list[tuple[np.ndarray, dict[str, np.ndarray]]]:
+    """The series of a batch of estimates (:class:`~.estimator.BatchEstimate`), grouped by the
+    samples they exist at: ``[(t_ns, {entity: values}), ...]``.
+
+    ``breakdown_terms``: the paper's terms to draw (not those whose coefficient is 0, which would
+    only draw a zero line); ``with_effects``: the accepted effects' share of the loss.  A measured
+    output, an oil temperature or a residual only where the sample has one.
+    """
+    sign = np.sign(b.loss_torque_nm)
+    main = {DRIVE_TORQUE: b.torque_nm, DRIVE_SPEED: b.speed_rad_s, LOSS_TORQUE: b.loss_torque_nm,
+            LOSS_POWER: b.loss_power_w, EFFICIENCY: 100.0 * b.efficiency}
+    for key in breakdown_terms:
+        if key in b.breakdown_nm:
+            main[f"{BREAKDOWN}/{key}_nm"] = b.breakdown_nm[key] * sign
+    if with_effects and b.effects_nm is not None:
+        main[f"{BREAKDOWN}/effects_nm"] = b.effects_nm * sign
+    main.update({f"{ADAPTATION}/{name}": coef for name, coef in b.coefficients.items()})
+    groups = [(b.t_ns, main)]
+    res = np.isfinite(b.residual_nm)
+    if res.any():
+        groups.append((b.t_ns[res], {MEASURED_LOSS: b.measured_loss_nm[res],
+                                     ESTIMATED_LOSS: np.abs(b.loss_torque_nm[res]), RESIDUAL: b.residual_nm[res]}))
+    for entity, values in ((OIL_TEMPERATURE, b.temperature_c), (OUTPUT_TORQUE, b.out_torque_nm),
+                           (OUTPUT_SPEED, b.out_speed_rad_s)):
+        if values is not None:
+            have = np.isfinite(values)
+            if have.any():
+                groups.append((b.t_ns[have], {entity: values[have]}))
+    return groups
+
+
+class SkipEvents:
+    """Skipped samples as events: the counts that grew since the last call, as one line."""
+
+    def __init__(self) -> None:
+        self._seen: dict[str, int] = {}
+
+    def since_last(self, counts: Mapping[str, int]) -> str | None:
+        grown = {k: v - self._seen.get(k, 0) for k, v in counts.items() if v > self._seen.get(k, 0)}
+        self._seen = dict(counts)
+        if not grown:
+            return None
+        return "skipped " + ", ".join(f"{n:,} {k.replace('_', ' ')}" for k, n in sorted(grown.items()))
+
+
 class RerunLog:
     """A rerun recording written to an ``.rrd`` file and/or streamed to a viewer."""
 
     def __init__(self, application_id: str = "rollergear", rrd_path: str | Path | None = None,
-                 connect_url: str | None = None) -> None:
+                 connect_url: str | None = None, breakdown_terms: Iterable[str] = (),
+                 with_effects: bool = False) -> None:
+        """``breakdown_terms``, ``with_effects``: what :meth:`send_estimates` draws of the loss's
+        breakdown (:func:`estimate_series`)."""
         import rerun as rr
 
         self.rr = rr
@@ -69,6 +143,8 @@ class RerunLog:
         elif sinks:
             self.rec.set_sinks(*sinks, default_blueprint=bp)
         self._named: set[str] = set()
+        self.breakdown_terms = tuple(breakdown_terms)
+        self.with_effects = with_effects
         self.closed = False
 
     def _name(self, entity: str, label: str) -> None:
@@ -85,6 +161,24 @@ class RerunLog:
             self._name(entity, (labels or {}).get(entity) or SERIES.get(entity) or entity.rsplit("/", 1)[-1])
             self.rec.send_columns(entity, indexes=[times],
                                   columns=self.rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64)))
+
+    def send_estimates(self, b) -> None:
+        """A batch of estimates (:func:`estimate_series`) and its change alarms as events."""
+        for t_ns, series in estimate_series(b, self.breakdown_terms, self.with_effects):
+            self.send(t_ns, series)
+        if b.alarms_t_ns and len(b.t_ns):
+            lo, hi = int(b.t_ns[0]), int(b.t_ns[-1])
+            alarms = [t for t in b.alarms_t_ns if lo <= t <= hi]
+            self.events(alarms, ["residual change alarm: the loss behaves differently from here"] * len(alarms),
+                        "WARN")
+
+    def events(self, t_ns: Sequence[int], texts: Sequence[str], level: str = "INFO") -> None:
+        """Text events on the timeline (:data:`EVENTS`)."""
+        if not len(t_ns):
+            return
+        times = self.rr.TimeColumn(TIMELINE, timestamp=np.asarray(t_ns, dtype=np.int64).astype("datetime64[ns]"))
+        self.rec.send_columns(EVENTS, indexes=[times],
+                              columns=self.rr.TextLog.columns(text=list(texts), level=[level] * len(texts)))
 
     def close(self) -> None:
         if self.closed:
@@ -118,3 +212,21 @@ def read_rrd_series(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]
         order = np.argsort(t, kind="stable")
         out[entity] = (t[order], v[order])
     return out
+
+
+def read_rrd_events(path: str | Path) -> list[tuple[int, str, str]]:
+    """The text events of an ``.rrd`` (:data:`EVENTS`), read with rerun's own loader: ``(time ns,
+    level, text)`` in time order."""
+    from rerun.chunk import RrdReader
+
+    events = []
+    for chunk in RrdReader(str(path)).stream().to_chunks():
+        if chunk.entity_path != EVENTS:
+            continue
+        rb = chunk.to_record_batch()
+        names = rb.schema.names
+        t = rb.column(names.index(TIMELINE)).cast("int64").to_pylist()
+        level = rb.column(names.index("TextLog:level")).to_pylist()
+        text = rb.column(names.index("TextLog:text")).to_pylist()
+        events += [(ti, lv[0], tx[0]) for ti, lv, tx in zip(t, level, text)]
+    return sorted(events)

@@ -595,10 +595,11 @@ def test_clean_shutdown_keeps_the_recording(tmp_path, sig):
     n = len(read_rosbags(rec)[T.loss_torque][0])
     assert n == 10080  # recording and rerun logging on: still no drop at 1 kHz
     assert inspect_bag(rec).indexed
-    from rollergear_ros.review import read_rrd_series
+    from rollergear_ros.review import LOSS_TORQUE, OUTPUT_TORQUE, read_rrd_series
 
     series = read_rrd_series(rrd)
-    assert len(series["/loss/torque_nm"][0]) == n
+    assert len(series[LOSS_TORQUE][0]) == n
+    assert len(series[OUTPUT_TORQUE][0]) == n  # the measured output beside the inputs
 
 
 def _free_port() -> int:
@@ -615,7 +616,7 @@ def test_rerun_streams_to_a_viewer_address(tmp_path):
     import subprocess
     import sys
 
-    from rollergear_ros.review import read_rrd_series
+    from rollergear_ros.review import LOSS_TORQUE, read_rrd_series
 
     port = _free_port()
     received = tmp_path / "received.rrd"
@@ -651,7 +652,7 @@ def test_rerun_streams_to_a_viewer_address(tmp_path):
                 os.killpg(server.pid, signal.SIGKILL)
     _, loss = float_series(read_rosbags(rec), T.loss_torque)
     assert len(loss) == 10080
-    t, streamed = read_rrd_series(received)["/loss/torque_nm"]
+    t, streamed = read_rrd_series(received)[LOSS_TORQUE]
     np.testing.assert_array_equal(streamed, loss)
 
 

@@ -19,6 +19,7 @@ from rollergear_ros.estimator import Estimator
 from rollergear_ros.model import LossModel
 from rollergear_ros.params import load_config
 from rollergear_ros.replay import replay
+from rollergear_ros import review
 from rollergear_ros.review import read_rrd_series
 from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, read_truth, simulate, write_rig_bag
 
@@ -36,14 +37,16 @@ def test_bundled_bags_exist_and_are_small():
         assert p.stat().st_size <= 5 * 1024 * 1024
 
 
-def _inputs_from_rosbags(msgs: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Motor torque/speed per sample from the bag, read independently (Float64 or JointState)."""
-    if T.motor_torque in msgs:
-        t, tq = float_series(msgs, T.motor_torque)
-        _, w = float_series(msgs, T.motor_speed)
+def _inputs_from_rosbags(msgs: dict, joint: str = "motor") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Torque/speed per sample of the motor (or the output) from the bag, read independently
+    (Float64 or JointState)."""
+    torque, speed = (T.motor_torque, T.motor_speed) if joint == "motor" else (T.output_torque, T.output_speed)
+    if torque in msgs:
+        t, tq = float_series(msgs, torque)
+        _, w = float_series(msgs, speed)
         return t, tq, w
     t, ms = msgs[T.joint_states]
-    k = list(ms[0].name).index("motor")
+    k = list(ms[0].name).index(joint)
     return t, np.array([m.effort[k] for m in ms]), np.array([m.velocity[k] for m in ms])
 
 
@@ -106,13 +109,24 @@ def test_replay_bundled_bag_matches_model_on_its_inputs(bag, tmp_path, config):
 
     _check_streamable_with_provenance(out, bag, config)
     series = read_rrd_series(rrd)
-    t_r, v_r = series["/loss/torque_nm"]
+    t_r, v_r = series[review.LOSS_TORQUE]
     np.testing.assert_array_equal(t_r, t_in)
     np.testing.assert_allclose(v_r, expect.loss_torque_nm, rtol=1e-12)
-    np.testing.assert_allclose(series["/efficiency/efficiency"][1], expect.efficiency, rtol=1e-12, equal_nan=True)
-    bd = sum(series[f"/loss/breakdown/{k}_nm"][1] for k in ("fr1", "fr2", "tc1", "tc2", "ter1", "ter2", "tb", "fg"))
+    # efficiency in % as everywhere else
+    np.testing.assert_allclose(series[review.EFFICIENCY][1], 100 * expect.efficiency, rtol=1e-12, equal_nan=True)
+    # the breakdown: the terms that are not always 0 (tb, fg without a ball pressure force), adding up
+    drawn = {e.rsplit("/", 1)[1][:-3] for e in series if e.startswith(review.BREAKDOWN + "/")}
+    assert drawn == set(lm.nonzero_terms())
+    assert ({"tb", "fg"} & drawn) == ({"tb", "fg"} if config.gearbox.Fg_n else set())
+    bd = sum(series[f"{review.BREAKDOWN}/{k}_nm"][1] for k in drawn)
     np.testing.assert_allclose(bd, expect.loss_torque_nm, rtol=1e-9)
-    assert "/residual/residual_nm" in series and "/inputs/speed_rad_s" in series
+    assert review.RESIDUAL in series and review.DRIVE_SPEED in series
+    # the measured output with the inputs, on the axes of its unit
+    t_out, out_torque, out_speed = _inputs_from_rosbags(inputs, "output")
+    for entity, values in ((review.OUTPUT_TORQUE, out_torque), (review.OUTPUT_SPEED, out_speed)):
+        t_o, v_o = series[entity]
+        np.testing.assert_array_equal(t_o, t_out)
+        np.testing.assert_array_equal(v_o, values)
 
 
 @pytest.mark.parametrize("batch_size", [100_000, 300])
@@ -223,6 +237,23 @@ def test_rrd_has_review_blueprint(tmp_path):
     replay(BAGS / "rig_map.mcap", load_config(), rrd=rrd, show_progress=False)
     reader = RrdReader(str(rrd))
     assert reader.recordings() and reader.blueprints(), "recording and its blueprint are in the file"
+
+
+def test_change_alarms_are_events_on_the_rerun_timeline(tmp_path, config):
+    """The drag the code was not told of trips the change detector: the alarm is a WARN event at
+    the alarm's sample time, and every entity lives in the tree of its unit."""
+    rrd = tmp_path / "x.rrd"
+    summary, batches = replay(BAGS / "rig_map_drag.mcap", config, rrd=rrd, show_progress=False, collect=True)
+    alarms = sorted({t for b in batches for t in b.alarms_t_ns})
+    assert summary.alarms == len(alarms) >= 1
+    events = review.read_rrd_events(rrd)
+    assert [(t, level) for t, level, text in events if "change alarm" in text] == [(t, "WARN") for t in alarms]
+    units = {"/inputs/torque": "N·m", "/inputs/speed": "rad/s", "/loss/torque": "N·m", "/loss/power": "W",
+             "/efficiency": "%", "/residual": "N·m"}
+    for entity in read_rrd_series(rrd):
+        tree = next((u for u in units if entity.startswith(u + "/")), None)
+        if tree is not None and entity in review.SERIES:
+            assert f"[{units[tree]}]" in review.SERIES[entity], entity
 
 
 def test_residual_equals_measured_minus_model(tmp_path, config):
@@ -463,9 +494,12 @@ def test_nan_and_inf_samples_are_skipped_and_counted(tmp_path, config):
     tq[50] = 1e9  # implausible
     p = tmp_path / "nan.mcap"
     _write_bag(p, {T.motor_torque: (MessageType.FLOAT64, tq), T.motor_speed: (MessageType.FLOAT64, w)}, n=n)
-    out = tmp_path / "o.mcap"
-    s, _ = replay(p, config, out_mcap=out, show_progress=False)
+    out, rrd = tmp_path / "o.mcap", tmp_path / "o.rrd"
+    s, _ = replay(p, config, out_mcap=out, rrd=rrd, show_progress=False)
     assert s.skipped["non_finite"] == 4 and s.skipped["implausible"] == 1
+    # and as an event on the rerun timeline
+    (event,) = review.read_rrd_events(rrd)
+    assert event[1] == "WARN" and event[2] == "skipped 1 implausible, 4 non finite"
     assert s.estimated == n - 5
     _, loss = float_series(read_rosbags(out), T.loss_torque)
     assert len(loss) == n - 5 and np.all(np.isfinite(loss))
@@ -623,7 +657,7 @@ def test_interrupted_replay_leaves_valid_files(tmp_path, config, sig):
     assert inspect_bag(out).indexed
     assert len(read_mcap_ros2(out)[T.loss_torque][0]) == n
     series = read_rrd_series(rrd)
-    assert 0 < len(series["/loss/torque_nm"][0]) <= n
+    assert 0 < len(series[review.LOSS_TORQUE][0]) <= n
 
 
 @pytest.mark.parametrize("second", [False, True])
@@ -655,7 +689,7 @@ def test_a_signal_right_after_the_outputs_open_leaves_valid_files(tmp_path, seco
     assert set(est_t.tolist()) <= set(in_t.tolist())
     n_est = len(est_t)
     series = read_rrd_series(rrd)  # a valid rerun recording (possibly without samples)
-    assert len(series.get("/loss/torque_nm", ([],))[0]) <= n_est
+    assert len(series.get(review.LOSS_TORQUE, ([],))[0]) <= n_est
 
 
 def test_a_second_signal_waits_for_the_end_of_a_critical_section():
