@@ -65,6 +65,7 @@ class TopicMap:
     loss_power: str = f"{NAMESPACE}/{Topic.LOSS_POWER}"
     efficiency: str = f"{NAMESPACE}/{Topic.EFFICIENCY}"
     residual_torque: str = f"{NAMESPACE}/{Topic.RESIDUAL_TORQUE}"
+    loss_estimate: str = f"{NAMESPACE}/{Topic.LOSS_ESTIMATE}"
 
     def float64_inputs(self) -> dict[str, str]:
         """Estimator channel name -> topic, for the Float64 inputs."""

@@ -41,6 +41,7 @@ class Topic:
     LOSS_POWER = "loss/power"
     EFFICIENCY = "efficiency"
     RESIDUAL_TORQUE = "residual/torque"
+    LOSS_ESTIMATE = "loss/estimate"  #: one stamped sensor_msgs/JointState per estimate (:mod:`.stamped`)
     JOINT_STATES = "/joint_states"  #: absolute
     DIAGNOSTICS = "/diagnostics"  #: absolute
     CLOCK = "/clock"  #: absolute

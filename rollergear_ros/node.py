@@ -36,6 +36,7 @@ from .estimator import Estimate, Estimator
 from .intake import InputTaker
 from .pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
                       SequenceGaps)
+from .stamped import EstimateCodec, estimate_values
 from .interface import NAMESPACE, OUTPUT_QUEUE_DEPTH, MessageType, Metadata, Topic
 from .params import Config, ParameterError, parameter_specs, validate
 
@@ -175,17 +176,26 @@ class LossEstimatorNode(Node):
         self._input_handles: dict[str, Any] = {}  # input thread's subscriptions, by channel
         self._interleaved_warned = False
         topics = bagmod.TopicMap()
-        self.out_topics = {"loss": self.resolve_topic_name(Topic.LOSS_TORQUE),
-                           "power": self.resolve_topic_name(Topic.LOSS_POWER),
-                           "eff": self.resolve_topic_name(Topic.EFFICIENCY),
-                           "res": self.resolve_topic_name(Topic.RESIDUAL_TORQUE)}
-        self.pub_loss = self.create_publisher(Float64, Topic.LOSS_TORQUE, OUTPUT_QOS)
-        self.pub_power = self.create_publisher(Float64, Topic.LOSS_POWER, OUTPUT_QOS)
-        self.pub_eff = self.create_publisher(Float64, Topic.EFFICIENCY, OUTPUT_QOS)
-        self.pub_res = self.create_publisher(Float64, Topic.RESIDUAL_TORQUE, OUTPUT_QOS)
+        # the outputs: four Float64 topics (plotting tools) and/or one stamped estimate per sample
+        self._float64_out = node.publish_float64
+        self.out_topics = {}
+        if node.publish_float64:
+            self.out_topics = {"loss": self.resolve_topic_name(Topic.LOSS_TORQUE),
+                               "power": self.resolve_topic_name(Topic.LOSS_POWER),
+                               "eff": self.resolve_topic_name(Topic.EFFICIENCY),
+                               "res": self.resolve_topic_name(Topic.RESIDUAL_TORQUE)}
+            self.pub_loss = self.create_publisher(Float64, Topic.LOSS_TORQUE, OUTPUT_QOS)
+            self.pub_power = self.create_publisher(Float64, Topic.LOSS_POWER, OUTPUT_QOS)
+            self.pub_eff = self.create_publisher(Float64, Topic.EFFICIENCY, OUTPUT_QOS)
+            self.pub_res = self.create_publisher(Float64, Topic.RESIDUAL_TORQUE, OUTPUT_QOS)
+            self._send_loss, self._send_power, self._send_eff, self._send_res = (
+                _raw_publish(p) for p in (self.pub_loss, self.pub_power, self.pub_eff, self.pub_res))
+        self._stamped = EstimateCodec() if node.publish_stamped else None
+        if self._stamped is not None:
+            self.out_topics["est"] = self.resolve_topic_name(Topic.LOSS_ESTIMATE)
+            self.pub_estimate = self.create_publisher(JointState, Topic.LOSS_ESTIMATE, OUTPUT_QOS)
+            self._send_estimate = _raw_publish(self.pub_estimate)
         self.pub_diag = self.create_publisher(DiagnosticArray, Topic.DIAGNOSTICS, 10)
-        self._send_loss, self._send_power, self._send_eff, self._send_res = (
-            _raw_publish(p) for p in (self.pub_loss, self.pub_power, self.pub_eff, self.pub_res))
         self.recorder: bagmod.BagWriter | None = None
         # Float64 inputs are recorded at the very times the estimator paired them by (publisher
         # timestamps, or arrival times), so that replay of the recording pairs them as the node did
@@ -427,21 +437,28 @@ class LossEstimatorNode(Node):
         self._published += 1
         if self._every > 1 and self._published % self._every:
             return
-        raws = (_PACK(_CDR, est.loss_torque_nm), _PACK(_CDR, est.loss_power_w), _PACK(_CDR, est.efficiency))
-        self._send_loss(raws[0])
-        self._send_power(raws[1])
-        self._send_eff(raws[2])
         res = est.residual_nm
-        res_raw = None
-        if res == res:  # measured output present
-            res_raw = _PACK(_CDR, res)
-            self._send_res(res_raw)
+        if self._float64_out:
+            raws = (_PACK(_CDR, est.loss_torque_nm), _PACK(_CDR, est.loss_power_w), _PACK(_CDR, est.efficiency))
+            self._send_loss(raws[0])
+            self._send_power(raws[1])
+            self._send_eff(raws[2])
+            res_raw = None
+            if res == res:  # measured output present
+                res_raw = _PACK(_CDR, res)
+                self._send_res(res_raw)
+        if self._stamped is not None:
+            est_raw = self._stamped.encode(est.t_ns, estimate_values(est))
+            self._send_estimate(est_raw)
         if self.recorder is not None:
             stamp = self.get_clock().now().nanoseconds
-            for key, raw in zip(("loss", "power", "eff"), raws):
-                self.recorder.write_raw(self.out_topics[key], MessageType.FLOAT64, stamp, raw)
-            if res_raw is not None:
-                self.recorder.write_raw(self.out_topics["res"], MessageType.FLOAT64, stamp, res_raw)
+            if self._float64_out:
+                for key, raw in zip(("loss", "power", "eff"), raws):
+                    self.recorder.write_raw(self.out_topics[key], MessageType.FLOAT64, stamp, raw)
+                if res_raw is not None:
+                    self.recorder.write_raw(self.out_topics["res"], MessageType.FLOAT64, stamp, res_raw)
+            if self._stamped is not None:
+                self.recorder.write_raw(self.out_topics["est"], MessageType.JOINT_STATE, stamp, est_raw)
         if self.rerun is not None:
             self._rr_buffer.append(est)
 

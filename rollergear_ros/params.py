@@ -198,6 +198,12 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
               choices=("sensor_data", "reliable"), read_only=True),
     ParamSpec("node.publish_every_n", int, 1, "publish every n-th estimate (decimation for slow consumers)",
               low=1, high=100000),
+    ParamSpec("node.publish_stamped", bool, True,
+              "publish each estimate as one stamped sensor_msgs/JointState on loss/estimate (header.stamp: the "
+              "sample's time; names and values in name/position)", read_only=True),
+    ParamSpec("node.publish_float64", bool, True,
+              "publish the four std_msgs/Float64 outputs (loss/torque, loss/power, efficiency, residual/torque) for "
+              "plotting tools; off: one publication per sample", read_only=True),
     ParamSpec("node.expected_rate_hz", float, 1000.0, "expected input rate, for diagnostics", "Hz",
               low=0.0, low_open=True, high=1e6),
     ParamSpec("node.min_efficiency_warn", float, 0.9, "WARN when the latest efficiency is below this", "",
@@ -331,6 +337,8 @@ class NodeParams:
     executor: str = "events"
     input_qos: str = "sensor_data"
     publish_every_n: int = 1
+    publish_stamped: bool = True
+    publish_float64: bool = True
     expected_rate_hz: float = 1000.0
     min_efficiency_warn: float = 0.9
     hardware_id: str = "rollergear_gearbox"
@@ -488,6 +496,9 @@ def _check_consistency(config: Config) -> None:
                 getattr(g, f"f{j}"),
                 f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove",
             )
+    if not (config.node.publish_stamped or config.node.publish_float64):
+        raise ParameterError("node.publish_float64", False, "and node.publish_stamped are both off: the node would "
+                             "publish no estimate (switch one on)")
     problem = rerun_url_problem(config.node.rerun_connect)
     if problem:
         raise ParameterError("node.rerun_connect", config.node.rerun_connect,

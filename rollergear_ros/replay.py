@@ -26,6 +26,7 @@ from .pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT
 from .interface import MessageType, Metadata
 from .params import Config
 from .progress import TimedProgress
+from . import stamped
 
 
 @dataclass
@@ -835,7 +836,7 @@ def _output_writer(path: str | Path, info: BagInfo, config: Config, topics: Topi
     from .params import config_to_yaml
 
     qos = offered_qos_yaml(reliable=True, depth=OUTPUT_QUEUE_DEPTH)
-    outputs = (topics.loss_torque, topics.loss_power, topics.efficiency, topics.residual_torque)
+    outputs = (topics.loss_torque, topics.loss_power, topics.efficiency, topics.residual_torque, topics.loss_estimate)
     writer = BagWriter(path, offered_qos={t: qos for t in outputs})
     source = Path(info.path)
     writer.add_metadata(Metadata.PROVENANCE, {
@@ -863,6 +864,8 @@ def _emit(b: BatchEstimate | None, writer: BagWriter | None, rlog, acc: _Accumul
         writer.write_float64_series(tm.efficiency, b.t_ns, b.efficiency)
         if has_res.any():
             writer.write_float64_series(tm.residual_torque, b.t_ns[has_res], b.residual_nm[has_res])
+        payloads = stamped.codec().payloads(b.t_ns, np.column_stack(stamped.estimate_values(b)))
+        writer.write_fixed(tm.loss_estimate, MessageType.JOINT_STATE, b.t_ns, payloads)
     if rlog:
         rlog.send_estimates(b)
 

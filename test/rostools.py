@@ -102,15 +102,16 @@ class FloatProbe:
     """Every ``std_msgs/Float64`` of one topic, as received: a reliable subscription with the
     deepest queue the middleware keeps, taking raw bytes (no per-message deserialisation)."""
 
-    def __init__(self, probe_node, topic: str) -> None:
+    def __init__(self, probe_node, topic: str, msg_type=None) -> None:
+        """``msg_type``: another message type, whose raw messages :attr:`raw` keeps (not :meth:`values`)."""
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from std_msgs.msg import Float64
 
         self.topic = topic
         self.raw: list[bytes] = []
         self.subscription = probe_node.create_subscription(
-            Float64, topic, self.raw.append, QoSProfile(depth=PROBE_DEPTH, reliability=ReliabilityPolicy.RELIABLE),
-            raw=True)
+            msg_type or Float64, topic, self.raw.append,
+            QoSProfile(depth=PROBE_DEPTH, reliability=ReliabilityPolicy.RELIABLE), raw=True)
 
     def wait_matched(self, timeout: float = 60.0) -> None:
         """Until the topic's publisher has been matched (the node publishes nothing before its

@@ -26,16 +26,16 @@ PLAY_RATE = {"rig_map": 5.0, "rig_map_drag": 10.0, "drive_cycle_joint_states": 1
 LOSSLESS = "node.input_qos:=reliable"
 
 
-def play_and_receive(bag, rate: float, n_expected: int, topic: str = T.loss_torque) -> np.ndarray:
+def play_and_receive(bag, rate: float, n_expected: int, topic: str = T.loss_torque, msg_type=None):
     """Play ``bag`` into a running node and return what a probe received on ``topic`` once it has
     ``n_expected`` messages (it drains at its own pace; a node that dropped some fails the caller's
-    count, after at most 2 minutes here)."""
+    count, after at most 2 minutes here): the Float64 values, or with ``msg_type`` the raw messages."""
     with ros_context() as probe_node:
-        probe = FloatProbe(probe_node, topic)
+        probe = FloatProbe(probe_node, topic, msg_type)
         probe.wait_matched()
         play(bag, "--rate", str(rate), "--wait-for-subscribers", "20")
         wait_for(lambda: len(probe) >= n_expected, 120)
-        return probe.values()
+        return list(probe.raw) if msg_type else probe.values()
 
 
 @pytest.mark.parametrize("bag", sorted(BAGS.glob("*.mcap")), ids=lambda p: p.stem)
@@ -72,6 +72,40 @@ def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     assert len(read_mcap_ros2(rec)[T.loss_torque][0]) == len(loss)
     # and replaying the node's own recording gives exactly what the node published
     np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in own]), loss, rtol=1e-12, atol=1e-15)
+    # the stamped estimate of every sample: the Float64 values, stamped with the time the node paired
+    # the sample's inputs by (the time its recording logs the motor input at)
+    _, estimates = live[T.loss_estimate]
+    stamps = np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in estimates])
+    position = np.array([list(m.position) for m in estimates])
+    np.testing.assert_array_equal(position[:, 0], loss)
+    np.testing.assert_array_equal(position[:, 2], eff)
+    if T.motor_torque in live:
+        sample_times = live[T.motor_torque][0]
+    else:  # a JointState carries its sample's time in its header
+        sample_times = [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in live[T.joint_states][1]]
+    assert np.isin(stamps, sample_times).all() and np.all(np.diff(stamps) >= 0)
+
+
+def test_with_only_the_stamped_estimate_the_node_publishes_one_message_per_sample(tmp_path):
+    """``node.publish_float64:=false``: no Float64 output exists, and a consumer gets each sample's
+    estimate as one stamped message, equal to the offline replay of the same recording."""
+    from sensor_msgs.msg import JointState
+
+    from rollergear_ros.stamped import ESTIMATE_FIELDS, decode_estimates
+
+    bag = BAGS / "rig_map_drag.mcap"
+    node = NodeProcess("node.publish_float64:=false", LOSSLESS)
+    n_expected = inspect_bag(bag).counts[T.motor_torque]
+    raw = play_and_receive(bag, PLAY_RATE[bag.stem], n_expected, T.loss_estimate, JointState)
+    with ros_context() as probe_node:
+        assert probe_node.count_publishers(T.loss_torque) == 0 and probe_node.count_publishers(T.efficiency) == 0
+    assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
+    stamps, got = decode_estimates(raw)
+    assert len(stamps) == n_expected and np.all(np.diff(stamps) > 0)
+    _, batches = replay(bag, load_config(CONFIG), show_progress=False, collect=True)
+    for name in ESTIMATE_FIELDS:
+        expect = np.concatenate([getattr(b, name) for b in batches])
+        np.testing.assert_allclose(got[name], expect, rtol=1e-9, atol=1e-12, equal_nan=True, err_msg=name)
 
 
 def test_player_keeps_the_bag_timing_across_chunk_boundaries(monkeypatch):
