@@ -136,6 +136,16 @@ class Estimator:
         """Current (adapted) coefficients of the adaptive effects, in physical units."""
         return {n: t / s for n, t, s in zip(self.adaptive, self.rls.theta, self._scales)}
 
+    def coefficient_intervals(self) -> dict[str, tuple[float, float]]:
+        """95 % interval of each adapted coefficient, in physical units: ``θ ± 1.96·σ·√P_ii`` over
+        the regressor's scale, ``σ²`` the residual's variance (the RLS covariance is ``σ²·P``).
+        Before any residual: unbounded."""
+        stats = self.residual_stats
+        var = max(stats.mean_sq - stats.mean ** 2, 0.0) if stats.count > 1 else math.inf
+        return {n: (t / s - 1.96 * math.sqrt(var * self.rls.P[i][i]) / s,
+                    t / s + 1.96 * math.sqrt(var * self.rls.P[i][i]) / s)
+                for i, (n, t, s) in enumerate(zip(self.adaptive, self.rls.theta, self._scales))}
+
     def corrected_torque(self, torque_meas):
         """Drive torque with the accepted torque-sensor errors removed (:func:`.effects.corrected_torque`)."""
         return corrected_torque(torque_meas, self._sensor_offset, self._sensor_gain)

@@ -42,6 +42,7 @@ class Topic:
     EFFICIENCY = "efficiency"
     RESIDUAL_TORQUE = "residual/torque"
     LOSS_ESTIMATE = "loss/estimate"  #: one stamped sensor_msgs/JointState per estimate (:mod:`.stamped`)
+    LOSS_MAP = "loss/map"  #: the live loss map, std_msgs/Float64MultiArray, transient-local (:mod:`.livemap`)
     JOINT_STATES = "/joint_states"  #: absolute
     DIAGNOSTICS = "/diagnostics"  #: absolute
     CLOCK = "/clock"  #: absolute
@@ -56,6 +57,7 @@ class MessageType:
     FLOAT64 = "std_msgs/msg/Float64"
     TEMPERATURE = "sensor_msgs/msg/Temperature"
     JOINT_STATE = "sensor_msgs/msg/JointState"
+    FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
     CLOCK = "rosgraph_msgs/msg/Clock"
 
 

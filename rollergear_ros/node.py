@@ -13,6 +13,7 @@ loss_estimator …``).
 from __future__ import annotations
 
 import gc
+import math
 import struct
 import sys
 import threading
@@ -28,12 +29,16 @@ from rclpy.node import Node
 from rclpy.serialization import serialize_message
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy
 from sensor_msgs.msg import JointState, Temperature
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 
 from . import bag as bagmod
 from .diagnostics import STATUS_NAME, InputMonitor, diagnose
 from .estimator import Estimate, Estimator
+from .errors import RollergearError
 from .intake import InputTaker
+from .livemap import coefficients_moved, live_map, to_multiarray
+from .paths import check_output_file
+from .lossmap import map_comments, write_vtlm
 from .pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
                       SequenceGaps)
 from .stamped import EstimateCodec, estimate_values
@@ -49,6 +54,10 @@ RELIABLE_INPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durabili
 INPUT_QOS = {"sensor_data": SENSOR_QOS, "reliable": RELIABLE_INPUT_QOS}
 OUTPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
                         depth=OUTPUT_QUEUE_DEPTH)
+#: the loss map: the last one kept for subscribers that join later
+MAP_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     history=HistoryPolicy.KEEP_LAST, depth=1)
+MAP_CHECK_S = 1.0  #: how often the adapted coefficients are compared with those of the last map
 _PACK = struct.Struct("<4sd").pack
 HEARTBEAT_S = 0.1  #: period of the executor heartbeat timer (executor lag in /diagnostics)
 _CDR = bagmod.CDR_LE_HEADER
@@ -196,6 +205,11 @@ class LossEstimatorNode(Node):
             self.pub_estimate = self.create_publisher(JointState, Topic.LOSS_ESTIMATE, OUTPUT_QOS)
             self._send_estimate = _raw_publish(self.pub_estimate)
         self.pub_diag = self.create_publisher(DiagnosticArray, Topic.DIAGNOSTICS, 10)
+        # the live loss map (transient-local: an energy manager that starts later gets the last one)
+        self.maps_published = 0
+        self._map_coefficients: dict[str, float] | None = None  # of the map last published
+        self._oil_temperature_c: float | None = None
+        self.pub_map = self.create_publisher(Float64MultiArray, Topic.LOSS_MAP, MAP_QOS) if node.publish_map else None
         self.recorder: bagmod.BagWriter | None = None
         # Float64 inputs are recorded at the very times the estimator paired them by (publisher
         # timestamps, or arrival times), so that replay of the recording pairs them as the node did
@@ -205,6 +219,9 @@ class LossEstimatorNode(Node):
         for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
             if path:
                 check_new_output(name, path)
+        check_output_file("node.map_file", node.map_file or None)  # rewritten with each map
+        if self.pub_map is not None or node.map_file:
+            self._update_map()  # before the inputs are subscribed: nothing waits for it
         if node.record_mcap:
             # written as the messages come (in arrival order), with the QoS the outputs are offered with
             output_qos = bagmod.offered_qos_yaml(reliable=True, depth=OUTPUT_QUEUE_DEPTH)
@@ -243,6 +260,8 @@ class LossEstimatorNode(Node):
         self._heartbeat_ns = time.time_ns()
         self._input_lag = (0, 0)  # (when, how long the message taken then had waited), input thread
         self.create_timer(HEARTBEAT_S, self._heartbeat)
+        if self.pub_map is not None or node.map_file:
+            self.create_timer(MAP_CHECK_S, self._update_map)
         self._diagnostics_stop = threading.Event()
         self._diagnostics_thread = threading.Thread(target=self._diagnostics_loop, name="diagnostics", daemon=True)
         self._diagnostics_thread.start()
@@ -278,6 +297,7 @@ class LossEstimatorNode(Node):
         self._every = new.node.publish_every_n
         self.estimator = Estimator(new, self.pairing, 1.0 / new.node.expected_rate_hz)
         self.estimator.take_over_inputs(old)
+        self._map_coefficients = None  # the next map check publishes the new parameters' map
         self.get_logger().info(f"parameters changed: {', '.join(f'{k}={v}' for k, v in changes.items())}")
         return SetParametersResult(successful=True)
 
@@ -431,8 +451,38 @@ class LossEstimatorNode(Node):
         # the stamp keeps the temperature on the inputs' clock in JointState mode (header stamps)
         t_ns = stamp if (stamp and self.config.node.input_mode == "joint_state") else wall
         self.estimator.push(OIL_TEMPERATURE, t_ns, float(msg.temperature))
+        if math.isfinite(msg.temperature):
+            self._oil_temperature_c = float(msg.temperature)
 
     # ------------------------------------------------------------------ outputs
+    def _update_map(self) -> None:
+        """Publish the loss map (and rewrite ``node.map_file``) at start, after a parameter change,
+        and when an adapted coefficient has left its 95 % interval since the last map."""
+        est = self.estimator
+        current = est.coefficients()
+        if self._map_coefficients is not None and not coefficients_moved(
+                self._map_coefficients, current, est.coefficient_intervals()):
+            return
+        self._map_coefficients = current
+        try:
+            adapted, loss_map = live_map(self.config, current, self._oil_temperature_c)
+        except RollergearError as exc:  # e.g. a map.* grid outside the estimator's plausible range
+            self.get_logger().warn(f"no loss map: {exc}")
+            return
+        if self.pub_map is not None:
+            arr = to_multiarray(loss_map)
+            msg = Float64MultiArray()
+            msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
+                              for label, size, stride in zip(arr.labels, arr.sizes, arr.strides)]
+            msg.layout.data_offset = arr.data_offset
+            msg.data = arr.data.tolist()
+            self.pub_map.publish(msg)
+        if self.config.node.map_file:
+            source = f"{self.get_fully_qualified_name()} (live; adapted coefficients)"
+            write_vtlm(loss_map, Path(self.config.node.map_file),
+                       map_comments(adapted, source, self._oil_temperature_c, reverse=False))
+        self.maps_published += 1
+
     def _publish(self, est: Estimate) -> None:
         self._published += 1
         if self._every > 1 and self._published % self._every:
@@ -608,7 +658,7 @@ def main(args: list[str] | None = None) -> int:
                 if rclpy.ok():
                     raise
                 break
-    except ParameterError as exc:
+    except RollergearError as exc:  # a parameter, an output file refused at start-up
         print(f"loss_estimator: error: {exc}", file=sys.stderr)
         code = 2
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -201,6 +201,12 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("node.publish_stamped", bool, True,
               "publish each estimate as one stamped sensor_msgs/JointState on loss/estimate (header.stamp: the "
               "sample's time; names and values in name/position)", read_only=True),
+    ParamSpec("node.publish_map", bool, True,
+              "publish the loss map (model + accepted effects at their adapted coefficients, the map.* grid) on "
+              "loss/map (transient-local) at start and when an adapted coefficient leaves its 95 % interval",
+              read_only=True),
+    ParamSpec("node.map_file", str, "", "also rewrite this VECTO .vtlm file (atomically) with each map ('' = off)",
+              read_only=True),
     ParamSpec("node.publish_float64", bool, True,
               "publish the four std_msgs/Float64 outputs (loss/torque, loss/power, efficiency, residual/torque) for "
               "plotting tools; off: one publication per sample", read_only=True),
@@ -338,6 +344,8 @@ class NodeParams:
     input_qos: str = "sensor_data"
     publish_every_n: int = 1
     publish_stamped: bool = True
+    publish_map: bool = True
+    map_file: str = ""
     publish_float64: bool = True
     expected_rate_hz: float = 1000.0
     min_efficiency_warn: float = 0.9

@@ -771,3 +771,54 @@ def test_outputs_are_checked_at_start_up_before_any_is_opened(tmp_path, case):
         assert not rec.exists()  # nothing opened
         if case == "existing_rrd":
             assert rrd.read_bytes() == old
+
+
+def test_the_live_loss_map_reaches_a_late_subscriber_and_follows_the_adaptation(tmp_path):
+    """``loss/map``: a subscriber that starts after the node gets the map (transient-local), equal
+    to ``rollergear map`` of the same parameter file; a recording whose speed drag is twice the
+    accepted one moves the adapted coefficient beyond its interval, and the node publishes the new
+    map, which is also the ``node.map_file`` it rewrote (the adapted coefficient in its comments)."""
+    import re
+
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64MultiArray
+
+    from rollergear_ros.interface import NAMESPACE, Topic
+    from rollergear_ros.livemap import from_multiarray, map_grid
+    from rollergear_ros.lossmap import build_map
+    from rollergear_ros.params import validate
+
+    params = tmp_path / "cal.yaml"
+    params.write_text("/**/loss_estimator:\n  ros__parameters:\n    effects:\n"
+                      "      drag_speed: {enabled: true, c: 1.5e-4, p: 1.4}\n")
+    config = load_config(params)
+    map_file = tmp_path / "live.vtlm"
+    node = NodeProcess(f"node.map_file:={map_file}", LOSSLESS, params_file=params)
+    maps = []
+    with ros_context() as probe_node:
+        # the node subscribes to its inputs after publishing its first map: from then on this is late
+        assert wait_for(lambda: probe_node.count_subscribers(T.motor_torque) > 0, 60), "the node did not start"
+        qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        probe_node.create_subscription(Float64MultiArray, f"{NAMESPACE}/{Topic.LOSS_MAP}", maps.append, qos)
+        assert wait_for(lambda: len(maps) >= 1, 60), "no map for a late subscriber"
+        speeds, torques, first = from_multiarray([d.label for d in maps[0].layout.dim],
+                                                 [d.size for d in maps[0].layout.dim], maps[0].layout.data_offset,
+                                                 maps[0].data)
+        grid_speeds, grid_torques = map_grid(config)
+        np.testing.assert_array_equal(speeds, grid_speeds)
+        np.testing.assert_array_equal(torques, grid_torques)
+        np.testing.assert_allclose(first, build_map(config, speeds, torques).loss_nm, rtol=1e-12)
+        play(BAGS / "rig_map_drag.mcap", "--rate", "10", "--wait-for-subscribers", "20")
+        assert wait_for(lambda: len(maps) >= 2, 60), "the adaptation moved no map"
+        assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
+        received = [from_multiarray([d.label for d in m.layout.dim], [d.size for d in m.layout.dim],
+                                    m.layout.data_offset, m.data)[2] for m in list(maps)]
+    assert received[-1][-1].mean() > first[-1].mean() * 1.2  # at the highest speed: the larger drag
+    text = map_file.read_text()
+    c = float(re.search(r"accepted effects: drag_speed c=([0-9.e+-]+)", text).group(1))
+    assert c > 2.0e-4  # towards the recording's 3e-4 (and its undeclared constant drag)
+    rows = np.array([ln.split(",") for ln in text.splitlines() if not ln.startswith("#")][1:], dtype=float)
+    adapted = validate(config.to_flat() | {"effects.drag_speed.c": c})
+    np.testing.assert_allclose(rows[:, 2], build_map(adapted, speeds, torques).loss_nm.ravel(), rtol=1e-5)
+    # the file holds a map the node published (the last one written; written after publishing)
+    assert any(np.allclose(rows[:, 2], loss.ravel(), rtol=1e-5) for loss in received[1:])
