@@ -22,11 +22,22 @@ STARTUP_GRACE_S = 5.0
 OVERLOAD_QUEUE_SHARE = 0.5
 #: the lag taken as "holding" a reliable keep-all input (no queue to overflow; its publisher waits)
 RELIABLE_LAG_S = 1.0
+#: a stream's rate is learned as the median of its first this many whole report windows
+RATE_LEARN_WINDOWS = 3
+#: below this share of the expected rate an input is reported as slow (WARN)
+SLOW_RATE_SHARE = 0.8
 
 
 @dataclass
 class InputMonitor:
-    """Counts and last arrival (wall clock, ns) of each input channel."""
+    """Counts and last arrival (wall clock, ns) of each input channel, and the rate each stream
+    started at.
+
+    A stream starts with the first report window (:meth:`rates`) in which its channel has messages
+    after one without any (a bag played at another rate, a restarted player).  That first window is
+    partial; the median rate of the next :data:`RATE_LEARN_WINDOWS` whole windows is the stream's
+    learned rate (:meth:`learned_rate_hz`), so a stream that slows down later is still reported.
+    """
 
     start_ns: int
     counts: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
@@ -35,6 +46,9 @@ class InputMonitor:
     lost: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
     _window_counts: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
     _window_start_ns: int = 0
+    _active_windows: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
+    _learning: dict[str, list[float]] = field(default_factory=lambda: {c: [] for c in CHANNELS})
+    _learned_hz: dict[str, float | None] = field(default_factory=lambda: {c: None for c in CHANNELS})
 
     def __post_init__(self) -> None:
         self._window_start_ns = self.start_ns
@@ -49,7 +63,22 @@ class InputMonitor:
         out = {c: (self.counts[c] - self._window_counts[c]) / dt for c in CHANNELS}
         self._window_counts = dict(self.counts)
         self._window_start_ns = now_ns
+        for c, rate in out.items():
+            if rate == 0.0:  # silent for a whole window: what comes next is a new stream
+                self._active_windows[c] = 0
+                self._learning[c] = []
+                self._learned_hz[c] = None
+                continue
+            self._active_windows[c] += 1
+            if self._active_windows[c] > 1 and self._learned_hz[c] is None:  # a whole window of the stream
+                self._learning[c].append(rate)
+                if len(self._learning[c]) == RATE_LEARN_WINDOWS:
+                    self._learned_hz[c] = sorted(self._learning[c])[RATE_LEARN_WINDOWS // 2]
         return out
+
+    def learned_rate_hz(self, channel: str) -> float | None:
+        """The rate the channel's current stream started at (None: not learned yet)."""
+        return self._learned_hz[channel]
 
 
 @dataclass
@@ -63,10 +92,18 @@ def _fmt(x: float, digits: int = 4) -> str:
     return "nan" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}g}"
 
 
+def _slow_input(channel: str, rate_hz: float, expected_hz: float | None, learned: bool) -> list[tuple[int, str]]:
+    """A WARN when ``channel`` runs below :data:`SLOW_RATE_SHARE` of ``expected_hz`` (None: not known yet)."""
+    if expected_hz is None or rate_hz >= SLOW_RATE_SHARE * expected_hz:
+        return []
+    against = "its stream started at" if learned else "expected"
+    return [(WARN, f"{channel} at {rate_hz:.0f} Hz, {against} {expected_hz:.0f} Hz")]
+
+
 def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estimator: Estimator,
              expected_rate_hz: float, min_efficiency_warn: float, previous_skips: dict[str, int],
              previous_alarms: int, busy_fraction: float = 0.0, executor_lag_s: float = 0.0,
-             queue_depth: int | None = None) -> DiagnosticReport:
+             queue_depth: int | None = None, learn_rate: bool = False) -> DiagnosticReport:
     """Level (worst reason wins), one-line message and the key/value pairs of the status.
 
     Overload: ``executor_lag_s`` is how long the executor takes to reach an event queued behind the
@@ -75,6 +112,11 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
     running half of that behind is about to lose the oldest of them, so that is a WARN (by arrival,
     the node counts what was lost, from the publishers' sequence numbers: ``lost in delivery``).
     ``None``: a reliable keep-all input (the publisher waits instead).
+
+    Input rates: with ``learn_rate`` an input is slow below :data:`SLOW_RATE_SHARE` of the rate its
+    stream started at (:meth:`InputMonitor.learned_rate_hz`; nothing is said while it is learned),
+    so a bag played at another rate is not a warning for ever; otherwise below that share of
+    ``expected_rate_hz``.
     """
     est = estimator.config.estimator
     stale_after_s = max(est.staleness_s, 10.0 / expected_rate_hz)
@@ -91,14 +133,17 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
         required = ch in (TORQUE, SPEED)
         if required:  # each estimate takes one message of each: the rest were not estimated
             values.append((f"{ch} not estimated", str(max(monitor.counts[ch] - estimator.estimated, 0))))
-        if required:
+            learned = monitor.learned_rate_hz(ch)
+            if learn_rate:
+                values.append((f"{ch} learned rate [Hz]", "learning" if learned is None else _fmt(learned)))
             if last is None:
                 level = WARN if since_start < STARTUP_GRACE_S else ERROR
                 reasons.append((level, f"no input on {ch}"))
             elif age > stale_after_s:
                 reasons.append((ERROR, f"stale input: {ch} silent for {age:.2f} s"))
-            elif rates.get(ch, 0.0) < 0.8 * expected_rate_hz:
-                reasons.append((WARN, f"{ch} at {rates.get(ch, 0.0):.0f} Hz, expected {expected_rate_hz:.0f} Hz"))
+            else:
+                expected = learned if learn_rate else expected_rate_hz
+                reasons += _slow_input(ch, rates.get(ch, 0.0), expected, learn_rate)
         elif ch == OUT_TORQUE and last is not None and age > stale_after_s:
             reasons.append((WARN, f"measured output stale ({age:.2f} s): no residual"))
     values.append(("input callbacks busy [%]", _fmt(100 * busy_fraction, 3)))

@@ -566,7 +566,7 @@ class LossEstimatorNode(Node):
         report = diagnose(now, self.monitor, self.monitor.rates(now), self.estimator, node.expected_rate_hz,
                           node.min_efficiency_warn, self._skips_reported, self._alarms_reported,
                           busy_fraction=(busy - busy_then) / max(now - then, 1), executor_lag_s=self.executor_lag_s(),
-                          queue_depth=depth)
+                          queue_depth=depth, learn_rate=node.learn_input_rate)
         self._skips_reported = dict(self.estimator.counts)
         self._alarms_reported = self.estimator.detector.alarms
         status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: {STATUS_NAME}",

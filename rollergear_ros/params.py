@@ -212,6 +212,9 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
               "plotting tools; off: one publication per sample", read_only=True),
     ParamSpec("node.expected_rate_hz", float, 1000.0, "expected input rate, for diagnostics", "Hz",
               low=0.0, low_open=True, high=1e6),
+    ParamSpec("node.learn_input_rate", bool, True,
+              "diagnostics: an input is slow below 80 % of the rate its stream started at (a bag played at another "
+              "rate is no warning); false: below 80 % of node.expected_rate_hz"),
     ParamSpec("node.min_efficiency_warn", float, 0.9, "WARN when the latest efficiency is below this", "",
               low=0.0, high=1.0),
     ParamSpec("node.hardware_id", str, "rollergear_gearbox", "hardware_id in /diagnostics"),
@@ -348,6 +351,7 @@ class NodeParams:
     map_file: str = ""
     publish_float64: bool = True
     expected_rate_hz: float = 1000.0
+    learn_input_rate: bool = True
     min_efficiency_warn: float = 0.9
     hardware_id: str = "rollergear_gearbox"
     record_mcap: str = ""

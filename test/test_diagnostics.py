@@ -69,3 +69,47 @@ def test_received_and_not_estimated_per_input():
     values = dict(diagnose(now, mon, {TORQUE: 1000.0, SPEED: 1000.0}, est, 1000.0, 0.9, dict(est.counts), 0).values)
     assert (values["motor_torque messages"], values["motor_torque not estimated"]) == ("120", "10")
     assert (values["motor_speed messages"], values["motor_speed not estimated"]) == ("117", "7")
+
+
+def _feed(monitor, start_s, seconds, rate_hz, est, learn=True):
+    """Both drive inputs at ``rate_hz`` from ``start_s`` for ``seconds``, a report at each whole
+    second (as the node's 1 s loop) -> the reports."""
+    reports = []
+    t_ns, period_ns = round(start_s * 1e9), round(1e9 / rate_hz)
+    for second in range(math.floor(start_s) + 1, math.floor(start_s + seconds) + 1):
+        while t_ns < second * 10**9:
+            for ch in (TORQUE, SPEED):
+                monitor.record(ch, t_ns)
+            t_ns += period_ns
+        now = second * 10**9
+        reports.append(diagnose(now, monitor, monitor.rates(now), est, 1000.0, 0.5, dict(est.counts), 0,
+                                learn_rate=learn))
+    return reports
+
+
+def test_a_bag_played_at_another_rate_is_learned_not_warned_about_for_ever():
+    """500 Hz against the configured 1000 Hz from the stream's start: with learning, nothing is
+    said while three whole windows are learned (the first, partial window is not one of them), then
+    OK; without, a WARN at every report."""
+    est = Estimator(load_config())
+    learning = InputMonitor(0)
+    reports = _feed(learning, 0.4, 8.0, 500.0, est)
+    assert all(r.level == OK for r in reports), [r.message for r in reports]
+    values = dict(reports[-1].values)
+    assert values["motor_torque learned rate [Hz]"] == "500" and dict(reports[1].values)[
+        "motor_torque learned rate [Hz]"] == "learning"
+    assert learning.learned_rate_hz(TORQUE) == 500.0  # not the partial first window's 300 Hz
+    fixed = _feed(InputMonitor(0), 0.4, 8.0, 500.0, est, learn=False)
+    assert all(r.level == WARN and "motor_torque at 500 Hz, expected 1000 Hz" in r.message for r in fixed[1:])
+
+
+def test_a_stream_that_slows_down_is_still_a_warning_and_a_new_stream_is_learned_anew():
+    est = Estimator(load_config())
+    monitor = InputMonitor(0)
+    assert all(r.level == OK for r in _feed(monitor, 0.0, 6.0, 1000.0, est))
+    slowed = _feed(monitor, 6.0, 3.0, 400.0, est)
+    assert slowed[-1].level == WARN and "motor_torque at 400 Hz, its stream started at 1000 Hz" in slowed[-1].message
+    monitor.rates(10 * 10**9)  # a whole window without a message: the player stopped
+    assert monitor.learned_rate_hz(TORQUE) is None
+    restarted = _feed(monitor, 10.5, 6.0, 200.0, est)
+    assert all(r.level == OK for r in restarted) and monitor.learned_rate_hz(TORQUE) == 200.0
