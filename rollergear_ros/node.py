@@ -479,8 +479,11 @@ class LossEstimatorNode(Node):
             self.pub_map.publish(msg)
         if self.config.node.map_file:
             source = f"{self.get_fully_qualified_name()} (live; adapted coefficients)"
-            write_vtlm(loss_map, Path(self.config.node.map_file),
-                       map_comments(adapted, source, self._oil_temperature_c, reverse=False))
+            try:  # the folder may have gone since start-up: a warning, the node and the topic go on
+                write_vtlm(loss_map, Path(self.config.node.map_file),
+                           map_comments(adapted, source, self._oil_temperature_c, reverse=False))
+            except OSError as exc:
+                self.get_logger().warn(f"node.map_file: could not rewrite {self.config.node.map_file}: {exc}")
         self.maps_published += 1
 
     def _publish(self, est: Estimate) -> None:

@@ -255,6 +255,31 @@ def test_parameter_changes_are_validated_and_refused_with_the_reason():
     assert node.stop() == 0
 
 
+def test_a_map_file_that_can_no_longer_be_written_costs_only_the_file(tmp_path):
+    """``node.map_file``'s folder replaced by a file while the node runs: the next map is still
+    published on ``loss/map``; the rewrite is a warning, not an exception out of the map timer."""
+    from rclpy.parameter import Parameter
+
+    from rollergear_ros.node import LossEstimatorNode
+
+    folder = tmp_path / "maps"
+    map_file = folder / "live.vtlm"
+    with ros_context() as probe:
+        node = LossEstimatorNode(context=probe.context,
+                                 parameter_overrides=[Parameter("node.map_file", value=str(map_file))])
+        try:
+            assert map_file.is_file() and node.maps_published == 1  # the map at start
+            map_file.unlink()
+            folder.rmdir()
+            folder.write_text("not a folder")
+            results = node.set_parameters([Parameter("effects.drag_speed.enabled", value=True)])
+            assert all(r.successful for r in results)
+            node._update_map()  # what the map timer does next: the new parameters' map
+            assert node.maps_published == 2 and folder.read_text() == "not a folder"
+        finally:
+            node.destroy_node()
+
+
 def test_run_time_change_of_pairing_limits_takes_effect():
     """A new pairing tolerance (via node.expected_rate_hz) and staleness apply to the running
     synchroniser at once, and the inputs already queued are kept."""
