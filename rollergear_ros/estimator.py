@@ -188,6 +188,11 @@ class Estimator:
                 out.append(e)
         return out
 
+    def finish(self) -> list[Estimate]:
+        """At the end of a live run: estimate, one by one, what can still be paired -- the samples held
+        for a measured output -- exactly as :meth:`flush` does at the end of a recording."""
+        return [e for e in map(self.process, self.sync.flush()) if e is not None]
+
     # ------------------------------------------------------------------ batches (replay)
     def push_many(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray) -> BatchEstimate | None:
         """Feed a batch of messages in arrival (file) order (``codes`` index :data:`~.pairing.CHANNELS`);

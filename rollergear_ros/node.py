@@ -486,23 +486,25 @@ class LossEstimatorNode(Node):
                 self.get_logger().warn(f"node.map_file: could not rewrite {self.config.node.map_file}: {exc}")
         self.maps_published += 1
 
-    def _publish(self, est: Estimate) -> None:
+    def _publish(self, est: Estimate, send: bool = True) -> None:
+        """Publish one estimate (``send=False``: record it only) and buffer it for rerun."""
         self._published += 1
         if self._every > 1 and self._published % self._every:
             return
         res = est.residual_nm
         if self._float64_out:
             raws = (_PACK(_CDR, est.loss_torque_nm), _PACK(_CDR, est.loss_power_w), _PACK(_CDR, est.efficiency))
-            self._send_loss(raws[0])
-            self._send_power(raws[1])
-            self._send_eff(raws[2])
-            res_raw = None
-            if res == res:  # measured output present
-                res_raw = _PACK(_CDR, res)
-                self._send_res(res_raw)
+            res_raw = _PACK(_CDR, res) if res == res else None  # NaN: no measured output
+            if send:
+                self._send_loss(raws[0])
+                self._send_power(raws[1])
+                self._send_eff(raws[2])
+                if res_raw is not None:
+                    self._send_res(res_raw)
         if self._stamped is not None:
             est_raw = self._stamped.encode(est.t_ns, estimate_values(est))
-            self._send_estimate(est_raw)
+            if send:
+                self._send_estimate(est_raw)
         if self.recorder is not None:
             stamp = self.get_clock().now().nanoseconds
             if self._float64_out:
@@ -595,12 +597,26 @@ class LossEstimatorNode(Node):
         self._stop_diagnostics()
         super().destroy_node()
 
+    def _finish_pending(self) -> None:
+        """Samples paired but still held for a measured output when the node stops: estimated as replay
+        estimates them at the end of a recording, so that replay of the recording gives exactly what
+        the node published; sent while the middleware still runs, recorded either way."""
+        send = self.context.ok()
+        for est in self.estimator.finish():
+            try:
+                self._publish(est, send)
+            except Exception:  # the context went down meanwhile (a second signal): record the rest
+                send = False
+                self._published -= 1
+                self._publish(est, False)
+
     def close(self) -> None:
         """Flush and close the recordings, the MCAP first (safe to call twice).  A rerun viewer
         that cannot be reached costs its data, with a warning, never the MCAP or a traceback."""
         if self.inputs is not None:
-            self.inputs.stop()  # nothing is written to the recording after this
+            self.inputs.stop()  # no input is taken after this
         self._stop_diagnostics()
+        self._finish_pending()
         if self.recorder is not None:
             self.recorder.close()
             self.recorder = None

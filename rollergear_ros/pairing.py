@@ -349,6 +349,11 @@ class SampleSynchronizer:
         times = np.stack([t_ns[rows[c]] for c in present])
         if np.any(times.max(axis=0) - times.min(axis=0) > self.tolerance_ns):
             return None
+        # taken out of time order (one input's backlog before the others'): a message further than the
+        # tolerance behind the latest one may be given up by the streaming rule -- let it decide
+        arrived = t_ns[codes != CHANNELS.index(OIL_TEMPERATURE)]
+        if np.any(np.maximum.accumulate(arrived) - arrived > self.tolerance_ns):
+            return None
         # leftovers (a sample cut by the batch boundary) must come after every paired message
         left = np.sort(np.concatenate([idx[c][n:] for c in present] + [np.empty(0, dtype=np.int64)]))
         complete_at = np.stack([rows[c] for c in present]).max(axis=0)

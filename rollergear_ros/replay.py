@@ -223,8 +223,13 @@ class InputBatch:
 
 
 def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None],
-                   problems: InputProblems, log_time_range: tuple[int, int] | None = None):
+                   problems: InputProblems, log_time_range: tuple[int, int] | None = None,
+                   file_order: bool = False):
     """Batches of decoded inputs: Float64 bags through the numpy chunk reader, others record by record.
+
+    Float64 inputs are sorted by log time, except with ``file_order``: a recording the node made,
+    whose inputs stand in the order the node took them (which pairing by publisher timestamps
+    depends on, when the node takes one input's backlog before another's).
 
     Damaged spans of the file are skipped, malformed and duplicated messages too (``problems``);
     each is reported through ``warn`` when the read ends.
@@ -235,7 +240,7 @@ def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callab
     preload_summary(info.path, state)
     try:
         if plan.mode == "float64":
-            yield from _float64_batches(info, plan, batch_size, state, problems)
+            yield from _float64_batches(info, plan, batch_size, state, problems, file_order)
         else:
             yield from _decoded_batches(info, plan, batch_size, state, problems)
     finally:
@@ -263,7 +268,8 @@ def _decoded_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
         yield InputBatch(codes, t, v, write)
 
 
-def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems):
+def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems,
+                     file_order: bool = False):
     from .fastmcap import iter_message_arrays, release_count
 
     code_of = {c: i for i, c in enumerate(CHANNELS)}
@@ -341,6 +347,8 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
         """Prepend what the previous batch held back, sort by log time (file order among equal
         times), and hold back messages newer than the oldest channel's last one (not final)."""
         nonlocal carry
+        if file_order:
+            return batch
         if carry is not None:
             batch = InputBatch(
                 np.concatenate([carry.codes, batch.codes]),
@@ -643,12 +651,14 @@ class _Accumulator:
         self.res_n += len(r)
 
 
-def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tuple[str, float | None]:
-    """How to pair the bag's Float64 inputs, and the sample period that sets the tolerance.
+def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tuple[str, float | None, bool]:
+    """How to pair the bag's Float64 inputs, the sample period that sets the tolerance, and whether
+    to take them in file order.
 
     A recording ``loss_estimator`` made (its ``rollergear_recording`` metadata) logged its inputs
-    at the times it paired them by -- arrival times, or publisher timestamps -- so replay pairs them
-    as the node did: by its pairing and its sample period.  Any other bag: ``("timestamp", period_s)``.
+    at the times it paired them by -- arrival times, or publisher timestamps -- in the order it took
+    them, so replay pairs them as the node did: by its pairing and its sample period, in file order.
+    Any other bag: ``("timestamp", period_s, False)``.
     """
     recording = read_metadata(path, Metadata.RECORDING) if plan.mode == "float64" else None
     if recording and (recording.get("pairing") in ARRIVAL_PAIRINGS
@@ -658,8 +668,8 @@ def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tup
         except ValueError:
             node_period_s = math.nan
         if math.isfinite(node_period_s) and node_period_s > 0:
-            return recording["pairing"], node_period_s
-    return "timestamp", period_s
+            return recording["pairing"], node_period_s, True
+    return "timestamp", period_s, False
 
 
 def replay(
@@ -715,7 +725,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
         )
     plan = plan_inputs(info, topics)
     period_s = median_period_s(info.path, plan.joint_states or topics.motor_torque)
-    pairing, period_s = recorded_pairing(info.path, plan, period_s)
+    pairing, period_s, file_order = recorded_pairing(info.path, plan, period_s)
     estimator = Estimator(config, pairing=pairing, sample_period_s=period_s)
     problems = InputProblems(estimator.counts, plan)
     window = None
@@ -746,7 +756,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                 skip_events = SkipEvents()
         bar = TimedProgress("replay", total, "msg", enabled=show_progress).start()
         for batch in _input_batches(info, plan, batch_size, _warn, problems,
-                                    window.read_range() if window else None):
+                                    window.read_range() if window else None, file_order):
             if stop.requested:
                 summary.interrupted = True
                 break

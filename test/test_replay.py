@@ -760,3 +760,41 @@ def test_a_node_recording_is_paired_as_the_node_paired_it(tmp_path, config, meta
         LossModel(config.gearbox).loss_magnitude(np.linspace(5.0, 50.0, n), np.full(n, 100.0)),
         rtol=1e-12,
     )
+
+
+def test_a_node_recording_is_replayed_in_the_order_the_node_took_its_inputs(tmp_path, config):
+    """Replay takes a node's recorded inputs in the order the node took them.
+
+    A node pairing by publisher timestamps that takes one input's backlog before another's (the
+    single-threaded executor after a stall) gives up the samples that input left behind; its
+    recording holds the inputs in the order it took them.  Replay takes them in that order, not
+    sorted by their timestamps, and so estimates what the node estimated -- as :meth:`Estimator.push`
+    does message by message.  (Found by the stress test: replay had estimated a sample the node
+    had given up.)"""
+    from rollergear_ros.bag import encode_float64
+    from rollergear_ros.estimator import Estimator
+    from rollergear_ros.interface import Metadata, MessageType
+
+    n, period_ns = 40, 50_000_000
+    t0 = 1_000_000_000
+    topic = {"motor_torque": T.motor_torque, "motor_speed": T.motor_speed, "output_torque": T.output_torque,
+             "output_speed": T.output_speed}
+    sample = {ch: [(t0 + k * period_ns + j * 200_000, v) for k in range(n)]
+              for j, (ch, v) in enumerate(zip(topic, (20.0, 100.0, 117.0, 17.0)))}
+    for ch in sample:  # unique values, as a rig's
+        sample[ch] = [(t, v + 0.5 * k) for k, (t, v) in enumerate(sample[ch])]
+    # taken by the node: the first three output speeds before anything else, then sample by sample
+    taken = [("output_speed", *sample["output_speed"][k]) for k in range(3)]
+    for k in range(n):
+        taken += [(ch, *sample[ch][k]) for ch in topic if not (ch == "output_speed" and k < 3)]
+    p = tmp_path / "node.mcap"
+    with BagWriter(p, time_ordered=False) as bw:  # as the node records: in the order it took them
+        bw.add_metadata(Metadata.RECORDING, {"pairing": "timestamp", "input_log_time": "source_timestamp",
+                                             "sample_period_s": repr(period_ns * 1e-9)})
+        for ch, t, v in taken:
+            bw.write_raw(topic[ch], MessageType.FLOAT64, t, encode_float64(np.array([v]))[0])
+    node = Estimator(config, "timestamp", period_ns * 1e-9)
+    live = [e.torque_nm for ch, t, v in taken for e in node.push(ch, t, v)] + [e.torque_nm for e in node.finish()]
+    assert node.counts["unpaired"] > 0 and len(live) < n  # the node gave up what the backlog left behind
+    _, batches = replay(p, config, show_progress=False, collect=True)
+    np.testing.assert_array_equal(np.concatenate([b.torque_nm for b in batches]), live)
