@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
-from test_calibrate import CASES, draw_effect  # noqa: E402
+from test_calibrate import CASES, OILS, datasheet_oil, draw_effect  # noqa: E402
 
 from rollergear_ros.calibrate import calibrate, load_samples  # noqa: E402
 from rollergear_ros.params import load_config  # noqa: E402
@@ -31,13 +31,13 @@ def run(tmp: Path, effects, profile: str, seed: int, **kw):
 
 
 def fmt_truth(effects) -> str:
-    return "; ".join(f"{e.name} " + ", ".join(f"{k}={v:.3g}" for k, v in e.params.items()
-                                            if k not in ("C", "theta_ref")) for e in effects) or "none"
+    return "; ".join((f"{e.name} " + ", ".join(f"{k}={v:.3g}" for k, v in e.params.items()
+                                             if k not in ("theta_ref", "scale"))).strip() for e in effects) or "none"
 
 
 def fmt_found(res) -> str:
     parts = [f"{e.name} " + ", ".join(f"{k}={v:.3g}" for k, v in e.params.items()
-                                         if k not in ("C", "theta_ref")) for e in res.effects]
+                                         if k != "theta_ref") for e in res.effects]
     parts += [f"cannot tell apart {' / '.join(a.effects)}" for a in res.ambiguous]
     return "; ".join(parts) or "—"
 
@@ -58,6 +58,13 @@ def main() -> None:
         rows.append((e, "rig_map (forward only)", run(tmp, e, "rig_map", 5)))
     rows.append(([], "bidirectional_map, AR(1) 0.9 noise, 10 ms lag", run(tmp, [], "bidirectional_map", 77,
                                                                           noise_ar1=0.9, output_lag_s=0.01)))
+    # real oils' viscosity laws (ASTM D341 through their data-sheet ν40, ν100: not the Vogel law fitted)
+    if OILS.exists():
+        for product in ("Mobilgear 600 XP 220", "Mobil SHC 630", "Shell Omala S4 WE 220"):
+            nu = datasheet_oil(product)
+            label = [DeclaredEffect("viscosity_temperature", {})]
+            label[0].name = f"{product}: ν40={nu[0]:g}, ν100={nu[1]:g} mm²/s"
+            rows.append((label, "warmup", run(tmp, [], "warmup", 11, oil_nu40_nu100_mm2_s=nu)))
     for effects, profile, res in rows:
         b, a = res.error_before.rmse_nm, res.error_after.rmse_nm
         print(f"| {fmt_truth(effects)} | {profile} | {res.verdict} | {fmt_found(res)} | {b:.4f} → {a:.4f} | "

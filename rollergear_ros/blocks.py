@@ -46,21 +46,32 @@ class Blocks:
     x: EffectInputs | None = None  # per-sample inputs of the effects' terms
     testable: tuple[str, ...] = ()  # effects this data can test (a varying temperature where needed)
     steady_state: bool = False  # rows of steady-state tables: a block and a dwell each, equal weights
-    _columns: dict = field(default_factory=dict, repr=False)  # (effect, member) -> block means, computed once
+    _distinct: tuple | None = field(default=None, repr=False)  # distinct temperatures, inverse index
+    _columns: dict = field(default_factory=dict, repr=False)  # (effect, member, second) -> block means, computed once
 
     def mean(self, values: np.ndarray) -> np.ndarray:
         return np.add.reduceat(np.broadcast_to(values, self.x.abs_speed.shape), self.start) / self.count
 
-    def column(self, name: str, member: float | None = None) -> np.ndarray:
+    def column(self, name: str, member: float | None = None, second: float | None = None) -> np.ndarray:
         """Block means of an effect's regressor (coefficient 1), at any member (not only the grid's);
         a sample without an input the effect needs (a missing temperature) contributes 0.  Each
         (effect, member) is computed once: the selection asks for the same ones at every step."""
-        key = (name, member)
+        key = (name, member, second)
         cached = self._columns.get(key)
         if cached is not None:
             return cached
         effect = EFFECTS[name]
-        values = effect.column(self.x, effect.defaults(), member)
+        if effect.scales_fr:
+            # a relative change of Fr that depends on the oil temperature alone: evaluated once per
+            # distinct temperature (held between its messages: ~1 in 20 samples), then times T_Fr
+            if self._distinct is None:
+                self._distinct = np.unique(self.x.temperature_c, return_inverse=True)
+            theta, inverse = self._distinct
+            relative = effect.column(self.x._replace(temperature_c=theta, fr_part_nm=1.0), effect.defaults(),
+                                     member, second)
+            values = self.x.fr_part_nm * relative[inverse]
+        else:
+            values = effect.column(self.x, effect.defaults(), member, second)
         if effect.needs_temperature:
             values = np.where(np.isnan(values), 0.0, values)
         cached = self._columns[key] = self.mean(values)

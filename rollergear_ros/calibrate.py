@@ -191,6 +191,8 @@ def calibrate(
                 lo_c, hi_c = ci[coef_keys[term.name]]
                 ci[coef_keys[term.name]] = [min(lo_c, ca - 1.96 * sa), max(hi_c, ca + 1.96 * sa)]
             ci[expo_keys[term.name]] = [lo_m, hi_m]
+        if term.second is not None and term.name in out.second_ranges:
+            ci[EFFECTS[term.name].second_member] = out.second_ranges[term.name]
         rms = cal.rms_of(term.column)
         effects.append(FoundEffect(term.name, term.params(c), ci, abs(c) * rms,
                                    [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms]))
@@ -227,11 +229,15 @@ def calibrate(
     for e in effects:
         try:
             _calibrated_config(config, [e])
-            writable.append(e)
+            problem = _at_search_bound(e)
         except ParameterError as exc:
-            cal.log.append(f"{e.name} not written to the parameter file: {exc}")
+            problem = f"fitted value outside the physical range: {exc}"
+        if problem is None:
+            writable.append(e)
+        else:
+            cal.log.append(f"{e.name} not written to the parameter file: {problem}")
             out.rejected.append(RejectedEffect(e.name, e.rms_contribution_ci95_nm[1], e.rms_contribution_nm,
-                                               reason=f"fitted value outside the physical range: {exc}"))
+                                               reason=problem))
             verdict = "inconclusive"
     effects = writable
     new_config = _calibrated_config(config, effects)
@@ -258,6 +264,19 @@ def calibrate(
         blocks,
         pred_after,
     )
+
+
+def _at_search_bound(found: FoundEffect) -> str | None:
+    """Why a fit whose exponent or Vogel B/C stopped at the bound of its search is no estimate
+    (the data wants a value the search does not allow: another law, or recordings of different rigs)."""
+    effect = EFFECTS[found.name]
+    for short, (lo, hi) in ((effect.member, effect.member_bounds), (effect.second_member, effect.second_bounds)):
+        if short is not None:
+            v = found.params[short]
+            if min(abs(v - lo), abs(v - hi)) <= 1e-6 * max(abs(lo), abs(hi), 1.0):
+                return (f"fitted value outside the physical range: {short} = {v:.4g} stopped at the bound of "
+                        f"its search [{lo:g}, {hi:g}]")
+    return None
 
 
 def _refit_sensor_errors(

@@ -21,8 +21,11 @@ effect                     contribution to the measured loss [N·m]      kind
 ``torque_gain``            ``g·T·sgn(ω)``                               sensor gain error
 =========================  ===========================================  ======================
 
-``T_Fr`` is the Fr part of the model (eq. 3, ∝ η^0.66 through U^0.66 of eq. 9), and
-``η(θ) = η0·exp(B/(θ + C) − B/(θ_ref + C))`` (Vogel).  Sensor errors are not losses: they enter
+``T_Fr`` is the Fr part of the model (eq. 3, ∝ η^0.66 through U^0.66 of eq. 9) -- the only part
+that depends on the viscosity, so ``T_Fr·(s − 1)`` is the whole model at ``η(θ)`` minus the model
+at ``η0`` -- and ``η(θ) = η0·exp(B/(θ + C) − B/(θ_ref + C))`` (Vogel).  ``calibrate`` fits both B
+and C with ``scale`` held at 1 (the model at ``η(θ)``, as ``interface.md`` defines the effect), then
+reports ``scale`` fitted freely as a check of the model's η^0.66.  Sensor errors are not losses: they enter
 the comparison with the measured loss (the residual), never the published loss torque; the two
 torque-sensor errors also corrupt the model's input torque (:func:`corrected_torque`).
 
@@ -157,10 +160,18 @@ class Effect:
     member: str | None = None  #: short name of the nonlinear parameter ``calibrate`` profiles
     member_grid: tuple[float, ...] = ()
     member_bounds: tuple[float, float] = (0.0, 0.0)
+    #: a second nonlinear parameter ``calibrate`` profiles jointly with ``member`` (Vogel C with B),
+    #: on its own grid, with the coefficient held at ``profile_coefficient`` while both are profiled
+    second_member: str | None = None
+    second_grid: tuple[float, ...] = ()
+    second_bounds: tuple[float, float] = (0.0, 0.0)
+    profile_coefficient: float | None = None
     regressor_scale: Callable[[Mapping[str, float]], float] = lambda params: 1.0
     adaptive: bool = True  #: the coefficient is adapted online by RLS when output torque is measured
     needs_temperature: bool = False  #: testable only when the oil temperature varies (≥ 3 °C)
-    scales_fr: bool = False  #: applied as a factor on the model's Fr part (the estimator's viscosity path)
+    #: applied as a factor on the model's Fr part (the estimator's viscosity path); the factor
+    #: depends on the oil temperature alone (``calibrate`` evaluates it once per distinct temperature)
+    scales_fr: bool = False
     separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
     plotted_against: str = "speed"  #: the report draws its fitted curve over "speed", "torque" or "temperature"
 
@@ -174,12 +185,16 @@ class Effect:
     def simulated_defaults(self) -> dict[str, float]:
         return {p.short: p.default if p.simulated is None else p.simulated for p in self.parameters}
 
-    def column(self, x: EffectInputs, params: Mapping[str, float], member: float | None = None):
-        """The term with coefficient 1 (the regressor it is linear in), at ``member`` if given."""
+    def column(self, x: EffectInputs, params: Mapping[str, float], member: float | None = None,
+               second: float | None = None):
+        """The term with coefficient 1 (the regressor it is linear in), at ``member`` and ``second``
+        if given."""
         values = dict(params)
         values[self.coefficient] = 1.0
         if member is not None and self.member is not None:
             values[self.member] = member
+        if second is not None and self.second_member is not None:
+            values[self.second_member] = second
         return self.term(x, **values)
 
     def formula(self) -> str:
@@ -250,7 +265,9 @@ for _effect in (
             EffectParameter("scale", "scale", 1.0, "scale of the viscosity correction: "
                             "Fr·(1 + scale·((eta/eta0)^0.66 − 1)); 1 = the model at eta(theta)", low=0.0, high=10.0)),
            coefficient="scale", member="B", member_grid=_grid(100.0, 4000.0, 100.0), member_bounds=(1.0, 6000.0),
-           adaptive=False, needs_temperature=True, scales_fr=True, plotted_against="temperature"),
+           second_member="C", second_grid=_grid(50.0, 250.0, 25.0), second_bounds=(20.0, 400.0),
+           profile_coefficient=1.0, adaptive=False, needs_temperature=True, scales_fr=True,
+           plotted_against="temperature"),
     Effect("torque_offset", torque_offset, False,
            "input torque sensor zero error (adds offset*sign(w) to the input-referred loss)", "sensor zero error",
            (EffectParameter("b", "offset_nm", 0.0, "input-referred torque offset", "N*m", simulated=0.05),),
@@ -313,6 +330,9 @@ def markdown_table() -> str:
         fitted = f"`{e.coefficient}` (linear" + (", adapted online)" if e.adaptive else ")")
         if e.member:
             fitted += f", `{e.member}` on {e.member_grid[0]:g}…{e.member_grid[-1]:g}"
+        if e.second_member:
+            fitted += (f" with `{e.second_member}` on {e.second_grid[0]:g}…{e.second_grid[-1]:g}, both at "
+                       f"`{e.coefficient}` = {e.profile_coefficient:g}, then `{e.coefficient}` freely as a check")
         kind = "loss" if e.physical else "sensor error"
         if e.needs_temperature:
             kind += "; needs a varying oil temperature"

@@ -235,11 +235,12 @@ def contact_geometry(p: GearboxParams) -> ContactGeometry:
         g=material_parameter(p.E_eq_pa, p.alpha_p_per_pa))
 
 
-def evaluate_reference(p: GearboxParams, torque_nm: float, speed_rad_s: float,
-                       eta_pa_s: float | None = None) -> dict[str, float]:
-    """The literal chain of eq. 1–30 for one sample; returns ``T_loss`` and every term.
+def reference_terms(p: GearboxParams, torque_nm, speed_rad_s, eta_pa_s=None) -> dict:
+    """The literal chain of eq. 1–30, every term, for floats or equal-shape arrays.
 
-    Slow and obvious on purpose: it is the reference :class:`LossModel` is tested against.
+    ``eta_pa_s``: the oil's dynamic viscosity per sample (default ``eta0``); it enters only ``U``
+    of eq. 9 and through it Fr (eq. 3).  Slow and obvious on purpose: it is the reference
+    :class:`LossModel` is tested against, and the simulator's full model at ``η(θ)``.
     """
     eta = p.eta0_pa_s if eta_pa_s is None else eta_pa_s
     geo = contact_geometry(p)
@@ -247,24 +248,30 @@ def evaluate_reference(p: GearboxParams, torque_nm: float, speed_rad_s: float,
     b = math.radians(p.beta_deg)
     fn = normal_force_n(drive_force_n(torque_nm, p.dm1_m, p.z), a, b)
     v = rolling_speed_m_s(speed_rad_s, p.internal_ratio_effective, p.dw_m)
-    terms: dict[str, float] = {}
+    terms: dict = {}
     for j, rx, k, rd in ((1, geo.rx1, geo.k1, geo.rd1), (2, geo.rx2, geo.k2, geo.rd2)):
         u = speed_parameter(v, eta, rx, p.E_eq_pa)
         w = load_parameter(fn, p.E_eq_pa, rx)
-        terms[f"Fr{j}"] = float(rolling_resistance_n(p.E_eq_pa, rx, k, geo.g, u, w))
+        terms[f"Fr{j}"] = rolling_resistance_n(p.E_eq_pa, rx, k, geo.g, u, w)
         a_j = ellipse_semi_major_m(p.ellipse_a, rx, k, w)
-        terms[f"a{j}"] = float(a_j)
-        terms[f"b{j}"] = float(ellipse_semi_minor_m(p.ellipse_b, rx, k, w))
-        terms[f"Tc{j}"] = float(curvature_torque_nm(p.mu_m, fn, a_j, rd, p.Y))
-        terms[f"Ter{j}"] = float(hysteresis_torque_nm(p.dw_m, fn, k))
+        terms[f"a{j}"] = a_j
+        terms[f"b{j}"] = ellipse_semi_minor_m(p.ellipse_b, rx, k, w)
+        terms[f"Tc{j}"] = curvature_torque_nm(p.mu_m, fn, a_j, rd, p.Y)
+        terms[f"Ter{j}"] = hysteresis_torque_nm(p.dw_m, fn, k)
     tb = ball_friction_torque_nm(p.mu_b, p.Fg_n, p.dw_m)
     s = (terms["Tc1"] + terms["Tc2"] + terms["Ter1"] + terms["Ter2"] + tb) / p.dw_m + terms["Fr1"] + terms["Fr2"]
     fr_sum = terms["Fr1"] + terms["Fr2"]
     f1 = drive_contact_force_n(s, fr_sum, p.dw_m, p.dm1_m, a, p.Fg_n)
     f2 = driven_contact_force_n(s, fr_sum, p.dw_m, p.dm2_m, a, p.Fg_n)
-    terms.update(Fn=float(fn), Tb=tb, S=s, F1=f1, F2=f2)
-    terms["T_loss"] = float(loss_torque_nm(p.z, f1, geo.r1, f2, geo.r2))
+    terms.update(Fn=fn, Tb=tb, S=s, F1=f1, F2=f2)
+    terms["T_loss"] = loss_torque_nm(p.z, f1, geo.r1, f2, geo.r2)
     return terms
+
+
+def evaluate_reference(p: GearboxParams, torque_nm: float, speed_rad_s: float,
+                       eta_pa_s: float | None = None) -> dict[str, float]:
+    """:func:`reference_terms` for one sample, as floats; ``T_loss`` and every term."""
+    return {k: float(v) for k, v in reference_terms(p, torque_nm, speed_rad_s, eta_pa_s).items()}
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from dataclasses import fields
 from pathlib import Path
@@ -40,7 +41,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     opts = SimulationOptions(profile=args.profile, rate_hz=args.rate, seed=args.seed, effects=effects,
                              torque_noise_nm=args.torque_noise, noise_ar1=args.noise_ar1,
                              output_lag_s=args.output_lag, joint_states=args.joint_states,
-                             step_change_at_s=args.step_change_at)
+                             step_change_at_s=args.step_change_at, oil_nu40_nu100_mm2_s=_oil(args.oil))
     with TimedProgress("simulate", unit="sample") as bar:
         bar.stage = "the model along the profile"
         rig = _cut(simulate(config, opts), args.duration)
@@ -48,9 +49,28 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         bar.stage = "writing"
         n = write_rig_bag(rig, opts, Path(args.out), topics_from_args(args), progress=bar.update)
     dur = (rig.t_ns[-1] - rig.t_ns[0]) * 1e-9
+    names = [e.name for e in effects]
+    if opts.oil_nu40_nu100_mm2_s and "viscosity_temperature" not in names:
+        names.append("viscosity_temperature")
     print(f"wrote {args.out}: {n:,} messages, {dur:.1f} s at {args.rate:g} Hz, profile {args.profile}, "
-          f"effects: {', '.join(e.name for e in effects) or 'none'}")
+          f"effects: {', '.join(names) or 'none'}"
+          + (" (oil: ASTM D341 through ν40 = {:g}, ν100 = {:g} mm²/s)".format(*opts.oil_nu40_nu100_mm2_s)
+             if opts.oil_nu40_nu100_mm2_s else ""))
     return 0
+
+
+def _oil(text: str | None) -> tuple[float, float] | None:
+    """``--oil NU40,NU100``: two kinematic viscosities [mm²/s], ν40 > ν100 > 0."""
+    if text is None:
+        return None
+    try:
+        nu40, nu100 = (float(v) for v in text.split(","))
+    except ValueError:
+        raise UsageError(f"--oil takes NU40,NU100 (two viscosities in mm²/s, as on a data sheet), not {text!r}") \
+            from None
+    if not (math.isfinite(nu40) and nu40 > nu100 > 0.0):
+        raise UsageError(f"--oil {text}: an oil is thinner when warm: need ν40 > ν100 > 0 mm²/s")
+    return nu40, nu100
 
 
 def _cut(rig, duration_s: float | None):
@@ -149,6 +169,9 @@ def register_simulate(sub, with_params) -> None:
     p.add_argument("--output-lag", type=float, default=0.0, help="delay of the output torque channel [s]")
     p.add_argument("--step-change-at", type=float, default=None, help="effects switch on at this time [s]")
     p.add_argument("--joint-states", action="store_true", help="write /joint_states instead of Float64 topics")
+    p.add_argument("--oil", metavar="NU40,NU100",
+                   help="the viscosity_temperature effect with a real oil's viscosity law (ASTM D341 through its "
+                   "data-sheet viscosities at 40 and 100 degC, mm^2/s) instead of Vogel B and C; implies the effect")
     add_topic_options(p)
     p.set_defaults(func=cmd_simulate)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -70,6 +70,7 @@ class Selection:
     ambiguous: list[AmbiguousSet]
     rejected: list[RejectedEffect]
     unavailable: list[str]  #: effects the data cannot test
+    second_ranges: dict[str, list[float]] = field(default_factory=dict)  #: the same for a second member (Vogel C)
 
 
 @dataclass
@@ -110,6 +111,7 @@ class Term:
     name: str
     column: np.ndarray
     member: float | None = None  # p, q or B
+    second: float | None = None  # Vogel C (None: the registry's default)
 
     def params(self, coef: float) -> dict[str, float]:
         """The effect's parameters (short names, registry order): the fitted coefficient, the
@@ -119,6 +121,8 @@ class Term:
         values[effect.coefficient] = coef
         if effect.member is not None:
             values[effect.member] = float(self.member)
+        if effect.second_member is not None and self.second is not None:
+            values[effect.second_member] = float(self.second)
         return values
 
 
@@ -199,34 +203,82 @@ class Calibrator:
     def rms_of(self, column: np.ndarray) -> float:
         return float(np.sqrt(np.average(column * column, weights=self.b.count)))
 
-    def _with_member(self, term: Term, member: float) -> Term:
-        return Term(term.name, self.b.column(term.name, member), member)
+    def _with_member(self, term: Term, member: float, second: float | None = None) -> Term:
+        second = term.second if second is None else second
+        return Term(term.name, self.b.column(term.name, member, second), member, second)
 
-    def optimise(self, terms: list[Term], passes: int = 3) -> list[Term]:
-        """Coordinate descent over the exponents / Vogel B of the terms (grid, then a bounded refinement)."""
+    def wsse_held(self, terms: Sequence[Term], i: int) -> float:
+        """:meth:`wsse` with term ``i``'s coefficient held at its effect's ``profile_coefficient``."""
+        coef = EFFECTS[terms[i].name].profile_coefficient
+        x = self.design(list(terms[:i]) + list(terms[i + 1 :]))
+        y = self.b.y - coef * terms[i].column
+        if x.shape[1] == 0:
+            return float(np.sum(self.b.weight * y**2))
+        sw = np.sqrt(self.b.weight)
+        c, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=1e-12)
+        r = y - x @ c
+        return float(np.sum(self.b.weight * r * r))
+
+    def _score(self, terms: list[Term], i: int) -> Callable[[Term], float]:
+        """What term ``i``'s members minimise: the fit's wsse, with the coefficient held where the
+        effect profiles at a fixed one."""
+        held = EFFECTS[terms[i].name].profile_coefficient is not None
+        if held:
+            return lambda t: self.wsse_held(terms[:i] + [t] + terms[i + 1 :], i)
+        return lambda t: self.wsse(terms[:i] + [t] + terms[i + 1 :])
+
+    def _best_member(self, terms: list[Term], i: int, second: float | None = None) -> tuple[float, Term]:
+        """Term ``i`` at its best member (grid, then a bounded refinement), at ``second`` if given."""
         from scipy.optimize import minimize_scalar
 
+        t = terms[i]
+        effect = EFFECTS[t.name]
+        score = self._score(terms, i)
+        grid = [self._with_member(t, m, second) for m in effect.member_grid]
+        scores = [score(g) for g in grid]
+        j = int(np.argmin(scores))
+        lo_b, hi_b = effect.member_bounds
+        step = (grid[1].member - grid[0].member) if len(grid) > 1 else 0.1
+        res = minimize_scalar(lambda m: score(self._with_member(t, m, second)),
+                              bounds=(max(lo_b, grid[j].member - step), min(hi_b, grid[j].member + step)),
+                              method="bounded", options={"xatol": step * 1e-3})
+        if res.fun <= scores[j]:
+            return float(res.fun), self._with_member(t, float(res.x), second)
+        return scores[j], grid[j]
+
+    def _best_pair(self, terms: list[Term], i: int) -> Term:
+        """Term ``i`` at its best member and second member (Vogel B and C): the first time B profiled
+        at each C of the grid, then both refined together (Nelder-Mead) from the best."""
+        from scipy.optimize import minimize
+
+        t = terms[i]
+        effect = EFFECTS[t.name]
+        score = self._score(terms, i)
+        if t.second is None:
+            profile = [self._best_member(terms, i, c) for c in effect.second_grid]
+            t = profile[int(np.argmin([p[0] for p in profile]))][1]
+        start = score(t)
+        (lo_m, hi_m), (lo_s, hi_s) = effect.member_bounds, effect.second_bounds
+        res = minimize(lambda v: score(self._with_member(t, float(v[0]), float(v[1]))), [t.member, t.second],
+                       method="Nelder-Mead", bounds=[(lo_m, hi_m), (lo_s, hi_s)],
+                       options={"initial_simplex": [[t.member, t.second], [t.member * 1.1, t.second],
+                                                    [t.member, t.second + 10.0]],
+                                "xatol": 0.05, "fatol": 1e-9 * max(start, 1e-12), "maxfev": 200})
+        return self._with_member(t, float(res.x[0]), float(res.x[1])) if res.fun < start else t
+
+    def optimise(self, terms: list[Term], passes: int = 3) -> list[Term]:
+        """Coordinate descent over the exponents / Vogel B and C of the terms (grid, then a bounded
+        refinement)."""
         terms = list(terms)
         for _ in range(passes):
             changed = False
             for i, t in enumerate(terms):
                 if t.member is None:
                     continue
-                grid = members(self.b, t.name)
-                scores = [self.wsse(terms[:i] + [g] + terms[i + 1 :]) for g in grid]
-                j = int(np.argmin(scores))
-                lo_b, hi_b = EFFECTS[t.name].member_bounds
-                step = (grid[1].member - grid[0].member) if len(grid) > 1 else 0.1
-                lo = max(lo_b, grid[j].member - step)
-                hi = min(hi_b, grid[j].member + step)
-                res = minimize_scalar(
-                    lambda m, i=i, t=t: self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1 :]),
-                    bounds=(lo, hi),
-                    method="bounded",
-                    options={"xatol": step * 1e-3},
-                )
-                best = self._with_member(t, float(res.x)) if res.fun <= scores[j] else grid[j]
-                if t.member is None or abs(best.member - t.member) > step * 1e-2:
+                effect = EFFECTS[t.name]
+                best = self._best_pair(terms, i) if effect.second_member else self._best_member(terms, i)[1]
+                step = effect.member_grid[1] - effect.member_grid[0] if len(effect.member_grid) > 1 else 0.1
+                if abs(best.member - t.member) > step * 1e-2 or (best.second or 0.0) != (t.second or 0.0):
                     changed = True
                 terms[i] = best
             if not changed:
@@ -243,21 +295,40 @@ class Calibrator:
         scores = [self.wsse(base + [c]) for c in cands]
         return self.optimise(base + [cands[int(np.argmin(scores))]])
 
-    def member_range(self, terms: list[Term], i: int) -> list[float]:
-        """Profile-likelihood 95 % range of term i's exponent (the others held at their optimum)."""
-        from scipy.optimize import brentq
+    def member_range(self, terms: list[Term], i: int, second: bool = False) -> list[float]:
+        """Profile-likelihood 95 % range of term i's exponent (the others held at their optimum); of
+        a pair (Vogel B and C), of either one with the other profiled, at the held coefficient.
+        ``second``: the range of the second member."""
+        from scipy.optimize import brentq, minimize_scalar
 
         t = terms[i]
-        w0 = self.wsse(terms)
+        effect = EFFECTS[t.name]
+        pair = effect.second_member is not None
+        w0 = self.wsse_held(terms, i) if pair else self.wsse(terms)
         dof = max(len(self.b.y) - len(terms) - len(self.nuisance), 1)
         limit = w0 + 3.84 * max(w0 / dof, 1.0)
+        score = self._score(terms, i)
+
+        def other_profiled(m: float) -> float:
+            """The pair's score at member m (or second m), the other one at its best near t's."""
+            name, bounds, at = ((effect.member, effect.member_bounds, t.member) if second
+                                else (effect.second_member, effect.second_bounds, t.second))
+            width = 0.5 * abs(at) + 1.0
+            res = minimize_scalar(
+                lambda o: score(self._with_member(t, m, o) if not second else self._with_member(t, o, m)),
+                bounds=(max(bounds[0], at - width), min(bounds[1], at + width)), method="bounded",
+                options={"xatol": 1e-3 * width})
+            return float(res.fun)
 
         def excess(m: float) -> float:
+            if pair:
+                return other_profiled(m) - limit
             return self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1 :]) - limit
 
-        lo_b, hi_b = EFFECTS[t.name].member_bounds
-        lo = brentq(excess, lo_b, t.member, xtol=1e-4) if excess(lo_b) > 0 else lo_b
-        hi = brentq(excess, t.member, hi_b, xtol=1e-4) if excess(hi_b) > 0 else hi_b
+        lo_b, hi_b = effect.second_bounds if second else effect.member_bounds
+        at = t.second if second else t.member
+        lo = brentq(excess, lo_b, at, xtol=1e-4) if excess(lo_b) > 0 else lo_b
+        hi = brentq(excess, at, hi_b, xtol=1e-4) if excess(hi_b) > 0 else hi_b
         return [float(lo), float(hi)]
 
     def coefficient(self, terms: list[Term], i: int) -> tuple[float, float]:
@@ -350,6 +421,8 @@ class Calibrator:
         final = selected + provisional
         self.stage("exponent intervals")
         ranges = {t.name: self.member_range(final, i) for i, t in enumerate(final) if t.member is not None}
+        second_ranges = {t.name: self.member_range(final, i, second=True) for i, t in enumerate(final)
+                         if t.second is not None}
         rejected = []
         blocked = {e for a in ambiguous for e in a.effects}
         for g in groups():
@@ -364,7 +437,7 @@ class Calibrator:
             c, se = self.coefficient(terms, len(terms) - 1)
             rms_col = self.rms_of(terms[-1].column)
             rejected.append(RejectedEffect(g, (abs(c) + 1.96 * se) * rms_col, abs(c) * rms_col))
-        return Selection(selected, provisional, ranges, ambiguous, rejected, unavailable)
+        return Selection(selected, provisional, ranges, ambiguous, rejected, unavailable, second_ranges)
 
     def _partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
         """|correlation| of two columns after removing the nuisance and base columns (weighted)."""
@@ -382,7 +455,9 @@ class Calibrator:
 
 
 def _member_text(t: Term) -> str:
-    return f"{EFFECTS[t.name].member} = {t.member:.3g}"
+    effect = EFFECTS[t.name]
+    second = f", {effect.second_member} = {t.second:.3g}" if t.second is not None else ""
+    return f"{effect.member} = {t.member:.3g}{second}"
 
 
 def _z_two_sided(alpha: float) -> float:

@@ -1,6 +1,10 @@
 """Synthetic rig recordings: drive profiles through the model plus *declared* extra effects.
 
-The rig's "true" loss is ``model(T, ω, η(θ)) + Σ physical effects``; the measured output torque is
+The rig's "true" loss is ``model(T, ω, η(θ)) + Σ physical effects``: the whole chain of eq. 1–30
+(:func:`.model.reference_terms`) evaluated at the oil's viscosity per sample, not the estimator's
+factored form.  ``η(θ)`` follows the declared ``viscosity_temperature`` effect's Vogel law (written
+out here, not the effect's term) or, with ``oil_nu40_nu100_mm2_s``, a real oil's ASTM D341 (Walther)
+line through its data-sheet ν40 and ν100 -- a law the calibrator does not share.  The measured output torque is
 ``T_out = ratio·(T_in − T_loss·sgn ω)`` (power balance with ``ω_out = ω_in/ratio``), and sensor
 effects corrupt the *reported* input torque: ``T_in,meas = (1 + g)·T_in + b``.  Noise (white or
 AR(1)-coloured) is added to every channel; an optional lag delays the output-torque channel.
@@ -22,7 +26,7 @@ from .bag import BagWriter, TopicMap, encode_float64, stamp
 from .effects import EFFECTS, EffectInputs
 from .errors import UsageError
 from .interface import RAD_S_PER_RPM, MessageType, Metadata
-from .model import LossModel, rotation_sign
+from .model import LossModel, reference_terms, rotation_sign
 from .params import Config
 
 
@@ -52,6 +56,34 @@ class DeclaredEffect:
                 raise UsageError(f"effect {name}: {k} must be a finite number, not {v!r}")
             params[k] = val
         return cls(name, params)
+
+
+def vogel_viscosity_ratio(theta_c, b_k: float, c_k: float, theta_ref_c: float):
+    """``η(θ)/η(θ_ref) = exp(B/(θ + C) − B/(θ_ref + C))`` (Vogel)."""
+    return np.exp(b_k / (np.asarray(theta_c) + c_k) - b_k / (theta_ref_c + c_k))
+
+
+def walther_viscosity_mm2_s(theta_c, nu40_mm2_s: float, nu100_mm2_s: float):
+    """Kinematic viscosity by ASTM D341 (Walther) through two data-sheet points:
+    ``log10(log10(ν + 0.7)) = A − B·log10(θ[K])`` with ``A``, ``B`` from ν40 and ν100 [mm²/s]."""
+    t40, t100 = math.log10(313.15), math.log10(373.15)
+    y40, y100 = (math.log10(math.log10(nu + 0.7)) for nu in (nu40_mm2_s, nu100_mm2_s))
+    slope = (y40 - y100) / (t100 - t40)
+    a = y40 + slope * t40
+    return 10.0 ** 10.0 ** (a - slope * np.log10(np.asarray(theta_c) + 273.15)) - 0.7
+
+
+#: thermal expansion of a gear oil's density [1/K] (mineral oils: 6–7·10⁻⁴)
+OIL_EXPANSION_PER_K = 6.5e-4
+
+
+def oil_viscosity_ratio(theta_c, nu40_mm2_s: float, nu100_mm2_s: float, theta_ref_c: float = 40.0):
+    """``η(θ)/η(θ_ref)`` of a real oil: ``η = ρ·ν``, ν by :func:`walther_viscosity_mm2_s`, the density
+    falling linearly with temperature (:data:`OIL_EXPANSION_PER_K`)."""
+    def eta(th):
+        density = 1.0 - OIL_EXPANSION_PER_K * (np.asarray(th) - 15.0)  # relative to 15 °C
+        return walther_viscosity_mm2_s(th, nu40_mm2_s, nu100_mm2_s) * density
+    return eta(theta_c) / eta(theta_ref_c)
 
 
 @dataclass
@@ -153,6 +185,9 @@ class SimulationOptions:
     start_ns: int = 1_700_000_000_000_000_000
     step_change_at_s: float | None = None  #: effects step here (None: constant from the start)
     step_from_factor: float = 0.0  #: effect magnitudes before the step, as a fraction of the declared ones
+    #: the oil of the viscosity_temperature effect, by its data-sheet ν40 and ν100 [mm²/s] (ASTM D341);
+    #: None: the effect's Vogel B and C
+    oil_nu40_nu100_mm2_s: tuple[float, float] | None = None
 
 
 @dataclass
@@ -197,15 +232,19 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
     sg = rotation_sign(w, tq)
     active = (np.ones(len(w)) if opts.step_change_at_s is None
               else np.where(prof.t_s >= opts.step_change_at_s, 1.0, opts.step_from_factor))
-    vscale = np.ones(len(w))
+    eta_ratio = np.ones(len(w))  # η(θ)/η0
     extra = np.zeros(len(w))
     gain, offset = 0.0, 0.0
-    for eff in opts.effects:
+    effects = list(opts.effects)
+    if opts.oil_nu40_nu100_mm2_s is not None and not any(e.name == "viscosity_temperature" for e in effects):
+        effects.append(DeclaredEffect("viscosity_temperature", EFFECTS["viscosity_temperature"].simulated_defaults()))
+    for eff in effects:
         p = eff.params
         if eff.name == "viscosity_temperature":
-            # the whole model at eta(theta): Fr ∝ U^0.66 ∝ eta^0.66 (eq. 3, 9), written out here
-            # rather than taken from the effect's term, which the estimator and calibrate share
-            vscale = np.exp(active * (p["B"] / (theta + p["C"]) - p["B"] / (p["theta_ref"] + p["C"]))) ** 0.66
+            if opts.oil_nu40_nu100_mm2_s is not None:
+                eta_ratio = oil_viscosity_ratio(theta, *opts.oil_nu40_nu100_mm2_s, p["theta_ref"]) ** active
+            else:
+                eta_ratio = vogel_viscosity_ratio(theta, p["B"], p["C"], p["theta_ref"]) ** active
         elif eff.name == "torque_offset":  # the sensor reads T_meas = (1 + g)·T + b
             offset = p["b"] * active
         elif eff.name == "torque_gain":
@@ -215,7 +254,7 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
         else:
             raise UsageError(f"simulate does not know how the sensor error {eff.name} corrupts a reading")
     model_loss = model.loss_magnitude(tq, w)
-    loss_true = model.loss_magnitude(tq, w, vscale) + extra
+    loss_true = reference_terms(g, tq, w, g.eta0_pa_s * eta_ratio)["T_loss"] + extra
     out_torque_true = ratio * (tq - loss_true * sg)
     n = len(w)
     torque_meas = tq + gain * tq + offset + _noise(rng, n, opts.torque_noise_nm, opts.noise_ar1)
@@ -240,7 +279,7 @@ def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics
              "torque_noise_nm": opts.torque_noise_nm, "noise_ar1": opts.noise_ar1,
              "output_lag_s": opts.output_lag_s, "step_change_at_s": opts.step_change_at_s,
              "step_from_factor": opts.step_from_factor,
-             "joint_states": opts.joint_states}
+             "joint_states": opts.joint_states, "oil_nu40_nu100_mm2_s": opts.oil_nu40_nu100_mm2_s}
     count = 0
     with BagWriter(path) as bw:
         bw.add_metadata(Metadata.SIMULATION, {"truth": json.dumps(truth)})

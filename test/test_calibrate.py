@@ -18,7 +18,7 @@ from rollergear_ros.params import load_config
 from rollergear_ros.replay import replay
 from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
 
-from helpers import run_cli
+from helpers import REALDATA, run_cli
 
 
 def draw_effect(name: str, rng: np.random.Generator) -> DeclaredEffect:
@@ -34,8 +34,9 @@ def draw_effect(name: str, rng: np.random.Generator) -> DeclaredEffect:
     elif name == "load_speed":
         e = rng.uniform(0.8, 1.5)
         p = {"c": rng.uniform(0.1, 0.5) / (90.0 * 250.0 ** e), "p": e}
-    elif name == "viscosity_temperature":
-        p = {"B": rng.uniform(500, 1500), "C": 95.0, "theta_ref": 40.0}
+    elif name == "viscosity_temperature":  # Vogel C of gear oils: 70-140 K, B about 10 C
+        c = rng.uniform(70.0, 140.0)
+        p = {"B": c * rng.uniform(7.0, 12.0), "C": c, "theta_ref": 40.0}
     elif name == "torque_offset":
         p = {"b": rng.choice([-1, 1]) * rng.uniform(0.03, 0.12)}
     else:
@@ -58,7 +59,7 @@ def calibrate_json(*bags, extra=()) -> dict:
 
 TRUTH_KEYS = {"drag_constant": {"c": "c"}, "drag_speed": {"c": "c", "p": "p"}, "load_dependent": {"c": "c", "q": "q"},
               "load_speed": {"c": "c", "p": "p"},
-              "viscosity_temperature": {"B": "B"}, "torque_offset": {"b": "b"}, "torque_gain": {"g": "g"}}
+              "viscosity_temperature": {"B": "B", "C": "C"}, "torque_offset": {"b": "b"}, "torque_gain": {"g": "g"}}
 
 CASES = [["drag_constant"], ["drag_speed"], ["load_dependent"], ["load_speed"], ["viscosity_temperature"],
          ["torque_offset"], ["torque_gain"], ["drag_speed", "torque_offset"], ["load_dependent", "drag_constant"]]
@@ -90,6 +91,58 @@ def test_undeclared_effects_are_found_recovered_and_removed(tmp_path, names):
     before, after = result["error_before"]["rmse_nm"], result["error_after"]["rmse_nm"]
     assert after <= 0.2 * before, f"held-out RMSE {before:.4g} -> {after:.4g}"
     assert result["samples"] > 5000
+
+
+OILS = REALDATA / "lubricant_viscosity" / "gear_oil_viscosity_datasheet_values.csv"
+
+
+def datasheet_oil(product: str) -> tuple[float, float]:
+    """ν40 and ν100 [mm²/s] of a gear oil from the shared data-sheet table."""
+    import csv
+
+    with OILS.open(newline="") as fh:
+        row = next(r for r in csv.DictReader(fh) if r["product"] == product)
+    return float(row["nu40_mm2_s"]), float(row["nu100_mm2_s"])
+
+
+@pytest.mark.skipif(not OILS.exists(), reason=f"no shared real data at {OILS}")
+@pytest.mark.parametrize("oil", [
+    {"product": "Mobilgear 600 XP 220"},  # mineral, VI ~95: a Vogel C near 100 K
+    {"product": "Mobil SHC 630"},  # PAO, VI 169: C near 125 K
+    {"product": "Shell Omala S4 WE 220"},  # PAG, VI 203: C near 150 K
+    {"vogel": {"B": 700.0, "C": 70.0}},  # a steep oil: C well below the default 95 K
+], ids=lambda oil: oil.get("product", "vogel C=70"))
+def test_the_oils_viscosity_law_is_recovered_and_nothing_else(tmp_path, oil):
+    """The rig: the whole model (eq. 1–30) at η(θ) of a real oil during a warm-up from 20 to 85 °C,
+    η(θ) by ASTM D341 through the oil's data-sheet ν40 and ν100 with its density's expansion -- a law
+    the calibrator does not share -- or by a Vogel law whose C is not the default.  calibrate fits
+    Vogel B and C: it must name viscosity_temperature alone, with scale 1 (the model at η(θ)) inside its
+    interval, and recover η(θ)/η(40 °C) within 1.5 % over the whole warm-up."""
+    from rollergear_ros.simulate import oil_viscosity_ratio, vogel_viscosity_ratio
+
+    if "product" in oil:
+        nu = datasheet_oil(oil["product"])
+        bag = make_bag(tmp_path, [], profile="warmup", seed=11, oil_nu40_nu100_mm2_s=nu)
+        truth = lambda theta: oil_viscosity_ratio(theta, *nu, 40.0)  # noqa: E731
+    else:
+        bag = make_bag(tmp_path, [DeclaredEffect("viscosity_temperature", {**oil["vogel"], "theta_ref": 40.0})],
+                       profile="warmup", seed=12)
+        truth = lambda theta: vogel_viscosity_ratio(theta, oil["vogel"]["B"], oil["vogel"]["C"], 40.0)  # noqa: E731
+    result = calibrate_json(bag)
+    assert result["verdict"] == "effects_found", result
+    assert [e["name"] for e in result["effects"]] == ["viscosity_temperature"], result["effects"]
+    (found,) = result["effects"]
+    lo, hi = found["ci95"]["scale"]
+    assert lo <= 1.0 <= hi, f"scale {found['params']['scale']:.3f} [{lo:.3f}, {hi:.3f}] excludes the model at η(θ)"
+    assert lo > 0.8 and hi < 1.2, (lo, hi)
+    theta = np.linspace(20.0, 85.0, 27)
+    got = vogel_viscosity_ratio(theta, found["params"]["B"], found["params"]["C"], found["params"]["theta_ref"])
+    np.testing.assert_allclose(got, truth(theta), rtol=0.015)
+    if "vogel" in oil:
+        c_lo, c_hi = found["ci95"]["C"]
+        assert c_lo <= oil["vogel"]["C"] <= c_hi, (found["params"]["C"], c_lo, c_hi)
+    before, after = result["error_before"]["rmse_nm"], result["error_after"]["rmse_nm"]
+    assert after <= 0.2 * before, f"held-out RMSE {before:.4g} -> {after:.4g}"
 
 
 @pytest.mark.slow
