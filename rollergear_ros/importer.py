@@ -11,7 +11,13 @@ that one reader (:mod:`.bag`) and one estimator see everything.  Sources, by wha
 * CSV, Parquet, MDF4 or TDMS with a channel map (:mod:`.channelmap`, :mod:`.timeseries`):
   the channels in SI on the motor torque's time base, Float64 topics plus
   ``sensor_msgs/Temperature`` for the oil; the resampling rule and the source go into the
-  ``rollergear_import`` metadata record.
+  ``rollergear_import`` metadata record;
+* a steady-state table -- a VECTO ``.vtlm``, or CSV/Parquet with a ``format: steady_state`` map
+  (:mod:`.tables`): one sample per row, 1 s apart in file order, its input-referred loss ``L``
+  carried as an output torque ``T − L·sgn ω`` at an output speed equal to the input speed, so
+  that ``(T·ω − T_out·ω_out)/|ω| = L`` whatever ratio the gearbox has; rows at standstill (whose
+  loss no power balance carries) are left out and counted.  ``calibrate`` reads tables directly
+  as dwell means; this is for ``replay``, ``play`` and the node.
 
 No rclpy import.
 """
@@ -52,15 +58,20 @@ class ImportSummary:
     samples: int  #: motor torque messages
     resampled: list[str] = field(default_factory=list)
     topics: dict[str, int] = field(default_factory=dict)  #: topic -> messages copied (rosbag2)
+    left_out: int = 0  #: table rows at standstill, not written
 
     def text(self) -> str:
         how = f"; resampled onto the motor torque's time base: {', '.join(self.resampled)}" if self.resampled else ""
+        if self.left_out:
+            how += f"; {self.left_out} rows at standstill left out (no power balance carries their loss)"
+        elif "table" in self.kind:
+            how += "; one sample per row, 1 s apart"
         return (f"imported {self.source} ({self.kind}): {self.samples:,} samples, {self.messages:,} messages "
                 f"-> {self.out}{how}")
 
 
 def source_kind(path: str | Path) -> str:
-    """MCAP | rosbag2 | CSV | Parquet | MDF4 | TDMS, by what ``path`` is."""
+    """MCAP | rosbag2 | CSV | Parquet | MDF4 | TDMS | VTLM, by what ``path`` is."""
     p = Path(path)
     if not p.exists():
         raise InputFileError(f"{p} does not exist")
@@ -70,10 +81,12 @@ def source_kind(path: str | Path) -> str:
         return "rosbag2"
     if p.suffix.lower() == ".mcap":
         return "MCAP"
+    if p.suffix.lower() == ".vtlm":
+        return "VTLM"
     kind = TIMESERIES_SUFFIXES.get(p.suffix.lower())
     if kind is None:
-        raise InputFileError(f"{p}: not a recording this package reads (MCAP, a rosbag2 folder or .db3, "
-                             f"or {', '.join(sorted(TIMESERIES_SUFFIXES))} with --channels MAP.yaml)")
+        raise InputFileError(f"{p}: not a recording this package reads (MCAP, a rosbag2 folder or .db3, a VECTO "
+                             f".vtlm, or {', '.join(sorted(TIMESERIES_SUFFIXES))} with --channels MAP.yaml)")
     return kind
 
 
@@ -86,8 +99,12 @@ def import_source(src: str | Path, out: str | Path, channels: str | Path | None 
         raise UsageError(f"{src} is already an MCAP recording: replay, calibrate and play read it directly")
     if kind == "rosbag2":
         return _import_rosbag2(src, out, topics)
+    if kind == "VTLM":
+        return _import_table(src, kind, out, None, topics)
     if channels is None:
         raise UsageError(f"{src}: a {kind} file needs a channel map (--channels MAP.yaml, see docs/interface.md)")
+    if load_channel_map(channels).format == "steady_state":
+        return _import_table(src, kind, out, channels, topics)
     return _import_timeseries(src, kind, out, channels, topics)
 
 
@@ -162,6 +179,52 @@ def _import_timeseries(src: Path, kind: str, out: Path, channels: str | Path, to
             bw.write_fixed_mixed(float_topics, which[done:], t_ns[done:], payloads[done:])
     written = n * k + (0 if temp is None else len(temp.t_ns))
     return ImportSummary(src, kind, out, written, n, aligned.resampled)
+
+
+# ------------------------------------------------------------------------------------ steady-state tables
+TABLE_PERIOD_NS = 1_000_000_000  #: one row per second
+TABLE_START_NS = 1_000_000_000  #: the first row's log time
+
+
+def _import_table(src: Path, kind: str, out: Path, channels: str | Path | None, topics: TopicMap) -> ImportSummary:
+    from .model import rotation_sign
+    from .tables import read_table
+
+    cmap = load_channel_map(channels) if channels is not None else None
+    table = read_table(src, cmap)
+    if table.group is not None and len(set(table.group.tolist())) > 1:
+        raise UsageError(f"{src}: {len(set(table.group.tolist()))} gearbox states in its group column; a recording "
+                         "holds one: calibrate reads the table with its states apart")
+    moving = table.speed_rad_s != 0
+    w, tq, loss = table.speed_rad_s[moving], table.torque_nm[moving], table.loss_nm[moving]
+    standstill = int(np.count_nonzero(~moving))
+    n = len(w)
+    if n == 0:
+        raise InputFileError(f"{src}: every row is at standstill: no loss a recording can carry")
+    t_rows = TABLE_START_NS + np.arange(n, dtype=np.int64) * TABLE_PERIOD_NS
+    columns = [tq, w, tq - loss * rotation_sign(w, tq), w]  # output torque and speed: input-referred
+    names = [Channel.MOTOR_TORQUE, Channel.MOTOR_SPEED, Channel.OUTPUT_TORQUE, Channel.OUTPUT_SPEED]
+    topic_of = topics.float64_inputs()
+    payloads = float64_payloads(np.stack(columns, axis=1).ravel())
+    which = np.tile(np.arange(len(names)), n)
+    theta = table.temperature_c[moving]
+    with BagWriter(out) as bw:
+        bw.add_metadata(IMPORT_METADATA, {
+            "source": str(src), "kind": f"{kind} steady-state table",
+            "channel_map": "" if channels is None else Path(channels).read_text(encoding="utf-8"),
+            "rows": f"one sample per row, {TABLE_PERIOD_NS * 1e-9:g} s apart in file order; the input-referred "
+                    "loss L as output torque T - L*sgn(w) at an output speed equal to the input speed",
+            "standstill_rows_left_out": str(standstill)})
+        for i in range(n):
+            if np.isfinite(theta[i]):  # each row's oil temperature just before its sample
+                bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, int(t_rows[i]),
+                                 {"header": {"stamp": stamp(int(t_rows[i])), "frame_id": "oil"},
+                                  "temperature": float(theta[i]), "variance": 0.0})
+            rows = slice(i * len(names), (i + 1) * len(names))
+            bw.write_fixed_mixed([(topic_of[c], MessageType.FLOAT64, None) for c in names], which[rows],
+                                 np.full(len(names), t_rows[i]), payloads[rows])
+    written = n * len(names) + int(np.count_nonzero(np.isfinite(theta)))
+    return ImportSummary(src, f"{kind} steady-state table", out, written, n, left_out=standstill)
 
 
 @contextmanager

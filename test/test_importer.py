@@ -279,3 +279,101 @@ def test_calibrate_on_a_channel_mapped_csv_finds_what_the_mcap_gives(tmp_path):
     # and replay reads it too
     out = run_cli("replay", str(tmp_path / "daq.csv"), "--channels", str(cmap), "--no-progress")
     assert "imported" in out.stderr and f"{len(t):,}" in out.stdout
+
+
+# ------------------------------------------------------------------------------------ steady-state tables
+VTLM_HEADER = "Input Speed [rpm],Input Torque [Nm],Torque Loss [Nm]\n"
+
+
+def table_rows(reverse: bool = True):
+    """Operating points (rpm, N·m) driving, in overrun, at standstill and (``reverse``) turning the
+    other way (a VECTO map has no negative speeds), with a loss the model does not make."""
+    rows = []
+    for rpm in (0.0, 500.0, 1500.0, -1000.0 if reverse else 2500.0):
+        for torque in (-60.0, 5.0, 40.0, 80.0):
+            rows.append((rpm, torque, 0.3 + 0.01 * abs(torque) + 1e-4 * abs(rpm)))
+    return np.array(rows)
+
+
+def check_table_recording(path, rows):
+    """Both readers: one sample per moving row, 1 s apart, whose power balance gives the row's loss."""
+    moving = rows[rows[:, 0] != 0]
+    for messages in (read_mcap_ros2(path), read_rosbags(path)):
+        t, torque = float_series(messages, "/rollergear/motor/torque")
+        np.testing.assert_array_equal(np.diff(t), np.full(len(moving) - 1, 1_000_000_000))
+        np.testing.assert_array_equal(torque, moving[:, 1])
+        t_w, speed = float_series(messages, "/rollergear/motor/speed")
+        np.testing.assert_array_equal(t_w, t)
+        np.testing.assert_allclose(speed, moving[:, 0] * RPM, rtol=1e-15)
+        _, out_torque = float_series(messages, "/rollergear/output/torque")
+        _, out_speed = float_series(messages, "/rollergear/output/speed")
+        loss = (torque * speed - out_torque * out_speed) / np.abs(speed)
+        np.testing.assert_allclose(loss, moving[:, 2], rtol=1e-12)
+    return messages
+
+
+def test_a_vtlm_is_imported_one_sample_per_row_its_loss_in_the_power_balance(tmp_path):
+    rows = table_rows(reverse=False)
+    src = tmp_path / "gearbox.vtlm"
+    src.write_text("# a loss map\n" + VTLM_HEADER + "".join(f"{r[0]:g},{r[1]:g},{r[2]:.6f}\n" for r in rows))
+    out = tmp_path / "gearbox.mcap"
+    proc = run_cli("import", str(src), "--out", str(out))
+    assert "12 samples" in proc.stdout and "4 rows at standstill left out" in proc.stdout, proc.stdout
+    check_table_recording(out, np.round(rows, 6))
+
+
+def test_a_steady_state_csv_by_efficiency_is_imported_with_its_temperatures(tmp_path):
+    """A channel-mapped CSV of efficiencies (driving and regenerating) and oil temperatures."""
+    rows = table_rows()
+    rpm, torque, loss = rows.T
+    driving = torque * rpm > 0
+    eta = np.where(driving, 1 - loss / np.abs(torque), np.abs(torque) / (np.abs(torque) + loss))
+    theta = np.linspace(40.0, 80.0, len(rows))
+    src = tmp_path / "map.csv"
+    src.write_text("n,T,eta_pct,oil_K\n" + "".join(
+        f"{a!r},{b!r},{100 * c!r},{d + 273.15!r}\n" for a, b, c, d in zip(*map(np.ndarray.tolist,
+                                                                             (rpm, torque, eta, theta)))))
+    cmap = tmp_path / "map.yaml"
+    cmap.write_text("format: steady_state\nmotor_speed: {column: n, unit: rpm}\nmotor_torque: {column: T, unit: N*m}\n"
+                    "efficiency: {column: eta_pct, unit: '%'}\noil_temperature: {column: oil_K, unit: K}\n")
+    out = tmp_path / "map.mcap"
+    summary = import_source(src, out, cmap)
+    assert summary.samples == 12 and summary.left_out == 4
+    messages = check_table_recording(out, rows)
+    t_temp, temps = messages["/rollergear/oil/temperature"]
+    np.testing.assert_allclose([m.temperature for m in temps], theta[rpm != 0], rtol=1e-12)
+    np.testing.assert_array_equal(t_temp, float_series(messages, "/rollergear/motor/torque")[0])
+
+
+def test_replay_of_a_table_is_replay_of_its_import_and_its_residual_is_the_tables_loss_minus_the_model(tmp_path):
+    from rollergear_ros.model import LossModel
+    from rollergear_ros.params import load_config
+    from rollergear_ros.replay import replay
+
+    rows = table_rows(reverse=False)
+    src = tmp_path / "gearbox.vtlm"
+    src.write_text(VTLM_HEADER + "".join(f"{r[0]:g},{r[1]:g},{r[2]:.6f}\n" for r in rows))
+    out = tmp_path / "estimates.mcap"
+    run_cli("replay", str(src), "--out", str(out), "--no-png")
+    imported = tmp_path / "imported.mcap"
+    import_source(src, imported)
+    config = load_config()
+    _, batches = replay(imported, config, show_progress=False, collect=True)
+    residual = np.concatenate([b.residual_nm for b in batches])
+    moving = np.round(rows[rows[:, 0] != 0], 6)
+    model = LossModel(config.gearbox).loss_magnitude(moving[:, 1], moving[:, 0] * RPM)
+    np.testing.assert_allclose(residual, moving[:, 2] - model, rtol=1e-9, atol=1e-12)
+    _, published = float_series(read_rosbags(out), "/rollergear/residual/torque")
+    np.testing.assert_array_equal(published, residual)
+
+
+def test_a_table_of_several_gearbox_states_is_refused_in_one_line(tmp_path):
+    src = tmp_path / "states.csv"
+    src.write_text("gear,n,T,L\n" + "".join(f"{g},{n},{t},0.5\n" for g in (1, 2) for n in (500, 1000)
+                                             for t in (10, 20)))
+    cmap = tmp_path / "m.yaml"
+    cmap.write_text("format: steady_state\nmotor_speed: {column: n, unit: rpm}\nmotor_torque: {column: T, unit: N*m}\n"
+                    "loss_torque: {column: L, unit: N*m}\ngroup: {column: gear}\n")
+    proc = run_cli("import", str(src), "--channels", str(cmap), "--out", str(tmp_path / "o.mcap"), check=False)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "2 gearbox states" in proc.stderr, proc.stderr
+    assert not (tmp_path / "o.mcap").exists()
