@@ -605,10 +605,20 @@ class LossEstimatorNode(Node):
         for est in self.estimator.finish():
             try:
                 self._publish(est, send)
-            except Exception:  # the context went down meanwhile (a second signal): record the rest
-                send = False
+                continue
+            except Exception as exc:  # noqa: BLE001 - nothing may keep close() from closing the files
                 self._published -= 1
-                self._publish(est, False)
+                problem = exc
+            if send:  # the context went down meanwhile (a second signal): record this one and the rest
+                send = False
+                try:
+                    self._publish(est, False)
+                    continue
+                except Exception as exc:  # noqa: BLE001
+                    self._published -= 1
+                    problem = exc
+            self.get_logger().warn(f"the samples held for an output at shutdown were not recorded: {problem}")
+            return
 
     def close(self) -> None:
         """Flush and close the recordings, the MCAP first (safe to call twice).  A rerun viewer
