@@ -37,7 +37,9 @@ class NodeProcess:
                 node.proc.communicate()
         cls.started.clear()
 
-    def stop(self, sig: int = signal.SIGINT, timeout: float = 20.0) -> int:
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 120.0) -> int:
+        """Signal the node and wait until it has exited (closing its files takes seconds on a loaded
+        slow machine: ``timeout`` only tells a hang from that)."""
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
         try:
