@@ -166,19 +166,26 @@ def _import_timeseries(src: Path, kind: str, out: Path, channels: str | Path, to
         bw.add_metadata(IMPORT_METADATA, {
             "source": str(src), "kind": kind, "channel_map": Path(channels).read_text(encoding="utf-8"),
             "resampling": RESAMPLING_RULE, "resampled": json.dumps(aligned.resampled)})
-        # in log-time order across topics: each temperature before the samples at and after its time
-        done = 0
-        for t, v in zip(*(([], []) if temp is None else (temp.t_ns.tolist(), temp.values.tolist()))):
-            upto = int(np.searchsorted(t_ns, t, side="left"))
-            if upto > done:
-                bw.write_fixed_mixed(float_topics, which[done:upto], t_ns[done:upto], payloads[done:upto])
-                done = upto
-            bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, t,
-                             {"header": {"stamp": stamp(t), "frame_id": "oil"}, "temperature": v, "variance": 0.0})
-        if len(t_ns) > done:
-            bw.write_fixed_mixed(float_topics, which[done:], t_ns[done:], payloads[done:])
+        _write_in_time_order(bw, topics, float_topics, which, t_ns, payloads,
+                             ([], []) if temp is None else (temp.t_ns.tolist(), temp.values.tolist()))
     written = n * k + (0 if temp is None else len(temp.t_ns))
     return ImportSummary(src, kind, out, written, n, aligned.resampled)
+
+
+def _write_in_time_order(bw: BagWriter, topics: TopicMap, float_topics: list, which: np.ndarray, t_ns: np.ndarray,
+                         payloads: np.ndarray, temperatures: tuple[list[int], list[float]]) -> None:
+    """Float64 messages (``which`` indexes ``float_topics``) and oil temperatures ``(times, °C)`` in
+    log-time order across topics: each temperature before the samples at and after its time."""
+    done = 0
+    for t, v in zip(*temperatures):
+        upto = int(np.searchsorted(t_ns, t, side="left"))
+        if upto > done:
+            bw.write_fixed_mixed(float_topics, which[done:upto], t_ns[done:upto], payloads[done:upto])
+            done = upto
+        bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, t,
+                         {"header": {"stamp": stamp(t), "frame_id": "oil"}, "temperature": v, "variance": 0.0})
+    if len(t_ns) > done:
+        bw.write_fixed_mixed(float_topics, which[done:], t_ns[done:], payloads[done:])
 
 
 # ------------------------------------------------------------------------------------ steady-state tables
@@ -215,14 +222,9 @@ def _import_table(src: Path, kind: str, out: Path, channels: str | Path | None, 
             "rows": f"one sample per row, {TABLE_PERIOD_NS * 1e-9:g} s apart in file order; the input-referred "
                     "loss L as output torque T - L*sgn(w) at an output speed equal to the input speed",
             "standstill_rows_left_out": str(standstill)})
-        for i in range(n):
-            if np.isfinite(theta[i]):  # each row's oil temperature just before its sample
-                bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, int(t_rows[i]),
-                                 {"header": {"stamp": stamp(int(t_rows[i])), "frame_id": "oil"},
-                                  "temperature": float(theta[i]), "variance": 0.0})
-            rows = slice(i * len(names), (i + 1) * len(names))
-            bw.write_fixed_mixed([(topic_of[c], MessageType.FLOAT64, None) for c in names], which[rows],
-                                 np.full(len(names), t_rows[i]), payloads[rows])
+        have = np.isfinite(theta)
+        _write_in_time_order(bw, topics, [(topic_of[c], MessageType.FLOAT64, None) for c in names], which,
+                             np.repeat(t_rows, len(names)), payloads, (t_rows[have].tolist(), theta[have].tolist()))
     written = n * len(names) + int(np.count_nonzero(np.isfinite(theta)))
     return ImportSummary(src, f"{kind} steady-state table", out, written, n, left_out=standstill)
 
