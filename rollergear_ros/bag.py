@@ -196,6 +196,38 @@ def encoder_for(type_name: str):
     return encode
 
 
+@lru_cache(maxsize=4)
+def _temperature_template(frame_id: str) -> tuple[bytes, int, int]:
+    """A ``sensor_msgs/Temperature`` serialised by the typestore, and where its stamp and its two
+    values are (found by markers, not assumed)."""
+    encode = encoder_for(MessageType.TEMPERATURE)
+    sec, nanosec, temp, var = 0x12345678, 0x1ABCDEF0, 1.0 + 1.0 / 3.0, 1.0 + 1.0 / 7.0
+    marked = encode({"header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": frame_id},
+                     "temperature": temp, "variance": var})
+    return marked, marked.index(struct.pack("<iI", sec, nanosec)), marked.index(struct.pack("<dd", temp, var))
+
+
+def temperature_payloads(t_ns: np.ndarray, temperature_c: np.ndarray, variance: float = 0.0,
+                         frame_id: str = "oil") -> np.ndarray:
+    """``sensor_msgs/Temperature`` CDR payloads (little endian), stamped ``t_ns``, as the rows of a
+    uint8 array (a template the typestore serialised, patched with numpy)."""
+    template, stamp_at, values_at = _temperature_template(frame_id)
+    t = np.asarray(t_ns, dtype=np.int64)
+    n = len(t)
+    rows = np.tile(np.frombuffer(template, dtype=np.uint8), (n, 1))
+    sec, nanosec = np.divmod(t, 1_000_000_000)
+    if n and (sec.min() < -(2**31) or sec.max() > 2**31 - 1):
+        raise BagError(f"a time of {int(sec.max() if sec.max() > 0 else sec.min())} s does not fit a ROS 2 header "
+                       "stamp (int32 seconds)")
+    stamps = np.empty(n, dtype=[("sec", "<i4"), ("nanosec", "<u4")])
+    stamps["sec"], stamps["nanosec"] = sec, nanosec
+    rows[:, stamp_at:stamp_at + 8] = stamps.view(np.uint8).reshape(n, 8)
+    values = np.empty((n, 2), dtype="<f8")
+    values[:, 0], values[:, 1] = temperature_c, variance
+    rows[:, values_at:values_at + 16] = values.view(np.uint8).reshape(n, 16)
+    return rows
+
+
 def stamp(t_ns: int) -> dict[str, int]:
     return {"sec": int(t_ns // 1_000_000_000), "nanosec": int(t_ns % 1_000_000_000)}
 
@@ -465,10 +497,11 @@ class BagWriter:
             self._held.release(up_to_ns)
 
     def write_raw(
-        self, topic: str, type_name: str, log_time_ns: int, data: bytes, schema_text: str | None = None
+        self, topic: str, type_name: str, log_time_ns: int, data: bytes, schema_text: str | None = None,
+        publish_time_ns: int | None = None,
     ) -> None:
-        """One serialized message."""
-        self._sink.add_message(self.channel(topic, type_name, schema_text), int(log_time_ns), data)
+        """One serialized message (``publish_time_ns``: when its publisher sent it; None: its log time)."""
+        self._sink.add_message(self.channel(topic, type_name, schema_text), int(log_time_ns), data, publish_time_ns)
 
     def write_message(self, topic: str, type_name: str, log_time_ns: int, message: dict) -> None:
         """Encode a message dict with the type's CDR encoder and write it."""

@@ -176,9 +176,10 @@ class Estimator:
         return (torque * speed - out_torque * w_out) / abs(speed)
 
     # ------------------------------------------------------------------ streaming (node)
-    def push(self, channel: str, t_ns: int, value: float) -> Sequence[Estimate]:
-        """Feed one input message; returns the estimates it completes."""
-        samples = self.sync.push(channel, t_ns, value)
+    def push(self, channel: str, t_ns: int, value: float, source_ns: int | None = None) -> Sequence[Estimate]:
+        """Feed one input message (``source_ns``: its publisher's timestamp, by arrival); returns the
+        estimates it completes."""
+        samples = self.sync.push(channel, t_ns, value, source_ns)
         if not samples:
             return ()
         out = []
@@ -194,10 +195,12 @@ class Estimator:
         return [e for e in map(self.process, self.sync.flush()) if e is not None]
 
     # ------------------------------------------------------------------ batches (replay)
-    def push_many(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray) -> BatchEstimate | None:
-        """Feed a batch of messages in arrival (file) order (``codes`` index :data:`~.pairing.CHANNELS`);
-        returns the estimates of the samples they complete (None when they complete none)."""
-        return self._estimate(self.sync.push_many(codes, t_ns, values))
+    def push_many(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray,
+                  source_ns: np.ndarray | None = None) -> BatchEstimate | None:
+        """Feed a batch of messages in arrival (file) order (``codes`` index :data:`~.pairing.CHANNELS`;
+        ``source_ns``: the publishers' timestamps, by arrival); returns the estimates of the samples
+        they complete (None when they complete none)."""
+        return self._estimate(self.sync.push_many(codes, t_ns, values, source_ns))
 
     def flush(self) -> BatchEstimate | None:
         """At the end of a log: estimate what can still be paired (the rest counts as unpaired)."""

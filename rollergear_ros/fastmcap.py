@@ -39,6 +39,8 @@ class MessageArrays:
     offset: np.ndarray  # int64
     length: np.ndarray  # int64
     buf: np.ndarray  # uint8 view of the decompressed chunk
+    #: int64, when each message's publisher sent it (recorders that know no better write the log time)
+    publish_time: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.channel)
@@ -144,7 +146,7 @@ def parse_records(data: bytes, state: ReadState) -> MessageArrays:
     buf = np.frombuffer(data, dtype=np.uint8)
     n = len(data)
     pos = 0
-    chans, times, offs, lens = [], [], [], []
+    chans, times, sent, offs, lens = [], [], [], [], []
     while pos + 9 <= n:
         op = data[pos]
         ln = int.from_bytes(data[pos + 1:pos + 9], "little")
@@ -167,6 +169,7 @@ def parse_records(data: bytes, state: ReadState) -> MessageArrays:
             rows = buf[pos:pos + m * rec].reshape(m, rec)
             chans.append(rows[:, 9:11].copy().view("<u2").ravel())
             times.append(rows[:, 15:23].copy().view("<i8").ravel())
+            sent.append(rows[:, 23:31].copy().view("<i8").ravel())
             offs.append(pos + 9 + _MSG_FIXED + rec * np.arange(m, dtype=np.int64))
             lens.append(np.full(m, ln - _MSG_FIXED, dtype=np.int64))
             pos += m * rec
@@ -178,15 +181,15 @@ def parse_records(data: bytes, state: ReadState) -> MessageArrays:
         pos += rec
     if not chans:
         e = np.empty(0, dtype=np.int64)
-        return MessageArrays(np.empty(0, dtype=np.uint16), e, e, e, buf)
+        return MessageArrays(np.empty(0, dtype=np.uint16), e, e, e, buf, e)
     arrays = MessageArrays(np.concatenate(chans), np.concatenate(times), np.concatenate(offs), np.concatenate(lens),
-                           buf)
+                           buf, np.concatenate(sent))
     bad = arrays.log_time < 0  # unsigned log times beyond 2⁶³ − 1: no ROS time, and no int64 to compute with
     if bad.any():
         state.bad_log_times += int(bad.sum())
         keep = ~bad
         arrays = MessageArrays(arrays.channel[keep], arrays.log_time[keep], arrays.offset[keep],
-                               arrays.length[keep], buf)
+                               arrays.length[keep], buf, arrays.publish_time[keep])
     return arrays
 
 

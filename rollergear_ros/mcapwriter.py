@@ -164,10 +164,12 @@ class ChunkedMcapWriter:
         if self._size >= self.chunk_size:
             self.flush_chunk()
 
-    def add_message(self, channel_id: int, log_time: int, data: bytes) -> None:
-        """Add one message (plain Python: ~1 µs, for recorders that get messages one by one)."""
+    def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int | None = None) -> None:
+        """Add one message (plain Python: ~1 µs, for recorders that get messages one by one);
+        ``publish_time``: when its publisher sent it (None: ``log_time``)."""
         seq = self._seq[channel_id] = self._seq[channel_id] + 1
-        rec = _MSG_HEAD.pack(OP_MESSAGE, _MSG_FIXED + len(data), channel_id, seq & 0xFFFFFFFF, log_time, log_time)
+        rec = _MSG_HEAD.pack(OP_MESSAGE, _MSG_FIXED + len(data), channel_id, seq & 0xFFFFFFFF, log_time,
+                             log_time if publish_time is None else publish_time)
         times, offs = self._single.setdefault(channel_id, ([], []))
         times.append(log_time)
         offs.append(self._size)
@@ -335,7 +337,7 @@ class TimeOrderBuffer:
     def __init__(self, writer: ChunkedMcapWriter) -> None:
         self._writer = writer
         self._fixed: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (channel ids, log times, payload rows)
-        self._single: list[tuple[int, int, bytes]] = []  # (channel id, log time, payload)
+        self._single: list[tuple[int, int, bytes, int | None]] = []  # (channel id, log time, payload, publish time)
 
     def __len__(self) -> int:
         return sum(len(t) for _, t, _ in self._fixed) + len(self._single)
@@ -346,8 +348,8 @@ class TimeOrderBuffer:
         if len(log_time):
             self._fixed.append((ids, log_time, payload))
 
-    def add_message(self, channel_id: int, log_time: int, data: bytes) -> None:
-        self._single.append((channel_id, log_time, data))
+    def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int | None = None) -> None:
+        self._single.append((channel_id, log_time, data, publish_time))
 
     def release(self, up_to_ns: int | None = None) -> None:
         """Write, in log-time order (the order added among equal times), every message whose log

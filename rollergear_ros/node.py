@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import gc
 import math
+import signal
 import struct
 import sys
 import threading
@@ -173,8 +174,10 @@ class LossEstimatorNode(Node):
         self._alarms_reported = 0
         self._published = 0
         self._every = self.config.node.publish_every_n
-        self._taking_backlog = False
-        self.backlog_discarded = 0  #: input messages queued before the first spin, discarded
+        #: while the start-up backlog is taken: where the input callbacks hold what they are given
+        self._backlog: list[tuple[str, Any, bytes, dict]] | None = None
+        self.backlog_discarded = 0  #: input messages queued before the first take, discarded
+        self.backlog_kept = 0  #: ... and estimated (the start of their publishers' streams)
         self.executor_kind = node.executor
         # the events executor gives no message info: the inputs are taken in a thread of their own
         # (with it), under this lock, which a parameter change takes too
@@ -314,29 +317,50 @@ class LossEstimatorNode(Node):
         return discarded
 
     def discard_start_up_backlog(self, executor) -> int:
-        """Take and discard the Float64 inputs queued before the executor first spins (arrival
-        pairing only); returns how many.
+        """Take the Float64 inputs queued before the node first takes from its subscriptions
+        (arrival pairing only): estimate them when they are the start of their publishers' streams,
+        else discard them.  Returns how many were discarded.
 
         A node that joins a running stream finds up to a queue's depth of messages waiting, its
-        subscriptions having matched a few samples apart; taken in one burst, their callback
-        times say nothing about which torque belongs to which speed.  Pairing them would guess;
-        live messages pair by their arrival.  Publisher timestamps (``single_threaded``) and
-        JointState header stamps pair the backlog exactly, so it is kept there.
+        subscriptions having matched a few samples apart; taken in one burst, their arrival order
+        says nothing about which torque belongs to which speed, so they are discarded and live
+        messages pair by their arrival.  But a stream that began after the node subscribed -- a
+        player started as soon as the node's subscriptions matched it, while the node was still
+        starting up -- queues the same way and is no backlog to lose: the publishers' sequence
+        numbers tell the two apart.  When every input topic's first queued message is its
+        publisher's first (number 1), each topic is there from the first sample on and first-in
+        first-out pairs them.  Publisher timestamps (``single_threaded``) and JointState header
+        stamps pair any backlog exactly, so it is kept there (and nothing is taken here).
         """
         if self.pairing not in ARRIVAL_PAIRINGS or self.config.node.input_mode != "float64":
             return 0
-        self._taking_backlog = True
-        try:
-            idle = 0
-            while idle < 3:  # a few empty takes in a row: the queues are drained
-                before = self.backlog_discarded
-                if self.inputs is not None:
-                    self.inputs.take_round_robin()  # the callbacks count and discard
-                else:
-                    executor.spin_once(timeout_sec=0.0)
-                idle = idle + 1 if self.backlog_discarded == before else 0
-        finally:
-            self._taking_backlog = False
+        held: list[tuple[str, Any, bytes, dict]] = []
+        with self._input_lock:
+            self._backlog = held
+            try:
+                idle = 0
+                while idle < 3:  # a few empty takes in a row: the queues are drained
+                    before = len(held)
+                    if self.inputs is not None:
+                        self.inputs.take_round_robin()  # the callbacks hold what they are given
+                    else:
+                        executor.spin_once(timeout_sec=0.0)
+                    idle = idle + 1 if len(held) == before else 0
+            finally:
+                self._backlog = None
+            first: dict[str, int | None] = {}
+            for channel, _, _, info in held:
+                first.setdefault(channel, info.get("publication_sequence_number"))
+            if held and all(n == 1 for n in first.values()):
+                self.backlog_kept = len(held)
+                for _, callback, raw, info in held:
+                    callback(raw, info)
+                self.get_logger().info(f"took {len(held)} input messages queued at start-up: every topic from "
+                                       "its publisher's first message on (a stream that started with the node)")
+                return 0
+            for channel, _, _, info in held:  # the next live message after them is no loss
+                self._sequence_gaps[channel].lost_before(info.get("publication_sequence_number"))
+            self.backlog_discarded += len(held)
         if self.backlog_discarded:
             self.get_logger().info(f"discarded {self.backlog_discarded} input messages queued before start-up "
                                    "(a running stream: their arrival order cannot pair them)")
@@ -353,15 +377,13 @@ class LossEstimatorNode(Node):
         time_ns = time.time_ns
         record_pairing_time = self._record_pairing_time
 
-        def handle(raw: bytes, t_ns: int, wall_ns: int) -> None:
-            if self._taking_backlog:
-                self.backlog_discarded += 1
-                return
+        def handle(raw: bytes, t_ns: int, wall_ns: int, source_ns: int | None = None) -> None:
             counts[channel] += 1
             last[channel] = wall_ns
             if self.recorder is not None:
                 self.recorder.write_raw(topic, MessageType.FLOAT64,
-                                        t_ns if record_pairing_time else self.get_clock().now().nanoseconds, raw)
+                                        t_ns if record_pairing_time else self.get_clock().now().nanoseconds, raw,
+                                        publish_time_ns=source_ns)
             if len(raw) >= 12 and raw[1] == 1 and raw[0] == 0:
                 value = unpack(raw, 4)[0]
             elif bagmod.float64_problem(raw) is None:
@@ -369,7 +391,7 @@ class LossEstimatorNode(Node):
             else:  # not a Float64 payload: counted (diagnostics warn), never decoded as garbage
                 self.estimator.counts["malformed"] += 1
                 return
-            for est in self.estimator.push(channel, t_ns, value):
+            for est in self.estimator.push(channel, t_ns, value, source_ns):
                 self._publish(est)
 
         if self.pairing not in ARRIVAL_PAIRINGS:
@@ -383,13 +405,16 @@ class LossEstimatorNode(Node):
         last_input = self._last_input_ns
 
         def cb_arrival(raw: bytes, info) -> None:
+            if self._backlog is not None:  # queued before start-up: held until the backlog is judged
+                self._backlog.append((channel, cb_arrival, raw, info))
+                return
             wall = t_ns = time_ns()
             self._input_lag = (wall, wall - (info["received_timestamp"] or wall))
             lost = lost_before(info["publication_sequence_number"])
-            if lost and not self._taking_backlog:
+            if lost:
                 t_ns = self._push_lost(channel, topic, lost, wall)
             last_input[channel] = t_ns
-            handle(raw, t_ns, wall)
+            handle(raw, t_ns, wall, info["source_timestamp"] or None)
             self.busy_ns += time_ns() - wall
         return cb_arrival
 
@@ -649,13 +674,36 @@ def make_executor(kind: str, context=None):
     return SingleThreadedExecutor(context=context)
 
 
+def stop_on_signals() -> threading.Event:
+    """Make SIGINT and SIGTERM set the returned event, and nothing else.
+
+    The node's main loop ends when it is set, and the files are closed.  A handler that raises
+    (Python's ``KeyboardInterrupt``, which rclpy's own handler chains to) lands wherever the main
+    thread happens to be -- inside an input callback, between the recording of a message and its
+    estimate, it leaves a recording that replays to one estimate more than the node published.
+    A further signal while the node closes its files is reported and does not interrupt that."""
+    stop = threading.Event()
+
+    def handler(signum: int, _frame) -> None:
+        if stop.is_set():
+            print(f"loss_estimator: {signal.Signals(signum).name} again: still closing the recordings "
+                  "(SIGKILL ends at once, leaving an MCAP without its index)", file=sys.stderr)
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
+    return stop
+
+
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``loss_estimator``: spin until Ctrl-C/SIGTERM, then close the files cleanly."""
     from rclpy.impl.implementation_singleton import rclpy_implementation
+    from rclpy.signals import SignalHandlerOptions
 
+    stop = stop_on_signals()
     try:
         check_params_files(sys.argv if args is None else args)
-        rclpy.init(args=args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except (ParameterError, rclpy_implementation.RCLError) as exc:
         # rcl's own message ends with its source locations: not the user's business
         print(f"loss_estimator: error: {str(exc).split(', at /')[0].strip()}", file=sys.stderr)
@@ -665,9 +713,7 @@ def main(args: list[str] | None = None) -> int:
     try:
         # the modules loaded so far live as long as the process: keep them out of the garbage
         # collector's full passes, which otherwise stall the callbacks for milliseconds at high
-        # input rates.  Done before the node exists: its subscriptions must be taken from as soon
-        # as they are created, or the first messages of a stream that starts then would be taken
-        # for a backlog and discarded (a full collection takes milliseconds)
+        # input rates (collected before the node subscribes: the inputs wait for no collection)
         gc.collect()
         gc.freeze()
         node = LossEstimatorNode()
@@ -676,14 +722,14 @@ def main(args: list[str] | None = None) -> int:
         gc.freeze()  # and the node's own objects (no collection: it would delay the first take)
         node.start_inputs(executor)
         # spin_once with a timeout: EventsExecutor.spin() never returns on this rclpy version
-        while rclpy.ok():
+        while rclpy.ok() and not stop.is_set():
             if node.inputs is not None and node.inputs.error is not None:
                 raise node.inputs.error
             try:
                 executor.spin_once(timeout_sec=0.1)
             except RuntimeError:
-                # a signal shut the context down under an executor busy with a backlog: the
-                # EventsExecutor then fails to hand it a callback's argument; that is the end
+                # the context was shut down (from outside) under an executor busy with a backlog:
+                # the EventsExecutor then fails to hand it a callback's argument; that is the end
                 if rclpy.ok():
                     raise
                 break

@@ -35,12 +35,16 @@ plays) is not paired with the wrong samples.  Below ~500 Hz a lost message mispa
 before the resync.  Above it, neighbouring samples lie within 2 ms of each other, so a pairing one
 sample off (a lost message; the start-up backlog of a node that joined a running stream, taken in
 one burst while its subscriptions had matched a few samples apart) is found by its mean instead:
-each channel's arrival offset from the motor torque, averaged over ~16 pairs, is near zero when
-the messages of one sample arrive together and near a whole period when they are paired with a
+each channel's offset from the motor torque, averaged over ~16 pairs, is near zero when the
+messages of one sample were sent together and near a whole period when they are paired with a
 neighbour's; beyond 0.75 periods the lagging heads are dropped (:meth:`SampleSynchronizer._arrival_skewed`).
-A skew is undone within ~30 samples of live data; a burst itself carries no timing and keeps the
-pairing it was taken with.  Over best-effort delivery with the publishers' sequence numbers
-(``arrival_sequenced``, the live node's default) every lost message is pushed as a placeholder
+The offsets are those of the publishers' timestamps where the middleware gives them (``source_ns``;
+the live node records them as its inputs' MCAP publish times, so replay sees them too): the order
+of arrival pairs, the publisher's clock tells a skew, and neither depends on how much CPU the node
+gets.  A skew is undone within ~30 samples of live data; a burst sent by a publisher catching up
+carries no timing and keeps the pairing it was taken with.  Over best-effort delivery with the
+publishers' sequence numbers (``arrival_sequenced``, the live node's default) every lost message
+is pushed as a placeholder
 (:data:`LOST_VALUE`) in its place: nothing is then missing, the lossless rules apply, and a pair
 with a placeholder is taken first in, first out whatever its times.  By arrival, an optional channel
 counts as silent once motor messages have kept coming for ``staleness_s`` without it, not when the
@@ -251,8 +255,11 @@ class SampleSynchronizer:
         self.active[channel] = active
         self._active_channels = tuple(c for c in _PAIRED if self.active[c])
 
-    def push(self, channel: str, t_ns: int, value: float) -> Sequence[SyncedSample]:
-        """Add one message; returns the samples it completes (usually zero or one)."""
+    def push(self, channel: str, t_ns: int, value: float, source_ns: int | None = None) -> Sequence[SyncedSample]:
+        """Add one message; returns the samples it completes (usually zero or one).
+
+        ``source_ns``: by arrival, the publisher's timestamp of the message (its source timestamp;
+        ``None``: ``t_ns``), which the skew detector measures offsets with (:meth:`_arrival_skewed`)."""
         self.received[channel] += 1
         if channel == OIL_TEMPERATURE:  # held, never paired: it does not move the pairing clock
             self.temperature = (t_ns, value)
@@ -272,7 +279,7 @@ class SampleSynchronizer:
                     self._locked, self._timed_pairs = False, 0
             self.latest_ns = t_ns
         q = self.queues
-        q[channel].append((t_ns, value))
+        q[channel].append((t_ns, value, t_ns if source_ns is None else source_ns))
         active = self.active
         if not active[channel]:
             self._set_active(channel, True)
@@ -303,8 +310,10 @@ class SampleSynchronizer:
             self.queues[ch].clear()
         return out
 
-    def push_many(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, ...]:
-        """:meth:`push` for a batch of messages in arrival (file) order; ``codes`` index :data:`CHANNELS`.
+    def push_many(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray,
+                  source_ns: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
+        """:meth:`push` for a batch of messages in arrival (file) order; ``codes`` index :data:`CHANNELS`
+        (``source_ns``: the publishers' timestamps, by arrival).
 
         Returns the completed samples as arrays ``(t_ns, torque, speed, out_torque, out_speed,
         temperature)``.  When nothing is queued and every channel's k-th message lies within the
@@ -316,8 +325,9 @@ class SampleSynchronizer:
             return fast
         out: list[SyncedSample] = []
         push = self.push
-        for c, t, v in zip(codes.tolist(), t_ns.tolist(), values.tolist()):
-            out.extend(push(CHANNELS[c], t, v))
+        sources = source_ns.tolist() if source_ns is not None else [None] * len(codes)
+        for c, t, v, s in zip(codes.tolist(), t_ns.tolist(), values.tolist(), sources):
+            out.extend(push(CHANNELS[c], t, v, s))
         return samples_to_arrays(out)
 
     def _pair_vectorised(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray):
@@ -336,7 +346,7 @@ class SampleSynchronizer:
         held_queues = any(self.queues[c] for c in self.queues)
         if held_queues:
             # messages held from the previous batch (a sample cut by the batch boundary) go first
-            held = [(t, CHANNELS.index(c), v) for c in self.queues for t, v in self.queues[c]]
+            held = [(t, CHANNELS.index(c), v) for c in self.queues for t, v, _ in self.queues[c]]
             held.sort(key=lambda h: h[0])
             codes = np.concatenate([np.array([h[1] for h in held], dtype=codes.dtype), codes])
             t_ns = np.concatenate([np.array([h[0] for h in held], dtype=np.int64), t_ns])
@@ -433,7 +443,7 @@ class SampleSynchronizer:
             if self.arrival:
                 wide = self._arrival_wide(wide)
             if not wide:
-                if self.arrival and self._arrival_skewed(chans, times):
+                if self.arrival and self._arrival_skewed(chans, [q[c][0][2] for c in chans]):
                     continue
                 vals = {c: q[c].popleft()[1] for c in chans}
                 t = times[0]
@@ -473,14 +483,19 @@ class SampleSynchronizer:
         """Arrival pairing: whether the heads pair each sample with a neighbour's message; if so,
         the lagging heads are dropped (``unpaired``) and True returned.
 
+        ``times``: the heads' publisher timestamps (their source timestamps, which the node records
+        as each input's MCAP publish time; the arrival times where there are none).  The
+        publisher's clock says when a sample's messages were sent whatever CPU share the node has;
+        arrival times spread by a node preempted while it takes a backlog look like a skew, and a
+        head dropped for it pairs every later sample with its neighbour's.
+
         A skew of one sample keeps every pair within the 2 ms of jitter allowed above ~500 Hz (a
-        node that joined a running stream and took its start-up backlog in one burst, or a lost
-        message), so it is told by its mean: each channel's arrival offset from the motor torque
-        (clipped to ± one period), averaged over the last ~16 pairs, against the mean sample
-        period.  Messages of one sample arrive together (mean offset ~0); a pairing one sample off
-        has a mean offset of a whole period (the mean arrival period).  A pair that came less than
-        half the nominal sample period after the previous one (when it is known; else
-        ``SKEW_MIN_PERIOD_NS``) was taken in a catch-up and is not observed.  A spread of the means
+        node that joined a running stream, or a lost message), so it is told by its mean: each
+        channel's offset from the motor torque (clipped to ± one period), averaged over the last
+        ~16 pairs, against the mean sample period.  Messages of one sample are sent together (mean
+        offset ~0); a pairing one sample off has a mean offset of a whole period.  A pair that
+        came less than half the nominal sample period after the previous one (when it is known;
+        else ``SKEW_MIN_PERIOD_NS``) was sent in a catch-up and is not observed.  A spread of the means
         beyond ``SKEW_LIMIT`` x the period drops the heads of the channels that lag the most advanced
         one; channels published at independent phases settle at an offset within ±0.25 periods after
         one such drop.  A

@@ -220,6 +220,9 @@ class InputBatch:
     t_ns: np.ndarray
     values: np.ndarray
     write_inputs: Callable[[BagWriter], None]
+    #: the messages' publish times (the node records its inputs' source timestamps there): in file
+    #: order only, where arrival pairing's skew detector measures with them; else None
+    source_ns: np.ndarray | None = None
 
 
 def _input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None],
@@ -278,7 +281,7 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
     count = 0
 
     def assemble(parts: list) -> InputBatch:
-        codes, ts, vals, writes = [], [], [], []
+        codes, ts, sources, vals, writes = [], [], [], [], []
         for arrays, lut in parts:
             code = lut[arrays.channel]
             keep = np.flatnonzero(code >= 0)
@@ -310,6 +313,7 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
             good[sub[~problems.check_order(c[sub], t[sub], v[sub])]] = False
             codes.append(c[good])
             ts.append(t[good])
+            sources.append(arrays.publish_time[keep][good])
             vals.append(v[good])
             writes.append((arrays, decodable))
 
@@ -339,7 +343,8 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
                         topic, type_name, int(arrays.log_time[i]), arrays.payload(i), info.schema_texts.get(type_name)
                     )
 
-        return InputBatch(np.concatenate(codes).astype(np.int8), np.concatenate(ts), np.concatenate(vals), write)
+        return InputBatch(np.concatenate(codes).astype(np.int8), np.concatenate(ts), np.concatenate(vals), write,
+                          np.concatenate(sources))
 
     carry: InputBatch | None = None
 
@@ -349,6 +354,7 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
         nonlocal carry
         if file_order:
             return batch
+        batch.source_ns = None  # sorted by log time: pairing by time needs no publish times
         if carry is not None:
             batch = InputBatch(
                 np.concatenate([carry.codes, batch.codes]),
@@ -419,9 +425,9 @@ class TimeWindow:
         hi = 2**63 - 1 if self.end_ns is None else self.end_ns + self.lead_ns
         return lo, hi
 
-    def split(self, batch: InputBatch, estimator) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """The batch's messages before, inside and after the slice, in that order (counts are
-        snapshot where the slice begins and ends)."""
+    def split(self, batch: InputBatch, estimator) -> Iterator[tuple[np.ndarray, ...]]:
+        """The batch's messages before, inside and after the slice, in that order, as ``(codes,
+        t_ns, values, source_ns or None)`` (counts are snapshot where the slice begins and ends)."""
         t = batch.t_ns
         lo = -(2**63) if self.start_ns is None else self.start_ns
         hi = 2**63 - 1 if self.end_ns is None else self.end_ns
@@ -440,7 +446,7 @@ class TimeWindow:
                 self.samples += int(np.count_nonzero(codes == 0))
             if p == 2 and int(t[sel].max()) >= hi + self.lead_ns:
                 self.done = True
-            yield codes, t[sel], batch.values[sel]
+            yield codes, t[sel], batch.values[sel], None if batch.source_ns is None else batch.source_ns[sel]
 
     def keep(self, b: BatchEstimate | None, acc: _Accumulator) -> BatchEstimate | None:
         """The estimates of samples inside the slice (one before it primes the energy integral)."""
@@ -761,13 +767,13 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                 summary.interrupted = True
                 break
             if window is not None:  # a time slice (no outputs): its lead-in, its samples, its lead-out
-                for codes, t, v in window.split(batch, estimator):
-                    _emit(window.keep(estimator.push_many(codes, t, v), acc), None, None, acc, sink, topics)
+                for codes, t, v, source in window.split(batch, estimator):
+                    _emit(window.keep(estimator.push_many(codes, t, v, source), acc), None, None, acc, sink, topics)
             else:
                 with stop.critical():  # one batch's estimates and inputs, both or neither
                     summary.input_messages += len(batch.codes)
-                    _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values), writer, rlog, acc, sink,
-                          topics)
+                    _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values, batch.source_ns), writer,
+                          rlog, acc, sink, topics)
                     if rlog and len(batch.t_ns):
                         _skip_event(rlog, skip_events, estimator, int(batch.t_ns.max()))
                     if writer:

@@ -25,3 +25,49 @@ def run_cli(*args: str, check: bool = True, timeout: float = 600, env: dict | No
     if check and proc.returncode != 0:
         raise AssertionError(f"rollergear {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return proc
+
+
+def preempted_catch_up(seed: int) -> list[tuple[str, int, float, int | None]]:
+    """The input messages a loaded node takes across a burst loss, as ``(channel, taken at [ns],
+    value, sent at [ns] or None)``; sample k is torque ``10 + k/1000`` and speed ``50 + k/1000``.
+
+    200 samples paced at 1 kHz; then, while the node stalls for 50 ms, torque 200..500 and speed
+    200..400 are lost (one placeholder each, taken just before the next message of its topic, no
+    send time) and the rest is taken round-robin; then speed 1401..1500, and 200 paced samples.
+    The node is preempted before one take in ten for 0.2-1 ms.  The publisher sent each sample's
+    messages 5-15 µs apart."""
+    import numpy as np
+
+    from rollergear_ros.pairing import LOST_VALUE, SPEED, TORQUE
+
+    rng = np.random.default_rng(seed)
+    sent, clock = {}, 10**15
+    for k in range(1701):
+        for channel in (TORQUE, SPEED):
+            sent[channel, k] = clock
+            clock += 5_000 if k < 200 or k > 1500 else 15_000
+        clock += 1_000_000 if k < 200 or k > 1500 else 0
+    taken = 2 * 10**15
+    events: list[tuple[str, int, float, int | None]] = []
+
+    def take(channel: str, k: int, lost: int = 0) -> None:
+        nonlocal taken
+        taken += 12_000 + (int(rng.uniform(0.2e6, 1e6)) if rng.random() < 0.1 else 0)
+        events.extend((channel, taken - lost + i, LOST_VALUE, None) for i in range(lost))
+        events.append((channel, taken, (10.0 if channel == TORQUE else 50.0) + k * 1e-3, sent[channel, k]))
+
+    for k in range(200):
+        take(TORQUE, k)
+        take(SPEED, k)
+        taken += 1_000_000
+    taken += 50_000_000
+    for i, (k_torque, k_speed) in enumerate(zip(range(501, 1501), range(401, 1401))):
+        take(TORQUE, k_torque, 301 if i == 0 else 0)
+        take(SPEED, k_speed, 201 if i == 0 else 0)
+    for k in range(1401, 1501):
+        take(SPEED, k)
+    for k in range(1501, 1701):
+        take(TORQUE, k)
+        take(SPEED, k)
+        taken += 1_000_000
+    return events

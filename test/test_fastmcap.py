@@ -342,3 +342,24 @@ def test_a_time_ordered_writer_with_nothing_or_nothing_old_enough_to_release(tmp
     for name, n in (("empty.mcap", 0), ("late.mcap", 2)):
         with open(tmp_path / name, "rb") as f:
             assert sum(1 for _ in make_reader(f).iter_messages()) == n
+
+
+def test_publish_times_are_written_and_read_back_by_both_readers(tmp_path):
+    """A message's publish time (when its publisher sent it) is stored beside its log time and read
+    back by this reader and by the ``mcap`` library's; where none is given it is the log time."""
+    from rollergear_ros.bag import BagWriter, encode_float64
+    from rollergear_ros.interface import MessageType
+
+    p = tmp_path / "sent.mcap"
+    log = [1_000_000_000 + 7 * k for k in range(50)]
+    sent = [t - 1000 - k if k % 3 else None for k, t in enumerate(log)]
+    with BagWriter(p, chunk_size=256, time_ordered=False) as bw:
+        for k, (t, s) in enumerate(zip(log, sent)):
+            bw.write_raw("/x", MessageType.FLOAT64, t, encode_float64(np.array([float(k)]))[0], publish_time_ns=s)
+    expect = [t if s is None else s for t, s in zip(log, sent)]
+    ours = [a for a in iter_message_arrays(p)]
+    assert np.concatenate([a.log_time for a in ours]).tolist() == log
+    assert np.concatenate([a.publish_time for a in ours]).tolist() == expect
+    with p.open("rb") as fh:
+        theirs = [(m.log_time, m.publish_time) for _, _, m in make_reader(fh).iter_messages()]
+    assert theirs == list(zip(log, expect))

@@ -312,40 +312,85 @@ def test_run_time_change_of_pairing_limits_takes_effect():
             node.destroy_node()
 
 
-def test_start_up_backlog_of_a_running_stream_is_discarded():
-    """Messages queued before the executor first spins are taken and discarded (arrival pairing
-    could only guess their pairs); live messages after that are estimated."""
+def _start_up(probe, before_node: int, queued: int, live: int):
+    """An events node in ``probe``'s context whose input topics are published ``before_node`` samples
+    before it subscribes (they never reach it) and ``queued`` after, before it first takes its inputs
+    (``start_inputs``); then ``live`` samples at ~1 kHz.  Sample k is torque 10 + k/1000 and speed
+    50 + k/1000.  Returns the node (destroyed) and its estimates' sample indices ``(k_t, k_w)``."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
 
     from rollergear_ros.node import LossEstimatorNode, make_executor
 
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+    pubs = [probe.create_publisher(Float64, t, qos) for t in (T.motor_torque, T.motor_speed)]
+    seen = {p.topic_name: [] for p in pubs}  # a fence: what this probe has, the node's queue has
+    for topic in seen:
+        probe.create_subscription(Float64, topic, lambda m, topic=topic: seen[topic].append(m.data),
+                                  QoSProfile(depth=3000, reliability=ReliabilityPolicy.BEST_EFFORT))
+    assert wait_for(lambda: all(p.get_subscription_count() == 1 for p in pubs), 20)
+
+    def publish(k: int) -> None:
+        for p, base in zip(pubs, (10.0, 50.0)):
+            p.publish(Float64(data=base + k * 1e-3))
+
+    for k in range(before_node):
+        publish(k)
+    node = LossEstimatorNode(context=probe.context)
+    executor = make_executor("events", context=probe.context)
+    estimates = []
+    node._publish = lambda est, send=True: estimates.append(est)  # noqa: SLF001 - the estimates, as made
+    try:
+        executor.add_node(node)
+        assert wait_for(lambda: all(p.get_subscription_count() == 2 for p in pubs), 20)
+        last = before_node + queued - 1
+        for k in range(before_node, last + 1):
+            publish(k)
+        assert wait_for(lambda: all(v and v[-1] >= base + last * 1e-3 - 1e-9
+                                    for v, base in zip(seen.values(), (10.0, 50.0))), 30)
+        node.start_inputs(executor)
+        for k in range(last + 1, last + 1 + live):
+            publish(k)
+            next_sample = time.monotonic() + 0.001
+            while time.monotonic() < next_sample:
+                executor.spin_once(timeout_sec=0.0005)
+        n_sent = before_node + queued + live
+        assert wait_for(lambda: executor.spin_once(timeout_sec=0.01) or sum(node.monitor.counts.values())
+                        + node.backlog_discarded + sum(node.monitor.lost.values()) >= 2 * (n_sent - before_node), 60)
+        node.close()
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        for p in pubs:
+            probe.destroy_publisher(p)
+    k_t = np.round((np.array([e.torque_nm for e in estimates]) - 10) * 1000).astype(int)
+    k_w = np.round((np.array([e.speed_rad_s for e in estimates]) - 50) * 1000).astype(int)
+    return node, k_t, k_w
+
+
+def test_start_up_backlog_of_a_running_stream_is_discarded():
+    """Messages of a stream that was running before the node subscribed, queued before it first
+    takes its inputs, are taken and discarded (arrival pairing could only guess their pairs); live
+    messages after that are estimated."""
     with ros_context() as probe:
-        node = LossEstimatorNode(context=probe.context)
-        executor = make_executor("events", context=probe.context)
-        try:
-            executor.add_node(node)
-            qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
-            pubs = [probe.create_publisher(Float64, t, qos) for t in (T.motor_torque, T.motor_speed)]
-            assert wait_for(lambda: all(p.get_subscription_count() for p in pubs), 20)
-            for k in range(200):
-                for p in pubs:
-                    p.publish(Float64(data=10.0 + k))
-            time.sleep(0.3)
-            assert node.start_inputs(executor) > 300
-            assert node.estimator.estimated == 0 and sum(node.monitor.counts.values()) == 0
-            for k in range(300):  # then live at ~1 kHz
-                for p in pubs:
-                    p.publish(Float64(data=50.0 + k))
-                next_sample = time.monotonic() + 0.001
-                while time.monotonic() < next_sample:
-                    executor.spin_once(timeout_sec=0.0005)
-            assert wait_for(lambda: executor.spin_once(timeout_sec=0.01) or node.estimator.estimated >= 250, 10), (
-                node.estimator.estimated, node.estimator.counts)
-            assert node.estimator.counts["unpaired"] < 10
-        finally:
-            executor.shutdown()
-            node.destroy_node()
+        node, k_t, k_w = _start_up(probe, before_node=50, queued=200, live=300)
+    assert node.backlog_discarded == 400 and node.backlog_kept == 0
+    assert np.all(k_t >= 250) and len(k_t) >= 290, (len(k_t), node.estimator.counts)
+    assert np.mean(k_t == k_w) > 0.95 and node.estimator.counts["unpaired"] < 10
+
+
+def test_a_stream_that_starts_while_the_node_starts_up_is_estimated_from_its_first_sample():
+    """A stream that starts while the node starts up is estimated from its first sample.
+
+    A player that starts as soon as the node's subscriptions match it (``rollergear play`` waits for
+    that, and no longer) may send its first samples before the node first takes its inputs -- on a
+    loaded machine, long before.  They are no backlog of a running stream: every topic is there
+    from its publisher's first message (sequence number 1), so they are kept, and every sample is
+    estimated from its own inputs."""
+    with ros_context() as probe:
+        node, k_t, k_w = _start_up(probe, before_node=0, queued=200, live=100)
+    assert node.backlog_kept == 400 and node.backlog_discarded == 0
+    assert k_t.tolist() == k_w.tolist() == list(range(300)), node.estimator.counts
 
 
 def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inputs(tmp_path):
@@ -708,6 +753,34 @@ def test_a_sample_waiting_for_its_output_at_shutdown_is_estimated_and_recorded(e
     assert len(loss) > 0
     _, batches = replay(rec, load_config(CONFIG), show_progress=False, collect=True)
     np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in batches]), loss, rtol=1e-12, atol=1e-15)
+
+
+def test_a_signal_during_an_input_callback_never_interrupts_it():
+    """SIGINT and SIGTERM only ask the node to stop: a callback they arrive in runs to its end.
+
+    Python's KeyboardInterrupt, raised wherever the main thread is, could end an input callback
+    between the recording of a message and its estimate: the recording would replay to one
+    estimate more than the node published."""
+    import os
+
+    from rollergear_ros.node import stop_on_signals
+
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        def callback(sig: int, steps: list[str]) -> None:  # as an input callback: record, then estimate
+            steps.append("recorded")
+            os.kill(os.getpid(), sig)
+            sum(range(10_000))  # the interpreter runs signal handlers between bytecodes
+            steps.append("estimated")
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            stop = stop_on_signals()
+            steps: list[str] = []
+            callback(sig, steps)
+            assert steps == ["recorded", "estimated"] and stop.is_set()
+    finally:
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
 
 
 def _free_port() -> int:

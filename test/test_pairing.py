@@ -13,6 +13,8 @@ from rollergear_ros.pairing import (CHANNELS, LOST_VALUE, OIL_TEMPERATURE, OUT_S
                                     samples_to_arrays)
 from rollergear_ros.params import load_config
 
+from helpers import preempted_catch_up
+
 MS = 1_000_000
 
 
@@ -386,6 +388,31 @@ def test_placeholders_keep_arrival_pairing_aligned_across_a_burst_loss(lossless)
     assert len(k_t) == 1700 - 301
     k_t, k_w, _ = run(placeholders=False)
     assert np.sum(k_t != k_w) > 50  # what the placeholders prevent
+
+
+def _sample_indices(estimates) -> tuple[np.ndarray, np.ndarray]:
+    """Sample k's inputs are torque 10 + k/1000 and speed 50 + k/1000: each estimate's two k."""
+    return (np.round((np.array([e.torque_nm for e in estimates]) - 10) * 1000),
+            np.round((np.array([e.speed_rad_s for e in estimates]) - 50) * 1000))
+
+
+def test_a_node_preempted_while_it_catches_up_keeps_every_pair_by_the_publishers_clock():
+    """The skew detector measures with the publishers' timestamps: a node preempted now and then while
+    it takes a backlog (its arrival times spread by milliseconds) pairs every sample with its own
+    inputs, seed after seed.  Measured with the arrival times instead, the same takes looked like a
+    skew, and the detector dropped a head of a correctly paired stream: hundreds of later samples
+    paired with their neighbours'."""
+    mispaired_by_arrival = []
+    for seed in range(10):
+        events = preempted_catch_up(seed)
+        est = Estimator(load_config(), "arrival_sequenced", 1e-3)
+        k_t, k_w = _sample_indices([e for ch, t, v, sent in events for e in est.push(ch, t, v, sent)])
+        assert len(k_t) == 1701 - 301 and np.array_equal(k_t, k_w), f"seed {seed}: {np.sum(k_t != k_w)} mispaired"
+        assert est.counts["lost"] == 301 and est.counts["unpaired"] == 0
+        est = Estimator(load_config(), "arrival_sequenced", 1e-3)
+        k_t, k_w = _sample_indices([e for ch, t, v, _ in events for e in est.push(ch, t, v)])
+        mispaired_by_arrival.append(int(np.sum(k_t != k_w)))
+    assert max(mispaired_by_arrival) > 100, "the takes never looked like a skew: nothing tested"
 
 
 @pytest.mark.parametrize("late", [OUT_TORQUE, OUT_SPEED])

@@ -798,3 +798,38 @@ def test_a_node_recording_is_replayed_in_the_order_the_node_took_its_inputs(tmp_
     assert node.counts["unpaired"] > 0 and len(live) < n  # the node gave up what the backlog left behind
     _, batches = replay(p, config, show_progress=False, collect=True)
     np.testing.assert_array_equal(np.concatenate([b.torque_nm for b in batches]), live)
+
+
+def test_a_node_recording_carries_its_inputs_send_times_and_replay_pairs_with_them(tmp_path, config):
+    """A node records each input at the time it took it (the log time: the order it paired by) and
+    with the time its publisher sent it (the publish time), which its skew detector measures with.
+    Replay reads both: a recording of a loaded node's catch-up replays to exactly what the node
+    estimated, every sample from its own inputs.  The same recording without the send times (an
+    older node's) pairs hundreds of samples with their neighbours': replay did use them."""
+    from helpers import preempted_catch_up
+
+    from rollergear_ros.interface import Metadata
+
+    events = preempted_catch_up(seed=3)
+    node = Estimator(config, "arrival_sequenced", 1e-3)
+    live = [e for ch, t, v, sent in events for e in node.push(ch, t, v, sent)] + node.finish()
+    topic = {"motor_torque": T.motor_torque, "motor_speed": T.motor_speed}
+    replayed = {}
+    for name, with_sent in (("node", True), ("older", False)):
+        p = tmp_path / f"{name}.mcap"
+        with BagWriter(p, time_ordered=False) as bw:
+            bw.add_metadata(Metadata.RECORDING, {"pairing": "arrival_sequenced", "input_log_time": "arrival",
+                                                 "sample_period_s": "0.001"})
+            for ch, t, v, sent in events:
+                bw.write_raw(topic[ch], MessageType.FLOAT64, t, encode_float64(np.array([v]))[0],
+                             publish_time_ns=sent if with_sent else None)
+        summary, batches = replay(p, config, show_progress=False, collect=True)
+        assert summary.pairing == "arrival_sequenced"
+        replayed[name] = (np.concatenate([b.torque_nm for b in batches]),
+                          np.concatenate([b.speed_rad_s for b in batches]))
+    torque, speed = replayed["node"]
+    np.testing.assert_array_equal(torque, [e.torque_nm for e in live])
+    np.testing.assert_array_equal(speed, [e.speed_rad_s for e in live])
+    np.testing.assert_array_equal(np.round((torque - 10) * 1000), np.round((speed - 50) * 1000))
+    torque, speed = replayed["older"]
+    assert np.sum(np.round((torque - 10) * 1000) != np.round((speed - 50) * 1000)) > 100
