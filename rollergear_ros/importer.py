@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bag import MSG_DEFINITIONS, BagWriter, TopicMap, float64_payloads, stamp
+from .bag import MSG_DEFINITIONS, BagWriter, TopicMap, float64_payloads, temperature_payloads
 from .channelmap import load_channel_map
 from .errors import InputFileError, UsageError
 from .interface import Channel, MessageType
@@ -135,7 +135,7 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
                 found = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
                 raise InputFileError(f"{src}: no input topics {topics.motor_torque} or {topics.joint_states} "
                                      f"(topics: {found})")
-            with BagWriter(out) as bw:
+            with BagWriter(out) as bw:  # in log-time order whatever order the storage gives
                 bw.add_metadata(IMPORT_METADATA, {"source": str(src), "kind": "rosbag2"})
                 for con, t_ns, raw in reader.messages(connections=connections):
                     if con.msgtype not in MSG_DEFINITIONS:
@@ -162,28 +162,30 @@ def _import_timeseries(src: Path, kind: str, out: Path, channels: str | Path, to
     t_ns = np.repeat(aligned.t_ns, k)
     float_topics = [(topic_of[c], MessageType.FLOAT64, None) for c in names]
     temp = aligned.temperature
-    with BagWriter(out) as bw:
+    with BagWriter(out, time_ordered=False) as bw:
         bw.add_metadata(IMPORT_METADATA, {
             "source": str(src), "kind": kind, "channel_map": Path(channels).read_text(encoding="utf-8"),
             "resampling": RESAMPLING_RULE, "resampled": json.dumps(aligned.resampled)})
         _write_in_time_order(bw, topics, float_topics, which, t_ns, payloads,
-                             ([], []) if temp is None else (temp.t_ns.tolist(), temp.values.tolist()))
+                             ([], []) if temp is None else (temp.t_ns, temp.values))
     written = n * k + (0 if temp is None else len(temp.t_ns))
     return ImportSummary(src, kind, out, written, n, aligned.resampled)
 
 
 def _write_in_time_order(bw: BagWriter, topics: TopicMap, float_topics: list, which: np.ndarray, t_ns: np.ndarray,
-                         payloads: np.ndarray, temperatures: tuple[list[int], list[float]]) -> None:
+                         payloads: np.ndarray, temperatures: tuple[np.ndarray, np.ndarray]) -> None:
     """Float64 messages (``which`` indexes ``float_topics``) and oil temperatures ``(times, °C)`` in
-    log-time order across topics: each temperature before the samples at and after its time."""
+    log-time order across topics: each temperature before the samples at and after its time (the
+    writer takes them as they come: ``bw`` need not hold anything back)."""
+    temp_t = np.asarray(temperatures[0], dtype=np.int64)
+    temp_rows = temperature_payloads(temp_t, np.asarray(temperatures[1], dtype=np.float64))
+    cuts = np.searchsorted(t_ns, temp_t, side="left").tolist()
     done = 0
-    for t, v in zip(*temperatures):
-        upto = int(np.searchsorted(t_ns, t, side="left"))
+    for t, upto, row in zip(temp_t.tolist(), cuts, temp_rows):
         if upto > done:
             bw.write_fixed_mixed(float_topics, which[done:upto], t_ns[done:upto], payloads[done:upto])
             done = upto
-        bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, t,
-                         {"header": {"stamp": stamp(t), "frame_id": "oil"}, "temperature": v, "variance": 0.0})
+        bw.write_raw(topics.oil_temperature, MessageType.TEMPERATURE, t, row.tobytes())
     if len(t_ns) > done:
         bw.write_fixed_mixed(float_topics, which[done:], t_ns[done:], payloads[done:])
 
@@ -215,7 +217,7 @@ def _import_table(src: Path, kind: str, out: Path, channels: str | Path | None, 
     payloads = float64_payloads(np.stack(columns, axis=1).ravel())
     which = np.tile(np.arange(len(names)), n)
     theta = table.temperature_c[moving]
-    with BagWriter(out) as bw:
+    with BagWriter(out, time_ordered=False) as bw:
         bw.add_metadata(IMPORT_METADATA, {
             "source": str(src), "kind": f"{kind} steady-state table",
             "channel_map": "" if channels is None else Path(channels).read_text(encoding="utf-8"),
@@ -224,7 +226,7 @@ def _import_table(src: Path, kind: str, out: Path, channels: str | Path | None, 
             "standstill_rows_left_out": str(standstill)})
         have = np.isfinite(theta)
         _write_in_time_order(bw, topics, [(topic_of[c], MessageType.FLOAT64, None) for c in names], which,
-                             np.repeat(t_rows, len(names)), payloads, (t_rows[have].tolist(), theta[have].tolist()))
+                             np.repeat(t_rows, len(names)), payloads, (t_rows[have], theta[have]))
     written = n * len(names) + int(np.count_nonzero(np.isfinite(theta)))
     return ImportSummary(src, f"{kind} steady-state table", out, written, n, left_out=standstill)
 

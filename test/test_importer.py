@@ -377,3 +377,23 @@ def test_a_table_of_several_gearbox_states_is_refused_in_one_line(tmp_path):
     proc = run_cli("import", str(src), "--channels", str(cmap), "--out", str(tmp_path / "o.mcap"), check=False)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "2 gearbox states" in proc.stderr, proc.stderr
     assert not (tmp_path / "o.mcap").exists()
+
+
+def test_temperature_payloads_are_what_the_typestore_serialises():
+    """The importer's oil temperatures are a template patched with numpy: byte for byte what the
+    typestore's own serializer gives for each stamp and value; a stamp beyond int32 seconds is one
+    clear error."""
+    from rollergear_ros.bag import encoder_for, temperature_payloads
+    from rollergear_ros.errors import BagError
+    from rollergear_ros.interface import MessageType
+
+    encode = encoder_for(MessageType.TEMPERATURE)
+    t = np.array([0, 1, 999_999_999, 1_700_000_000_123_456_789, -1_500_000_000], dtype=np.int64)
+    theta = np.array([20.0, -40.5, 1e-300, 85.25, np.nan])
+    rows = temperature_payloads(t, theta, variance=0.25, frame_id="oil")
+    for row, tt, v in zip(rows, t.tolist(), theta.tolist()):
+        sec, nanosec = divmod(tt, 1_000_000_000)
+        assert row.tobytes() == encode({"header": {"stamp": {"sec": sec, "nanosec": nanosec}, "frame_id": "oil"},
+                                        "temperature": v, "variance": 0.25})
+    with pytest.raises(BagError, match="int32 seconds"):
+        temperature_payloads(np.array([2**31 * 1_000_000_000], dtype=np.int64), np.array([20.0]))
