@@ -64,7 +64,6 @@ class ChunkedMcapWriter:
         self._chunk = bytearray()  # record bytes of the open chunk
         self._index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # channel -> [(log times, offsets)]
         self._single: dict[int, tuple[list[int], list[int]]] = {}  # the same for messages added one by one
-        self._mixed: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (channels, log times, offsets)
         self._size = 0
         self._start = self._end = None
         self._counts: dict[int, int] = {}
@@ -139,19 +138,16 @@ class ChunkedMcapWriter:
             self._seq[cid] += n
             self._counts[cid] += n
             self._index.setdefault(cid, []).append((log_time, offsets))
-        else:  # interleaved topics: each one's sequence numbers count on; indexed by channel at the chunk's end
-            order = np.argsort(ids, kind="stable")
-            sorted_ids = ids[order]
-            starts = np.concatenate([[0], np.flatnonzero(np.diff(sorted_ids)) + 1])
-            counts = np.diff(np.concatenate([starts, [n]]))
-            cids = sorted_ids[starts].tolist()
-            base = np.array([self._seq[c] for c in cids], dtype=np.int64)
+        else:  # interleaved topics: each one's sequence numbers count on, its messages indexed apart
             seq = np.empty(n, dtype=np.int64)
-            seq[order] = np.repeat(base - starts, counts) + np.arange(1, n + 1, dtype=np.int64)
-            for c, k in zip(cids, counts.tolist()):
-                self._seq[c] += k
-                self._counts[c] += k
-            self._mixed.append((np.array(ids), log_time, offsets))
+            per_channel = np.bincount(ids)
+            for cid in np.flatnonzero(per_channel).tolist():
+                where = np.flatnonzero(ids == cid)
+                k = len(where)
+                seq[where] = np.arange(self._seq[cid] + 1, self._seq[cid] + k + 1, dtype=np.int64)
+                self._seq[cid] += k
+                self._counts[cid] += k
+                self._index.setdefault(cid, []).append((log_time[where], offsets[where]))
         rows[:, 11:15] = (seq & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
         self._chunk += rows.reshape(-1).data
         self._size += rows.size
@@ -232,19 +228,16 @@ class ChunkedMcapWriter:
         index_start = self._fh.tell()
         for cid, (times, offs) in self._single.items():
             self._index.setdefault(cid, []).append((np.array(times, dtype=np.int64), np.array(offs, dtype=np.int64)))
-        if self._mixed:
-            ids, times, offs = (np.concatenate(parts) for parts in zip(*self._mixed))
-            order = np.argsort(ids, kind="stable")
-            bounds = np.flatnonzero(np.diff(ids[order])) + 1
-            for group in np.split(order, bounds):
-                self._index.setdefault(int(ids[group[0]]), []).append((times[group], offs[group]))
         for cid in sorted(self._index):
-            times = np.concatenate([t for t, _ in self._index[cid]])
-            offs = np.concatenate([o for _, o in self._index[cid]])
-            order = np.argsort(times, kind="stable")
+            parts = self._index[cid]
+            times = np.concatenate([t for t, _ in parts]) if len(parts) > 1 else parts[0][0]
+            offs = np.concatenate([o for _, o in parts]) if len(parts) > 1 else parts[0][1]
             entries = np.empty((len(times), 2), dtype="<u8")
-            entries[:, 0] = times[order]
-            entries[:, 1] = offs[order]
+            if len(times) > 1 and np.any(times[1:] < times[:-1]):  # the index is by log time
+                order = np.argsort(times, kind="stable")
+                times, offs = times[order], offs[order]
+            entries[:, 0] = times
+            entries[:, 1] = offs
             body = struct.pack("<HI", cid, entries.nbytes) + entries.tobytes()
             index_offsets[cid] = self._fh.tell()
             self._fh.write(struct.pack("<BQ", Opcode.MESSAGE_INDEX, len(body)) + body)
@@ -253,7 +246,7 @@ class ChunkedMcapWriter:
             chunk_length=len(chunk_blob), message_index_offsets=index_offsets,
             message_index_length=self._fh.tell() - index_start, compression="zstd",
             compressed_size=len(compressed), uncompressed_size=len(data)))
-        self._chunk, self._index, self._single, self._mixed, self._size = bytearray(), {}, {}, [], 0
+        self._chunk, self._index, self._single, self._size = bytearray(), {}, {}, 0
         self._start = self._end = None
 
     def close(self) -> None:
