@@ -77,18 +77,21 @@ class InputTaker:
             pending = still
         return taken
 
-    def start(self, ready: Callable[[], bool] | None = None) -> None:
+    def start(self, ready: Callable[[], bool] | None = None, first: Callable[[], None] | None = None) -> None:
         """Start taking (once); with ``ready``, only once it returns True (the messages wait in
-        the middleware's queues meanwhile)."""
+        the middleware's queues meanwhile); ``first`` is called in the thread before it takes
+        anything else (without ``lock``)."""
         if self._thread is None:
-            self._thread = threading.Thread(target=self._run, args=(ready,), name="inputs", daemon=True)
+            self._thread = threading.Thread(target=self._run, args=(ready, first), name="inputs", daemon=True)
             self._thread.start()
 
-    def _run(self, ready: Callable[[], bool] | None) -> None:
+    def _run(self, ready: Callable[[], bool] | None, first: Callable[[], None] | None) -> None:
         context = self._node.context
         try:
             while ready is not None and not ready() and not self._stopping and context.ok():
                 time.sleep(0.002)
+            if first is not None and not self._stopping and context.ok():
+                first()
             with context.handle:
                 wait_set = _rclpy.WaitSet(len(self._inputs), 1, 0, 0, 0, 0, context.handle)
             while not self._stopping and context.ok():

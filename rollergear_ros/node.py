@@ -306,17 +306,22 @@ class LossEstimatorNode(Node):
 
     # ------------------------------------------------------------------ inputs
     def start_inputs(self, executor) -> int:
-        """Discard the start-up backlog (:meth:`discard_start_up_backlog`), then start the input
-        thread (events executor); returns how many messages were discarded."""
-        discarded = self.discard_start_up_backlog(executor)
-        if self.inputs is not None:
-            # under sim time the inputs are stamped with the ROS clock: not before /clock has set it
-            # (the executor takes /clock; the input thread would otherwise stamp the first ones 0)
-            sim_time = self.get_parameter("use_sim_time").value
-            self.inputs.start(ready=(lambda: self.get_clock().now().nanoseconds > 0) if sim_time else None)
+        """Take the start-up backlog (:meth:`take_start_up_backlog`), then start the input thread
+        (events executor); returns how many messages were discarded.
+
+        Under sim time the inputs are stamped with the ROS clock, which the executor sets from
+        ``/clock``: the thread takes nothing, the backlog included, before that has happened (the
+        inputs wait in the middleware's queues meanwhile), and this returns at once."""
+        if self.inputs is None:
+            return 0
+        if self.get_parameter("use_sim_time").value:
+            self.inputs.start(ready=lambda: self.get_clock().now().nanoseconds > 0, first=self.take_start_up_backlog)
+            return 0
+        discarded = self.take_start_up_backlog()
+        self.inputs.start()
         return discarded
 
-    def discard_start_up_backlog(self, executor) -> int:
+    def take_start_up_backlog(self) -> int:
         """Take the Float64 inputs queued before the node first takes from its subscriptions
         (arrival pairing only): estimate them when they are the start of their publishers' streams,
         else discard them.  Returns how many were discarded.
@@ -341,10 +346,7 @@ class LossEstimatorNode(Node):
                 idle = 0
                 while idle < 3:  # a few empty takes in a row: the queues are drained
                     before = len(held)
-                    if self.inputs is not None:
-                        self.inputs.take_round_robin()  # the callbacks hold what they are given
-                    else:
-                        executor.spin_once(timeout_sec=0.0)
+                    self.inputs.take_round_robin()  # the callbacks hold what they are given
                     idle = idle + 1 if len(held) == before else 0
             finally:
                 self._backlog = None

@@ -393,6 +393,51 @@ def test_a_stream_that_starts_while_the_node_starts_up_is_estimated_from_its_fir
     assert k_t.tolist() == k_w.tolist() == list(range(300)), node.estimator.counts
 
 
+def test_under_sim_time_a_stream_queued_at_start_up_waits_for_the_clock(tmp_path):
+    """Under ``use_sim_time`` the inputs are stamped with the ROS clock: a stream queued before the
+    node first takes its inputs is taken (and kept: it starts at its publishers' first messages)
+    only once ``/clock`` has set the clock, so nothing is recorded at time 0."""
+    from builtin_interfaces.msg import Time
+    from rclpy.parameter import Parameter
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+    from std_msgs.msg import Float64
+
+    from rollergear_ros.node import LossEstimatorNode, make_executor
+
+    rec = tmp_path / "sim.mcap"
+    with ros_context() as probe:
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT)
+        pubs = [probe.create_publisher(Float64, t, qos) for t in (T.motor_torque, T.motor_speed)]
+        clock = probe.create_publisher(Clock, "/clock", 10)
+        node = LossEstimatorNode(context=probe.context, parameter_overrides=[
+            Parameter("use_sim_time", value=True), Parameter("node.record_mcap", value=str(rec))])
+        executor = make_executor("events", context=probe.context)
+        try:
+            executor.add_node(node)
+            assert wait_for(lambda: all(p.get_subscription_count() == 1 for p in pubs)
+                            and clock.get_subscription_count() == 1, 20)
+            for k in range(100):
+                for p, base in zip(pubs, (10.0, 50.0)):
+                    p.publish(Float64(data=base + k * 1e-3))
+            assert node.start_inputs(executor) == 0
+            time.sleep(0.2)  # what must not happen meanwhile: nothing is taken before the clock is set
+            assert sum(node.monitor.counts.values()) == 0 and node.backlog_kept == 0
+            clock.publish(Clock(clock=Time(sec=1000)))
+            assert wait_for(lambda: executor.spin_once(timeout_sec=0.01) or sum(node.monitor.counts.values()) == 200,
+                            30), node.monitor.counts
+            node.close()
+        finally:
+            executor.shutdown()
+            node.destroy_node()
+    assert node.backlog_kept == 200 and node.backlog_discarded == 0
+    recorded = read_rosbags(rec)
+    t_in = np.concatenate([float_series(recorded, topic)[0] for topic in (T.motor_torque, T.motor_speed)])
+    t_out = float_series(recorded, T.loss_torque)[0]
+    assert len(t_in) == 200 and len(t_out) == 100
+    assert t_in.min() >= 1000 * 10**9 and t_out.min() >= 1000 * 10**9
+
+
 def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inputs(tmp_path):
     """Arrival pairing over best-effort delivery: a node that falls a whole queue behind loses the
     oldest messages of each topic -- a different number on each -- and nothing in their arrival
