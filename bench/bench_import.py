@@ -5,7 +5,8 @@ calibrate on a 10 000-row steady-state table.
 Baselines measured in the same run: reading the MDF4 file's channels with ``asammdf`` alone
 (``MDF(path)`` + ``get`` of each channel, the samples as numpy arrays), and reading the CSV with
 ``pyarrow.csv.read_csv`` alone.  The import does that reading plus units, alignment and writing
-the ROS 2 MCAP (4 Float64 topics per sample + the oil temperature).
+the ROS 2 MCAP (4 Float64 topics per sample + the oil temperature).  The writing alone (the same
+aligned channels, read beforehand) is timed too: what an import costs beyond any reader.
 
 Usage: python bench/bench_import.py [--minutes 60] [--keep DIR]
 """
@@ -21,9 +22,11 @@ import numpy as np
 from common import best_of
 
 from rollergear_ros.calibrate import calibrate
-from rollergear_ros.importer import import_source
+from rollergear_ros.channelmap import load_channel_map
+from rollergear_ros.importer import import_source, write_aligned
 from rollergear_ros.params import load_config
 from rollergear_ros.samples import table_samples
+from rollergear_ros.timeseries import align, read_series
 
 CHANNEL_MAP = """format: timeseries
 time: {column: t, unit: s}
@@ -93,6 +96,11 @@ def main() -> None:
         print(f"import {label}: {t_imp:.2f} s = {n / t_imp / 1e3:.0f} k samples/s ({4 * n / t_imp / 1e6:.1f} M msg/s, "
               f"{out.stat().st_size / 1e6:.0f} MB MCAP); {baseline_label} alone: {t_base:.2f} s -> "
               f"{t_base / t_imp:.2f}x its speed")
+    aligned = align(read_series(mf4, load_channel_map(cmap)))
+    out = work / "written.mcap"
+    t_write = best_of(lambda: write_aligned(aligned, out), 2)
+    print(f"writing alone (the aligned channels to the MCAP, nothing read): {t_write:.2f} s = "
+          f"{4 * n / t_write / 1e6:.1f} M msg/s; {out.stat().st_size / 1e6:.0f} MB")
 
     table = work / "table.vtlm"
     rng = np.random.default_rng(1)

@@ -153,23 +153,30 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
 def _import_timeseries(src: Path, kind: str, out: Path, channels: str | Path, topics: TopicMap) -> ImportSummary:
     cmap = load_channel_map(channels)
     aligned = align(read_series(src, cmap))
+    written = write_aligned(aligned, out, topics, {
+        "source": str(src), "kind": kind, "channel_map": Path(channels).read_text(encoding="utf-8"),
+        "resampling": RESAMPLING_RULE, "resampled": json.dumps(aligned.resampled)})
+    return ImportSummary(src, kind, out, written, len(aligned.t_ns), aligned.resampled)
+
+
+def write_aligned(aligned, out: Path, topics: TopicMap = TopicMap(), metadata: dict[str, str] | None = None) -> int:
+    """Write aligned channels (:func:`~.timeseries.align`) to the MCAP ``out``: the paired channels as
+    Float64 topics interleaved sample by sample, as a recorder stores them, the oil temperature at
+    its own times; ``metadata``: the ``rollergear_import`` record.  Returns how many messages."""
     names = [c for c in Channel.PAIRED if c in aligned.values]
     topic_of = topics.float64_inputs()
     n, k = len(aligned.t_ns), len(names)
-    # channels interleaved sample by sample, as a recorder stores them
     payloads = float64_payloads(np.stack([aligned.values[c] for c in names], axis=1).ravel())
     which = np.tile(np.arange(k), n)
     t_ns = np.repeat(aligned.t_ns, k)
     float_topics = [(topic_of[c], MessageType.FLOAT64, None) for c in names]
     temp = aligned.temperature
     with BagWriter(out, time_ordered=False) as bw:
-        bw.add_metadata(IMPORT_METADATA, {
-            "source": str(src), "kind": kind, "channel_map": Path(channels).read_text(encoding="utf-8"),
-            "resampling": RESAMPLING_RULE, "resampled": json.dumps(aligned.resampled)})
+        if metadata is not None:
+            bw.add_metadata(IMPORT_METADATA, metadata)
         _write_in_time_order(bw, topics, float_topics, which, t_ns, payloads,
                              ([], []) if temp is None else (temp.t_ns, temp.values))
-    written = n * k + (0 if temp is None else len(temp.t_ns))
-    return ImportSummary(src, kind, out, written, n, aligned.resampled)
+    return n * k + (0 if temp is None else len(temp.t_ns))
 
 
 def _write_in_time_order(bw: BagWriter, topics: TopicMap, float_topics: list, which: np.ndarray, t_ns: np.ndarray,
