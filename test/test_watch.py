@@ -6,7 +6,7 @@ import re
 import signal
 import subprocess
 import sys
-import time
+import threading
 
 import numpy as np
 import pytest
@@ -17,7 +17,7 @@ from rollergear_ros.replay import replay
 from rollergear_ros.watch import WatchWindow
 
 from helpers import BAGS, CONFIG, ROOT, run_cli
-from rostools import NodeProcess, play
+from rostools import NodeProcess, play, wait_for
 
 LINE = re.compile(r"(\d+) est/s  loss (\S+) N·m  (\S+) W  η (\S+) % \(min (\S+)\)")
 
@@ -66,15 +66,34 @@ def test_watch_shows_a_running_nodes_estimates_and_status():
         text=True,
         cwd=ROOT,
     )
+    lines: list[str] = []  # the watcher's lines as it prints them (a line a period, flushed)
+    errors: list[str] = []
+
+    def read_lines(stream, into: list[str]) -> None:
+        for line in stream:
+            into.append(line.rstrip("\n"))
+
+    readers = [threading.Thread(target=read_lines, args=(stream, into), daemon=True)
+               for stream, into in ((watcher.stdout, lines), (watcher.stderr, errors))]
+    for reader in readers:
+        reader.start()
+
+    def stale_after_the_play() -> bool:  # a line with no estimates and the stale-input status
+        return any("no estimates on /rollergear/loss/torque" in line and "[ERROR] stale input" in line
+                   for line in list(lines))
+
     try:
         play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
-        time.sleep(2.5)  # a line with no estimates and the stale-input status
+        assert wait_for(stale_after_the_play, 300), "\n".join(lines)
     finally:
         watcher.send_signal(signal.SIGINT)
-        out, err = watcher.communicate(timeout=20)
+        watcher.wait(timeout=60)
+        for reader in readers:
+            reader.join(timeout=10)
         assert node.stop() == 0, node.stderr
+    err = "\n".join(errors)
     assert watcher.returncode == 0 and "Traceback" not in err, err
-    lines = out.splitlines()
+    out = "\n".join(lines)
     found = [m for m in map(LINE.search, lines) if m]
     assert len(found) >= 5, out
     _, batches = replay(BAGS / "rig_map.mcap", load_config(CONFIG), show_progress=False, collect=True)
