@@ -19,7 +19,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from .importer import as_mcap
     from .errors import UsageError
     from .report import write_report
-    from .samples import load_samples, table_samples
+    from .samples import load_samples, power_balance_warning, table_samples
     from .tables import is_table
 
     refuse_overwriting_inputs([*args.bags, args.params, args.channels], {"--out": args.out})
@@ -47,6 +47,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     else:
         with as_mcap(args.bags, args.channels, topics, note=None if args.json else log) as bags:
             data = load_samples(bags, config, topics, warn=warn, progress=not args.json and sys.stderr.isatty())
+    balance = power_balance_warning(data)
+    if balance:
+        warn(balance)
     if not args.json:
         log(f"{len(data.t_ns):,} {'rows' if data.steady_state else 'samples with measured output'}; analysing …")
     with TimedProgress("analysis", unit=" steps", unit_scale=False,

@@ -107,3 +107,32 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     return SampleData(t_ns, bag_id, torque, speed, temperature, loss, model.loss_magnitude(torque, speed),
                       model.fr_part(torque, speed), {"implausible": implausible} if implausible else {},
                       steady_state=True)
+
+
+LOADED_SHARE = 0.2  #: a sample is loaded when its |T| is at least this share of the 95th percentile of |T|
+
+
+def power_balance_warning(data: SampleData) -> str | None:
+    """A line saying so when the measured loss exceeds the input torque in most loaded samples.
+
+    A passive gearbox loses less than it takes in: ``|T_loss,meas| < |T_in|`` except at a light
+    load.  When most samples with ``|T| ≥ 20 %`` of the 95th percentile of ``|T|`` break that, the
+    output torque is almost surely in the opposite sign convention (power out counted negative:
+    the measured loss is then about ``2·|T|``), or the ratio or the output's unit is wrong -- a
+    calibration would fit that as an effect.  None when the balance is plausible.
+    """
+    torque = np.abs(data.torque)
+    if len(torque) == 0:
+        return None
+    loaded = torque >= LOADED_SHARE * np.percentile(torque, 95)
+    loaded &= torque > 0
+    if np.count_nonzero(loaded) < 10:
+        return None
+    share = np.abs(data.measured_loss[loaded]) / torque[loaded]
+    over = float(np.mean(share > 1.0))
+    if over <= 0.5:
+        return None
+    return (f"the measured loss exceeds the input torque in {100 * over:.0f} % of the loaded samples (median "
+            f"|loss|/|T| = {float(np.median(share)):.2f}): the output torque is likely in the opposite sign "
+            "convention (power out must be positive: scale: -1 in the channel map), or the ratio or the output's "
+            "unit is wrong")

@@ -72,6 +72,7 @@ def read_table(path: str | Path, cmap: ChannelMap | None = None, ratio: float | 
 
 
 def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadyStateTable:
+    from .csvdialect import sniff
     from .timeseries import arrow_table, numeric_column
 
     table = arrow_table(path, cmap)
@@ -92,7 +93,8 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
                                  f"{eta[bad][0]:.4g} is not in (0, 1] (after the map's unit)")
         driving = torque * speed > 0
         loss = np.where(driving, np.abs(torque) * (1 - eta), np.abs(torque) * (1 / eta - 1))
-    line = np.arange(len(torque), dtype=np.int64) + 2  # after a header line
+    first = sniff(path, cmap).first_data_line if path.suffix.lower() == ".csv" else 2  # after the header (and units)
+    line = np.arange(len(torque), dtype=np.int64) + first
     ok = np.isfinite(torque) & np.isfinite(speed) & np.isfinite(loss)
     if not ok.any():
         raise InputFileError(f"{path}: no row with finite torque, speed and loss (a loss from output torque needs "

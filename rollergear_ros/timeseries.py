@@ -20,13 +20,13 @@ A missing column, a unit the file's metadata contradicts, or a time that runs ba
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .channelmap import ChannelMap, ChannelSpec, unit_matches
+from .csvdialect import sniff
 from .errors import InputFileError
 from .interface import Channel
 
@@ -78,29 +78,22 @@ def read_series(path: str | Path, cmap: ChannelMap) -> dict[str, Series]:
 
 
 # ------------------------------------------------------------------------------------ CSV / Parquet
-def _header(path: Path) -> list[str]:
-    """The CSV's column names (its first row)."""
-    try:
-        with path.open(newline="", encoding="utf-8-sig") as fh:
-            return next(csv.reader(fh), [])
-    except UnicodeDecodeError as exc:
-        raise InputFileError(f"{path}: the header is not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at "
-                             f"offset {exc.start})") from None
-    except csv.Error as exc:
-        raise InputFileError(f"{path}: the header is not a CSV row ({exc})") from None
-
-
 def arrow_table(path: Path, cmap: ChannelMap):
-    """The map's columns of a CSV or Parquet file as a ``pyarrow.Table`` (a missing column: one line)."""
+    """The map's columns of a CSV or Parquet file as a ``pyarrow.Table`` (a missing column: one line).
+
+    A CSV's delimiter, decimal mark and units row are found by :func:`~.csvdialect.sniff`."""
     import pyarrow as pa
 
     wanted = sorted(set(cmap.columns()))
     if path.suffix.lower() == ".csv":
         import pyarrow.csv as pacsv
 
-        _require(path, cmap, _header(path))
+        dialect = sniff(path, cmap)
+        _require(path, cmap, list(dialect.header))
+        convert = pacsv.ConvertOptions(include_columns=wanted, decimal_point=dialect.decimal_point)
         try:
-            return pacsv.read_csv(path, convert_options=pacsv.ConvertOptions(include_columns=wanted))
+            return pacsv.read_csv(path, read_options=dialect.read_options(), parse_options=dialect.parse_options(),
+                                  convert_options=convert)
         except pa.ArrowInvalid as exc:
             raise InputFileError(f"{path}: {exc}") from None
     import pyarrow.parquet as pq

@@ -76,6 +76,37 @@ def test_csv_round_trip(tmp_path, signals):
     check_round_trip(tmp_path / "rig.mcap", signals)
 
 
+@pytest.mark.parametrize("delimiter", [";", "\t"])
+def test_a_windows_export_with_decimal_commas_and_a_units_row_round_trips(tmp_path, signals, delimiter):
+    """A German DAQ's export (Python's csv writer): ``;`` or tab separated, decimal commas, a row of
+    units under the names, Windows-1252 text -- the same values as the plain CSV."""
+    import csv
+
+    cols = file_columns(signals)
+    names = {"t_ms": "Zeit", "T_in": "Moment ein", "n_in": "Drehzahl", "T_out": "Moment aus", "w_out": "w aus",
+             "T_oil": "Öltemperatur"}
+    units = ["ms", "N·mm", "1/min", "[Nm]", "rad/s", "°F"]
+    with (tmp_path / "rig.csv").open("w", newline="", encoding="cp1252") as fh:
+        w = csv.writer(fh, delimiter=delimiter)
+        w.writerow(names.values())
+        w.writerow(units)
+        w.writerows([[repr(float(v)).replace(".", ",") for v in row] for row in zip(*cols.values())])
+    cmap = write_map(tmp_path / "map.yaml")
+    text = cmap.read_text()
+    for old, new in names.items():
+        text = text.replace(f"column: {old}", f"column: {new}")
+    cmap.write_text(text)
+    summary = import_source(tmp_path / "rig.csv", tmp_path / "rig.mcap", cmap)
+    assert summary.samples == N
+    check_round_trip(tmp_path / "rig.mcap", signals)
+    # a units row that contradicts the map is one line naming the file and channel
+    cmap.write_text(text.replace("unit: N*mm", "unit: N*m"))
+    proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(cmap), "--out", str(tmp_path / "o.mcap"),
+                   check=False)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert "motor_torque (Moment ein): the file's units row says 'N·mm', the channel map says N*m" in proc.stderr
+
+
 def test_parquet_round_trip(tmp_path, signals):
     import pyarrow as pa
     import pyarrow.parquet as pq
@@ -191,12 +222,16 @@ def test_a_time_that_is_not_a_finite_time_is_refused(tmp_path, signals, value, s
         proc.stderr
 
 
-def test_a_csv_header_that_is_not_utf8_is_one_line(tmp_path):
-    (tmp_path / "rig.csv").write_bytes(b"t_ms,T_\xe9in\n1,2\n")
+def test_a_csv_header_in_neither_utf8_nor_windows_1252_is_one_line(tmp_path):
+    (tmp_path / "rig.csv").write_bytes(b"t_ms,T_\x81in\n1,2\n")
     proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(write_map(tmp_path / "m.yaml")),
                    "--out", str(tmp_path / "o.mcap"), check=False)
-    assert proc.returncode == 2 and "the header is not UTF-8 text (byte 0xe9" in proc.stderr
+    assert proc.returncode == 2 and "the header is neither UTF-8 nor Windows-1252 text (byte 0x81" in proc.stderr
     assert proc.stderr.count("\n") == 1, proc.stderr
+    (tmp_path / "rig.csv").write_bytes(b"t_ms,T_\xe9in\n1,2\n")  # Windows-1252: the names are read
+    proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(write_map(tmp_path / "m.yaml")),
+                   "--out", str(tmp_path / "o.mcap"), check=False)
+    assert proc.returncode == 2 and "no column 'T_in' for motor_torque (the file has: t_ms, T_\u00e9in)" in proc.stderr
 
 
 def _rosbag2(tmp_path, storage: str):
