@@ -147,9 +147,17 @@ class CalibrationResult:
 
 def calibrate(
     data: SampleData, config: Config, delta_nm: float | None = None, block_s: float = 0.25, folds: int = 5,
-    stage: Callable[[str], None] | None = None,
+    stage: Callable[[str], None] | None = None, assume: Sequence[str] = (),
 ) -> CalibrationResult:
-    """Run the whole analysis on loaded samples; ``stage`` is told what it is doing (a progress bar)."""
+    """Run the whole analysis on loaded samples; ``stage`` is told what it is doing (a progress bar).
+
+    ``assume``: effects to accept when the data cannot tell them from another (a set of
+    indistinguishable effects otherwise stays in the fit unreported and makes the verdict
+    inconclusive); what the user knows of the rig decides, not the data.
+    """
+    unknown = [a for a in assume if a not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown effect(s) to assume: {', '.join(unknown)} (one of {', '.join(EFFECTS)})")
     stage = stage or (lambda text: None)
     stage("block means")
     blocks = make_blocks(data, block_s, folds)
@@ -157,7 +165,7 @@ def calibrate(
         raise BagError(f"only {len(blocks.y)} blocks of {block_s:g} s: too little data to calibrate")
     cal = Calibrator(blocks, delta_nm)
     cal.stage = stage
-    out = cal.run()
+    out = cal.run(assume)
     selected: list[Term] = out.selected
     final = selected + out.provisional
     blocks0, data_c = blocks, data
@@ -196,7 +204,7 @@ def calibrate(
         rms = cal.rms_of(term.column)
         effects.append(FoundEffect(term.name, term.params(c), ci, abs(c) * rms,
                                    [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms]))
-    if out.ambiguous:
+    if any(a.assumed is None for a in out.ambiguous):
         verdict = "inconclusive"
     elif selected:
         verdict = "effects_found"

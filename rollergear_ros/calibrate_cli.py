@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from .cli import config_from_args
+from .effects import EFFECTS
 from .paths import check_output_file, check_output_folder, refuse_overwriting_inputs
 from .progress import TimedProgress
 from .replay_cli import add_channels_option, add_topic_options, topics_from_args
@@ -59,7 +60,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             bar.stage = text
             bar.update(1)
 
-        result = calibrate(data, config, args.delta, args.block_s, stage=stage)
+        result = calibrate(data, config, args.delta, args.block_s, stage=stage, assume=args.assume)
+    for line in _error_after_warnings(result, args.assume):
+        warn(line)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(calibrated_yaml(result, args.bags))
@@ -77,7 +80,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         if r.reason:
             print(f"  {r.name} not accepted: {r.reason}")
     for a in result.ambiguous:
-        print(f"  cannot tell apart: {' / '.join(a.effects)} — record {a.needs} to separate them")
+        if a.assumed:
+            print(f"  cannot tell apart: {' / '.join(a.effects)} — taken as {a.assumed}, as assumed (record {a.needs} "
+                  "to separate them)")
+        else:
+            print(f"  cannot tell apart: {' / '.join(a.effects)} — record {a.needs} to separate them, or say which it "
+                  f"is with --assume ({' or '.join(a.effects)})")
     if result.verdict == "no_missing_effect":
         bounds = ", ".join(f"{r.name} <= {r.upper_rms_nm:.3g}" for r in result.rejected)
         print(f"  no missing effect larger than delta = {result.delta_nm:.4g} N·m (upper 95 % bounds: {bounds})")
@@ -94,6 +102,25 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if report:
         print(f"report: {report}")
     return 0
+
+
+def _error_after_warnings(result, assume: list[str]) -> list[str]:
+    """Lines for what a user would otherwise misread: an assumption the data did not need, and a
+    calibrated file that predicts the held-out data worse than the paper's model alone."""
+    lines = []
+    in_sets = {e for a in result.ambiguous for e in a.effects}
+    for name in assume:
+        if name not in in_sets:
+            lines.append(f"--assume {name}: not needed, the data did not leave {name} indistinguishable from another "
+                         "effect (nothing assumed)")
+    before, after = result.error_before.rmse_nm, result.error_after.rmse_nm
+    if after > before:
+        open_sets = [a for a in result.ambiguous if a.assumed is None]
+        why = "; ".join(f"{' / '.join(a.effects)} (RMS {a.rms_contribution_nm[0]:.3g}–{a.rms_contribution_nm[1]:.3g} "
+                        "N·m) is in the fit but not in the file" for a in open_sets)
+        lines.append(f"the calibrated parameters predict the held-out data worse than the paper's model alone (RMSE "
+                     f"{after:.4g} > {before:.4g} N·m)" + (f": {why}; --assume one of them writes it" if why else ""))
+    return lines
 
 
 def register_calibrate(sub, with_params) -> None:
@@ -118,6 +145,10 @@ def register_calibrate(sub, with_params) -> None:
         help="practical minimum effect size (RMS N·m); default from the data",
     )
     p.add_argument("--block-s", type=float, default=0.25, help="averaging block length [s]")
+    p.add_argument("--assume", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
+                   help="when the data cannot tell EFFECT from another effect, take it as EFFECT and write it (what "
+                   "you know of the rig, e.g. drag_constant when the torque sensors were zeroed at standstill); "
+                   "repeatable")
     add_channels_option(p)
     add_topic_options(p)
     p.set_defaults(func=cmd_calibrate)

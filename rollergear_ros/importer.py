@@ -59,9 +59,12 @@ class ImportSummary:
     resampled: list[str] = field(default_factory=list)
     topics: dict[str, int] = field(default_factory=dict)  #: topic -> messages copied (rosbag2)
     left_out: int = 0  #: table rows at standstill, not written
+    ratio: float | None = None  #: the channel map's ratio, when the output speed was derived from it
 
     def text(self) -> str:
         how = f"; resampled onto the motor torque's time base: {', '.join(self.resampled)}" if self.resampled else ""
+        if self.ratio is not None:
+            how += f"; output speed = motor speed / {self.ratio:g} (the channel map's ratio)"
         if self.left_out:
             how += f"; {self.left_out} rows at standstill left out (no power balance carries their loss)"
         elif "table" in self.kind:
@@ -153,10 +156,16 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
 def _import_timeseries(src: Path, kind: str, out: Path, channels: str | Path, topics: TopicMap) -> ImportSummary:
     cmap = load_channel_map(channels)
     aligned = align(read_series(src, cmap))
+    # the map's ratio reaches the measured loss as an output speed (a replay of the MCAP reads no map)
+    ratio = cmap.ratio if Channel.OUTPUT_SPEED not in aligned.values and Channel.OUTPUT_TORQUE in aligned.values \
+        else None
+    if ratio is not None:
+        aligned.values[Channel.OUTPUT_SPEED] = aligned.values[Channel.MOTOR_SPEED] / ratio
     written = write_aligned(aligned, out, topics, {
         "source": str(src), "kind": kind, "channel_map": Path(channels).read_text(encoding="utf-8"),
-        "resampling": RESAMPLING_RULE, "resampled": json.dumps(aligned.resampled)})
-    return ImportSummary(src, kind, out, written, len(aligned.t_ns), aligned.resampled)
+        "resampling": RESAMPLING_RULE, "resampled": json.dumps(aligned.resampled),
+        "output_speed": "" if ratio is None else f"motor_speed / {ratio!r} (the channel map's ratio)"})
+    return ImportSummary(src, kind, out, written, len(aligned.t_ns), aligned.resampled, ratio=ratio)
 
 
 def write_aligned(aligned, out: Path, topics: TopicMap = TopicMap(), metadata: dict[str, str] | None = None) -> int:

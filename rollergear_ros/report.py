@@ -199,6 +199,8 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
             lines.append(
                 f"- {' / '.join(a.effects)}: an effect of RMS {lo:.3g}–{hi:.3g} N·m is there, but these "
                 f"columns are the same on this data. To separate them record {a.needs}."
+                + (f" Taken as **{a.assumed}**, as the user assumed (`--assume`): accepted and written."
+                   if a.assumed else " Kept in the fit, not written: `--assume` one of them to write it.")
             )
     lines.append("\n## Groups not accepted (upper 95 % bound of their RMS contribution)\n")
     for r in result.rejected:

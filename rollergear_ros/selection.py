@@ -55,9 +55,11 @@ class AmbiguousSet:
     effects: list[str]
     needs: str
     rms_contribution_nm: list[float]  #: 95 % range of the RMS contribution of the set's best
+    assumed: str | None = None  #: the member the user said it is (``calibrate --assume``): accepted and written
 
     def to_json(self) -> dict:
-        return {"effects": self.effects, "needs": self.needs, "rms_contribution_nm": self.rms_contribution_nm}
+        return {"effects": self.effects, "needs": self.needs, "rms_contribution_nm": self.rms_contribution_nm,
+                "assumed": self.assumed}
 
 
 @dataclass
@@ -337,7 +339,9 @@ class Calibrator:
         return float(f.coef[k]), float(math.sqrt(max(f.cov[k, k], 0.0)))
 
     # -------------------------------------------------------------- selection
-    def run(self) -> Selection:
+    def run(self, assume: Sequence[str] = ()) -> Selection:
+        """Forward selection; ``assume``: effects to take when the data cannot tell them from another
+        (what the user knows of the rig, e.g. torque sensors zeroed at standstill: ``drag_constant``)."""
         selected: list[Term] = []  # accepted
         provisional: list[Term] = []  # best member of each ambiguous set: kept in the fit, not reported
         ambiguous: list[AmbiguousSet] = []
@@ -373,11 +377,13 @@ class Calibrator:
                 )
             if improvement <= self.min_improvement:
                 reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
-            twins = [
-                h
+            twin_terms = {
+                h: (cv_h, terms_h)
                 for cv_h, h, terms_h in scored[1:]
                 if cv_h <= cv_new * 1.05 + 1e-12 and self._partial_corr(new, terms_h[-1], base) > 0.995
-            ]
+            }
+            twins = list(twin_terms)
+            assumed = next((a for a in [g, *twins] if a in assume), None) if twins else None
             self.log.append(
                 f"step {len(self.log) + 1}: best {g}"
                 + (f" ({_member_text(new)})" if new.member is not None else "")
@@ -387,6 +393,8 @@ class Calibrator:
                 + (
                     f"; not accepted: {'; '.join(reasons)}"
                     if reasons
+                    else f"; ambiguous: accepted as {assumed}, as assumed"
+                    if assumed
                     else "; ambiguous: kept in the fit, not reported"
                     if twins
                     else "; accepted"
@@ -394,6 +402,9 @@ class Calibrator:
             )
             if reasons:
                 break
+            if assumed is not None and assumed != g:  # the twin's fit: near the same error, by definition
+                cv_new, terms = twin_terms[assumed]
+                new = terms[-1]
             # exponents of earlier terms were re-optimised together with the new one
             n_sel = len(selected)
             selected, provisional = terms[:n_sel], terms[n_sel : len(base)]
@@ -410,8 +421,8 @@ class Calibrator:
                         }
                     )
                 )
-                ambiguous.append(AmbiguousSet(group, needs, [lower, upper]))
-                provisional.append(new)
+                ambiguous.append(AmbiguousSet(group, needs, [lower, upper], assumed))
+                (selected if assumed else provisional).append(new)
                 remaining = [r for r in remaining if r not in group]
             else:
                 selected.append(new)
@@ -424,7 +435,7 @@ class Calibrator:
         second_ranges = {t.name: self.member_range(final, i, second=True) for i, t in enumerate(final)
                          if t.second is not None}
         rejected = []
-        blocked = {e for a in ambiguous for e in a.effects}
+        blocked = {e for a in ambiguous for e in a.effects if e != a.assumed}
         for g in groups():
             if g in (t.name for t in selected) or g in unavailable:
                 continue

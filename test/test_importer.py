@@ -107,6 +107,33 @@ def test_a_windows_export_with_decimal_commas_and_a_units_row_round_trips(tmp_pa
     assert "motor_torque (Moment ein): the file's units row says 'N·mm', the channel map says N*m" in proc.stderr
 
 
+def test_the_maps_ratio_gives_the_output_speed_a_replay_of_the_import_measures_with(tmp_path, signals):
+    """A rig without an output speed channel: the map's ``ratio`` (not the gearbox's 1.368) makes the
+    measured loss; the import writes the output speed it implies and says so."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    from rollergear_ros.params import load_config
+    from rollergear_ros.samples import load_samples
+
+    ratio = 5.875
+    cols = file_columns(signals)
+    del cols["w_out"]
+    cols["T_out"] = (signals["torque"] - 0.3) * ratio  # a loss of 0.3 N·m, input-referred
+    pacsv.write_csv(pa.table(cols), tmp_path / "rig.csv")
+    cmap = write_map(tmp_path / "map.yaml", ratio=ratio)
+    cmap.write_text(cmap.read_text().replace("output_speed: {column: w_out, unit: rad/s}\n", "")
+                    .replace(", scale: -1}", "}"))
+    summary = import_source(tmp_path / "rig.csv", tmp_path / "rig.mcap", cmap)
+    assert summary.ratio == ratio and "output speed = motor speed / 5.875" in summary.text()
+    for messages in (read_mcap_ros2(tmp_path / "rig.mcap"), read_rosbags(tmp_path / "rig.mcap")):
+        _, out_speed = float_series(messages, "/rollergear/output/speed")
+        np.testing.assert_allclose(out_speed, signals["speed"] / ratio, rtol=1e-12)
+    data = load_samples([tmp_path / "rig.mcap"], load_config())
+    assert len(data.measured_loss) > 0.9 * N
+    np.testing.assert_allclose(data.measured_loss, 0.3, atol=1e-9)
+
+
 def test_parquet_round_trip(tmp_path, signals):
     import pyarrow as pa
     import pyarrow.parquet as pq
