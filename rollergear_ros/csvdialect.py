@@ -9,6 +9,9 @@ first lines and finds:
   read into the same number (≥ 2) of cells; of several, the one giving the most cells;
 * the **decimal mark**: ``,`` when the delimiter is not ``,`` and the data's numbers are written
   with a decimal comma (``-12,5``), ``.`` otherwise;
+* the **header line**: the first line holding every column the channel map names -- lines before
+  it (a DAQ's preamble: ``# rig 3``, ``Date: …``, blank lines) are skipped; without a map, the
+  first line that is not blank;
 * the **encoding**: UTF-8 (with or without a byte-order mark), else Windows-1252 (what Windows
   tools in western locales write: ``Öltemp`` as one byte ``0xD6``);
 * a **units row**: the line after the header when none of the map's columns holds a number there
@@ -33,6 +36,7 @@ __all__ = ["CsvDialect", "DELIMITERS", "sniff"]
 
 DELIMITERS = (",", ";", "\t", "|")
 SNIFF_LINES = 20  #: data lines looked at (after the header)
+PREAMBLE_LINES = 100  #: lines searched for the header line
 _SNIFF_BYTES = 1 << 16
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
 _DECIMAL_POINT = re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$")
@@ -45,13 +49,14 @@ class CsvDialect:
     delimiter: str = ","
     decimal_point: str = "."
     encoding: str = "utf8"
-    header: tuple[str, ...] = ()  #: the column names (the first line)
+    header: tuple[str, ...] = ()  #: the column names
     units: dict[str, str] | None = None  #: column -> unit text of the units row (None: the file has none)
+    preamble_lines: int = 0  #: lines before the header line
 
     @property
     def first_data_line(self) -> int:
         """The 1-based line number of the first data row."""
-        return 2 if self.units is None else 3
+        return self.preamble_lines + (2 if self.units is None else 3)
 
     def parse_options(self):
         import pyarrow.csv as pacsv
@@ -61,11 +66,12 @@ class CsvDialect:
     def read_options(self):
         import pyarrow.csv as pacsv
 
-        return pacsv.ReadOptions(skip_rows_after_names=0 if self.units is None else 1, encoding=self.encoding)
+        return pacsv.ReadOptions(skip_rows=self.preamble_lines, skip_rows_after_names=0 if self.units is None else 1,
+                                 encoding=self.encoding)
 
 
 def _lines(path: Path) -> tuple[list[str], str]:
-    """The header and up to :data:`SNIFF_LINES` data lines (text, BOM removed), and the encoding."""
+    """The lines of the file's first 64 KiB (text, BOM removed), and the encoding."""
     with path.open("rb") as fh:
         head = fh.read(_SNIFF_BYTES)
     if len(head) == _SNIFF_BYTES and b"\n" in head:
@@ -78,7 +84,17 @@ def _lines(path: Path) -> tuple[list[str], str]:
         except UnicodeDecodeError:
             raise InputFileError(f"{path}: the header is neither UTF-8 nor Windows-1252 text (byte "
                                  f"0x{exc.object[exc.start]:02x} at offset {exc.start})") from None
-    return [line for line in text.splitlines() if line.strip()][: SNIFF_LINES + 1], encoding
+    return text.splitlines(), encoding
+
+
+def _header_index(raw: list[str], cmap: ChannelMap | None) -> int:
+    """Index of the header line: the first holding every column of the map (else the first not blank)."""
+    wanted = set(cmap.columns()) if cmap is not None else set()
+    for i, line in enumerate(raw[:PREAMBLE_LINES]):
+        if wanted and any(wanted <= set(next(csv.reader([line], delimiter=d), []))
+                          for d in DELIMITERS):
+            return i
+    return next((i for i, line in enumerate(raw) if line.strip()), 0)
 
 
 def _rows(path: Path, lines: list[str], delimiter: str) -> list[list[str]]:
@@ -106,7 +122,9 @@ def sniff(path: str | Path, cmap: ChannelMap | None = None) -> CsvDialect:
     """The dialect of the CSV file ``path`` (see the module docstring); with ``cmap`` the units row
     is recognised by the map's columns and checked against the map's units."""
     path = Path(path)
-    lines, encoding = _lines(path)
+    raw, encoding = _lines(path)
+    start = _header_index(raw, cmap)
+    lines = [line for line in raw[start:] if line.strip()][: SNIFF_LINES + 1]
     if not lines:
         return CsvDialect(encoding=encoding)
     best: tuple[int, str, list[list[str]]] | None = None
@@ -116,7 +134,7 @@ def sniff(path: str | Path, cmap: ChannelMap | None = None) -> CsvDialect:
         if width >= 2 and all(len(r) == width for r in rows) and (best is None or width > best[0]):
             best = (width, delimiter, rows)
     if best is None:  # one column, or ragged lines: read as plain CSV; pyarrow names what is wrong
-        return CsvDialect(encoding=encoding, header=tuple(_rows(path, lines[:1], ",")[0]))
+        return CsvDialect(encoding=encoding, header=tuple(_rows(path, lines[:1], ",")[0]), preamble_lines=start)
     _width, delimiter, rows = best
     header, data = rows[0], rows[1:]
     decimal_point = "."
@@ -129,7 +147,7 @@ def sniff(path: str | Path, cmap: ChannelMap | None = None) -> CsvDialect:
         if wanted and not any(_is_number(second[i], decimal_point) for i in wanted) \
                 and any(second[i].strip() for i in wanted):
             units = {header[i]: _unit_text(second[i]) for i in range(len(header))}
-    dialect = CsvDialect(delimiter, decimal_point, encoding, tuple(header), units)
+    dialect = CsvDialect(delimiter, decimal_point, encoding, tuple(header), units, start)
     if units is not None and cmap is not None:
         _check_units(path, cmap, units)
     return dialect

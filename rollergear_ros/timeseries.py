@@ -20,6 +20,7 @@ A missing column, a unit the file's metadata contradicts, or a time that runs ba
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,7 +82,8 @@ def read_series(path: str | Path, cmap: ChannelMap) -> dict[str, Series]:
 def arrow_table(path: Path, cmap: ChannelMap):
     """The map's columns of a CSV or Parquet file as a ``pyarrow.Table`` (a missing column: one line).
 
-    A CSV's delimiter, decimal mark and units row are found by :func:`~.csvdialect.sniff`."""
+    A CSV's header line, delimiter, decimal mark, encoding and units row are found by
+    :func:`~.csvdialect.sniff`."""
     import pyarrow as pa
 
     wanted = sorted(set(cmap.columns()))
@@ -89,21 +91,27 @@ def arrow_table(path: Path, cmap: ChannelMap):
         import pyarrow.csv as pacsv
 
         dialect = sniff(path, cmap)
+        if not dialect.header:
+            raise InputFileError(f"{path}: the file is empty")
         _require(path, cmap, list(dialect.header))
         convert = pacsv.ConvertOptions(include_columns=wanted, decimal_point=dialect.decimal_point)
         try:
-            return pacsv.read_csv(path, read_options=dialect.read_options(), parse_options=dialect.parse_options(),
-                                  convert_options=convert)
+            table = pacsv.read_csv(path, read_options=dialect.read_options(), parse_options=dialect.parse_options(),
+                                   convert_options=convert)
         except pa.ArrowInvalid as exc:
             raise InputFileError(f"{path}: {exc}") from None
-    import pyarrow.parquet as pq
+    else:
+        import pyarrow.parquet as pq
 
-    try:
-        available = pq.read_schema(path).names
-    except pa.ArrowInvalid as exc:
-        raise InputFileError(f"{path}: not a Parquet file ({exc})") from None
-    _require(path, cmap, available)
-    return pq.read_table(path, columns=wanted)
+        try:
+            available = pq.read_schema(path).names
+        except pa.ArrowInvalid as exc:
+            raise InputFileError(f"{path}: not a Parquet file ({exc})") from None
+        _require(path, cmap, available)
+        table = pq.read_table(path, columns=wanted)
+    if table.num_rows == 0:
+        raise InputFileError(f"{path}: no data rows (only the column names)")
+    return table
 
 
 def numeric_column(path: Path, name: str, spec: ChannelSpec, table) -> np.ndarray:
@@ -112,8 +120,20 @@ def numeric_column(path: Path, name: str, spec: ChannelSpec, table) -> np.ndarra
 
     col = table.column(spec.column)
     if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type) or pa.types.is_null(col.type)):
+        if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
+            for row, cell in enumerate(col.to_pylist(), start=1):
+                if cell is not None and not _is_number(cell):
+                    raise InputFileError(f"{path}: {name} ({spec.column}): data row {row}: {cell!r} is not a number")
         raise InputFileError(f"{path}: {name} ({spec.column}): not numbers (column type {col.type})")
     return col.to_numpy(zero_copy_only=False).astype(np.float64)
+
+
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell.replace(",", "."))
+    except ValueError:
+        return False
+    return True
 
 
 def _read_arrow(path: Path, cmap: ChannelMap) -> dict[str, Series]:
@@ -143,13 +163,42 @@ def _require(path: Path, cmap: ChannelMap, available: list[str]) -> None:
                                  f"{', '.join(available[:20])}{' …' if len(available) > 20 else ''})")
 
 
+_CLOCK = re.compile(r"^\s*(\d{1,2}):(\d{2}):(\d{2}(?:[.,]\d+)?)\s*$")
+_DAY_NS = 86_400 * 10**9
+
+
+def _clock_ns(path: Path, spec: ChannelSpec, column) -> np.ndarray:
+    """Clock times ``HH:MM:SS[.fff]`` (a decimal comma too) as ns since the first midnight: a
+    recording that runs past midnight goes on into the next day (a step back of more than 12 h)."""
+    cells = column.to_pylist()
+    out = np.zeros(len(cells), dtype=np.int64)
+    present = np.zeros(len(cells), dtype=bool)
+    for row, cell in enumerate(cells):
+        if cell is None:
+            continue
+        m = _CLOCK.match(cell)
+        if m is None:
+            raise InputFileError(f"{path}: time ({spec.column}): data row {row + 1}: {cell!r} is not a clock time "
+                                 "HH:MM:SS[.fff] like the rows before it")
+        h, mi, sec = m.groups()
+        out[row] = round((int(h) * 3600 + int(mi) * 60 + float(sec.replace(",", "."))) * 1e9)
+        present[row] = True
+    t = out[present]
+    t += _DAY_NS * np.cumsum(np.diff(t, prepend=t[:1]) < -_DAY_NS // 2)
+    out[present] = t
+    return out
+
+
 def _time_ns(path: Path, spec: ChannelSpec, column) -> np.ndarray:
-    """A time column as int64 ns (numbers in the map's unit, or ISO 8601 date-times)."""
+    """A time column as int64 ns (numbers in the map's unit, ISO 8601 date-times, or clock times)."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
     if spec.unit == "datetime":
         if pa.types.is_string(column.type) or pa.types.is_large_string(column.type):
+            first = next((c for c in column.to_pylist()[:1000] if c is not None), None)
+            if first is not None and _CLOCK.match(first):
+                return _clock_ns(path, spec, column)
             try:
                 column = pc.strptime(column, format="%Y-%m-%dT%H:%M:%S", unit="ns", error_is_null=False)
             except pa.ArrowInvalid:

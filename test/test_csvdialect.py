@@ -99,3 +99,15 @@ def test_ragged_or_single_column_files_are_left_to_the_reader(tmp_path, cmap):
     assert sniff(path, cmap).delimiter == ","
     path.write_text("t\n1\n2\n")
     assert sniff(path, cmap).header == ("t",)
+
+
+def test_a_preamble_before_the_header_line_is_skipped(tmp_path, cmap):
+    """A DAQ's preamble (comments, blank lines, ``key: value`` lines, even with the delimiter) ends at
+    the first line holding every column of the map."""
+    path = tmp_path / "a.csv"
+    path.write_text("# exported by rig DAQ v2\n\nRig: 3; operator: A\nsample rate;1000;Hz\n"
+                    "t;T in;n in\ns;Nm;rpm\n" + "\n".join(";".join(r) for r in data_rows(",")) + "\n")
+    d = sniff(path, cmap)
+    assert (d.preamble_lines, d.delimiter, d.decimal_point, d.header) == (4, ";", ",", ("t", "T in", "n in"))
+    assert d.units is not None and d.first_data_line == 7
+    assert path.read_text().splitlines()[d.first_data_line - 1] == "0,000;40,00;1500"

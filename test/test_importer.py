@@ -134,6 +134,46 @@ def test_the_maps_ratio_gives_the_output_speed_a_replay_of_the_import_measures_w
     np.testing.assert_allclose(data.measured_loss, 0.3, atol=1e-9)
 
 
+def test_clock_times_past_midnight_and_a_preamble_are_read(tmp_path):
+    """``unit: datetime`` also takes clock times ``HH:MM:SS,fff`` (a DAQ's export), a recording past
+    midnight going on into the next day; the lines before the header are the DAQ's preamble."""
+    rows = ["# DAQ export", "", "Zeit;T;n;T_out"]
+    t0 = 23 * 3600 + 59 * 60 + 59  # 23:59:59
+    times = t0 + np.arange(2000) * 1e-3
+    for t in times:
+        h, rest = divmod(t % 86400, 3600)
+        m, sec = divmod(rest, 60)
+        rows.append(f"{int(h):02d}:{int(m):02d}:{sec:06.3f}".replace(".", ",") + ";40;1500;54")
+    (tmp_path / "rig.csv").write_text("\n".join(rows) + "\n")
+    (tmp_path / "map.yaml").write_text("time: {column: Zeit, unit: datetime}\nmotor_torque: {column: T, unit: N*m}\n"
+                                       "motor_speed: {column: n, unit: rpm}\noutput_torque: {column: T_out, unit: N*m}\n")
+    import_source(tmp_path / "rig.csv", tmp_path / "rig.mcap", tmp_path / "map.yaml")
+    for messages in (read_mcap_ros2(tmp_path / "rig.mcap"), read_rosbags(tmp_path / "rig.mcap")):
+        t, torque = float_series(messages, "/rollergear/motor/torque")
+        np.testing.assert_array_equal(t, np.round(times * 1e9).astype(np.int64))
+        assert (torque == 40).all()
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("", "rig.csv: the file is empty"),
+    ("t_ms,T_in,n_in\n", "rig.csv: no data rows (only the column names)"),
+    ("t_ms,T_in,n_in\n0,1,2\n1,x1,2\n", "rig.csv: motor_torque (T_in): data row 2: 'x1' is not a number"),
+    ("t_ms;T_in;n_in\n0;1;2\n1;2,5;2\n2;;3,0\n", None),  # a decimal comma and an empty cell: read
+])
+def test_empty_files_and_cells_that_are_not_numbers_are_one_line(tmp_path, text, message):
+    (tmp_path / "rig.csv").write_text(text)
+    (tmp_path / "map.yaml").write_text("time: {column: t_ms, unit: ms}\nmotor_torque: {column: T_in, unit: N*m}\n"
+                                       "motor_speed: {column: n_in, unit: rpm}\n")
+    proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(tmp_path / "map.yaml"), "--out",
+                   str(tmp_path / "o.mcap"), check=False)
+    if message is None:
+        assert proc.returncode == 0, proc.stderr
+        _, torque = float_series(read_mcap_ros2(tmp_path / "o.mcap"), "/rollergear/motor/torque")
+        np.testing.assert_array_equal(torque, [1.0, 2.5])  # the row without a torque is no sample
+    else:
+        assert proc.returncode == 2 and message in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+
+
 def test_parquet_round_trip(tmp_path, signals):
     import pyarrow as pa
     import pyarrow.parquet as pq
