@@ -146,7 +146,8 @@ def test_clock_times_past_midnight_and_a_preamble_are_read(tmp_path):
         rows.append(f"{int(h):02d}:{int(m):02d}:{sec:06.3f}".replace(".", ",") + ";40;1500;54")
     (tmp_path / "rig.csv").write_text("\n".join(rows) + "\n")
     (tmp_path / "map.yaml").write_text("time: {column: Zeit, unit: datetime}\nmotor_torque: {column: T, unit: N*m}\n"
-                                       "motor_speed: {column: n, unit: rpm}\noutput_torque: {column: T_out, unit: N*m}\n")
+                                       "motor_speed: {column: n, unit: rpm}\n"
+                                       "output_torque: {column: T_out, unit: N*m}\n")
     import_source(tmp_path / "rig.csv", tmp_path / "rig.mcap", tmp_path / "map.yaml")
     for messages in (read_mcap_ros2(tmp_path / "rig.mcap"), read_rosbags(tmp_path / "rig.mcap")):
         t, torque = float_series(messages, "/rollergear/motor/torque")
