@@ -44,10 +44,12 @@ UNITS: dict[str, dict[str, tuple[float, float]]] = {
     "time": {"s": (1e9, 0.0), "ms": (1e6, 0.0), "us": (1e3, 0.0), "ns": (1.0, 0.0), "datetime": (1.0, 0.0)},
 }
 #: other spellings of the units, as files write them
-_ALIASES = {"nm": "N*m", "n·m": "N*m", "n.m": "N*m", "n m": "N*m", "nmm": "N*mm", "n·mm": "N*mm", "knm": "kN*m",
-            "kn·m": "kN*m", "lbf·ft": "lbf*ft", "ft*lbf": "lbf*ft", "lb-ft": "lbf*ft", "1/min": "rpm", "min-1": "rpm",
-            "rad/sec": "rad/s", "°c": "degC", "c": "degC", "degc": "degC", "celsius": "degC", "k": "K",
-            "°f": "degF", "degf": "degF", "sec": "s", "µs": "us", "-": "1", "percent": "%"}
+_ALIASES = {"nm": "N*m", "n·m": "N*m", "n.m": "N*m", "n m": "N*m", "n-m": "N*m", "nmm": "N*mm", "n·mm": "N*mm",
+            "knm": "kN*m", "kn·m": "kN*m", "lbf·ft": "lbf*ft", "ft*lbf": "lbf*ft", "lb-ft": "lbf*ft",
+            "1/min": "rpm", "min-1": "rpm", "min^-1": "rpm", "min⁻¹": "rpm", "u/min": "rpm", "upm": "rpm",
+            "rev/min": "rpm", "r/min": "rpm", "rad/sec": "rad/s",
+            "°c": "degC", "c": "degC", "degc": "degC", "deg c": "degC", "celsius": "degC", "k": "K",
+            "°f": "degF", "degf": "degF", "deg f": "degF", "sec": "s", "µs": "us", "-": "1", "percent": "%"}
 STEADY_LOSS_CHANNELS = ("loss_torque", Channel.OUTPUT_TORQUE, "efficiency")
 FORMATS = ("timeseries", "steady_state")
 

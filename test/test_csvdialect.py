@@ -50,7 +50,8 @@ def test_a_comma_file_whose_cells_hold_semicolons_stays_a_comma_file(tmp_path, c
     assert sniff(write(tmp_path / "a.csv", rows), cmap).delimiter == ","
 
 
-@pytest.mark.parametrize("unit_cells", [["s", "Nm", "1/min"], ["[s]", "[N·m]", "(rpm)"], ["sec", "N m", "min-1"]])
+@pytest.mark.parametrize("unit_cells", [["s", "Nm", "1/min"], ["[s]", "[N·m]", "(rpm)"], ["sec", "N m", "min-1"],
+                                        ["s", "N-m", "U/min"], ["sec", "Nm", "min⁻¹"], ["s", "Nm", "rev/min"]])
 def test_a_units_row_is_found_skipped_and_agrees_with_the_map(tmp_path, cmap, unit_cells):
     path = write(tmp_path / "a.csv", [["t", "T in", "n in"], unit_cells, *data_rows(",")], ";")
     d = sniff(path, cmap)
