@@ -308,7 +308,10 @@ class Calibrator:
         pair = effect.second_member is not None
         w0 = self.wsse_held(terms, i) if pair else self.wsse(terms)
         dof = max(len(self.b.y) - len(terms) - len(self.nuisance), 1)
-        limit = w0 + 3.84 * max(w0 / dof, 1.0)
+        # blocks weighted by their inverse variance: chi-square with sigma 1, at least (the model may
+        # fit better than the noise says); a table's rows weigh 1 each: sigma^2 is the residual's
+        sigma2 = w0 / dof if self.b.steady_state else max(w0 / dof, 1.0)
+        limit = w0 + 3.84 * sigma2
         score = self._score(terms, i)
 
         def other_profiled(m: float) -> float:

@@ -192,3 +192,25 @@ def test_an_undeclared_load_speed_effect_in_a_table_is_found_and_nothing_else(tm
     assert [e["name"] for e in result["effects"]] == ["load_speed"]
     params = result["effects"][0]["params"]
     assert params["c"] == pytest.approx(2e-5, rel=0.02) and params["p"] == pytest.approx(1.2, abs=0.02)
+
+
+def test_a_tables_intervals_come_from_its_own_scatter(tmp_path):
+    """Rows weigh 1 each (a table says nothing of its noise): the exponents' 95 % ranges come from the
+    rows' scatter around the fit, not from a 1 N·m noise floor meant for inverse-variance blocks (which
+    made q's range on this table [0.46, 1.66]).  Independent formula, scatter 0.01 N·m, paper's model off."""
+    rng = np.random.default_rng(3)
+    lines = [HEADER.strip()]
+    for n in range(250, 4001, 250):
+        w = n * 2 * np.pi / 60
+        for t in [*range(-200, 0, 20), *range(20, 201, 20)]:
+            loss = 1.2 + 4e-4 * w ** 1.3 + 0.012 * abs(t) + rng.normal(0, 0.01)
+            lines.append(f"{n},{t},{loss:.6f}")
+    (tmp_path / "map.vtlm").write_text("\n".join(lines) + "\n")
+    result = json.loads(run_cli("calibrate", str(tmp_path / "map.vtlm"), "--params", str(_params(tmp_path, False)),
+                                "--json").stdout)
+    found = {e["name"]: e for e in result["effects"]}
+    assert set(found) == {"drag_constant", "drag_speed", "load_dependent"}
+    for name, member, truth in (("drag_speed", "p", 1.3), ("load_dependent", "q", 1.0)):
+        lo, hi = found[name]["ci95"][member]
+        assert lo <= truth <= hi and hi - lo < 0.1, (name, lo, hi)
+    assert found["drag_constant"]["params"]["c"] == pytest.approx(1.2, abs=0.01)
