@@ -64,8 +64,9 @@ def row(label: str, path: Path, tmp: Path, cmap) -> list[str]:
         config = load_config(params(tmp, paper_model))
         data = table_samples([path], config, cmap=cmap)
         res = calibrate(data, config)
-        found = "; ".join(f"`{e.name}` " + ", ".join(f"{k} = {v:.4g}" for k, v in e.params.items()
-                                                    if k in ("c", "p", "q")) for e in res.effects) or "—"
+        found = "; ".join(f"`{e.name}` " + ", ".join(f"{k} = {v:.4g}" + (" (at its bound)" if k in e.at_bound else "")
+                                                    for k, v in e.params.items() if k in ("c", "p", "q"))
+                          for e in res.effects) or "—"
         rows.append(f"| {label} | {'on' if paper_model else 'off'} | {len(data.t_ns)} | {res.verdict} | {found} | "
                     f"{res.error_before.rmse_nm:.3g} → {res.error_after.rmse_nm:.3g} "
                     f"({res.error_after.rel_rmse_pct:.2f} %) | {res.adequacy.statement} |")

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -59,11 +59,23 @@ class FoundEffect:
     ci95: dict[str, list[float]]  #: the coefficient's (covering the member's range) and the member's
     rms_contribution_nm: float
     rms_contribution_ci95_nm: list[float]
+    at_bound: list[str] = field(default_factory=list)  #: members (p, q, B, C) at a bound of their range
 
     def to_json(self) -> dict:
         return {"name": self.name, "params": self.params, "ci95": self.ci95,
                 "rms_contribution_nm": self.rms_contribution_nm,
-                "rms_contribution_ci95_nm": self.rms_contribution_ci95_nm}
+                "rms_contribution_ci95_nm": self.rms_contribution_ci95_nm, "at_bound": self.at_bound}
+
+    def bound_note(self) -> str | None:
+        """A sentence when a member sits at a bound of its physical range (the data want a law the
+        vocabulary lacks: the fit is the closest within it), else None."""
+        if not self.at_bound:
+            return None
+        effect = EFFECTS[self.name]
+        ranges = {effect.member: effect.member_bounds, effect.second_member: effect.second_bounds}
+        said = ", ".join(f"{m} = {self.params[m]:.4g} at the bound of its range [{ranges[m][0]:g}, {ranges[m][1]:g}]"
+                         for m in self.at_bound)
+        return f"{self.name}: {said} -- the data want a law outside the vocabulary; this is the closest within it"
 
 
 @dataclass(frozen=True)
@@ -202,8 +214,10 @@ def calibrate(
         if term.second is not None and term.name in out.second_ranges:
             ci[EFFECTS[term.name].second_member] = out.second_ranges[term.name]
         rms = cal.rms_of(term.column)
-        effects.append(FoundEffect(term.name, term.params(c), ci, abs(c) * rms,
-                                   [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms]))
+        params = term.params(c)
+        effects.append(FoundEffect(term.name, params, ci, abs(c) * rms,
+                                   [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms],
+                                   _members_at_bound(term.name, params)))
     if any(a.assumed is None for a in out.ambiguous):
         verdict = "inconclusive"
     elif selected:
@@ -272,6 +286,16 @@ def calibrate(
         blocks,
         pred_after,
     )
+
+
+def _members_at_bound(name: str, params: dict[str, float]) -> list[str]:
+    """Members within 0.1 % of their range's width of a bound (a bounded search stops just inside)."""
+    effect = EFFECTS[name]
+    out = []
+    for short, (lo, hi) in ((effect.member, effect.member_bounds), (effect.second_member, effect.second_bounds)):
+        if short is not None and min(abs(params[short] - lo), abs(params[short] - hi)) <= 1e-3 * (hi - lo):
+            out.append(short)
+    return out
 
 
 def _at_search_bound(found: FoundEffect) -> str | None:

@@ -76,6 +76,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items())
         ci = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e.ci95.items())
         print(f"  effect {e.name}: {params}  (95 %: {ci}; RMS contribution {e.rms_contribution_nm:.4g} N·m)")
+        if e.bound_note():
+            print(f"    note: {e.bound_note()}")
     for r in result.rejected:
         if r.reason:
             print(f"  {r.name} not accepted: {r.reason}")

@@ -190,6 +190,8 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
             ci = ", ".join(f"{k} ∈ [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e.ci95.items())
             lo, hi = e.rms_contribution_ci95_nm
             lines.append(f"| {e.name} | {pr} | {ci} | {e.rms_contribution_nm:.4g} ({lo:.4g}–{hi:.4g}) |")
+        notes = [e.bound_note() for e in result.effects if e.bound_note()]
+        lines += ["", *(f"- {n}." for n in notes)] if notes else []
     else:
         lines.append("None.")
     if result.ambiguous:

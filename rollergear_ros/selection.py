@@ -241,8 +241,11 @@ class Calibrator:
         j = int(np.argmin(scores))
         lo_b, hi_b = effect.member_bounds
         step = (grid[1].member - grid[0].member) if len(grid) > 1 else 0.1
-        res = minimize_scalar(lambda m: score(self._with_member(t, m, second)),
-                              bounds=(max(lo_b, grid[j].member - step), min(hi_b, grid[j].member + step)),
+        # around the grid's best; from the grid's first or last member on to the member's bound (else
+        # an optimum beyond the grid would stop one step outside it and pass for an estimate)
+        lo = lo_b if j == 0 else max(lo_b, grid[j].member - step)
+        hi = hi_b if j == len(grid) - 1 else min(hi_b, grid[j].member + step)
+        res = minimize_scalar(lambda m: score(self._with_member(t, m, second)), bounds=(lo, hi),
                               method="bounded", options={"xatol": step * 1e-3})
         if res.fun <= scores[j]:
             return float(res.fun), self._with_member(t, float(res.x), second)

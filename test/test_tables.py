@@ -214,3 +214,22 @@ def test_a_tables_intervals_come_from_its_own_scatter(tmp_path):
         lo, hi = found[name]["ci95"][member]
         assert lo <= truth <= hi and hi - lo < 0.1, (name, lo, hi)
     assert found["drag_constant"]["params"]["c"] == pytest.approx(1.2, abs=0.01)
+    assert all(e["at_bound"] == [] for e in result["effects"])
+
+
+def test_a_speed_law_flatter_than_the_vocabulary_allows_is_fitted_at_its_bound_and_said(tmp_path):
+    """A churning loss growing like ω^0.1 (below drag_speed's range, p ≥ 0.3): the search goes on past
+    the grid's first member to the bound (it stopped at 0.4 before: one grid step, passing for an
+    estimate), and calibrate says the exponent sits at its bound."""
+    lines = [HEADER.strip()]
+    for n in range(250, 4001, 250):
+        w = n * 2 * np.pi / 60
+        for t in [*range(-200, 0, 20), *range(20, 201, 20)]:
+            lines.append(f"{n},{t},{0.8 * w ** 0.1 + 0.01 * abs(t):.9g}")
+    (tmp_path / "flat.vtlm").write_text("\n".join(lines) + "\n")
+    params = str(_params(tmp_path, False))
+    result = json.loads(run_cli("calibrate", str(tmp_path / "flat.vtlm"), "--params", params, "--json").stdout)
+    drag = {e["name"]: e for e in result["effects"]}["drag_speed"]
+    assert drag["params"]["p"] == pytest.approx(0.3, abs=1e-3) and drag["at_bound"] == ["p"]
+    text = run_cli("calibrate", str(tmp_path / "flat.vtlm"), "--params", params).stdout
+    assert "note: drag_speed: p = 0.3" in text and "at the bound of its range [0.3, 3.5] -- the data want a law" in text
