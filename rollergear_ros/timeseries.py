@@ -228,20 +228,59 @@ def _read_mdf4(path: Path, cmap: ChannelMap) -> dict[str, Series]:
     except Exception as exc:  # noqa: BLE001 - asammdf raises many types for a file that is not MDF
         raise InputFileError(f"{path}: not an MDF file asammdf can read ({exc})") from None
     try:
-        names = set(mdf.channels_db)
         out = {}
         for name, spec in cmap.channels.items():
-            if spec.column not in names:
-                raise InputFileError(f"{path}: no channel {spec.column!r} for {name}")
-            signal = mdf.get(spec.column)
+            group, index = _mdf_channel(path, mdf, name, spec.column)
+            signal = mdf.get(group=group, index=index)
             if not unit_matches(name, signal.unit, spec.unit):
                 raise InputFileError(f"{path}: {name} ({spec.column}) is in {signal.unit!r} by the file's metadata, "
                                      f"the channel map says {spec.unit}")
             t_ns = np.round(np.asarray(signal.timestamps, dtype=np.float64) * 1e9).astype(np.int64)
-            out[name] = Series(t_ns, spec.to_si(signal.samples))
+            out[name] = Series(t_ns, spec.to_si(_numbers(path, name, spec.column, signal.samples)))
         return out
     finally:
         mdf.close()
+
+
+def _mdf_channel(path: Path, mdf, name: str, column: str) -> tuple[int, int]:
+    """(data group, channel index) of ``column``: a channel name, or ``name@G`` for the one in data
+    group ``G`` (its number or its acquisition name) when several groups have a channel of that name."""
+    occurrences = mdf.channels_db.get(column)
+    wanted = None
+    if not occurrences and "@" in column:
+        column, _, wanted = column.rpartition("@")
+        occurrences = mdf.channels_db.get(column)
+    if not occurrences:
+        masters = {mdf.groups[g].channels[i].name for g, i in mdf.masters_db.items()} if mdf.masters_db else set()
+        available = sorted(n for n in mdf.channels_db if n not in masters)
+        raise InputFileError(f"{path}: no channel {column!r} for {name} (the file has: {', '.join(available[:20])}"
+                             f"{' …' if len(available) > 20 else ''})")
+
+    def label(g: int) -> str:
+        acq = getattr(mdf.groups[g].channel_group, "acq_name", "") or ""
+        return f"{g} {acq!r}" if acq else str(g)
+
+    if wanted is not None:
+        chosen = [(g, i) for g, i in occurrences
+                  if wanted == str(g) or wanted == (getattr(mdf.groups[g].channel_group, "acq_name", "") or "")]
+        if len(chosen) != 1:
+            raise InputFileError(f"{path}: {name}: no single channel {column!r} in data group {wanted!r} (it is in "
+                                 f"{', '.join(label(g) for g, _ in occurrences)})")
+        return chosen[0]
+    if len(occurrences) > 1:
+        groups = [g for g, _ in occurrences]
+        raise InputFileError(f"{path}: {name}: channel {column!r} is in {len(groups)} data groups "
+                             f"({', '.join(label(g) for g in groups)}): name one as "
+                             f"{' or '.join(repr(f'{column}@{g}') for g in groups)}")
+    return occurrences[0]
+
+
+def _numbers(path: Path, name: str, column: str, values) -> np.ndarray:
+    """A channel's samples as float64; text or other non-numbers: one line naming the channel."""
+    values = np.asarray(values)
+    if values.dtype.kind not in "fiub":
+        raise InputFileError(f"{path}: {name} ({column}): not numbers (samples of type {values.dtype})")
+    return values.astype(np.float64)
 
 
 # ------------------------------------------------------------------------------------ TDMS
@@ -258,8 +297,10 @@ def _read_tdms(path: Path, cmap: ChannelMap) -> dict[str, Series]:
         try:
             return tdms[group][chan]
         except KeyError:
-            raise InputFileError(f"{path}: no channel {column!r} for {name} "
-                                 "(TDMS channels are named group/channel)") from None
+            available = [f"{g.name}/{c.name}" for g in tdms.groups() for c in g.channels()]
+            raise InputFileError(f"{path}: no channel {column!r} for {name} (TDMS channels are named group/channel; "
+                                 f"the file has: {', '.join(available[:20])}{' …' if len(available) > 20 else ''})"
+                                 ) from None
 
     base = None
     if cmap.time is not None and "/" in cmap.time.column:
@@ -271,7 +312,7 @@ def _read_tdms(path: Path, cmap: ChannelMap) -> dict[str, Series]:
         if not unit_matches(name, unit, spec.unit):
             raise InputFileError(f"{path}: {name} ({spec.column}) is in {unit!r} by the file's metadata, "
                                  f"the channel map says {spec.unit}")
-        values = np.asarray(ch[:], dtype=np.float64)
+        values = _numbers(path, name, spec.column, ch[:])
         if base is not None and len(base) == len(values):
             t_ns = base
         elif "wf_increment" in ch.properties:

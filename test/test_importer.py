@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -218,6 +219,41 @@ def test_mdf4_with_channels_at_different_rates(tmp_path, signals):
         import_source(tmp_path / "bad.mf4", tmp_path / "bad.mcap", tmp_path / "map.yaml")
 
 
+def test_mdf4_channels_of_one_name_in_several_groups_are_chosen_by_group(tmp_path, signals):
+    """A vehicle logger's MDF4 often has one name in several groups (the speed from CAN and from the
+    DAQ): ambiguous is one line naming the groups; ``name@G`` picks by the group's number or
+    acquisition name; a text channel or a missing one is one line (the latter lists the channels)."""
+    from asammdf import MDF, Signal
+
+    s, cols = signals, file_columns(signals)
+    t, slow = s["t"], slice(None, None, 10)
+    mdf = MDF(version="4.10")
+    mdf.append([Signal(cols["T_in"], t, name="T_in", unit="Nmm"), Signal(cols["n_in"] * 0, t, name="n_in", unit="rpm")],
+               acq_name="DAQ")
+    mdf.append([Signal(cols["n_in"][slow], t[slow], name="n_in", unit="U/min")], acq_name="CAN speed")
+    mdf.append([Signal(np.array([b"drive"] * 300), t[slow], name="mode", encoding="latin-1")], acq_name="state")
+    src = tmp_path / "rig.mf4"
+    mdf.save(src, overwrite=True)
+    base = "time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*mm}\n"
+    cmap = tmp_path / "map.yaml"
+    for column, message in (
+            ("n_in", "motor_speed: channel 'n_in' is in 2 data groups (0 'DAQ', 1 'CAN speed'): name one as "
+                     "'n_in@0' or 'n_in@1'"),
+            ("n_in@5", "motor_speed: no single channel 'n_in' in data group '5' (it is in 0 'DAQ', 1 'CAN speed')"),
+            ("mode", "motor_speed (mode): not numbers (samples of type |S5)"),
+            ("n", "no channel 'n' for motor_speed (the file has: T_in, mode, n_in)")):
+        cmap.write_text(base + f"motor_speed: {{column: {column}, unit: rpm}}\n")
+        proc = run_cli("import", str(src), "--channels", str(cmap), "--out", str(tmp_path / "o.mcap"), check=False)
+        assert proc.returncode == 2 and message in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+    for column in ("n_in@1", "n_in@CAN speed"):
+        cmap.write_text(base + f"motor_speed: {{column: '{column}', unit: rpm}}\n")
+        summary = import_source(src, tmp_path / "rig.mcap", cmap)
+        assert summary.resampled == ["motor_speed"]
+        _, speed = float_series(read_mcap_ros2(tmp_path / "rig.mcap"), "/rollergear/motor/speed")
+        inside = t <= t[slow][-1] + 1e-12
+        np.testing.assert_allclose(speed[inside], np.interp(t[inside], t[slow], s["speed"][slow]), rtol=1e-12)
+
+
 def test_tdms_round_trip(tmp_path, signals):
     from nptdms import ChannelObject, TdmsWriter
 
@@ -234,6 +270,15 @@ def test_tdms_round_trip(tmp_path, signals):
     summary = import_source(src, tmp_path / "rig.mcap", cmap)
     assert summary.kind == "TDMS"
     check_round_trip(tmp_path / "rig.mcap", signals)
+    # a missing channel lists the file's; a text channel is not numbers
+    with TdmsWriter(src, mode="a") as writer:
+        writer.write_segment([ChannelObject("rig", "mode", np.array(["drive"] * N))])
+    for old, new, message in (("rig/n_in", "rig/n", "no channel 'rig/n' for motor_speed (TDMS channels are named "
+                                                     "group/channel; the file has: rig/T_in, rig/n_in, rig/T_out"),
+                              ("rig/n_in", "rig/mode", "motor_speed (rig/mode): not numbers")):
+        (tmp_path / "bad.yaml").write_text(cmap.read_text().replace(old, new))
+        with pytest.raises(InputFileError, match=re.escape(message)):
+            import_source(src, tmp_path / "bad.mcap", tmp_path / "bad.yaml")
 
 
 @pytest.mark.parametrize(("mutate", "message"), [
