@@ -462,14 +462,15 @@ class BagWriter:
     messages come passes False.  ``offered_qos``: topic -> the QoS profiles its publisher offers
     (:func:`offered_qos_yaml`), stored as rosbag2 does.  :meth:`close` adds rosbag2's own metadata
     record (``rosbag2``: ``serialized_metadata``), so ``ros2 bag info`` shows topics, counts and QoS.
+    ``background``: full chunks are compressed and written by a second thread (bulk writers).
     """
 
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, time_ordered: bool = True,
-                 offered_qos: Mapping[str, str] | None = None) -> None:
+                 offered_qos: Mapping[str, str] | None = None, background: bool = False) -> None:
         from .mcapwriter import ChunkedMcapWriter, TimeOrderBuffer
 
         self.path = Path(path)
-        self._writer = ChunkedMcapWriter(self.path, chunk_size=chunk_size)
+        self._writer = ChunkedMcapWriter(self.path, chunk_size=chunk_size, background=background)
         self._held = TimeOrderBuffer(self._writer) if time_ordered else None
         self._sink = self._held if time_ordered else self._writer
         self._schema_ids: dict[str, int] = {}

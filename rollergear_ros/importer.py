@@ -138,7 +138,7 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
                 found = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
                 raise InputFileError(f"{src}: no input topics {topics.motor_torque} or {topics.joint_states} "
                                      f"(topics: {found})")
-            with BagWriter(out) as bw:  # in log-time order whatever order the storage gives
+            with BagWriter(out, background=True) as bw:  # in log-time order whatever order the storage gives
                 bw.add_metadata(IMPORT_METADATA, {"source": str(src), "kind": "rosbag2"})
                 for con, t_ns, raw in reader.messages(connections=connections):
                     if con.msgtype not in MSG_DEFINITIONS:
@@ -180,7 +180,7 @@ def write_aligned(aligned, out: Path, topics: TopicMap = TopicMap(), metadata: d
     t_ns = np.repeat(aligned.t_ns, k)
     float_topics = [(topic_of[c], MessageType.FLOAT64, None) for c in names]
     temp = aligned.temperature
-    with BagWriter(out, time_ordered=False) as bw:
+    with BagWriter(out, time_ordered=False, background=True) as bw:
         if metadata is not None:
             bw.add_metadata(IMPORT_METADATA, metadata)
         _write_in_time_order(bw, topics, float_topics, which, t_ns, payloads,
@@ -233,7 +233,7 @@ def _import_table(src: Path, kind: str, out: Path, channels: str | Path | None, 
     payloads = float64_payloads(np.stack(columns, axis=1).ravel())
     which = np.tile(np.arange(len(names)), n)
     theta = table.temperature_c[moving]
-    with BagWriter(out, time_ordered=False) as bw:
+    with BagWriter(out, time_ordered=False, background=True) as bw:
         bw.add_metadata(IMPORT_METADATA, {
             "source": str(src), "kind": f"{kind} steady-state table",
             "channel_map": "" if channels is None else Path(channels).read_text(encoding="utf-8"),

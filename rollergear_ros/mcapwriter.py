@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import struct
 import zlib
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,19 @@ from mcap.well_known import Profile
 from mcap.writer import MCAP0_MAGIC as MAGIC
 
 from .fastmcap import _MSG_FIXED, _MSG_HEAD, OP_MESSAGE
+
+_MAX_PENDING = 4  #: chunks waiting for the background thread before the caller waits too
+
+
+@contextmanager
+def _named(path: Path):
+    """OSErrors of writes (a full disk: ENOSPC carries no file name) name the file written."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is not None:
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
 
 def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> np.ndarray:
     """Message records (one row each, sequence numbers left 0) for payloads of equal length."""
@@ -47,7 +61,7 @@ class ChunkedMcapWriter:
     """
 
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, profile: str = Profile.ROS2,
-                 library: str = "rollergear_ros", compression_level: int = 1) -> None:
+                 library: str = "rollergear_ros", compression_level: int = 1, background: bool = False) -> None:
         import zstandard
         from mcap.data_stream import RecordBuilder
         from mcap.records import Header
@@ -56,6 +70,15 @@ class ChunkedMcapWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._fh = self.path.open("wb")
         self._zstd = zstandard.ZstdCompressor(level=compression_level)
+        # background: one thread compresses and writes finished chunks (zstd, crc32 and file writes
+        # release the GIL) while the caller builds the next; for bulk writers (import), not the
+        # node's recorder, whose chunks must reach the file as soon as they are full
+        self._pool = None
+        if background:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(1, thread_name_prefix="mcap-chunks")
+        self._pending: list = []
         self.chunk_size = chunk_size
         self._schemas: dict[int, object] = {}
         self._channels: dict[int, object] = {}
@@ -200,6 +223,7 @@ class ChunkedMcapWriter:
         from mcap.records import Metadata, MetadataIndex
 
         self.flush_chunk()
+        self._drain()
         rb = RecordBuilder()
         Metadata(name=name, metadata=dict(data)).write(rb)
         blob = rb.end()
@@ -208,16 +232,39 @@ class ChunkedMcapWriter:
         self._metadata_indexes.append(MetadataIndex(offset=offset, length=len(blob), name=name))
 
     def flush_chunk(self) -> None:
-        """Compress and write the open chunk with its message indexes."""
+        """Compress and write the open chunk with its message indexes (in the background with
+        ``background=True``: the next chunk is built while this one is compressed and written)."""
+        if not self._chunk:
+            return
+        for cid, (times, offs) in self._single.items():
+            self._index.setdefault(cid, []).append((np.array(times, dtype=np.int64), np.array(offs, dtype=np.int64)))
+        job = (self._chunk, self._index, self._start if self._start is not None else 0,
+               self._end if self._end is not None else 0)
+        self._chunk, self._index, self._single, self._size = bytearray(), {}, {}, 0
+        self._start = self._end = None
+        if self._pool is None:
+            self._emit(*job)
+            return
+        self._pending.append(self._pool.submit(self._emit, *job))
+        while len(self._pending) > _MAX_PENDING or (self._pending and self._pending[0].done()):
+            self._pending.pop(0).result()  # an error of the writing thread is raised here
+
+    def _drain(self) -> None:
+        """Wait for the chunks being written in the background (their errors are raised here)."""
+        while self._pending:
+            self._pending.pop(0).result()
+
+    def _emit(self, data: bytearray, index: dict, start: int, end: int) -> None:
+        """Compress one chunk and write it and its message indexes (the only writer of the file while
+        chunks are pending); a write that fails is an OSError naming the file."""
+        with _named(self.path):
+            self._emit_chunk(data, index, start, end)
+
+    def _emit_chunk(self, data: bytearray, index: dict, start: int, end: int) -> None:
         from mcap.data_stream import RecordBuilder
         from mcap.records import Chunk, ChunkIndex
 
-        if not self._chunk:
-            return
-        data = self._chunk
         compressed = self._zstd.compress(data)
-        start = self._start if self._start is not None else 0
-        end = self._end if self._end is not None else 0
         rb = RecordBuilder()
         Chunk(compression="zstd", data=compressed, message_start_time=start, message_end_time=end,
               uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data)).write(rb)
@@ -226,10 +273,8 @@ class ChunkedMcapWriter:
         self._fh.write(chunk_blob)
         index_offsets: dict[int, int] = {}
         index_start = self._fh.tell()
-        for cid, (times, offs) in self._single.items():
-            self._index.setdefault(cid, []).append((np.array(times, dtype=np.int64), np.array(offs, dtype=np.int64)))
-        for cid in sorted(self._index):
-            parts = self._index[cid]
+        for cid in sorted(index):
+            parts = index[cid]
             times = np.concatenate([t for t, _ in parts]) if len(parts) > 1 else parts[0][0]
             offs = np.concatenate([o for _, o in parts]) if len(parts) > 1 else parts[0][1]
             entries = np.empty((len(times), 2), dtype="<u8")
@@ -246,19 +291,24 @@ class ChunkedMcapWriter:
             chunk_length=len(chunk_blob), message_index_offsets=index_offsets,
             message_index_length=self._fh.tell() - index_start, compression="zstd",
             compressed_size=len(compressed), uncompressed_size=len(data)))
-        self._chunk, self._index, self._single, self._size = bytearray(), {}, {}, 0
-        self._start = self._end = None
 
     def close(self) -> None:
         """Write the last chunk, the summary and the footer (idempotent)."""
-        from mcap.data_stream import RecordBuilder
-        from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
-
         if self.closed:
             return
         self.closed = True
+        with _named(self.path):
+            self._close()
+
+    def _close(self) -> None:
+        from mcap.data_stream import RecordBuilder
+        from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
+
         try:
-            self.flush_chunk()
+            try:
+                self.flush_chunk()
+            finally:
+                self._drain_quietly()
             rb = RecordBuilder()
             DataEnd(data_section_crc=0).write(rb)
             self._fh.write(rb.end())
@@ -310,11 +360,25 @@ class ChunkedMcapWriter:
             self._fh.write(fb.end())
             self._fh.write(MAGIC)
         finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
             self._fh.flush()
             import os
 
             os.fsync(self._fh.fileno())
             self._fh.close()
+
+    def _drain_quietly(self) -> None:
+        """:meth:`_drain`, raising the first error only after every pending chunk is done (so that
+        the summary is written after the chunks that made it to the file)."""
+        first = None
+        while self._pending:
+            try:
+                self._pending.pop(0).result()
+            except Exception as exc:  # noqa: BLE001 - re-raised below, once the file is consistent
+                first = first or exc
+        if first is not None:
+            raise first
 
 
 class TimeOrderBuffer:
