@@ -39,7 +39,7 @@ import numpy as np
 
 from .blocks import Blocks, groups, make_blocks
 from .effects import EFFECTS
-from .errors import BagError
+from .errors import BagError, UsageError
 from .model import LossModel
 from .params import Config, ParameterError, config_to_yaml, validate
 from .report import write_report
@@ -169,7 +169,7 @@ def calibrate(
     """
     unknown = [a for a in assume if a not in EFFECTS]
     if unknown:
-        raise ValueError(f"unknown effect(s) to assume: {', '.join(unknown)} (one of {', '.join(EFFECTS)})")
+        raise UsageError(f"unknown effect(s) to assume: {', '.join(unknown)} (one of {', '.join(EFFECTS)})")
     stage = stage or (lambda text: None)
     stage("block means")
     blocks = make_blocks(data, block_s, folds)

@@ -31,6 +31,7 @@ def _named(path: Path):
             raise
         raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
 
+
 def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> np.ndarray:
     """Message records (one row each, sequence numbers left 0) for payloads of equal length."""
     n, plen = payload.shape
