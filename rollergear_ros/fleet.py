@@ -33,7 +33,8 @@ from .interface import Metadata
 from .params import Config, config_to_yaml
 
 __all__ = ["FLEET_TABLE", "CALIBRATE_TABLE", "SLICES_TABLE", "SLICE_MESSAGES", "Recording", "combine_slices",
-           "dask_client", "discover", "read_table", "run_calibrate", "run_replay", "time_slices"]
+           "dask_client", "discover", "read_table", "run_calibrate", "run_replay", "settings_fingerprint",
+           "time_slices"]
 
 FLEET_TABLE = "fleet.parquet"
 CALIBRATE_TABLE = "fleet_calibrate.parquet"
@@ -327,16 +328,31 @@ def _has_bokeh() -> bool:
 Unit = tuple[str, list[tuple[str, Callable, tuple]]]
 
 
+def settings_fingerprint(config: Config, channels: str | None, *extra: object) -> str:
+    """What a row's result depends on besides its recordings: the parameters, the channel map's
+    text and ``extra`` (the calibration window), as a short hash (the tables' ``settings``)."""
+    import hashlib
+
+    text = config_to_yaml(config) + "\n--\n" + (Path(channels).read_text(encoding="utf-8") if channels else "")
+    text += "".join(f"\n--\n{e!r}" for e in extra)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
 def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note: Callable[[str], None],
-         parts_table: Path | None = None) -> tuple[list[dict], int]:
-    """Run the units not yet in ``table``; a unit's row (:func:`combine_slices` of its tasks' rows)
-    lands when its last task does.  ``parts_table`` keeps the rows of the tasks of units not yet
-    complete (a resumed run does not redo them)."""
+         parts_table: Path | None = None, settings: str = "") -> tuple[list[dict], int]:
+    """Run the units not yet in ``table`` with these ``settings`` (:func:`settings_fingerprint`: rows
+    made with others are done again and replaced); a unit's row (:func:`combine_slices` of its
+    tasks' rows) lands when its last task does.  ``parts_table`` keeps the rows of the tasks of units
+    not yet complete (a resumed run does not redo them)."""
     from dask.distributed import as_completed
 
     from .progress import TimedProgress
 
     rows = read_table(table)
+    stale = [r for r in rows if r.get("settings") != settings]
+    if stale:
+        note(f"{len(stale)} rows of {table} were made with other parameters, channel map or window: done again")
+        rows = [r for r in rows if r.get("settings") == settings]
     done = {r["key"] for r in rows}
     todo = [u for u in units if u[0] not in done]
     skipped = len(units) - len(todo)
@@ -344,7 +360,7 @@ def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note
         note(f"{skipped} of {len(units)} {what} already in {table}: not done again")
     if not todo:
         return rows, 0
-    kept = {r["key"]: r for r in read_table(parts_table)} if parts_table else {}
+    kept = {r["key"]: r for r in read_table(parts_table) if r.get("settings") == settings} if parts_table else {}
     parts = {key: {k: kept[k] for k, _, _ in tasks if k in kept} for key, tasks in todo}
     if kept:
         note(f"{sum(map(len, parts.values()))} time slices already in {parts_table}: not done again")
@@ -363,7 +379,7 @@ def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note
 
     def complete(key: str) -> None:
         nonlocal failed, finished
-        row = combine_slices([parts[key][k] for k in tasks_of[key]])
+        row = combine_slices([parts[key][k] for k in tasks_of[key]]) | {"settings": settings}
         rows.append(row)
         failed += row["status"] != "ok"
         finished += 1
@@ -374,7 +390,7 @@ def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note
     with TimedProgress("fleet", len(futures), "task", enabled=progress) as bar:
         for future in as_completed(futures):
             key, part_key = unit_of[future.key]
-            row = future.result()
+            row = future.result() | {"settings": settings}
             parts[key][part_key] = row
             samples += int(row.get("samples") or 0)
             if len(parts[key]) == len(tasks_of[key]):
@@ -418,7 +434,8 @@ def run_replay(recs: Sequence[Recording], out_dir: Path, client, config: Config,
             n = len(windows)
             units.append((r.key, [(f"{r.key}|slice {i}/{n}", replay_task, (r, config, channels, w, f"{i}/{n}"))
                                   for i, w in enumerate(windows, 1)]))
-    return _run(client, out_dir / FLEET_TABLE, units, progress, "recordings", note, out_dir / SLICES_TABLE)
+    return _run(client, out_dir / FLEET_TABLE, units, progress, "recordings", note, out_dir / SLICES_TABLE,
+                settings_fingerprint(config, channels))
 
 
 def run_calibrate(recs: Sequence[Recording], out_dir: Path, client, config: Config, window_ns: int,
@@ -434,5 +451,6 @@ def run_calibrate(recs: Sequence[Recording], out_dir: Path, client, config: Conf
     for (gid, w), rs in sorted(groups.items()):
         key = _window_key(gid, w, rs)
         units.append((key, [(key, calibrate_task, (gid, w, window_ns, rs, config, channels))]))
-    return _run(client, out_dir / CALIBRATE_TABLE, units, progress, "windows", note)
+    return _run(client, out_dir / CALIBRATE_TABLE, units, progress, "windows", note,
+                settings=settings_fingerprint(config, channels, window_ns))
 

@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from rollergear_ros.fleet import (FLEET_TABLE, SLICES_TABLE, dask_client, discover, read_table, replay_task,
-                                  run_calibrate, run_replay, time_slices)
+                                  run_calibrate, run_replay, settings_fingerprint, time_slices)
 from rollergear_ros.fleet_report import drift, write_fleet_report
 from rollergear_ros.fleetsim import DAY_NS, simulate_fleet
 from rollergear_ros.params import load_config
@@ -84,7 +84,8 @@ def test_a_resumed_run_does_not_redo_the_slices_done(client, tmp_path):
     config = load_config(CONFIG)
     windows = time_slices(rec, 20_000)
     assert len(windows) == 5
-    done = [replay_task(rec, config, None, w, f"{i}/5") for i, w in enumerate(windows[:2], 1)]
+    done = [replay_task(rec, config, None, w, f"{i}/5") | {"settings": settings_fingerprint(config, None)}
+            for i, w in enumerate(windows[:2], 1)]  # as a run with the same settings left them
     done[0]["energy_lost_j"] += 1000.0  # a mark: the slice's row is taken, not recomputed
     pq.write_table(pa.Table.from_pylist(done), tmp_path / SLICES_TABLE)
     notes: list[str] = []
@@ -138,6 +139,30 @@ def test_a_resumed_run_does_no_work_twice(fleet, client, tmp_path):
     assert len({r["key"] for r in rows}) == len(recs)
     rows, ran = run_replay(recs, tmp_path, client, load_config(CONFIG))
     assert ran == 0 and len(rows) == len(recs)
+
+
+def test_a_run_with_other_parameters_does_the_rows_again(fleet, client, tmp_path):
+    """The tables hold what they were made with (``settings``): a run with another parameter file
+    replaces the rows made with the first instead of returning them as its own (it did: keyed by
+    the recordings alone), and says so; the same settings again do no work."""
+    from dataclasses import replace
+
+    logs, _ = fleet
+    recs = discover([str(logs / "gb02")])[:3]
+    config = load_config(CONFIG)
+    notes = []
+    rows_a, ran = run_replay(recs, tmp_path, client, config)
+    assert ran == 3
+    other = replace(config, estimator=replace(config.estimator, paper_model=False))
+    rows_b, ran = run_replay(recs, tmp_path, client, other, note=notes.append)
+    assert ran == 3 and len(rows_b) == 3
+    assert any("3 rows" in n and "other parameters" in n for n in notes), notes
+    assert {r["settings"] for r in rows_a}.isdisjoint({r["settings"] for r in rows_b})
+    by_key = {r["key"]: r for r in rows_a}
+    assert all(r["mean_loss_nm"] != by_key[r["key"]]["mean_loss_nm"] for r in rows_b)
+    assert read_table(tmp_path / FLEET_TABLE) == rows_b
+    _, ran = run_replay(recs, tmp_path, client, other)
+    assert ran == 0
 
 
 def test_a_killed_workers_task_is_retried_and_the_table_is_complete(fleet, tmp_path):
