@@ -229,8 +229,9 @@ def combine_slices(parts: Sequence[dict]) -> dict:
 
 
 def calibrate_task(gearbox_id: str, window: int, window_ns: int, recs: Sequence[Recording], config: Config,
-                   channels: str | None) -> dict:
-    """Calibrate one gearbox over one time window (all its recordings there)."""
+                   channels: str | None, assume: Sequence[str] = ()) -> dict:
+    """Calibrate one gearbox over one time window (all its recordings there); ``assume``: as
+    :func:`~.calibrate.calibrate`'s."""
     from contextlib import ExitStack
 
     from .calibrate import calibrate, load_samples
@@ -246,7 +247,7 @@ def calibrate_task(gearbox_id: str, window: int, window_ns: int, recs: Sequence[
             local = [stack.enter_context(_local(r.path)) for r in recs]
             bags = stack.enter_context(as_mcap(local, channels))
             data = load_samples(bags, config)
-            result = calibrate(data, config)
+            result = calibrate(data, config, assume=assume)
     except Exception as exc:  # noqa: BLE001 - one bad window must not stop the fleet; the row says why
         return _failed(row, exc) | {"seconds": time.perf_counter() - t0}
     row |= {"samples": result.samples, "verdict": result.verdict,
@@ -440,8 +441,9 @@ def run_replay(recs: Sequence[Recording], out_dir: Path, client, config: Config,
 
 def run_calibrate(recs: Sequence[Recording], out_dir: Path, client, config: Config, window_ns: int,
                   channels: str | None = None, progress: bool = False,
-                  note: Callable[[str], None] = lambda m: None) -> tuple[list[dict], int]:
-    """Calibrate every gearbox over each time window; returns the table's rows and how many ran now."""
+                  note: Callable[[str], None] = lambda m: None, assume: Sequence[str] = ()) -> tuple[list[dict], int]:
+    """Calibrate every gearbox over each time window (``assume``: as :func:`~.calibrate.calibrate`'s);
+    returns the table's rows and how many ran now."""
     out_dir.mkdir(parents=True, exist_ok=True)
     groups: dict[tuple[str, int], list[Recording]] = {}
     for r in recs:
@@ -450,7 +452,7 @@ def run_calibrate(recs: Sequence[Recording], out_dir: Path, client, config: Conf
     units: list[Unit] = []
     for (gid, w), rs in sorted(groups.items()):
         key = _window_key(gid, w, rs)
-        units.append((key, [(key, calibrate_task, (gid, w, window_ns, rs, config, channels))]))
+        units.append((key, [(key, calibrate_task, (gid, w, window_ns, rs, config, channels, tuple(assume)))]))
     return _run(client, out_dir / CALIBRATE_TABLE, units, progress, "windows", note,
-                settings=settings_fingerprint(config, channels, window_ns))
+                settings=settings_fingerprint(config, channels, window_ns, sorted(assume)))
 

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from .cli import config_from_args
+from .effects import EFFECTS
 from .errors import UsageError
 from .fleet import SLICE_MESSAGES
 from .paths import check_output_folder
@@ -39,7 +40,7 @@ def cmd_fleet(args: argparse.Namespace) -> int:
                                    slice_messages=args.slice_messages)
         else:
             rows, ran = run_calibrate(recs, out, client, config, int(args.window_days * DAY_S * 1e9), args.channels,
-                                      progress=sys.stderr.isatty(), note=note)
+                                      progress=sys.stderr.isatty(), note=note, assume=args.assume)
     failed = [r for r in rows if r.get("status") != "ok"]
     print(f"{args.action}: {ran} run now, {len(rows)} rows in {out}; {len(failed)} failed")
     for r in failed[:10]:
@@ -71,6 +72,9 @@ def register_fleet(sub, with_params) -> None:
                    help="gearbox identity: metadata gearbox_id, else the folder (auto); or only one of them")
     p.add_argument("--window-days", type=float, default=1.0, metavar="DAYS",
                    help="calibration window (default 1 day)")
+    p.add_argument("--assume", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
+                   help="calibrate: when the data cannot tell EFFECT from another effect, take it as EFFECT "
+                   "(as `rollergear calibrate --assume`); repeatable")
     p.add_argument("--slice-messages", type=int, default=SLICE_MESSAGES, metavar="N",
                    help="replay a recording of more messages in time slices of about N, one task each "
                    f"(default {SLICE_MESSAGES:,}: ~10 s a task on a 2-core machine of 2026)")

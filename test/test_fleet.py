@@ -112,6 +112,26 @@ def test_drifting_gearboxes_are_found_with_their_effect_and_day_and_no_healthy_o
     assert (tmp_path / "drift.png").stat().st_size > 10_000
 
 
+def test_fleet_calibrate_takes_what_the_user_assumes(client, tmp_path):
+    """A gearbox driven forward only, with a seal drag: inconclusive (drag / torque offset) without
+    ``assume``; with it the drag is accepted -- and the rows made without it are done again."""
+    from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
+
+    config = load_config(CONFIG)
+    (tmp_path / "logs" / "gb07").mkdir(parents=True)
+    opts = SimulationOptions(profile="rig_map", rate_hz=100.0, seed=5,
+                             effects=[DeclaredEffect.parse("drag_constant:c=0.08")])
+    write_rig_bag(simulate(config, opts), opts, tmp_path / "logs" / "gb07" / "day00.mcap")
+    recs = discover([str(tmp_path / "logs")])
+    (row,), _ = run_calibrate(recs, tmp_path / "out", client, config, DAY_NS)
+    assert row["verdict"] == "inconclusive" and json.loads(row["effects"]) == []
+    (row,), ran = run_calibrate(recs, tmp_path / "out", client, config, DAY_NS, assume=["drag_constant"])
+    assert ran == 1 and row["verdict"] == "effects_found"
+    (effect,) = json.loads(row["effects"])
+    assert effect["name"] == "drag_constant" and effect["params"]["c"] == pytest.approx(0.08, rel=0.1)
+    assert row["drag_constant.c"] == effect["params"]["c"]
+
+
 def test_bad_recordings_are_failed_rows_and_the_rest_go_on(fleet, client, tmp_path):
     logs, _ = fleet
     mixed = tmp_path / "logs" / "gb99"
