@@ -8,10 +8,11 @@ A channel map is a YAML file given as ``--channels MAP.yaml``::
     motor_speed: {column: n_in, unit: rpm}
     output_torque: {column: T_out, unit: N*m, scale: -1}
     oil_temperature: {column: T_oil, unit: degC}
-    ratio: 5.875
+    ratio: 5.875                  # steady_state: also {column: NAME}, each row's ratio
     group: {column: gear}
 
-Values are converted to SI as ``value_SI = (value·factor + offset)·scale`` (the offset only for
+A steady-state table may give the output side instead of the motor's (output torque, output
+speed, efficiency and the ratio: NREL ADVISOR's maps).  Values are converted to SI as ``value_SI = (value·factor + offset)·scale`` (the offset only for
 temperatures).  Everything wrong in a map is one :class:`~.errors.InputFileError` line naming the
 map, the key and what is wrong.  No rclpy import.
 """
@@ -92,14 +93,20 @@ class ChannelMap:
     ratio: float | None = None
     group: str | None = None  #: column whose value tells gearbox states apart
     extra: dict[str, Any] = field(default_factory=dict)
+    ratio_column: str | None = None  #: steady_state: a column with each row's ratio (``ratio: {column: …}``)
+
+    @property
+    def output_side(self) -> bool:
+        """A steady-state table of the output shaft (output torque, speed and efficiency; the input
+        side follows from the ratio)."""
+        return Channel.MOTOR_TORQUE not in self.channels
 
     def columns(self) -> list[str]:
         """Every column the map reads."""
         cols = [s.column for s in self.channels.values()]
         if self.time is not None and self.time.column not in cols:
             cols.insert(0, self.time.column)
-        if self.group is not None:
-            cols.append(self.group)
+        cols += [c for c in (self.group, self.ratio_column) if c is not None and c not in cols]
         return cols
 
 
@@ -140,9 +147,18 @@ def load_channel_map(path: str | Path) -> ChannelMap:
     if fmt not in FORMATS:
         raise InputFileError(f"{path}: format: {fmt!r} is not one of {', '.join(FORMATS)}")
     channels = {k: _spec(path, k, v) for k, v in doc.items() if k in UNITS and k != "time"}
-    for needed in (Channel.MOTOR_TORQUE, Channel.MOTOR_SPEED):
-        if needed not in channels:
-            raise InputFileError(f"{path}: no {needed} channel (every file needs motor_torque and motor_speed)")
+    output_side = fmt == "steady_state" and Channel.MOTOR_TORQUE not in channels and Channel.MOTOR_SPEED not in channels
+    if output_side:
+        missing = [k for k in (Channel.OUTPUT_TORQUE, Channel.OUTPUT_SPEED, "efficiency") if k not in channels]
+        if missing or doc.get("ratio") is None:
+            raise InputFileError(f"{path}: no motor_torque and motor_speed channels; a table of the output side needs "
+                                 f"output_torque, output_speed, efficiency and ratio (missing: "
+                                 f"{', '.join(missing + ([] if doc.get('ratio') is not None else ['ratio']))})")
+    else:
+        for needed in (Channel.MOTOR_TORQUE, Channel.MOTOR_SPEED):
+            if needed not in channels:
+                raise InputFileError(f"{path}: no {needed} channel (every file needs motor_torque and motor_speed; "
+                                     "a steady-state table may give the output side instead)")
     time = _spec(path, "time", doc["time"]) if "time" in doc else None
     if fmt == "timeseries":
         if time is None:
@@ -153,11 +169,19 @@ def load_channel_map(path: str | Path) -> ChannelMap:
     elif not any(k in channels for k in STEADY_LOSS_CHANNELS):
         raise InputFileError(f"{path}: a steady_state map needs loss_torque, output_torque or efficiency")
     ratio = doc.get("ratio")
-    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float) or not ratio > 0):
-        raise InputFileError(f"{path}: ratio must be a number > 0, got {ratio!r}")
+    ratio_column = None
+    if isinstance(ratio, dict) and fmt == "steady_state":
+        if set(ratio) != {"column"}:
+            raise InputFileError(f"{path}: ratio: expected a number > 0 or {{column: NAME}}, got {ratio!r}")
+        ratio_column, ratio = str(ratio["column"]), None
+    elif ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float) or not ratio > 0):
+        raise InputFileError(f"{path}: ratio must be a number > 0"
+                             f"{' (or {column: NAME} in a steady_state map)' if fmt == 'steady_state' else ''}, "
+                             f"got {ratio!r}")
     group = doc.get("group")
     if group is not None:
         if not isinstance(group, dict) or set(group) != {"column"}:
             raise InputFileError(f"{path}: group: expected {{column: NAME}}, got {group!r}")
         group = str(group["column"])
-    return ChannelMap(path, fmt, channels, time, None if ratio is None else float(ratio), group)
+    return ChannelMap(path, fmt, channels, time, None if ratio is None else float(ratio), group,
+                      ratio_column=ratio_column)

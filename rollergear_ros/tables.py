@@ -3,8 +3,10 @@
 Two kinds.  CSV or Parquet with a channel map of ``format: steady_state`` (:mod:`.channelmap`):
 the measured loss from a ``loss_torque`` column, or from ``output_torque`` (with ``output_speed``,
 or the map's ``ratio``, or the gearbox's) as ``(T_in·ω_in − T_out·ω_out)/|ω_in|``, or from
-``efficiency`` (``|T|(1 − η)`` driving, ``|T|(1/η − 1)`` regenerating); a ``group`` column keeps
-gearbox states apart.  And VECTO transmission loss maps (``.vtlm``), read by VECTO's own rules
+``efficiency`` (``|T|(1 − η)`` driving, ``|T|(1/η − 1)`` regenerating; rows at standstill or no
+load have none and drop); a ``group`` column keeps gearbox states apart, a ratio column gives each
+row's ratio.  A table of the output side -- output torque, output speed, efficiency and the ratio,
+as NREL ADVISOR's maps -- is put on the input shaft first (:func:`_input_side`).  And VECTO transmission loss maps (``.vtlm``), read by VECTO's own rules
 (``VectoCSVFile`` + ``TransmissionLossMapReader``): ``,`` delimiter, ``.`` decimal mark, lines
 starting with ``#`` are comments and a cell ends at ``#``; one header line whose ``[unit]`` parts
 name the units (rpm, Nm) -- a header of numbers means no header and the columns by position, as
@@ -22,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .channelmap import ChannelMap
+from .channelmap import ChannelMap, ChannelSpec
 from .errors import InputFileError
 from .interface import RPM_PER_RAD_S, Channel
 
@@ -77,22 +79,35 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
 
     table = arrow_table(path, cmap)
     col = {name: spec.to_si(numeric_column(path, name, spec, table)) for name, spec in cmap.channels.items()}
+    if cmap.ratio_column is not None:
+        r_rows = numeric_column(path, "ratio", ChannelSpec("ratio", cmap.ratio_column, "1"), table)
+        if not (r_rows[np.isfinite(r_rows)] > 0).all():
+            raise InputFileError(f"{path}: ratio ({cmap.ratio_column}): a ratio that is not > 0")
+        ratio = r_rows
+    moving = None
+    if cmap.output_side:
+        col, moving = _input_side(path, col, cmap.ratio if cmap.ratio_column is None else ratio)
     torque, speed = col[Channel.MOTOR_TORQUE], col[Channel.MOTOR_SPEED]
     if "loss_torque" in col:
         loss = col["loss_torque"]
     elif Channel.OUTPUT_TORQUE in col:
-        r = cmap.ratio or ratio
-        w_out = col.get(Channel.OUTPUT_SPEED, speed / r if r else np.full(len(speed), np.nan))
+        r = ratio if cmap.ratio_column is not None else (cmap.ratio or ratio)
+        w_out = col.get(Channel.OUTPUT_SPEED, speed / r if r is not None and np.all(np.asarray(r) != 0)
+                        else np.full(len(speed), np.nan))
         with np.errstate(divide="ignore", invalid="ignore"):
             loss = (torque * speed - col[Channel.OUTPUT_TORQUE] * w_out) / np.abs(speed)
     else:
         eta = col["efficiency"]
-        bad = ~((eta > 0) & (eta <= 1))
+        if moving is None:
+            moving = (torque != 0) & (speed != 0)
+        bad = moving & ~((eta > 0) & (eta <= 1))  # no efficiency at standstill or no load: those rows drop
         if bad.any():
             raise InputFileError(f"{path}: data row {int(np.flatnonzero(bad)[0]) + 1}: efficiency "
                                  f"{eta[bad][0]:.4g} is not in (0, 1] (after the map's unit)")
         driving = torque * speed > 0
-        loss = np.where(driving, np.abs(torque) * (1 - eta), np.abs(torque) * (1 / eta - 1))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            loss = np.where(driving, np.abs(torque) * (1 - eta), np.abs(torque) * (1 / eta - 1))
+        loss = np.where(moving, loss, np.nan)
     first = sniff(path, cmap).first_data_line if path.suffix.lower() == ".csv" else 2  # after the header (and units)
     line = np.arange(len(torque), dtype=np.int64) + first
     ok = np.isfinite(torque) & np.isfinite(speed) & np.isfinite(loss)
@@ -107,6 +122,26 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
         raise InputFileError(f"{path}: {int(ok.sum())} usable rows; a table needs at least {MIN_ROWS}")
     return SteadyStateTable(path, speed[ok], torque[ok], loss[ok], theta[ok], line[ok], group,
                             int(np.count_nonzero(~ok)))
+
+
+def _input_side(path: Path, col: dict[str, np.ndarray], ratio) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """An output-side efficiency table on the input shaft: ``ω_in = ω_out·r``; ``T_in = T_out/(r·η)``
+    driving (power flows out, ``T_out·ω_out > 0``), ``T_out·η/r`` overrunning.  Rows at standstill or
+    without load, and rows of efficiency 0 (no power through: NREL ADVISOR writes 0 there and where
+    its regression's loss exceeds the power), have no input torque: they drop (counted)."""
+    t_out, w_out, eta = col[Channel.OUTPUT_TORQUE], col[Channel.OUTPUT_SPEED], col["efficiency"]
+    bad = np.isfinite(eta) & ((eta < 0) | (eta > 1))
+    if bad.any():
+        raise InputFileError(f"{path}: data row {int(np.flatnonzero(bad)[0]) + 1}: efficiency "
+                             f"{eta[bad][0]:.4g} is not in [0, 1] (after the map's unit)")
+    moving = (t_out != 0) & (w_out != 0) & (eta > 0)
+    driving = t_out * w_out > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_in = np.where(driving, t_out / (ratio * eta), t_out * eta / ratio)
+    out = dict(col)
+    out[Channel.MOTOR_TORQUE] = np.where(moving, t_in, np.nan)
+    out[Channel.MOTOR_SPEED] = w_out * ratio
+    return out, moving
 
 
 def _cells(line: str) -> list[str]:

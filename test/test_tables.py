@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -233,3 +234,90 @@ def test_a_speed_law_flatter_than_the_vocabulary_allows_is_fitted_at_its_bound_a
     assert drag["params"]["p"] == pytest.approx(0.3, abs=1e-3) and drag["at_bound"] == ["p"]
     text = run_cli("calibrate", str(tmp_path / "flat.vtlm"), "--params", params).stdout
     assert "note: drag_speed: p = 0.3" in text and "at the bound of its range [0.3, 3.5] -- the data want a law" in text
+
+
+def test_an_output_side_efficiency_table_with_a_ratio_column_is_put_on_the_input_shaft(tmp_path, config):
+    """NREL ADVISOR's layout -- gear, ratio, output speed, output torque, efficiency (0 where the
+    shaft stands or carries nothing) -- read as it is: made by the whole model plus a 0.3 N·m drag
+    on the input shaft of two gears (written with pyarrow); calibrate finds the drag and nothing else."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    from rollergear_ros.model import evaluate_reference
+
+    rows = {"gear": [], "overall_ratio": [], "w_out": [], "T_out": [], "eta": []}
+    for gear, r in (("1", 3.0), ("2", 1.5)):
+        for w_in in np.arange(0.0, 301.0, 25.0):
+            for t_in in np.concatenate([np.arange(-100, 0, 10.0), [0.0], np.arange(10, 101, 10.0)]):
+                if w_in == 0 or t_in == 0:
+                    t_out, eta = t_in * r, 0.0  # ADVISOR's cells without power: efficiency 0
+                else:
+                    loss = abs(evaluate_reference(config.gearbox, t_in, w_in)["T_loss"]) + 0.3
+                    t_out = (t_in - loss) * r  # ω > 0: the loss opposes rotation
+                    eta = (t_out / r) / t_in if t_in > 0 else t_in / (t_out / r)
+                rows["gear"].append(gear)
+                rows["overall_ratio"].append(r)
+                rows["w_out"].append(w_in / r)
+                rows["T_out"].append(t_out)
+                rows["eta"].append(eta)
+    pacsv.write_csv(pa.table(rows), tmp_path / "advisor.csv")
+    cmap = tmp_path / "advisor.yaml"
+    cmap.write_text("format: steady_state\noutput_torque: {column: T_out, unit: N*m}\n"
+                    "output_speed: {column: w_out, unit: rad/s}\nefficiency: {column: eta, unit: '1'}\n"
+                    "ratio: {column: overall_ratio}\ngroup: {column: gear}\n")
+    from rollergear_ros.channelmap import load_channel_map
+
+    table = read_table(tmp_path / "advisor.csv", load_channel_map(cmap))
+    moving = (np.array(rows["w_out"]) != 0) & (np.array(rows["T_out"]) != 0)
+    assert len(table.loss_nm) == moving.sum() and table.dropped == (~moving).sum()
+    np.testing.assert_allclose(table.speed_rad_s, (np.array(rows["w_out"]) * np.array(rows["overall_ratio"]))[moving])
+    result = json.loads(run_cli("calibrate", str(tmp_path / "advisor.csv"), "--channels", str(cmap),
+                                "--json").stdout)
+    assert [e["name"] for e in result["effects"]] == ["drag_constant"]
+    assert result["effects"][0]["params"]["c"] == pytest.approx(0.3, rel=0.01)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("output_torque: {column: T, unit: N*m}\noutput_speed: {column: w, unit: rad/s}\n",
+     "a table of the output side needs output_torque, output_speed, efficiency and ratio (missing: efficiency, ratio)"),
+    ("motor_speed: {column: n, unit: rpm}\nloss_torque: {column: L, unit: N*m}\n", "no motor_torque channel"),
+    ("motor_torque: {column: T, unit: N*m}\nmotor_speed: {column: n, unit: rpm}\nloss_torque: {column: L, unit: N*m}\n"
+     "ratio: {col: r}\n", "ratio: expected a number > 0 or {column: NAME}"),
+])
+def test_maps_of_output_side_tables_are_checked(tmp_path, text, message):
+    from rollergear_ros.channelmap import load_channel_map
+
+    (tmp_path / "m.yaml").write_text("format: steady_state\n" + text)
+    with pytest.raises(InputFileError, match=re.escape(message)):
+        load_channel_map(tmp_path / "m.yaml")
+
+
+@needs_realdata
+def test_advisors_own_long_csv_is_read_by_its_provenance_feed_rule(tmp_path):
+    """The shared ADVISOR export as it is, through a channel map: every row on the input shaft as
+    PROVENANCE.md's feed rule says (computed here independently, row by row)."""
+    import csv as csvmod
+
+    from rollergear_ros.channelmap import load_channel_map
+
+    src = REALDATA / "advisor_vw_transaxle_effmap" / "tx_vw_eff_map_26_50_5_long.csv"
+    (tmp_path / "m.yaml").write_text(
+        "format: steady_state\noutput_torque: {column: output_torque_Nm, unit: N*m}\n"
+        "output_speed: {column: output_speed_rad_s, unit: rad/s}\nefficiency: {column: efficiency, unit: '1'}\n"
+        "ratio: {column: overall_ratio}\ngroup: {column: gear}\n")
+    table = read_table(src, load_channel_map(tmp_path / "m.yaml"))
+    expect = []
+    with src.open() as fh:
+        for row in csvmod.DictReader(fh):
+            r, w_o, t_o, eta = (float(row[k]) for k in ("overall_ratio", "output_speed_rad_s", "output_torque_Nm",
+                                                        "efficiency"))
+            if w_o == 0 or t_o == 0 or eta == 0:  # no power through: no input torque (dropped, counted)
+                continue
+            t_i = t_o / (r * eta) if t_o > 0 else t_o * eta / r
+            loss = abs(t_i) * (1 - eta) if t_o > 0 else abs(t_i) * (1 / eta - 1)
+            expect.append((w_o * r, t_i, loss, row["gear"]))
+    w, t, loss, gear = zip(*expect)
+    np.testing.assert_allclose(table.speed_rad_s, w, rtol=1e-12)
+    np.testing.assert_allclose(table.torque_nm, t, rtol=1e-12)
+    np.testing.assert_allclose(table.loss_nm, loss, rtol=1e-9, atol=1e-12)
+    assert list(table.group) == list(gear) and table.dropped == 6500 - len(expect)
