@@ -12,8 +12,8 @@ A channel map is a YAML file given as ``--channels MAP.yaml``::
     group: {column: gear}
 
 A steady-state table may give the output side instead of the motor's (output torque, output
-speed, efficiency and the ratio: NREL ADVISOR's maps).  Values are converted to SI as ``value_SI = (value·factor + offset)·scale`` (the offset only for
-temperatures).  Everything wrong in a map is one :class:`~.errors.InputFileError` line naming the
+speed, efficiency and the ratio: NREL ADVISOR's maps).  Values are converted to SI as
+``value_SI = (value·factor + offset)·scale`` (the offset only for temperatures).  Everything wrong in a map is one :class:`~.errors.InputFileError` line naming the
 map, the key and what is wrong.  No rclpy import.
 """
 

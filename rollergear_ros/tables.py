@@ -6,8 +6,8 @@ or the map's ``ratio``, or the gearbox's) as ``(T_in·ω_in − T_out·ω_out)/|
 ``efficiency`` (``|T|(1 − η)`` driving, ``|T|(1/η − 1)`` regenerating; rows at standstill or no
 load have none and drop); a ``group`` column keeps gearbox states apart, a ratio column gives each
 row's ratio.  A table of the output side -- output torque, output speed, efficiency and the ratio,
-as NREL ADVISOR's maps -- is put on the input shaft first (:func:`_input_side`).  And VECTO transmission loss maps (``.vtlm``), read by VECTO's own rules
-(``VectoCSVFile`` + ``TransmissionLossMapReader``): ``,`` delimiter, ``.`` decimal mark, lines
+as NREL ADVISOR's maps -- is put on the input shaft first (:func:`_input_side`).  And VECTO
+transmission loss maps (``.vtlm``), read by VECTO's own rules (``VectoCSVFile`` + ``TransmissionLossMapReader``): ``,`` delimiter, ``.`` decimal mark, lines
 starting with ``#`` are comments and a cell ends at ``#``; one header line whose ``[unit]`` parts
 name the units (rpm, Nm) -- a header of numbers means no header and the columns by position, as
 VECTO falls back to; the columns ``Input Speed`` [rpm], ``Input Torque`` [N·m] (negative:
