@@ -13,8 +13,8 @@ A channel map is a YAML file given as ``--channels MAP.yaml``::
 
 A steady-state table may give the output side instead of the motor's (output torque, output
 speed, efficiency and the ratio: NREL ADVISOR's maps).  Values are converted to SI as
-``value_SI = (value·factor + offset)·scale`` (the offset only for temperatures).  Everything wrong in a map is one :class:`~.errors.InputFileError` line naming the
-map, the key and what is wrong.  No rclpy import.
+``value_SI = (value·factor + offset)·scale`` (the offset only for temperatures).  Everything wrong
+in a map is one :class:`~.errors.InputFileError` line naming the map, the key and what is wrong.  No rclpy import.
 """
 
 from __future__ import annotations
