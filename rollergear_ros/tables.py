@@ -8,8 +8,8 @@ load have none and drop); a ``group`` column keeps gearbox states apart, a ratio
 row's ratio.  A table of the output side -- output torque, output speed, efficiency and the ratio,
 as NREL ADVISOR's maps -- is put on the input shaft first (:func:`_input_side`).  And VECTO
 transmission loss maps (``.vtlm``), read by VECTO's own rules (``VectoCSVFile`` +
-``TransmissionLossMapReader``): ``,`` delimiter, ``.`` decimal mark, lines starting with ``#`` are comments and a cell ends at ``#``; one header line whose ``[unit]`` parts
-name the units (rpm, Nm) -- a header of numbers means no header and the columns by position, as
+``TransmissionLossMapReader``): ``,`` delimiter, ``.`` decimal mark, lines starting with ``#``
+are comments and a cell ends at ``#``; one header line whose ``[unit]`` parts name the units (rpm, Nm) -- a header of numbers means no header and the columns by position, as
 VECTO falls back to; the columns ``Input Speed`` [rpm], ``Input Torque`` [N·m] (negative:
 overrun) and ``Torque Loss`` [N·m], input-referred, ≥ 0; further columns (``Eff``) ignored;
 at least four rows.  Bad files raise :class:`~.errors.InputFileError` with one line naming the
