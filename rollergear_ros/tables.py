@@ -1,19 +1,19 @@
 """Steady-state tables: one row per operating point, a dwell mean (no time series, no sensor noise).
 
-Two kinds.  CSV or Parquet with a channel map of ``format: steady_state`` (:mod:`.channelmap`):
-the measured loss from a ``loss_torque`` column, or from ``output_torque`` (with ``output_speed``,
-or the map's ``ratio``, or the gearbox's) as ``(T_in·ω_in − T_out·ω_out)/|ω_in|``, or from
-``efficiency`` (``|T|(1 − η)`` driving, ``|T|(1/η − 1)`` regenerating; rows at standstill or no
-load have none and drop); a ``group`` column keeps gearbox states apart, a ratio column gives each
-row's ratio.  A table of the output side -- output torque, output speed, efficiency and the ratio,
-as NREL ADVISOR's maps -- is put on the input shaft first (:func:`_input_side`).  And VECTO
-transmission loss maps (``.vtlm``), read by VECTO's own rules (``VectoCSVFile`` +
-``TransmissionLossMapReader``): ``,`` delimiter, ``.`` decimal mark, lines starting with ``#``
-are comments and a cell ends at ``#``; one header line whose ``[unit]`` parts name the units (rpm, Nm) -- a header of numbers means no header and the columns by position, as
-VECTO falls back to; the columns ``Input Speed`` [rpm], ``Input Torque`` [N·m] (negative:
-overrun) and ``Torque Loss`` [N·m], input-referred, ≥ 0; further columns (``Eff``) ignored;
-at least four rows.  Bad files raise :class:`~.errors.InputFileError` with one line naming the
-file, the line and what is wrong.  No rclpy import.
+Two kinds. CSV or Parquet with a channel map of ``format: steady_state`` (:mod:`.channelmap`): the
+measured loss from a ``loss_torque`` column, or from ``output_torque`` (with ``output_speed``, or
+the map's ``ratio``, or the gearbox's) as ``(T_in·ω_in − T_out·ω_out)/|ω_in|``, or from
+``efficiency`` (``|T|(1 − η)`` driving, ``|T|(1/η − 1)`` regenerating; rows at standstill or no load
+have none and drop); a ``group`` column keeps gearbox states apart, a ratio column gives each row's
+ratio. A table of the output side -- output torque, output speed, efficiency and the ratio, as NREL
+ADVISOR's maps -- is put on the input shaft first (:func:`_input_side`). And VECTO transmission loss
+maps (``.vtlm``), read by VECTO's own rules (``VectoCSVFile`` + ``TransmissionLossMapReader``):
+``,`` delimiter, ``.`` decimal mark, lines starting with ``#`` are comments and a cell ends at
+``#``; one header line whose ``[unit]`` parts name the units (rpm, Nm) -- a header of numbers means
+no header and the columns by position, as VECTO falls back to; the columns ``Input Speed`` [rpm],
+``Input Torque`` [N·m] (negative: overrun) and ``Torque Loss`` [N·m], input-referred, ≥ 0; further
+columns (``Eff``) ignored; at least four rows. Bad files raise :class:`~.errors.InputFileError` with
+one line naming the file, the line and what is wrong. No rclpy import.
 """
 
 from __future__ import annotations
