@@ -3,8 +3,8 @@
 Two kinds. CSV or Parquet with a channel map of ``format: steady_state`` (:mod:`.channelmap`): the
 measured loss from a ``loss_torque`` column, or from ``output_torque`` (with ``output_speed``, or
 the map's ``ratio``, or the gearbox's) as ``(T_in·ω_in − T_out·ω_out)/|ω_in|``, or from
-``efficiency`` (``|T|(1 − η)`` driving, ``|T|(1/η − 1)`` regenerating; rows at standstill or no load
-have none and drop); a ``group`` column keeps gearbox states apart, a ratio column gives each row's
+``efficiency`` (``|T|(1 − η)`` driving, ``|T|(1/η − 1)`` regenerating; rows of efficiency 0 -- no
+power through -- drop); a ``group`` column keeps gearbox states apart, a ratio column gives each row's
 ratio. A table of the output side -- output torque, output speed, efficiency and the ratio, as NREL
 ADVISOR's maps -- is put on the input shaft first (:func:`_input_side`). And VECTO transmission loss
 maps (``.vtlm``), read by VECTO's own rules (``VectoCSVFile`` + ``TransmissionLossMapReader``):
@@ -84,9 +84,8 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
         if not (r_rows[np.isfinite(r_rows)] > 0).all():
             raise InputFileError(f"{path}: ratio ({cmap.ratio_column}): a ratio that is not > 0")
         ratio = r_rows
-    moving = None
     if cmap.output_side:
-        col, moving = _input_side(path, col, cmap.ratio if cmap.ratio_column is None else ratio)
+        col = _input_side(path, col, cmap.ratio if cmap.ratio_column is None else ratio)
     torque, speed = col[Channel.MOTOR_TORQUE], col[Channel.MOTOR_SPEED]
     if "loss_torque" in col:
         loss = col["loss_torque"]
@@ -98,16 +97,14 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
             loss = (torque * speed - col[Channel.OUTPUT_TORQUE] * w_out) / np.abs(speed)
     else:
         eta = col["efficiency"]
-        if moving is None:
-            moving = (torque != 0) & (speed != 0)
-        bad = moving & ~((eta > 0) & (eta <= 1))  # no efficiency at standstill or no load: those rows drop
+        bad = np.isfinite(eta) & ((eta < 0) | (eta > 1))
         if bad.any():
             raise InputFileError(f"{path}: data row {int(np.flatnonzero(bad)[0]) + 1}: efficiency "
                                  f"{eta[bad][0]:.4g} is not in (0, 1] (after the map's unit)")
         driving = torque * speed > 0
         with np.errstate(divide="ignore", invalid="ignore"):
             loss = np.where(driving, np.abs(torque) * (1 - eta), np.abs(torque) * (1 / eta - 1))
-        loss = np.where(moving, loss, np.nan)
+        loss = np.where(eta > 0, loss, np.nan)  # efficiency 0: no power through, no loss to read (drops)
     first = sniff(path, cmap).first_data_line if path.suffix.lower() == ".csv" else 2  # after the header (and units)
     line = np.arange(len(torque), dtype=np.int64) + first
     ok = np.isfinite(torque) & np.isfinite(speed) & np.isfinite(loss)
@@ -124,7 +121,7 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
                             int(np.count_nonzero(~ok)))
 
 
-def _input_side(path: Path, col: dict[str, np.ndarray], ratio) -> tuple[dict[str, np.ndarray], np.ndarray]:
+def _input_side(path: Path, col: dict[str, np.ndarray], ratio) -> dict[str, np.ndarray]:
     """An output-side efficiency table on the input shaft: ``ω_in = ω_out·r``; ``T_in = T_out/(r·η)``
     driving (power flows out, ``T_out·ω_out > 0``), ``T_out·η/r`` overrunning.  Rows at standstill or
     without load, and rows of efficiency 0 (no power through: NREL ADVISOR writes 0 there and where
@@ -141,7 +138,7 @@ def _input_side(path: Path, col: dict[str, np.ndarray], ratio) -> tuple[dict[str
     out = dict(col)
     out[Channel.MOTOR_TORQUE] = np.where(moving, t_in, np.nan)
     out[Channel.MOTOR_SPEED] = w_out * ratio
-    return out, moving
+    return out
 
 
 def _cells(line: str) -> list[str]:
