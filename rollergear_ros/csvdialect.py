@@ -1,4 +1,4 @@
-"""How a CSV file is written: its delimiter, decimal mark and units row, found from its first lines.
+"""How a CSV file is written -- header line, delimiter, decimal mark, encoding, units row -- from its first lines.
 
 Rig DAQs and spreadsheets do not all write ``,``-separated files with ``.`` decimals.  A German
 export is ``;``-separated with decimal commas (``0,125``), a tab-separated one comes from a
