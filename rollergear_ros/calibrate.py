@@ -71,8 +71,7 @@ class FoundEffect:
         vocabulary lacks: the fit is the closest within it), else None."""
         if not self.at_bound:
             return None
-        effect = EFFECTS[self.name]
-        ranges = {effect.member: effect.member_bounds, effect.second_member: effect.second_bounds}
+        ranges = EFFECTS[self.name].profiled_ranges()
         said = ", ".join(f"{m} = {self.params[m]:.4g} at the bound of its range [{ranges[m][0]:g}, {ranges[m][1]:g}]"
                          for m in self.at_bound)
         return f"{self.name}: {said} -- the data want a law outside the vocabulary; this is the closest within it"
@@ -290,24 +289,18 @@ def calibrate(
 
 def _members_at_bound(name: str, params: dict[str, float]) -> list[str]:
     """Members within 0.1 % of their range's width of a bound (a bounded search stops just inside)."""
-    effect = EFFECTS[name]
-    out = []
-    for short, (lo, hi) in ((effect.member, effect.member_bounds), (effect.second_member, effect.second_bounds)):
-        if short is not None and min(abs(params[short] - lo), abs(params[short] - hi)) <= 1e-3 * (hi - lo):
-            out.append(short)
-    return out
+    return [short for short, (lo, hi) in EFFECTS[name].profiled_ranges().items()
+            if min(abs(params[short] - lo), abs(params[short] - hi)) <= 1e-3 * (hi - lo)]
 
 
 def _at_search_bound(found: FoundEffect) -> str | None:
     """Why a fit whose exponent or Vogel B/C stopped at the bound of its search is no estimate
     (the data wants a value the search does not allow: another law, or recordings of different rigs)."""
-    effect = EFFECTS[found.name]
-    for short, (lo, hi) in ((effect.member, effect.member_bounds), (effect.second_member, effect.second_bounds)):
-        if short is not None:
-            v = found.params[short]
-            if min(abs(v - lo), abs(v - hi)) <= 1e-6 * max(abs(lo), abs(hi), 1.0):
-                return (f"fitted value outside the physical range: {short} = {v:.4g} stopped at the bound of "
-                        f"its search [{lo:g}, {hi:g}]")
+    for short, (lo, hi) in EFFECTS[found.name].profiled_ranges().items():
+        v = found.params[short]
+        if min(abs(v - lo), abs(v - hi)) <= 1e-6 * max(abs(lo), abs(hi), 1.0):
+            return (f"fitted value outside the physical range: {short} = {v:.4g} stopped at the bound of "
+                    f"its search [{lo:g}, {hi:g}]")
     return None
 
 

@@ -178,6 +178,11 @@ class Effect:
     def parameter(self, short: str) -> EffectParameter:
         return next(p for p in self.parameters if p.short == short)
 
+    def profiled_ranges(self) -> dict[str, tuple[float, float]]:
+        """Short name -> search bounds of each nonlinear parameter ``calibrate`` profiles."""
+        pairs = ((self.member, self.member_bounds), (self.second_member, self.second_bounds))
+        return {short: bounds for short, bounds in pairs if short is not None}
+
     def defaults(self) -> dict[str, float]:
         """Short name -> value in the parameter file's defaults."""
         return {p.short: p.default for p in self.parameters}
