@@ -74,39 +74,35 @@ def read_table(path: str | Path, cmap: ChannelMap | None = None, ratio: float | 
 
 
 def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadyStateTable:
-    from .csvdialect import sniff
     from .timeseries import arrow_table, numeric_column
 
-    table = arrow_table(path, cmap)
+    table, first_line = arrow_table(path, cmap)
     col = {name: spec.to_si(numeric_column(path, name, spec, table)) for name, spec in cmap.channels.items()}
-    if cmap.ratio_column is not None:
-        r_rows = numeric_column(path, "ratio", ChannelSpec("ratio", cmap.ratio_column, "1"), table)
-        if not (r_rows[np.isfinite(r_rows)] > 0).all():
+    if cmap.ratio_column is not None:  # each row's ratio
+        ratio = numeric_column(path, "ratio", ChannelSpec("ratio", cmap.ratio_column, "1"), table)
+        if not (ratio[np.isfinite(ratio)] > 0).all():
             raise InputFileError(f"{path}: ratio ({cmap.ratio_column}): a ratio that is not > 0")
-        ratio = r_rows
+    else:
+        ratio = cmap.ratio or ratio
     if cmap.output_side:
-        col = _input_side(path, col, cmap.ratio if cmap.ratio_column is None else ratio)
+        _check_efficiency(path, col["efficiency"])
+        col = _input_side(col, ratio)
     torque, speed = col[Channel.MOTOR_TORQUE], col[Channel.MOTOR_SPEED]
     if "loss_torque" in col:
         loss = col["loss_torque"]
     elif Channel.OUTPUT_TORQUE in col:
-        r = ratio if cmap.ratio_column is not None else (cmap.ratio or ratio)
-        w_out = col.get(Channel.OUTPUT_SPEED, speed / r if r is not None and np.all(np.asarray(r) != 0)
+        w_out = col.get(Channel.OUTPUT_SPEED, speed / ratio if ratio is not None and np.all(np.asarray(ratio) != 0)
                         else np.full(len(speed), np.nan))
         with np.errstate(divide="ignore", invalid="ignore"):
             loss = (torque * speed - col[Channel.OUTPUT_TORQUE] * w_out) / np.abs(speed)
     else:
         eta = col["efficiency"]
-        bad = np.isfinite(eta) & ((eta < 0) | (eta > 1))
-        if bad.any():
-            raise InputFileError(f"{path}: data row {int(np.flatnonzero(bad)[0]) + 1}: efficiency "
-                                 f"{eta[bad][0]:.4g} is not in (0, 1] (after the map's unit)")
+        _check_efficiency(path, eta)
         driving = torque * speed > 0
         with np.errstate(divide="ignore", invalid="ignore"):
             loss = np.where(driving, np.abs(torque) * (1 - eta), np.abs(torque) * (1 / eta - 1))
         loss = np.where(eta > 0, loss, np.nan)  # efficiency 0: no power through, no loss to read (drops)
-    first = sniff(path, cmap).first_data_line if path.suffix.lower() == ".csv" else 2  # after the header (and units)
-    line = np.arange(len(torque), dtype=np.int64) + first
+    line = np.arange(len(torque), dtype=np.int64) + first_line
     ok = np.isfinite(torque) & np.isfinite(speed) & np.isfinite(loss)
     if not ok.any():
         raise InputFileError(f"{path}: no row with finite torque, speed and loss (a loss from output torque needs "
@@ -121,16 +117,21 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
                             int(np.count_nonzero(~ok)))
 
 
-def _input_side(path: Path, col: dict[str, np.ndarray], ratio) -> dict[str, np.ndarray]:
+def _check_efficiency(path: Path, eta: np.ndarray) -> None:
+    """An efficiency outside [0, 1] after the map's unit is one line naming the row (0: no power
+    through, the row drops; empty: no row)."""
+    bad = np.isfinite(eta) & ((eta < 0) | (eta > 1))
+    if bad.any():
+        raise InputFileError(f"{path}: data row {int(np.flatnonzero(bad)[0]) + 1}: efficiency "
+                             f"{eta[bad][0]:.4g} is not in [0, 1] (after the map's unit)")
+
+
+def _input_side(col: dict[str, np.ndarray], ratio) -> dict[str, np.ndarray]:
     """An output-side efficiency table on the input shaft: ``ω_in = ω_out·r``; ``T_in = T_out/(r·η)``
     driving (power flows out, ``T_out·ω_out > 0``), ``T_out·η/r`` overrunning.  Rows at standstill or
     without load, and rows of efficiency 0 (no power through: NREL ADVISOR writes 0 there and where
     its regression's loss exceeds the power), have no input torque: they drop (counted)."""
     t_out, w_out, eta = col[Channel.OUTPUT_TORQUE], col[Channel.OUTPUT_SPEED], col["efficiency"]
-    bad = np.isfinite(eta) & ((eta < 0) | (eta > 1))
-    if bad.any():
-        raise InputFileError(f"{path}: data row {int(np.flatnonzero(bad)[0]) + 1}: efficiency "
-                             f"{eta[bad][0]:.4g} is not in [0, 1] (after the map's unit)")
     moving = (t_out != 0) & (w_out != 0) & (eta > 0)
     driving = t_out * w_out > 0
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -80,7 +80,8 @@ def read_series(path: str | Path, cmap: ChannelMap) -> dict[str, Series]:
 
 # ------------------------------------------------------------------------------------ CSV / Parquet
 def arrow_table(path: Path, cmap: ChannelMap):
-    """The map's columns of a CSV or Parquet file as a ``pyarrow.Table`` (a missing column: one line).
+    """The map's columns of a CSV or Parquet file as a ``pyarrow.Table`` (a missing column: one line),
+    and the line number of its first data row (for messages; 2 for Parquet: after a header).
 
     A CSV's header line, delimiter, decimal mark, encoding and units row are found by
     :func:`~.csvdialect.sniff`."""
@@ -100,6 +101,7 @@ def arrow_table(path: Path, cmap: ChannelMap):
                                    convert_options=convert)
         except pa.ArrowInvalid as exc:
             raise InputFileError(f"{path}: {exc}") from None
+        first_line = dialect.first_data_line
     else:
         import pyarrow.parquet as pq
 
@@ -109,9 +111,10 @@ def arrow_table(path: Path, cmap: ChannelMap):
             raise InputFileError(f"{path}: not a Parquet file ({exc})") from None
         _require(path, cmap, available)
         table = pq.read_table(path, columns=wanted)
+        first_line = 2
     if table.num_rows == 0:
         raise InputFileError(f"{path}: no data rows (only the column names)")
-    return table
+    return table, first_line
 
 
 def numeric_column(path: Path, name: str, spec: ChannelSpec, table) -> np.ndarray:
@@ -137,7 +140,7 @@ def _is_number(cell: str) -> bool:
 
 
 def _read_arrow(path: Path, cmap: ChannelMap) -> dict[str, Series]:
-    table = arrow_table(path, cmap)
+    table, _ = arrow_table(path, cmap)
     t_col = table.column(cmap.time.column)
     t_valid = ~np.asarray(t_col.is_null())
     t_ns = _time_ns(path, cmap.time, t_col)
