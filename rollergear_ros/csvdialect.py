@@ -32,14 +32,13 @@ from pathlib import Path
 from .channelmap import ChannelMap, unit_matches
 from .errors import InputFileError
 
-__all__ = ["CsvDialect", "DELIMITERS", "sniff"]
+__all__ = ["CsvDialect", "DELIMITERS", "is_number", "sniff"]
 
 DELIMITERS = (",", ";", "\t", "|")
 SNIFF_LINES = 20  #: data lines looked at (after the header)
 PREAMBLE_LINES = 100  #: lines searched for the header line
 _SNIFF_BYTES = 1 << 16
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d*,\d+(?:[eE][+-]?\d+)?$")
-_DECIMAL_POINT = re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$")
 
 
 @dataclass(frozen=True)
@@ -111,11 +110,13 @@ def _unit_text(cell: str) -> str:
     return cell
 
 
-def _is_number(cell: str, decimal_point: str) -> bool:
-    cell = cell.strip()
-    if decimal_point == ",":
-        return bool(_DECIMAL_COMMA.match(cell)) or bool(re.match(r"^[+-]?\d+$", cell))
-    return bool(_DECIMAL_POINT.match(cell)) or cell.lower() in ("nan", "inf", "-inf", "+inf")
+def is_number(cell: str, decimal_point: str = ".") -> bool:
+    """Whether a CSV cell is a number (with ``decimal_point`` ``,`` a decimal comma, or a point)."""
+    try:
+        float(cell.replace(",", ".") if decimal_point == "," else cell)
+    except ValueError:
+        return False
+    return True
 
 
 def sniff(path: str | Path, cmap: ChannelMap | None = None) -> CsvDialect:
@@ -144,7 +145,7 @@ def sniff(path: str | Path, cmap: ChannelMap | None = None) -> CsvDialect:
     if data:
         wanted = [header.index(c) for c in (cmap.columns() if cmap else header) if c in header]
         second = data[0]
-        if wanted and not any(_is_number(second[i], decimal_point) for i in wanted) \
+        if wanted and not any(is_number(second[i], decimal_point) for i in wanted) \
                 and any(second[i].strip() for i in wanted):
             units = {header[i]: _unit_text(second[i]) for i in range(len(header))}
     dialect = CsvDialect(delimiter, decimal_point, encoding, tuple(header), units, start)

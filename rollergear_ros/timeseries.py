@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .channelmap import ChannelMap, ChannelSpec, unit_matches
-from .csvdialect import sniff
+from .csvdialect import is_number, sniff
 from .errors import InputFileError
 from .interface import Channel
 
@@ -125,18 +125,10 @@ def numeric_column(path: Path, name: str, spec: ChannelSpec, table) -> np.ndarra
     if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type) or pa.types.is_null(col.type)):
         if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
             for row, cell in enumerate(col.to_pylist(), start=1):
-                if cell is not None and not _is_number(cell):
+                if cell is not None and not is_number(cell, ","):
                     raise InputFileError(f"{path}: {name} ({spec.column}): data row {row}: {cell!r} is not a number")
         raise InputFileError(f"{path}: {name} ({spec.column}): not numbers (column type {col.type})")
     return col.to_numpy(zero_copy_only=False).astype(np.float64)
-
-
-def _is_number(cell: str) -> bool:
-    try:
-        float(cell.replace(",", "."))
-    except ValueError:
-        return False
-    return True
 
 
 def _read_arrow(path: Path, cmap: ChannelMap) -> dict[str, Series]:
