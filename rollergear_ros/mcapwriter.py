@@ -306,10 +306,8 @@ class ChunkedMcapWriter:
         from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
 
         try:
-            try:
-                self.flush_chunk()
-            finally:
-                self._drain_quietly()
+            self.flush_chunk()
+            self._drain()  # on an error, the pool's shutdown below still waits for the other chunks
             rb = RecordBuilder()
             DataEnd(data_section_crc=0).write(rb)
             self._fh.write(rb.end())
@@ -368,18 +366,6 @@ class ChunkedMcapWriter:
 
             os.fsync(self._fh.fileno())
             self._fh.close()
-
-    def _drain_quietly(self) -> None:
-        """:meth:`_drain`, raising the first error only after every pending chunk is done (so that
-        the summary is written after the chunks that made it to the file)."""
-        first = None
-        while self._pending:
-            try:
-                self._pending.pop(0).result()
-            except Exception as exc:  # noqa: BLE001 - re-raised below, once the file is consistent
-                first = first or exc
-        if first is not None:
-            raise first
 
 
 class TimeOrderBuffer:
