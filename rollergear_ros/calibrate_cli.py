@@ -125,6 +125,14 @@ def _error_after_warnings(result, assume: list[str]) -> list[str]:
     return lines
 
 
+def add_assume_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    """``--assume EFFECT`` (repeatable), for ``calibrate`` and ``fleet calibrate``."""
+    p.add_argument("--assume", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
+                   help=f"{prefix}when the data cannot tell EFFECT from another effect, take it as EFFECT and write "
+                   "it (what you know of the rig, e.g. drag_constant when the torque sensors were zeroed at "
+                   "standstill); repeatable")
+
+
 def register_calibrate(sub, with_params) -> None:
     p = with_params(
         sub.add_parser(
@@ -147,10 +155,7 @@ def register_calibrate(sub, with_params) -> None:
         help="practical minimum effect size (RMS N·m); default from the data",
     )
     p.add_argument("--block-s", type=float, default=0.25, help="averaging block length [s]")
-    p.add_argument("--assume", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
-                   help="when the data cannot tell EFFECT from another effect, take it as EFFECT and write it (what "
-                   "you know of the rig, e.g. drag_constant when the torque sensors were zeroed at standstill); "
-                   "repeatable")
+    add_assume_option(p)
     add_channels_option(p)
     add_topic_options(p)
     p.set_defaults(func=cmd_calibrate)

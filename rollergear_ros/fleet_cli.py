@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from .calibrate_cli import add_assume_option
 from .cli import config_from_args
-from .effects import EFFECTS
 from .errors import UsageError
 from .fleet import SLICE_MESSAGES
 from .paths import check_output_folder
@@ -72,9 +72,7 @@ def register_fleet(sub, with_params) -> None:
                    help="gearbox identity: metadata gearbox_id, else the folder (auto); or only one of them")
     p.add_argument("--window-days", type=float, default=1.0, metavar="DAYS",
                    help="calibration window (default 1 day)")
-    p.add_argument("--assume", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
-                   help="calibrate: when the data cannot tell EFFECT from another effect, take it as EFFECT "
-                   "(as `rollergear calibrate --assume`); repeatable")
+    add_assume_option(p, prefix="calibrate: ")
     p.add_argument("--slice-messages", type=int, default=SLICE_MESSAGES, metavar="N",
                    help="replay a recording of more messages in time slices of about N, one task each "
                    f"(default {SLICE_MESSAGES:,}: ~10 s a task on a 2-core machine of 2026)")
