@@ -251,13 +251,14 @@ def _mdf_channel(path: Path, mdf, name: str, column: str) -> tuple[int, int]:
         raise InputFileError(f"{path}: no channel {column!r} for {name} (the file has: {', '.join(available[:20])}"
                              f"{' …' if len(available) > 20 else ''})")
 
+    def acq_name(g: int) -> str:
+        return getattr(mdf.groups[g].channel_group, "acq_name", "") or ""
+
     def label(g: int) -> str:
-        acq = getattr(mdf.groups[g].channel_group, "acq_name", "") or ""
-        return f"{g} {acq!r}" if acq else str(g)
+        return f"{g} {acq_name(g)!r}" if acq_name(g) else str(g)
 
     if wanted is not None:
-        chosen = [(g, i) for g, i in occurrences
-                  if wanted == str(g) or wanted == (getattr(mdf.groups[g].channel_group, "acq_name", "") or "")]
+        chosen = [(g, i) for g, i in occurrences if wanted in (str(g), acq_name(g))]
         if len(chosen) != 1:
             raise InputFileError(f"{path}: {name}: no single channel {column!r} in data group {wanted!r} (it is in "
                                  f"{', '.join(label(g) for g, _ in occurrences)})")
