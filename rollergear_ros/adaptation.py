@@ -190,8 +190,11 @@ class ResidualStats:
         a = self.alpha
         w = a * (1.0 - a) ** np.arange(k - 1, -1, -1, dtype=float)
         decay = (1.0 - a) ** k
-        self.mean = decay * self.mean + float(np.dot(w, x))
-        self.mean_sq = decay * self.mean_sq + float(np.dot(w, x * x))
+        # sums, not np.dot: a BLAS dot starts OpenBLAS's threads, which then spin on the other core
+        # for a while after each call and take it from the writer's compression thread
+        wx = w * x
+        self.mean = decay * self.mean + float(wx.sum())
+        self.mean_sq = decay * self.mean_sq + float((wx * x).sum())
         self.count += k
 
     @property

@@ -463,14 +463,18 @@ class BagWriter:
     (:func:`offered_qos_yaml`), stored as rosbag2 does.  :meth:`close` adds rosbag2's own metadata
     record (``rosbag2``: ``serialized_metadata``), so ``ros2 bag info`` shows topics, counts and QoS.
     ``background``: full chunks are compressed and written by a second thread (bulk writers).
+    ``replace_atomically`` (default): written beside ``path`` and renamed onto it when closed
+    without an error (:mod:`~rollergear_ros.atomic`); a live recorder passes False.
     """
 
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, time_ordered: bool = True,
-                 offered_qos: Mapping[str, str] | None = None, background: bool = False) -> None:
+                 offered_qos: Mapping[str, str] | None = None, background: bool = False,
+                 replace_atomically: bool = True) -> None:
         from .mcapwriter import ChunkedMcapWriter, TimeOrderBuffer
 
         self.path = Path(path)
-        self._writer = ChunkedMcapWriter(self.path, chunk_size=chunk_size, background=background)
+        self._writer = ChunkedMcapWriter(self.path, chunk_size=chunk_size, background=background,
+                                         replace_atomically=replace_atomically)
         self._held = TimeOrderBuffer(self._writer) if time_ordered else None
         self._sink = self._held if time_ordered else self._writer
         self._schema_ids: dict[str, int] = {}
@@ -532,16 +536,20 @@ class BagWriter:
         """An MCAP metadata record (string key/values)."""
         self._writer.add_metadata(name, data)
 
-    def close(self) -> None:
+    def close(self, commit: bool = True) -> None:
+        """Write what is held, rosbag2's metadata record and the summary; ``commit=False``: the
+        command failed -- a file replaced atomically is not put in place (see ``replace_atomically``)."""
         if self.closed:
             return
         self.closed = True
+        ok = False
         try:
             if self._held is not None:
                 self._held.release()
             self._writer.add_metadata(ROSBAG2_METADATA, {"serialized_metadata": self._rosbag2_metadata()})
+            ok = True
         finally:
-            self._writer.close()
+            self._writer.close(commit=commit and ok)
 
     def _rosbag2_metadata(self) -> str:
         """rosbag2's ``BagMetadata`` (version 9, Jazzy) of what was written, as YAML."""
@@ -568,5 +576,5 @@ class BagWriter:
     def __enter__(self) -> BagWriter:
         return self
 
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
+    def __exit__(self, exc_type: Any, *exc: Any) -> None:
+        self.close(commit=exc_type is None)

@@ -9,12 +9,13 @@ from pathlib import Path
 
 from .cli import config_from_args
 from .effects import EFFECTS
-from .paths import check_output_file, check_output_folder, refuse_overwriting_inputs
+from .paths import Output, check_outputs
 from .progress import TimedProgress
 from .replay_cli import add_channels_option, add_topic_options, topics_from_args
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
+    from .atomic import write_text
     from .calibrate import calibrate, calibrated_yaml
     from .channelmap import load_channel_map
     from .importer import as_mcap
@@ -23,9 +24,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from .samples import load_samples, power_balance_warning, table_samples
     from .tables import is_table
 
-    refuse_overwriting_inputs([*args.bags, args.params, args.channels], {"--out": args.out})
-    check_output_file("--out", args.out)  # now, not after the whole analysis
-    check_output_folder("--report", args.report)
+    check_outputs([*args.bags, args.params, args.channels],  # now, not after the whole analysis
+                  [Output("--out", args.out, "yaml"), Output("--report", args.report, "folder")])
     config = config_from_args(args)
 
     def log(msg: str) -> None:
@@ -64,8 +64,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     for line in _error_after_warnings(result, args.assume):
         warn(line)
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(calibrated_yaml(result, args.bags))
+        write_text(args.out, calibrated_yaml(result, args.bags))
     report = write_report(result, data, Path(args.report), args.bags) if args.report else None
     if args.json:
         sys.stdout.write(json.dumps(result.to_json()) + "\n")

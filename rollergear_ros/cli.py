@@ -19,7 +19,7 @@ import numpy as np
 from .errors import InputFileError, RollergearError, UsageError
 from .interface import package_version
 from .params import Config, load_config
-from .paths import check_input_file, check_output_file, check_output_folder, refuse_overwriting_inputs
+from .paths import Output, check_input_file, check_outputs
 
 DEFAULT_PARAMS = Path(__file__).resolve().parent.parent / "config" / "gearbox.yaml"
 
@@ -138,7 +138,7 @@ def _read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def cmd_figures(args: argparse.Namespace) -> int:
     from .figures import write_figures
 
-    check_output_folder("--out", args.out)
+    check_outputs([args.params], [Output("--out", args.out, "folder")])
     paths = write_figures(config_from_args(args), Path(args.out))
     for p in paths:
         print(p)
@@ -154,11 +154,17 @@ def cmd_map(args: argparse.Namespace) -> int:
     speeds = grid(*(args.speed_rpm or (m.speed_min_rpm, m.last_speed_rpm(config.gearbox), m.speed_step_rpm)))
     torques = grid(*(args.torque_nm or (m.torque_min_nm, m.torque_max_nm, m.torque_step_nm)))
     out = Path(args.out)
-    refuse_overwriting_inputs([args.params, *args.recording], {"--out": out})
-    check_output_file("--out", out)
+    both = args.both_directions or m.both_directions
+    outputs = [Output("--out", out, "vtlm")] + ([Output("its picture", out.with_suffix(".png"), "png")]
+                                                 if not args.no_plot else [])
+    if both:
+        rev = reverse_path(out)
+        outputs += [Output("the reverse map", rev, "vtlm")] + ([Output("its picture", rev.with_suffix(".png"), "png")]
+                                                                if not args.no_plot else [])
+    check_outputs([args.params, *args.recording], outputs)
     params_path = Path(args.params) if args.params else default_params_path()
     maps = [(out, build_map(config, speeds, torques, args.oil_temperature_c))]
-    if args.both_directions or m.both_directions:
+    if both:
         maps.append((reverse_path(out), build_map(config, speeds, torques, args.oil_temperature_c, reverse=True)))
     for path, loss_map in maps:
         problems = vtlm_problems(loss_map)

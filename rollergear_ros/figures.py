@@ -6,11 +6,13 @@ Pure numpy/matplotlib over :class:`~rollergear_ros.model.LossModel`; no rclpy.
 from __future__ import annotations
 
 import csv
+import io
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import save_figure, write_text
 from .interface import RPM_PER_RAD_S
 from .model import LossModel
 from .params import Config, GearboxParams, validate
@@ -90,15 +92,18 @@ def write_figures(config: Config, out_dir: Path) -> list[Path]:
             ax.legend()
         fig.tight_layout()
         path = out_dir / f"fig{int(key[3:]):02d}.png"
-        fig.savefig(path)
-        plt.close(fig)
+        try:
+            save_figure(fig, path)
+        finally:
+            plt.close(fig)
         paths.append(path)
     csv_path = out_dir / "figures.csv"
-    with csv_path.open("w", newline="") as fh:
-        wr = csv.writer(fh)
-        cols = [(k, lab) for k in ("fig6", "fig7", "fig8", "fig9", "fig10") for lab in curves[k]]
-        wr.writerow(["torque_nm"] + [f"{k}:{lab}" for k, lab in cols])
-        for i in range(len(t)):
-            wr.writerow([f"{t[i]:.6g}"] + [f"{curves[k][lab][i]:.8g}" for k, lab in cols])
+    buf = io.StringIO(newline="")
+    wr = csv.writer(buf)
+    cols = [(k, lab) for k in ("fig6", "fig7", "fig8", "fig9", "fig10") for lab in curves[k]]
+    wr.writerow(["torque_nm"] + [f"{k}:{lab}" for k, lab in cols])
+    for i in range(len(t)):
+        wr.writerow([f"{t[i]:.6g}"] + [f"{curves[k][lab][i]:.8g}" for k, lab in cols])
+    write_text(csv_path, buf.getvalue())
     paths.append(csv_path)
     return paths

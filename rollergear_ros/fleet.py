@@ -28,6 +28,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from .atomic import replacing
 from .errors import RollergearError, UsageError
 from .interface import Metadata
 from .params import Config, config_to_yaml
@@ -287,9 +288,8 @@ def _write_table(path: Path, rows: list[dict]) -> None:
     for r in rows:
         columns.update(dict.fromkeys(r))
     table = pa.Table.from_pylist([{c: r.get(c) for c in columns} for r in rows])
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    with replacing(path) as partial:
+        pq.write_table(table, partial)
 
 
 @contextmanager

@@ -10,7 +10,7 @@ from .calibrate_cli import add_assume_option
 from .cli import config_from_args
 from .errors import UsageError
 from .fleet import SLICE_MESSAGES
-from .paths import check_output_folder
+from .paths import Output, check_outputs
 
 DAY_S = 86_400
 
@@ -30,7 +30,7 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     def note(msg: str) -> None:
         print(msg, file=sys.stderr)
 
-    check_output_folder("--out", args.out)
+    check_outputs([], [Output("--out", args.out, "folder")])
     recs = discover(args.logs, args.group_by)
     out = Path(args.out)
     note(f"{len(recs)} recordings of {len({r.gearbox_id for r in recs})} gearboxes")

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .atomic import save_figure, write_text
 from .effects import EFFECTS
 from .errors import RollergearError
 from .fleet import CALIBRATE_TABLE, FLEET_TABLE, read_table
@@ -143,8 +144,10 @@ def write_fleet_report(out_dir: Path) -> Path:
             ax.grid(alpha=0.3)
         fig.autofmt_xdate()
         fig.tight_layout()
-        fig.savefig(out_dir / "drift.png")
-        plt.close(fig)
+        try:
+            save_figure(fig, out_dir / "drift.png")
+        finally:
+            plt.close(fig)
         lines.append("![drift](drift.png)\n")
     if replay_rows:
         ok = [r for r in replay_rows if r.get("status") == "ok"]
@@ -159,8 +162,10 @@ def write_fleet_report(out_dir: Path) -> Path:
             ax.set_ylabel("recordings")
             ax.set_title(f"Efficiency over the fleet ({eta.size} recordings)")
             fig.tight_layout()
-            fig.savefig(out_dir / "efficiency.png")
-            plt.close(fig)
+            try:
+                save_figure(fig, out_dir / "efficiency.png")
+            finally:
+                plt.close(fig)
             lines.append(f"{kind.capitalize()} efficiency over the fleet: {100 * eta.mean():.2f} % (recordings from "
                          f"{100 * eta.min():.2f} to {100 * eta.max():.2f} %).\n\n![efficiency](efficiency.png)\n")
     lines += ["## Per gearbox\n", "| gearbox | windows | latest verdict | latest held-out RMSE [N·m] | map |",
@@ -174,7 +179,7 @@ def write_fleet_report(out_dir: Path) -> Path:
         lines += ["\n## Failed\n"] + [f"- {r.get('recording') or r.get('gearbox_id')}: {r.get('reason')}"
                                       for r in failed]
     report = out_dir / "report.md"
-    report.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text(report, "\n".join(lines) + "\n")
     return report
 
 

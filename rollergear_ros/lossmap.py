@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import save_figure, write_text
 from .errors import UsageError
 from .interface import RPM_PER_RAD_S, package_version
 from .operating_points import PointLosses, evaluate_points
@@ -132,15 +132,9 @@ def map_comments(config: Config, params_path: Path | None, temperature_c: float 
 
 def write_vtlm(loss_map: LossMap, path: Path, comments: Sequence[str] = ()) -> None:
     """Write the map atomically (a reader never sees half a file): comments, header, rows."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
     lines = list(comments) + [",".join(VECTO_HEADER)]
     lines += [f"{s:.6g},{t:.6g},{loss:.6g}" for s, t, loss in loss_map.rows()]
-    try:
-        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def vtlm_problems(loss_map: LossMap) -> list[str]:
@@ -221,6 +215,7 @@ def plot_map(loss_map: LossMap, png_path: Path, min_torque_nm: float) -> None:
         ax.text(0.98, 0.03, "overrun (regenerating)", transform=ax.transAxes, ha="right", va="bottom", fontsize=8,
                 color="w", bbox={"facecolor": "0.2", "alpha": 0.5, "linewidth": 0})
     fig.tight_layout()
-    png_path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png_path)
-    plt.close(fig)
+    try:
+        save_figure(fig, png_path)
+    finally:
+        plt.close(fig)

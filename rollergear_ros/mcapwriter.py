@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import struct
 import zlib
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -16,35 +15,116 @@ from mcap.opcode import Opcode
 from mcap.well_known import Profile
 from mcap.writer import MCAP0_MAGIC as MAGIC
 
+from . import atomic
 from .fastmcap import _MSG_FIXED, _MSG_HEAD, OP_MESSAGE
 
 _MAX_PENDING = 4  #: chunks waiting for the background thread before the caller waits too
 
 
-@contextmanager
-def _named(path: Path):
-    """OSErrors of writes (a full disk: ENOSPC carries no file name) name the file written."""
-    try:
-        yield
-    except OSError as exc:
-        if exc.filename is not None:
-            raise
-        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
-
-
-def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> np.ndarray:
-    """Message records (one row each, sequence numbers left 0) for payloads of equal length."""
+def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray,
+                 sequence: np.ndarray | None = None) -> np.ndarray:
+    """Message records (one row each) for payloads of equal length; ``sequence`` None leaves 0."""
     n, plen = payload.shape
     rows = np.empty((n, 9 + _MSG_FIXED + plen), dtype=np.uint8)
     rows[:, 0] = OP_MESSAGE
     rows[:, 1:9] = np.frombuffer(struct.pack("<Q", _MSG_FIXED + plen), dtype=np.uint8)
     rows[:, 9:11] = np.ascontiguousarray(channel_id, dtype="<u2").view(np.uint8).reshape(n, 2)
-    rows[:, 11:15] = 0
+    if sequence is None:
+        rows[:, 11:15] = 0
+    else:
+        rows[:, 11:15] = (sequence & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
     lt = np.ascontiguousarray(log_time, dtype="<i8").view(np.uint8).reshape(n, 8)
     rows[:, 15:23] = lt
     rows[:, 23:31] = lt
     rows[:, 31:] = payload
     return rows
+
+
+def by_channel(ids: np.ndarray) -> list[tuple[int, np.ndarray | None]]:
+    """Each channel in ``ids`` with the positions of its messages, ascending (None: all of them)."""
+    if ids[0] == ids[-1] and (ids == ids[0]).all():
+        return [(int(ids[0]), None)]
+    order = np.argsort(ids.astype(np.uint16), kind="stable")  # channel ids are 16-bit: a radix sort
+    counts = np.bincount(ids)
+    present = np.flatnonzero(counts)
+    return list(zip(present.tolist(), np.split(order, np.cumsum(counts[present])[:-1])))
+
+
+def interleave(group: np.ndarray, rows: dict[int, np.ndarray], offsets: np.ndarray, size: int,
+               period_hint: list[int] | None = None) -> np.ndarray:
+    """The bytes of records of several widths in the order ``group`` gives: record ``i`` is the next
+    unused row of ``rows[group[i]]`` and starts at ``offsets[i]`` (``size`` bytes in all).
+
+    A replay's output repeats one pattern per sample (four Float64 messages, a stamped estimate,
+    the copied inputs): where the sequence of ``group`` repeats with a period, the bytes are a 2-D
+    array of one period per row, and each slot of the pattern is copied as one strided column
+    block; the rest (the messages that break the pattern) are scattered byte by byte.
+    ``period_hint``: a one-element list with the period found last time (tried first, updated).
+    """
+    out = np.empty(size, dtype=np.uint8)
+    n = len(group)
+    rank = np.empty(n, dtype=np.int64)  # index of each record among its group's rows
+    for g in rows:
+        where = np.flatnonzero(group == g)
+        rank[where] = np.arange(len(where))
+    done = np.zeros(n, dtype=bool)
+    plans: dict[bytes, list[tuple[int, int, int, int, int]]] = {}
+    for m0, m1, period in _periodic_stretches(group, period_hint):
+        motif = group[m0:m0 + period]
+        plan = plans.get(motif.tobytes())
+        if plan is None:  # the motif's runs of one group: (first slot, slots, group, its rows per period, place)
+            cuts = np.flatnonzero(np.diff(motif)) + 1
+            plan = plans[motif.tobytes()] = [
+                (j, j_end - j, int(motif[j]), int(np.count_nonzero(motif == motif[j])),
+                 int(np.count_nonzero(motif[:j] == motif[j])))
+                for j, j_end in zip([0, *cuts.tolist()], [*cuts.tolist(), period])]
+        per_bytes = int(offsets[m0 + period] - offsets[m0])  # m1 - m0 >= 2 periods
+        k = (m1 - m0) // period
+        block = out[offsets[m0]:offsets[m0] + k * per_bytes].reshape(k, per_bytes)
+        for j, length, g, count, slot in plan:
+            width = rows[g].shape[1]
+            first = int(rank[m0 + j]) - slot  # the stretch's first row of group g
+            src = rows[g][first:first + k * count].reshape(k, count * width)
+            col = int(offsets[m0 + j] - offsets[m0])
+            block[:, col:col + length * width] = src[:, slot * width:(slot + length) * width]
+        done[m0:m1] = True
+    for g in rows:
+        where = np.flatnonzero((group == g) & ~done)
+        if len(where):
+            width = rows[g].shape[1]
+            out[offsets[where, None] + np.arange(width)] = rows[g][rank[where]]
+    return out
+
+
+def _periodic_stretches(group: np.ndarray, period_hint: list[int] | None = None, max_period: int = 32,
+                        min_repeats: int = 4):
+    """(start, stop, period) of the stretches of ``group`` that repeat a pattern ``period`` long at
+    least ``min_repeats`` times (the period that covers the most of the sequence; ``period_hint``
+    as in :func:`interleave`)."""
+    probe = group[:1024]  # the period is chosen on the first messages, then applied to all
+    hint = period_hint[0] if period_hint else 0
+    if 0 < hint < len(probe) and np.count_nonzero(probe[hint:] == probe[:-hint]) >= 0.9 * (len(probe) - hint):
+        best = hint
+    else:
+        best, best_count = 0, -1
+        for period in range(1, min(max_period, len(probe) // min_repeats) + 1):
+            count = int(np.count_nonzero(probe[period:] == probe[:-period]))
+            if count > best_count + period:  # a multiple of the period matches about as often: the shortest
+                best, best_count = period, count
+        if best == 0:
+            return []
+        if period_hint is not None:
+            period_hint[:] = [best]
+    best_same = group[best:] == group[:-best]
+    # runs of True in `same`: group[i] == group[i + period] for i in [s, e) -> [s, e + period) repeats
+    edges = np.diff(np.concatenate([[0], best_same.view(np.int8), [0]]))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    out = []
+    for s, e in zip(starts.tolist(), stops.tolist()):
+        k = (e + best - s) // best
+        if k >= min_repeats:
+            out.append((s, s + k * best, best))
+    return out
 
 
 class ChunkedMcapWriter:
@@ -62,14 +142,19 @@ class ChunkedMcapWriter:
     """
 
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, profile: str = Profile.ROS2,
-                 library: str = "rollergear_ros", compression_level: int = 1, background: bool = False) -> None:
+                 library: str = "rollergear_ros", compression_level: int = 1, background: bool = False,
+                 replace_atomically: bool = False) -> None:
+        """``replace_atomically``: written beside ``path`` and renamed onto it by :meth:`close`
+        (:mod:`~rollergear_ros.atomic`), so an existing file stays whole until the new one is; a
+        live recorder, whose file must hold what came if the process is killed, writes in place."""
         import zstandard
         from mcap.data_stream import RecordBuilder
         from mcap.records import Header
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = self.path.open("wb")
+        self._partial = atomic.partial_path(self.path) if replace_atomically else None
+        self._fh = (self._partial or self.path).open("wb")
         self._zstd = zstandard.ZstdCompressor(level=compression_level)
         # background: one thread compresses and writes finished chunks (zstd, crc32 and file writes
         # release the GIL) while the caller builds the next; for bulk writers (import), not the
@@ -92,6 +177,7 @@ class ChunkedMcapWriter:
         self._start = self._end = None
         self._counts: dict[int, int] = {}
         self._seq: dict[int, int] = {}
+        self._period_hint = [0]  # the pattern of payload widths last seen by add_mixed (see interleave)
         self._message_count = 0
         self._t_min: int | None = None
         self._t_max: int | None = None
@@ -151,30 +237,69 @@ class ChunkedMcapWriter:
             self._add_rows(ids[start:stop], log_time[start:stop], payload[start:stop])
             start = stop
 
-    def _add_rows(self, ids: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> None:
+    def add_mixed(self, channel_id: np.ndarray, log_time: np.ndarray, group: np.ndarray, row: np.ndarray,
+                  payloads: list[np.ndarray]) -> None:
+        """Add ``n`` messages of several payload widths, in this order: message ``i`` is row
+        ``row[i]`` of ``payloads[group[i]]`` (each an m × L uint8 array), on channel
+        ``channel_id[i]`` at ``log_time[i]``.  The records are laid out with numpy whatever the
+        interleaving (a time-ordered output alternates widths sample by sample); chunks close at
+        ``chunk_size`` as in :meth:`add_messages`."""
         n = len(log_time)
-        rows = message_rows(ids, log_time, payload)
-        rec = rows.shape[1]
-        offsets = self._size + rec * np.arange(n, dtype=np.int64)
-        if ids[0] == ids[-1] and (ids == ids[0]).all():  # one topic
-            cid = int(ids[0])
-            seq = self._seq[cid] + np.arange(1, n + 1, dtype=np.int64)
-            self._seq[cid] += n
-            self._counts[cid] += n
-            self._index.setdefault(cid, []).append((log_time, offsets))
-        else:  # interleaved topics: each one's sequence numbers count on, its messages indexed apart
-            seq = np.empty(n, dtype=np.int64)
-            per_channel = np.bincount(ids)
-            for cid in np.flatnonzero(per_channel).tolist():
-                where = np.flatnonzero(ids == cid)
-                k = len(where)
-                seq[where] = np.arange(self._seq[cid] + 1, self._seq[cid] + k + 1, dtype=np.int64)
-                self._seq[cid] += k
-                self._counts[cid] += k
+        if n == 0:
+            return
+        ids = np.asarray(channel_id, dtype=np.int64)
+        log_time = np.asarray(log_time, dtype=np.int64)
+        group = np.asarray(group, dtype=np.int64)
+        row = np.asarray(row, dtype=np.int64)
+        rec_of_group = np.array([9 + _MSG_FIXED + p.shape[1] for p in payloads], dtype=np.int64)
+        ends = np.cumsum(rec_of_group[group])
+        start = 0
+        while start < n:
+            base = int(ends[start - 1]) if start else 0
+            room = max(1, self.chunk_size - self._size)
+            stop = min(n, int(ends.searchsorted(np.int64(base + room))) + 1)  # an int64 key: no cast of ends
+            sl = slice(start, stop)
+            offsets = ends[sl] - rec_of_group[group[sl]] - base
+            parts = by_channel(ids[sl])
+            seq = self._sequence(parts, stop - start)
+            rows = {}
+            for g in np.unique(group[sl]).tolist():
+                where = np.flatnonzero(group[sl] == g)
+                rows[g] = message_rows(ids[sl][where], log_time[sl][where], payloads[g][row[sl][where]], seq[where])
+            records = interleave(group[sl], rows, offsets, int(ends[stop - 1]) - base, self._period_hint)
+            self._append(parts, log_time[sl], records, offsets)
+            start = stop
+
+    def _sequence(self, parts: list[tuple[int, np.ndarray | None]], n: int) -> np.ndarray:
+        """Sequence numbers for ``n`` messages on the channels of ``parts`` (:func:`by_channel`):
+        each channel counts on by itself."""
+        seq = np.empty(n, dtype=np.int64)
+        for cid, where in parts:
+            k = n if where is None else len(where)
+            seq[slice(None) if where is None else where] = np.arange(self._seq[cid] + 1, self._seq[cid] + k + 1)
+            self._seq[cid] += k
+        return seq
+
+    def _add_rows(self, ids: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> None:
+        parts = by_channel(ids)
+        rows = message_rows(ids, log_time, payload, self._sequence(parts, len(ids)))
+        self._append(parts, log_time, rows.reshape(-1), rows.shape[1] * np.arange(len(ids), dtype=np.int64))
+
+    def _append(self, parts: list[tuple[int, np.ndarray | None]], log_time: np.ndarray, records: np.ndarray,
+                offsets: np.ndarray) -> None:
+        """Append message records (bytes, ``offsets`` of each record in them) on the channels of
+        ``parts`` (:func:`by_channel`) to the open chunk and index them by channel."""
+        n = len(log_time)
+        offsets = self._size + offsets
+        for cid, where in parts:
+            if where is None:
+                self._counts[cid] += n
+                self._index.setdefault(cid, []).append((log_time, offsets))
+            else:
+                self._counts[cid] += len(where)
                 self._index.setdefault(cid, []).append((log_time[where], offsets[where]))
-        rows[:, 11:15] = (seq & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
-        self._chunk += rows.reshape(-1).data
-        self._size += rows.size
+        self._chunk += records.data
+        self._size += records.size
         self._message_count += n
         lo, hi = int(np.min(log_time)), int(np.max(log_time))
         self._start = lo if self._start is None else min(self._start, lo)
@@ -258,7 +383,7 @@ class ChunkedMcapWriter:
     def _emit(self, data: bytearray, index: dict, start: int, end: int) -> None:
         """Compress one chunk and write it and its message indexes (the only writer of the file while
         chunks are pending); a write that fails is an OSError naming the file."""
-        with _named(self.path):
+        with atomic.named(self.path):
             self._emit_chunk(data, index, start, end)
 
     def _emit_chunk(self, data: bytearray, index: dict, start: int, end: int) -> None:
@@ -293,13 +418,25 @@ class ChunkedMcapWriter:
             message_index_length=self._fh.tell() - index_start, compression="zstd",
             compressed_size=len(compressed), uncompressed_size=len(data)))
 
-    def close(self) -> None:
-        """Write the last chunk, the summary and the footer (idempotent)."""
+    def close(self, commit: bool = True) -> None:
+        """Write the last chunk, the summary and the footer (idempotent); with
+        ``replace_atomically``, put the file in place -- or, ``commit=False`` (the command failed),
+        remove it and leave an existing file as it was."""
         if self.closed:
             return
         self.closed = True
-        with _named(self.path):
-            self._close()
+        try:
+            with atomic.named(self.path):
+                self._close()
+        except BaseException:
+            if self._partial is not None:
+                atomic.discard(self._partial)
+            raise
+        if self._partial is not None:
+            if commit:
+                atomic.commit(self._partial, self.path)
+            else:
+                atomic.discard(self._partial)
 
     def _close(self) -> None:
         from mcap.data_stream import RecordBuilder
@@ -375,7 +512,8 @@ class TimeOrderBuffer:
     in log-time order across topics; a replay produces each batch's estimates topic by topic, and a
     sample completes a little after its inputs arrived.  :meth:`release` writes what is older than a
     watermark (nothing later can be older than that), :meth:`release` with none writes the rest.
-    Equal-sized payloads stay numpy arrays throughout; messages of other sizes go one by one.
+    Payloads stay numpy arrays throughout, grouped by size; only a message with a publish time of
+    its own goes one by one.
     """
 
     def __init__(self, writer: ChunkedMcapWriter) -> None:
@@ -393,7 +531,11 @@ class TimeOrderBuffer:
             self._fixed.append((ids, log_time, payload))
 
     def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int | None = None) -> None:
-        self._single.append((channel_id, log_time, data, publish_time))
+        if publish_time is None:  # a one-row array: released with the others of its size in one call
+            self._fixed.append((np.array([channel_id], dtype=np.int64), np.array([log_time], dtype=np.int64),
+                                np.frombuffer(data, dtype=np.uint8)[None, :]))
+        else:
+            self._single.append((channel_id, log_time, data, publish_time))
 
     def release(self, up_to_ns: int | None = None) -> None:
         """Write, in log-time order (the order added among equal times), every message whose log
@@ -405,25 +547,31 @@ class TimeOrderBuffer:
             groups.setdefault(pl.shape[1], []).append((ids, t, pl))
         merged = [tuple(np.concatenate(parts) for parts in zip(*items)) for items in groups.values()]
         single = self._single
-        times = [t for _, t, _ in merged] + [np.array([m[1] for m in single], dtype=np.int64)]
-        source = np.concatenate([np.full(len(t), g, dtype=np.int64) for g, t in enumerate(times[:-1])]
-                                + [np.full(len(single), -1, dtype=np.int64)])
-        index = np.concatenate([np.arange(len(t), dtype=np.int64) for t in times])
-        t_all = np.concatenate(times)
+        sizes = [len(t) for _, t, _ in merged] + [len(single)]
+        source = np.repeat(np.arange(len(sizes), dtype=np.int64), sizes)
+        source[len(source) - len(single):] = -1
+        index = np.concatenate([np.arange(k, dtype=np.int64) for k in sizes])
+        t_all = np.concatenate([t for _, t, _ in merged] + [np.array([m[1] for m in single], dtype=np.int64)])
+        ids_all = np.concatenate([i for i, _, _ in merged] + [np.array([m[0] for m in single], dtype=np.int64)])
         order = np.argsort(t_all, kind="stable")
-        n_out = len(order) if up_to_ns is None else int(np.searchsorted(t_all[order], up_to_ns, side="right"))
+        t_sorted = t_all[order]
+        n_out = len(order) if up_to_ns is None else int(t_sorted.searchsorted(np.int64(up_to_ns), side="right"))
         out = order[:n_out]
-        src, idx = source[out], index[out]
-        starts = np.concatenate([[0], np.flatnonzero(np.diff(src)) + 1, [len(out)]]).tolist() if len(out) else [0]
-        for a, b in zip(starts[:-1], starts[1:]):
-            g = int(src[a])
-            if g < 0:
-                for j in idx[a:b].tolist():
-                    self._writer.add_message(*single[j])
-            else:
-                ids, t, pl = merged[g]
-                sel = idx[a:b]
-                self._writer.add_messages(ids[sel], t[sel], pl[sel])
+        src, idx, ids_out, t_out = source[out], index[out], ids_all[out], t_sorted[:n_out]
+        # the runs between messages with a publish time of their own go to the writer in one call
+        # each, whatever the interleaving of payload widths inside them (one call per run of one
+        # width made a 1 kHz replay with a stamped estimate call the writer twice per sample)
+        payloads = [pl for _, _, pl in merged]
+        a = 0
+        for cut in np.flatnonzero(src < 0).tolist() + [n_out]:
+            if cut > a:
+                if len(merged) == 1:
+                    self._writer.add_messages(ids_out[a:cut], t_out[a:cut], payloads[0][idx[a:cut]])
+                else:
+                    self._writer.add_mixed(ids_out[a:cut], t_out[a:cut], src[a:cut], idx[a:cut], payloads)
+            if cut < n_out:
+                self._writer.add_message(*single[int(idx[cut])])
+            a = cut + 1
         rest = order[n_out:]
         self._fixed = []
         for g, (ids, t, pl) in enumerate(merged):

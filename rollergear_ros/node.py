@@ -38,7 +38,7 @@ from .estimator import Estimate, Estimator
 from .errors import RollergearError
 from .intake import InputTaker
 from .livemap import coefficients_moved, live_map, to_multiarray
-from .paths import check_output_file
+from .paths import Output, check_outputs
 from .lossmap import map_comments, write_vtlm
 from .pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
                       SequenceGaps)
@@ -222,14 +222,17 @@ class LossEstimatorNode(Node):
         for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
             if path:
                 check_new_output(name, path)
-        check_output_file("node.map_file", node.map_file or None)  # rewritten with each map
+        check_outputs([], [Output("node.record_mcap", node.record_mcap or None, "mcap"),  # of their kinds, apart
+                           Output("node.rerun_rrd", node.rerun_rrd or None, "rrd"),
+                           Output("node.map_file", node.map_file or None, "vtlm")])  # rewritten with each map
         if self.pub_map is not None or node.map_file:
             self._update_map()  # before the inputs are subscribed: nothing waits for it
         if node.record_mcap:
             # written as the messages come (in arrival order), with the QoS the outputs are offered with
             output_qos = bagmod.offered_qos_yaml(reliable=True, depth=OUTPUT_QUEUE_DEPTH)
             self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024, time_ordered=False,
-                                             offered_qos={t: output_qos for t in self.out_topics.values()})
+                                             offered_qos={t: output_qos for t in self.out_topics.values()},
+                                             replace_atomically=False)  # in place: a kill keeps what came
             self.recorder.add_metadata(Metadata.RECORDING, {
                 "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
                 "pairing": self.pairing if self._record_pairing_time else "timestamp",

@@ -751,6 +751,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
 
         acc.trace = SummaryTrace(info.counts.get(plan.joint_states or topics.motor_torque, 0))
     writer = rlog = bar = None
+    completed = False  # an error (not an interrupt) leaves no output in place of an existing one
     try:
         with stop.critical():  # outputs are opened whole
             writer = _output_writer(out_mcap, info, config, topics) if out_mcap else None
@@ -758,7 +759,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                 from .review import RerunLog, SkipEvents
 
                 rlog = RerunLog("rollergear_replay", rrd, breakdown_terms=estimator.model.nonzero_terms(),
-                                with_effects=bool(config.effects.enabled()))
+                                with_effects=bool(config.effects.enabled()), replace_atomically=True)
                 skip_events = SkipEvents()
         bar = TimedProgress("replay", total, "msg", enabled=show_progress).start()
         for batch in _input_batches(info, plan, batch_size, _warn, problems,
@@ -789,16 +790,17 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                       topics)
                 if rlog and acc.last_t is not None:
                     _skip_event(rlog, skip_events, estimator, acc.last_t)
+        completed = True
     except KeyboardInterrupt:
-        summary.interrupted = True
+        summary.interrupted = completed = True  # what was processed so far is a whole output
     finally:
         with stop.critical(raise_after=False):  # outputs are closed whole, whatever comes
             if bar:
                 bar.close()
             if writer:
-                writer.close()
+                writer.close(commit=completed)
             if rlog:
-                rlog.close()
+                rlog.close(commit=completed)
     summary.interrupted |= stop.requested  # a signal near the end is not ignored either
     summary.samples = estimator.motor_messages
     summary.estimated = estimator.estimated
@@ -853,7 +855,7 @@ def _output_writer(path: str | Path, info: BagInfo, config: Config, topics: Topi
 
     qos = offered_qos_yaml(reliable=True, depth=OUTPUT_QUEUE_DEPTH)
     outputs = (topics.loss_torque, topics.loss_power, topics.efficiency, topics.residual_torque, topics.loss_estimate)
-    writer = BagWriter(path, offered_qos={t: qos for t in outputs})
+    writer = BagWriter(path, offered_qos={t: qos for t in outputs}, background=True)
     source = Path(info.path)
     writer.add_metadata(Metadata.PROVENANCE, {
         "package": "rollergear_ros", "version": package_version(),

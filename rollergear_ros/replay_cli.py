@@ -10,7 +10,7 @@ from pathlib import Path
 
 from .bag import TopicMap
 from .cli import config_from_args
-from .paths import check_output_file, check_output_folder, refuse_overwriting_inputs
+from .paths import Output, check_outputs
 from .errors import UsageError
 from .progress import TimedProgress
 
@@ -32,8 +32,7 @@ def topics_from_args(args: argparse.Namespace) -> TopicMap:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from .simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
 
-    refuse_overwriting_inputs([args.params], {"--out": args.out})
-    (check_output_folder if args.fleet else check_output_file)("--out", args.out)
+    check_outputs([args.params], [Output("--out", args.out, "folder" if args.fleet else "mcap")])
     config = config_from_args(args)
     if args.fleet:
         return _simulate_fleet(args, config)
@@ -96,10 +95,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from .replay import replay
 
     png = summary_png_path(args)
-    refuse_overwriting_inputs([args.bag, args.params], {"--out": args.out, "--rrd": args.rrd, "--png": png})
-    check_output_file("--out", args.out)
-    check_output_file("--rrd", args.rrd)
-    check_output_file("--png", png)
+    check_outputs([args.bag, args.params, args.channels],
+                  [Output("--out", args.out, "mcap"), Output("--rrd", args.rrd, "rrd"),
+                   Output("--png" if args.png else "the summary picture", png, "png")])
     config = config_from_args(args)
     topics = topics_from_args(args)
     with as_mcap([args.bag], args.channels, topics, note=lambda m: print(m, file=sys.stderr)) as (bag,):
@@ -194,8 +192,7 @@ def register_replay(sub, with_params) -> None:
 def cmd_import(args: argparse.Namespace) -> int:
     from .importer import import_source
 
-    refuse_overwriting_inputs([args.source, args.channels], {"--out": args.out})
-    check_output_file("--out", args.out)
+    check_outputs([args.source, args.channels], [Output("--out", args.out, "mcap")])
     summary = import_source(args.source, args.out, args.channels, topics_from_args(args))
     print(summary.text())
     return 0

@@ -13,11 +13,11 @@ recording draws as fast as a minute.  No rclpy import.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
+from .atomic import save_figure
 from .errors import UsageError
 from .estimator import BatchEstimate
 from .operating_points import evaluate_points, only, temperature_effects
@@ -195,12 +195,8 @@ def plot_summary(trace: SummaryTrace, config: Config, png_path: str | Path, titl
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     out = Path(png_path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(f".{out.name}.partial")
     try:  # whole or not at all: an interrupt leaves no half-written picture
-        fig.savefig(partial, format="png")
-        os.replace(partial, out)
+        save_figure(fig, out)
     finally:
         plt.close(fig)
-        partial.unlink(missing_ok=True)
     return out

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .atomic import save_figure, write_text
 from .blocks import MIN_TEMPERATURE_SPAN_C
 from .effects import EFFECTS
 
@@ -34,8 +35,10 @@ def _pyplot():
 
 def _save(fig, path: Path, plots: list[Path]) -> None:
     fig.tight_layout()
-    fig.savefig(path)
-    _pyplot().close(fig)
+    try:
+        save_figure(fig, path)
+    finally:
+        _pyplot().close(fig)
     plots.append(path)
 
 
@@ -222,6 +225,6 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
     lines += [f"![{p.stem}]({p.name})" for p in plots]
     lines.append("\nMethod: see the docstring of `rollergear_ros/calibrate.py` and docs/closing-the-loop.md.")
     report = out_dir / "report.md"
-    report.write_text("\n".join(lines) + "\n")
-    (out_dir / "result.json").write_text(json.dumps(result.to_json(), indent=1))
+    write_text(out_dir / "result.json", json.dumps(result.to_json(), indent=1))
+    write_text(report, "\n".join(lines) + "\n")  # last: a report.md is one whose plots are all there
     return report

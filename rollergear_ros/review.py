@@ -6,11 +6,15 @@ with ``datetime64[ns]``; recordings are read back with ``rerun.chunk.RrdReader``
 
 from __future__ import annotations
 
+import errno
+import os
 import uuid
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
+
+from . import atomic
 
 TIMELINE = "log_time"
 #: longest a closing recording waits for a streamed viewer to take the data (seconds)
@@ -124,17 +128,24 @@ class RerunLog:
 
     def __init__(self, application_id: str = "rollergear", rrd_path: str | Path | None = None,
                  connect_url: str | None = None, breakdown_terms: Iterable[str] = (),
-                 with_effects: bool = False) -> None:
+                 with_effects: bool = False, replace_atomically: bool = False) -> None:
         """``breakdown_terms``, ``with_effects``: what :meth:`send_estimates` draws of the loss's
-        breakdown (:func:`estimate_series`)."""
+        breakdown (:func:`estimate_series`).  ``replace_atomically``: the ``.rrd`` is written beside
+        ``rrd_path`` and renamed onto it by :meth:`close` (a replay's output; the node's live
+        recording is written in place, so that a kill keeps what came)."""
+        if replace_atomically:  # a file written for a command: its failures are this class's to report,
+            os.environ.setdefault("RUST_LOG", "off")  # in one line, not rerun's log lines (set before import)
         import rerun as rr
 
         self.rr = rr
         self.rec = rr.RecordingStream(application_id, recording_id=str(uuid.uuid4()))
         bp = blueprint()
         sinks = []
+        self.rrd_path = Path(rrd_path) if rrd_path else None
+        self._partial = atomic.partial_path(rrd_path) if rrd_path and replace_atomically else None
         if rrd_path:
             Path(rrd_path).parent.mkdir(parents=True, exist_ok=True)
+            rrd_path = self._partial or rrd_path
             sinks.append(rr.FileSink(str(rrd_path)))
         if connect_url:
             sinks.append(rr.GrpcSink(connect_url))
@@ -180,15 +191,34 @@ class RerunLog:
         self.rec.send_columns(EVENTS, indexes=[times],
                               columns=self.rr.TextLog.columns(text=list(texts), level=[level] * len(texts)))
 
-    def close(self) -> None:
+    def close(self, commit: bool = True) -> None:
+        """Flush and end the recording; with ``replace_atomically`` put the ``.rrd`` in place (or,
+        ``commit=False``, remove it)."""
         if self.closed:
             return
         self.closed = True
+        if self._partial is None:
+            try:
+                # bounded: the default waits forever for a viewer that never answers (raises on timeout)
+                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+            finally:
+                self.rec.disconnect()
+            return
         try:
-            # bounded: the default waits forever for a viewer that never answers (raises on timeout)
             self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-        finally:
-            self.rec.disconnect()
+        except RuntimeError:  # the file sink could not write (a full disk); disconnect would wait for ever
+            atomic.discard(self._partial)
+            raise OSError(errno.EIO, "rerun could not write the recording (is the disk full?)",
+                          str(self.rrd_path)) from None
+        except BaseException:
+            atomic.discard(self._partial)
+            raise
+        self.rec.disconnect()
+        if commit:
+            with atomic.named(self.rrd_path):
+                atomic.commit(self._partial, self.rrd_path)
+        else:
+            atomic.discard(self._partial)
 
 
 def read_rrd_series(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -16,12 +16,23 @@ REALDATA = SHARED / "realdata"
 
 
 def run_cli(*args: str, check: bool = True, timeout: float = 600, env: dict | None = None,
-            cwd: Path | None = None) -> subprocess.CompletedProcess:
-    """Run ``rollergear ARGS`` in a subprocess (the installed console script's code path)."""
+            cwd: Path | None = None, max_file_bytes: int | None = None) -> subprocess.CompletedProcess:
+    """Run ``rollergear ARGS`` in a subprocess (the installed console script's code path).
+    ``max_file_bytes``: no file may grow past this size (RLIMIT_FSIZE; a write beyond it fails with
+    EFBIG as one on a full disk fails with ENOSPC)."""
     full_env = dict(os.environ)
     full_env.update(env or {})
+
+    def limit_files() -> None:
+        import resource
+        import signal
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails instead of the process
+        resource.setrlimit(resource.RLIMIT_FSIZE, (max_file_bytes, max_file_bytes))
+
     proc = subprocess.run([sys.executable, "-m", "rollergear_ros", *args], capture_output=True, text=True,
-                          timeout=timeout, env=full_env, cwd=cwd or ROOT)
+                          timeout=timeout, env=full_env, cwd=cwd or ROOT,
+                          preexec_fn=limit_files if max_file_bytes is not None else None)
     if check and proc.returncode != 0:
         raise AssertionError(f"rollergear {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
     return proc
@@ -71,3 +82,9 @@ def preempted_catch_up(seed: int) -> list[tuple[str, int, float, int | None]]:
         take(SPEED, k)
         taken += 1_000_000
     return events
+
+
+def partial_files(path: str | Path) -> list[Path]:
+    """The files an atomic writer of ``path`` is writing (``NAME.<random>.partial`` beside it)."""
+    p = Path(path)
+    return sorted(p.parent.glob(f"{p.name}.*.partial")) if p.parent.exists() else []

@@ -47,3 +47,29 @@ def test_an_error_of_the_writing_thread_is_raised_in_the_caller():
         with pytest.raises(OSError) as err:
             write(Path("/dev/full"), background=background)
         assert err.value.filename == "/dev/full" and err.value.errno == errno.ENOSPC
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_interleave_equals_a_byte_by_byte_layout(seed):
+    """The strided copy of repeating patterns lays out the same bytes as placing each record alone,
+    for periodic sequences broken by stray records and for sequences with no period at all."""
+    from rollergear_ros.mcapwriter import interleave
+
+    rng = np.random.default_rng(seed)
+    widths = {0: 43, 1: 219, 2: 61}
+    motif = rng.integers(0, 2, size=int(rng.integers(1, 12)))
+    group = np.tile(motif, int(rng.integers(1, 400)))
+    for _ in range(int(rng.integers(0, 30))):  # stray records (an oil temperature now and then)
+        group = np.insert(group, int(rng.integers(0, len(group) + 1)), int(rng.integers(0, 3)))
+    if seed == 5:
+        group = rng.integers(0, 3, size=500)
+    lens = np.array([widths[g] for g in group.tolist()], dtype=np.int64)
+    offsets = np.cumsum(lens) - lens
+    rows = {g: rng.integers(0, 256, size=(int(np.count_nonzero(group == g)), w), dtype=np.uint8)
+            for g, w in widths.items() if np.any(group == g)}
+    expected = bytearray()
+    used = dict.fromkeys(rows, 0)
+    for g in group.tolist():
+        expected += rows[g][used[g]].tobytes()
+        used[g] += 1
+    assert interleave(group, rows, offsets, int(lens.sum())).tobytes() == bytes(expected)

@@ -24,7 +24,7 @@ from rollergear_ros.review import read_rrd_series
 from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, read_truth, simulate, write_rig_bag
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
-from helpers import BAGS, ROOT, run_cli
+from helpers import BAGS, ROOT, partial_files, run_cli
 
 BUNDLED = sorted(BAGS.glob("*.mcap"))
 T = TopicMap()
@@ -645,11 +645,14 @@ def test_interrupted_replay_leaves_valid_files(tmp_path, config, sig):
         cwd=ROOT,
     )
     deadline = time.time() + 60
-    while time.time() < deadline and (not out.exists() or out.stat().st_size < 2_000_000):
+    # the output is written beside its name and renamed when closed: wait for 2 MB of it
+    while time.time() < deadline and sum(p.stat().st_size for p in partial_files(out)) < 2_000_000:
         time.sleep(0.05)
+    assert not out.exists()  # not in place before it is whole
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
+    assert not partial_files(out) and not partial_files(rrd)  # renamed into place
     assert "INTERRUPTED" in stdout and "Traceback" not in stderr
     got = read_rosbags(out)  # a valid, indexed file
     n = len(got[T.loss_torque][0])
@@ -670,7 +673,7 @@ def test_a_signal_right_after_the_outputs_open_leaves_valid_files(tmp_path, seco
         [sys.executable, "-m", "rollergear_ros", "replay", str(BAGS / "warmup.mcap"), "--out", str(out),
          "--rrd", str(rrd), "--no-progress"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    while not out.exists() and proc.poll() is None:  # a condition: the writer has created its file
+    while not partial_files(out) and proc.poll() is None:  # a condition: the writer has created its file
         time.sleep(0.001)
     proc.send_signal(signal.SIGINT)
     if second:

@@ -1,0 +1,99 @@
+"""Files replaced atomically: written beside their final name, renamed onto it when complete.
+
+Every file the package writes for a command goes through :func:`replacing` (or its helpers
+:func:`write_text` and :func:`save_figure`), so a reader never sees half a file, and a failure, a
+full disk or a kill never leaves a truncated file where a good one was: the old file stays until
+the new one is whole.  A write that fails removes its partial file; a process that is killed leaves
+it beside the final name as ``NAME.<random>.partial`` (what it had written is readable there).  An
+``OSError`` from a write that names no file (a full disk: ENOSPC) is raised naming the output.
+No rclpy.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+PARTIAL_SUFFIX = ".partial"
+
+
+def final_path(path: str | Path) -> Path:
+    """Where an output goes: a symlink's target (replacing the link would cut it), else ``path``."""
+    p = Path(path)
+    return Path(os.path.realpath(p)) if p.is_symlink() else p
+
+
+def partial_path(path: str | Path) -> Path:
+    """A new, unused file name beside ``path`` for its content while it is written."""
+    p = final_path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        candidate = p.with_name(f"{p.name}.{secrets.token_hex(3)}{PARTIAL_SUFFIX}")
+        try:  # created here, with the permissions a plain open() would give (the umask applies)
+            os.close(os.open(candidate, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+            return candidate
+        except FileExistsError:
+            continue
+
+
+def commit(partial: str | Path, path: str | Path) -> None:
+    """Put a complete partial file in place of ``path`` (flushed to disk first)."""
+    fd = os.open(partial, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(partial, final_path(path))
+
+
+def discard(partial: str | Path) -> None:
+    """Remove a partial file (a write that failed)."""
+    try:
+        os.unlink(partial)
+    except FileNotFoundError:
+        pass
+
+
+@contextmanager
+def named(path: str | Path) -> Iterator[None]:
+    """OSErrors that name no file (a full disk) are raised naming ``path``."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is not None:
+            raise
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
+
+
+@contextmanager
+def replacing(path: str | Path) -> Iterator[Path]:
+    """Yields a partial file's path to write ``path``'s content to; when the block ends normally it
+    replaces ``path``, when it raises (a failure, Ctrl-C) the partial file is removed and an existing
+    ``path`` is left as it was."""
+    partial = partial_path(path)
+    try:
+        with named(path):
+            yield partial
+            commit(partial, path)
+    except BaseException:
+        discard(partial)
+        raise
+
+
+def write_text(path: str | Path, text: str, encoding: str = "utf-8") -> None:
+    """A text file, replaced atomically."""
+    with replacing(path) as partial:
+        partial.write_text(text, encoding=encoding)
+
+
+def save_figure(fig, path: str | Path, **kwargs) -> None:
+    """A matplotlib figure as PNG, replaced atomically."""
+    with replacing(path) as partial:
+        fig.savefig(partial, format="png", **kwargs)
+
+
+__all__ = ["PARTIAL_SUFFIX", "commit", "discard", "final_path", "named", "partial_path", "replacing",
+           "save_figure", "write_text"]
