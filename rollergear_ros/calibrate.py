@@ -262,6 +262,8 @@ def calibrate(
             verdict = "inconclusive"
     effects = writable
     new_config = _calibrated_config(config, effects)
+    if data.ratio is not None:  # the table's own ratio: what a map of the file states
+        new_config = new_config.with_values({"gearbox.ratio": data.ratio})
     written = {e.name for e in effects}
     contributions = {term.name: float(np.sum(blocks.count * full.coef[k0 + i] * term.column)) / len(data.t_ns)
                      for i, term in enumerate(selected) if term.name in written}

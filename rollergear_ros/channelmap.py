@@ -10,6 +10,8 @@ A channel map is a YAML file given as ``--channels MAP.yaml``::
     oil_temperature: {column: T_oil, unit: degC}
     ratio: 5.875                  # steady_state: also {column: NAME}, each row's ratio
     group: {column: gear}
+    timezone: Europe/Berlin       # of date-times and clock times written without a zone (default UTC)
+    date: {preamble: Datum}       # the day of clock times HH:MM:SS: a preamble line, or 2026-11-24
 
 A steady-state table may give the output side instead of the motor's (output torque, output
 speed, efficiency and the ratio: NREL ADVISOR's maps).  Values are converted to SI as
@@ -30,7 +32,7 @@ from . import safeyaml
 from .errors import InputFileError
 from .interface import Channel
 
-__all__ = ["ChannelMap", "ChannelSpec", "UNITS", "load_channel_map", "unit_matches"]
+__all__ = ["ChannelMap", "ChannelSpec", "UNITS", "load_channel_map", "unit_matches", "zone_info"]
 
 _TORQUE = {"N*m": (1.0, 0.0), "N*mm": (1e-3, 0.0), "kN*m": (1e3, 0.0), "lbf*ft": (1.3558179483314004, 0.0)}
 _SPEED = {"rad/s": (1.0, 0.0), "rpm": (2.0 * math.pi / 60.0, 0.0), "rev/s": (2.0 * math.pi, 0.0),
@@ -94,6 +96,10 @@ class ChannelMap:
     group: str | None = None  #: column whose value tells gearbox states apart
     extra: dict[str, Any] = field(default_factory=dict)
     ratio_column: str | None = None  #: steady_state: a column with each row's ratio (``ratio: {column: …}``)
+    timezone: str | None = None  #: the zone of date-times and clock times written without one (None: UTC, said)
+    date: str | None = None  #: the day of clock times (ISO ``YYYY-MM-DD``)
+    date_label: str | None = None  #: ... or the preamble line that gives it (``Datum;24.11.2026``)
+    date_format: str | None = None  #: strptime format of the preamble's date (None: ISO, then dd.mm.yyyy)
 
     @property
     def output_side(self) -> bool:
@@ -139,7 +145,7 @@ def load_channel_map(path: str | Path) -> ChannelMap:
         raise InputFileError(f"channel map {problem}") from None
     if not isinstance(doc, dict):
         raise InputFileError(f"{path}: a channel map is a YAML mapping (format, time, motor_torque, …)")
-    known = set(UNITS) | {"format", "ratio", "group"}
+    known = set(UNITS) | {"format", "ratio", "group", "timezone", "date"}
     unknown = sorted(set(doc) - known)
     if unknown:
         raise InputFileError(f"{path}: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
@@ -155,14 +161,15 @@ def load_channel_map(path: str | Path) -> ChannelMap:
                                  f"output_torque, output_speed, efficiency and ratio (missing: "
                                  f"{', '.join(missing + ([] if doc.get('ratio') is not None else ['ratio']))})")
     else:
-        for needed in (Channel.MOTOR_TORQUE, Channel.MOTOR_SPEED):
+        # a bench map of input torque, output speed and the ratio: the input speed is output speed x ratio
+        speed_from_output = (fmt == "steady_state" and Channel.OUTPUT_SPEED in channels
+                             and doc.get("ratio") is not None)
+        for needed in (Channel.MOTOR_TORQUE,) + (() if speed_from_output else (Channel.MOTOR_SPEED,)):
             if needed not in channels:
                 raise InputFileError(f"{path}: no {needed} channel (every file needs motor_torque and motor_speed; "
                                      "a steady-state table may give the output side instead)")
     time = _spec(path, "time", doc["time"]) if "time" in doc else None
-    if fmt == "timeseries":
-        if time is None:
-            raise InputFileError(f"{path}: a timeseries map needs time: {{column: …, unit: s|ms|us|ns|datetime}}")
+    if fmt == "timeseries":  # time: needed by CSV and Parquet; MDF4 and TDMS carry their own (see timeseries)
         steady_only = [k for k in ("loss_torque", "efficiency") if k in channels]
         if steady_only:
             raise InputFileError(f"{path}: {', '.join(steady_only)} belong to format: steady_state")
@@ -174,8 +181,9 @@ def load_channel_map(path: str | Path) -> ChannelMap:
         if set(ratio) != {"column"}:
             raise InputFileError(f"{path}: ratio: expected a number > 0 or {{column: NAME}}, got {ratio!r}")
         ratio_column, ratio = str(ratio["column"]), None
-    elif ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float) or not ratio > 0):
-        raise InputFileError(f"{path}: ratio must be a number > 0"
+    elif ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float) or not ratio > 0
+                                or not math.isfinite(ratio)):
+        raise InputFileError(f"{path}: ratio must be a finite number > 0"
                              f"{' (or {column: NAME} in a steady_state map)' if fmt == 'steady_state' else ''}, "
                              f"got {ratio!r}")
     group = doc.get("group")
@@ -183,5 +191,55 @@ def load_channel_map(path: str | Path) -> ChannelMap:
         if not isinstance(group, dict) or set(group) != {"column"}:
             raise InputFileError(f"{path}: group: expected {{column: NAME}}, got {group!r}")
         group = str(group["column"])
+    columns = [(k, s.column) for k, s in channels.items()] + ([("time", time.column)] if time else [])
+    seen: dict[str, str] = {}
+    for key, column in columns:
+        if column in seen:
+            raise InputFileError(f"{path}: column {column!r} is mapped to both {seen[column]} and {key}")
+        seen[column] = key
+    zone, date, date_label, date_format = _time_keys(path, doc, time)
     return ChannelMap(path, fmt, channels, time, None if ratio is None else float(ratio), group,
-                      ratio_column=ratio_column)
+                      ratio_column=ratio_column, timezone=zone, date=date, date_label=date_label,
+                      date_format=date_format)
+
+
+def zone_info(name: str):
+    """A ``tzinfo`` of a zone name (``Europe/Berlin``, ``UTC``) or a fixed offset (``+01:00``)."""
+    import datetime
+    import re
+    import zoneinfo
+
+    m = re.fullmatch(r"([+-])(\d{2}):?(\d{2})", name)
+    if m:
+        minutes = int(m.group(2)) * 60 + int(m.group(3))
+        return datetime.timezone(datetime.timedelta(minutes=minutes if m.group(1) == "+" else -minutes))
+    return zoneinfo.ZoneInfo(name)
+
+
+def _time_keys(path: Path, doc: dict, time: ChannelSpec | None):
+    """``timezone`` and ``date`` of a map: (zone, ISO date, preamble label, its format)."""
+    import datetime
+
+    zone = doc.get("timezone")
+    if zone is not None:
+        try:
+            zone_info(str(zone))
+        except (ValueError, KeyError, OSError):
+            raise InputFileError(f"{path}: timezone: {zone!r} is not a time zone (Europe/Berlin, UTC, +01:00)") \
+                from None
+        zone = str(zone)
+    date = doc.get("date")
+    if date is None:
+        return zone, None, None, None
+    if time is None or time.unit != "datetime":
+        raise InputFileError(f"{path}: date: belongs to clock times (time: {{column: …, unit: datetime}})")
+    if isinstance(date, datetime.date):
+        return zone, date.isoformat(), None, None
+    if isinstance(date, str):
+        try:
+            return zone, datetime.date.fromisoformat(date.strip()).isoformat(), None, None
+        except ValueError:
+            raise InputFileError(f"{path}: date: {date!r} is not a date YYYY-MM-DD") from None
+    if isinstance(date, dict) and "preamble" in date and set(date) <= {"preamble", "format"}:
+        return zone, None, str(date["preamble"]), (str(date["format"]) if "format" in date else None)
+    raise InputFileError(f"{path}: date: expected YYYY-MM-DD or {{preamble: LABEL, format: '%d.%m.%Y'}}, got {date!r}")

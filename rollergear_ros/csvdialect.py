@@ -32,7 +32,7 @@ from pathlib import Path
 from .channelmap import ChannelMap, unit_matches
 from .errors import InputFileError
 
-__all__ = ["CsvDialect", "DELIMITERS", "is_number", "sniff"]
+__all__ = ["CsvDialect", "DELIMITERS", "is_number", "preamble_value", "sniff"]
 
 DELIMITERS = (",", ";", "\t", "|")
 SNIFF_LINES = 20  #: data lines looked at (after the header)
@@ -67,6 +67,18 @@ class CsvDialect:
 
         return pacsv.ReadOptions(skip_rows=self.preamble_lines, skip_rows_after_names=0 if self.units is None else 1,
                                  encoding=self.encoding)
+
+
+def preamble_value(path: str | Path, dialect: CsvDialect, label: str) -> str | None:
+    """The value a DAQ's preamble gives ``label`` (``Datum;24.11.2026``, ``Date: 2026-11-24``): the
+    cell after the label on the first preamble line that starts with it (None: no such line)."""
+    raw, _ = _lines(Path(path))
+    for line in raw[:dialect.preamble_lines]:
+        for delimiter in (dialect.delimiter, *DELIMITERS, ":", "="):
+            cells = [c.strip() for c in line.split(delimiter)]
+            if len(cells) >= 2 and cells[0].rstrip(":").strip() == label and cells[1]:
+                return cells[1]
+    return None
 
 
 def _lines(path: Path) -> tuple[list[str], str]:

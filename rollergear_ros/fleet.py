@@ -58,6 +58,7 @@ class Recording:
     start_ns: int | None = None  #: first message (MCAP summary), for time windows
     end_ns: int | None = None  #: last message (MCAP summary), for time slices
     messages: int | None = None  #: message count (MCAP summary), for time slices
+    problem: str = ""  #: why it cannot be read at all (a FIFO, a symlink loop): its row fails with this
 
     @property
     def key(self) -> str:
@@ -66,27 +67,38 @@ class Recording:
 
 
 # ------------------------------------------------------------------------------------ discovery
-def discover(logs: Sequence[str], group_by: str = "auto") -> list[Recording]:
+def discover(logs: Sequence[str], group_by: str = "auto", exclude: str | Path | None = None) -> list[Recording]:
     """The recordings under ``logs`` (files, folders, globs; local or fsspec URLs), sorted by
     gearbox and start.  ``group_by``: ``auto`` (metadata ``gearbox_id``, else the folder),
-    ``folder`` or ``metadata``."""
+    ``folder`` or ``metadata``.  ``exclude``: a local folder whose files are not recordings (the
+    fleet's own output).  A file that cannot be read at all (a FIFO, a device, a symlink loop) is
+    a recording with a ``problem``: its row fails with the reason and the rest go on."""
     import fsspec
 
+    skip = os.path.realpath(exclude) + os.sep if exclude is not None else None
     found: dict[str, Recording] = {}
     for log in logs:
         fs, root = fsspec.core.url_to_fs(str(log))
         local = "file" in (fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,))
         if GLOB_CHARS & set(root):
             paths = sorted(fs.glob(root))
+        elif local and os.path.isdir(root):
+            paths = _local_files(root)
         elif fs.isdir(root):
             paths = sorted(p for p in fs.find(root) if p.lower().endswith(SOURCE_SUFFIXES))
-        elif fs.exists(root):
+        elif fs.exists(root) or os.path.islink(root):
             paths = [root]
         else:
             raise UsageError(f"{log} does not exist")
         for p in paths:
-            info = fs.info(p)
             url = p if local else fs.unstrip_protocol(p)
+            if local and skip and os.path.realpath(p).startswith(skip):
+                continue
+            problem = _unreadable(p) if local else ""
+            if problem:
+                found[url] = Recording(url, Path(url).parent.name or "fleet", 0, 0.0, problem=problem)
+                continue
+            info = fs.info(p)
             mtime = info.get("mtime") or info.get("LastModified") or info.get("updated") or 0.0
             mtime = mtime.timestamp() if hasattr(mtime, "timestamp") else float(mtime)
             gid, span = _identity(url, local, group_by)
@@ -94,6 +106,32 @@ def discover(logs: Sequence[str], group_by: str = "auto") -> list[Recording]:
     if not found:
         raise UsageError(f"no recordings under {', '.join(map(str, logs))} ({', '.join(SOURCE_SUFFIXES)})")
     return sorted(found.values(), key=lambda r: (r.gearbox_id, r.start_ns or 0, r.path))
+
+
+def _local_files(root: str) -> list[str]:
+    """The recordings under a local folder, without following symlinks to folders (a loop would
+    never end); a symlink to a file is listed (and checked by :func:`_unreadable`)."""
+    paths = []
+    for folder, _dirs, files in os.walk(root, followlinks=False):
+        paths += [os.path.join(folder, f) for f in files if f.lower().endswith(SOURCE_SUFFIXES)]
+    return sorted(paths)
+
+
+def _unreadable(path: str) -> str:
+    """Why a local path cannot be read as a recording ('' when it can be)."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        return f"cannot be read: {exc.strerror or exc}"
+    if stat.S_ISDIR(mode):
+        return ""
+    if not stat.S_ISREG(mode):
+        kind = "a FIFO" if stat.S_ISFIFO(mode) else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else \
+            "a socket" if stat.S_ISSOCK(mode) else "not a regular file"
+        return f"is {kind}, not a recording"
+    return ""
 
 
 def _identity(url: str, local: bool, group_by: str) -> tuple[str, tuple[int | None, int | None, int | None]]:
@@ -161,6 +199,8 @@ def replay_task(rec: Recording, config: Config, channels: str | None,
     if part:
         row |= {"key": f"{rec.key}|slice {part}", "recording_key": rec.key, "slice": part}
     t0 = time.perf_counter()
+    if rec.problem:
+        return row | {"status": "failed", "reason": rec.problem, "seconds": 0.0}
     try:
         with _local(rec.path) as local, as_mcap([local], channels) as (bag,):
             s, _ = replay(bag, config, show_progress=False, window_ns=None if window == (None, None) else window)
@@ -243,6 +283,9 @@ def calibrate_task(gearbox_id: str, window: int, window_ns: int, recs: Sequence[
            "window_end_ns": (window + 1) * window_ns, "recordings": len(recs),
            "key": _window_key(gearbox_id, window, recs), "status": "ok", "reason": ""}
     t0 = time.perf_counter()
+    bad = [r for r in recs if r.problem]
+    if bad:
+        return row | {"status": "failed", "reason": f"{bad[0].path} {bad[0].problem}", "seconds": 0.0}
     try:
         with ExitStack() as stack:
             local = [stack.enter_context(_local(r.path)) for r in recs]
@@ -391,7 +434,13 @@ def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note
     with TimedProgress("fleet", len(futures), "task", enabled=progress) as bar:
         for future in as_completed(futures):
             key, part_key = unit_of[future.key]
-            row = future.result() | {"settings": settings}
+            try:
+                row = future.result() | {"settings": settings}
+            except Exception as exc:  # noqa: BLE001 - the task's worker died (KilledWorker): its row fails
+                row = {"key": part_key, "status": "failed", "settings": settings,
+                       "reason": f"its task could not finish: {type(exc).__name__}: {exc}"}
+                row |= _unit_identity(todo, key) | ({"recording_key": key, "slice": part_key.rsplit("|slice ", 1)[-1]}
+                                                   if part_key != key else {})
             parts[key][part_key] = row
             samples += int(row.get("samples") or 0)
             if len(parts[key]) == len(tasks_of[key]):
@@ -406,6 +455,18 @@ def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note
                 last_write = time.perf_counter()
     _write_tables(table, rows, parts_table, parts, tasks_of)
     return rows, len(todo)
+
+
+def _unit_identity(todo: list[Unit], key: str) -> dict:
+    """What a failed task's row says of its unit: the gearbox and recording (or window) it was for."""
+    for unit_key, tasks in todo:
+        if unit_key == key:
+            args = tasks[0][2]
+            if args and isinstance(args[0], Recording):
+                return {"gearbox_id": args[0].gearbox_id, "recording": args[0].path}
+            if tasks[0][1] is calibrate_task:
+                return {"gearbox_id": args[0], "window": args[1]}
+    return {}
 
 
 def _write_tables(table: Path, rows: list[dict], parts_table: Path | None, parts: dict, tasks_of: dict) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -13,6 +14,8 @@ from .fleet import SLICE_MESSAGES
 from .paths import Output, check_outputs
 
 DAY_S = 86_400
+MAX_WINDOW_DAYS = 100_000  #: about 270 years: a window's nanoseconds stay within 64 bits
+MIN_SLICE_MESSAGES = 10_000
 
 
 def cmd_fleet(args: argparse.Namespace) -> int:
@@ -22,16 +25,18 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     if args.workers is not None and args.workers < 1:
         raise UsageError("--workers must be at least 1")
-    if not args.window_days > 0:
-        raise UsageError("--window-days must be > 0")
-    if args.slice_messages < 1:
-        raise UsageError("--slice-messages must be at least 1")
+    if not (math.isfinite(args.window_days) and 0 < args.window_days <= MAX_WINDOW_DAYS):
+        raise UsageError(f"--window-days must be a number of days in (0, {MAX_WINDOW_DAYS:,}], "
+                         f"not {args.window_days:g}")
+    if args.slice_messages < MIN_SLICE_MESSAGES:
+        raise UsageError(f"--slice-messages must be at least {MIN_SLICE_MESSAGES:,} (each slice is a task that also "
+                         "reads a lead-in and a lead-out)")
 
     def note(msg: str) -> None:
         print(msg, file=sys.stderr)
 
     check_outputs([], [Output("--out", args.out, "folder")])
-    recs = discover(args.logs, args.group_by)
+    recs = discover(args.logs, args.group_by, exclude=args.out)  # the fleet's own tables are no recordings
     out = Path(args.out)
     note(f"{len(recs)} recordings of {len({r.gearbox_id for r in recs})} gearboxes")
     with dask_client(args.scheduler, args.workers, note) as client:

@@ -60,6 +60,7 @@ class ImportSummary:
     topics: dict[str, int] = field(default_factory=dict)  #: topic -> messages copied (rosbag2)
     left_out: int = 0  #: table rows at standstill, not written
     ratio: float | None = None  #: the channel map's ratio, when the output speed was derived from it
+    notes: list[str] = field(default_factory=list)  #: what was done to the time base (said in :meth:`text`)
 
     def text(self) -> str:
         how = f"; resampled onto the motor torque's time base: {', '.join(self.resampled)}" if self.resampled else ""
@@ -69,6 +70,7 @@ class ImportSummary:
             how += f"; {self.left_out} rows at standstill left out (no power balance carries their loss)"
         elif "table" in self.kind:
             how += "; one sample per row, 1 s apart"
+        how += "".join(f"; {note}" for note in self.notes)
         return (f"imported {self.source} ({self.kind}): {self.samples:,} samples, {self.messages:,} messages "
                 f"-> {self.out}{how}")
 
@@ -125,7 +127,10 @@ def _rosbag2_paths(src: Path) -> list[Path]:
 
 
 def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
-    from rosbags.highlevel import AnyReader
+    import sqlite3
+
+    import yaml
+    from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.rosbag2.errors import ReaderError as Rosbag2Error
 
     wanted = {topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed,
@@ -146,46 +151,80 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
                                              f"({', '.join(sorted(MSG_DEFINITIONS))})")
                     bw.write_raw(con.topic, con.msgtype, t_ns, bytes(raw))
                     counts[con.topic] = counts.get(con.topic, 0) + 1
-    except (Rosbag2Error, FileNotFoundError, ValueError) as exc:
-        raise InputFileError(f"{src}: not a rosbag2 bag rosbags can read ({exc})") from None
+    except (Rosbag2Error, AnyReaderError, FileNotFoundError, ValueError, yaml.YAMLError, sqlite3.DatabaseError) as exc:
+        reason = " ".join(str(exc).split())
+        raise InputFileError(f"{src}: not a rosbag2 bag rosbags can read ({reason})") from None
     samples = counts.get(topics.motor_torque, counts.get(topics.joint_states, 0))
     return ImportSummary(src, "rosbag2", out, sum(counts.values()), samples, topics=counts)
 
 
 # ------------------------------------------------------------------------------------ time series
 def _import_timeseries(src: Path, kind: str, out: Path, channels: str | Path, topics: TopicMap) -> ImportSummary:
+    from .arrowstream import aligned_batches
+
     cmap = load_channel_map(channels)
-    aligned = align(read_series(src, cmap))
-    # the map's ratio reaches the measured loss as an output speed (a replay of the MCAP reads no map)
-    ratio = cmap.ratio if Channel.OUTPUT_SPEED not in aligned.values and Channel.OUTPUT_TORQUE in aligned.values \
-        else None
-    if ratio is not None:
-        aligned.values[Channel.OUTPUT_SPEED] = aligned.values[Channel.MOTOR_SPEED] / ratio
-    written = write_aligned(aligned, out, topics, {
-        "source": str(src), "kind": kind, "channel_map": Path(channels).read_text(encoding="utf-8"),
-        "resampling": RESAMPLING_RULE, "resampled": json.dumps(aligned.resampled),
-        "output_speed": "" if ratio is None else f"motor_speed / {ratio!r} (the channel map's ratio)"})
-    return ImportSummary(src, kind, out, written, len(aligned.t_ns), aligned.resampled, ratio=ratio)
+    notes: list[str] = []
+    # CSV and Parquet in bounded batches (a small Parquet file can hold 30 M rows); MDF4 and TDMS whole,
+    # as their libraries read channels
+    parts = aligned_batches(src, cmap, notes=notes) if kind in ("CSV", "Parquet") else \
+        iter([align(read_series(src, cmap, notes))])
+    ratio_used: list[float] = []
+
+    def with_output_speed(aligned):
+        """The map's ratio reaches the measured loss as an output speed (a replay of the MCAP reads no map)."""
+        values = aligned.values
+        if cmap.ratio is not None and Channel.OUTPUT_SPEED not in values and Channel.OUTPUT_TORQUE in values:
+            values[Channel.OUTPUT_SPEED] = values[Channel.MOTOR_SPEED] / cmap.ratio
+            ratio_used[:] = [cmap.ratio]
+        return aligned
+
+    resampled: list[str] = []
+
+    def metadata() -> dict[str, str]:
+        ratio = ratio_used[0] if ratio_used else None
+        return {"source": str(src), "kind": kind, "channel_map": Path(channels).read_text(encoding="utf-8"),
+                "resampling": RESAMPLING_RULE, "resampled": json.dumps(resampled),
+                "output_speed": "" if ratio is None else f"motor_speed / {ratio!r} (the channel map's ratio)",
+                "time": "; ".join(notes)}
+
+    written, samples = write_aligned_parts(map(with_output_speed, parts), out, topics, metadata, resampled)
+    return ImportSummary(src, kind, out, written, samples, resampled, ratio=ratio_used[0] if ratio_used else None,
+                         notes=notes)
 
 
 def write_aligned(aligned, out: Path, topics: TopicMap = TopicMap(), metadata: dict[str, str] | None = None) -> int:
     """Write aligned channels (:func:`~.timeseries.align`) to the MCAP ``out``: the paired channels as
     Float64 topics interleaved sample by sample, as a recorder stores them, the oil temperature at
     its own times; ``metadata``: the ``rollergear_import`` record.  Returns how many messages."""
-    names = [c for c in Channel.PAIRED if c in aligned.values]
+    written, _ = write_aligned_parts([aligned], out, topics, (lambda: metadata) if metadata is not None else None)
+    return written
+
+
+def write_aligned_parts(parts, out: Path, topics: TopicMap = TopicMap(),
+                        metadata: Callable[[], dict[str, str] | None] | None = None,
+                        resampled: list[str] | None = None) -> tuple[int, int]:
+    """:func:`write_aligned` of consecutive parts of one recording (:func:`~.arrowstream.aligned_batches`);
+    ``metadata()`` gives the ``rollergear_import`` record once every part is written (it may say what
+    they showed), ``resampled`` collects the channels any part resampled.  Returns (messages, samples)."""
     topic_of = topics.float64_inputs()
-    n, k = len(aligned.t_ns), len(names)
-    payloads = float64_payloads(np.stack([aligned.values[c] for c in names], axis=1).ravel())
-    which = np.tile(np.arange(k), n)
-    t_ns = np.repeat(aligned.t_ns, k)
-    float_topics = [(topic_of[c], MessageType.FLOAT64, None) for c in names]
-    temp = aligned.temperature
+    written = samples = 0
     with BagWriter(out, time_ordered=False, background=True) as bw:
-        if metadata is not None:
-            bw.add_metadata(IMPORT_METADATA, metadata)
-        _write_in_time_order(bw, topics, float_topics, which, t_ns, payloads,
-                             ([], []) if temp is None else (temp.t_ns, temp.values))
-    return n * k + (0 if temp is None else len(temp.t_ns))
+        for aligned in parts:
+            names = [c for c in Channel.PAIRED if c in aligned.values]
+            n, k = len(aligned.t_ns), len(names)
+            if resampled is not None:
+                resampled[:] = [c for c in Channel.PAIRED if c in resampled or c in aligned.resampled]
+            payloads = float64_payloads(np.stack([aligned.values[c] for c in names], axis=1).ravel())
+            float_topics = [(topic_of[c], MessageType.FLOAT64, None) for c in names]
+            temp = aligned.temperature
+            _write_in_time_order(bw, topics, float_topics, np.tile(np.arange(k), n), np.repeat(aligned.t_ns, k),
+                                 payloads, ([], []) if temp is None else (temp.t_ns, temp.values))
+            written += n * k + (0 if temp is None else len(temp.t_ns))
+            samples += n
+        record = metadata() if metadata is not None else None
+        if record is not None:
+            bw.add_metadata(IMPORT_METADATA, record)
+    return written, samples
 
 
 def _write_in_time_order(bw: BagWriter, topics: TopicMap, float_topics: list, which: np.ndarray, t_ns: np.ndarray,

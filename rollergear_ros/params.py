@@ -78,6 +78,9 @@ class ParamSpec:
             return value
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ParameterError(self.name, value, self.allowed_text())
+        if isinstance(value, int) and abs(value) > 2**53:  # beyond a float's integers (400 digits: no float at all)
+            shown = str(value) if len(str(value)) <= 20 else f"{str(value)[:12]}… ({len(str(value))} digits)"
+            raise ParameterError(self.name, shown, self.allowed_text())
         if self.kind is int:
             if isinstance(value, float):
                 if not (math.isfinite(value) and value.is_integer()):

@@ -486,10 +486,11 @@ class GracefulStop:
     Only active in the main thread.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, announce: bool = True) -> None:
         import signal
         import threading
 
+        self.announce = announce
         self.requested = False
         self._forced = False
         self._critical = 0
@@ -501,6 +502,9 @@ class GracefulStop:
     def _handler(self, signum, frame) -> None:  # noqa: ARG002
         if not self.requested:
             self.requested = True
+            if self.announce:  # at once: the batch under way and the outputs' closing take a moment
+                print("rollergear: interrupted: finishing the batch under way and closing the outputs with "
+                      "what was processed (again to stop at once)", file=sys.stderr, flush=True)
         elif self._critical:
             self._forced = True
         else:

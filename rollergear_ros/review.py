@@ -133,8 +133,6 @@ class RerunLog:
         breakdown (:func:`estimate_series`).  ``replace_atomically``: the ``.rrd`` is written beside
         ``rrd_path`` and renamed onto it by :meth:`close` (a replay's output; the node's live
         recording is written in place, so that a kill keeps what came)."""
-        if replace_atomically:  # a file written for a command: its failures are this class's to report,
-            os.environ.setdefault("RUST_LOG", "off")  # in one line, not rerun's log lines (set before import)
         import rerun as rr
 
         self.rr = rr
@@ -143,9 +141,12 @@ class RerunLog:
         sinks = []
         self.rrd_path = Path(rrd_path) if rrd_path else None
         self._partial = atomic.partial_path(rrd_path) if rrd_path and replace_atomically else None
+        self._pump: _FilePump | None = None
         if rrd_path:
             Path(rrd_path).parent.mkdir(parents=True, exist_ok=True)
-            rrd_path = self._partial or rrd_path
+            if self._partial is not None:  # rerun writes into a pipe this process drains into the file
+                self._pump = _FilePump(self._partial)
+                rrd_path = self._pump.fifo
             sinks.append(rr.FileSink(str(rrd_path)))
         if connect_url:
             sinks.append(rr.GrpcSink(connect_url))
@@ -206,19 +207,71 @@ class RerunLog:
             return
         try:
             self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-        except RuntimeError:  # the file sink could not write (a full disk); disconnect would wait for ever
-            atomic.discard(self._partial)
-            raise OSError(errno.EIO, "rerun could not write the recording (is the disk full?)",
-                          str(self.rrd_path)) from None
         except BaseException:
-            atomic.discard(self._partial)
+            commit = False
             raise
-        self.rec.disconnect()
-        if commit:
-            with atomic.named(self.rrd_path):
-                atomic.commit(self._partial, self.rrd_path)
-        else:
-            atomic.discard(self._partial)
+        finally:
+            self.rec.disconnect()  # rerun closes the pipe: the pump sees its end
+            error = self._pump.finish()
+            if error is not None or not commit:
+                atomic.discard(self._partial)
+        if error is not None:
+            raise OSError(error.errno, error.strerror or str(error), str(self.rrd_path))
+        if not commit:
+            return
+        with atomic.named(self.rrd_path):
+            atomic.commit(self._partial, self.rrd_path)
+
+
+class _FilePump:
+    """A FIFO that rerun's file sink writes to and a thread that copies it into ``path``.
+
+    rerun's own file sink hangs (in ``save`` or ``flush``) when the disk refuses a write; here
+    rerun only ever writes to a reader that keeps reading, and a failed write to the disk is this
+    process's OSError, naming the output (the rest of the stream is read and dropped)."""
+
+    def __init__(self, path: Path) -> None:
+        import tempfile
+        import threading
+
+        self.path = path
+        self._folder = tempfile.mkdtemp(prefix="rollergear_rrd_")
+        self.fifo = os.path.join(self._folder, "rrd.fifo")
+        os.mkfifo(self.fifo)
+        self.error: OSError | None = None
+        self._thread = threading.Thread(target=self._run, name="rrd-writer", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            with open(self.fifo, "rb") as src, open(self.path, "wb") as dst:
+                while block := src.read(1 << 20):
+                    if self.error is None:
+                        try:
+                            dst.write(block)
+                        except OSError as exc:
+                            self.error = exc
+                try:
+                    dst.flush()
+                except OSError as exc:
+                    self.error = self.error or exc
+        except OSError as exc:
+            self.error = self.error or exc
+
+    def finish(self, timeout_s: float = FLUSH_TIMEOUT_S) -> OSError | None:
+        """Wait for the stream's end; the write's error, if any."""
+        import shutil
+
+        self._thread.join(timeout_s)
+        if self._thread.is_alive():  # rerun never opened or never closed the pipe
+            try:  # open its write end once: the reader sees an end and stops
+                os.close(os.open(self.fifo, os.O_WRONLY | os.O_NONBLOCK))
+            except OSError:
+                pass
+            self._thread.join(1.0)
+            self.error = self.error or OSError(errno.EIO, "rerun did not finish writing the recording")
+        shutil.rmtree(self._folder, ignore_errors=True)
+        return self.error
 
 
 def read_rrd_series(path: str | Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:

@@ -54,19 +54,33 @@ def _where(path: str | Path, mark) -> str:
 
 
 def check_structure(text: str, path: str | Path) -> None:
-    """Refuse anchors, aliases and nesting beyond :data:`MAX_DEPTH` by walking the parser's events
+    """Refuse anchors, aliases, nesting beyond :data:`MAX_DEPTH` and a key given twice in one
+    mapping (PyYAML would keep the later one without a word) by walking the parser's events
     (iterative: no recursion, nothing composed)."""
-    depth = 0
+    # one entry per open collection: None for a sequence; for a mapping [keys seen, next is a key]
+    open_: list[list | None] = []
     for event in yaml.parse(text, Loader=yaml.SafeLoader):
         if isinstance(event, yaml.AliasEvent) or getattr(event, "anchor", None):
             raise YamlProblem(_where(path, event.start_mark),
                               "anchors and aliases (&name, *name) are not supported (ROS 2 refuses them too)")
+        if isinstance(event, yaml.CollectionEndEvent):
+            open_.pop()
+            continue
+        if not isinstance(event, yaml.NodeEvent):
+            continue
+        parent = open_[-1] if open_ else None
+        if parent is not None:  # a node inside a mapping: a key, then its value
+            keys, is_key = parent
+            if is_key and isinstance(event, yaml.ScalarEvent):
+                if event.value in keys:
+                    raise YamlProblem(_where(path, event.start_mark), f"the key {event.value!r} is given twice in "
+                                      f"one mapping (first on line {keys[event.value]})")
+                keys[event.value] = event.start_mark.line + 1
+            parent[1] = not is_key
         if isinstance(event, yaml.CollectionStartEvent):
-            depth += 1
-            if depth > MAX_DEPTH:
+            if len(open_) >= MAX_DEPTH:
                 raise YamlProblem(_where(path, event.start_mark), f"nested deeper than {MAX_DEPTH} levels")
-        elif isinstance(event, yaml.CollectionEndEvent):
-            depth -= 1
+            open_.append([{}, True] if isinstance(event, yaml.MappingStartEvent) else None)
 
 
 def load(path: str | Path) -> Any:

@@ -6,6 +6,7 @@ Next to :mod:`.replay`, whose estimator it runs (no effects, no adaptation).  No
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,7 +15,7 @@ import numpy as np
 
 from .bag import TopicMap
 from .channelmap import ChannelMap
-from .errors import BagError
+from .errors import BagError, InputFileError
 from .model import LossModel
 from .params import Config, validate
 
@@ -33,6 +34,7 @@ class SampleData:
     fr_part: np.ndarray
     skipped: dict[str, int] = field(default_factory=dict)
     steady_state: bool = False  #: rows of steady-state tables (dwell means), not a time series
+    ratio: float | None = None  #: the tables' own input/output ratio (one for all), for the calibrated file
 
     @property
     def residual(self) -> np.ndarray:
@@ -82,6 +84,7 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     est = config.estimator
     parts = []
     implausible = 0
+    ratios: set[float | None] = set()
     states: dict[tuple[int, str], int] = {}
     for i, path in enumerate(paths):
         table = read_table(path, cmap, config.gearbox.ratio_effective)
@@ -89,6 +92,16 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
             warn(f"{path}: {table.dropped} rows without a finite torque, speed or loss: skipped")
         keep = ((np.abs(table.torque_nm) <= est.max_abs_torque_nm)
                 & (np.abs(table.speed_rad_s) <= est.max_abs_speed_rad_s))
+        if np.count_nonzero(~keep) > MAX_BEYOND_SHARE * len(keep):  # the table is another gearbox's size
+            need_t = float(np.max(np.abs(table.torque_nm)))
+            need_w = float(np.max(np.abs(table.speed_rad_s)))
+            raise InputFileError(
+                f"{path}: {np.count_nonzero(~keep)} of {len(keep)} rows lie beyond the estimator's plausible range "
+                f"(estimator.max_abs_torque_nm {est.max_abs_torque_nm:g} N·m, max_abs_speed_rad_s "
+                f"{est.max_abs_speed_rad_s:g} rad/s; the table reaches {need_t:.6g} N·m and {need_w:.6g} rad/s): "
+                f"raise them in the parameter file (--params) to calibrate this table, e.g. "
+                f"estimator.max_abs_torque_nm: {_round_up(need_t):g}, max_abs_speed_rad_s: {_round_up(need_w):g}")
+        ratios.add(table.ratio)
         if not keep.all():
             implausible += int(np.count_nonzero(~keep))
             if warn:
@@ -106,7 +119,18 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     t_ns = np.arange(len(speed), dtype=np.int64) * 1_000_000_000
     return SampleData(t_ns, bag_id, torque, speed, temperature, loss, model.loss_magnitude(torque, speed),
                       model.fr_part(torque, speed), {"implausible": implausible} if implausible else {},
-                      steady_state=True)
+                      steady_state=True, ratio=ratios.pop() if len(ratios) == 1 else None)
+
+
+MAX_BEYOND_SHARE = 0.25  #: a table with more of its rows beyond the plausible range is refused, not cut
+
+
+def _round_up(value: float) -> float:
+    """A limit just above ``value`` with two significant digits (12 345 -> 13 000)."""
+    if value <= 0:
+        return 1.0
+    scale = 10 ** (math.floor(math.log10(value)) - 1)
+    return math.floor(value / scale + 1) * scale
 
 
 LOADED_SHARE = 0.2  #: a sample is loaded when its |T| is at least this share of the 95th percentile of |T|

@@ -48,6 +48,7 @@ class SteadyStateTable:
     line: np.ndarray  #: line number of each row in the file (for messages)
     group: np.ndarray | None = None  #: gearbox state of each row (the map's group column)
     dropped: int = 0  #: rows without a finite torque, speed or loss (e.g. a loss from output torque at standstill)
+    ratio: float | None = None  #: the table's own input/output ratio (the map's), when it has one
 
 
 def is_table(path: str | Path, cmap: ChannelMap | None = None) -> bool:
@@ -87,6 +88,8 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
     if cmap.output_side:
         _check_efficiency(path, col["efficiency"])
         col = _input_side(col, ratio)
+    elif Channel.MOTOR_SPEED not in col:  # input torque with the output speed: ω_in = ω_out·r
+        col[Channel.MOTOR_SPEED] = col[Channel.OUTPUT_SPEED] * ratio
     torque, speed = col[Channel.MOTOR_TORQUE], col[Channel.MOTOR_SPEED]
     if "loss_torque" in col:
         loss = col["loss_torque"]
@@ -113,8 +116,10 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
         group = np.asarray(table.column(cmap.group).to_pylist(), dtype=object)[ok].astype(str)
     if len(np.flatnonzero(ok)) < MIN_ROWS:
         raise InputFileError(f"{path}: {int(ok.sum())} usable rows; a table needs at least {MIN_ROWS}")
+    own = cmap.ratio if cmap.ratio is not None else (
+        float(ratio[ok][0]) if cmap.ratio_column is not None and np.unique(ratio[ok]).size == 1 else None)
     return SteadyStateTable(path, speed[ok], torque[ok], loss[ok], theta[ok], line[ok], group,
-                            int(np.count_nonzero(~ok)))
+                            int(np.count_nonzero(~ok)), own)
 
 
 def _check_efficiency(path: Path, eta: np.ndarray) -> None:

@@ -20,6 +20,8 @@ A missing column, a unit the file's metadata contradicts, or a time that runs ba
 
 from __future__ import annotations
 
+import math
+
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,8 +57,9 @@ class Aligned:
     resampled: list[str]  #: channels that were interpolated (for the import's metadata)
 
 
-def read_series(path: str | Path, cmap: ChannelMap) -> dict[str, Series]:
-    """Every channel of the map from ``path``, in SI, each on its own time base."""
+def read_series(path: str | Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
+    """Every channel of the map from ``path``, in SI, each on its own time base; ``notes`` is told
+    what was done to the time (a relative time base that started below 0, shifted)."""
     path = Path(path)
     if not path.exists():
         raise InputFileError(f"{path} does not exist")
@@ -68,14 +71,42 @@ def read_series(path: str | Path, cmap: ChannelMap) -> dict[str, Series]:
                              f"(one of {', '.join(sorted(TIMESERIES_SUFFIXES))})")
     if cmap.format != "timeseries":
         raise InputFileError(f"{path}: the channel map {cmap.path} is for format: {cmap.format}, not timeseries")
-    reader = {"CSV": _read_arrow, "Parquet": _read_arrow, "MDF4": _read_mdf4, "TDMS": _read_tdms}[kind]
-    series = reader(path, cmap)
+    if kind in ("CSV", "Parquet") and cmap.time is None:
+        raise InputFileError(f"{path}: a {kind} file needs time: {{column: …, unit: s|ms|us|ns|datetime}} in the "
+                             f"channel map {cmap.path} (only MDF4 and TDMS carry their own time)")
+    series = _read_arrow(path, cmap, notes) if kind in ("CSV", "Parquet") else \
+        {"MDF4": _read_mdf4, "TDMS": _read_tdms}[kind](path, cmap)
     for name, s in series.items():
         back = np.flatnonzero(np.diff(s.t_ns) < 0)
         if back.size:
             raise InputFileError(f"{path}: {name} ({cmap.channels[name].column}): time runs backwards after "
                                  f"sample {int(back[0])} (time must not decrease)")
-    return series
+    return _from_zero_when_negative(path, cmap, series, notes)
+
+
+def _from_zero_when_negative(path: Path, cmap: ChannelMap, series: dict[str, Series],
+                             notes: list[str] | None = None) -> dict[str, Series]:
+    """Recordings start at or after 1970 (MCAP log times are unsigned): relative times that start
+    below 0 (a DAQ's pre-trigger) are shifted so that the first sample is at 0; a date-time
+    before 1970 is an error."""
+    first = min((int(s.t_ns[0]) for s in series.values() if len(s.t_ns)), default=0)
+    if first >= 0:
+        return series
+    if cmap.time is not None and cmap.time.unit == "datetime":
+        raise InputFileError(f"{path}: time ({cmap.time.column}) lies before 1970-01-01: not a recording's date")
+    if notes is not None:
+        notes.append(f"time started at {first * 1e-9:g} s: shifted by {-first * 1e-9:g} s to start at 0")
+    return {name: Series(s.t_ns - first, s.values) for name, s in series.items()}
+
+
+def seconds_to_ns(path: Path, what: str, seconds) -> np.ndarray:
+    """Times in seconds as int64 ns; a time that is not finite (or beyond 292 years) is one line."""
+    seconds = np.asarray(seconds, dtype=np.float64)
+    bad = ~(np.abs(seconds) < 9.2e9)
+    if bad.any():
+        raise InputFileError(f"{path}: {what}: time {float(seconds[bad][0])!r} s at sample "
+                             f"{int(np.flatnonzero(bad)[0])} is not a finite time")
+    return np.round(seconds * 1e9).astype(np.int64)
 
 
 # ------------------------------------------------------------------------------------ CSV / Parquet
@@ -131,11 +162,12 @@ def numeric_column(path: Path, name: str, spec: ChannelSpec, table) -> np.ndarra
     return col.to_numpy(zero_copy_only=False).astype(np.float64)
 
 
-def _read_arrow(path: Path, cmap: ChannelMap) -> dict[str, Series]:
+def _read_arrow(path: Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
     table, _ = arrow_table(path, cmap)
     t_col = table.column(cmap.time.column)
     t_valid = ~np.asarray(t_col.is_null())
-    t_ns = _time_ns(path, cmap.time, t_col)
+    base = time_base(path, cmap, sniff(path, cmap) if path.suffix.lower() == ".csv" else None)
+    t_ns = _time_ns(path, cmap.time, t_col, base, notes=notes)
     back = np.flatnonzero(np.diff(t_ns[t_valid]) < 0)
     if back.size:
         raise InputFileError(f"{path}: time ({cmap.time.column}) runs backwards after data row {int(back[0]) + 1} "
@@ -162,12 +194,23 @@ _CLOCK = re.compile(r"^\s*(\d{1,2}):(\d{2}):(\d{2}(?:[.,]\d+)?)\s*$")
 _DAY_NS = 86_400 * 10**9
 
 
-def _clock_ns(path: Path, spec: ChannelSpec, column) -> np.ndarray:
-    """Clock times ``HH:MM:SS[.fff]`` (a decimal comma too) as ns since the first midnight: a
-    recording that runs past midnight goes on into the next day (a step back of more than 12 h)."""
+def _times_of_day(path: Path, spec: ChannelSpec, column) -> tuple[np.ndarray, np.ndarray] | None:
+    """Clock times ``HH:MM:SS[.fff]`` (a decimal comma too, or pyarrow's time-of-day type) as ns
+    since midnight, with the rows that have one; None when the column holds date-times instead."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    present = ~np.asarray(column.is_null())
+    if pa.types.is_time(column.type):  # pyarrow's CSV reader makes HH:MM:SS a time of day
+        raw = pc.cast(pc.cast(column, pa.time64("ns")), pa.int64()).to_numpy(zero_copy_only=False)
+        return np.where(present, raw, 0).astype(np.int64), present
+    if not (pa.types.is_string(column.type) or pa.types.is_large_string(column.type)):
+        return None
     cells = column.to_pylist()
+    first = next((c for c in cells[:1000] if c is not None), None)
+    if first is None or not _CLOCK.match(first):
+        return None
     out = np.zeros(len(cells), dtype=np.int64)
-    present = np.zeros(len(cells), dtype=bool)
     for row, cell in enumerate(cells):
         if cell is None:
             continue
@@ -177,30 +220,102 @@ def _clock_ns(path: Path, spec: ChannelSpec, column) -> np.ndarray:
                                  "HH:MM:SS[.fff] like the rows before it")
         h, mi, sec = m.groups()
         out[row] = round((int(h) * 3600 + int(mi) * 60 + float(sec.replace(",", "."))) * 1e9)
-        present[row] = True
+    return out, present
+
+
+def _unwrap_days(out: np.ndarray, present: np.ndarray, after_ns: int | None) -> np.ndarray:
+    """Times of day (ns since midnight) as ns since the first midnight: a recording that runs past
+    midnight goes on into the next day (a step back of more than 12 h); ``after_ns``: the last time
+    before these rows (a file read in batches), in the same count."""
     t = out[present]
-    t += _DAY_NS * np.cumsum(np.diff(t, prepend=t[:1]) < -_DAY_NS // 2)
+    if len(t):
+        days = 0 if after_ns is None else max(0, -(-(after_ns - _DAY_NS // 2 - int(t[0])) // _DAY_NS))
+        t += _DAY_NS * (days + np.cumsum(np.diff(t, prepend=t[:1]) < -_DAY_NS // 2))
     out[present] = t
     return out
 
 
-def _time_ns(path: Path, spec: ChannelSpec, column) -> np.ndarray:
-    """A time column as int64 ns (numbers in the map's unit, ISO 8601 date-times, or clock times)."""
+@dataclass(frozen=True)
+class TimeBase:
+    """What a file's date-times and clock times mean: the zone of those written without one, and
+    the midnight (UTC ns) clock times count from."""
+
+    zone: str = "UTC"
+    clock_origin_ns: int = 0
+    zone_given: bool = False
+    date_given: bool = False
+
+
+def time_base(path: Path, cmap: ChannelMap, dialect=None) -> TimeBase:
+    """The map's ``timezone`` and ``date`` for ``path`` (``date: {preamble: LABEL}`` read from the
+    CSV's preamble; ``dialect``: the file's :func:`~.csvdialect.sniff`)."""
+    import datetime
+
+    from .channelmap import zone_info
+    from .csvdialect import preamble_value
+
+    zone = cmap.timezone or "UTC"
+    day = cmap.date
+    if cmap.date_label is not None:
+        text = preamble_value(path, dialect, cmap.date_label) if dialect is not None else None
+        if text is None:
+            raise InputFileError(f"{path}: no preamble line {cmap.date_label!r} with the date (the map's date: "
+                                 "{preamble: …})")
+        formats = [cmap.date_format] if cmap.date_format else ["%Y-%m-%d", "%d.%m.%Y"]
+        for fmt in formats:
+            try:
+                day = datetime.datetime.strptime(text, fmt).date().isoformat()
+                break
+            except ValueError:
+                continue
+        else:
+            raise InputFileError(f"{path}: the preamble's {cmap.date_label} {text!r} is not a date "
+                                 f"({' or '.join(formats)}; give date: {{preamble: …, format: …}})")
+    origin = 0
+    if day is not None:
+        midnight = datetime.datetime.combine(datetime.date.fromisoformat(day), datetime.time(), zone_info(zone))
+        origin = int(round(midnight.timestamp())) * 10**9
+    return TimeBase(zone, origin, cmap.timezone is not None, day is not None)
+
+
+def _time_ns(path: Path, spec: ChannelSpec, column, base: TimeBase = TimeBase(), after_ns: int | None = None,
+             notes: list[str] | None = None) -> np.ndarray:
+    """A time column as int64 ns (numbers in the map's unit, ISO 8601 date-times, or clock times).
+    Date-times without a zone are in ``base.zone``, clock times on its day; ``notes`` is told what
+    was assumed (UTC, 1970-01-01) where the map did not say; ``after_ns``: see :func:`_unwrap_days`."""
     import pyarrow as pa
     import pyarrow.compute as pc
 
+    def note(text: str) -> None:
+        if notes is not None and text not in notes:
+            notes.append(text)
+
     if spec.unit == "datetime":
+        day_ns = _times_of_day(path, spec, column)
+        if day_ns is not None:
+            if not base.date_given:
+                note("clock times without a date: counted from 1970-01-01 (date: in the channel map gives their day)")
+            elif not base.zone_given:
+                note(f"clock times on {_day_of(base.clock_origin_ns)} taken as UTC (no timezone in the channel map)")
+            values, present = day_ns
+            after = None if after_ns is None else after_ns - base.clock_origin_ns
+            return base.clock_origin_ns + _unwrap_days(values, present, after)
         if pa.types.is_string(column.type) or pa.types.is_large_string(column.type):
-            first = next((c for c in column.to_pylist()[:1000] if c is not None), None)
-            if first is not None and _CLOCK.match(first):
-                return _clock_ns(path, spec, column)
             try:
                 column = pc.strptime(column, format="%Y-%m-%dT%H:%M:%S", unit="ns", error_is_null=False)
             except pa.ArrowInvalid:
-                column = pc.cast(column, pa.timestamp("ns"))
+                try:
+                    column = pc.cast(column, pa.timestamp("ns"))
+                except pa.ArrowInvalid:  # with a zone offset (+01:00, Z): the instant it names
+                    column = pc.cast(column, pa.timestamp("ns", "UTC"))
         if not pa.types.is_timestamp(column.type):
             raise InputFileError(f"{path}: time ({spec.column}) is not ISO 8601 date-times (type {column.type})")
-        return pc.cast(pc.cast(column, pa.timestamp("ns")), pa.int64()).to_numpy(zero_copy_only=False)
+        if column.type.tz is None:  # written without a zone: the map's, else UTC (and said)
+            if not base.zone_given:
+                note("date-times without a zone taken as UTC (timezone: in the channel map says otherwise)")
+            column = pc.assume_timezone(pc.cast(column, pa.timestamp("ns")), base.zone, ambiguous="earliest",
+                                        nonexistent="earliest")
+        return pc.cast(pc.cast(column, pa.timestamp("ns", "UTC")), pa.int64()).to_numpy(zero_copy_only=False)
     if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
         raise InputFileError(f"{path}: time ({spec.column}) is not numbers in {spec.unit} (type {column.type}); "
                              "ISO 8601 date-times need unit: datetime")
@@ -214,15 +329,27 @@ def _time_ns(path: Path, spec: ChannelSpec, column) -> np.ndarray:
     return np.where(present, t, 0).astype(np.int64)
 
 
+def _day_of(ns: int) -> str:
+    import datetime
+
+    return datetime.datetime.fromtimestamp(ns / 1e9, datetime.UTC).date().isoformat()
+
+
 # ------------------------------------------------------------------------------------ MDF4
 def _read_mdf4(path: Path, cmap: ChannelMap) -> dict[str, Series]:
-    from asammdf import MDF
-
+    mdf = _open_mdf(path)
     try:
-        mdf = MDF(path)
-    except Exception as exc:  # noqa: BLE001 - asammdf raises many types for a file that is not MDF
-        raise InputFileError(f"{path}: not an MDF file asammdf can read ({exc})") from None
-    try:
+        # the file's own time: each channel's master (time) channel from the measurement's start
+        start = mdf.header.start_time
+        start_ns = int(round(start.timestamp() * 1e9)) if start is not None and start.year >= 1970 else 0
+        clock = None
+        if cmap.time is not None:  # a time channel named in the map replaces the masters
+            if cmap.time.unit == "datetime":
+                raise InputFileError(f"{path}: time ({cmap.time.column}): an MDF4 time channel holds numbers "
+                                     "(s|ms|us|ns), not date-times")
+            group, index = _mdf_channel(path, mdf, "time", cmap.time.column)
+            clock = np.round(cmap.time.to_si(_numbers(path, "time", cmap.time.column,
+                                                      mdf.get(group=group, index=index).samples)))
         out = {}
         for name, spec in cmap.channels.items():
             group, index = _mdf_channel(path, mdf, name, spec.column)
@@ -230,11 +357,45 @@ def _read_mdf4(path: Path, cmap: ChannelMap) -> dict[str, Series]:
             if not unit_matches(name, signal.unit, spec.unit):
                 raise InputFileError(f"{path}: {name} ({spec.column}) is in {signal.unit!r} by the file's metadata, "
                                      f"the channel map says {spec.unit}")
-            t_ns = np.round(np.asarray(signal.timestamps, dtype=np.float64) * 1e9).astype(np.int64)
-            out[name] = Series(t_ns, spec.to_si(_numbers(path, name, spec.column, signal.samples)))
+            values = spec.to_si(_numbers(path, name, spec.column, signal.samples))
+            if clock is None:
+                t_ns = start_ns + seconds_to_ns(path, f"{name} ({spec.column})", signal.timestamps)
+            elif len(clock) == len(values):
+                t_ns = start_ns + clock.astype(np.int64)
+            else:
+                raise InputFileError(f"{path}: {name} ({spec.column}) has {len(values)} samples, the time channel "
+                                     f"{cmap.time.column!r} {len(clock)}: a time channel serves the channels of its "
+                                     "data group (leave time out of the map to use each channel's own)")
+            out[name] = Series(t_ns, values)
         return out
     finally:
         mdf.close()
+
+
+def _open_mdf(path: Path):
+    """The ``asammdf`` MDF of ``path``; a file it cannot read is one line (the half-made object's
+    ``__del__`` fails too, and would print an "Exception ignored" traceback after the error)."""
+    import gc
+    import sys
+
+    from asammdf import MDF
+
+    previous = sys.unraisablehook
+
+    def quiet(unraisable) -> None:
+        if "asammdf" not in getattr(getattr(unraisable.object, "__code__", None), "co_filename", ""):
+            previous(unraisable)
+
+    sys.unraisablehook = quiet
+    try:
+        try:
+            return MDF(path)
+        except Exception as exc:  # noqa: BLE001 - asammdf raises many types for a file that is not MDF
+            reason = " ".join(str(exc).split())
+        gc.collect()  # the half-made MDF goes now, while its __del__'s error is quiet
+        raise InputFileError(f"{path}: not an MDF file asammdf can read ({reason})")
+    finally:
+        sys.unraisablehook = previous
 
 
 def _mdf_channel(path: Path, mdf, name: str, column: str) -> tuple[int, int]:
@@ -299,8 +460,12 @@ def _read_tdms(path: Path, cmap: ChannelMap) -> dict[str, Series]:
                                  ) from None
 
     base = None
-    if cmap.time is not None and "/" in cmap.time.column:
-        base = np.round(cmap.time.to_si(channel("time", cmap.time.column)[:])).astype(np.int64)
+    if cmap.time is not None:  # a time channel named in the map replaces the waveforms' own time
+        if "/" not in cmap.time.column or cmap.time.unit == "datetime":
+            raise InputFileError(f"{path}: time ({cmap.time.column}): a TDMS time channel is named group/channel "
+                                 "and holds numbers (s|ms|us|ns); leave time out to use the waveforms' own")
+        base = np.round(cmap.time.to_si(_numbers(path, "time", cmap.time.column,
+                                                 channel("time", cmap.time.column)[:]))).astype(np.int64)
     out = {}
     for name, spec in cmap.channels.items():
         ch = channel(name, spec.column)
@@ -309,15 +474,40 @@ def _read_tdms(path: Path, cmap: ChannelMap) -> dict[str, Series]:
             raise InputFileError(f"{path}: {name} ({spec.column}) is in {unit!r} by the file's metadata, "
                                  f"the channel map says {spec.unit}")
         values = _numbers(path, name, spec.column, ch[:])
-        if base is not None and len(base) == len(values):
+        if base is not None:
+            if len(base) != len(values):
+                raise InputFileError(f"{path}: {name} ({spec.column}) has {len(values)} samples, the time channel "
+                                     f"{cmap.time.column!r} {len(base)}")
             t_ns = base
-        elif "wf_increment" in ch.properties:
-            t_ns = np.round(np.asarray(ch.time_track(), dtype=np.float64) * 1e9).astype(np.int64)
         else:
-            raise InputFileError(f"{path}: {name} ({spec.column}) has no time: no wf_increment property and no "
-                                 "time channel (time: {column: group/channel}) of its length")
+            t_ns = _waveform_ns(path, f"{name} ({spec.column})", ch.properties, len(values))
         out[name] = Series(t_ns, spec.to_si(values))
     return out
+
+
+def _waveform_ns(path: Path, what: str, properties, n: int) -> np.ndarray:
+    """A TDMS waveform's time (NI's properties): ``wf_start_time`` (absolute, when given) +
+    ``wf_start_offset`` (0 when missing, as NI's readers take it) + i · ``wf_increment``."""
+    inc = properties.get("wf_increment")
+    if inc is None:
+        raise InputFileError(f"{path}: {what} has no time: no wf_increment property (give a time channel as "
+                             "time: {column: group/channel, unit: s})")
+    try:
+        inc, offset = float(inc), float(properties.get("wf_start_offset", 0.0))
+    except (TypeError, ValueError):
+        raise InputFileError(f"{path}: {what}: wf_increment / wf_start_offset are not numbers") from None
+    if not (math.isfinite(inc) and inc > 0 and math.isfinite(offset)):
+        raise InputFileError(f"{path}: {what}: wf_increment = {inc!r} s, wf_start_offset = {offset!r} s: a waveform "
+                             "needs a finite increment > 0 and a finite start")
+    start = properties.get("wf_start_time")
+    start_ns = 0
+    if start is not None:
+        try:
+            start_ns = int(np.datetime64(start, "ns").astype(np.int64))
+        except (TypeError, ValueError):
+            start_ns = 0
+        start_ns = max(start_ns, 0)  # NI's zero time (1904) means "not set"
+    return start_ns + seconds_to_ns(path, what, offset + inc * np.arange(n, dtype=np.float64))
 
 
 # ------------------------------------------------------------------------------------ alignment

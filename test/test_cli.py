@@ -206,3 +206,15 @@ def test_a_fifo_as_input_is_refused_not_waited_on(tmp_path, name, command):
     proc = run_cli(*args, check=False, timeout=120)
     assert proc.returncode == 2 and "is not a regular file" in proc.stderr and "Traceback" not in proc.stderr, \
         proc.stderr
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--window-days", "inf"], "--window-days must be a number of days in (0, 100,000], not inf"),
+    (["--window-days", "nan"], "--window-days must be a number of days"),
+    (["--slice-messages", "1"], "--slice-messages must be at least 10,000"),
+])
+def test_fleet_limits_are_one_line(tmp_path, args, message):
+    """``--window-days inf`` was an OverflowError traceback; ``--slice-messages 1`` ran for ever."""
+    proc = run_cli("fleet", "calibrate", str(BAGS / "rig_map.mcap"), "--out", str(tmp_path / "o"), *args,
+                   check=False, timeout=120)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and message in proc.stderr, proc.stderr

@@ -224,3 +224,46 @@ def test_workers_keep_glibc_s_own_memory_trimming(client):
     import os
 
     assert set(client.run(os.environ.get, "MALLOC_TRIM_THRESHOLD_").values()) == {None}
+
+
+def test_a_fifo_a_symlink_loop_and_the_fleets_own_output_among_the_logs_are_no_hang_and_no_abort(
+        client, tmp_path):
+    """A FIFO among the logs hung ``fleet replay`` (no output after 400 s), a symlink loop aborted the
+    run, and an --out inside the logs folder had the fleet's own tables read as recordings."""
+    logs = tmp_path / "logs"
+    (logs / "gb01").mkdir(parents=True)
+    shutil.copy(BAGS / "rig_map.mcap", logs / "gb01" / "day1.mcap")
+    os.mkfifo(logs / "gb01" / "day2.mcap")
+    (logs / "gb01" / "loop").symlink_to(logs / "gb01", target_is_directory=True)  # a folder loop
+    (logs / "gb01" / "self.mcap").symlink_to(logs / "gb01" / "self.mcap")  # a file loop
+    out = logs / "out"
+    recs = discover([str(logs)], exclude=out)
+    assert sorted(os.path.basename(r.path) for r in recs) == ["day1.mcap", "day2.mcap", "self.mcap"]
+    rows, _ = run_replay(recs, out, client, load_config(CONFIG))
+    by_name = {os.path.basename(r["recording"]): r for r in rows}
+    assert by_name["day1.mcap"]["status"] == "ok"
+    assert by_name["day2.mcap"]["status"] == "failed" and "is a FIFO" in by_name["day2.mcap"]["reason"]
+    assert by_name["self.mcap"]["status"] == "failed" and "cannot be read" in by_name["self.mcap"]["reason"]
+    assert (out / FLEET_TABLE).exists()
+    again = discover([str(logs)], exclude=out)  # the table written into the logs folder is left out
+    assert [r.path for r in again] == [r.path for r in recs]
+
+
+def test_a_task_whose_worker_keeps_dying_is_a_failed_row_and_the_rest_finish(tmp_path):
+    """A task that kills its worker every time ended the run with a ``KilledWorker`` traceback and no table."""
+    import dask
+
+    from rollergear_ros.fleet import _run
+
+    rec = discover([str(BAGS / "rig_map.mcap")])[0]
+    units = [("dies", [("dies", os._exit, (3,))]),
+             (rec.key, [(rec.key, replay_task, (rec, load_config(CONFIG), None))])]
+    # two workers: the dying task takes one down (and again, until the scheduler gives up on it); the
+    # other task waits in the scheduler's queue for a free worker, never on the one that dies
+    with dask.config.set({"distributed.scheduler.allowed-failures": 2}), dask_client(workers=2) as client:
+        rows, ran = _run(client, tmp_path / FLEET_TABLE, units, False, "recordings", lambda m: None, settings="s")
+    assert ran == 2 and len(rows) == 2
+    by_key = {r["key"]: r for r in rows}
+    assert by_key["dies"]["status"] == "failed" and "KilledWorker" in by_key["dies"]["reason"]
+    assert by_key[rec.key]["status"] == "ok" and by_key[rec.key]["estimated"] > 0
+    assert {r["key"]: r["status"] for r in read_table(tmp_path / FLEET_TABLE)} == {"dies": "failed", rec.key: "ok"}

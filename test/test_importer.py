@@ -13,7 +13,7 @@ from rollergear_ros.errors import InputFileError
 from rollergear_ros.importer import import_source
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
-from helpers import BAGS, REALDATA, run_cli
+from helpers import BAGS, REALDATA, ROOT, run_cli
 
 RPM = 2 * np.pi / 60
 N = 3000  # 3 s at 1 kHz
@@ -32,8 +32,9 @@ def signals():
             "temperature": temperature}
 
 
-def write_map(path, **extra):
-    lines = ["format: timeseries", "time: {column: t_ms, unit: ms}",
+def write_map(path, own_time: bool = False, **extra):
+    """``own_time``: no time entry (MDF4 and TDMS channels carry their own)."""
+    lines = ["format: timeseries"] + ([] if own_time else ["time: {column: t_ms, unit: ms}"]) + [
              "motor_torque: {column: T_in, unit: N*mm}", "motor_speed: {column: n_in, unit: rpm}",
              "output_torque: {column: T_out, unit: N*m, scale: -1}", "output_speed: {column: w_out, unit: rad/s}",
              "oil_temperature: {column: T_oil, unit: degF}"]
@@ -200,7 +201,7 @@ def test_mdf4_with_channels_at_different_rates(tmp_path, signals):
     mdf.append([Signal(cols["T_oil"][::100], t[::100], name="T_oil", unit="°F")])
     src = tmp_path / "rig.mf4"
     mdf.save(src, overwrite=True)
-    summary = import_source(src, tmp_path / "rig.mcap", write_map(tmp_path / "map.yaml"))
+    summary = import_source(src, tmp_path / "rig.mcap", write_map(tmp_path / "map.yaml", own_time=True))
     assert summary.kind == "MDF4" and summary.resampled == ["motor_speed"]
     messages = read_mcap_ros2(tmp_path / "rig.mcap")
     _, speed = float_series(messages, "/rollergear/motor/speed")
@@ -234,7 +235,7 @@ def test_mdf4_channels_of_one_name_in_several_groups_are_chosen_by_group(tmp_pat
     mdf.append([Signal(np.array([b"drive"] * 300), t[slow], name="mode", encoding="latin-1")], acq_name="state")
     src = tmp_path / "rig.mf4"
     mdf.save(src, overwrite=True)
-    base = "time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*mm}\n"
+    base = "motor_torque: {column: T_in, unit: N*mm}\n"
     cmap = tmp_path / "map.yaml"
     for column, message in (
             ("n_in", "motor_speed: channel 'n_in' is in 2 data groups (0 'DAQ', 1 'CAN speed'): name one as "
@@ -265,8 +266,7 @@ def test_tdms_round_trip(tmp_path, signals):
                                             properties={"unit_string": unit, "wf_increment": 1e-3,
                                                         "wf_start_offset": 0.0}) for name, unit in units.items()])
     cmap = tmp_path / "map.yaml"
-    cmap.write_text(write_map(tmp_path / "m0.yaml").read_text().replace("column: ", "column: rig/")
-                    .replace("{column: rig/t_ms, unit: ms}", "{column: t, unit: s}"))
+    cmap.write_text(write_map(tmp_path / "m0.yaml", own_time=True).read_text().replace("column: ", "column: rig/"))
     summary = import_source(src, tmp_path / "rig.mcap", cmap)
     assert summary.kind == "TDMS"
     check_round_trip(tmp_path / "rig.mcap", signals)
@@ -545,3 +545,282 @@ def test_temperature_payloads_are_what_the_typestore_serialises():
                                         "temperature": v, "variance": 0.25})
     with pytest.raises(BagError, match="int32 seconds"):
         temperature_payloads(np.array([2**31 * 1_000_000_000], dtype=np.int64), np.array([20.0]))
+
+
+def _tdms(path, props: dict, n: int = 200) -> None:
+    from nptdms import ChannelObject, TdmsWriter
+
+    with TdmsWriter(path) as w:
+        w.write_segment([ChannelObject("g", "T", np.full(n, 5.0), properties=props),
+                         ChannelObject("g", "w", np.full(n, 10.0), properties=props)])
+
+
+TDMS_MAP = "motor_torque: {column: g/T, unit: N*m}\nmotor_speed: {column: g/w, unit: rad/s}\n"
+
+
+@pytest.mark.parametrize(("props", "start_ns", "step_ns"), [
+    ({"wf_increment": 1e-3}, 0, 1_000_000),  # no wf_start_offset: 0, as NI's readers take it (was a KeyError)
+    ({"wf_increment": 2e-3, "wf_start_offset": 0.5}, 500_000_000, 2_000_000),
+    ({"wf_increment": 1e-3, "wf_start_time": np.datetime64("2026-11-24T08:30:00", "us")},
+     int(np.datetime64("2026-11-24T08:30:00", "ns").astype(np.int64)), 1_000_000),  # the file's own date
+])
+def test_tdms_waveforms_carry_their_own_time(tmp_path, props, start_ns, step_ns):
+    src = tmp_path / "rig.tdms"
+    _tdms(src, props)
+    (tmp_path / "map.yaml").write_text(TDMS_MAP)  # no time entry: the contract says none is needed
+    import_source(src, tmp_path / "o.mcap", tmp_path / "map.yaml")
+    for messages in (read_mcap_ros2(tmp_path / "o.mcap"), read_rosbags(tmp_path / "o.mcap")):
+        t, torque = float_series(messages, "/rollergear/motor/torque")
+        np.testing.assert_array_equal(t, start_ns + step_ns * np.arange(200))
+        assert (torque == 5.0).all()
+
+
+def test_mdf4_time_is_the_files_own_or_the_channel_the_map_names(tmp_path):
+    """MDF4 channels carry their own time (from the measurement's start in the header); a map that
+    names a time channel used to be ignored."""
+    import datetime
+
+    from asammdf import MDF, Signal
+
+    t = np.arange(100) * 0.01
+    mdf = MDF(version="4.10")
+    mdf.header.start_time = datetime.datetime(2026, 11, 24, 8, 30, tzinfo=datetime.UTC)
+    mdf.append([Signal(np.full(100, 5.0), t, name="T", unit="Nm"), Signal(np.full(100, 10.0), t, name="w"),
+                Signal(1000.0 * t + 250.0, t, name="t_daq", unit="ms")])
+    src = tmp_path / "rig.mf4"
+    mdf.save(src, overwrite=True)
+    start = int(np.datetime64("2026-11-24T08:30:00", "ns").astype(np.int64))
+    cmap = tmp_path / "map.yaml"
+    cmap.write_text("motor_torque: {column: T, unit: N*m}\nmotor_speed: {column: w, unit: rad/s}\n")
+    import_source(src, tmp_path / "o.mcap", cmap)
+    got, _ = float_series(read_rosbags(tmp_path / "o.mcap"), "/rollergear/motor/torque")
+    np.testing.assert_array_equal(got, start + np.round(t * 1e9).astype(np.int64))
+    cmap.write_text(cmap.read_text() + "time: {column: t_daq, unit: ms}\n")
+    import_source(src, tmp_path / "o.mcap", cmap)
+    got, _ = float_series(read_rosbags(tmp_path / "o.mcap"), "/rollergear/motor/torque")
+    np.testing.assert_array_equal(got, start + np.round((t + 0.25) * 1e9).astype(np.int64))
+
+
+def test_a_csv_time_that_starts_below_zero_is_shifted_and_said(tmp_path):
+    """Negative times (a DAQ's pre-trigger) were a struct.error and an invalid MCAP left at --out."""
+    (tmp_path / "rig.csv").write_text("t,T,w\n-1.0,1,10\n-0.5,2,10\n0,3,10\n0.5,4,10\n")
+    (tmp_path / "map.yaml").write_text("time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\n"
+                                       "motor_speed: {column: w, unit: rad/s}\n")
+    proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(tmp_path / "map.yaml"), "--out",
+                   str(tmp_path / "o.mcap"))
+    assert "time started at -1 s: shifted by 1 s to start at 0" in proc.stdout
+    t, torque = float_series(read_mcap_ros2(tmp_path / "o.mcap"), "/rollergear/motor/torque")
+    np.testing.assert_array_equal(t, [0, 500_000_000, 1_000_000_000, 1_500_000_000])
+    np.testing.assert_array_equal(torque, [1, 2, 3, 4])
+
+
+def _damaged_db3(tmp_path):
+    src = REALDATA / "rosbag2_test_fixtures/rosbag2_py/test/resources/sqlite3/talker/talker.db3"
+    (tmp_path / "d.db3").write_bytes(src.read_bytes()[:3000])
+    return tmp_path / "d.db3", "database disk image is malformed"
+
+
+def _damaged_metadata(tmp_path):
+    import shutil
+
+    shutil.copytree(REALDATA / "rosbag2_test_fixtures/rosbag2_py/test/resources/sqlite3/talker", tmp_path / "bag")
+    (tmp_path / "bag" / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: [\n")
+    return tmp_path / "bag", "Could not load YAML"
+
+
+def _bad_tdms(value):
+    def make(tmp_path):
+        _tdms(tmp_path / "r.tdms", {"wf_increment": value, "wf_start_offset": 0.0})
+        (tmp_path / "map.yaml").write_text(TDMS_MAP)
+        return tmp_path / "r.tdms", f"wf_increment = {value!r} s"
+    return make
+
+
+def _truncated_mf4(tmp_path):
+    from asammdf import MDF, Signal
+
+    mdf = MDF(version="4.10")
+    mdf.append([Signal(np.ones(10), np.arange(10) * 0.1, name="T", unit="Nm")])
+    mdf.save(tmp_path / "a.mf4", overwrite=True)
+    (tmp_path / "r.mf4").write_bytes((tmp_path / "a.mf4").read_bytes()[:300])
+    (tmp_path / "map.yaml").write_text("motor_torque: {column: T, unit: N*m}\nmotor_speed: {column: T, unit: rad/s}\n"
+                                       .replace("column: T, unit: rad/s", "column: W, unit: rad/s"))
+    return tmp_path / "r.mf4", "not an MDF file asammdf can read"
+
+
+def _map_problem(text, message):
+    def make(tmp_path):
+        (tmp_path / "r.csv").write_text("t,T,w\n0,1,10\n1,1,10\n")
+        (tmp_path / "map.yaml").write_text(text)
+        return tmp_path / "r.csv", message
+    return make
+
+
+BASE_MAP = "time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\nmotor_speed: {column: w, unit: rad/s}\n"
+
+
+@pytest.mark.skipif(not REALDATA.exists(), reason="needs ../shared/realdata")
+@pytest.mark.parametrize("make", [
+    _damaged_db3, _damaged_metadata, _bad_tdms(float("nan")), _bad_tdms(float("inf")), _bad_tdms(-0.001),
+    _truncated_mf4,
+    _map_problem(BASE_MAP + "motor_speed: {column: w, unit: rpm}\n", "the key 'motor_speed' is given twice"),
+    _map_problem(BASE_MAP + "output_torque: {column: T, unit: N*m}\n", "column 'T' is mapped to both motor_torque "
+                 "and output_torque"),
+    _map_problem(BASE_MAP + "ratio: .inf\n", "ratio must be a finite number > 0"),
+])
+def test_imports_that_were_tracebacks_are_one_line_and_leave_no_file(tmp_path, make):
+    src, message = make(tmp_path)
+    args = ["import", str(src), "--out", str(tmp_path / "o.mcap")]
+    if (tmp_path / "map.yaml").exists():
+        args += ["--channels", str(tmp_path / "map.yaml")]
+    proc = run_cli(*args, check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and "Exception ignored" not in proc.stderr
+    assert proc.stderr.count("\n") == 1 and message in proc.stderr, proc.stderr
+    assert not (tmp_path / "o.mcap").exists() and not list(tmp_path.glob("*.partial"))
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+@pytest.mark.parametrize("batch_rows", [7, 64, 1000])
+def test_reading_in_batches_gives_the_values_of_reading_the_file_whole(tmp_path, signals, suffix, batch_rows):
+    """CSV and Parquet are imported in bounded batches; a channel with empty cells is interpolated
+    across batch boundaries and the temperature thinned over the whole file, exactly as
+    ``align(read_series(...))`` of the whole file does."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    from rollergear_ros.arrowstream import aligned_batches
+    from rollergear_ros.channelmap import load_channel_map
+    from rollergear_ros.timeseries import align, read_series
+
+    cols = {k: pa.array(v) for k, v in file_columns(signals).items()}
+    n = len(signals["t"])
+    rng = np.random.default_rng(1)
+    for name, every in (("n_in", 10), ("w_out", 3), ("T_oil", 50)):  # slower channels: empty cells between
+        mask = np.ones(n, bool)
+        mask[::every] = False
+        mask[rng.integers(0, n, 40)] = True
+        cols[name] = pa.array(np.asarray(file_columns(signals)[name]), mask=mask)
+    cols["T_in"] = pa.array(np.asarray(file_columns(signals)["T_in"]), mask=np.isin(np.arange(n), [5, 6, 700]))
+    src = tmp_path / f"rig{suffix}"
+    if suffix == ".csv":
+        pacsv.write_csv(pa.table(cols), src)
+    else:
+        pq.write_table(pa.table(cols), src)
+    cmap = load_channel_map(write_map(tmp_path / "map.yaml"))
+    whole = align(read_series(src, cmap))
+    parts = list(aligned_batches(src, cmap, batch_rows=batch_rows))
+    assert len(parts) > 1 or batch_rows >= n
+    np.testing.assert_array_equal(np.concatenate([p.t_ns for p in parts]), whole.t_ns)
+    for name, values in whole.values.items():
+        np.testing.assert_array_equal(np.concatenate([p.values[name] for p in parts]), values, err_msg=name)
+    np.testing.assert_array_equal(np.concatenate([p.temperature.t_ns for p in parts if p.temperature]),
+                                  whole.temperature.t_ns)
+    assert parts[-1].resampled == whole.resampled, (parts[-1].resampled, whole.resampled)
+
+
+@pytest.mark.slow
+def test_a_parquet_file_of_millions_of_rows_is_imported_within_bounded_memory(tmp_path):
+    """An 817 KB Parquet file of 30 M rows took more than 3.5 GB in 8 s.  Six million rows (a
+    few megabytes on disk) read whole take about 1.6 GB; in batches the import stays far below the
+    1 GB the README promises (the child process's peak resident memory)."""
+    import subprocess
+    import sys
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    n = 6_000_000
+    t = np.arange(n, dtype=np.int64)  # ms
+    pq.write_table(pa.table({"t_ms": t, "T_in": np.full(n, 40e3), "n_in": np.full(n, 1000.0),
+                             "T_out": np.full(n, 54.0), "w_out": np.full(n, 76.0)}), tmp_path / "big.parquet",
+                   row_group_size=1_000_000)
+    (tmp_path / "map.yaml").write_text(write_map(tmp_path / "m.yaml").read_text().replace(
+        "oil_temperature: {column: T_oil, unit: degF}\n", ""))
+    script = ("import resource, sys; from rollergear_ros.cli import main; rc = main(sys.argv[1:]); "
+              "print('peak_kib', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(rc)")
+    proc = subprocess.run([sys.executable, "-c", script, "import", str(tmp_path / "big.parquet"), "--channels",
+                           str(tmp_path / "map.yaml"), "--out", str(tmp_path / "big.mcap")],
+                          capture_output=True, text=True, timeout=900, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    peak_kib = int(proc.stderr.split("peak_kib")[1].split()[0])  # this process's own peak, not another test's
+    assert "6,000,000 samples, 24,000,000 messages" in proc.stdout
+    assert peak_kib < 1_000_000, f"peak {peak_kib / 1024:.0f} MiB"
+    from rollergear_ros.bag import inspect_bag
+
+    info = inspect_bag(tmp_path / "big.mcap")
+    assert info.counts["/rollergear/motor/torque"] == n
+
+
+def _one_torque_time(tmp_path, text: str, map_extra: str, time_unit: str = "datetime") -> tuple[int, str, dict]:
+    (tmp_path / "rig.csv").write_text(text, encoding="utf-8")
+    (tmp_path / "map.yaml").write_text(f"time: {{column: Zeit, unit: {time_unit}}}\nmotor_torque: {{column: M, unit: "
+                                       f"N*m}}\nmotor_speed: {{column: n, unit: rpm}}\n{map_extra}")
+    proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(tmp_path / "map.yaml"), "--out",
+                   str(tmp_path / "o.mcap"))
+    t, _ = float_series(read_rosbags(tmp_path / "o.mcap"), "/rollergear/motor/torque")
+    from rollergear_ros.bag import read_metadata
+
+    return int(t[0]), proc.stdout, read_metadata(tmp_path / "o.mcap", "rollergear_import")
+
+
+def _utc_ns(text: str) -> int:
+    return int(np.datetime64(text, "ns").astype(np.int64))
+
+
+@pytest.mark.parametrize(("extra", "expected", "said"), [
+    ("", "2026-11-24T08:00:00", "date-times without a zone taken as UTC"),
+    ("timezone: Europe/Berlin\n", "2026-11-24T07:00:00", None),  # CET = UTC+1 in November
+    ("timezone: '-05:00'\n", "2026-11-24T13:00:00", None),
+])
+def test_date_times_without_a_zone_are_in_the_maps_timezone_or_utc_said(tmp_path, extra, expected, said):
+    """Naive ISO date-times were read as UTC without a word."""
+    t0, stdout, meta = _one_torque_time(tmp_path, "Zeit,M,n\n2026-11-24T08:00:00,1,100\n2026-11-24T08:00:01,1,100\n",
+                                        extra)
+    assert t0 == _utc_ns(expected)
+    if said:
+        assert said in stdout and said in meta["time"]
+    else:
+        assert "taken as UTC" not in stdout
+
+
+def test_a_date_time_with_its_own_zone_is_that_instant_whatever_the_map_says(tmp_path):
+    rows = "Zeit,M,n\n2026-11-24T08:00:00+02:00,1,100\n2026-11-24T08:00:01+02:00,1,100\n"
+    t0, _, _ = _one_torque_time(tmp_path, rows, "timezone: Europe/Berlin\n")
+    assert t0 == _utc_ns("2026-11-24T06:00:00")
+
+
+def test_a_daqs_preamble_date_puts_clock_times_on_their_day(tmp_path):
+    """A German DAQ writes ``Datum;24.11.2026`` above clock times: they landed on 1970-01-01."""
+    text = "Messung;Prüfstand 3\nDatum;24.11.2026\n\nZeit;M;n\n23:59:59,500;1;100\n00:00:00,500;1;100\n"
+    t0, stdout, meta = _one_torque_time(tmp_path, text, "date: {preamble: Datum}\ntimezone: Europe/Berlin\n")
+    assert t0 == _utc_ns("2026-11-24T22:59:59.5")  # 23:59:59.5 CET
+    t, _ = float_series(read_mcap_ros2(tmp_path / "o.mcap"), "/rollergear/motor/torque")
+    assert int(t[1]) - int(t[0]) == 1_000_000_000  # past midnight into the 25th
+    t0, stdout, meta = _one_torque_time(tmp_path, text, "")  # no date: said
+    assert t0 == _utc_ns("1970-01-01T23:59:59.5") and "clock times without a date" in stdout
+    (tmp_path / "map.yaml").write_text((tmp_path / "map.yaml").read_text() + "date: {preamble: Datum2}\n")
+    proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(tmp_path / "map.yaml"), "--out",
+                   str(tmp_path / "o.mcap"), check=False)
+    assert proc.returncode == 2 and "no preamble line 'Datum2'" in proc.stderr
+
+
+def test_clock_times_past_midnight_read_in_batches_equal_the_file_read_whole(tmp_path):
+    from rollergear_ros.arrowstream import aligned_batches
+    from rollergear_ros.channelmap import load_channel_map
+    from rollergear_ros.timeseries import align, read_series
+
+    clock = [f"23:59:{s:02d}" for s in range(50, 60)] + [f"00:00:{s:02d}" for s in range(0, 10)]
+    (tmp_path / "rig.csv").write_text("Zeit,M,n\n" + "".join(f"{c},1,100\n" for c in clock))
+    (tmp_path / "map.yaml").write_text("time: {column: Zeit, unit: datetime}\nmotor_torque: {column: M, unit: N*m}\n"
+                                       "motor_speed: {column: n, unit: rpm}\ndate: 2026-11-24\n")
+    cmap = load_channel_map(tmp_path / "map.yaml")
+    whole = align(read_series(tmp_path / "rig.csv", cmap)).t_ns
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    # batches of 3 rows (the CSV reader's blocks are larger): the same clock times as Parquet text
+    pq.write_table(pa.table({"Zeit": clock, "M": [1.0] * 20, "n": [100.0] * 20}), tmp_path / "rig.parquet")
+    parts = np.concatenate([p.t_ns for p in aligned_batches(tmp_path / "rig.parquet", cmap, batch_rows=3)])
+    np.testing.assert_array_equal(parts, whole)
+    assert np.all(np.diff(whole) == 1_000_000_000) and whole[0] == _utc_ns("2026-11-24T23:59:50")

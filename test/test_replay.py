@@ -652,6 +652,7 @@ def test_interrupted_replay_leaves_valid_files(tmp_path, config, sig):
     proc.send_signal(sig)
     stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130, stderr
+    assert "rollergear: interrupted: finishing the batch under way" in stderr  # said at once
     assert not partial_files(out) and not partial_files(rrd)  # renamed into place
     assert "INTERRUPTED" in stdout and "Traceback" not in stderr
     got = read_rosbags(out)  # a valid, indexed file

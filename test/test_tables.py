@@ -8,6 +8,7 @@ import re
 import numpy as np
 import pytest
 
+from rollergear_ros.channelmap import load_channel_map
 from rollergear_ros.errors import InputFileError
 from rollergear_ros.tables import read_table
 
@@ -321,3 +322,46 @@ def test_advisors_own_long_csv_is_read_by_its_provenance_feed_rule(tmp_path):
     np.testing.assert_allclose(table.torque_nm, t, rtol=1e-12)
     np.testing.assert_allclose(table.loss_nm, loss, rtol=1e-9, atol=1e-12)
     assert list(table.group) == list(gear) and table.dropped == 6500 - len(expect)
+
+
+def test_a_bench_map_of_input_torque_and_output_speed_is_calibrated_and_its_ratio_reaches_the_map(tmp_path, config):
+    """The layout a truck-axle bench hands over -- input torque, output speed, output torque and the
+    ratio -- was refused ("no motor_speed channel"); the input speed is output speed x ratio.  A
+    table made by the whole model + 0.3 N·m drag in that layout gives drag_constant 0.3 and nothing
+    else, and a map of the calibrated file states the table's ratio, not the roller gearbox's."""
+    from rollergear_ros.model import evaluate_reference
+
+    ratio = 3.7
+    lines = ["T_in,n_out,T_out"]
+    for n_in in np.arange(300, 3001, 300.0):
+        w_in = n_in * 2 * np.pi / 60
+        for t in np.arange(10, 101, 10.0):
+            loss = abs(evaluate_reference(config.gearbox, t, w_in)["T_loss"]) + 0.3
+            lines.append(f"{t:g},{n_in / ratio:.12g},{(t - loss) * ratio:.12g}")
+    (tmp_path / "bench.csv").write_text("\n".join(lines) + "\n")
+    (tmp_path / "map.yaml").write_text(f"format: steady_state\nmotor_torque: {{column: T_in, unit: N*m}}\n"
+                                       f"output_speed: {{column: n_out, unit: rpm}}\n"
+                                       f"output_torque: {{column: T_out, unit: N*m}}\nratio: {ratio}\n")
+    table = read_table(tmp_path / "bench.csv", load_channel_map(tmp_path / "map.yaml"))
+    np.testing.assert_allclose(np.sort(np.unique(np.round(table.speed_rad_s * 60 / (2 * np.pi), 6))),
+                               np.arange(300, 3001, 300.0))
+    cal = tmp_path / "cal.yaml"
+    result = json.loads(run_cli("calibrate", str(tmp_path / "bench.csv"), "--channels", str(tmp_path / "map.yaml"),
+                                "--json", "--out", str(cal)).stdout)
+    found = {e["name"]: e["params"] for e in result["effects"]}
+    assert set(found) == {"drag_constant"} and found["drag_constant"]["c"] == pytest.approx(0.3, rel=0.01)
+    run_cli("map", "--params", str(cal), "--out", str(tmp_path / "m.vtlm"), "--no-plot")
+    assert f"ratio (input/output speed) {ratio:g}" in (tmp_path / "m.vtlm").read_text()
+
+
+def test_a_table_mostly_beyond_the_plausible_range_stops_naming_the_limit_to_raise(tmp_path):
+    """A 40 t axle's map (up to 35 kN·m) against the default 5 kN·m limit: calibrate analysed the
+    remaining quarter of the rows with a confident adequacy line."""
+    text = HEADER + "".join(f"{n},{t},{10 + 0.01 * abs(t)}\n" for n in (500, 1000, 1500) for t in
+                            (-2000, 1000, 8000, 15000, 25000, 35000))
+    (tmp_path / "big.vtlm").write_text(text)
+    proc = run_cli("calibrate", str(tmp_path / "big.vtlm"), check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    error = [ln for ln in proc.stderr.splitlines() if "error" in ln]
+    assert len(error) == 1 and "12 of 18 rows lie beyond the estimator's plausible range" in error[0]
+    assert "estimator.max_abs_torque_nm: 36000" in error[0], error[0]
