@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .effects import EFFECTS, EffectInputs
+from .modelparams import MODEL_PARAMETERS, fitted_parameters
 from .model import rotation_sign
 from .samples import SampleData
 
@@ -21,8 +22,9 @@ MIN_TEMPERATURE_SPAN_C = 3.0
 
 
 def groups() -> tuple[str, ...]:
-    """The candidate groups: every effect of the registry, in its order."""
-    return tuple(EFFECTS)
+    """The candidate groups: every effect of the registry, in its order, then the model's own
+    parameters (:mod:`.modelparams`, one per part of the model)."""
+    return tuple(EFFECTS) + fitted_parameters()
 
 
 @dataclass
@@ -60,6 +62,8 @@ class Blocks:
         cached = self._columns.get(key)
         if cached is not None:
             return cached
+        if name in MODEL_PARAMETERS:  # a part of the model (its relative change is the coefficient)
+            return self.columns[name]
         effect = EFFECTS[name]
         if effect.scales_fr:
             # a relative change of Fr that depends on the oil temperature alone: evaluated once per
@@ -201,4 +205,11 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
             columns[name] = blocks.column(name)
         else:
             blocks.grids[name] = np.stack([blocks.column(name, m) for m in effect.member_grid])
+    # the model's own parameters: the part each scales, where the model has it (not switched off,
+    # not 0 as the ball friction without a ball force)
+    for key in fitted_parameters():
+        part = d.parts.get(MODEL_PARAMETERS[key].part)
+        if part is not None and np.any(part != 0):
+            columns[key] = mean(part)
+            blocks.testable += (key,)
     return blocks

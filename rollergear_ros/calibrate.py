@@ -33,14 +33,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .blocks import Blocks, groups, make_blocks
+from .blocks import Blocks, make_blocks
 from .effects import EFFECTS
 from .errors import BagError, UsageError
 from .model import LossModel
+from .modelparams import MODEL_PARAMETERS
 from .params import Config, ParameterError, config_to_yaml, validate
 from .report import write_report
 from .samples import SampleData, load_samples
@@ -75,6 +76,33 @@ class FoundEffect:
         said = ", ".join(f"{m} = {self.params[m]:.4g} at the bound of its range [{ranges[m][0]:g}, {ranges[m][1]:g}]"
                          for m in self.at_bound)
         return f"{self.name}: {said} -- the data want a law outside the vocabulary; this is the closest within it"
+
+
+@dataclass(frozen=True)
+class FoundParameter:
+    """A parameter of the paper's model that calibrate changed (:mod:`.modelparams`)."""
+
+    name: str  #: its parameter-file key (``gearbox.eta0_pa_s``)
+    file: float  #: the value in the parameter file calibrated
+    fitted: float
+    ci95: list[float]
+    rms_contribution_nm: float  #: RMS of the change it makes to the model's loss
+    same_part: list[str] = field(default_factory=list)  #: parameters of the same part, not told apart
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "file": self.file, "fitted": self.fitted, "ci95": self.ci95,
+                "label": MODEL_PARAMETERS[self.name].label, "unit": MODEL_PARAMETERS[self.name].unit,
+                "rms_contribution_nm": self.rms_contribution_nm, "not_told_apart_from": self.same_part}
+
+    def sentence(self) -> str:
+        """``oil viscosity at the reference temperature: 0.13 Pa·s (file 0.1; 95 % 0.127–0.133)``."""
+        p = MODEL_PARAMETERS[self.name]
+        unit = f" {p.unit}" if p.unit else ""
+        text = (f"{p.label} ({self.name}): {self.fitted:.4g}{unit} (file {self.file:.4g}; 95 % "
+                f"{self.ci95[0]:.4g}–{self.ci95[1]:.4g})")
+        if self.same_part:
+            text += f"; {', '.join(self.same_part)} scales the same part: not told apart, left at the file's value"
+        return text
 
 
 @dataclass(frozen=True)
@@ -137,12 +165,19 @@ class CalibrationResult:
     adequacy: Adequacy | None = None
     blocks: Blocks | None = None
     pred_after: np.ndarray | None = None
+    parameters: list[FoundParameter] = field(default_factory=list)
+    written: bool = True  #: ``config`` is what --out writes (False: it would predict worse than the file)
+    notes: list[str] = field(default_factory=list)  #: what was decided and why (paper model off, not written)
+    negative: list[str] = field(default_factory=list)  #: candidates whose fit needed a negative friction
+    structure: dict | None = None  #: the unexplained residual against each input (:func:`residual_structure`)
+    before_residual: np.ndarray | None = None  #: per sample, the file as given (the "before" errors)
 
     def to_json(self) -> dict:
         """The ``interface.md`` object (plus extra keys: delta, rejected, ambiguous, ...)."""
         return {
             "verdict": self.verdict,
             "effects": [e.to_json() for e in self.effects],
+            "parameters": [p.to_json() for p in self.parameters],
             "error_before": self.error_before.to_json(),
             "error_after": self.error_after.to_json(),
             "holdout": self.holdout,
@@ -153,6 +188,9 @@ class CalibrationResult:
             "unavailable": self.unavailable,
             "sample_level_errors": {k: v.to_json() for k, v in self.sample_level.items()},
             "adequacy": self.adequacy.to_json() if self.adequacy else None,
+            "written": self.written,
+            "notes": self.notes,
+            "residual_structure": self.structure,
         }
 
 
@@ -165,18 +203,75 @@ def calibrate(
     ``assume``: effects to accept when the data cannot tell them from another (a set of
     indistinguishable effects otherwise stays in the fit unreported and makes the verdict
     inconclusive); what the user knows of the rig decides, not the data.
+
+    Candidates are the registry's effects and the model's own parameters (:mod:`.modelparams`);
+    none is accepted as a negative friction, at the bound of its exponent's search, or outside its
+    physical range.  When candidates were set aside for needing a negative friction (the paper's
+    model over-predicts), the analysis is repeated with the paper's model switched off and the one
+    that predicts held-out data better is the result, saying so.  The errors after are those of
+    exactly the parameter file the result writes; a file that would predict held-out data worse
+    than the one calibrated is not written (:attr:`CalibrationResult.written`).
     """
     unknown = [a for a in assume if a not in EFFECTS]
     if unknown:
         raise UsageError(f"unknown effect(s) to assume: {', '.join(unknown)} (one of {', '.join(EFFECTS)})")
     stage = stage or (lambda text: None)
+    result = _calibrate_once(data, config, delta_nm, block_s, folds, stage, assume)
+    if result.negative and config.estimator.paper_model:
+        stage("the paper's model switched off")
+        off = config.with_values({"estimator.paper_model": False})
+        zero = np.zeros(len(data.t_ns))
+        without = replace(data, model_loss=zero, fr_part=zero, parts={})
+        alt = _calibrate_once(without, off, delta_nm, block_s, folds, stage, assume, before=result)
+        on_text = f"{result.error_after.rmse_nm:.4g}" if result.written else "no file"
+        if alt.written and alt.verdict == "effects_found" and (
+                not result.written or alt.error_after.rmse_nm
+                < (1.0 - ALTERNATIVE_MIN_IMPROVEMENT) * result.error_after.rmse_nm):
+            alt.notes.insert(0, (
+                f"the paper's model over-predicts this gearbox's loss: with it, the fits needed a negative friction "
+                f"({', '.join(result.negative)}); written with estimator.paper_model: false, whose effects predict the "
+                f"held-out data better (RMSE {alt.error_after.rmse_nm:.4g} N·m against {on_text} with the model)"))
+            return alt
+        how = ("" if alt.written else ", not better than the file") + (
+            "" if alt.verdict == "effects_found" else f", {alt.verdict}")
+        result.notes.append(
+            f"fits with a negative friction were set aside ({', '.join(result.negative)}); the paper's model switched "
+            f"off does no better (held-out RMSE {alt.error_after.rmse_nm:.4g} N·m{how} against {on_text})")
+    return result
+
+
+ALTERNATIVE_MIN_IMPROVEMENT = 0.02  #: the paper's model is switched off only for a held-out RMSE this much lower
+
+
+def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, block_s: float, folds: int,
+                    stage: Callable[[str], None], assume: Sequence[str],
+                    before: CalibrationResult | None = None) -> CalibrationResult:
+    """One analysis with ``config``'s model (:func:`calibrate`); ``before``: the errors "before" are
+    that result's (the parameter file as given), when this one switched the paper's model off."""
     stage("block means")
     blocks = make_blocks(data, block_s, folds)
     if len(blocks.y) < 4 * folds:
         raise BagError(f"only {len(blocks.y)} blocks of {block_s:g} s: too little data to calibrate")
     cal = Calibrator(blocks, delta_nm)
     cal.stage = stage
-    out = cal.run(assume)
+
+    def check(term: Term, coef: float) -> str | None:
+        """A value the parameter file takes (in its physical range) or the reason it is none."""
+        if term.name in MODEL_PARAMETERS:
+            p = MODEL_PARAMETERS[term.name]
+            file_value = _flat(config)[p.key]
+            value = p.value(file_value, coef)
+            if not math.isfinite(value):
+                return (f"{p.key} would leave its physical range [{p.low:g}, {p.high:g}] (the fit asks for "
+                        f"{100 * coef:+.0f} % of its part of the model)")
+            return None
+        try:
+            _calibrated_config(config, [FoundEffect(term.name, term.params(coef), {}, 0.0, [0.0, 0.0])], [])
+        except ParameterError as exc:
+            return f"fitted value outside the physical range: {exc}"
+        return None
+
+    out = cal.run(assume, check)
     selected: list[Term] = out.selected
     final = selected + out.provisional
     blocks0, data_c = blocks, data
@@ -186,107 +281,137 @@ def calibrate(
         selected = final[: len(selected)]
     stage("held-out errors and intervals")
     blocks = cal.b
-    pred_before = np.zeros(len(blocks.y))  # the paper's model alone
-    # what the calibrated parameter file adds: the accepted effects (fitted with the rest, held out)
-    pred_after = cal.cv_predictions(final, only_terms=len(selected))
-    err_b = blocks0.y - pred_before  # residual of the model at the measured torque
-    err_a = blocks.y - pred_after
     full = cal.fit(final)
-    effects = []
     k0 = len(cal.nuisance)
-    coef_keys = {n: e.coefficient for n, e in EFFECTS.items()}
-    expo_keys = {n: e.member for n, e in EFFECTS.items()}
+    effects, parameters = [], []
     for i, term in enumerate(selected):
         c = float(full.coef[k0 + i])
         se = float(math.sqrt(max(full.cov[k0 + i, k0 + i], 0.0)))
-        ci = {coef_keys[term.name]: [c - 1.96 * se, c + 1.96 * se]}
+        rms = cal.contribution_rms(final, i)
+        if term.name in MODEL_PARAMETERS:
+            p = MODEL_PARAMETERS[term.name]
+            file_value = _flat(config)[p.key]
+            ends = sorted(p.value(file_value, a) for a in (c - 1.96 * se, c + 1.96 * se))
+            same = [k for k, q in MODEL_PARAMETERS.items() if q.same_part_as == term.name]
+            parameters.append(FoundParameter(term.name, file_value, p.value(file_value, c),
+                                             [float(np.nan_to_num(ends[0], nan=p.low)),
+                                              float(np.nan_to_num(ends[1], nan=p.high))], abs(c) * rms, same))
+            continue
+        effect = EFFECTS[term.name]
+        ci = {effect.coefficient: cal.coefficient_interval(final, i, out.ranges.get(term.name))}
         if term.member is not None and term.name in out.ranges:
-            # the coefficient's interval covers the exponent's range too (c and p are correlated)
-            lo_m, hi_m = out.ranges[term.name]
-            for m in (lo_m, hi_m):
-                alt = list(final)
-                alt[i] = cal._with_member(term, m)
-                ca, sa = cal.coefficient(alt, i)
-                lo_c, hi_c = ci[coef_keys[term.name]]
-                ci[coef_keys[term.name]] = [min(lo_c, ca - 1.96 * sa), max(hi_c, ca + 1.96 * sa)]
-            ci[expo_keys[term.name]] = [lo_m, hi_m]
+            ci[effect.member] = out.ranges[term.name]
         if term.second is not None and term.name in out.second_ranges:
-            ci[EFFECTS[term.name].second_member] = out.second_ranges[term.name]
-        rms = cal.rms_of(term.column)
+            ci[effect.second_member] = out.second_ranges[term.name]
         params = term.params(c)
         effects.append(FoundEffect(term.name, params, ci, abs(c) * rms,
                                    [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms],
                                    _members_at_bound(term.name, params)))
+    # held out: exactly what the file writes -- the accepted terms, fitted with the rest of the set
+    # (nuisance columns, ambiguous sets kept in the fit) on the other folds
+    pred_after = cal.cv_predictions(final, only_terms=len(selected))
+    err_b = blocks0.y if before is None else before.blocks.y  # the file as given: its model alone
+    err_a = blocks.y - pred_after
+    error_before = error_stats(err_b, blocks.measured, blocks.count) if before is None else before.error_before
+    error_after = error_stats(err_a, blocks.measured, blocks.count)
     if any(a.assumed is None for a in out.ambiguous):
         verdict = "inconclusive"
     elif selected:
         verdict = "effects_found"
-    elif all(r.upper_rms_nm < cal.delta for r in out.rejected):
+    elif all(r.upper_rms_nm < cal.delta for r in out.rejected if not r.reason):
         verdict = "no_missing_effect"
     else:
         verdict = "inconclusive"
-    # sample-level errors (noise included) for the report
     idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
-    s_b = data.residual - pred_before[idx_block]
+    s_b = data.residual if before is None else before.before_residual
     s_a = data_c.residual - pred_after[idx_block]
     sample_level = {
         "before": error_stats(s_b, data.measured_loss, np.ones(len(s_b))),
         "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a))),
     }
-    holdout = (
-        f"{folds}-fold cross-validation over the rows of the steady-state table(s) (each row a dwell mean, "
-        f"weighted equally; fold k holds every {folds}th row, so every fold spans the map); errors are of the "
-        f"rows' losses predicted by a fit that did not see them ({len(blocks.y)} rows; no sensor noise model: "
-        "a table's rows are taken as exact means)"
-        if blocks.steady_state else
-        f"{folds}-fold cross-validation grouped by dwell ({int(blocks.dwell.max()) + 1} dwells of steady operation, "
-        f"at most 5 s each; whole dwells held out, never single rows); errors are of {blocks.block_s:g} s block "
-        f"means of every held-out block, predicted by a fit that did not see its fold "
-        f"({len(blocks.y)} blocks)"
-    )
-    # a fitted value outside a parameter's physical range (e.g. recordings of different rigs mixed)
-    # is not written to the parameter file: the verdict says so
-    writable = []
-    for e in effects:
-        try:
-            _calibrated_config(config, [e])
-            problem = _at_search_bound(e)
-        except ParameterError as exc:
-            problem = f"fitted value outside the physical range: {exc}"
-        if problem is None:
-            writable.append(e)
-        else:
-            cal.log.append(f"{e.name} not written to the parameter file: {problem}")
-            out.rejected.append(RejectedEffect(e.name, e.rms_contribution_ci95_nm[1], e.rms_contribution_nm,
-                                               reason=problem))
-            verdict = "inconclusive"
-    effects = writable
-    new_config = _calibrated_config(config, effects)
+    new_config = _calibrated_config(config, effects, parameters)
     if data.ratio is not None:  # the table's own ratio: what a map of the file states
         new_config = new_config.with_values({"gearbox.ratio": data.ratio})
-    written = {e.name for e in effects}
-    contributions = {term.name: float(np.sum(blocks.count * full.coef[k0 + i] * term.column)) / len(data.t_ns)
-                     for i, term in enumerate(selected) if term.name in written}
-    fit_adequacy = adequacy(float(np.mean(data.model_loss)), float(np.mean(data.measured_loss)), contributions,
+    notes: list[str] = []
+    why_not = not_written_because(error_before, error_after, len(selected))
+    written = why_not is None
+    if not written:
+        verdict = "inconclusive"
+        notes.append(why_not)
+    contributions = {term.name: float(np.sum(blocks.count * full.coef[k0 + i] * cal.effective_column(term, final)))
+                     / len(data.t_ns) for i, term in enumerate(selected)}
+    model_mean = float(np.mean(data.model_loss)) + sum(v for k, v in contributions.items() if k in MODEL_PARAMETERS)
+    fit_adequacy = adequacy(model_mean, float(np.mean(data.measured_loss)),
+                            {k: v for k, v in contributions.items() if k not in MODEL_PARAMETERS},
                             config.estimator.paper_model)
-    return CalibrationResult(
-        verdict,
-        effects,
-        error_stats(err_b, blocks.measured, blocks.count),
-        error_stats(err_a, blocks.measured, blocks.count),
-        holdout,
-        int(len(data.t_ns)),
-        cal.delta,
-        out.rejected,
-        out.ambiguous,
-        out.unavailable,
-        cal.log,
-        sample_level,
-        new_config,
-        fit_adequacy,
-        blocks,
-        pred_after,
-    )
+    result = CalibrationResult(
+        verdict, effects, error_before, error_after, _holdout_text(blocks, folds), int(len(data.t_ns)), cal.delta,
+        out.rejected, out.ambiguous, out.unavailable, cal.log, sample_level, new_config, fit_adequacy, blocks,
+        pred_after, parameters, written, notes, out.negative, residual_structure(blocks, err_a))
+    result.before_residual = s_b
+    return result
+
+
+def not_written_because(error_before: ErrorStats, error_after: ErrorStats, accepted: int) -> str | None:
+    """Why a calibration is not written (None: it is): with anything accepted, it would predict the
+    held-out data no better than the parameter file calibrated (nothing accepted: the file as it was)."""
+    if accepted and error_after.rmse_nm >= error_before.rmse_nm:
+        return (f"not written: the calibrated parameters would predict the held-out data worse than the file alone "
+                f"(RMSE {error_after.rmse_nm:.4g} >= {error_before.rmse_nm:.4g} N·m)")
+    return None
+
+
+def _flat(config: Config) -> dict:
+    return config.to_flat()
+
+
+def _holdout_text(blocks: Blocks, folds: int) -> str:
+    if blocks.steady_state:
+        return (f"{folds}-fold cross-validation over the rows of the steady-state table(s) (each row a dwell mean, "
+                f"weighted equally; fold k holds every {folds}th row, so every fold spans the map); errors are of the "
+                f"rows' losses predicted by a fit that did not see them ({len(blocks.y)} rows; no sensor noise model: "
+                "a table's rows are taken as exact means)")
+    return (f"{folds}-fold cross-validation grouped by dwell ({int(blocks.dwell.max()) + 1} dwells of steady "
+            f"operation, at most 5 s each; whole dwells held out, never single rows); errors are of {blocks.block_s:g} "
+            f"s block means of every held-out block, predicted by a fit that did not see its fold "
+            f"({len(blocks.y)} blocks)")
+
+
+RESIDUAL_BINS = 8  #: quantile bins of an input for the residual's structure
+
+
+def residual_structure(blocks: Blocks, residual: np.ndarray) -> dict:
+    """How much of the unexplained (held-out) residual each input explains: the weighted share of its
+    variance carried by its mean over ``RESIDUAL_BINS`` quantile bins of speed, torque, oil
+    temperature, and by direction (motoring/overrun, forward/reverse).  The strongest is where a
+    person looks first when the vocabulary has no answer."""
+    w = blocks.count.astype(float)
+    r = residual - np.average(residual, weights=w)
+    total = float(np.sum(w * r * r))
+    inputs = {"speed": np.abs(blocks.speed), "torque": np.abs(blocks.torque), "temperature": blocks.temperature}
+    shares: dict[str, float] = {}
+    for name, x in inputs.items():
+        ok = np.isfinite(x)
+        if ok.sum() < 2 * RESIDUAL_BINS or np.ptp(x[ok]) <= 0 or total <= 0:
+            continue
+        edges = np.unique(np.quantile(x[ok], np.linspace(0, 1, RESIDUAL_BINS + 1)))
+        shares[name] = _explained(np.digitize(x[ok], edges[1:-1]), r[ok], w[ok], total)
+    for name, key in (("direction", np.sign(blocks.speed)), ("power flow", np.sign(blocks.speed * blocks.torque))):
+        if len(np.unique(key)) > 1 and total > 0:
+            shares[name] = _explained(np.unique(key, return_inverse=True)[1], r, w, total)
+    strongest = max(shares, key=shares.get) if shares else None
+    statement = ("nothing left to explain" if total <= 0 or strongest is None else
+                 f"the residual left depends most on {strongest} ({100 * shares[strongest]:.0f} % of its variance "
+                 f"is the mean per {strongest} bin)")
+    return {"explained_share": {k: round(v, 4) for k, v in shares.items()}, "strongest": strongest,
+            "statement": statement}
+
+
+def _explained(label: np.ndarray, r: np.ndarray, w: np.ndarray, total: float) -> float:
+    sums = np.bincount(label, weights=w * r)
+    weights = np.bincount(label, weights=w)
+    means = np.divide(sums, weights, out=np.zeros_like(sums), where=weights > 0)
+    return float(np.sum(weights * means * means) / total)
 
 
 def _members_at_bound(name: str, params: dict[str, float]) -> list[str]:
@@ -331,8 +456,8 @@ def _refit_sensor_errors(
         g = float(f.coef[k0 + names.index("torque_gain")]) if "torque_gain" in names else 0.0
         t_c = (data.torque - b) / (1.0 + g)
         corrected = dc_replace(
-            data, torque=t_c, model_loss=model.loss_magnitude(t_c, data.speed), fr_part=model.fr_part(t_c, data.speed)
-        )
+            data, torque=t_c, model_loss=model.loss_magnitude(t_c, data.speed), fr_part=model.fr_part(t_c, data.speed),
+            parts=model.parts(t_c, data.speed))
         new = Calibrator(make_blocks(corrected, block_s, folds, like=cal.b), cal.delta, cal.alpha, cal.min_improvement)
         new.log = cal.log
         final = [new._with_member(t, t.member) if t.member is not None else members(new.b, t.name)[0] for t in final]
@@ -340,15 +465,18 @@ def _refit_sensor_errors(
     return cal, final, corrected
 
 
-def _calibrated_config(config: Config, effects: list[FoundEffect]) -> Config:
-    """``config`` with exactly the accepted effects enabled, at their fitted parameters."""
+def _calibrated_config(config: Config, effects: list[FoundEffect], parameters: list[FoundParameter]) -> Config:
+    """``config`` with exactly the accepted effects enabled, at their fitted parameters, and the
+    model's parameters calibrate changed."""
     flat = {k: v for k, v in config.to_flat().items()}
-    for name in groups():
+    for name in EFFECTS:
         flat[f"effects.{name}.enabled"] = False
     for e in effects:
         flat[f"effects.{e.name}.enabled"] = True
         for q in EFFECTS[e.name].parameters:
             flat[f"effects.{e.name}.{q.key}"] = e.params[q.short]
+    for p in parameters:
+        flat[p.name] = p.fitted
     return validate(flat)
 
 
@@ -357,5 +485,8 @@ def calibrated_yaml(result: CalibrationResult, sources: Sequence[str]) -> str:
         "# Written by `rollergear calibrate` from " + ", ".join(map(str, sources)) + "\n"
         f"# verdict: {result.verdict}; held-out RMSE {result.error_before.rmse_nm:.4g} -> "
         f"{result.error_after.rmse_nm:.4g} N·m\n"
+        + "".join(f"# {p.name}: {p.fitted:.6g} (was {p.file:.6g}), calibrated: {MODEL_PARAMETERS[p.name].label}\n"
+                  for p in result.parameters)
+        + "".join(f"# {n}\n" for n in result.notes)
     )
     return config_to_yaml(result.config, header)

@@ -63,12 +63,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         result = calibrate(data, config, args.delta, args.block_s, stage=stage, assume=args.assume)
     for line in _error_after_warnings(result, args.assume):
         warn(line)
-    if args.out:
+    if args.out and result.written:
         write_text(args.out, calibrated_yaml(result, args.bags))
     report = write_report(result, data, Path(args.report), args.bags) if args.report else None
     if args.json:
         sys.stdout.write(json.dumps(result.to_json()) + "\n")
-        return 0
+        return 0 if result.written else 1
     eb, ea = result.error_before, result.error_after
     print(f"verdict: {result.verdict}")
     for e in result.effects:
@@ -77,6 +77,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         print(f"  effect {e.name}: {params}  (95 %: {ci}; RMS contribution {e.rms_contribution_nm:.4g} N·m)")
         if e.bound_note():
             print(f"    note: {e.bound_note()}")
+    for prm in result.parameters:
+        print(f"  parameter {prm.sentence()}")
     for r in result.rejected:
         if r.reason:
             print(f"  {r.name} not accepted: {r.reason}")
@@ -98,29 +100,35 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     print(f"held out: {result.holdout}")
     if result.adequacy:
         print(f"adequacy: {result.adequacy.statement}")
+    if result.structure and result.verdict != "no_missing_effect":
+        print(f"residual left: {result.structure['statement']}")
+    for note in result.notes:
+        print(f"note: {note}")
     if args.out:
-        print(f"calibrated parameters: {args.out}")
+        print(f"calibrated parameters: {args.out}" if result.written else
+              f"calibrated parameters: {args.out} not written ({_what_would_settle(result)})")
     if report:
         print(f"report: {report}")
-    return 0
+    return 0 if result.written else 1
+
+
+def _what_would_settle(result) -> str:
+    """What data or assumption would let a calibration that was not written be one."""
+    open_sets = [a for a in result.ambiguous if a.assumed is None]
+    if open_sets:
+        return "; ".join(f"{' / '.join(a.effects)} cannot be told apart: record {a.needs}, or --assume one of them"
+                         for a in open_sets)
+    return "record a wider range of speed, torque, direction and oil temperature"
 
 
 def _error_after_warnings(result, assume: list[str]) -> list[str]:
-    """Lines for what a user would otherwise misread: an assumption the data did not need, and a
-    calibrated file that predicts the held-out data worse than the paper's model alone."""
+    """Lines for what a user would otherwise misread: an assumption the data did not need."""
     lines = []
     in_sets = {e for a in result.ambiguous for e in a.effects}
     for name in assume:
         if name not in in_sets:
             lines.append(f"--assume {name}: not needed, the data did not leave {name} indistinguishable from another "
                          "effect (nothing assumed)")
-    before, after = result.error_before.rmse_nm, result.error_after.rmse_nm
-    if after > before:
-        open_sets = [a for a in result.ambiguous if a.assumed is None]
-        why = "; ".join(f"{' / '.join(a.effects)} (RMS {a.rms_contribution_nm[0]:.3g}–{a.rms_contribution_nm[1]:.3g} "
-                        "N·m) is in the fit but not in the file" for a in open_sets)
-        lines.append(f"the calibrated parameters predict the held-out data worse than the paper's model alone (RMSE "
-                     f"{after:.4g} > {before:.4g} N·m)" + (f": {why}; --assume one of them writes it" if why else ""))
     return lines
 
 

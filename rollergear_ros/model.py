@@ -349,6 +349,16 @@ class LossModel:
         aw = np.abs(np.asarray(speed_rad_s, dtype=float))
         return self.k_fr * np.power(aw, self.EXP_FR_W) * np.power(at, self.EXP_FR_T)
 
+    def parts(self, torque_nm, speed_rad_s) -> dict[str, np.ndarray]:
+        """``T_loss`` as its parts [N·m] (they sum to it): ``fr`` (eq. 3, ∝ η0^0.66), ``tc`` (eq. 17,
+        ∝ μ_m), ``ter`` (eq. 21), ``tb`` (eq. 22, ∝ μ_b) and ``fg`` (eq. 22/26): what a model
+        parameter scales (:mod:`.modelparams`)."""
+        at = np.abs(np.asarray(torque_nm, dtype=float))
+        ones = np.ones_like(at)
+        c = self.coefficients
+        return {"fr": self.fr_part(torque_nm, speed_rad_s), "tc": self.k_tc * np.power(at, self.EXP_TC_T),
+                "ter": self.k_ter * np.power(at, self.EXP_TER_T), "tb": c["tb"] * ones, "fg": c["fg"] * ones}
+
     def evaluate(self, torque_nm, speed_rad_s, viscosity_scale=None, breakdown: bool = True) -> LossResult:
         """Loss torque (signed), loss power, efficiency and breakdown for arrays of samples."""
         t = np.asarray(torque_nm, dtype=float)

@@ -35,6 +35,8 @@ class SampleData:
     skipped: dict[str, int] = field(default_factory=dict)
     steady_state: bool = False  #: rows of steady-state tables (dwell means), not a time series
     ratio: float | None = None  #: the tables' own input/output ratio (one for all), for the calibrated file
+    #: the model's parts at each sample (:meth:`~.model.LossModel.parts`): what a model parameter scales
+    parts: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def residual(self) -> np.ndarray:
@@ -66,7 +68,7 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
                          f"{min_speed_rad_s:g} rad/s: calibration needs the output torque topic")
     cols = [np.concatenate([p[j] for p in parts]) for j in range(7)]
     return SampleData(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6],
-                      model.fr_part(cols[2], cols[3]), skipped)
+                      model.fr_part(cols[2], cols[3]), skipped, parts=model.parts(cols[2], cols[3]))
 
 
 def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[str], None] | None = None,
@@ -119,7 +121,8 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     t_ns = np.arange(len(speed), dtype=np.int64) * 1_000_000_000
     return SampleData(t_ns, bag_id, torque, speed, temperature, loss, model.loss_magnitude(torque, speed),
                       model.fr_part(torque, speed), {"implausible": implausible} if implausible else {},
-                      steady_state=True, ratio=ratios.pop() if len(ratios) == 1 else None)
+                      steady_state=True, ratio=ratios.pop() if len(ratios) == 1 else None,
+                      parts=model.parts(torque, speed))
 
 
 MAX_BEYOND_SHARE = 0.25  #: a table with more of its rows beyond the plausible range is refused, not cut

@@ -16,6 +16,7 @@ import numpy as np
 
 from .blocks import Blocks, groups
 from .effects import EFFECTS, separating_data
+from .modelparams import MODEL_PARAMETERS
 
 
 @dataclass(frozen=True)
@@ -73,6 +74,9 @@ class Selection:
     rejected: list[RejectedEffect]
     unavailable: list[str]  #: effects the data cannot test
     second_ranges: dict[str, list[float]] = field(default_factory=dict)  #: the same for a second member (Vogel C)
+    #: candidates set aside at some step because their fit needed a negative friction (the model
+    #: over-predicts somewhere)
+    negative: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -133,6 +137,8 @@ def members(blocks: Blocks, name: str) -> list[Term]:
     data cannot test it)."""
     if name not in blocks.testable:
         return []
+    if name in MODEL_PARAMETERS:
+        return [Term(name, blocks.columns[name])]
     effect = EFFECTS[name]
     if effect.member is None:
         return [Term(name, blocks.columns[name])]
@@ -160,25 +166,71 @@ class Calibrator:
         self.stage: Callable[[str], None] = lambda text: None  #: told what the selection is doing
 
     # -------------------------------------------------------------- helpers
-    def design(self, terms: Sequence[Term], nuisance: bool = True) -> np.ndarray:
-        cols = (self.nuisance if nuisance else []) + [t.column for t in terms]
+    def design(self, terms: Sequence[Term], nuisance: bool = True, skip: Sequence[int] = ()) -> np.ndarray:
+        """The columns of a set (nuisance first), without the terms at ``skip`` (held coefficients)."""
+        cols = (self.nuisance if nuisance else []) + [self.effective_column(t, terms) for i, t in enumerate(terms)
+                                                      if i not in skip]
         return np.column_stack(cols) if cols else np.zeros((len(self.b.y), 0))
 
+    @staticmethod
+    def effective_column(t: Term, terms: Sequence[Term]) -> np.ndarray:
+        """A term's column in a set: the rolling part's parameter (η0) scales the Fr part *at the
+        viscosity law's η(θ)* when a Fr-scaling effect is in the set (its column is ``T_Fr·(s − 1)``
+        at coefficient 1, so the part at η(θ) is ``T_Fr + T_Fr·(s − 1)``)."""
+        parameter = MODEL_PARAMETERS.get(t.name)
+        if parameter is None or parameter.part != "fr":
+            return t.column
+        coupled = [u.column for u in terms if u.name in EFFECTS and EFFECTS[u.name].scales_fr]
+        return t.column + sum(coupled) if coupled else t.column
+
+    @staticmethod
+    def held(terms: Sequence[Term]) -> dict[int, float]:
+        """Terms whose coefficient is held, not fitted: with the rolling part's parameter (η0) in a
+        set, a Fr-scaling effect (the viscosity law) is held at its profile coefficient -- η0 is the
+        law's level, and the file (η0, the law at scale 1) then predicts exactly what was fitted."""
+        if not any(t.name in MODEL_PARAMETERS and MODEL_PARAMETERS[t.name].part == "fr" for t in terms):
+            return {}
+        return {i: float(EFFECTS[t.name].profile_coefficient) for i, t in enumerate(terms)
+                if t.name in EFFECTS and EFFECTS[t.name].scales_fr and EFFECTS[t.name].profile_coefficient is not None}
+
+    def _offset(self, terms: Sequence[Term], held: dict[int, float]) -> np.ndarray:
+        """What the held terms predict."""
+        out = np.zeros(len(self.b.y))
+        for i, coef in held.items():
+            out = out + coef * self.effective_column(terms[i], terms)
+        return out
+
     def fit(self, terms: Sequence[Term]) -> Fit:
-        x = self.design(terms)
+        """The weighted fit of a set; a held term's coefficient is its held value (variance 0)."""
+        held = self.held(terms)
+        x = self.design(terms, skip=held)
+        offset = self._offset(terms, held)
+        k0 = len(self.nuisance)
         if x.shape[1] == 0:
-            return Fit(
-                np.zeros(0), np.zeros((0, 0)), float(np.sum(self.b.weight * self.b.y**2)), np.zeros(len(self.b.y))
-            )
-        return wls(x, self.b.y, self.b.weight, self.b.dwell)
+            f = Fit(np.zeros(0), np.zeros((0, 0)), float(np.sum(self.b.weight * (self.b.y - offset) ** 2)), offset)
+        else:
+            f = wls(x, self.b.y - offset, self.b.weight, self.b.dwell)
+            f.pred = f.pred + offset
+        if not held:
+            return f
+        n = k0 + len(terms)
+        free = [k for k in range(n) if k < k0 or k - k0 not in held]
+        coef, cov = np.zeros(n), np.zeros((n, n))
+        coef[free] = f.coef
+        cov[np.ix_(free, free)] = f.cov
+        for i, c in held.items():
+            coef[k0 + i] = c
+        return Fit(coef, cov, f.wsse, f.pred)
 
     def wsse(self, terms: Sequence[Term]) -> float:
-        x = self.design(terms)
+        held = self.held(terms)
+        x = self.design(terms, skip=held)
+        y = self.b.y - self._offset(terms, held)
         if x.shape[1] == 0:
-            return float(np.sum(self.b.weight * self.b.y**2))
+            return float(np.sum(self.b.weight * y**2))
         sw = np.sqrt(self.b.weight)
-        coef, *_ = np.linalg.lstsq(x * sw[:, None], self.b.y * sw, rcond=1e-12)
-        r = self.b.y - x @ coef
+        coef, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=1e-12)
+        r = y - x @ coef
         return float(np.sum(self.b.weight * r * r))
 
     def cv_predictions(self, terms: Sequence[Term], only_terms: int | None = None) -> np.ndarray:
@@ -187,15 +239,21 @@ class Calibrator:
         ``only_terms=n``: the part predicted by the first ``n`` terms alone (what a calibrated
         parameter file adds), without the nuisance columns and later terms fitted alongside them.
         """
-        x = self.design(terms)
-        pred = np.zeros(len(self.b.y))
+        held = self.held(terms)
+        x = self.design(terms, skip=held)
+        offset = self._offset(terms, {i: c for i, c in held.items() if only_terms is None or i < only_terms})
+        fit_offset = self._offset(terms, held)
+        pred = offset.copy()
         if x.shape[1] == 0:
             return pred
-        cols = slice(None) if only_terms is None else slice(len(self.nuisance), len(self.nuisance) + only_terms)
+        k0 = len(self.nuisance)
+        kept = [i for i in range(len(terms)) if i not in held]  # the free terms, in order
+        n_free = sum(1 for i in kept if only_terms is None or i < only_terms)
+        cols = slice(None) if only_terms is None else slice(k0, k0 + n_free)
         for k in np.unique(self.b.fold):
             test = self.b.fold == k
-            f = wls(x[~test], self.b.y[~test], self.b.weight[~test])
-            pred[test] = x[test][:, cols] @ f.coef[cols]
+            f = wls(x[~test], self.b.y[~test] - fit_offset[~test], self.b.weight[~test])
+            pred[test] += x[test][:, cols] @ f.coef[cols]
         return pred
 
     def cv_rmse(self, terms: Sequence[Term]) -> float:
@@ -205,15 +263,19 @@ class Calibrator:
     def rms_of(self, column: np.ndarray) -> float:
         return float(np.sqrt(np.average(column * column, weights=self.b.count)))
 
+    def contribution_rms(self, terms: Sequence[Term], i: int) -> float:
+        """RMS of term ``i``'s column as the set uses it (per unit coefficient)."""
+        return self.rms_of(self.effective_column(terms[i], terms))
+
     def _with_member(self, term: Term, member: float, second: float | None = None) -> Term:
         second = term.second if second is None else second
         return Term(term.name, self.b.column(term.name, member, second), member, second)
 
     def wsse_held(self, terms: Sequence[Term], i: int) -> float:
         """:meth:`wsse` with term ``i``'s coefficient held at its effect's ``profile_coefficient``."""
-        coef = EFFECTS[terms[i].name].profile_coefficient
-        x = self.design(list(terms[:i]) + list(terms[i + 1 :]))
-        y = self.b.y - coef * terms[i].column
+        held = self.held(terms) | {i: float(EFFECTS[terms[i].name].profile_coefficient)}
+        x = self.design(terms, skip=held)
+        y = self.b.y - self._offset(terms, held)
         if x.shape[1] == 0:
             return float(np.sum(self.b.weight * y**2))
         sw = np.sqrt(self.b.weight)
@@ -224,7 +286,7 @@ class Calibrator:
     def _score(self, terms: list[Term], i: int) -> Callable[[Term], float]:
         """What term ``i``'s members minimise: the fit's wsse, with the coefficient held where the
         effect profiles at a fixed one."""
-        held = EFFECTS[terms[i].name].profile_coefficient is not None
+        held = terms[i].name in EFFECTS and EFFECTS[terms[i].name].profile_coefficient is not None
         if held:
             return lambda t: self.wsse_held(terms[:i] + [t] + terms[i + 1 :], i)
         return lambda t: self.wsse(terms[:i] + [t] + terms[i + 1 :])
@@ -345,30 +407,105 @@ class Calibrator:
         return float(f.coef[k]), float(math.sqrt(max(f.cov[k, k], 0.0)))
 
     # -------------------------------------------------------------- selection
-    def run(self, assume: Sequence[str] = ()) -> Selection:
+    def screen(self, terms: list[Term], check: Callable[[Term, float], str | None] | None = None) -> str | None:
+        """Why a candidate set (its newest term last) is no explanation, whatever its significance
+        (None: it may be): a physical friction fitted negative, an exponent stopped at the bound of
+        its search, a model parameter driven outside its physical range, or ``check``'s reason (a
+        value the parameter file refuses) -- of the new term, or of an earlier one the new term moves."""
+        fit = self.fit(terms)
+        k0 = len(self.nuisance)
+        for i, t in enumerate(terms):
+            c = float(fit.coef[k0 + i])
+            who = "" if i == len(terms) - 1 else f" (with {terms[-1].name}, {t.name} becomes so)"
+            if t.name in EFFECTS:
+                effect = EFFECTS[t.name]
+                if effect.physical and not effect.scales_fr and c < 0:
+                    return f"needs a negative friction (fits only with c = {c:.4g}){who}: not a loss the gearbox has"
+                for short, v in ((effect.member, t.member), (effect.second_member, t.second)):
+                    if short is None or v is None:
+                        continue
+                    lo, hi = effect.profiled_ranges()[short]
+                    if min(abs(v - lo), abs(v - hi)) <= 1e-3 * (hi - lo):
+                        return (f"{t.name}'s {short} = {v:.4g} stopped at the bound of its search [{lo:g}, {hi:g}]"
+                                f"{who}: the data want a law outside the vocabulary")
+            if check is not None:
+                why = check(t, c)
+                if why is not None:
+                    return why + who
+        return None
+
+    def _clear(self, terms: list[Term], cv_now: float, cv_new: float, z_crit: float) -> bool:
+        """Whether the newest term of ``terms`` passes the acceptance tests but for its sign."""
+        c, se = self.coefficient(terms, len(terms) - 1)
+        lower = max(0.0, abs(c) - 1.96 * se) * self.contribution_rms(terms, len(terms) - 1)
+        improvement = (cv_now - cv_new) / cv_now if cv_now > 0 else 0.0
+        return (abs(c) / se if se > 0 else math.inf) >= z_crit and lower > self.delta \
+            and improvement > self.min_improvement
+
+    def coefficient_interval(self, terms: list[Term], i: int, member_range: list[float] | None) -> list[float]:
+        """95 % interval of term ``i``'s coefficient, covering its exponent's range (c and p are correlated)."""
+        c, se = self.coefficient(terms, i)
+        lo, hi = c - 1.96 * se, c + 1.96 * se
+        for m in member_range or ():
+            alt = list(terms)
+            alt[i] = self._with_member(terms[i], m)
+            ca, sa = self.coefficient(alt, i)
+            lo, hi = min(lo, ca - 1.96 * sa), max(hi, ca + 1.96 * sa)
+        return [float(lo), float(hi)]
+
+    def run(self, assume: Sequence[str] = (), check: Callable[[Term, float], str | None] | None = None) -> Selection:
         """Forward selection; ``assume``: effects to take when the data cannot tell them from another
-        (what the user knows of the rig, e.g. torque sensors zeroed at standstill: ``drag_constant``)."""
+        (what the user knows of the rig, e.g. torque sensors zeroed at standstill: ``drag_constant``);
+        ``check``: a last word on a candidate's value (:meth:`screen`)."""
         selected: list[Term] = []  # accepted
         provisional: list[Term] = []  # best member of each ambiguous set: kept in the fit, not reported
         ambiguous: list[AmbiguousSet] = []
+        negative: list[str] = []
         remaining = [g for g in groups() if members(self.b, g)]
         unavailable = [g for g in groups() if g not in remaining]
         cv_now = self.cv_rmse([])
+        step = 0
         while remaining:
+            step += 1
             base = selected + provisional
             scored = []
             for g in remaining:
-                self.stage(f"step {len(self.log) + 1}: trying {g}")
+                self.stage(f"step {step}: trying {g}")
                 terms = self.best_candidate(g, base)
                 if terms is not None:
                     scored.append((self.cv_rmse(terms), g, terms))
             if not scored:
                 break
             scored.sort(key=lambda x: x[0])
+            # candidates that are no explanation (a negative friction, an exponent at its bound, a
+            # parameter out of its range) are set aside; the best of the rest is tested
+            kept = []
+            z_crit = _z_two_sided(self.alpha / len(remaining))
+            for entry in scored:
+                why_not = self.screen(entry[2], check)
+                if why_not is None:
+                    kept.append(entry)
+                    continue
+                if not kept:  # better than any explanation: said
+                    self.log.append(f"step {step}: {entry[1]} set aside: {why_not}")
+                    # a negative friction the data ask for clearly (significant, beyond delta): the model
+                    # over-predicts, and the paper's model switched off is worth weighing (calibrate)
+                    if "negative friction" in why_not and entry[1] not in negative \
+                            and self._clear(entry[2], cv_now, entry[0], z_crit):
+                        negative.append(entry[1])
+            scored = kept
+            if not scored:
+                break
+            # the smaller explanation first: a model parameter that fits (nearly) as well as an effect
+            best_param = next((x for x in scored if x[1] in MODEL_PARAMETERS), None)
+            if best_param is not None and scored[0][1] not in MODEL_PARAMETERS \
+                    and best_param[0] <= scored[0][0] * 1.01 + 1e-12:
+                scored.remove(best_param)
+                scored.insert(0, best_param)
             cv_new, g, terms = scored[0]
             c, se = self.coefficient(terms, len(terms) - 1)
             new = terms[-1]
-            rms_col = self.rms_of(new.column)
+            rms_col = self.contribution_rms(terms, len(terms) - 1)
             z = abs(c) / se if se > 0 else math.inf
             z_crit = _z_two_sided(self.alpha / len(remaining))
             lower = max(0.0, abs(c) - 1.96 * se) * rms_col
@@ -383,15 +520,29 @@ class Calibrator:
                 )
             if improvement <= self.min_improvement:
                 reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
+            if not reasons and g in MODEL_PARAMETERS and check is not None:  # its interval within the physical range
+                for end in (c - 1.96 * se, c + 1.96 * se):
+                    why = check(new, end)
+                    if why is not None:
+                        reasons.append(f"its 95 % interval reaches the bound of the physical range ({why})")
+                        break
+            if not reasons and new.member is not None:  # its interval, over the exponent's range, must not reach 0
+                ci = self.coefficient_interval(terms, len(terms) - 1, self.member_range(terms, len(terms) - 1))
+                if ci[0] <= 0 <= ci[1]:
+                    reasons.append(f"its coefficient's 95 % interval [{ci[0]:.3g}, {ci[1]:.3g}] reaches 0")
             twin_terms = {
                 h: (cv_h, terms_h)
                 for cv_h, h, terms_h in scored[1:]
                 if cv_h <= cv_new * 1.05 + 1e-12 and self._partial_corr(new, terms_h[-1], base) > 0.995
             }
+            if g in MODEL_PARAMETERS and twin_terms:  # a parameter of the model is the smaller explanation
+                self.log.append(f"step {step}: {g} fits as well as {', '.join(twin_terms)}: the model's "
+                                "own parameter is taken (no new term)")
+                twin_terms = {}
             twins = list(twin_terms)
             assumed = next((a for a in [g, *twins] if a in assume), None) if twins else None
             self.log.append(
-                f"step {len(self.log) + 1}: best {g}"
+                f"step {step}: best {g}"
                 + (f" ({_member_text(new)})" if new.member is not None else "")
                 + f" (held-out RMSE {cv_new:.4g} vs {cv_now:.4g} N·m), |z| = {z:.1f}, RMS contribution "
                 f"[{lower:.4g}, {upper:.4g}] N·m"
@@ -419,7 +570,7 @@ class Calibrator:
                 needs = "; ".join(
                     sorted(
                         {
-                            separating_data(a, b)
+                            separating(a, b)
                             or "data over a wider range of speed, torque, direction and temperature"
                             for a in group
                             for b in group
@@ -452,9 +603,10 @@ class Calibrator:
             if terms is None:
                 continue
             c, se = self.coefficient(terms, len(terms) - 1)
-            rms_col = self.rms_of(terms[-1].column)
-            rejected.append(RejectedEffect(g, (abs(c) + 1.96 * se) * rms_col, abs(c) * rms_col))
-        return Selection(selected, provisional, ranges, ambiguous, rejected, unavailable, second_ranges)
+            rms_col = self.contribution_rms(terms, len(terms) - 1)
+            reason = self.screen(terms, check) or ""  # no explanation even now (a negative friction, a bound)
+            rejected.append(RejectedEffect(g, (abs(c) + 1.96 * se) * rms_col, abs(c) * rms_col, reason=reason))
+        return Selection(selected, provisional, ranges, ambiguous, rejected, unavailable, second_ranges, negative)
 
     def _partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
         """|correlation| of two columns after removing the nuisance and base columns (weighted)."""
@@ -469,6 +621,14 @@ class Calibrator:
         ra, rb = resid(a.column), resid(b.column)
         den = math.sqrt(float(np.sum(w * ra * ra)) * float(np.sum(w * rb * rb)))
         return abs(float(np.sum(w * ra * rb))) / den if den > 0 else 1.0
+
+
+def separating(a: str, b: str) -> str | None:
+    """The data that tells two candidates apart (effects: their descriptors; a model parameter: its own)."""
+    for x in (a, b):
+        if x in MODEL_PARAMETERS:
+            return MODEL_PARAMETERS[x].tells_apart
+    return separating_data(a, b)
 
 
 def _member_text(t: Term) -> str:
