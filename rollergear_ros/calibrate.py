@@ -42,6 +42,7 @@ from .effects import EFFECTS
 from .errors import BagError, UsageError
 from .model import LossModel
 from .modelparams import MODEL_PARAMETERS
+from .oil import vogel_from_datasheet
 from .params import Config, ParameterError, config_to_yaml, validate
 from .report import write_report
 from .samples import SampleData, load_samples
@@ -123,23 +124,25 @@ class Adequacy:
 
 
 def adequacy(model_mean_nm: float, measured_mean_nm: float, effects_mean_nm: dict[str, float],
-             paper_model: bool) -> Adequacy:
-    """The shares of the measured loss, and a sentence a reader of the report can act on."""
+             paper_model: bool, viscous: bool = False) -> Adequacy:
+    """The shares of the measured loss, and a sentence a reader of the report can act on;
+    ``viscous``: the model's share is at the oil's viscosity law (said)."""
     scale = 100.0 / measured_mean_nm if measured_mean_nm > 0 else math.nan
     model = model_mean_nm * scale
     effects = {n: v * scale for n, v in effects_mean_nm.items()}
     rest = 100.0 - model - sum(effects.values())
     listed = ", ".join(f"{n} {v:.0f} %" for n, v in effects.items()) or "no accepted effect"
+    at = " (at the oil's viscosity law)" if viscous else ""
     if not paper_model:
         text = (f"the paper's ball-track model is switched off (estimator.paper_model: false); the accepted effects "
                 f"explain the loss: {listed}")
     elif model > 150.0:
-        text = (f"the ball-track model predicts {model:.0f} % of the measured loss: it does not describe this "
+        text = (f"the ball-track model{at} predicts {model:.0f} % of the measured loss: it does not describe this "
                 f"gearbox (the accepted effects must cancel most of it: {listed}); try estimator.paper_model: false")
     elif model < 50.0:
-        text = f"the ball-track model explains {model:.0f} % of this gearbox's loss; the rest is {listed}"
+        text = f"the ball-track model{at} explains {model:.0f} % of this gearbox's loss; the rest is {listed}"
     else:
-        text = f"the ball-track model explains {model:.0f} % of the loss; {listed}"
+        text = f"the ball-track model{at} explains {model:.0f} % of the loss; {listed}"
     if abs(rest) >= 1.0:
         text += f"; {rest:.0f} % is unexplained"
     return Adequacy(model, effects, rest, paper_model, text)
@@ -241,6 +244,11 @@ def calibrate(
 
 
 ALTERNATIVE_MIN_IMPROVEMENT = 0.02  #: the paper's model is switched off only for a held-out RMSE this much lower
+#: a data sheet's viscosity law: Vogel B searched within this factor, C within this span [K], and the
+#: viscosity at the reference temperature within this factor of the data sheet's
+DATASHEET_B_FACTOR = 1.5
+DATASHEET_C_SPAN_K = 40.0
+DATASHEET_ETA_FACTOR = 1.5
 
 
 def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, block_s: float, folds: int,
@@ -254,6 +262,18 @@ def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, bl
         raise BagError(f"only {len(blocks.y)} blocks of {block_s:g} s: too little data to calibrate")
     cal = Calibrator(blocks, delta_nm)
     cal.stage = stage
+    ranges = {}  # parameter -> a narrower range than its physical one (the oil's data sheet)
+    oil = config.gearbox.datasheet_oil
+    if oil is not None:  # the viscosity law from the oil's data sheet: its start, and a range about it
+        theta_ref = EFFECTS["viscosity_temperature"].defaults()["theta_ref"]
+        b_k, c_k, eta_ref = vogel_from_datasheet(*oil, theta_ref_c=theta_ref)
+        cal.starts["viscosity_temperature"] = (b_k, c_k)
+        cal.bounds["viscosity_temperature"] = {"B": (b_k / DATASHEET_B_FACTOR, b_k * DATASHEET_B_FACTOR),
+                                               "C": (max(c_k - DATASHEET_C_SPAN_K, 20.0), c_k + DATASHEET_C_SPAN_K)}
+        ranges["gearbox.eta0_pa_s"] = (eta_ref / DATASHEET_ETA_FACTOR, eta_ref * DATASHEET_ETA_FACTOR)
+        cal.log.append(f"the oil's data sheet (nu40 {oil[0]:g}, nu100 {oil[1]:g} mm²/s, rho15 {oil[2]:g} kg/m³; "
+                       f"ASTM D341): Vogel B = {b_k:.4g} K, C = {c_k:.4g} K, eta({theta_ref:g} °C) = {eta_ref:.4g} "
+                       "Pa·s, the start and range of the viscosity law's search")
 
     def check(term: Term, coef: float) -> str | None:
         """A value the parameter file takes (in its physical range) or the reason it is none."""
@@ -261,8 +281,10 @@ def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, bl
             p = MODEL_PARAMETERS[term.name]
             file_value = _flat(config)[p.key]
             value = p.value(file_value, coef)
-            if not math.isfinite(value):
-                return (f"{p.key} would leave its physical range [{p.low:g}, {p.high:g}] (the fit asks for "
+            lo, hi = ranges.get(p.key, (p.low, p.high))
+            if not (math.isfinite(value) and lo <= value <= hi):
+                where = "range about the data sheet" if p.key in ranges else "physical range"
+                return (f"{p.key} would leave its {where} [{lo:.4g}, {hi:.4g}] (the fit asks for "
                         f"{100 * coef:+.0f} % of its part of the model)")
             return None
         try:
@@ -340,10 +362,13 @@ def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, bl
         notes.append(why_not)
     contributions = {term.name: float(np.sum(blocks.count * full.coef[k0 + i] * cal.effective_column(term, final)))
                      / len(data.t_ns) for i, term in enumerate(selected)}
-    model_mean = float(np.mean(data.model_loss)) + sum(v for k, v in contributions.items() if k in MODEL_PARAMETERS)
+    # the model's share is the model's as the file evaluates it: at its calibrated parameters and at the
+    # oil's viscosity (a Fr-scaling effect is the model's rolling part at η(θ), not a loss of its own)
+    in_model = {k for k in contributions if k in MODEL_PARAMETERS or EFFECTS[k].scales_fr}
+    model_mean = float(np.mean(data.model_loss)) + sum(contributions[k] for k in in_model)
     fit_adequacy = adequacy(model_mean, float(np.mean(data.measured_loss)),
-                            {k: v for k, v in contributions.items() if k not in MODEL_PARAMETERS},
-                            config.estimator.paper_model)
+                            {k: v for k, v in contributions.items() if k not in in_model},
+                            config.estimator.paper_model, viscous=any(k in EFFECTS for k in in_model))
     result = CalibrationResult(
         verdict, effects, error_before, error_after, _holdout_text(blocks, folds), int(len(data.t_ns)), cal.delta,
         out.rejected, out.ambiguous, out.unavailable, cal.log, sample_level, new_config, fit_adequacy, blocks,
@@ -378,6 +403,7 @@ def _holdout_text(blocks: Blocks, folds: int) -> str:
 
 
 RESIDUAL_BINS = 8  #: quantile bins of an input for the residual's structure
+STRUCTURE_SHARE = 0.1  #: below this share of the variance, no input explains the residual left
 
 
 def residual_structure(blocks: Blocks, residual: np.ndarray) -> dict:
@@ -400,9 +426,15 @@ def residual_structure(blocks: Blocks, residual: np.ndarray) -> dict:
         if len(np.unique(key)) > 1 and total > 0:
             shares[name] = _explained(np.unique(key, return_inverse=True)[1], r, w, total)
     strongest = max(shares, key=shares.get) if shares else None
-    statement = ("nothing left to explain" if total <= 0 or strongest is None else
-                 f"the residual left depends most on {strongest} ({100 * shares[strongest]:.0f} % of its variance "
-                 f"is the mean per {strongest} bin)")
+    if total <= 0 or strongest is None:
+        statement = "nothing left to explain"
+    elif shares[strongest] < STRUCTURE_SHARE:
+        statement = (f"the residual left shows no structure: no input carries more than "
+                     f"{100 * shares[strongest]:.0f} % of its variance (noise)")
+        strongest = None
+    else:
+        statement = (f"the residual left depends most on {strongest} ({100 * shares[strongest]:.0f} % of its "
+                     f"variance is its mean per {strongest} bin)")
     return {"explained_share": {k: round(v, 4) for k, v in shares.items()}, "strongest": strongest,
             "statement": statement}
 

@@ -27,6 +27,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     check_outputs([*args.bags, args.params, args.channels],  # now, not after the whole analysis
                   [Output("--out", args.out, "yaml"), Output("--report", args.report, "folder")])
     config = config_from_args(args)
+    if args.oil:  # the oil's data sheet: the viscosity law's start and range
+        config = config.with_values(dict(zip(("gearbox.oil_nu40_mm2_s", "gearbox.oil_nu100_mm2_s",
+                                              "gearbox.oil_density15_kg_m3"), args.oil)))
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr)
@@ -163,9 +166,27 @@ def register_calibrate(sub, with_params) -> None:
     )
     p.add_argument("--block-s", type=float, default=0.25, help="averaging block length [s]")
     add_assume_option(p)
+    p.add_argument("--oil", type=_datasheet, metavar="NU40,NU100[,RHO15]",
+                   help="the oil's data sheet: kinematic viscosities at 40 and 100 degC [mm^2/s] and the density at "
+                   "15 degC [kg/m^3, default 880]; the viscosity law (ASTM D341) starts from it and stays near it "
+                   "(also gearbox.oil_* in the parameter file)")
     add_channels_option(p)
     add_topic_options(p)
     p.set_defaults(func=cmd_calibrate)
+
+
+def _datasheet(text: str) -> tuple[float, ...]:
+    """``--oil NU40,NU100[,RHO15]``: ν40 > ν100 > 0 mm²/s, ρ15 in kg/m³."""
+    import math
+
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: NU40,NU100[,RHO15] are numbers") from None
+    if len(values) not in (2, 3) or not all(math.isfinite(v) for v in values) or not values[0] > values[1] > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: need NU40 > NU100 > 0 mm^2/s (an oil is thinner when warm) "
+                                         "and optionally RHO15 kg/m^3")
+    return values
 
 
 REGISTER = [register_calibrate]

@@ -139,6 +139,11 @@ GEARBOX_SPECS: tuple[ParamSpec, ...] = (
        low=0.0, high=1e4),
     _g("rated_speed_rpm", 3000.0, "rpm", "rated input speed (the loss map's last speed by default)",
        low=0.0, low_open=True, high=1e6),
+    _g("oil_nu40_mm2_s", 0.0, "mm^2/s", "the oil's data-sheet kinematic viscosity at 40 degC (0 = not known): "
+       "calibrate's viscosity law starts from it (ASTM D341)", low=0.0, high=1e5),
+    _g("oil_nu100_mm2_s", 0.0, "mm^2/s", "the oil's data-sheet kinematic viscosity at 100 degC (0 = not known)",
+       low=0.0, high=1e5),
+    _g("oil_density15_kg_m3", 880.0, "kg/m^3", "the oil's density at 15 degC (data sheet)", low=500.0, high=1500.0),
 )
 
 def effect_specs() -> tuple[ParamSpec, ...]:
@@ -287,6 +292,16 @@ class GearboxParams:
     ellipse_b: float = 1.1502
     ratio: float = 0.0
     rated_speed_rpm: float = 3000.0
+    oil_nu40_mm2_s: float = 0.0
+    oil_nu100_mm2_s: float = 0.0
+    oil_density15_kg_m3: float = 880.0
+
+    @property
+    def datasheet_oil(self) -> tuple[float, float, float] | None:
+        """The oil's data sheet (ν40, ν100 [mm²/s], ρ15 [kg/m³]) when the file gives one."""
+        if self.oil_nu40_mm2_s > 0:
+            return self.oil_nu40_mm2_s, self.oil_nu100_mm2_s, self.oil_density15_kg_m3
+        return None
 
     @property
     def internal_ratio_effective(self) -> float:
@@ -501,6 +516,9 @@ def _check_consistency(config: Config) -> None:
         raise ParameterError(
             "gearbox.dm2_m", g.dm2_m, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m"
         )
+    if (g.oil_nu40_mm2_s > 0 or g.oil_nu100_mm2_s > 0) and not (g.oil_nu40_mm2_s > g.oil_nu100_mm2_s > 0):
+        raise ParameterError("gearbox.oil_nu100_mm2_s", g.oil_nu100_mm2_s, f"an oil is thinner when warm: need "
+                             f"oil_nu40_mm2_s ({g.oil_nu40_mm2_s:g}) > oil_nu100_mm2_s > 0, or both 0")
     # the Snare term (eq. 21) needs k_j = Ry/Rx >= 1; checked on the derived geometry
     geo = contact_geometry(g)
     for j, k in ((1, geo.k1), (2, geo.k2)):

@@ -137,6 +137,45 @@ def _residual_over_time(result: CalibrationResult, data: SampleData, out_dir: Pa
     _save(fig, out_dir / "residual_over_time.png", plots)
 
 
+def _residual_structure(result: CalibrationResult, out_dir: Path, plots: list[Path]) -> None:
+    """The residual left (held out) against each input, as partial residuals: its block means and
+    its mean per quantile bin of speed, torque and oil temperature, and per direction and power
+    flow -- the trace to follow when the vocabulary has no answer (:func:`.calibrate.residual_structure`)."""
+    if not result.structure or not result.structure["explained_share"]:
+        return
+    plt = _pyplot()
+    b = result.blocks
+    r = b.y - result.pred_after
+    shares = result.structure["explained_share"]
+    inputs = {"speed": (np.abs(b.speed), "|drive speed| [rad/s]"), "torque": (np.abs(b.torque), "|drive torque| [N·m]"),
+              "temperature": (b.temperature, "oil temperature [°C]"),
+              "direction": (np.sign(b.speed), "direction (−1 reverse, +1 forward)"),
+              "power flow": (np.sign(b.speed * b.torque), "power flow (−1 overrun, +1 driving)")}
+    names = [n for n in inputs if n in shares]
+    fig, axes = plt.subplots(1, len(names), figsize=(3.4 * len(names), 3.6), dpi=100, sharey=True, squeeze=False)
+    for ax, name in zip(axes[0], names):
+        x, label = inputs[name]
+        ok = np.isfinite(x)
+        ax.scatter(x[ok], r[ok], s=3, alpha=0.3, color="0.5")
+        if name in ("direction", "power flow"):
+            keys = np.unique(x[ok])
+            means = [np.average(r[ok][x[ok] == k], weights=b.count[ok][x[ok] == k]) for k in keys]
+        else:
+            edges = np.unique(np.quantile(x[ok], np.linspace(0, 1, 9)))
+            label_of = np.digitize(x[ok], edges[1:-1])
+            keys = [float(np.mean(x[ok][label_of == k])) for k in np.unique(label_of)]
+            means = [np.average(r[ok][label_of == k], weights=b.count[ok][label_of == k]) for k in np.unique(label_of)]
+        ax.plot(keys, means, "o-", color="tab:red", label="mean per bin")
+        ax.set_title(f"{name}: {100 * shares[name]:.0f} % of the variance", fontsize=9)
+        ax.set_xlabel(label)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("residual left, held out [N·m]")
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle(result.structure["statement"], fontsize=10)
+    _save(fig, out_dir / "residual_structure.png", plots)
+
+
 def _measured_vs_estimated(result: CalibrationResult, out_dir: Path, plots: list[Path]) -> None:
     plt = _pyplot()
     b = result.blocks
@@ -164,6 +203,7 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
     _residual_over_time(result, data, out_dir, plots)
     _effect_curves(result, out_dir, plots)
     _measured_vs_estimated(result, out_dir, plots)
+    _residual_structure(result, out_dir, plots)
 
     eb, ea = result.error_before, result.error_after
     lines = [
@@ -184,7 +224,12 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
         f"Per sample (sensor noise included): RMSE {result.sample_level['before'].rmse_nm:.4g} → "
         f"{result.sample_level['after'].rmse_nm:.4g} N·m.\n",
         *([f"**Model adequacy:** {result.adequacy.statement}.\n"] if result.adequacy else []),
-        "## Accepted effects\n",
+        *([f"**Residual left:** {result.structure['statement']} (see residual_structure.png).\n"]
+          if result.structure and result.structure["strongest"] else []),
+        *(f"**Note:** {n}.\n" for n in result.notes),
+        "## The model's own parameters changed\n",
+        *([f"- {p.sentence()}" for p in result.parameters] or ["None."]),
+        "\n## Accepted effects\n",
     ]
     if result.effects:
         lines += ["| effect | parameters | 95 % intervals | RMS contribution [N·m] (95 %) |", "|---|---|---|---|"]

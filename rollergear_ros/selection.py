@@ -164,6 +164,14 @@ class Calibrator:
         self.rms_measured = rms_meas
         self.log: list[str] = []
         self.stage: Callable[[str], None] = lambda text: None  #: told what the selection is doing
+        #: effect -> (member, second member) to start its search from, and -> their search bounds,
+        #: instead of the registry's grids and bounds (a data sheet's viscosity law: ``calibrate``)
+        self.starts: dict[str, tuple[float, float | None]] = {}
+        self.bounds: dict[str, dict[str, tuple[float, float]]] = {}
+
+    def search_ranges(self, name: str) -> dict[str, tuple[float, float]]:
+        """Short name -> search bounds of an effect's profiled members (a start's, else the registry's)."""
+        return self.bounds.get(name) or EFFECTS[name].profiled_ranges()
 
     # -------------------------------------------------------------- helpers
     def design(self, terms: Sequence[Term], nuisance: bool = True, skip: Sequence[int] = ()) -> np.ndarray:
@@ -301,7 +309,7 @@ class Calibrator:
         grid = [self._with_member(t, m, second) for m in effect.member_grid]
         scores = [score(g) for g in grid]
         j = int(np.argmin(scores))
-        lo_b, hi_b = effect.member_bounds
+        lo_b, hi_b = self.search_ranges(t.name)[effect.member]
         step = (grid[1].member - grid[0].member) if len(grid) > 1 else 0.1
         # around the grid's best; from the grid's first or last member on to the member's bound (else
         # an optimum beyond the grid would stop one step outside it and pass for an estimate)
@@ -325,7 +333,8 @@ class Calibrator:
             profile = [self._best_member(terms, i, c) for c in effect.second_grid]
             t = profile[int(np.argmin([p[0] for p in profile]))][1]
         start = score(t)
-        (lo_m, hi_m), (lo_s, hi_s) = effect.member_bounds, effect.second_bounds
+        ranges = self.search_ranges(t.name)
+        (lo_m, hi_m), (lo_s, hi_s) = ranges[effect.member], ranges[effect.second_member]
         res = minimize(lambda v: score(self._with_member(t, float(v[0]), float(v[1]))), [t.member, t.second],
                        method="Nelder-Mead", bounds=[(lo_m, hi_m), (lo_s, hi_s)],
                        options={"initial_simplex": [[t.member, t.second], [t.member * 1.1, t.second],
@@ -353,12 +362,28 @@ class Calibrator:
         return terms
 
     def best_candidate(self, name: str, base: list[Term]) -> list[Term] | None:
-        """``base`` plus the group's best member, with every exponent re-optimised jointly."""
+        """``base`` plus the group's best member, with every exponent re-optimised jointly.  A
+        Fr-scaling effect (the viscosity law) comes with the rolling part's parameter (its level,
+        η(θ_ref)) when that fits better: neither explains an oil of another viscosity alone."""
+        single = self._best_single(name, base)
+        if single is None or name not in EFFECTS or not EFFECTS[name].scales_fr:
+            return single
+        level = next((k for k, p in MODEL_PARAMETERS.items() if p.part == "fr" and p.same_part_as is None), None)
+        if level is None or any(t.name == level for t in base) or not members(self.b, level):
+            return single
+        paired = self._best_single(name, base + members(self.b, level))
+        if paired is not None and self.cv_rmse(paired) < self.cv_rmse(single):
+            return paired
+        return single
+
+    def _best_single(self, name: str, base: list[Term]) -> list[Term] | None:
         cands = members(self.b, name)
         if not cands:
             return None
         if cands[0].member is None:
             return self.optimise(base + cands)
+        if name in self.starts:  # a known start (a data sheet): refined from there within its bounds
+            return self.optimise(base + [self._with_member(cands[0], *self.starts[name])])
         scores = [self.wsse(base + [c]) for c in cands]
         return self.optimise(base + [cands[int(np.argmin(scores))]])
 
@@ -381,8 +406,9 @@ class Calibrator:
 
         def other_profiled(m: float) -> float:
             """The pair's score at member m (or second m), the other one at its best near t's."""
-            name, bounds, at = ((effect.member, effect.member_bounds, t.member) if second
-                                else (effect.second_member, effect.second_bounds, t.second))
+            ranges = self.search_ranges(t.name)
+            name, bounds, at = ((effect.member, ranges[effect.member], t.member) if second
+                                else (effect.second_member, ranges[effect.second_member], t.second))
             width = 0.5 * abs(at) + 1.0
             res = minimize_scalar(
                 lambda o: score(self._with_member(t, m, o) if not second else self._with_member(t, o, m)),
@@ -395,7 +421,7 @@ class Calibrator:
                 return other_profiled(m) - limit
             return self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1 :]) - limit
 
-        lo_b, hi_b = effect.second_bounds if second else effect.member_bounds
+        lo_b, hi_b = self.search_ranges(t.name)[effect.second_member if second else effect.member]
         at = t.second if second else t.member
         lo = brentq(excess, lo_b, at, xtol=1e-4) if excess(lo_b) > 0 else lo_b
         hi = brentq(excess, at, hi_b, xtol=1e-4) if excess(hi_b) > 0 else hi_b
@@ -424,7 +450,7 @@ class Calibrator:
                 for short, v in ((effect.member, t.member), (effect.second_member, t.second)):
                     if short is None or v is None:
                         continue
-                    lo, hi = effect.profiled_ranges()[short]
+                    lo, hi = self.search_ranges(t.name)[short]
                     if min(abs(v - lo), abs(v - hi)) <= 1e-3 * (hi - lo):
                         return (f"{t.name}'s {short} = {v:.4g} stopped at the bound of its search [{lo:g}, {hi:g}]"
                                 f"{who}: the data want a law outside the vocabulary")
@@ -562,9 +588,12 @@ class Calibrator:
             if assumed is not None and assumed != g:  # the twin's fit: near the same error, by definition
                 cv_new, terms = twin_terms[assumed]
                 new = terms[-1]
-            # exponents of earlier terms were re-optimised together with the new one
+            # exponents of earlier terms were re-optimised together with the new one; a term that came
+            # with it (the viscosity law's level) is accepted with it
             n_sel = len(selected)
-            selected, provisional = terms[:n_sel], terms[n_sel : len(base)]
+            companions = terms[len(base):-1]
+            selected, provisional = terms[:n_sel] + companions, terms[n_sel : len(base)]
+            remaining = [r for r in remaining if r not in {t.name for t in companions}]
             if twins:
                 group = sorted([g] + twins)
                 needs = "; ".join(

@@ -22,6 +22,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .oil import oil_viscosity_ratio, vogel_viscosity_ratio, walther_viscosity_mm2_s  # noqa: F401 - re-exported
 from .bag import BagWriter, TopicMap, encode_float64, stamp
 from .effects import EFFECTS, EffectInputs
 from .errors import UsageError
@@ -56,34 +57,6 @@ class DeclaredEffect:
                 raise UsageError(f"effect {name}: {k} must be a finite number, not {v!r}")
             params[k] = val
         return cls(name, params)
-
-
-def vogel_viscosity_ratio(theta_c, b_k: float, c_k: float, theta_ref_c: float):
-    """``η(θ)/η(θ_ref) = exp(B/(θ + C) − B/(θ_ref + C))`` (Vogel)."""
-    return np.exp(b_k / (np.asarray(theta_c) + c_k) - b_k / (theta_ref_c + c_k))
-
-
-def walther_viscosity_mm2_s(theta_c, nu40_mm2_s: float, nu100_mm2_s: float):
-    """Kinematic viscosity by ASTM D341 (Walther) through two data-sheet points:
-    ``log10(log10(ν + 0.7)) = A − B·log10(θ[K])`` with ``A``, ``B`` from ν40 and ν100 [mm²/s]."""
-    t40, t100 = math.log10(313.15), math.log10(373.15)
-    y40, y100 = (math.log10(math.log10(nu + 0.7)) for nu in (nu40_mm2_s, nu100_mm2_s))
-    slope = (y40 - y100) / (t100 - t40)
-    a = y40 + slope * t40
-    return 10.0 ** 10.0 ** (a - slope * np.log10(np.asarray(theta_c) + 273.15)) - 0.7
-
-
-#: thermal expansion of a gear oil's density [1/K] (mineral oils: 6–7·10⁻⁴)
-OIL_EXPANSION_PER_K = 6.5e-4
-
-
-def oil_viscosity_ratio(theta_c, nu40_mm2_s: float, nu100_mm2_s: float, theta_ref_c: float = 40.0):
-    """``η(θ)/η(θ_ref)`` of a real oil: ``η = ρ·ν``, ν by :func:`walther_viscosity_mm2_s`, the density
-    falling linearly with temperature (:data:`OIL_EXPANSION_PER_K`)."""
-    def eta(th):
-        density = 1.0 - OIL_EXPANSION_PER_K * (np.asarray(th) - 15.0)  # relative to 15 °C
-        return walther_viscosity_mm2_s(th, nu40_mm2_s, nu100_mm2_s) * density
-    return eta(theta_c) / eta(theta_ref_c)
 
 
 @dataclass
