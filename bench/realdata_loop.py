@@ -64,11 +64,12 @@ def row(label: str, path: Path, tmp: Path, cmap) -> list[str]:
         config = load_config(params(tmp, paper_model))
         data = table_samples([path], config, cmap=cmap)
         res = calibrate(data, config)
-        found = "; ".join(f"`{e.name}` " + ", ".join(f"{k} = {v:.4g}" + (" (at its bound)" if k in e.at_bound else "")
-                                                    for k, v in e.params.items() if k in ("c", "p", "q"))
-                          for e in res.effects) or "—"
-        rows.append(f"| {label} | {'on' if paper_model else 'off'} | {len(data.t_ns)} | {res.verdict} | {found} | "
-                    f"{res.error_before.rmse_nm:.3g} → {res.error_after.rmse_nm:.3g} "
+        found = "; ".join(f"`{e.name}` " + ", ".join(f"{k} = {v:.4g}" for k, v in e.params.items()
+                                                    if k in ("c", "p", "q")) for e in res.effects) or "—"
+        found += "".join(f"; `{p.name.split('.')[1]}` {p.file:.3g} → {p.fitted:.3g}" for p in res.parameters)
+        model = "off" if not paper_model else ("on → **off**" if not res.config.estimator.paper_model else "on")
+        rows.append(f"| {label} | {model} | {len(data.t_ns)} | {res.verdict}{'' if res.written else ', not written'} | "
+                    f"{found} | {res.error_before.rmse_nm:.3g} → {res.error_after.rmse_nm:.3g} "
                     f"({res.error_after.rel_rmse_pct:.2f} %) | {res.adequacy.statement} |")
     return rows
 
@@ -76,8 +77,8 @@ def row(label: str, path: Path, tmp: Path, cmap) -> list[str]:
 def main() -> int:
     shared = Path(sys.argv[1]) if len(sys.argv) > 1 else ROOT.parent / "shared"
     real = shared / "realdata"
-    print("| data | paper's model | rows | verdict | found | held-out RMSE [N·m] before → after (% of loss) "
-          "| adequacy |")
+    print("| data | paper's model | rows | verdict | found (effects; model parameters file → fitted) | held-out RMSE "
+          "[N·m] before → after (% of loss) | adequacy |")
     print("|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as t:
         tmp = Path(t)

@@ -375,3 +375,34 @@ def test_a_table_mostly_beyond_the_plausible_range_stops_naming_the_limit_to_rai
     error = [ln for ln in proc.stderr.splitlines() if "error" in ln]
     assert len(error) == 1 and "12 of 18 rows lie beyond the estimator's plausible range" in error[0]
     assert "estimator.max_abs_torque_nm: 36000" in error[0], error[0]
+
+
+@needs_realdata
+@pytest.mark.slow
+@pytest.mark.parametrize("paper_model", [False, True])
+def test_no_measured_map_gets_a_negative_friction_or_an_exponent_at_its_bound(tmp_path, paper_model):
+    """Every VECTO map and each gear of ADVISOR's transaxle (shared/realdata), the paper's model off
+    and on: the accepted laws are losses the gearbox can have -- no negative coefficient of a loss,
+    no exponent at the bound of its search -- and the file written is what the errors describe."""
+    from rollergear_ros.calibrate import calibrate
+    from rollergear_ros.effects import EFFECTS
+    from rollergear_ros.samples import table_samples
+
+    config = load_config(_params(tmp_path, paper_model)).with_values({"estimator.max_abs_torque_nm": 100000.0})
+    advisor = tmp_path / "advisor.yaml"
+    advisor.write_text(
+        "format: steady_state\noutput_torque: {column: output_torque_Nm, unit: N*m}\n"
+        "output_speed: {column: output_speed_rad_s, unit: rad/s}\nefficiency: {column: efficiency, unit: '1'}\n"
+        "ratio: {column: overall_ratio}\ngroup: {column: gear}\n")
+    cases = [(p, None) for p in sorted(VECTO.rglob("*.vtlm"))]
+    cases.append((REALDATA / "advisor_vw_transaxle_effmap" / "tx_vw_eff_map_26_50_5_long.csv",
+                  load_channel_map(advisor)))
+    assert len(cases) >= 8
+    for path, cmap in cases:
+        res = calibrate(table_samples([path], config, cmap=cmap), config)
+        for e in res.effects:
+            spec = EFFECTS[e.name]
+            if spec.physical and not spec.scales_fr:
+                assert e.params[spec.coefficient] > 0, (path.name, e)
+            assert e.at_bound == [], (path.name, e)
+        assert res.written and res.error_after.rmse_nm < res.error_before.rmse_nm, path.name
