@@ -22,7 +22,7 @@ import numpy as np
 from .channelmap import ChannelMap
 from .errors import InputFileError
 from .interface import Channel
-from .timeseries import TEMPERATURE_MAX_RATE_HZ, Aligned, Series, _require, _time_ns, numeric_column
+from .timeseries import TEMPERATURE_MAX_RATE_HZ, Aligned, Series, _require, _time_ns, has_value, numeric_column
 
 __all__ = ["BATCH_ROWS", "aligned_batches"]
 
@@ -117,7 +117,7 @@ def aligned_batches(path: str | Path, cmap: ChannelMap, batch_rows: int = BATCH_
                 except InputFileError as exc:  # its data row counts from this batch: from the file's start
                     raise InputFileError(_renumber(str(exc), rows_read)) from None
                 values[name] = spec.to_si(raw)
-                present[name] = t_valid & ~np.asarray(table.column(spec.column).is_null())
+                present[name] = t_valid & has_value(table, spec)
             valid_t = t_ns[t_valid]
             back = np.flatnonzero(np.diff(valid_t) < 0)
             if back.size or (last_t is not None and len(valid_t) and valid_t[0] < last_t):

@@ -72,12 +72,19 @@ def unit_matches(channel: str, file_unit: str | None, map_unit: str) -> bool:
 
 @dataclass(frozen=True)
 class ChannelSpec:
-    """One channel: its column (or ``group/channel`` in TDMS), unit and scale."""
+    """One channel: its column (or ``group/channel`` in TDMS), unit and scale; or a constant (a
+    channel known but not measured: ``output_torque: {constant: 0, unit: N*m}`` in a spin test)."""
 
     channel: str
     column: str
     unit: str
     scale: float = 1.0
+    constant: float | None = None  #: the channel's value in the map's unit (no column)
+
+    @property
+    def label(self) -> str:
+        """How messages name it: its column, or its constant."""
+        return self.column if self.constant is None else f"constant {self.constant:g} {self.unit}"
 
     def to_si(self, values: np.ndarray) -> np.ndarray:
         factor, offset = UNITS[self.channel][self.unit]
@@ -109,7 +116,7 @@ class ChannelMap:
 
     def columns(self) -> list[str]:
         """Every column the map reads."""
-        cols = [s.column for s in self.channels.values()]
+        cols = [s.column for s in self.channels.values() if s.constant is None]
         if self.time is not None and self.time.column not in cols:
             cols.insert(0, self.time.column)
         cols += [c for c in (self.group, self.ratio_column) if c is not None and c not in cols]
@@ -117,11 +124,19 @@ class ChannelMap:
 
 
 def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
-    if not isinstance(value, dict) or "column" not in value:
-        raise InputFileError(f"{path}: {key}: expected {{column: NAME, unit: UNIT}}, got {value!r}")
-    unknown = set(value) - {"column", "unit", "scale"}
+    if not isinstance(value, dict) or ("column" in value) == ("constant" in value):
+        raise InputFileError(f"{path}: {key}: expected {{column: NAME, unit: UNIT}} or {{constant: VALUE, unit: UNIT}}, "
+                             f"got {value!r}")
+    unknown = set(value) - {"column", "constant", "unit", "scale"}
     if unknown:
-        raise InputFileError(f"{path}: {key}: unknown key(s) {', '.join(sorted(unknown))} (column, unit, scale)")
+        raise InputFileError(f"{path}: {key}: unknown key(s) {', '.join(sorted(unknown))} (column or constant, unit, "
+                             "scale)")
+    constant = value.get("constant")
+    if constant is not None:
+        if key == "time" or isinstance(constant, bool) or not isinstance(constant, int | float) \
+                or not math.isfinite(constant):
+            raise InputFileError(f"{path}: {key}: constant must be a finite number"
+                                 f"{' (time cannot be constant)' if key == 'time' else ''}, got {constant!r}")
     allowed = UNITS[key]
     if "unit" not in value:
         raise InputFileError(f"{path}: {key}: no unit (one of {', '.join(allowed)})")
@@ -131,6 +146,8 @@ def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
     scale = value.get("scale", 1.0)
     if isinstance(scale, bool) or not isinstance(scale, int | float) or not math.isfinite(scale) or scale == 0:
         raise InputFileError(f"{path}: {key}: scale must be a finite non-zero number, got {scale!r}")
+    if constant is not None:
+        return ChannelSpec(key, "", unit, float(scale), float(constant))
     return ChannelSpec(key, str(value["column"]), unit, float(scale))
 
 
@@ -169,6 +186,8 @@ def load_channel_map(path: str | Path) -> ChannelMap:
                 raise InputFileError(f"{path}: no {needed} channel (every file needs motor_torque and motor_speed; "
                                      "a steady-state table may give the output side instead)")
     time = _spec(path, "time", doc["time"]) if "time" in doc else None
+    if channels.get(Channel.MOTOR_TORQUE) is not None and channels[Channel.MOTOR_TORQUE].constant is not None:
+        raise InputFileError(f"{path}: motor_torque: the drive torque is measured, not a constant")
     if fmt == "timeseries":  # time: needed by CSV and Parquet; MDF4 and TDMS carry their own (see timeseries)
         steady_only = [k for k in ("loss_torque", "efficiency") if k in channels]
         if steady_only:
@@ -191,7 +210,8 @@ def load_channel_map(path: str | Path) -> ChannelMap:
         if not isinstance(group, dict) or set(group) != {"column"}:
             raise InputFileError(f"{path}: group: expected {{column: NAME}}, got {group!r}")
         group = str(group["column"])
-    columns = [(k, s.column) for k, s in channels.items()] + ([("time", time.column)] if time else [])
+    columns = [(k, s.column) for k, s in channels.items() if s.constant is None]
+    columns += [("time", time.column)] if time else []
     seen: dict[str, str] = {}
     for key, column in columns:
         if column in seen:

@@ -149,9 +149,12 @@ def arrow_table(path: Path, cmap: ChannelMap):
 
 
 def numeric_column(path: Path, name: str, spec: ChannelSpec, table) -> np.ndarray:
-    """A numeric column as float64 (null -> NaN); anything else is one line naming the channel."""
+    """A numeric column as float64 (null -> NaN); anything else is one line naming the channel; a
+    constant channel is its constant on every row."""
     import pyarrow as pa
 
+    if spec.constant is not None:
+        return np.full(table.num_rows, spec.constant)
     col = table.column(spec.column)
     if not (pa.types.is_floating(col.type) or pa.types.is_integer(col.type) or pa.types.is_null(col.type)):
         if pa.types.is_string(col.type) or pa.types.is_large_string(col.type):
@@ -175,14 +178,21 @@ def _read_arrow(path: Path, cmap: ChannelMap, notes: list[str] | None = None) ->
     out = {}
     for name, spec in cmap.channels.items():
         values = numeric_column(path, name, spec, table)
-        present = t_valid & ~np.asarray(table.column(spec.column).is_null())  # empty cell: no sample here
+        present = t_valid & has_value(table, spec)  # empty cell: no sample here
         out[name] = Series(t_ns[present], spec.to_si(values[present]))
     return out
 
 
+def has_value(table, spec: ChannelSpec) -> np.ndarray:
+    """The rows of ``table`` with a value of the channel (a constant: every row)."""
+    if spec.constant is not None:
+        return np.ones(table.num_rows, dtype=bool)
+    return ~np.asarray(table.column(spec.column).is_null())
+
+
 def _require(path: Path, cmap: ChannelMap, available: list[str]) -> None:
     specs = [("time", cmap.time.column)] if cmap.time is not None else []
-    specs += [(name, spec.column) for name, spec in cmap.channels.items()]
+    specs += [(name, spec.column) for name, spec in cmap.channels.items() if spec.constant is None]
     specs += [("group", cmap.group)] if cmap.group is not None else []
     for name, column in specs:
         if column not in available:
@@ -352,6 +362,8 @@ def _read_mdf4(path: Path, cmap: ChannelMap) -> dict[str, Series]:
                                                       mdf.get(group=group, index=index).samples)))
         out = {}
         for name, spec in cmap.channels.items():
+            if spec.constant is not None:
+                continue
             group, index = _mdf_channel(path, mdf, name, spec.column)
             signal = mdf.get(group=group, index=index)
             if not unit_matches(name, signal.unit, spec.unit):
@@ -367,9 +379,18 @@ def _read_mdf4(path: Path, cmap: ChannelMap) -> dict[str, Series]:
                                      f"{cmap.time.column!r} {len(clock)}: a time channel serves the channels of its "
                                      "data group (leave time out of the map to use each channel's own)")
             out[name] = Series(t_ns, values)
-        return out
+        return _with_constants(out, cmap)
     finally:
         mdf.close()
+
+
+def _with_constants(out: dict[str, Series], cmap: ChannelMap) -> dict[str, Series]:
+    """The map's constant channels at the motor torque's times."""
+    base = out[Channel.MOTOR_TORQUE].t_ns
+    for name, spec in cmap.channels.items():
+        if spec.constant is not None:
+            out[name] = Series(base, spec.to_si(np.full(len(base), spec.constant)))
+    return out
 
 
 def _open_mdf(path: Path):
@@ -468,6 +489,8 @@ def _read_tdms(path: Path, cmap: ChannelMap) -> dict[str, Series]:
                                                  channel("time", cmap.time.column)[:]))).astype(np.int64)
     out = {}
     for name, spec in cmap.channels.items():
+        if spec.constant is not None:
+            continue
         ch = channel(name, spec.column)
         unit = ch.properties.get("unit_string")
         if not unit_matches(name, unit, spec.unit):
@@ -482,7 +505,7 @@ def _read_tdms(path: Path, cmap: ChannelMap) -> dict[str, Series]:
         else:
             t_ns = _waveform_ns(path, f"{name} ({spec.column})", ch.properties, len(values))
         out[name] = Series(t_ns, spec.to_si(values))
-    return out
+    return _with_constants(out, cmap)
 
 
 def _waveform_ns(path: Path, what: str, properties, n: int) -> np.ndarray:

@@ -824,3 +824,44 @@ def test_clock_times_past_midnight_read_in_batches_equal_the_file_read_whole(tmp
     parts = np.concatenate([p.t_ns for p in aligned_batches(tmp_path / "rig.parquet", cmap, batch_rows=3)])
     np.testing.assert_array_equal(parts, whole)
     assert np.all(np.diff(whole) == 1_000_000_000) and whole[0] == _utc_ns("2026-11-24T23:59:50")
+
+
+def test_a_constant_channel_is_a_spin_test(tmp_path):
+    """``output_torque: {constant: 0, unit: N*m}``: a joint or gearbox driven with nothing on its
+    output -- the drive torque is all loss; the constant is written at every sample (CSV and MDF4)."""
+    from asammdf import MDF, Signal
+
+    t = np.arange(200) * 0.01
+    torque = 0.3 + 0.1 * np.sin(t)
+    (tmp_path / "spin.csv").write_text("t,T\n" + "".join(f"{a:.3f},{b:.6f}\n" for a, b in zip(t, torque)))
+    cmap = ("motor_torque: {column: T, unit: N*m}\nmotor_speed: {constant: 600, unit: rpm}\n"
+            "output_torque: {constant: 0, unit: N*m}\n")
+    (tmp_path / "map.yaml").write_text("time: {column: t, unit: s}\n" + cmap + "ratio: 2\n")
+    import_source(tmp_path / "spin.csv", tmp_path / "spin.mcap", tmp_path / "map.yaml")
+    mdf = MDF(version="4.10")
+    mdf.append([Signal(torque, t, name="T", unit="Nm")])
+    mdf.save(tmp_path / "spin.mf4", overwrite=True)
+    (tmp_path / "mmap.yaml").write_text(cmap + "ratio: 2\n")
+    import_source(tmp_path / "spin.mf4", tmp_path / "spin_mf4.mcap", tmp_path / "mmap.yaml")
+    for mcap in ("spin.mcap", "spin_mf4.mcap"):
+        messages = read_rosbags(tmp_path / mcap)
+        _, out = float_series(messages, "/rollergear/output/torque")
+        _, speed = float_series(messages, "/rollergear/motor/speed")
+        _, drive = float_series(messages, "/rollergear/motor/torque")
+        assert len(out) == len(drive) == 200 and (out == 0).all()
+        np.testing.assert_allclose(speed, 600 * RPM)
+        np.testing.assert_allclose(drive, torque, atol=1e-6)  # the CSV holds 6 decimals
+
+
+@pytest.mark.parametrize(("entry", "message"), [
+    ("output_torque: {constant: .nan, unit: N*m}", "constant must be a finite number"),
+    ("output_torque: {constant: 0, column: T_out, unit: N*m}", "expected {column: NAME, unit: UNIT} or {constant"),
+    ("time: {constant: 0, unit: s}", "time cannot be constant"),
+])
+def test_bad_constants_are_one_line(tmp_path, entry, message):
+    from rollergear_ros.channelmap import load_channel_map
+
+    (tmp_path / "m.yaml").write_text("motor_torque: {column: T, unit: N*m}\nmotor_speed: {column: n, unit: rpm}\n"
+                                     + entry + "\n")
+    with pytest.raises(InputFileError, match=re.escape(message)):
+        load_channel_map(tmp_path / "m.yaml")
