@@ -13,7 +13,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from .effects import EFFECTS, EffectInputs
+from .effects import EFFECTS, EffectInputs, with_temperature
 from .params import Config
 
 
@@ -33,8 +33,17 @@ def regressor_plan(names: Iterable[str], config: Config) -> list[tuple]:
     plan = []
     for n in names:
         params = config.effects.params(n)
-        plan.append((EFFECTS[n].term, {**params, EFFECTS[n].coefficient: 1.0}, EFFECTS[n].regressor_scale(params)))
+        term = EFFECTS[n].term
+        if EFFECTS[n].needs_temperature:  # a missing temperature: the effect at its reference viscosity
+            term = _at_known_temperature(term)
+        plan.append((term, {**params, EFFECTS[n].coefficient: 1.0}, EFFECTS[n].regressor_scale(params)))
     return plan
+
+
+def _at_known_temperature(term):
+    def at_known(x: EffectInputs, **params):
+        return term(with_temperature(x, params), **params)
+    return at_known
 
 
 def regressors(plan: list[tuple], x: EffectInputs) -> list:

@@ -54,28 +54,30 @@ class Blocks:
     def mean(self, values: np.ndarray) -> np.ndarray:
         return np.add.reduceat(np.broadcast_to(values, self.x.abs_speed.shape), self.start) / self.count
 
-    def column(self, name: str, member: float | None = None, second: float | None = None) -> np.ndarray:
-        """Block means of an effect's regressor (coefficient 1), at any member (not only the grid's);
-        a sample without an input the effect needs (a missing temperature) contributes 0.  Each
-        (effect, member) is computed once: the selection asks for the same ones at every step."""
-        key = (name, member, second)
+    def column(self, name: str, member: float | None = None, second: float | None = None,
+               law: tuple[float, float, float] | None = None) -> np.ndarray:
+        """Block means of an effect's regressor (coefficient 1), at any member (not only the grid's),
+        with ``law`` (Vogel B, C, θ_ref) for an effect that follows the oil; a sample without an
+        input the effect needs (a missing temperature) contributes 0.  Each (effect, member, law) is
+        computed once: the selection asks for the same ones at every step."""
+        key = (name, member, second, law)
         cached = self._columns.get(key)
         if cached is not None:
             return cached
         if name in MODEL_PARAMETERS:  # a part of the model (its relative change is the coefficient)
             return self.columns[name]
         effect = EFFECTS[name]
+        params = effect.defaults() | (dict(zip(("B", "C", "theta_ref"), law)) if law is not None else {})
         if effect.scales_fr:
             # a relative change of Fr that depends on the oil temperature alone: evaluated once per
             # distinct temperature (held between its messages: ~1 in 20 samples), then times T_Fr
             if self._distinct is None:
                 self._distinct = np.unique(self.x.temperature_c, return_inverse=True)
             theta, inverse = self._distinct
-            relative = effect.column(self.x._replace(temperature_c=theta, fr_part_nm=1.0), effect.defaults(),
-                                     member, second)
+            relative = effect.column(self.x._replace(temperature_c=theta, fr_part_nm=1.0), params, member, second)
             values = self.x.fr_part_nm * relative[inverse]
         else:
-            values = effect.column(self.x, effect.defaults(), member, second)
+            values = effect.column(self.x, params, member, second)
         if effect.needs_temperature:
             values = np.where(np.isnan(values), 0.0, values)
         cached = self._columns[key] = self.mean(values)
@@ -201,6 +203,8 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     )
     for name in testable:
         effect = EFFECTS[name]
+        if effect.oil_law:  # its columns need the oil's law: computed when the selection knows it
+            continue
         if effect.member is None:
             columns[name] = blocks.column(name)
         else:

@@ -268,6 +268,7 @@ def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, bl
         theta_ref = EFFECTS["viscosity_temperature"].defaults()["theta_ref"]
         b_k, c_k, eta_ref = vogel_from_datasheet(*oil, theta_ref_c=theta_ref)
         cal.starts["viscosity_temperature"] = (b_k, c_k)
+        cal.datasheet_law = (b_k, c_k, theta_ref)
         cal.bounds["viscosity_temperature"] = {"B": (b_k / DATASHEET_B_FACTOR, b_k * DATASHEET_B_FACTOR),
                                                "C": (max(c_k - DATASHEET_C_SPAN_K, 20.0), c_k + DATASHEET_C_SPAN_K)}
         ranges["gearbox.eta0_pa_s"] = (eta_ref / DATASHEET_ETA_FACTOR, eta_ref * DATASHEET_ETA_FACTOR)
@@ -320,6 +321,8 @@ def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, bl
                                               float(np.nan_to_num(ends[1], nan=p.high))], abs(c) * rms, same))
             continue
         effect = EFFECTS[term.name]
+        if term.law is not None:  # the oil's law as the set has it (fitted once, with the viscosity law)
+            term = replace(term, law=cal.oil_law(final))
         ci = {effect.coefficient: cal.coefficient_interval(final, i, out.ranges.get(term.name))}
         if term.member is not None and term.name in out.ranges:
             ci[effect.member] = out.ranges[term.name]

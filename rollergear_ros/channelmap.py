@@ -125,8 +125,8 @@ class ChannelMap:
 
 def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
     if not isinstance(value, dict) or ("column" in value) == ("constant" in value):
-        raise InputFileError(f"{path}: {key}: expected {{column: NAME, unit: UNIT}} or {{constant: VALUE, unit: UNIT}}, "
-                             f"got {value!r}")
+        raise InputFileError(f"{path}: {key}: expected {{column: NAME, unit: UNIT}} or "
+                             f"{{constant: VALUE, unit: UNIT}}, got {value!r}")
     unknown = set(value) - {"column", "constant", "unit", "scale"}
     if unknown:
         raise InputFileError(f"{path}: {key}: unknown key(s) {', '.join(sorted(unknown))} (column or constant, unit, "

@@ -93,6 +93,15 @@ def load_speed(x: EffectInputs, c, p):
     return c * x.abs_torque * x.abs_speed ** p
 
 
+def drag_viscous(x: EffectInputs, c, p, a, B, C, theta_ref):
+    """Churning that follows the oil: ``ΔT = c·(η(θ)/η_ref)^a·|ω|^p`` (thick cold oil churns harder).
+
+    ISO/TR 14179-2 writes no-load losses with the viscosity inside; ``η(θ)/η_ref = exp(B/(θ + C) −
+    B/(θ_ref + C))`` is the calibrated oil's Vogel law (the model's rolling part follows the same oil).
+    """
+    return c * math.e ** (a * (B / (x.temperature_c + C) - B / (theta_ref + C))) * x.abs_speed ** p
+
+
 def viscosity_scale(b_k, c_k, theta_ref_c, theta_c):
     """``s = (η(θ)/η0)^0.66`` with Vogel ``η(θ)/η0 = exp(B/(θ + C) − B/(θ_ref + C))``."""
     return math.e ** (FR_VISCOSITY_EXPONENT * (b_k / (theta_c + c_k) - b_k / (theta_ref_c + c_k)))
@@ -172,6 +181,9 @@ class Effect:
     #: applied as a factor on the model's Fr part (the estimator's viscosity path); the factor
     #: depends on the oil temperature alone (``calibrate`` evaluates it once per distinct temperature)
     scales_fr: bool = False
+    #: its Vogel law (``B``, ``C``, ``theta_ref``) is the calibrated oil's: the set's
+    #: viscosity_temperature, else the oil's data sheet; ``calibrate`` does not search it
+    oil_law: bool = False
     separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
     plotted_against: str = "speed"  #: the report draws its fitted curve over "speed", "torque" or "temperature"
 
@@ -244,6 +256,23 @@ for _effect in (
            coefficient="c", member="p", member_grid=_grid(0.5, 3.0, 0.1), member_bounds=(0.3, 3.5),
            regressor_scale=lambda params: SPEED_REF_RAD_S ** params["p"],
            separated_from={"viscosity_temperature": "the same speeds at different oil temperatures"}),
+    Effect("drag_viscous", drag_viscous, True, "add a churning drag that follows the oil: c*(eta/eta_ref)^a*|w|^p",
+           "churning and splash losses of an oil whose viscosity changes with its temperature",
+           (EffectParameter("c", "c", 0.0, "churning coefficient c at the reference viscosity (N*m/(rad/s)^p)",
+                            simulated=3e-4),
+            EffectParameter("p", "p", 1.5, "speed exponent p", low=0.0, high=4.0),
+            EffectParameter("a", "a", 0.5, "viscosity exponent a", low=0.0, high=3.0),
+            EffectParameter("B", "B_k", 0.0, "the oil's Vogel B (the calibrated law; 0: no law, the drag at "
+                            "eta_ref)", "K", low=0.0, high=1e5, simulated=900.0),
+            EffectParameter("C", "C_k", 95.0, "the oil's Vogel C", "K", low=-273.0, low_open=True, high=1e4),
+            EffectParameter("theta_ref", "theta_ref_c", 40.0, "the law's reference temperature", "degC",
+                            low=-100.0, high=400.0)),
+           coefficient="c", member="p", member_grid=_grid(0.5, 3.0, 0.25), member_bounds=(0.3, 3.5),
+           second_member="a", second_grid=_grid(0.25, 1.5, 0.25), second_bounds=(0.05, 2.5),
+           regressor_scale=lambda params: SPEED_REF_RAD_S ** params["p"], needs_temperature=True, oil_law=True,
+           separated_from={"drag_speed": "the same speeds at different oil temperatures",
+                           "viscosity_temperature": "several speeds at light load (churning does not follow the "
+                                                    "load; the rolling part does)"}),
     Effect("load_dependent", load_dependent, True, "add a load friction c*|T|^q", "bearing load friction, sliding",
            (EffectParameter("c", "c", 0.0, "load friction coefficient c (N*m/(N*m)^q)", simulated=2e-3),
             EffectParameter("q", "q", 1.0, "load friction exponent q", low=0.0, high=4.0)),
@@ -306,11 +335,24 @@ def additive_terms(enabled: Mapping[str, Mapping[str, float]], x: EffectInputs) 
     sens = 0.0 * x.abs_speed
     for name, effect in EFFECTS.items():
         if name in enabled and not effect.scales_fr:
+            xi = with_temperature(x, enabled[name]) if effect.needs_temperature else x
             if effect.physical:
-                phys = phys + effect.term(x, **enabled[name])
+                phys = phys + effect.term(xi, **enabled[name])
             else:
-                sens = sens + effect.term(x, **enabled[name])
+                sens = sens + effect.term(xi, **enabled[name])
     return EffectTerms(phys, sens)
+
+
+def with_temperature(x: EffectInputs, params: Mapping[str, float]) -> EffectInputs:
+    """``x`` with a missing oil temperature (NaN) at the effect's reference temperature (``theta_ref``):
+    an effect that follows the oil is then at its reference viscosity, as the model's Fr part is."""
+    theta = x.temperature_c
+    ref = params.get("theta_ref", 40.0)
+    if isinstance(theta, float):
+        return x if theta == theta else x._replace(temperature_c=ref)
+    import numpy as np
+
+    return x._replace(temperature_c=np.where(np.isnan(theta), ref, theta))
 
 
 def fr_scale(enabled: Mapping[str, Mapping[str, float]], x: EffectInputs):
@@ -335,9 +377,13 @@ def markdown_table() -> str:
         fitted = f"`{e.coefficient}` (linear" + (", adapted online)" if e.adaptive else ")")
         if e.member:
             fitted += f", `{e.member}` on {e.member_grid[0]:g}…{e.member_grid[-1]:g}"
-        if e.second_member:
+        if e.second_member and e.profile_coefficient is not None:
             fitted += (f" with `{e.second_member}` on {e.second_grid[0]:g}…{e.second_grid[-1]:g}, both at "
                        f"`{e.coefficient}` = {e.profile_coefficient:g}, then `{e.coefficient}` freely as a check")
+        elif e.second_member:
+            fitted += f" with `{e.second_member}` on {e.second_grid[0]:g}…{e.second_grid[-1]:g}"
+        if e.oil_law:
+            fitted += "; its Vogel law is the calibrated oil's (viscosity_temperature's, else `--oil`'s)"
         kind = "loss" if e.physical else "sensor error"
         if e.needs_temperature:
             kind += "; needs a varying oil temperature"

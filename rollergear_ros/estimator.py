@@ -233,7 +233,7 @@ class Estimator:
                 self.counts["temperature_missing"] += 1
         mag = self.model.loss_magnitude_scalar(t, w, vscale)
         # the effects' inputs, fixed terms and regressors, once per sample for the estimate and the RLS
-        x = EffectInputs(at, aw, t, sg) if self._additive or self.adaptive else None
+        x = EffectInputs(at, aw, t, sg, s.temperature_c) if self._additive or self.adaptive else None
         fixed = additive_terms(self._fixed, x) if self._fixed_additive else None
         phi = regressors(self._regressor_plan, x) if self.adaptive else ()
         phys, sens = self._effects_scalar(fixed, phi)
@@ -320,7 +320,7 @@ class Estimator:
         with np.errstate(invalid="ignore"):
             meas = np.where(bad_out, np.nan, self.measured_loss(torque_meas, speed, out_torque, out_speed))
         coefficients: dict[str, np.ndarray] = {}
-        x = EffectInputs(at, aw, torque, sg)
+        x = EffectInputs(at, aw, torque, sg, temperature)
         if self.adaptive:
             phys = np.zeros(len(mag))
             sens = np.zeros(len(mag))

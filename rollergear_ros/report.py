@@ -77,7 +77,9 @@ def effect_band(result: CalibrationResult, effect: FoundEffect) -> tuple[np.ndar
     see :func:`.calibrate.calibrate`).
     """
     spec = EFFECTS[effect.name]
-    column = result.blocks.column(effect.name, effect.params.get(spec.member) if spec.member else None)
+    law = tuple(effect.params[k] for k in ("B", "C", "theta_ref")) if spec.oil_law else None
+    column = result.blocks.column(effect.name, effect.params.get(spec.member) if spec.member else None,
+                                  effect.params.get(spec.second_member) if spec.second_member else None, law)
     c_lo, c_hi = effect.ci95[spec.coefficient]
     a, b_ = c_lo * column, c_hi * column
     return effect.params[spec.coefficient] * column, np.minimum(a, b_), np.maximum(a, b_)

@@ -118,6 +118,7 @@ class Term:
     column: np.ndarray
     member: float | None = None  # p, q or B
     second: float | None = None  # Vogel C (None: the registry's default)
+    law: tuple[float, float, float] | None = None  # the oil's Vogel B, C, θ_ref (an effect that follows the oil)
 
     def params(self, coef: float) -> dict[str, float]:
         """The effect's parameters (short names, registry order): the fitted coefficient, the
@@ -129,17 +130,23 @@ class Term:
             values[effect.member] = float(self.member)
         if effect.second_member is not None and self.second is not None:
             values[effect.second_member] = float(self.second)
+        if self.law is not None:
+            values.update(zip(("B", "C", "theta_ref"), self.law))
         return values
 
 
-def members(blocks: Blocks, name: str) -> list[Term]:
+def members(blocks: Blocks, name: str, law: tuple[float, float, float] | None = None) -> list[Term]:
     """The candidate terms of one group: one column, or one per member of its grid ([] when the
-    data cannot test it)."""
+    data cannot test it, or when it follows the oil and no ``law`` is known)."""
     if name not in blocks.testable:
         return []
     if name in MODEL_PARAMETERS:
         return [Term(name, blocks.columns[name])]
     effect = EFFECTS[name]
+    if effect.oil_law:
+        if law is None:
+            return []
+        return [Term(name, blocks.column(name, float(m), None, law), float(m), None, law) for m in effect.member_grid]
     if effect.member is None:
         return [Term(name, blocks.columns[name])]
     return [Term(name, blocks.grids[name][i], float(m)) for i, m in enumerate(effect.member_grid)]
@@ -168,6 +175,7 @@ class Calibrator:
         #: instead of the registry's grids and bounds (a data sheet's viscosity law: ``calibrate``)
         self.starts: dict[str, tuple[float, float | None]] = {}
         self.bounds: dict[str, dict[str, tuple[float, float]]] = {}
+        self.datasheet_law: tuple[float, float, float] | None = None  #: the oil's data sheet's Vogel B, C, θ_ref
 
     def search_ranges(self, name: str) -> dict[str, tuple[float, float]]:
         """Short name -> search bounds of an effect's profiled members (a start's, else the registry's)."""
@@ -180,11 +188,16 @@ class Calibrator:
                                                       if i not in skip]
         return np.column_stack(cols) if cols else np.zeros((len(self.b.y), 0))
 
-    @staticmethod
-    def effective_column(t: Term, terms: Sequence[Term]) -> np.ndarray:
+    def effective_column(self, t: Term, terms: Sequence[Term]) -> np.ndarray:
         """A term's column in a set: the rolling part's parameter (η0) scales the Fr part *at the
         viscosity law's η(θ)* when a Fr-scaling effect is in the set (its column is ``T_Fr·(s − 1)``
-        at coefficient 1, so the part at η(θ) is ``T_Fr + T_Fr·(s − 1)``)."""
+        at coefficient 1, so the part at η(θ) is ``T_Fr + T_Fr·(s − 1)``); an effect that follows the
+        oil follows the set's viscosity law (one oil: its B and C are fitted once, for both)."""
+        if t.law is not None:
+            law = self.oil_law(terms)
+            if law is not None and law != t.law:
+                return self.b.column(t.name, t.member, t.second, law)
+            return t.column
         parameter = MODEL_PARAMETERS.get(t.name)
         if parameter is None or parameter.part != "fr":
             return t.column
@@ -277,7 +290,16 @@ class Calibrator:
 
     def _with_member(self, term: Term, member: float, second: float | None = None) -> Term:
         second = term.second if second is None else second
-        return Term(term.name, self.b.column(term.name, member, second), member, second)
+        return Term(term.name, self.b.column(term.name, member, second, term.law), member, second, term.law)
+
+    def oil_law(self, terms: Sequence[Term]) -> tuple[float, float, float] | None:
+        """The calibrated oil's Vogel law: the set's viscosity_temperature, else the data sheet's."""
+        for t in terms:
+            if t.name in EFFECTS and EFFECTS[t.name].scales_fr and t.member is not None:
+                return (float(t.member), float(t.second if t.second is not None
+                                                else EFFECTS[t.name].defaults()["C"]),
+                        float(EFFECTS[t.name].defaults()["theta_ref"]))
+        return self.datasheet_law
 
     def wsse_held(self, terms: Sequence[Term], i: int) -> float:
         """:meth:`wsse` with term ``i``'s coefficient held at its effect's ``profile_coefficient``."""
@@ -369,15 +391,15 @@ class Calibrator:
         if single is None or name not in EFFECTS or not EFFECTS[name].scales_fr:
             return single
         level = next((k for k, p in MODEL_PARAMETERS.items() if p.part == "fr" and p.same_part_as is None), None)
-        if level is None or any(t.name == level for t in base) or not members(self.b, level):
+        if level is None or any(t.name == level for t in base) or not members(self.b, level, None):
             return single
         paired = self._best_single(name, base + members(self.b, level))
-        if paired is not None and self.cv_rmse(paired) < self.cv_rmse(single):
-            return paired
+        if paired is not None and self.cv_rmse(paired) < (1.0 - self.min_improvement) * self.cv_rmse(single):
+            return paired  # the level too, when it clearly helps (else it would pass untested)
         return single
 
     def _best_single(self, name: str, base: list[Term]) -> list[Term] | None:
-        cands = members(self.b, name)
+        cands = members(self.b, name, self.oil_law(base))
         if not cands:
             return None
         if cands[0].member is None:
@@ -396,7 +418,7 @@ class Calibrator:
         t = terms[i]
         effect = EFFECTS[t.name]
         pair = effect.second_member is not None
-        w0 = self.wsse_held(terms, i) if pair else self.wsse(terms)
+        w0 = self.wsse_held(terms, i) if effect.profile_coefficient is not None else self.wsse(terms)
         dof = max(len(self.b.y) - len(terms) - len(self.nuisance), 1)
         # blocks weighted by their inverse variance: chi-square with sigma 1, at least (the model may
         # fit better than the noise says); a table's rows weigh 1 each: sigma^2 is the residual's
@@ -487,7 +509,7 @@ class Calibrator:
         provisional: list[Term] = []  # best member of each ambiguous set: kept in the fit, not reported
         ambiguous: list[AmbiguousSet] = []
         negative: list[str] = []
-        remaining = [g for g in groups() if members(self.b, g)]
+        remaining = [g for g in groups() if g in self.b.testable]
         unavailable = [g for g in groups() if g not in remaining]
         cv_now = self.cv_rmse([])
         step = 0
@@ -630,6 +652,8 @@ class Calibrator:
                 continue
             terms = self.best_candidate(g, final)
             if terms is None:
+                if g in EFFECTS and EFFECTS[g].oil_law:  # follows the oil: no law to follow
+                    unavailable.append(g)
                 continue
             c, se = self.coefficient(terms, len(terms) - 1)
             rms_col = self.contribution_rms(terms, len(terms) - 1)
