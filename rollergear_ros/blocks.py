@@ -94,7 +94,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     sensor errors are not candidates there (a table holds losses, not a torque sensor's readings).
     """
     t = d.t_ns.astype(np.float64) * 1e-9
-    sg = rotation_sign(d.speed, d.torque)
+    sg = rotation_sign(d.speed, d.torque, d.sign_width_rad_s)
     n = len(t)
     dt = np.diff(t)
     typical = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1e-3
@@ -179,7 +179,8 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         else False
     )
     testable = tuple(n for n, e in EFFECTS.items()
-                     if (varies or not e.needs_temperature) and (e.physical or not d.steady_state))
+                     if (varies or not e.needs_temperature) and (e.physical or not d.steady_state)
+                     and not (d.spin_test and e.depends_on_load))
     columns = {"dtdt": mean(dtdt * sg), "dwdt": mean(dwdt * sg)}
     x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
     blocks = Blocks(
@@ -213,7 +214,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     # not 0 as the ball friction without a ball force)
     for key in fitted_parameters():
         part = d.parts.get(MODEL_PARAMETERS[key].part)
-        if part is not None and np.any(part != 0):
+        if part is not None and np.any(part != 0) and not d.spin_test:  # every part depends on the load
             columns[key] = mean(part)
             blocks.testable += (key,)
     return blocks

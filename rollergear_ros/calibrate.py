@@ -227,7 +227,9 @@ def calibrate(
         without = replace(data, model_loss=zero, fr_part=zero, parts={})
         alt = _calibrate_once(without, off, delta_nm, block_s, folds, stage, assume, before=result)
         on_text = f"{result.error_after.rmse_nm:.4g}" if result.written else "no file"
-        if alt.written and alt.verdict == "effects_found" and (
+        explains = (alt.error_after.rel_rmse_pct <= ALTERNATIVE_MAX_ERROR_PCT
+                    or not (alt.structure or {}).get("strongest"))
+        if alt.written and alt.verdict == "effects_found" and explains and (
                 not result.written or alt.error_after.rmse_nm
                 < (1.0 - ALTERNATIVE_MIN_IMPROVEMENT) * result.error_after.rmse_nm):
             alt.notes.insert(0, (
@@ -235,15 +237,26 @@ def calibrate(
                 f"({', '.join(result.negative)}); written with estimator.paper_model: false, whose effects predict the "
                 f"held-out data better (RMSE {alt.error_after.rmse_nm:.4g} N·m against {on_text} with the model)"))
             return alt
-        how = ("" if alt.written else ", not better than the file") + (
-            "" if alt.verdict == "effects_found" else f", {alt.verdict}")
+        if not alt.written:
+            why = "it would not be written"
+        elif alt.verdict != "effects_found":
+            why = f"its verdict is {alt.verdict}"
+        elif not explains:
+            why = (f"its effects leave {alt.error_after.rel_rmse_pct:.0f} % of the loss unexplained "
+                   f"({(alt.structure or {}).get('statement', '')})")
+        else:
+            why = "it predicts no better"
         result.notes.append(
             f"fits with a negative friction were set aside ({', '.join(result.negative)}); the paper's model switched "
-            f"off does no better (held-out RMSE {alt.error_after.rmse_nm:.4g} N·m{how} against {on_text})")
+            f"off was weighed and not taken: {why} (held-out RMSE {alt.error_after.rmse_nm:.4g} N·m against "
+            f"{on_text} with the model)")
     return result
 
 
 ALTERNATIVE_MIN_IMPROVEMENT = 0.02  #: the paper's model is switched off only for a held-out RMSE this much lower
+#: ... and only when the effects then explain the loss: a held-out error within this share of it, or a
+#: residual left without structure (switching the model off is a claim about the gearbox)
+ALTERNATIVE_MAX_ERROR_PCT = 10.0
 #: a data sheet's viscosity law: Vogel B searched within this factor, C within this span [K], and the
 #: viscosity at the reference temperature within this factor of the data sheet's
 DATASHEET_B_FACTOR = 1.5

@@ -83,6 +83,15 @@ def drag_speed(x: EffectInputs, c, p):
     return c * x.abs_speed ** p
 
 
+def stribeck(x: EffectInputs, c, omega_s, delta):
+    """Stribeck excess: ``ΔT = c·exp(−(|ω|/ω_s)^δ)``: breakaway friction above the Coulomb level, fading with speed.
+
+    With ``drag_constant`` (the Coulomb level ``Fc``) it is ``(Fc + (Fs − Fc)·exp(−(|ω|/ω_s)^δ))·sgn ω``;
+    ``c = Fs − Fc`` the breakaway excess, ``ω_s`` the Stribeck speed, ``δ`` its shape (2: Gaussian).
+    """
+    return c * math.e ** (-((x.abs_speed / omega_s) ** delta))
+
+
 def load_dependent(x: EffectInputs, c, q):
     """Load-dependent friction: ``ΔT = c·|T|^q`` (bearing load friction, sliding)."""
     return c * x.abs_torque ** q
@@ -184,6 +193,9 @@ class Effect:
     #: its Vogel law (``B``, ``C``, ``theta_ref``) is the calibrated oil's: the set's
     #: viscosity_temperature, else the oil's data sheet; ``calibrate`` does not search it
     oil_law: bool = False
+    #: its term depends on the drive torque: no candidate on a spin test (nothing on the output, the
+    #: drive torque is the loss itself)
+    depends_on_load: bool = False
     separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
     plotted_against: str = "speed"  #: the report draws its fitted curve over "speed", "torque" or "temperature"
 
@@ -273,11 +285,22 @@ for _effect in (
            separated_from={"drag_speed": "the same speeds at different oil temperatures",
                            "viscosity_temperature": "several speeds at light load (churning does not follow the "
                                                     "load; the rolling part does)"}),
+    Effect("stribeck", stribeck, True, "add a Stribeck excess c*exp(-(|w|/omega_s)^delta) near standstill",
+           "breakaway friction of lubricated contacts at low speed (boundary and mixed lubrication)",
+           (EffectParameter("c", "c_nm", 0.0, "breakaway excess Fs - Fc", "N*m", simulated=0.05),
+            EffectParameter("omega_s", "omega_s_rad_s", 0.1, "Stribeck speed", "rad/s", low=1e-4, low_open=True,
+                            high=1e3),
+            EffectParameter("delta", "delta", 2.0, "Stribeck shape exponent (2: Gaussian)", low=0.1, high=5.0)),
+           coefficient="c", member="omega_s",
+           member_grid=(0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0), member_bounds=(0.001, 20.0),
+           second_member="delta", second_grid=(0.5, 1.0, 2.0), second_bounds=(0.3, 3.0),
+           separated_from={"drag_constant": "speeds near standstill (down to a few times the speed noise)",
+                           "torque_offset": "speeds near standstill in both directions"}),
     Effect("load_dependent", load_dependent, True, "add a load friction c*|T|^q", "bearing load friction, sliding",
            (EffectParameter("c", "c", 0.0, "load friction coefficient c (N*m/(N*m)^q)", simulated=2e-3),
             EffectParameter("q", "q", 1.0, "load friction exponent q", low=0.0, high=4.0)),
            coefficient="c", member="q", member_grid=_grid(0.5, 2.5, 0.1), member_bounds=(0.3, 3.0),
-           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="torque",
+           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="torque", depends_on_load=True,
            separated_from={"torque_gain": "regeneration (torque and speed of opposite sign)",
                            "viscosity_temperature": "the same torques at different oil temperatures"}),
     Effect("load_speed", load_speed, True, "add a load-speed friction c*|T|*|w|^p",
@@ -285,7 +308,7 @@ for _effect in (
            (EffectParameter("c", "c", 0.0, "load-speed coefficient c (N*m/(N*m*(rad/s)^p))", simulated=2e-5),
             EffectParameter("p", "p", 1.0, "load-speed exponent p of |w|", low=0.0, high=4.0)),
            coefficient="c", member="p", member_grid=_grid(0.5, 2.0, 0.1), member_bounds=(0.3, 2.5),
-           regressor_scale=lambda params: TORQUE_REF_NM * SPEED_REF_RAD_S ** params["p"],
+           regressor_scale=lambda params: TORQUE_REF_NM * SPEED_REF_RAD_S ** params["p"], depends_on_load=True,
            separated_from={"load_dependent": "the same torques at several speeds",
                            "drag_speed": "the same speeds at several torques, including light load",
                            "torque_gain": "regeneration (torque and speed of opposite sign)"}),
@@ -310,7 +333,8 @@ for _effect in (
     Effect("torque_gain", torque_gain, False,
            "torque sensor gain error (adds gain*T*sign(w) to the input-referred loss)", "sensor calibration",
            (EffectParameter("g", "gain", 0.0, "relative gain error", low=-0.5, high=0.5, simulated=0.01),),
-           coefficient="g", regressor_scale=lambda params: TORQUE_REF_NM, plotted_against="torque"),
+           coefficient="g", regressor_scale=lambda params: TORQUE_REF_NM, plotted_against="torque",
+           depends_on_load=True),
 ):
     register(_effect)
 

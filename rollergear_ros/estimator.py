@@ -93,6 +93,9 @@ class Estimator:
         self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s,
                                est.paper_model)
         self.ratio = config.gearbox.ratio_effective
+        #: the loss torque's sign runs through 0 as tanh(ω/width) within a few widths of standstill,
+        #: width 3 × the speed reading's noise: a direction the reading cannot tell is not a reversal
+        self.sign_width_rad_s = 3.0 * est.speed_noise_rad_s
         if pairing in ARRIVAL_PAIRINGS:
             self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
             self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s, arrival=True,
@@ -162,16 +165,24 @@ class Estimator:
     def measured_loss(self, torque, speed, out_torque, out_speed):
         """``T_loss,meas = (T_in·ω_in − T_out·ω_out)/|ω_in|``; ``ω_out = ω_in/ratio`` when not measured.
 
-        NaN where ``|ω_in|`` is below the efficiency speed threshold (the quotient is noise there).
+        Below the efficiency speed threshold the quotient of two noisy speeds is noise: the torque
+        balance ``(T_in − T_out/ratio)·sgn ω`` instead (a spin test: ``T_in·sgn ω``), down to 3 × the
+        speed reading's noise; NaN closer to standstill, where the direction is not known.
         """
         w_out = np.where(np.isnan(out_speed), speed / self.ratio, out_speed)
         with np.errstate(divide="ignore", invalid="ignore"):
             m = (torque * speed - out_torque * w_out) / np.abs(speed)
-        return np.where(np.abs(speed) < max(self.model.min_speed_rad_s, 1e-9), np.nan, m)
+        slow = np.abs(speed) < max(self.model.min_speed_rad_s, 1e-9)
+        if np.any(slow):
+            m = np.where(slow, (torque - out_torque / self.ratio) * np.sign(speed), m)
+            m = np.where(np.abs(speed) < max(self.sign_width_rad_s, 1e-9), np.nan, m)
+        return m
 
     def _measured_loss_scalar(self, torque, speed, out_torque, out_speed) -> float:
-        if not math.isfinite(out_torque) or abs(speed) < max(self.model.min_speed_rad_s, 1e-9):
+        if not math.isfinite(out_torque) or abs(speed) < max(self.sign_width_rad_s, 1e-9):
             return math.nan
+        if abs(speed) < self.model.min_speed_rad_s:  # the torque balance (see measured_loss)
+            return (torque - out_torque / self.ratio) * (1.0 if speed > 0 else -1.0)
         w_out = speed / self.ratio if math.isnan(out_speed) else out_speed
         return (torque * speed - out_torque * w_out) / abs(speed)
 
@@ -224,7 +235,7 @@ class Estimator:
             return None
         t = t_meas if self._sensor_offset == 0.0 and self._sensor_gain == 0.0 else self.corrected_torque(t_meas)
         at, aw = abs(t), abs(w)
-        sg = rotation_sign_scalar(w, t)
+        sg = rotation_sign_scalar(w, t, self.sign_width_rad_s)
         vscale = 1.0
         if self._fr_scaling:
             if math.isfinite(s.temperature_c) or not self._needs_temperature:
@@ -306,7 +317,7 @@ class Estimator:
         torque_meas = torque
         torque = self.corrected_torque(torque_meas)
         at, aw = np.abs(torque), np.abs(speed)
-        sg = rotation_sign(speed, torque)
+        sg = rotation_sign(speed, torque, self.sign_width_rad_s)
         vscale = None
         if self._fr_scaling:
             have_t = np.isfinite(temperature) if self._needs_temperature else np.ones(len(torque), bool)

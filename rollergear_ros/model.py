@@ -402,14 +402,26 @@ class LossModel:
         return eta if eta > 0 else math.nan
 
 
-def rotation_sign(speed_rad_s, torque_nm):
-    """``sign(ω)``, or ``sign(T)`` at standstill: the direction a loss torque opposes."""
+#: beyond this many sign widths from 0 the smooth sign is the sign (tanh(8) = 1 − 2e-7)
+SIGN_BAND = 8.0
+
+
+def rotation_sign(speed_rad_s, torque_nm, width_rad_s: float = 0.0):
+    """The direction a loss torque opposes: ``sign(ω)``, or ``sign(T)`` at standstill; with a
+    ``width_rad_s`` > 0, ``tanh(ω/width)`` within :data:`SIGN_BAND` widths of 0 -- a direction the
+    speed reading cannot tell runs smoothly through 0 (the estimator's width: 3 × the speed noise).
+    At a speed of exactly 0 (a joint at rest, an operating point of a loss map) it stays ``sign(T)``."""
     w = np.asarray(speed_rad_s, dtype=float)
-    return np.where(w != 0, np.sign(w), np.sign(np.asarray(torque_nm, dtype=float)))
+    hard = np.where(w != 0, np.sign(w), np.sign(np.asarray(torque_nm, dtype=float)))
+    if width_rad_s <= 0:
+        return hard
+    return np.where((np.abs(w) < SIGN_BAND * width_rad_s) & (w != 0), np.tanh(w / max(width_rad_s, 1e-300)), hard)
 
 
-def rotation_sign_scalar(speed_rad_s: float, torque_nm: float) -> float:
+def rotation_sign_scalar(speed_rad_s: float, torque_nm: float, width_rad_s: float = 0.0) -> float:
     """Scalar :func:`rotation_sign`."""
+    if width_rad_s > 0 and 0 < abs(speed_rad_s) < SIGN_BAND * width_rad_s:
+        return math.tanh(speed_rad_s / width_rad_s)
     if speed_rad_s > 0:
         return 1.0
     if speed_rad_s < 0:

@@ -163,6 +163,10 @@ ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
               "efficiency is NaN below this |T|", "N*m", low=0.0, high=1e5),
     ParamSpec("estimator.min_speed_for_efficiency_rad_s", float, 0.5,
               "efficiency is NaN below this |w|", "rad/s", low=0.0, high=1e5),
+    ParamSpec("estimator.speed_noise_rad_s", float, 0.02,
+              "standard deviation of the drive speed reading: within 3 of it from 0 the direction is not known -- "
+              "the loss torque's sign runs smoothly through 0 there (tanh(w/(3*noise))) and calibrate leaves those "
+              "samples out", "rad/s", low=0.0, high=100.0),
     ParamSpec("estimator.sync_tolerance_s", float, 0.0,
               "input messages whose times differ by at most this are one sample (keep below half the sample "
               "period); 0 = automatic: 0.4 x the median period of the motor torque messages (offline measured in "
@@ -342,6 +346,7 @@ class EstimatorParams:
 
     min_torque_for_efficiency_nm: float = 0.2
     min_speed_for_efficiency_rad_s: float = 0.5
+    speed_noise_rad_s: float = 0.02
     sync_tolerance_s: float = 0.0
     staleness_s: float = 0.1
     max_abs_torque_nm: float = 5000.0

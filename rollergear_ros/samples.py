@@ -35,6 +35,9 @@ class SampleData:
     skipped: dict[str, int] = field(default_factory=dict)
     steady_state: bool = False  #: rows of steady-state tables (dwell means), not a time series
     ratio: float | None = None  #: the tables' own input/output ratio (one for all), for the calibrated file
+    sign_width_rad_s: float = 0.0  #: the estimator's smooth sign width (its effects see the same direction)
+    #: a spin test: nothing on the output (its torque 0 throughout), the drive torque is the loss itself
+    spin_test: bool = False
     #: the model's parts at each sample (:meth:`~.model.LossModel.parts`): what a model parameter scales
     parts: dict[str, np.ndarray] = field(default_factory=dict)
 
@@ -44,15 +47,18 @@ class SampleData:
 
 
 def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = TopicMap(),
-                 warn: Callable[[str], None] | None = None, min_speed_rad_s: float = 2.0,
+                 warn: Callable[[str], None] | None = None, min_speed_rad_s: float = 0.0,
                  progress: bool = False) -> SampleData:
-    """Replay bags through the bare model (no effects, no adaptation) and keep samples with a measured loss."""
+    """Replay bags through the bare model (no effects, no adaptation) and keep samples with a measured
+    loss: down to 3 × the speed reading's noise from standstill (closer, the direction is not known and
+    the estimator gives no measured loss), or ``min_speed_rad_s``."""
     from .replay import replay
 
     base = validate({k: v for k, v in config.to_flat().items() if not k.startswith("effects.")}
                     | {"estimator.adapt": False})
     model = LossModel(base.gearbox, enabled=base.estimator.paper_model)
     parts = []
+    loaded = False  # any output torque other than 0 (else: a spin test)
     skipped: dict[str, int] = {}
     for i, bag in enumerate(bags):
         summary, batches = replay(bag, base, topics, show_progress=progress, warn=warn, collect=True)
@@ -63,12 +69,16 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
             temp = b.temperature_c if b.temperature_c is not None else np.full(len(b.t_ns), np.nan)
             parts.append((b.t_ns[ok], np.full(int(ok.sum()), i), b.torque_nm[ok], b.speed_rad_s[ok], temp[ok],
                           b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok])))
+            if b.out_torque_nm is not None and np.any(b.out_torque_nm[ok] != 0):
+                loaded = True
     if not parts or sum(len(p[0]) for p in parts) == 0:
         raise BagError("no samples with a measured output torque and |speed| >= "
-                         f"{min_speed_rad_s:g} rad/s: calibration needs the output torque topic")
+                       f"{max(min_speed_rad_s, 3 * config.estimator.speed_noise_rad_s):g} rad/s: calibration needs "
+                       "the output torque topic")
     cols = [np.concatenate([p[j] for p in parts]) for j in range(7)]
     return SampleData(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6],
-                      model.fr_part(cols[2], cols[3]), skipped, parts=model.parts(cols[2], cols[3]))
+                      model.fr_part(cols[2], cols[3]), skipped, parts=model.parts(cols[2], cols[3]),
+                      sign_width_rad_s=3.0 * config.estimator.speed_noise_rad_s, spin_test=not loaded)
 
 
 def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[str], None] | None = None,
