@@ -84,7 +84,7 @@ def drag_speed(x: EffectInputs, c, p):
 
 
 def stribeck(x: EffectInputs, c, omega_s, delta):
-    """Stribeck excess: ``ΔT = c·exp(−(|ω|/ω_s)^δ)``: breakaway friction above the Coulomb level, fading with speed.
+    """Stribeck excess: ``ΔT = c·exp(−(|ω|/ω_s)^δ)`` (breakaway friction above Coulomb, fading with speed).
 
     With ``drag_constant`` (the Coulomb level ``Fc``) it is ``(Fc + (Fs − Fc)·exp(−(|ω|/ω_s)^δ))·sgn ω``;
     ``c = Fs − Fc`` the breakaway excess, ``ω_s`` the Stribeck speed, ``δ`` its shape (2: Gaussian).
@@ -197,7 +197,9 @@ class Effect:
     #: drive torque is the loss itself)
     depends_on_load: bool = False
     separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
-    plotted_against: str = "speed"  #: the report draws its fitted curve over "speed", "torque" or "temperature"
+    #: the report draws its fitted curve over "speed", "torque", "temperature" or "speed_near_zero"
+    #: (signed speed, standstill magnified)
+    plotted_against: str = "speed"
 
     def parameter(self, short: str) -> EffectParameter:
         return next(p for p in self.parameters if p.short == short)
@@ -294,6 +296,7 @@ for _effect in (
            coefficient="c", member="omega_s",
            member_grid=(0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0), member_bounds=(0.001, 20.0),
            second_member="delta", second_grid=(0.5, 1.0, 2.0), second_bounds=(0.3, 3.0),
+           plotted_against="speed_near_zero",
            separated_from={"drag_constant": "speeds near standstill (down to a few times the speed noise)",
                            "torque_offset": "speeds near standstill in both directions"}),
     Effect("load_dependent", load_dependent, True, "add a load friction c*|T|^q", "bearing load friction, sliding",

@@ -21,7 +21,8 @@ if TYPE_CHECKING:
 #: the residual over time is drawn as at most this many points (block means, evenly thinned)
 MAX_TIME_POINTS = 20_000
 _AXES = {"speed": ("speed", "drive speed [rad/s]"), "torque": ("torque", "drive torque [N·m]"),
-         "temperature": ("temperature", "oil temperature [°C]")}
+         "temperature": ("temperature", "oil temperature [°C]"),
+         "speed_near_zero": ("speed", "drive speed [rad/s] (symmetric log scale: standstill in the middle)")}
 
 
 def _pyplot():
@@ -49,6 +50,8 @@ def _residual_scatter(result: CalibrationResult, out_dir: Path, plots: list[Path
     before, after = b.y, b.y - result.pred_after
     temperature_testable = any(EFFECTS[n].needs_temperature for n in b.testable if n in EFFECTS)
     for key, (attr, label) in _AXES.items():
+        if key == "speed_near_zero":  # an effect's axis, not an input of its own
+            continue
         x = getattr(b, attr)
         if not np.isfinite(x).any() or (key == "temperature" and not temperature_testable):
             continue  # an untestable check gets no plot
@@ -99,15 +102,26 @@ def _effect_curves(result: CalibrationResult, out_dir: Path, plots: list[Path]) 
         fitted, lo, hi = effect_band(result, effect)
         partial = b.y - result.pred_after + fitted
         fig, ax = plt.subplots(figsize=(7, 4.5), dpi=100)
-        ax.scatter(x[ok], partial[ok], s=4, alpha=0.35, color="0.5",
-                   label="residual minus the other accepted effects")
+        spec = EFFECTS[effect.name]
+        if spec.needs_temperature and spec.plotted_against != "temperature" and np.isfinite(b.temperature[ok]).any():
+            # a drag that follows the oil: each block coloured by its oil temperature
+            dots = ax.scatter(x[ok], partial[ok], s=5, alpha=0.6, c=b.temperature[ok], cmap="coolwarm",
+                              label="residual minus the other accepted effects")
+            fig.colorbar(dots, ax=ax, label="oil temperature [°C]")
+        else:
+            ax.scatter(x[ok], partial[ok], s=4, alpha=0.35, color="0.5",
+                       label="residual minus the other accepted effects")
         ax.vlines(x[ok], lo[ok], hi[ok], color="tab:red", alpha=0.25, lw=2,
                   label="95 % interval of the coefficient, per block")
-        ax.scatter(x[ok], fitted[ok], s=3, color="tab:red", label="fitted contribution")
+        ax.scatter(x[ok], fitted[ok], s=2, color="k" if spec.needs_temperature else "tab:red",
+                   label="fitted contribution")
         params = ", ".join(f"{k} = {v:.3g}" for k, v in effect.params.items())
         formula = EFFECTS[effect.name].formula().split(" (")[0].replace("``", "")
         ax.set_title(f"{effect.name}: {formula}\n{params}", fontsize=9)
         ax.set_xlabel(label)
+        if spec.plotted_against == "speed_near_zero":
+            scale = effect.params.get(spec.member, 0.1) if spec.member else 0.1
+            ax.set_xscale("symlog", linthresh=max(scale / 5.0, 1e-4))
         ax.set_ylabel("contribution to the measured loss [N·m]")
         ax.axhline(0, color="k", lw=0.5)
         ax.grid(alpha=0.3)
