@@ -21,6 +21,14 @@ from .samples import SampleData
 MIN_TEMPERATURE_SPAN_C = 3.0
 
 
+def _reverses(speed: np.ndarray, bag_id: np.ndarray, clear_rad_s: float) -> bool:
+    """Whether the drive turns round within a recording: two samples in a row among those clearly
+    moving (``|ω| >= clear_rad_s``, beyond the reading's noise) in opposite directions."""
+    moving = np.abs(speed) >= max(clear_rad_s, 1e-12)
+    s, b = np.sign(speed[moving]), bag_id[moving]
+    return bool(np.any((s[1:] != s[:-1]) & (b[1:] == b[:-1])))
+
+
 def groups() -> tuple[str, ...]:
     """The candidate groups: every effect of the registry, in its order, then the model's own
     parameters (:mod:`.modelparams`, one per part of the model)."""
@@ -48,6 +56,9 @@ class Blocks:
     x: EffectInputs | None = None  # per-sample inputs of the effects' terms
     testable: tuple[str, ...] = ()  # effects this data can test (a varying temperature where needed)
     steady_state: bool = False  # rows of steady-state tables: a block and a dwell each, equal weights
+    t_s: np.ndarray | None = None  # per-sample time [s], recording and signed speed: effects with memory
+    bag_id: np.ndarray | None = None
+    sample_speed: np.ndarray | None = None
     _distinct: tuple | None = field(default=None, repr=False)  # distinct temperatures, inverse index
     _columns: dict = field(default_factory=dict, repr=False)  # (effect, member, second) -> block means, computed once
 
@@ -76,6 +87,9 @@ class Blocks:
             theta, inverse = self._distinct
             relative = effect.column(self.x._replace(temperature_c=theta, fr_part_nm=1.0), params, member, second)
             values = self.x.fr_part_nm * relative[inverse]
+        elif effect.state_step is not None:  # memory: its state replayed over each recording in time order
+            values = effect.column(self.x._replace(state={name: self.states(name, params | (
+                {effect.member: member} if effect.member and member is not None else {}))}), params, member, second)
         else:
             values = effect.column(self.x, params, member, second)
         if effect.needs_temperature:
@@ -83,6 +97,29 @@ class Blocks:
         cached = self._columns[key] = self.mean(values)
         cached.flags.writeable = False  # shared by every caller
         return cached
+
+
+    def states(self, name: str, params: dict) -> np.ndarray:
+        """The state of an effect with memory at every sample, each recording from a state of 0.
+
+        The analysis has only the samples with a measured loss: across the others (near standstill,
+        a dwell at rest) a step counts one sample period, not the gap -- the motion there is next to
+        none, and the gap at the next sample's speed would move the state by far too much."""
+        effect = EFFECTS[name]
+        z = np.empty(len(self.t_s))
+        for b in np.unique(self.bag_id):
+            idx = np.flatnonzero(self.bag_id == b)
+            dt = np.diff(self.t_s[idx], prepend=self.t_s[idx][:1])
+            period = float(np.median(dt[1:])) if len(dt) > 1 else 0.0
+            t_s = np.cumsum(np.minimum(dt, 2.0 * period))
+            if effect.state_series is not None:
+                z[idx] = effect.state_series(t_s, self.sample_speed[idx], params)
+            else:
+                value, last = 0.0, None
+                for k, (t, w) in enumerate(zip(t_s.tolist(), self.sample_speed[idx].tolist())):
+                    value = effect.state_step(value, w, 0.0 if last is None else t - last, params)
+                    z[idx[k]], last = value, t
+        return z
 
 
 def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Blocks | None = None) -> Blocks:
@@ -178,9 +215,11 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         if have_theta.any()
         else False
     )
+    # memory shows only at reversals within a recording, and not in a table's dwell means
+    reverses = not d.steady_state and _reverses(d.speed, d.bag_id, 3.0 * d.sign_width_rad_s)
     testable = tuple(n for n, e in EFFECTS.items()
                      if (varies or not e.needs_temperature) and (e.physical or not d.steady_state)
-                     and not (d.spin_test and e.depends_on_load))
+                     and not (d.spin_test and e.depends_on_load) and (e.state_step is None or reverses))
     columns = {"dtdt": mean(dtdt * sg), "dwdt": mean(dwdt * sg)}
     x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
     blocks = Blocks(
@@ -201,6 +240,9 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         x,
         testable,
         d.steady_state,
+        t_s=t,
+        bag_id=d.bag_id,
+        sample_speed=d.speed,
     )
     for name in testable:
         effect = EFFECTS[name]

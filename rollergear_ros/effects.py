@@ -70,6 +70,9 @@ class EffectInputs(NamedTuple):
     rot_sign: Any  #: direction of rotation as the loss opposes it (±1)
     temperature_c: Any = math.nan  #: oil temperature θ [°C]
     fr_part_nm: Any = 1.0  #: the model's Fr part T_Fr [N·m] (1: a relative change of it)
+    #: the states of the effects with memory (effect -> its state at this sample, :attr:`Effect.state_step`);
+    #: empty: their steady state (an operating point of a map, a steady dwell)
+    state: Mapping[str, Any] = {}
 
 
 # ------------------------------------------------------------------------------------ terms
@@ -109,6 +112,56 @@ def drag_viscous(x: EffectInputs, c, p, a, B, C, theta_ref):
     B/(θ_ref + C))`` is the calibrated oil's Vogel law (the model's rolling part follows the same oil).
     """
     return c * math.e ** (a * (B / (x.temperature_c + C) - B / (theta_ref + C))) * x.abs_speed ** p
+
+
+def dahl(x: EffectInputs, c, presliding):
+    """Coulomb friction with memory (Dahl): ``ΔT = c·z·sgn ω``, the bristle state ``z`` → ``sgn ω``.
+
+    ``dz/dφ = sgn(ω) − z`` per ``presliding`` radians turned (:func:`dahl_step`): after a reversal
+    the friction follows the motion since the reversal instead of flipping at once (presliding,
+    hysteresis); in steady motion ``z = sgn ω`` and it is a constant drag ``c``.  Without a state
+    (an operating point) it is that steady value.
+    """
+    return c * x.state.get("dahl", x.rot_sign) * x.rot_sign
+
+
+def dahl_step(z: float, speed_rad_s: float, dt_s: float, params: Mapping[str, float]) -> float:
+    """The Dahl state after ``dt_s`` at ``speed_rad_s``: ``z → s + (z − s)·exp(−|ω|·dt/presliding)``,
+    ``s = sgn ω`` -- exact for a speed constant over the step (0: no motion, no change)."""
+    if speed_rad_s == 0.0 or dt_s <= 0.0:
+        return z
+    s = 1.0 if speed_rad_s > 0 else -1.0
+    return s + (z - s) * math.exp(-abs(speed_rad_s) * dt_s / params["presliding"])
+
+
+def dahl_series(t_s, speed_rad_s, params: Mapping[str, float], z0: float = 0.0):
+    """:func:`dahl_step` over a time-ordered series at once (numpy): within each run of one direction
+    ``z = s + (z_run − s)·exp(−φ/presliding)``, ``φ`` the angle turned since the run began -- the same
+    numbers as the steps, to rounding (``calibrate``'s columns; the estimator steps)."""
+    import numpy as np
+
+    w = np.asarray(speed_rad_s, dtype=float)
+    dt = np.diff(np.asarray(t_s, dtype=float), prepend=np.asarray(t_s, dtype=float)[:1])
+    s = np.sign(w)
+    moving = s != 0
+    # a run of one direction: a new run where the direction of motion changes (standstill continues it)
+    direction = np.maximum.accumulate(np.where(moving, np.arange(len(w)), -1))
+    held = np.where(direction >= 0, s[np.maximum(direction, 0)], 0.0)
+    new_run = np.flatnonzero(moving & (np.r_[0.0, held[:-1]] != s))
+    phi = np.cumsum(np.abs(w) * np.maximum(dt, 0.0))
+    z = np.empty(len(w))
+    z_before = z0
+    for begin, end in zip([0, *new_run.tolist()], [*new_run.tolist(), len(w)]):
+        if end <= begin:
+            continue
+        sign = held[begin]
+        if sign == 0.0:  # no motion yet: the state stays
+            z[begin:end] = z_before
+        else:
+            base = phi[begin - 1] if begin > 0 else 0.0
+            z[begin:end] = sign + (z_before - sign) * np.exp(-(phi[begin:end] - base) / params["presliding"])
+        z_before = z[end - 1]
+    return z
 
 
 def viscosity_scale(b_k, c_k, theta_ref_c, theta_c):
@@ -196,6 +249,13 @@ class Effect:
     #: its term depends on the drive torque: no candidate on a spin test (nothing on the output, the
     #: drive torque is the loss itself)
     depends_on_load: bool = False
+    #: an effect with memory: ``state_step(z, ω, dt, params) -> z`` advances its state sample by sample,
+    #: in time order (the node, replay's batches, a fleet's time slices, calibrate); its term reads
+    #: ``x.state[name]``
+    state_step: Callable[..., float] | None = None
+    #: the same over a time-ordered series at once, ``state_series(t_s, ω, params, z0) -> z`` (numpy:
+    #: ``calibrate``'s columns); None: ``calibrate`` steps ``state_step`` sample by sample
+    state_series: Callable[..., Any] | None = None
     separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
     #: the report draws its fitted curve over "speed", "torque", "temperature" or "speed_near_zero"
     #: (signed speed, standstill magnified)
@@ -299,6 +359,17 @@ for _effect in (
            plotted_against="speed_near_zero",
            separated_from={"drag_constant": "speeds near standstill (down to a few times the speed noise)",
                            "torque_offset": "speeds near standstill in both directions"}),
+    Effect("dahl", dahl, True, "add a Coulomb friction with memory (Dahl): c*z*sign(w), the state z following "
+           "the motion since the last reversal", "presliding of rolling contacts and seals: friction that lags a "
+           "reversal",
+           (EffectParameter("c", "c_nm", 0.0, "Coulomb level c", "N*m", simulated=0.1),
+            EffectParameter("presliding", "presliding_rad", 0.01, "presliding angle: the turn over which the "
+                            "friction follows a reversal (1/e)", "rad", low=1e-6, low_open=True, high=10.0)),
+           coefficient="c", member="presliding",
+           member_grid=(1e-4, 3e-4, 1e-3, 3e-3, 0.01, 0.03, 0.1, 0.3), member_bounds=(3e-5, 1.0),
+           state_step=dahl_step, state_series=dahl_series, plotted_against="speed_near_zero",
+           separated_from={"drag_constant": "reversals: the torque's lag after each one (a constant drag flips at "
+                                            "once)"}),
     Effect("load_dependent", load_dependent, True, "add a load friction c*|T|^q", "bearing load friction, sliding",
            (EffectParameter("c", "c", 0.0, "load friction coefficient c (N*m/(N*m)^q)", simulated=2e-3),
             EffectParameter("q", "q", 1.0, "load friction exponent q", low=0.0, high=4.0)),

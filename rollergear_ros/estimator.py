@@ -93,9 +93,11 @@ class Estimator:
         self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s,
                                est.paper_model)
         self.ratio = config.gearbox.ratio_effective
-        #: the loss torque's sign runs through 0 as tanh(ω/width) within a few widths of standstill,
-        #: width 3 × the speed reading's noise: a direction the reading cannot tell is not a reversal
-        self.sign_width_rad_s = 3.0 * est.speed_noise_rad_s
+        #: the loss torque's sign runs through 0 as tanh(ω/width) near standstill, width the speed
+        #: reading's noise σ: about the sign such a reading has on average (erf(ω/(σ√2))), so that a
+        #: direction the reading cannot tell is no reversal; measured losses start at 3σ
+        self.sign_width_rad_s = est.speed_noise_rad_s
+        self.min_measured_speed_rad_s = 3.0 * est.speed_noise_rad_s
         if pairing in ARRIVAL_PAIRINGS:
             self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
             self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s, arrival=True,
@@ -120,6 +122,12 @@ class Estimator:
         # effects with their configured coefficients (all of them when adaptation is off)
         self._fixed = {n: p for n, p in self._active.items() if n not in self.adaptive}
         self._fixed_additive = any(not EFFECTS[n].scales_fr for n in self._fixed)
+        # effects with memory: their states, advanced sample by sample in time order (node and replay
+        # alike: the same step, in the same float arithmetic, so a replay reproduces the node exactly)
+        self._stateful = {n: p for n, p in self._active.items() if EFFECTS[n].state_step is not None}
+        self._states: dict[str, float] = dict.fromkeys(self._stateful, 0.0)
+        self._state_t_ns: int | None = None
+        self._previous_speed = 0.0  # of the last sample estimated: a direction known twice in a row
         self._sensor_offset = self._active.get("torque_offset", {}).get("b", 0.0)
         self._sensor_gain = self._active.get("torque_gain", {}).get("g", 0.0)
         self.residual_stats = ResidualStats()
@@ -131,6 +139,9 @@ class Estimator:
         queued messages, skip counters and sample count, under this estimator's pairing limits."""
         self.sync = previous.sync
         self.sync.set_limits(self.sync_tolerance_s, self.config.estimator.staleness_s)
+        self._states.update({n: z for n, z in previous._states.items() if n in self._states})  # memory goes on
+        self._state_t_ns = previous._state_t_ns
+        self._previous_speed = previous._previous_speed
         self.counts = self.sync.counts
         self.estimated = previous.estimated
 
@@ -162,12 +173,14 @@ class Estimator:
             return "implausible"
         return None
 
-    def measured_loss(self, torque, speed, out_torque, out_speed):
+    def measured_loss(self, torque, speed, out_torque, out_speed, previous_speed=None):
         """``T_loss,meas = (T_in·ω_in − T_out·ω_out)/|ω_in|``; ``ω_out = ω_in/ratio`` when not measured.
 
         Below the efficiency speed threshold the quotient of two noisy speeds is noise: the torque
-        balance ``(T_in − T_out/ratio)·sgn ω`` instead (a spin test: ``T_in·sgn ω``), down to 3 × the
-        speed reading's noise; NaN closer to standstill, where the direction is not known.
+        balance ``(T_in − T_out/ratio)·sgn ω`` instead (a spin test: ``T_in·sgn ω``), where the
+        direction is known -- ``|ω|`` and the previous sample's (``previous_speed``, in the same
+        direction) at least 3 × the speed reading's noise: a reading at rest is beyond 3σ once in 400
+        samples, twice in a row in the same direction once in 300 000; NaN elsewhere.
         """
         w_out = np.where(np.isnan(out_speed), speed / self.ratio, out_speed)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -175,13 +188,19 @@ class Estimator:
         slow = np.abs(speed) < max(self.model.min_speed_rad_s, 1e-9)
         if np.any(slow):
             m = np.where(slow, (torque - out_torque / self.ratio) * np.sign(speed), m)
-            m = np.where(np.abs(speed) < max(self.sign_width_rad_s, 1e-9), np.nan, m)
+            prev = previous_speed if previous_speed is not None else speed
+            known = (np.abs(speed) >= self.min_measured_speed_rad_s) & (np.abs(prev) >= self.min_measured_speed_rad_s) \
+                & (np.sign(prev) == np.sign(speed))
+            m = np.where(slow & ~known, np.nan, m)
         return m
 
-    def _measured_loss_scalar(self, torque, speed, out_torque, out_speed) -> float:
-        if not math.isfinite(out_torque) or abs(speed) < max(self.sign_width_rad_s, 1e-9):
+    def _measured_loss_scalar(self, torque, speed, out_torque, out_speed, previous_speed) -> float:
+        if not math.isfinite(out_torque):
             return math.nan
-        if abs(speed) < self.model.min_speed_rad_s:  # the torque balance (see measured_loss)
+        if abs(speed) < self.model.min_speed_rad_s:  # the torque balance, where the direction is known
+            least = self.min_measured_speed_rad_s
+            if abs(speed) < least or abs(previous_speed) < least or (speed > 0) != (previous_speed > 0):
+                return math.nan
             return (torque - out_torque / self.ratio) * (1.0 if speed > 0 else -1.0)
         w_out = speed / self.ratio if math.isnan(out_speed) else out_speed
         return (torque * speed - out_torque * w_out) / abs(speed)
@@ -244,12 +263,14 @@ class Estimator:
                 self.counts["temperature_missing"] += 1
         mag = self.model.loss_magnitude_scalar(t, w, vscale)
         # the effects' inputs, fixed terms and regressors, once per sample for the estimate and the RLS
-        x = EffectInputs(at, aw, t, sg, s.temperature_c) if self._additive or self.adaptive else None
+        state = self._advance(s.t_ns, w) if self._stateful else {}
+        x = EffectInputs(at, aw, t, sg, s.temperature_c, state=state) if self._additive or self.adaptive else None
         fixed = additive_terms(self._fixed, x) if self._fixed_additive else None
         phi = regressors(self._regressor_plan, x) if self.adaptive else ()
         phys, sens = self._effects_scalar(fixed, phi)
         loss = mag + phys
-        meas = self._measured_loss_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s)
+        meas = self._measured_loss_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s, self._previous_speed)
+        self._previous_speed = w
         if math.isnan(s.out_torque_nm):
             pass
         elif not math.isfinite(s.out_torque_nm) or not math.isfinite(s.out_speed_rad_s) and not math.isnan(
@@ -265,6 +286,36 @@ class Estimator:
                        residual, s.out_torque_nm, s.out_speed_rad_s, s.temperature_c)
         self.last = est
         return est
+
+    @property
+    def has_memory(self) -> bool:
+        """Whether an accepted effect has a state carried from sample to sample."""
+        return bool(self._stateful)
+
+    def _advance(self, t_ns: int, speed: float) -> dict[str, float]:
+        """The states of the effects with memory after this sample (one step from the last one)."""
+        dt = 0.0 if self._state_t_ns is None else (t_ns - self._state_t_ns) * 1e-9
+        for name, params in self._stateful.items():
+            self._states[name] = EFFECTS[name].state_step(self._states[name], speed, dt, params)
+        self._state_t_ns = t_ns
+        return dict(self._states)
+
+    def _advance_many(self, t_ns: np.ndarray, speed: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`_advance` for a batch: the same steps, sample by sample, in Python floats."""
+        out = {}
+        times, speeds = np.asarray(t_ns).tolist(), np.asarray(speed, dtype=float).tolist()
+        for name, params in self._stateful.items():
+            step, z, last = EFFECTS[name].state_step, self._states[name], self._state_t_ns
+            values = []
+            for t, w in zip(times, speeds):
+                z = step(z, w, 0.0 if last is None else (t - last) * 1e-9, params)
+                last = t
+                values.append(z)
+            self._states[name] = z
+            out[name] = np.array(values)
+        if times:
+            self._state_t_ns = times[-1]
+        return out
 
     def _effects_scalar(self, fixed, phi) -> tuple[float, float]:
         """(physical, sensor) contributions of the additive effects: the ``fixed`` terms as
@@ -329,9 +380,13 @@ class Estimator:
         bad_out = ~np.isnan(out_torque) & (~np.isfinite(out_torque) | (~np.isfinite(out_speed) & ~np.isnan(out_speed)))
         self.counts["output_non_finite"] += int(np.count_nonzero(bad_out))
         with np.errstate(invalid="ignore"):
-            meas = np.where(bad_out, np.nan, self.measured_loss(torque_meas, speed, out_torque, out_speed))
+            previous = np.concatenate([[self._previous_speed], speed[:-1]])
+            meas = np.where(bad_out, np.nan, self.measured_loss(torque_meas, speed, out_torque, out_speed, previous))
+        if len(speed):
+            self._previous_speed = float(speed[-1])
         coefficients: dict[str, np.ndarray] = {}
-        x = EffectInputs(at, aw, torque, sg, temperature)
+        state = self._advance_many(t_ns, speed) if self._stateful else {}
+        x = EffectInputs(at, aw, torque, sg, temperature, state=state)
         if self.adaptive:
             phys = np.zeros(len(mag))
             sens = np.zeros(len(mag))

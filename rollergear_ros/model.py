@@ -409,7 +409,7 @@ SIGN_BAND = 8.0
 def rotation_sign(speed_rad_s, torque_nm, width_rad_s: float = 0.0):
     """The direction a loss torque opposes: ``sign(ω)``, or ``sign(T)`` at standstill; with a
     ``width_rad_s`` > 0, ``tanh(ω/width)`` within :data:`SIGN_BAND` widths of 0 -- a direction the
-    speed reading cannot tell runs smoothly through 0 (the estimator's width: 3 × the speed noise).
+    speed reading cannot tell runs smoothly through 0 (the estimator's width: the speed reading's noise).
     At a speed of exactly 0 (a joint at rest, an operating point of a loss map) it stays ``sign(T)``."""
     w = np.asarray(speed_rad_s, dtype=float)
     hard = np.where(w != 0, np.sign(w), np.sign(np.asarray(torque_nm, dtype=float)))

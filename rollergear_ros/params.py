@@ -164,9 +164,9 @@ ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("estimator.min_speed_for_efficiency_rad_s", float, 0.5,
               "efficiency is NaN below this |w|", "rad/s", low=0.0, high=1e5),
     ParamSpec("estimator.speed_noise_rad_s", float, 0.02,
-              "standard deviation of the drive speed reading: within 3 of it from 0 the direction is not known -- "
-              "the loss torque's sign runs smoothly through 0 there (tanh(w/(3*noise))) and calibrate leaves those "
-              "samples out", "rad/s", low=0.0, high=100.0),
+              "standard deviation of the drive speed reading: the loss torque's sign runs smoothly through 0 as "
+              "tanh(w/noise), about the average sign of such a reading; within 3 of it from 0 the direction is not "
+              "known and no loss is measured (calibrate leaves those samples out)", "rad/s", low=0.0, high=100.0),
     ParamSpec("estimator.sync_tolerance_s", float, 0.0,
               "input messages whose times differ by at most this are one sample (keep below half the sample "
               "period); 0 = automatic: 0.4 x the median period of the motor torque messages (offline measured in "

@@ -397,6 +397,11 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
         )
 
 
+#: the lead-in of a time slice when an accepted effect has memory: the slice's state starts from the
+#: motion of this long before it (a Dahl state is exactly its direction after a fraction of a radian)
+MEMORY_LEAD_NS = 60 * 10**9
+
+
 class TimeWindow:
     """A time slice ``[start_ns, end_ns)`` of a recording (``None``: open), replayed on its own.
 
@@ -408,6 +413,8 @@ class TimeWindow:
     (samples, input messages, skips, change alarms) are those taken while the slice's own messages
     were pushed.  Slices of one recording therefore add up to the whole replay, except that each
     slice's online adaptation and change detector start from the parameter file (as a recording's do).
+    With an effect with memory the lead-in is at least :data:`MEMORY_LEAD_NS`: its state at the
+    slice's start is then the whole replay's, unless the gearbox rested that long before it.
     """
 
     def __init__(self, start_ns: int | None, end_ns: int | None, lead_ns: int) -> None:
@@ -741,7 +748,10 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
     window = None
     if window_ns is not None:
         sync = estimator.sync
-        window = TimeWindow(*window_ns, lead_ns=2 * max(sync.hold_ns, sync.temperature_hold_ns))
+        lead_ns = 2 * max(sync.hold_ns, sync.temperature_hold_ns)
+        if estimator.has_memory:  # an effect with memory: its state settles in the lead-in's motion
+            lead_ns = max(lead_ns, MEMORY_LEAD_NS)
+        window = TimeWindow(*window_ns, lead_ns=lead_ns)
     summary = ReplaySummary(
         str(bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
     )

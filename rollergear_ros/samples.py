@@ -78,7 +78,7 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
     cols = [np.concatenate([p[j] for p in parts]) for j in range(7)]
     return SampleData(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6],
                       model.fr_part(cols[2], cols[3]), skipped, parts=model.parts(cols[2], cols[3]),
-                      sign_width_rad_s=3.0 * config.estimator.speed_noise_rad_s, spin_test=not loaded)
+                      sign_width_rad_s=config.estimator.speed_noise_rad_s, spin_test=not loaded)
 
 
 def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[str], None] | None = None,

@@ -544,12 +544,14 @@ class Calibrator:
             scored = kept
             if not scored:
                 break
-            # the smaller explanation first: a model parameter that fits (nearly) as well as an effect
-            best_param = next((x for x in scored if x[1] in MODEL_PARAMETERS), None)
-            if best_param is not None and scored[0][1] not in MODEL_PARAMETERS \
-                    and best_param[0] <= scored[0][0] * 1.01 + 1e-12:
-                scored.remove(best_param)
-                scored.insert(0, best_param)
+            # the smaller explanation first: of the candidates that fit (nearly) as well as the best, the
+            # one with the fewest free parameters -- a model parameter before an effect, a plain law
+            # before one with an exponent or a memory
+            near = [x for x in scored if x[0] <= scored[0][0] * 1.01 + 1e-12]
+            simplest = min(near, key=lambda x: (complexity(x[1]), x[0]))
+            if simplest is not scored[0]:
+                scored.remove(simplest)
+                scored.insert(0, simplest)
             cv_new, g, terms = scored[0]
             c, se = self.coefficient(terms, len(terms) - 1)
             new = terms[-1]
@@ -587,6 +589,11 @@ class Calibrator:
                 self.log.append(f"step {step}: {g} fits as well as {', '.join(twin_terms)}: the model's "
                                 "own parameter is taken (no new term)")
                 twin_terms = {}
+            memory = [h for h in twin_terms if _adds_only_memory(h, g)]
+            if memory:  # a memory the data do not show is not claimed: the memoryless law is taken
+                self.log.append(f"step {step}: {g} fits as well as {', '.join(memory)}: no lag after the "
+                                "reversals shows, the term without memory is taken")
+                twin_terms = {h: v for h, v in twin_terms.items() if h not in memory}
             twins = list(twin_terms)
             assumed = next((a for a in [g, *twins] if a in assume), None) if twins else None
             self.log.append(
@@ -674,6 +681,24 @@ class Calibrator:
         ra, rb = resid(a.column), resid(b.column)
         den = math.sqrt(float(np.sum(w * ra * ra)) * float(np.sum(w * rb * rb)))
         return abs(float(np.sum(w * ra * rb))) / den if den > 0 else 1.0
+
+
+def complexity(name: str) -> int:
+    """How much a candidate explains with: a model parameter 0 (it adds no term), an effect 1 for its
+    coefficient, one more for each profiled member and for a memory."""
+    if name in MODEL_PARAMETERS:
+        return 0
+    e = EFFECTS[name]
+    return 1 + (e.member is not None) + (e.second_member is not None) + (e.state_step is not None)
+
+
+def _adds_only_memory(twin: str, name: str) -> bool:
+    """Whether ``twin`` is an effect with memory and ``name`` one without that it settles to (in steady
+    motion the same column: Dahl and a constant drag)."""
+    if twin in MODEL_PARAMETERS or name in MODEL_PARAMETERS:
+        return False
+    return EFFECTS[twin].state_step is not None and EFFECTS[name].state_step is None \
+        and name in EFFECTS[twin].separated_from
 
 
 def separating(a: str, b: str) -> str | None:

@@ -35,11 +35,15 @@ X = EffectInputs(abs_torque=np.array([2.0, 40.0]), abs_speed=np.array([10.0, 200
      X.fr_part_nm * (np.exp(700.0 / (X.temperature_c + 95.0) - 700.0 / 135.0) ** 0.66 - 1.0)),
     ("torque_offset", {"b": 0.05}, 0.05 * X.rot_sign),
     ("torque_gain", {"g": 0.01}, 0.01 * X.torque * X.rot_sign),
+    ("stribeck", {"c": 0.25, "omega_s": 20.0, "delta": 2.0}, 0.25 * np.exp(-(X.abs_speed / 20.0) ** 2)),
+    ("drag_viscous", {"c": 3e-4, "p": 1.5, "a": 0.5, "B": 900.0, "C": 95.0, "theta_ref": 40.0},
+     3e-4 * np.exp(900.0 / (X.temperature_c + 95.0) - 900.0 / 135.0) ** 0.5 * X.abs_speed ** 1.5),
+    ("dahl", {"c": 0.1, "presliding": 0.01}, 0.1 + 0.0 * X.abs_speed),  # no state: steady motion
 ])
 def test_each_term_is_its_documented_formula(name, params, expected):
     np.testing.assert_allclose(EFFECTS[name].term(X, **params), expected, rtol=1e-12)
     # on Python floats too (the node's per-sample path)
-    x0 = EffectInputs(*(float(v[0]) for v in X))
+    x0 = EffectInputs(*(float(v[0]) for v in X[:6]))
     assert EFFECTS[name].term(x0, **params) == pytest.approx(float(np.asarray(expected)[0]), rel=1e-12)
 
 

@@ -93,7 +93,7 @@ def test_replay_bundled_bag_matches_model_on_its_inputs(bag, tmp_path, config):
                    config.estimator.min_speed_for_efficiency_rad_s)
     expect = lm.evaluate(tq, w, breakdown=False)
     # the estimator's sign runs smoothly through standstill (tanh within a few speed-noise widths)
-    signed = expect.loss_magnitude_nm * rotation_sign(w, tq, 3 * config.estimator.speed_noise_rad_s)
+    signed = expect.loss_magnitude_nm * rotation_sign(w, tq, config.estimator.speed_noise_rad_s)
 
     for reader in (read_rosbags, read_mcap_ros2):
         got = reader(out)
