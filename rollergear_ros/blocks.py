@@ -59,6 +59,7 @@ class Blocks:
     t_s: np.ndarray | None = None  # per-sample time [s], recording and signed speed: effects with memory
     bag_id: np.ndarray | None = None
     sample_speed: np.ndarray | None = None
+    sign_width_rad_s: float = 0.0  # the smooth sign's width: 3 of it beyond standstill the direction is known
     _distinct: tuple | None = field(default=None, repr=False)  # distinct temperatures, inverse index
     _columns: dict = field(default_factory=dict, repr=False)  # (effect, member, second) -> block means, computed once
 
@@ -98,28 +99,42 @@ class Blocks:
         cached.flags.writeable = False  # shared by every caller
         return cached
 
-
-    def states(self, name: str, params: dict) -> np.ndarray:
-        """The state of an effect with memory at every sample, each recording from a state of 0.
-
-        The analysis has only the samples with a measured loss: across the others (near standstill,
-        a dwell at rest) a step counts one sample period, not the gap -- the motion there is next to
-        none, and the gap at the next sample's speed would move the state by far too much."""
-        effect = EFFECTS[name]
-        z = np.empty(len(self.t_s))
+    def _steps(self):
+        """Per recording: its samples' indices and time steps.  The analysis has only the samples with
+        a measured loss: across the others (near standstill, a dwell at rest) a step counts one sample
+        period, not the gap -- the motion there is next to none, and the gap at the next sample's
+        speed would turn the drive by far too much."""
         for b in np.unique(self.bag_id):
             idx = np.flatnonzero(self.bag_id == b)
             dt = np.diff(self.t_s[idx], prepend=self.t_s[idx][:1])
             period = float(np.median(dt[1:])) if len(dt) > 1 else 0.0
-            t_s = np.cumsum(np.minimum(dt, 2.0 * period))
-            if effect.state_series is not None:
-                z[idx] = effect.state_series(t_s, self.sample_speed[idx], params)
-            else:
-                value, last = 0.0, None
-                for k, (t, w) in enumerate(zip(t_s.tolist(), self.sample_speed[idx].tolist())):
-                    value = effect.state_step(value, w, 0.0 if last is None else t - last, params)
-                    z[idx[k]], last = value, t
+            yield idx, np.minimum(dt, 2.0 * period)
+
+    def states(self, name: str, params: dict) -> np.ndarray:
+        """The state of an effect with memory at every sample, each recording from a state of 0."""
+        effect = EFFECTS[name]
+        z = np.empty(len(self.t_s))
+        for idx, dt in self._steps():
+            z[idx] = effect.state_steps(0.0, self.sample_speed[idx], dt, params)
         return z
+
+    def angle_since_reversal(self, clear_rad_s: float) -> np.ndarray:
+        """The angle [rad] turned since the drive last turned round, at every sample (NaN before a
+        recording's first reversal); a reversal as :func:`_reverses` counts one (beyond the noise)."""
+        phi = np.full(len(self.t_s), np.nan)
+        for idx, dt in self._steps():
+            w = self.sample_speed[idx]
+            turned = np.cumsum(np.abs(w) * dt)
+            moving = np.flatnonzero(np.abs(w) >= max(clear_rad_s, 1e-12))
+            flips = moving[1:][np.sign(w[moving[1:]]) != np.sign(w[moving[:-1]])]
+            if not len(flips):
+                continue
+            # the last reversal at or before each sample: the angle turned since the sample before it
+            last = np.searchsorted(flips, np.arange(len(w)), side="right") - 1
+            since = last >= 0
+            base = turned[np.maximum(flips[np.maximum(last, 0)] - 1, 0)]
+            phi[idx[since]] = (turned - base)[since]
+        return phi
 
 
 def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Blocks | None = None) -> Blocks:
@@ -243,6 +258,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         t_s=t,
         bag_id=d.bag_id,
         sample_speed=d.speed,
+        sign_width_rad_s=d.sign_width_rad_s,
     )
     for name in testable:
         effect = EFFECTS[name]

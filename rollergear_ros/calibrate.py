@@ -174,6 +174,7 @@ class CalibrationResult:
     negative: list[str] = field(default_factory=list)  #: candidates whose fit needed a negative friction
     structure: dict | None = None  #: the unexplained residual against each input (:func:`residual_structure`)
     before_residual: np.ndarray | None = None  #: per sample, the file as given (the "before" errors)
+    after_residual: np.ndarray | None = None  #: per sample, after the accepted terms (held out, per block)
 
     def to_json(self) -> dict:
         """The ``interface.md`` object (plus extra keys: delta, rejected, ambiguous, ...)."""
@@ -389,7 +390,7 @@ def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, bl
         verdict, effects, error_before, error_after, _holdout_text(blocks, folds), int(len(data.t_ns)), cal.delta,
         out.rejected, out.ambiguous, out.unavailable, cal.log, sample_level, new_config, fit_adequacy, blocks,
         pred_after, parameters, written, notes, out.negative, residual_structure(blocks, err_a))
-    result.before_residual = s_b
+    result.before_residual, result.after_residual = s_b, s_a
     return result
 
 

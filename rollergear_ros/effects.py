@@ -134,34 +134,22 @@ def dahl_step(z: float, speed_rad_s: float, dt_s: float, params: Mapping[str, fl
     return s + (z - s) * math.exp(-abs(speed_rad_s) * dt_s / params["presliding"])
 
 
-def dahl_series(t_s, speed_rad_s, params: Mapping[str, float], z0: float = 0.0):
-    """:func:`dahl_step` over a time-ordered series at once (numpy): within each run of one direction
-    ``z = s + (z_run − s)·exp(−φ/presliding)``, ``φ`` the angle turned since the run began -- the same
-    numbers as the steps, to rounding (``calibrate``'s columns; the estimator steps)."""
+def dahl_steps(z: float, speed_rad_s, dt_s, params: Mapping[str, float]):
+    """:func:`dahl_step` over a batch of samples in time order, ``dt_s`` each one's step: the same
+    float operations one after the other (bit for bit the states of single steps), the exponentials
+    of the moving samples at once (``math.exp``, as the single step)."""
     import numpy as np
 
-    w = np.asarray(speed_rad_s, dtype=float)
-    dt = np.diff(np.asarray(t_s, dtype=float), prepend=np.asarray(t_s, dtype=float)[:1])
-    s = np.sign(w)
-    moving = s != 0
-    # a run of one direction: a new run where the direction of motion changes (standstill continues it)
-    direction = np.maximum.accumulate(np.where(moving, np.arange(len(w)), -1))
-    held = np.where(direction >= 0, s[np.maximum(direction, 0)], 0.0)
-    new_run = np.flatnonzero(moving & (np.r_[0.0, held[:-1]] != s))
-    phi = np.cumsum(np.abs(w) * np.maximum(dt, 0.0))
-    z = np.empty(len(w))
-    z_before = z0
-    for begin, end in zip([0, *new_run.tolist()], [*new_run.tolist(), len(w)]):
-        if end <= begin:
-            continue
-        sign = held[begin]
-        if sign == 0.0:  # no motion yet: the state stays
-            z[begin:end] = z_before
-        else:
-            base = phi[begin - 1] if begin > 0 else 0.0
-            z[begin:end] = sign + (z_before - sign) * np.exp(-(phi[begin:end] - base) / params["presliding"])
-        z_before = z[end - 1]
-    return z
+    w, dt = np.asarray(speed_rad_s, dtype=float), np.asarray(dt_s, dtype=float)
+    moving = (w != 0.0) & (dt > 0.0)
+    decay = np.ones(len(w))
+    decay[moving] = [math.exp(v) for v in (-np.abs(w[moving]) * dt[moving] / params["presliding"]).tolist()]
+    out = []
+    for move, s, a in zip(moving.tolist(), np.sign(w).tolist(), decay.tolist()):
+        if move:
+            z = s + (z - s) * a
+        out.append(z)
+    return np.array(out)
 
 
 def viscosity_scale(b_k, c_k, theta_ref_c, theta_c):
@@ -253,12 +241,12 @@ class Effect:
     #: in time order (the node, replay's batches, a fleet's time slices, calibrate); its term reads
     #: ``x.state[name]``
     state_step: Callable[..., float] | None = None
-    #: the same over a time-ordered series at once, ``state_series(t_s, ω, params, z0) -> z`` (numpy:
-    #: ``calibrate``'s columns); None: ``calibrate`` steps ``state_step`` sample by sample
-    state_series: Callable[..., Any] | None = None
+    #: the same over a batch, ``state_steps(z0, ω, dt, params) -> z`` (arrays), bit for bit the single
+    #: steps' states (replay's batches, calibrate's columns)
+    state_steps: Callable[..., Any] | None = None
     separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
-    #: the report draws its fitted curve over "speed", "torque", "temperature" or "speed_near_zero"
-    #: (signed speed, standstill magnified)
+    #: the report draws its fitted curve over "speed", "torque", "temperature", "speed_near_zero"
+    #: (signed speed, standstill magnified) or "angle_since_reversal" (an effect with memory: per sample)
     plotted_against: str = "speed"
 
     def parameter(self, short: str) -> EffectParameter:
@@ -367,7 +355,7 @@ for _effect in (
                             "friction follows a reversal (1/e)", "rad", low=1e-6, low_open=True, high=10.0)),
            coefficient="c", member="presliding",
            member_grid=(1e-4, 3e-4, 1e-3, 3e-3, 0.01, 0.03, 0.1, 0.3), member_bounds=(3e-5, 1.0),
-           state_step=dahl_step, state_series=dahl_series, plotted_against="speed_near_zero",
+           state_step=dahl_step, state_steps=dahl_steps, plotted_against="angle_since_reversal",
            separated_from={"drag_constant": "reversals: the torque's lag after each one (a constant drag flips at "
                                             "once)"}),
     Effect("load_dependent", load_dependent, True, "add a load friction c*|T|^q", "bearing load friction, sliding",
@@ -462,14 +450,20 @@ def fr_scale(enabled: Mapping[str, Mapping[str, float]], x: EffectInputs):
     return scale
 
 
+#: how the report's ``effect_<name>.png`` draws an effect (:attr:`Effect.plotted_against`)
+_DRAWN_OVER = {"speed": "drive speed", "torque": "drive torque", "temperature": "oil temperature",
+               "speed_near_zero": "signed drive speed, standstill magnified (symmetric log axis)",
+               "angle_since_reversal": "the angle turned since the last reversal, per sample"}
+
+
 def markdown_table() -> str:
     """``docs/effects.md``: the registry as a table (regenerate with ``python -m rollergear_ros.effects``)."""
     lines = ["# Effects the model lacks (the registry)\n",
              "Generated from `rollergear_ros/effects.py` by `python -m rollergear_ros.effects > docs/effects.md`; "
              "a test keeps it current. Parameters: short name (in `calibrate --json` and `simulate --effect`) → "
              "key under `effects.<effect>.` in the parameter file.\n",
-             "| effect | term | kind | parameters | fitted | cause | told apart from |",
-             "|---|---|---|---|---|---|---|"]
+             "| effect | term | kind | parameters | fitted | cause | told apart from | the report draws it over |",
+             "|---|---|---|---|---|---|---|---|"]
     for e in EFFECTS.values():
         params = ", ".join(f"`{p.short}` → `{p.key}`" + (f" [{p.unit}]" if p.unit else "") for p in e.parameters)
         fitted = f"`{e.coefficient}` (linear" + (", adapted online)" if e.adaptive else ")")
@@ -485,9 +479,13 @@ def markdown_table() -> str:
         kind = "loss" if e.physical else "sensor error"
         if e.needs_temperature:
             kind += "; needs a varying oil temperature"
+        if e.state_step is not None:
+            kind += "; has memory (a state stepped in time order)"
         apart = "; ".join(f"{o}: {d}" for o, d in e.separated_from.items()) or "—"
         formula = e.formula().replace("``", "`").replace("|", "\\|")
-        lines.append(f"| `{e.name}` | {formula} | {kind} | {params} | {fitted} | {e.cause} | {apart} |")
+        drawn = _DRAWN_OVER[e.plotted_against] + (", coloured by the oil temperature"
+                                                  if e.needs_temperature and e.plotted_against != "temperature" else "")
+        lines.append(f"| `{e.name}` | {formula} | {kind} | {params} | {fitted} | {e.cause} | {apart} | {drawn} |")
     return "\n".join(lines) + "\n"
 
 

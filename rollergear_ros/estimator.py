@@ -301,20 +301,17 @@ class Estimator:
         return dict(self._states)
 
     def _advance_many(self, t_ns: np.ndarray, speed: np.ndarray) -> dict[str, np.ndarray]:
-        """:meth:`_advance` for a batch: the same steps, sample by sample, in Python floats."""
+        """:meth:`_advance` for a batch: the same steps in the same float arithmetic (bit for bit)."""
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        if not len(t_ns):
+            return {name: np.empty(0) for name in self._stateful}
+        gaps = np.diff(t_ns, prepend=t_ns[0] if self._state_t_ns is None else np.int64(self._state_t_ns))
+        dt = gaps.astype(float) * 1e-9
         out = {}
-        times, speeds = np.asarray(t_ns).tolist(), np.asarray(speed, dtype=float).tolist()
         for name, params in self._stateful.items():
-            step, z, last = EFFECTS[name].state_step, self._states[name], self._state_t_ns
-            values = []
-            for t, w in zip(times, speeds):
-                z = step(z, w, 0.0 if last is None else (t - last) * 1e-9, params)
-                last = t
-                values.append(z)
-            self._states[name] = z
-            out[name] = np.array(values)
-        if times:
-            self._state_t_ns = times[-1]
+            out[name] = EFFECTS[name].state_steps(self._states[name], speed, dt, params)
+            self._states[name] = float(out[name][-1])
+        self._state_t_ns = int(t_ns[-1])
         return out
 
     def _effects_scalar(self, fixed, phi) -> tuple[float, float]:

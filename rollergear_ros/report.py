@@ -94,6 +94,9 @@ def _effect_curves(result: CalibrationResult, out_dir: Path, plots: list[Path]) 
     plt = _pyplot()
     b = result.blocks
     for effect in result.effects:
+        if EFFECTS[effect.name].plotted_against == "angle_since_reversal":
+            _memory_curve(result, effect, out_dir, plots)
+            continue
         attr, label = _AXES[EFFECTS[effect.name].plotted_against]
         x = getattr(b, attr)
         ok = np.isfinite(x)
@@ -127,6 +130,46 @@ def _effect_curves(result: CalibrationResult, out_dir: Path, plots: list[Path]) 
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         _save(fig, out_dir / f"effect_{effect.name}.png", plots)
+
+
+def _memory_curve(result: CalibrationResult, effect: FoundEffect, out_dir: Path, plots: list[Path]) -> None:
+    """An effect with memory, per sample: its fitted contribution over the angle turned since the last
+    reversal, over the samples' residual minus the other accepted effects (those at their block means:
+    they follow speed and torque, which a block barely changes; the memory changes within one)."""
+    b = result.blocks
+    spec = EFFECTS[effect.name]
+    if b.t_s is None or result.after_residual is None:
+        return
+    phi = b.angle_since_reversal(3.0 * b.sign_width_rad_s)
+    scale = effect.params.get(spec.member, 0.01) if spec.member else 0.01
+    near = np.isfinite(phi) & (phi > 0) & (phi <= 30.0 * scale)  # the turn after a reversal
+    if not near.any():
+        return
+    states = b.states(effect.name, effect.params)
+    fitted = effect.params[spec.coefficient] * spec.column(b.x._replace(state={effect.name: states}), effect.params)
+    block_fitted = effect_band(result, effect)[0]
+    partial = result.after_residual + np.repeat(block_fitted, b.count)
+    keep = np.flatnonzero(near)[:: max(1, int(np.count_nonzero(near)) // MAX_TIME_POINTS)]
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=100)
+    ax.scatter(phi[keep], partial[keep], s=4, alpha=0.35, color="0.5",
+               label="residual minus the other accepted effects, per sample")
+    ax.scatter(phi[keep], fitted[keep], s=2, color="tab:red", label="fitted contribution")
+    c_lo, c_hi = effect.ci95[spec.coefficient]
+    if spec.member and spec.member in effect.ci95:
+        for end in effect.ci95[spec.member]:
+            ax.axvline(end, color="tab:red", lw=0.8, ls=":")
+        ax.axvline(scale, color="tab:red", lw=0.8, label=f"{spec.member} (dotted: its 95 % interval)")
+    params = ", ".join(f"{k} = {v:.3g}" for k, v in effect.params.items())
+    ax.set_title(f"{effect.name}: the friction after each reversal (c in [{c_lo:.3g}, {c_hi:.3g}] at 95 %)\n{params}",
+                 fontsize=9)
+    ax.set_xscale("log")
+    ax.set_xlabel("angle turned since the last reversal [rad]")
+    ax.set_ylabel("contribution to the measured loss [N·m]")
+    ax.axhline(0, color="k", lw=0.5)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    _save(fig, out_dir / f"effect_{effect.name}.png", plots)
 
 
 def _residual_over_time(result: CalibrationResult, data: SampleData, out_dir: Path, plots: list[Path]) -> None:

@@ -16,7 +16,7 @@ import pytest
 
 from rollergear_ros import effects
 from rollergear_ros.calibrate import calibrate, calibrated_yaml, load_samples
-from rollergear_ros.effects import EFFECTS, Effect, EffectInputs, EffectParameter
+from rollergear_ros.effects import _DRAWN_OVER, EFFECTS, Effect, EffectInputs, EffectParameter
 from rollergear_ros.params import load_config, parameter_specs
 from rollergear_ros.replay import replay
 from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
@@ -55,6 +55,8 @@ def test_every_effect_is_declared_consistently():
         assert f"effects.{name}.enabled" in specs
         assert all(f"effects.{name}.{p.key}" in specs for p in e.parameters)
         assert all(other in EFFECTS for other in e.separated_from), name
+        assert (e.state_step is None) == (e.state_steps is None), name  # memory: a step and its batch
+        assert e.plotted_against in _DRAWN_OVER, name  # the report knows how to draw it
         if e.member is not None:
             lo, hi = e.member_bounds
             assert lo <= min(e.member_grid) < max(e.member_grid) <= hi, name
@@ -62,6 +64,33 @@ def test_every_effect_is_declared_consistently():
         params = e.simulated_defaults()
         np.testing.assert_allclose(e.term(X, **{**params, e.coefficient: 2.5}), 2.5 * e.column(X, params),
                                    rtol=1e-12, atol=1e-300)
+
+
+@pytest.mark.parametrize("name", [n for n, e in EFFECTS.items() if e.state_step is not None])
+def test_a_state_batch_is_its_single_steps_bit_for_bit(name):
+    """Replay's batches and calibrate step the state as the node does, sample by sample: the same
+    floats, also across samples at rest and repeated times (no step)."""
+    e = EFFECTS[name]
+    rng = np.random.default_rng(0)
+    speed = np.where(rng.random(2000) < 0.1, 0.0, rng.normal(0, 0.05, 2000))
+    dt = np.where(rng.random(2000) < 0.05, 0.0, rng.uniform(1e-4, 1e-2, 2000))
+    params = e.simulated_defaults()
+    z, single = 0.3, []
+    for w, d in zip(speed.tolist(), dt.tolist()):
+        z = e.state_step(z, w, d, params)
+        single.append(z)
+    assert e.state_steps(0.3, speed, dt, params).tolist() == single
+    assert len(set(np.sign(single[100:]).tolist())) == 2  # the state turned round within the batch
+
+
+def test_the_dahl_state_follows_its_documented_law():
+    """``z → s + (z − s)·exp(−|ω|·dt/presliding)``: a turn of one presliding angle from −1 forwards
+    leaves ``1 − 2/e``; at rest nothing changes."""
+    from rollergear_ros.effects import dahl_step
+
+    p = {"presliding": 0.01}
+    assert dahl_step(-1.0, 0.5, 0.02, p) == pytest.approx(1.0 - 2.0 / np.e, rel=1e-12)
+    assert dahl_step(-0.4, 0.0, 1.0, p) == -0.4 and dahl_step(-0.4, 3.0, 0.0, p) == -0.4
 
 
 def test_docs_table_is_the_registry():

@@ -139,9 +139,11 @@ def test_friction_with_memory_is_found_at_its_presliding_angle(tmp_path):
     csv, cmap, params = joint_csv(tmp_path, "lugre", lugre_friction(t, v, 30.0, 0.3, 0.01), t, v)
     out = tmp_path / "cal.yaml"
     result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(params), "--json",
-                                "--out", str(out)).stdout)
+                                "--out", str(out), "--report", str(tmp_path / "report")).stdout)
     found = {e["name"]: e for e in result["effects"]}
     assert "dahl" in found and "drag_constant" not in found, sorted(found)
+    # the report draws it over the angle turned since each reversal
+    assert (tmp_path / "report" / "effect_dahl.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     lo, hi = found["dahl"]["ci95"]["presliding"]
     assert lo <= 0.01 <= hi and found["dahl"]["params"]["c"] == pytest.approx(0.3, rel=0.02)
     assert result["error_after"]["rmse_nm"] < 0.2 * result["error_before"]["rmse_nm"]
