@@ -15,6 +15,7 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.launch.py") + glob("launch/*.launch.xml")),
+        ("share/" + package_name + "/docs", glob("docs/*.md")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

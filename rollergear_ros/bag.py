@@ -270,10 +270,7 @@ def _check_mcap(path: Path) -> None:
     with path.open("rb") as fh:
         magic = fh.read(8)
     if magic != b"\x89MCAP0\r\n":
-        raise BagError(
-            f"{path} is not an MCAP file (bad magic bytes); rosbag2 .db3 (SQLite) bags are not supported, "
-            "convert them to MCAP"
-        )
+        raise BagError(f"{path} is not an MCAP file (it does not begin with MCAP's magic bytes)")
 
 
 #: metadata record the node writes into its recordings: how it paired the inputs it recorded

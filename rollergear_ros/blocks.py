@@ -9,6 +9,7 @@ cross-validation folds never split.  The candidate columns come from the effect 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from .samples import SampleData
 
 #: an effect that needs the oil temperature is testable when it varies by at least this much
 MIN_TEMPERATURE_SPAN_C = 3.0
+#: an effect of speeds near standstill (:attr:`~.effects.Effect.needs_speeds_below`) is testable when
+#: at least this share of the samples run that slow
+MIN_SLOW_SHARE = 0.01
 
 
 def _reverses(speed: np.ndarray, bag_id: np.ndarray, clear_rad_s: float) -> bool:
@@ -33,6 +37,19 @@ def groups() -> tuple[str, ...]:
     """The candidate groups: every effect of the registry, in its order, then the model's own
     parameters (:mod:`.modelparams`, one per part of the model)."""
     return tuple(EFFECTS) + fitted_parameters()
+
+
+class _DirectionRuns(NamedTuple):
+    """The samples cut into runs of one direction of motion, per recording: what a state that relaxes
+    over the angle turned needs, whatever its relaxation angle."""
+
+    run: np.ndarray  #: per sample: its run
+    since: np.ndarray  #: per sample: the angle turned since its run began, its own step included [rad]
+    settled: np.ndarray  #: per sample: its run's direction (±1; 0 before any motion): the settled state
+    sign: np.ndarray  #: per run: its direction
+    whole: np.ndarray  #: per run: the angle turned in it [rad]
+    opens: np.ndarray  #: per run: whether it opens a recording (its state starts at 0)
+    block: np.ndarray  #: per sample: its block
 
 
 @dataclass
@@ -61,6 +78,8 @@ class Blocks:
     sample_speed: np.ndarray | None = None
     sign_width_rad_s: float = 0.0  # the smooth sign's width: 3 of it beyond standstill the direction is known
     _distinct: tuple | None = field(default=None, repr=False)  # distinct temperatures, inverse index
+    _runs: _DirectionRuns | None = field(default=None, repr=False)  # runs of one direction (memory), once
+    _speed_order: tuple | None = field(default=None, repr=False)  # samples by |ω| (laws that fade with speed)
     _columns: dict = field(default_factory=dict, repr=False)  # (effect, member, second) -> block means, computed once
 
     def mean(self, values: np.ndarray) -> np.ndarray:
@@ -88,6 +107,25 @@ class Blocks:
             theta, inverse = self._distinct
             relative = effect.column(self.x._replace(temperature_c=theta, fr_part_nm=1.0), params, member, second)
             values = self.x.fr_part_nm * relative[inverse]
+        elif effect.relaxes_over is not None:  # memory, in closed form where it has not settled
+            at = params | ({effect.member: member} if effect.member and member is not None else {})
+            cached = self._columns[key] = self._relaxing_means(name, at, member, second)
+            cached.flags.writeable = False
+            return cached
+        elif effect.vanishes_above is not None:  # a law that fades with speed: only the slower samples
+            at = params | ({effect.member: member} if effect.member and member is not None else {}) \
+                | ({effect.second_member: second} if effect.second_member and second is not None else {})
+            by_speed, block = self._by_speed()
+            k = int(np.searchsorted(by_speed.abs_speed, effect.vanishes_above(at), side="right"))
+            x = EffectInputs(*(v[:k] if isinstance(v, np.ndarray) and v.shape == block.shape else v
+                               for v in by_speed))  # views: the slower samples come first
+            values = effect.column(x, params, member, second)
+            if effect.needs_temperature:
+                values = np.where(np.isnan(values), 0.0, values)
+            cached = self._columns[key] = np.bincount(block[:k], weights=values,
+                                                      minlength=len(self.count)) / self.count
+            cached.flags.writeable = False
+            return cached
         elif effect.state_step is not None:  # memory: its state replayed over each recording in time order
             values = effect.column(self.x._replace(state={name: self.states(name, params | (
                 {effect.member: member} if effect.member and member is not None else {}))}), params, member, second)
@@ -113,10 +151,91 @@ class Blocks:
     def states(self, name: str, params: dict) -> np.ndarray:
         """The state of an effect with memory at every sample, each recording from a state of 0."""
         effect = EFFECTS[name]
+        if effect.relaxes_over is not None:
+            runs = self._direction_runs()
+            z = runs.settled.copy()
+            moving, decay, z_start = self._transients(runs, params[effect.relaxes_over])
+            z[moving] += (z_start - runs.sign)[runs.run[moving]] * decay
+            return z
         z = np.empty(len(self.t_s))
         for idx, dt in self._steps():
             z[idx] = effect.state_steps(0.0, self.sample_speed[idx], dt, params)
         return z
+
+    def _by_speed(self) -> tuple[EffectInputs, np.ndarray]:
+        """The effects' inputs with the samples in the order of their |ω|, and each one's block
+        (computed once)."""
+        if self._speed_order is None:
+            order = np.argsort(self.x.abs_speed, kind="stable")
+            n = len(order)
+            x = EffectInputs(*(v[order] if isinstance(v, np.ndarray) and v.shape == (n,) else v for v in self.x[:6]))
+            self._speed_order = (x, np.repeat(np.arange(len(self.count)), self.count)[order])
+        return self._speed_order
+
+    def _direction_runs(self) -> _DirectionRuns:
+        """The recordings cut into runs of one direction (computed once, see :class:`_DirectionRuns`)."""
+        if self._runs is None:
+            n = len(self.t_s)
+            run, since, settled = np.empty(n, dtype=np.int64), np.empty(n), np.empty(n)
+            sign, whole, opens = [], [], []
+            for idx, dt in self._steps():
+                w = self.sample_speed[idx]
+                s = np.sign(w)
+                # standstill continues a run; before any motion the direction is 0 (the state stays)
+                last = np.maximum.accumulate(np.where(s != 0, np.arange(len(w)), -1))
+                held = np.where(last >= 0, s[np.maximum(last, 0)], 0.0)
+                opening = np.r_[True, held[1:] != held[:-1]]
+                starts = np.flatnonzero(opening)
+                local = np.cumsum(opening) - 1
+                turned = np.cumsum(np.abs(w) * dt)  # the first sample's step is 0
+                before = np.where(starts > 0, turned[np.maximum(starts - 1, 0)], 0.0)
+                ends = np.r_[starts[1:], len(w)] - 1
+                run[idx] = len(sign) + local
+                since[idx] = turned - before[local]
+                settled[idx] = held
+                sign += held[starts].tolist()
+                whole += (turned[ends] - before).tolist()
+                opens += [True] + [False] * (len(starts) - 1)
+            self._runs = _DirectionRuns(run, since, settled, np.array(sign), np.array(whole), np.array(opens),
+                                        np.repeat(np.arange(len(self.count)), self.count))
+        return self._runs
+
+    @staticmethod
+    def _transients(runs: _DirectionRuns, scale: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Where a state relaxing over ``scale`` radians has not settled (``exp(−Δφ/scale)`` ≥ e^-40,
+        beyond that it is the direction to the last bit): those samples, their decay, and the state
+        each run starts from (0 at a recording's start, else where the run before it ended)."""
+        moving = np.flatnonzero((runs.since < 40.0 * scale) & (runs.settled != 0))
+        decay = np.exp(-runs.since[moving] / scale)
+        run_decay = np.exp(-runs.whole / scale).tolist()
+        z_start, z = np.empty(len(runs.sign)), 0.0
+        for r, (s, opens, d) in enumerate(zip(runs.sign.tolist(), runs.opens.tolist(), run_decay)):
+            z = 0.0 if opens else z
+            z_start[r] = z
+            if s != 0:
+                z = s + (z - s) * d
+        return moving, decay, z_start
+
+    def _relaxing_means(self, name: str, params: dict, member, second) -> np.ndarray:
+        """Block means of the column of an effect whose state relaxes over the angle turned: its
+        settled value's column (once), plus the difference where the state has not settled."""
+        effect = EFFECTS[name]
+        runs = self._direction_runs()
+        base_key = (name, "settled")
+        base = self._columns.get(base_key)
+        if base is None:
+            base = self._columns[base_key] = self.mean(
+                effect.column(self.x._replace(state={name: runs.settled}), params, member, second))
+        moving, decay, z_start = self._transients(runs, params[effect.relaxes_over])
+        if not len(moving):
+            return base.copy()
+        x = EffectInputs(*(v[moving] if isinstance(v, np.ndarray) and v.shape == runs.since.shape else v
+                           for v in self.x[:6]))
+        settled = runs.settled[moving]
+        z = settled + (z_start - runs.sign)[runs.run[moving]] * decay
+        change = (effect.column(x._replace(state={name: z}), params, member, second)
+                  - effect.column(x._replace(state={name: settled}), params, member, second))
+        return base + np.bincount(runs.block[moving], weights=change, minlength=len(self.count)) / self.count
 
     def angle_since_reversal(self, clear_rad_s: float) -> np.ndarray:
         """The angle [rad] turned since the drive last turned round, at every sample (NaN before a
@@ -234,6 +353,8 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     reverses = not d.steady_state and _reverses(d.speed, d.bag_id, 3.0 * d.sign_width_rad_s)
     testable = tuple(n for n, e in EFFECTS.items()
                      if (varies or not e.needs_temperature) and (e.physical or not d.steady_state)
+                     and (e.needs_speeds_below is None
+                          or np.mean(np.abs(d.speed) <= e.needs_speeds_below) >= MIN_SLOW_SHARE)
                      and not (d.spin_test and e.depends_on_load) and (e.state_step is None or reverses))
     columns = {"dtdt": mean(dtdt * sg), "dwdt": mean(dwdt * sg)}
     x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)

@@ -18,6 +18,7 @@ import numpy as np
 
 from .errors import InputFileError, RollergearError, UsageError
 from .interface import package_version
+from .nodehelp import contract_line
 from .params import Config, load_config
 from .paths import Output, check_input_file, check_outputs
 
@@ -209,7 +210,7 @@ EXAMPLES = {
     "fleet": "rollergear fleet calibrate fleet/ --out fleet_out/ --workers 2",
     "watch": "rollergear watch --period 1",
 }
-CONTRACT = "Topics, message types, the calibrate --json object and channel maps: docs/interface.md."
+CONTRACT = contract_line()
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -237,6 +237,9 @@ class Effect:
     #: its term depends on the drive torque: no candidate on a spin test (nothing on the output, the
     #: drive torque is the loss itself)
     depends_on_load: bool = False
+    #: testable only where the data reach this slow: a share of the samples (:data:`MIN_SLOW_SHARE`)
+    #: at |ω| at most this [rad/s] (a law of speeds near standstill)
+    needs_speeds_below: float | None = None
     #: an effect with memory: ``state_step(z, ω, dt, params) -> z`` advances its state sample by sample,
     #: in time order (the node, replay's batches, a fleet's time slices, calibrate); its term reads
     #: ``x.state[name]``
@@ -244,6 +247,14 @@ class Effect:
     #: the same over a batch, ``state_steps(z0, ω, dt, params) -> z`` (arrays), bit for bit the single
     #: steps' states (replay's batches, calibrate's columns)
     state_steps: Callable[..., Any] | None = None
+    #: a state that relaxes towards the direction of motion over the angle turned, exponentially over
+    #: the parameter named here (``z → s + (z − s)·exp(−Δφ/param)``, :func:`dahl_step`): ``calibrate``
+    #: then computes its columns in closed form from the angle turned since each reversal, only where
+    #: the state has not settled (the term depends on that parameter only through the state)
+    relaxes_over: str | None = None
+    #: ``vanishes_above(params) -> speed``: beyond this |ω| the term is below e^-40 of its level (a
+    #: law that fades with speed): ``calibrate`` evaluates its columns only on the slower samples
+    vanishes_above: Callable[[Mapping[str, float]], float] | None = None
     separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
     #: the report draws its fitted curve over "speed", "torque", "temperature", "speed_near_zero"
     #: (signed speed, standstill magnified) or "angle_since_reversal" (an effect with memory: per sample)
@@ -344,6 +355,7 @@ for _effect in (
            coefficient="c", member="omega_s",
            member_grid=(0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0), member_bounds=(0.001, 20.0),
            second_member="delta", second_grid=(0.5, 1.0, 2.0), second_bounds=(0.3, 3.0),
+           vanishes_above=lambda p: p["omega_s"] * 40.0 ** (1.0 / p["delta"]), needs_speeds_below=5.0,
            plotted_against="speed_near_zero",
            separated_from={"drag_constant": "speeds near standstill (down to a few times the speed noise)",
                            "torque_offset": "speeds near standstill in both directions"}),
@@ -355,7 +367,8 @@ for _effect in (
                             "friction follows a reversal (1/e)", "rad", low=1e-6, low_open=True, high=10.0)),
            coefficient="c", member="presliding",
            member_grid=(1e-4, 3e-4, 1e-3, 3e-3, 0.01, 0.03, 0.1, 0.3), member_bounds=(3e-5, 1.0),
-           state_step=dahl_step, state_steps=dahl_steps, plotted_against="angle_since_reversal",
+           state_step=dahl_step, state_steps=dahl_steps, relaxes_over="presliding",
+           plotted_against="angle_since_reversal",
            separated_from={"drag_constant": "reversals: the torque's lag after each one (a constant drag flips at "
                                             "once)"}),
     Effect("load_dependent", load_dependent, True, "add a load friction c*|T|^q", "bearing load friction, sliding",
@@ -479,6 +492,8 @@ def markdown_table() -> str:
         kind = "loss" if e.physical else "sensor error"
         if e.needs_temperature:
             kind += "; needs a varying oil temperature"
+        if e.needs_speeds_below is not None:
+            kind += f"; needs samples at \\|ω\\| ≤ {e.needs_speeds_below:g} rad/s"
         if e.state_step is not None:
             kind += "; has memory (a state stepped in time order)"
         apart = "; ".join(f"{o}: {d}" for o, d in e.separated_from.items()) or "—"

@@ -280,7 +280,8 @@ def calibrate_task(gearbox_id: str, window: int, window_ns: int, recs: Sequence[
     from .importer import as_mcap
 
     row = {"gearbox_id": gearbox_id, "window": window, "window_start_ns": window * window_ns,
-           "window_end_ns": (window + 1) * window_ns, "recordings": len(recs),
+           "window_end_ns": (window + 1) * window_ns, "window_start": utc_text(window * window_ns),
+           "window_end": utc_text((window + 1) * window_ns), "recordings": len(recs),
            "key": _window_key(gearbox_id, window, recs), "status": "ok", "reason": ""}
     t0 = time.perf_counter()
     bad = [r for r in recs if r.problem]
@@ -306,6 +307,13 @@ def calibrate_task(gearbox_id: str, window: int, window_ns: int, recs: Sequence[
         row |= {f"{name}.{coef}": e.params[coef] if e else 0.0, f"{name}.{coef}_lo": lo,
                 f"{name}.{coef}_hi": hi, f"{name}.rms_nm": e.rms_contribution_nm if e else 0.0}
     return row
+
+
+def utc_text(t_ns: int) -> str:
+    """A time as people read it in a table: ISO 8601 in UTC, to the second (``2026-01-05T00:00:00Z``)."""
+    from datetime import UTC, datetime
+
+    return datetime.fromtimestamp(t_ns // 10**9, UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 def _window_key(gearbox_id: str, window: int, recs: Sequence[Recording]) -> str:

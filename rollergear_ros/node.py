@@ -44,6 +44,7 @@ from .pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, 
                       SequenceGaps)
 from .stamped import EstimateCodec, estimate_values
 from .interface import NAMESPACE, OUTPUT_QUEUE_DEPTH, MessageType, Metadata, Topic
+from .nodehelp import help_text, wants_help
 from .params import Config, ParameterError, parameter_specs, validate
 
 #: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
@@ -705,6 +706,9 @@ def main(args: list[str] | None = None) -> int:
     from rclpy.impl.implementation_singleton import rclpy_implementation
     from rclpy.signals import SignalHandlerOptions
 
+    if wants_help(sys.argv[1:] if args is None else list(args)):
+        sys.stdout.write(help_text())
+        return 0
     stop = stop_on_signals()
     try:
         check_params_files(sys.argv if args is None else args)

@@ -126,7 +126,7 @@ def wait_for_graph(node, pubs: dict, bound_s: float, every_topic_s: float = 0.0)
 
 def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, topics: list[str] | None = None,
          wait_for_subscribers: float = 0.0, start_delay: float = 0.0, reliable: bool = True,
-         quiet: bool = False, wait_for_graph_s: float = GRAPH_WAIT_S) -> PlayStats:
+         quiet: bool = False, wait_for_graph_s: float = GRAPH_WAIT_S, show_progress: bool = True) -> PlayStats:
     """Publish the bag in log-time order at ``rate`` times real time.
 
     First waits (:func:`wait_for_graph`, at most ``wait_for_graph_s``; 0: not at all) for the
@@ -175,7 +175,7 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
                   f"topics at {rate:g}x{' (looping)' if loop else ''}", file=sys.stderr, flush=True)
         # the bar reads the count from a thread of its own: the publishing loop only counts
         bar = TimedProgress("play", None if loop else total, "msg", read=lambda: stats.messages,
-                            enabled=not quiet and sys.stderr.isatty()).start()
+                            enabled=not quiet and show_progress and sys.stderr.isatty()).start()
         while True:
             state = ReadState()
             reader = _Prefetch(bag, state)
@@ -256,12 +256,20 @@ def init_for_command_line() -> None:
 def cmd_play(args: argparse.Namespace) -> int:
     import rclpy
 
+    from .importer import source_kind
+
     if not (args.rate > 0):
         raise UsageError("--rate must be > 0")
+    kind = source_kind(args.bag)
+    if kind != "MCAP":  # what was given, and the way to a recording play can publish
+        raise UsageError(f"{args.bag} is a {kind} {'folder' if Path(args.bag).is_dir() else 'file'}: play publishes "
+                         f"ROS 2 MCAP recordings; convert it first: rollergear import {args.bag} --out REC.mcap"
+                         + (" --channels MAP.yaml" if kind not in ("rosbag2", "VTLM") else ""))
     init_for_command_line()
     try:
         play(Path(args.bag), args.rate, args.loop, args.clock, args.topics, args.wait_for_subscribers,
-             args.delay, not args.best_effort, wait_for_graph_s=0.0 if args.no_wait else GRAPH_WAIT_S)
+             args.delay, not args.best_effort, wait_for_graph_s=0.0 if args.no_wait else GRAPH_WAIT_S,
+             show_progress=not args.no_progress)
     finally:
         rclpy.try_shutdown()
     return 0
@@ -282,6 +290,7 @@ def register_play(sub, with_params) -> None:  # noqa: ARG001
                         "subscribers already running have matched, so that they get the first message")
     p.add_argument("--delay", type=float, default=0.0, metavar="S", help="sleep S seconds before playing")
     p.add_argument("--best-effort", action="store_true", help="publish best effort instead of reliable")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_play)
 
 

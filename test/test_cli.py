@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rollergear_ros.model import BREAKDOWN_KEYS, LossModel
 
-from helpers import BAGS, run_cli
+from helpers import BAGS, ROOT, run_cli
 
 
 def test_model_json_matches_the_library(config):
@@ -165,6 +167,47 @@ def test_version_help_texts_and_an_example_for_every_subcommand():
         # the example parses
         example = cli.EXAMPLES[name].split()[1:]
         assert parser.parse_args(example).command == name
+
+
+def test_the_nodes_help_prints_usage_and_every_parameter_without_starting_ros():
+    import subprocess
+    import sys
+
+    from rollergear_ros.params import parameter_specs
+
+    proc = subprocess.run([sys.executable, "-m", "rollergear_ros.node", "--help"], capture_output=True, text=True,
+                          timeout=120, env={**os.environ, "ROS_DOMAIN_ID": "231"})
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    text = proc.stdout
+    assert text.startswith("usage: loss_estimator") and "ros2 launch rollergear_ros loss_estimator.launch.py" in text
+    for spec in parameter_specs():  # each with its range
+        assert f"    {spec.name} (" in text and spec.allowed_text() in " ".join(text.split()), spec.name
+    # the contract it names is a file that exists here
+    where = text.rstrip().splitlines()[-1].split(": ", 1)[1]
+    assert Path(where).is_file() and Path(where).name == "interface.md"
+
+
+def test_the_docs_the_help_names_are_installed_with_the_package():
+    """``setup.py`` installs docs/*.md beside config/ and launch/ (``share/rollergear_ros/docs``)."""
+    import ast
+
+    tree = ast.parse((ROOT / "setup.py").read_text())
+    text = ast.unparse(tree)
+    assert "'share/' + package_name + '/docs', glob('docs/*.md')" in text
+    epilog = " ".join(run_cli("--help").stdout.split()).rsplit("channel maps: ", 1)[1]
+    assert Path(epilog).is_file() and Path(epilog).name == "interface.md"
+
+
+def test_play_names_the_format_it_was_given_and_takes_no_progress(tmp_path):
+    csv = tmp_path / "rig.csv"
+    csv.write_text("t,T,w\n0,1,2\n")
+    proc = run_cli("play", str(csv), "--no-progress", check=False)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert f"{csv} is a CSV file" in proc.stderr and f"rollergear import {csv}" in proc.stderr
+    fake = tmp_path / "fake.mcap"
+    fake.write_bytes(b"not an mcap at all")
+    proc = run_cli("play", str(fake), "--no-progress", check=False)
+    assert proc.returncode == 2 and "is not an MCAP file" in proc.stderr and "db3" not in proc.stderr
 
 
 @pytest.mark.parametrize(("args", "message"), [

@@ -100,6 +100,13 @@ def test_drifting_gearboxes_are_found_with_their_effect_and_day_and_no_healthy_o
     logs, truth = fleet
     rows, _ = run_calibrate(discover([str(logs)]), tmp_path, client, load_config(CONFIG), DAY_NS)
     assert len(rows) == 36 and all(r["status"] == "ok" for r in rows)
+    # each window as a date people read, the same instant as its nanoseconds
+    from datetime import UTC, datetime
+
+    for r in rows:
+        for end in ("start", "end"):
+            stamp = datetime.strptime(r[f"window_{end}"], "%Y-%m-%dT%H:%M:%SZ").replace(tzinfo=UTC)
+            assert int(stamp.timestamp()) * 10**9 == r[f"window_{end}_ns"] // 10**9 * 10**9
     found = {g.gearbox_id: g for g in drift(rows) if g.drifts}
     assert set(found) == set(truth["gearboxes"]), (sorted(found), truth["gearboxes"])
     for gid, t in truth["gearboxes"].items():
