@@ -22,7 +22,8 @@ import numpy as np
 from .channelmap import ChannelMap
 from .errors import InputFileError
 from .interface import Channel
-from .timeseries import TEMPERATURE_MAX_RATE_HZ, Aligned, Series, _require, _time_ns, has_value, numeric_column
+from .timeseries import (TEMPERATURE_MAX_RATE_HZ, Aligned, Series, _require, _time_ns, csv_reading, has_value,
+                         numeric_column)
 
 __all__ = ["BATCH_ROWS", "aligned_batches"]
 
@@ -38,15 +39,9 @@ def _batches(path: Path, cmap: ChannelMap, batch_rows: int) -> Iterator:
     if path.suffix.lower() == ".csv":
         import pyarrow.csv as pacsv
 
-        from .csvdialect import sniff
-
-        dialect = sniff(path, cmap)
-        if not dialect.header:
-            raise InputFileError(f"{path}: the file is empty")
-        _require(path, cmap, list(dialect.header))
+        dialect, convert = csv_reading(path, cmap)
         read = dialect.read_options()
         read.block_size = max(1 << 16, batch_rows * 16 * max(len(dialect.header), 1))
-        convert = pacsv.ConvertOptions(include_columns=wanted, decimal_point=dialect.decimal_point)
         try:
             reader = pacsv.open_csv(path, read_options=read, parse_options=dialect.parse_options(),
                                     convert_options=convert)

@@ -126,6 +126,7 @@ class Estimator:
         # alike: the same step, in the same float arithmetic, so a replay reproduces the node exactly)
         self._stateful = {n: p for n, p in self._active.items() if EFFECTS[n].state_step is not None}
         self._states: dict[str, float] = dict.fromkeys(self._stateful, 0.0)
+        self._steppers = [(n, EFFECTS[n].state_step, p) for n, p in self._stateful.items()]
         self._state_t_ns: int | None = None
         self._previous_speed = 0.0  # of the last sample estimated: a direction known twice in a row
         self._sensor_offset = self._active.get("torque_offset", {}).get("b", 0.0)
@@ -295,10 +296,11 @@ class Estimator:
     def _advance(self, t_ns: int, speed: float) -> dict[str, float]:
         """The states of the effects with memory after this sample (one step from the last one)."""
         dt = 0.0 if self._state_t_ns is None else (t_ns - self._state_t_ns) * 1e-9
-        for name, params in self._stateful.items():
-            self._states[name] = EFFECTS[name].state_step(self._states[name], speed, dt, params)
+        states = self._states
+        for name, step, params in self._steppers:
+            states[name] = step(states[name], speed, dt, params)
         self._state_t_ns = t_ns
-        return dict(self._states)
+        return states  # read within this sample only (the next one steps it on)
 
     def _advance_many(self, t_ns: np.ndarray, speed: np.ndarray) -> dict[str, np.ndarray]:
         """:meth:`_advance` for a batch: the same steps in the same float arithmetic (bit for bit)."""

@@ -145,7 +145,7 @@ def _identity(url: str, local: bool, group_by: str) -> tuple[str, tuple[int | No
             record = read_metadata(url, Metadata.GEARBOX) or {}
             gid = record.get("gearbox_id")
             info = inspect_bag(url)
-            if info.start_ns:
+            if info.message_count:  # log time may start at 0 (relative times of an imported table)
                 span = (info.start_ns, info.end_ns, info.message_count) if info.indexed else (info.start_ns, None, None)
         except RollergearError:
             pass  # a damaged recording: it fails in its task, with the reason
@@ -159,7 +159,7 @@ def _identity(url: str, local: bool, group_by: str) -> tuple[str, tuple[int | No
 def time_slices(rec: Recording, slice_messages: int = SLICE_MESSAGES) -> list[tuple[int | None, int | None]]:
     """The time slices ``[start, end)`` (``None``: open) a recording is replayed in: one, unless
     its MCAP summary counts more than ``slice_messages`` messages; then equal spans of log time."""
-    if not (rec.messages and rec.start_ns and rec.end_ns) or rec.messages <= slice_messages:
+    if not rec.messages or rec.start_ns is None or rec.end_ns is None or rec.messages <= slice_messages:
         return [(None, None)]
     n = math.ceil(rec.messages / slice_messages)
     edges = [rec.start_ns + (rec.end_ns - rec.start_ns) * i // n for i in range(1, n)]

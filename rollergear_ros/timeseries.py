@@ -122,11 +122,7 @@ def arrow_table(path: Path, cmap: ChannelMap):
     if path.suffix.lower() == ".csv":
         import pyarrow.csv as pacsv
 
-        dialect = sniff(path, cmap)
-        if not dialect.header:
-            raise InputFileError(f"{path}: the file is empty")
-        _require(path, cmap, list(dialect.header))
-        convert = pacsv.ConvertOptions(include_columns=wanted, decimal_point=dialect.decimal_point)
+        dialect, convert = csv_reading(path, cmap)
         try:
             table = pacsv.read_csv(path, read_options=dialect.read_options(), parse_options=dialect.parse_options(),
                                    convert_options=convert)
@@ -188,6 +184,19 @@ def has_value(table, spec: ChannelSpec) -> np.ndarray:
     if spec.constant is not None:
         return np.ones(table.num_rows, dtype=bool)
     return ~np.asarray(table.column(spec.column).is_null())
+
+
+def csv_reading(path: Path, cmap: ChannelMap):
+    """A CSV's dialect (:func:`~.csvdialect.sniff`) and the pyarrow conversion of the map's columns,
+    once the file is known to have them."""
+    import pyarrow.csv as pacsv
+
+    dialect = sniff(path, cmap)
+    if not dialect.header:
+        raise InputFileError(f"{path}: the file is empty")
+    _require(path, cmap, list(dialect.header))
+    return dialect, pacsv.ConvertOptions(include_columns=sorted(set(cmap.columns())),
+                                         decimal_point=dialect.decimal_point)
 
 
 def _require(path: Path, cmap: ChannelMap, available: list[str]) -> None:

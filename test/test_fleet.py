@@ -78,6 +78,29 @@ def test_long_recordings_are_replayed_in_time_slices_that_add_up_to_them(client,
     assert not (tmp_path / SLICES_TABLE).exists()  # every recording complete: no slices kept
 
 
+def test_time_slices_with_memory_on_the_cluster_add_up_to_one_replay(client, tmp_path):
+    """A joint with friction that lags each reversal (LuGre, scipy), the ``dahl`` effect on: a fleet
+    replays it in three time slices on the cluster, each slice's state settling in its lead-in;
+    the recording's row equals one replay of the whole."""
+    from test_lowspeed import joint_csv, joint_velocity, lugre_friction, memory_config
+
+    from rollergear_ros.importer import import_source
+
+    t, v = joint_velocity(rate=200.0, duration_s=120.0)
+    csv, cmap, _ = joint_csv(tmp_path, "joint", lugre_friction(t, v, 30.0, 0.3, 0.0), t, v)
+    (tmp_path / "logs").mkdir()
+    import_source(csv, tmp_path / "logs" / "joint.mcap", cmap)
+    config = memory_config().with_values({"estimator.adapt": False})  # slices would adapt each from the file
+    recs = discover([str(tmp_path / "logs")])
+    assert len(time_slices(recs[0], 25_000)) == 3
+    (row,), ran = run_replay(recs, tmp_path / "out", client, config, slice_messages=25_000)
+    assert ran == 1 and row["status"] == "ok" and row["slices"] == 3
+    whole, _ = replay(recs[0].path, config, show_progress=False)
+    assert (row["samples"], row["estimated"]) == (whole.samples, whole.estimated)
+    for field in ("energy_lost_j", "mean_loss_nm", "residual_mean_nm", "residual_rms_nm"):
+        assert row[field] == pytest.approx(getattr(whole, field), rel=1e-9), field
+
+
 def test_a_resumed_run_does_not_redo_the_slices_done(client, tmp_path):
     """A run stopped after two of a recording's five slices: the rerun runs the other three only."""
     (rec,) = discover([str(BAGS / "warmup.mcap")])

@@ -206,24 +206,3 @@ def test_a_state_is_stepped_the_same_sample_by_sample_and_in_batches():
             loss = np.array(batched)
             forwards = (t > 5.0) & (t < 5.5) & (speed > 8 * 0.002)
             assert loss[forwards][:5].max() < -0.15 and loss[forwards & (t > 5.4)].min() > 0.3
-
-
-def test_time_slices_with_memory_add_up_to_one_replay(tmp_path):
-    """A recording replayed in time slices (a fleet's tasks), the Dahl effect on: each slice's state
-    settles in its lead-in, so the slices' estimates add up to the whole replay's."""
-    from rollergear_ros.importer import import_source
-    from rollergear_ros.replay import replay
-
-    t, v = joint_velocity(rate=200.0, duration_s=200.0)
-    csv, cmap, _ = joint_csv(tmp_path, "long", lugre_friction(t, v, 30.0, 0.3, 0.0), t, v)
-    bag = tmp_path / "long.mcap"
-    import_source(csv, bag, cmap)
-    config = memory_config().with_values({"estimator.adapt": False})  # slices adapt from the file each
-    whole, _ = replay(bag, config, show_progress=False)
-    start = whole.start_ns
-    edges = [None, start + 70 * 10**9, start + 140 * 10**9, None]
-    parts = [replay(bag, config, show_progress=False, window_ns=(a, b))[0] for a, b in zip(edges[:-1], edges[1:])]
-    assert sum(p.estimated for p in parts) == whole.estimated
-    assert sum(p.energy_lost_j for p in parts) == pytest.approx(whole.energy_lost_j, rel=1e-12)
-    assert sum(p.residual_rms_nm ** 2 * p.residual_samples for p in parts) == pytest.approx(
-        whole.residual_rms_nm ** 2 * whole.residual_samples, rel=1e-9)
