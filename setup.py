@@ -16,6 +16,7 @@ setup(
         ("share/" + package_name + "/config", glob("config/*.yaml")),
         ("share/" + package_name + "/launch", glob("launch/*.launch.py") + glob("launch/*.launch.xml")),
         ("share/" + package_name + "/docs", glob("docs/*.md")),
+        ("share/" + package_name + "/layouts", glob("layouts/*.json") + glob("layouts/*.xml")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -72,6 +72,8 @@ class RecursiveLeastSquares:
     def update(self, phi: list[float], y: float) -> float:
         """One update; returns the a-priori prediction error ``y − φᵀθ``."""
         n = len(phi)
+        if n == 1:  # one adapted effect (the usual case): the same arithmetic without the loops
+            return self._update_one(phi[0], y)
         P = self.P
         pphi = [sum(P[i][j] * phi[j] for j in range(n)) for i in range(n)]
         denom = self.lam + sum(phi[i] * pphi[i] for i in range(n))
@@ -90,6 +92,22 @@ class RecursiveLeastSquares:
             for row in P:
                 for j in range(n):
                     row[j] *= s
+        return err
+
+
+    def _update_one(self, f: float, y: float) -> float:
+        """:meth:`update` for one parameter: the same operations in the same order (bit for bit)."""
+        p = self.P[0][0]
+        pphi = p * f
+        denom = self.lam + f * pphi
+        theta = self.theta[0]
+        err = y - theta * f
+        k = pphi / denom
+        self.theta = [theta + k * err]
+        p = (p - k * pphi) * (1.0 / self.lam)
+        if p > self.max_trace:
+            p *= self.max_trace / p
+        self.P[0][0] = p
         return err
 
 

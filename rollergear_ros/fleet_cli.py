@@ -58,15 +58,8 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     return 0
 
 
-def register_fleet(sub, with_params) -> None:
-    p = with_params(sub.add_parser(
-        "fleet", help="replay or calibrate a fleet's recordings on Dask: fleet table, drift, report",
-        description="Many recordings on a Dask cluster (a LocalCluster of worker processes unless --scheduler): "
-        "DIR/fleet.parquet (replay: a row per recording) or DIR/fleet_calibrate.parquet (a row per gearbox and "
-        "window), DIR/report.md with the drift ranking, DIR/maps/<gearbox>.vtlm. A rerun with the same --out "
-        "skips what is done."))
-    p.add_argument("action", choices=("replay", "calibrate"), help="replay each recording, or calibrate each "
-                   "gearbox per time window (and find drift)")
+def _common_options(p: argparse.ArgumentParser) -> None:
+    """The options ``fleet replay`` and ``fleet calibrate`` share: what to read, where, on which cluster."""
     p.add_argument("logs", nargs="+", metavar="LOGS", help="files, folders or globs, local or fsspec URLs "
                    "(s3://… where the filesystem package is installed)")
     p.add_argument("--out", required=True, metavar="DIR", help="folder for the tables, the report and the maps")
@@ -75,13 +68,38 @@ def register_fleet(sub, with_params) -> None:
     p.add_argument("--channels", metavar="MAP.yaml", help="channel map for CSV/Parquet/MDF4/TDMS recordings")
     p.add_argument("--group-by", choices=("auto", "folder", "metadata"), default="auto",
                    help="gearbox identity: metadata gearbox_id, else the folder (auto); or only one of them")
-    p.add_argument("--window-days", type=float, default=1.0, metavar="DAYS",
-                   help="calibration window (default 1 day)")
-    add_assume_option(p, prefix="calibrate: ")
-    p.add_argument("--slice-messages", type=int, default=SLICE_MESSAGES, metavar="N",
+
+
+def register_fleet(sub, with_params) -> None:
+    p = sub.add_parser(
+        "fleet", help="replay or calibrate a fleet's recordings on Dask: fleet table, drift, report",
+        description="Many recordings on a Dask cluster (a LocalCluster of worker processes unless --scheduler), "
+        "DIR/report.md and DIR/maps/<gearbox>.vtlm. A rerun with the same --out skips what is done. "
+        "'rollergear fleet replay --help' and 'rollergear fleet calibrate --help' give each action's options.")
+    actions = p.add_subparsers(dest="action", required=True, metavar="{replay,calibrate}",
+                               help="what to run on each recording; each has its own --help")
+    r = with_params(actions.add_parser(
+        "replay", help="replay each recording: DIR/fleet.parquet, a row per recording",
+        description="Replay each recording through the estimator on a Dask cluster: DIR/fleet.parquet (a row per "
+        "recording: energy, efficiency, residual), DIR/report.md. Long recordings are replayed in time slices, "
+        "a task each. A rerun with the same --out skips what is done.",
+        epilog="example: rollergear fleet replay fleet/ --out fleet_out/ --workers 2"))
+    _common_options(r)
+    r.add_argument("--slice-messages", type=int, default=SLICE_MESSAGES, metavar="N",
                    help="replay a recording of more messages in time slices of about N, one task each "
                    f"(default {SLICE_MESSAGES:,}: ~10 s a task on a 2-core machine of 2026)")
-    p.set_defaults(func=cmd_fleet)
+    r.set_defaults(func=cmd_fleet, window_days=1.0, assume=[])
+    c = with_params(actions.add_parser(
+        "calibrate", help="calibrate each gearbox per time window: DIR/fleet_calibrate.parquet, drift",
+        description="Calibrate each gearbox per time window on a Dask cluster: DIR/fleet_calibrate.parquet (a row "
+        "per gearbox and window), the drift ranking in DIR/report.md, DIR/maps/<gearbox>.vtlm. A rerun with the "
+        "same --out skips what is done.",
+        epilog="example: rollergear fleet calibrate fleet/ --out fleet_out/ --workers 2"))
+    _common_options(c)
+    c.add_argument("--window-days", type=float, default=1.0, metavar="DAYS",
+                   help="calibration window (default 1 day)")
+    add_assume_option(c)
+    c.set_defaults(func=cmd_fleet, slice_messages=SLICE_MESSAGES)
 
 
 REGISTER = [register_fleet]

@@ -13,7 +13,7 @@ import math
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 
 import numpy as np
@@ -701,28 +701,30 @@ def replay(
     collect: bool = False,
     window_ns: tuple[int | None, int | None] | None = None,
     summary_png: str | Path | None = None,
+    exports: Sequence[tuple[str, str | Path]] = (),
 ) -> tuple[ReplaySummary, list[BatchEstimate]]:
     """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``).
 
     ``summary_png``: draw the summary picture there (:mod:`.replay_plot`), also of an interrupted
-    replay (what was processed).
+    replay (what was processed).  ``exports``: ``(kind, path)`` tables of the estimates with their
+    inputs, a row per sample (:mod:`.exports`: ``csv``, ``parquet``, ``mf4``).
 
     ``window_ns``: a time slice ``[start, end)`` of the recording (``None``: open): only its samples
     are estimated and summed up, so that the slices of a long recording, replayed apart, add up to
     it (:class:`TimeWindow`).  Not with outputs (``out_mcap``, ``rrd``).
     """
-    if window_ns is not None and (out_mcap or rrd or summary_png):
+    if window_ns is not None and (out_mcap or rrd or summary_png or exports):
         raise UsageError("a time slice of a recording is replayed without outputs")
     stop = GracefulStop()  # first: from here on a signal leaves complete files
     try:
         return _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect, stop,
-                       window_ns, summary_png)
+                       window_ns, summary_png, exports)
     finally:
         stop.restore()
 
 
 def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect,
-            stop: GracefulStop, window_ns, summary_png) -> tuple[ReplaySummary, list[BatchEstimate]]:
+            stop: GracefulStop, window_ns, summary_png, exports) -> tuple[ReplaySummary, list[BatchEstimate]]:
     warnings: list[str] = []
 
     def _warn(msg: str) -> None:
@@ -765,10 +767,15 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
 
         acc.trace = SummaryTrace(info.counts.get(plan.joint_states or topics.motor_torque, 0))
     writer = rlog = bar = None
+    tables: list = []  # the exports being written
     completed = False  # an error (not an interrupt) leaves no output in place of an existing one
     try:
         with stop.critical():  # outputs are opened whole
             writer = _output_writer(out_mcap, info, config, topics) if out_mcap else None
+            if exports:
+                from .exports import Export
+
+                tables = [Export(kind, path) for kind, path in exports]
             if rrd:
                 from .review import RerunLog, SkipEvents
 
@@ -783,12 +790,13 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                 break
             if window is not None:  # a time slice (no outputs): its lead-in, its samples, its lead-out
                 for codes, t, v, source in window.split(batch, estimator):
-                    _emit(window.keep(estimator.push_many(codes, t, v, source), acc), None, None, acc, sink, topics)
+                    _emit(window.keep(estimator.push_many(codes, t, v, source), acc), None, None, acc, sink,
+                          topics, ())
             else:
                 with stop.critical():  # one batch's estimates and inputs, both or neither
                     summary.input_messages += len(batch.codes)
                     _emit(estimator.push_many(batch.codes, batch.t_ns, batch.values, batch.source_ns), writer,
-                          rlog, acc, sink, topics)
+                          rlog, acc, sink, topics, tables)
                     if rlog and len(batch.t_ns):
                         _skip_event(rlog, skip_events, estimator, int(batch.t_ns.max()))
                     if writer:
@@ -801,7 +809,7 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
         else:
             with stop.critical():
                 _emit(window.keep(estimator.flush(), acc) if window else estimator.flush(), writer, rlog, acc, sink,
-                      topics)
+                      topics, tables)
                 if rlog and acc.last_t is not None:
                     _skip_event(rlog, skip_events, estimator, acc.last_t)
         completed = True
@@ -815,6 +823,8 @@ def _replay(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn,
                 writer.close(commit=completed)
             if rlog:
                 rlog.close(commit=completed)
+            for table in tables:
+                table.close(commit_file=completed)
     summary.interrupted |= stop.requested  # a signal near the end is not ignored either
     summary.samples = estimator.motor_messages
     summary.estimated = estimator.estimated
@@ -882,7 +892,7 @@ def _output_writer(path: str | Path, info: BagInfo, config: Config, topics: Topi
 
 
 def _emit(b: BatchEstimate | None, writer: BagWriter | None, rlog, acc: _Accumulator, collected: list | None,
-          tm: TopicMap) -> None:
+          tm: TopicMap, tables: Sequence) -> None:
     """Hand one batch of estimates to the writers, the summary and the caller."""
     if b is None:
         return
@@ -900,6 +910,8 @@ def _emit(b: BatchEstimate | None, writer: BagWriter | None, rlog, acc: _Accumul
         writer.write_fixed(tm.loss_estimate, MessageType.JOINT_STATE, b.t_ns, payloads)
     if rlog:
         rlog.send_estimates(b)
+    for table in tables:
+        table.add(b)
 
 
 def _skip_event(rlog, skip_events, estimator: Estimator, t_ns: int) -> None:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from .bag import TopicMap
 from .cli import config_from_args
+from .exports import EXPORT_KINDS
 from .paths import Output, check_outputs
 from .errors import UsageError
 from .progress import TimedProgress
@@ -95,18 +96,22 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from .replay import replay
 
     png = summary_png_path(args)
+    exports = [(kind, getattr(args, kind)) for kind in EXPORT_KINDS if getattr(args, kind)]
     check_outputs([args.bag, args.params, args.channels],
                   [Output("--out", args.out, "mcap"), Output("--rrd", args.rrd, "rrd"),
-                   Output("--png" if args.png else "the summary picture", png, "png")])
+                   Output("--png" if args.png else "the summary picture", png, "png"),
+                   *(Output(f"--{kind}", path, kind) for kind, path in exports)])
     config = config_from_args(args)
     topics = topics_from_args(args)
     with as_mcap([args.bag], args.channels, topics, note=lambda m: print(m, file=sys.stderr)) as (bag,):
         summary, _ = replay(bag, config, topics, args.out, args.rrd,
                             show_progress=None if not args.no_progress else False,
-                            warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr), summary_png=png)
+                            warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr), summary_png=png,
+                            exports=exports)
     print(summary.text())
     for label, path in (("estimates", args.out), ("rerun recording", args.rrd),
-                        ("summary picture", summary.summary_png)):
+                        ("summary picture", summary.summary_png),
+                        *((f"{EXPORT_KINDS[kind]} table", path) for kind, path in exports)):
         if path:
             print(f"{label}: {path}")
     return 130 if summary.interrupted else 0
@@ -183,6 +188,9 @@ def register_replay(sub, with_params) -> None:
                    help="summary picture: loss, efficiency and residual over time, operating points over the "
                    "efficiency map (default: beside --out or --rrd, as .png)")
     p.add_argument("--no-png", action="store_true", help="no summary picture")
+    for kind, what in EXPORT_KINDS.items():
+        p.add_argument(f"--{kind}", metavar=f"OUT.{kind}", help=f"the estimates with their inputs as a {what} table, "
+                       "a row per sample, units " + ("in the header" if kind == "csv" else "with each column"))
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_channels_option(p)
     add_topic_options(p)

@@ -1,9 +1,10 @@
 """The replay's summary picture, for people without the viewer: one PNG per replayed recording.
 
-Left, over time: the loss torque (mean per time bin, with the bin's range), the efficiency in %,
-and -- where output torque was measured -- the measured against the estimated loss and the
-residual.  Right: the recording's operating points over the efficiency map of the model the
-replay used (the paper's model plus the accepted effects, :func:`.operating_points.evaluate_points`).
+Left, over time: the loss torque (mean per time bin, with the bin's range; where output torque
+was measured, the estimate drawn over the measured loss), the efficiency in %, the residual apart;
+the residual change detector's alarms marked on every time axis.  Right: the recording's operating
+points over the efficiency map of the model the replay used (the paper's model plus the accepted
+effects, :func:`.operating_points.evaluate_points`), speed in rpm as ``rollergear map`` draws it.
 
 :class:`SummaryTrace` collects what the picture needs while the replay runs, in bounded memory
 (a fixed number of time bins; an evenly thinned sample of operating points), so a day-long
@@ -20,10 +21,11 @@ import numpy as np
 from .atomic import save_figure
 from .errors import UsageError
 from .estimator import BatchEstimate
+from .interface import RPM_PER_RAD_S
 from .operating_points import evaluate_points, only, temperature_effects
 from .params import Config
 
-__all__ = ["SummaryTrace", "plot_summary"]
+__all__ = ["SummaryTrace", "plot_summary", "summary_figure"]
 
 #: time bins of the traces at least (a PNG is ~1 500 px wide)
 TIME_BINS = 1000
@@ -56,6 +58,7 @@ class SummaryTrace:
         self.high = {k: np.full(self.capacity, -np.inf) for k in self.SERIES}
         self.points: list[tuple[np.ndarray, np.ndarray]] = []
         self.temperatures: list[np.ndarray] = []
+        self.alarms_t_ns: set[int] = set()  #: the change detector's alarms (sample times)
 
     def _coarsen(self) -> None:
         """Double the bin width: bins 2k and 2k+1 become bin k."""
@@ -69,6 +72,7 @@ class SummaryTrace:
     def add(self, b: BatchEstimate) -> None:
         """One batch of estimates (in time order across batches, as the estimator gives them)."""
         n = len(b.t_ns)
+        self.alarms_t_ns.update(b.alarms_t_ns)
         if not n:
             return
         t = np.asarray(b.t_ns, np.int64)
@@ -108,6 +112,12 @@ class SummaryTrace:
             return np.empty(0), np.empty(0)
         return (np.concatenate([p[0] for p in self.points]), np.concatenate([p[1] for p in self.points]))
 
+    def alarm_times_s(self) -> list[float]:
+        """The alarms in seconds since the trace's first sample (the time axes' origin)."""
+        if self.start_ns is None:
+            return []
+        return [(t - self.start_ns) * 1e-9 for t in sorted(self.alarms_t_ns)]
+
     def median_temperature_c(self) -> float | None:
         t = np.concatenate(self.temperatures) if self.temperatures else np.empty(0)
         return float(np.median(t)) if len(t) else None
@@ -136,6 +146,19 @@ def _efficiency_map(config: Config, speed: np.ndarray, torque: np.ndarray, tempe
 
 def plot_summary(trace: SummaryTrace, config: Config, png_path: str | Path, title: str) -> Path:
     """Draw the summary picture (see the module docstring) to ``png_path``."""
+    fig = summary_figure(trace, config, title)  # selects the Agg backend first
+    import matplotlib.pyplot as plt
+
+    out = Path(png_path)
+    try:  # whole or not at all: an interrupt leaves no half-written picture
+        save_figure(fig, out)
+    finally:
+        plt.close(fig)
+    return out
+
+
+def summary_figure(trace: SummaryTrace, config: Config, title: str):
+    """The summary picture as a matplotlib figure (Agg): time axes left, the map right."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -148,15 +171,15 @@ def plot_summary(trace: SummaryTrace, config: Config, png_path: str | Path, titl
     axes = [fig.add_subplot(grid[0, 0])]
     axes += [fig.add_subplot(grid[i, 0], sharex=axes[0]) for i in range(1, rows)]
 
-    def draw(ax, key: str, label: str, color: str) -> None:
+    def draw(ax, key: str, label: str, color: str, zorder: float = 2.0) -> None:
         t_s, mean, low, high = trace.series(key)
         if len(t_s):
-            ax.fill_between(t_s, low, high, color=color, alpha=0.2, lw=0, step="mid")
-            ax.plot(t_s, mean, color=color, lw=0.9, label=label)
+            ax.fill_between(t_s, low, high, color=color, alpha=0.2, lw=0, step="mid", zorder=zorder)
+            ax.plot(t_s, mean, color=color, lw=0.9, label=label, zorder=zorder + 0.5, gid=key)
 
-    draw(axes[0], "loss_nm", "estimated loss (bin mean, range shaded)", "tab:red")
-    if has_residual:
-        draw(axes[0], "measured_nm", "measured loss", "0.3")
+    if has_residual:  # the measured loss under, the estimate over it: the estimate stays visible
+        draw(axes[0], "measured_nm", "measured loss", "0.45", zorder=2.0)
+    draw(axes[0], "loss_nm", "estimated loss (bin mean, range shaded)", "tab:red", zorder=3.0)
     axes[0].set_ylabel("loss torque [N·m]")
     axes[0].legend(fontsize=8, loc="upper right")
     draw(axes[1], "efficiency_pct", "efficiency", "tab:blue")
@@ -167,6 +190,11 @@ def plot_summary(trace: SummaryTrace, config: Config, png_path: str | Path, titl
         axes[2].set_ylabel("residual: measured −\nestimated loss [N·m]")
     for ax in axes:
         ax.grid(alpha=0.3)
+        for i, t_s in enumerate(trace.alarm_times_s()):
+            ax.axvline(t_s, color="tab:orange", lw=1.0, ls="--", zorder=4, gid="alarm",
+                       label="residual change alarm" if i == 0 and ax is axes[0] else None)
+    if trace.alarms_t_ns:
+        axes[0].legend(fontsize=8, loc="upper right")
     axes[-1].set_xlabel("time since the start of the recording [s]")
 
     ax_map = fig.add_subplot(grid[:, 1])
@@ -177,9 +205,10 @@ def plot_summary(trace: SummaryTrace, config: Config, png_path: str | Path, titl
             finite = eta[np.isfinite(eta)]
             lo = max(math.floor(float(np.percentile(finite, 2))), 50)
             levels = np.round(np.linspace(lo, 100.0, 11), 2)
-            cs = ax_map.contourf(ws, ts, eta.T, levels=levels, cmap="viridis", extend="min")
+            cs = ax_map.contourf(ws * RPM_PER_RAD_S, ts, eta.T, levels=levels, cmap="viridis", extend="min")
             fig.colorbar(cs, ax=ax_map, label="efficiency of the model [%]")
-        ax_map.scatter(speed, torque, s=2, color="tab:red", alpha=0.3, label="operating points (thinned)")
+        ax_map.scatter(speed * RPM_PER_RAD_S, torque, s=2, color="tab:red", alpha=0.3,
+                       label="operating points (thinned)")
         ax_map.set_title(f"operating points over the efficiency map{note}", fontsize=9)
         ax_map.axhline(0.0, color="w", lw=0.6)
         ax_map.axvline(0.0, color="w", lw=0.6)
@@ -190,13 +219,8 @@ def plot_summary(trace: SummaryTrace, config: Config, png_path: str | Path, titl
                             va="top" if y > 0.5 else "bottom", fontsize=8, color="w",
                             bbox={"facecolor": "0.2", "alpha": 0.5, "linewidth": 0})
         ax_map.legend(fontsize=8, loc="lower center")
-    ax_map.set_xlabel("drive speed [rad/s]")
+    ax_map.set_xlabel("drive speed [rpm]")
     ax_map.set_ylabel("drive torque [N·m]")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    out = Path(png_path)
-    try:  # whole or not at all: an interrupt leaves no half-written picture
-        save_figure(fig, out)
-    finally:
-        plt.close(fig)
-    return out
+    return fig

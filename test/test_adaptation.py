@@ -42,3 +42,18 @@ def test_rls_tracks_coefficients_with_bounded_covariance():
         rls.update(phi, 0.3 + 0.7 * phi[1] + rng.normal(0, 0.01))
         assert sum(rls.P[j][j] for j in range(2)) <= 10.0 + 1e-9
     assert rls.theta[0] == pytest.approx(0.3, abs=0.01) and rls.theta[1] == pytest.approx(0.7, abs=0.01)
+
+
+def test_rls_with_one_coefficient_is_the_general_update_bit_for_bit():
+    """The one-parameter shortcut does the general update's operations in the same order: the same
+    errors, coefficients and covariance to the last bit, with and without the trace bound acting."""
+    rng = np.random.default_rng(11)
+    for p0, max_trace in ((1.0, 1e6), (100.0, 0.5)):
+        one = RecursiveLeastSquares([0.2], 0.995, p0=p0, max_trace=max_trace)
+        general = RecursiveLeastSquares([0.2, 0.0], 0.995, p0=p0, max_trace=max_trace)
+        for _ in range(3000):  # a second regressor that is always 0 leaves the first one's update as it is
+            f, y = float(rng.normal() * rng.choice([1e-3, 1.0, 1e3])), float(rng.normal())
+            general.P[0][1] = general.P[1][0] = 0.0
+            general.P[1][1] = 0.0
+            assert one.update([f], y) == general.update([f, 0.0], y)
+            assert one.theta[0] == general.theta[0] and one.P[0][0] == general.P[0][0]

@@ -169,6 +169,16 @@ def test_version_help_texts_and_an_example_for_every_subcommand():
         assert parser.parse_args(example).command == name
 
 
+def test_fleet_replay_and_fleet_calibrate_have_their_own_help():
+    """Each fleet action lists its own options only, with its own example."""
+    replay, calibrate = run_cli("fleet", "replay", "--help").stdout, run_cli("fleet", "calibrate", "--help").stdout
+    assert "--slice-messages" in replay and "--window-days" not in replay and "--assume" not in replay
+    assert "--window-days" in calibrate and "--assume" in calibrate and "--slice-messages" not in calibrate
+    assert "example: rollergear fleet replay" in replay and "example: rollergear fleet calibrate" in calibrate
+    for text in (replay, calibrate):
+        assert "--out DIR" in text and "--params YAML" in text and "--workers N" in text
+
+
 def test_the_nodes_help_prints_usage_and_every_parameter_without_starting_ros():
     import subprocess
     import sys
@@ -187,13 +197,21 @@ def test_the_nodes_help_prints_usage_and_every_parameter_without_starting_ros():
     assert Path(where).is_file() and Path(where).name == "interface.md"
 
 
-def test_the_docs_the_help_names_are_installed_with_the_package():
-    """``setup.py`` installs docs/*.md beside config/ and launch/ (``share/rollergear_ros/docs``)."""
-    import ast
+def test_the_docs_and_layouts_are_installed_with_the_package(monkeypatch):
+    """``setup.py`` installs docs/*.md and the Foxglove/PlotJuggler layouts beside config/ and launch/
+    (``share/rollergear_ros/docs``, ``…/layouts``): its data files, as setuptools is handed them."""
+    import runpy
 
-    tree = ast.parse((ROOT / "setup.py").read_text())
-    text = ast.unparse(tree)
-    assert "'share/' + package_name + '/docs', glob('docs/*.md')" in text
+    import setuptools
+
+    handed = {}
+    monkeypatch.setattr(setuptools, "setup", lambda **kwargs: handed.update(kwargs))
+    monkeypatch.chdir(ROOT)
+    runpy.run_path(str(ROOT / "setup.py"))
+    data = {folder: sorted(Path(f).name for f in files) for folder, files in handed["data_files"]}
+    assert data["share/rollergear_ros/docs"] == sorted(p.name for p in (ROOT / "docs").glob("*.md"))
+    assert "interface.md" in data["share/rollergear_ros/docs"]
+    assert data["share/rollergear_ros/layouts"] == ["foxglove_rollergear.json", "plotjuggler_rollergear.xml"]
     epilog = " ".join(run_cli("--help").stdout.split()).rsplit("channel maps: ", 1)[1]
     assert Path(epilog).is_file() and Path(epilog).name == "interface.md"
 
@@ -251,13 +269,13 @@ def test_a_fifo_as_input_is_refused_not_waited_on(tmp_path, name, command):
         proc.stderr
 
 
-@pytest.mark.parametrize(("args", "message"), [
-    (["--window-days", "inf"], "--window-days must be a number of days in (0, 100,000], not inf"),
-    (["--window-days", "nan"], "--window-days must be a number of days"),
-    (["--slice-messages", "1"], "--slice-messages must be at least 10,000"),
+@pytest.mark.parametrize(("action", "args", "message"), [
+    ("calibrate", ["--window-days", "inf"], "--window-days must be a number of days in (0, 100,000], not inf"),
+    ("calibrate", ["--window-days", "nan"], "--window-days must be a number of days"),
+    ("replay", ["--slice-messages", "1"], "--slice-messages must be at least 10,000"),
 ])
-def test_fleet_limits_are_one_line(tmp_path, args, message):
+def test_fleet_limits_are_one_line(tmp_path, action, args, message):
     """``--window-days inf`` was an OverflowError traceback; ``--slice-messages 1`` ran for ever."""
-    proc = run_cli("fleet", "calibrate", str(BAGS / "rig_map.mcap"), "--out", str(tmp_path / "o"), *args,
+    proc = run_cli("fleet", action, str(BAGS / "rig_map.mcap"), "--out", str(tmp_path / "o"), *args,
                    check=False, timeout=120)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and message in proc.stderr, proc.stderr

@@ -232,6 +232,37 @@ def test_summary_picture_holds_the_replay_in_bounded_bins(tmp_path, config, batc
     assert f"summary picture: {tmp_path / 'est.png'}" in proc.stdout and (tmp_path / "est.png").exists()
 
 
+def test_summary_picture_draws_the_estimate_over_the_measured_loss_alarms_and_speeds_in_rpm(config):
+    """The estimate is drawn over the measured loss (it was hidden under it), each change alarm is a
+    line on every time axis at its sample time, and the map's speeds are in rpm like ``map``'s."""
+    import matplotlib.pyplot as plt
+
+    from rollergear_ros.interface import RPM_PER_RAD_S
+    from rollergear_ros.replay_plot import SummaryTrace, summary_figure
+
+    _, batches = replay(BAGS / "rig_map_drag.mcap", config, show_progress=False, collect=True)
+    alarms = sorted({t for b in batches for t in b.alarms_t_ns})
+    assert alarms  # the undeclared drag trips the detector
+    trace = SummaryTrace(sum(len(b.t_ns) for b in batches))
+    for b in batches:
+        trace.add(b)
+    fig = summary_figure(trace, config, "test")
+    try:
+        time_axes = fig.axes[:3]  # loss, efficiency, residual (output torque measured); then the map
+        assert time_axes[-1].get_xlabel().startswith("time since the start")
+        lines = {ln.get_gid(): ln for ln in fig.axes[0].get_lines()}
+        assert lines["loss_nm"].get_zorder() > lines["measured_nm"].get_zorder()
+        t0 = min(int(b.t_ns[0]) for b in batches if len(b.t_ns))
+        for ax in time_axes:
+            marked = [ln.get_xdata()[0] for ln in ax.get_lines() if ln.get_gid() == "alarm"]
+            np.testing.assert_allclose(marked, [(t - t0) * 1e-9 for t in alarms], rtol=0, atol=1e-9)
+        ax_map = next(ax for ax in fig.axes if ax.get_xlabel() == "drive speed [rpm]")
+        speed, torque = trace.operating_points()
+        np.testing.assert_allclose(ax_map.collections[-1].get_offsets()[:, 0], speed * RPM_PER_RAD_S)
+    finally:
+        plt.close(fig)
+
+
 def test_rrd_has_review_blueprint(tmp_path):
     from rerun.chunk import RrdReader
 
