@@ -22,8 +22,8 @@ import numpy as np
 from .channelmap import ChannelMap
 from .errors import InputFileError
 from .interface import Channel
-from .timeseries import (TEMPERATURE_MAX_RATE_HZ, Aligned, Series, _require, _time_ns, csv_reading, has_value,
-                         numeric_column)
+from .timeseries import (TEMPERATURE_MAX_RATE_HZ, Aligned, Series, _first_line, _require, _time_ns, csv_reading,
+                         has_value, numeric_column)
 
 __all__ = ["BATCH_ROWS", "aligned_batches"]
 
@@ -54,11 +54,14 @@ def _batches(path: Path, cmap: ChannelMap, batch_rows: int) -> Iterator:
 
         try:
             pf = pq.ParquetFile(path)
-        except pa.ArrowInvalid as exc:
-            raise InputFileError(f"{path}: not a Parquet file ({exc})") from None
+        except (pa.ArrowException, OSError) as exc:
+            raise InputFileError(f"{path}: not a Parquet file ({_first_line(exc)})") from None
         _require(path, cmap, pf.schema_arrow.names)
-        for batch in pf.iter_batches(batch_size=batch_rows, columns=wanted):
-            yield pa.Table.from_batches([batch])
+        try:
+            for batch in pf.iter_batches(batch_size=batch_rows, columns=wanted):
+                yield pa.Table.from_batches([batch])
+        except (pa.ArrowException, OSError) as exc:  # a damaged page or footer
+            raise InputFileError(f"{path}: a damaged Parquet file ({_first_line(exc)})") from None
 
 
 @dataclass

@@ -27,7 +27,7 @@ from __future__ import annotations
 import json
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import closing, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -137,7 +137,19 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
               topics.oil_temperature, topics.joint_states}
     counts: dict[str, int] = {}
     try:
-        with AnyReader(_rosbag2_paths(src)) as reader:
+        import apsw  # rosbags' SQLite driver, where installed: a damaged .db3 raises its errors
+
+        storage_errors: tuple[type[BaseException], ...] = (sqlite3.DatabaseError, apsw.Error)
+    except ImportError:
+        storage_errors = (sqlite3.DatabaseError,)
+    try:
+        reader = AnyReader(_rosbag2_paths(src))
+        try:
+            reader.open()
+        except (TypeError, KeyError, AttributeError, RecursionError) as exc:  # metadata.yaml taken on trust
+            raise InputFileError(f"{src}: a damaged rosbag2 metadata.yaml ({type(exc).__name__}: "
+                                 f"{str(exc)[:200]})") from None
+        with closing(reader):
             connections = [c for c in reader.connections if c.topic in wanted]
             if not any(c.topic in (topics.motor_torque, topics.joint_states) for c in connections):
                 found = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
@@ -151,7 +163,7 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
                                              f"({', '.join(sorted(MSG_DEFINITIONS))})")
                     bw.write_raw(con.topic, con.msgtype, t_ns, bytes(raw))
                     counts[con.topic] = counts.get(con.topic, 0) + 1
-    except (Rosbag2Error, AnyReaderError, FileNotFoundError, ValueError, yaml.YAMLError, sqlite3.DatabaseError) as exc:
+    except (Rosbag2Error, AnyReaderError, FileNotFoundError, ValueError, yaml.YAMLError, *storage_errors) as exc:
         reason = " ".join(str(exc).split())
         raise InputFileError(f"{src}: not a rosbag2 bag rosbags can read ({reason})") from None
     samples = counts.get(topics.motor_torque, counts.get(topics.joint_states, 0))

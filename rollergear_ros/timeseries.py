@@ -75,7 +75,7 @@ def read_series(path: str | Path, cmap: ChannelMap, notes: list[str] | None = No
         raise InputFileError(f"{path}: a {kind} file needs time: {{column: …, unit: s|ms|us|ns|datetime}} in the "
                              f"channel map {cmap.path} (only MDF4 and TDMS carry their own time)")
     series = _read_arrow(path, cmap, notes) if kind in ("CSV", "Parquet") else \
-        {"MDF4": _read_mdf4, "TDMS": _read_tdms}[kind](path, cmap)
+        _read_mdf4(path, cmap) if kind == "MDF4" else _read_tdms(path, cmap, notes)
     for name, s in series.items():
         back = np.flatnonzero(np.diff(s.t_ns) < 0)
         if back.size:
@@ -134,14 +134,22 @@ def arrow_table(path: Path, cmap: ChannelMap):
 
         try:
             available = pq.read_schema(path).names
-        except pa.ArrowInvalid as exc:
-            raise InputFileError(f"{path}: not a Parquet file ({exc})") from None
+        except (pa.ArrowException, OSError) as exc:
+            raise InputFileError(f"{path}: not a Parquet file ({_first_line(exc)})") from None
         _require(path, cmap, available)
-        table = pq.read_table(path, columns=wanted)
+        try:
+            table = pq.read_table(path, columns=wanted)
+        except (pa.ArrowException, OSError) as exc:  # a damaged page or footer
+            raise InputFileError(f"{path}: a damaged Parquet file ({_first_line(exc)})") from None
         first_line = 2
     if table.num_rows == 0:
         raise InputFileError(f"{path}: no data rows (only the column names)")
     return table, first_line
+
+
+def _first_line(exc: BaseException) -> str:
+    """The first line of an error's text (pyarrow's thrift errors run over several)."""
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
 
 
 def numeric_column(path: Path, name: str, spec: ChannelSpec, table) -> np.ndarray:
@@ -471,13 +479,36 @@ def _numbers(path: Path, name: str, column: str, values) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------ TDMS
-def _read_tdms(path: Path, cmap: ChannelMap) -> dict[str, Series]:
+def _read_tdms(path: Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
+    """The map's channels of a TDMS file; what nptdms warns of while reading a damaged file (a
+    segment cut short, an unknown version) goes to ``notes`` as one line, not to the log."""
+    import logging
+
     from nptdms import TdmsFile
 
+    warned: list[str] = []
+
+    class Collect(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            warned.append(" ".join(record.getMessage().split())[:120])
+
+    from nptdms.log import log_manager  # nptdms prints through a console handler of its own
+
+    handler, console = Collect(logging.WARNING), log_manager.console_handler
+    loggers, level = list(log_manager.loggers.values()), console.level
+    console.setLevel(logging.CRITICAL + 1)
+    for logger in loggers:
+        logger.addHandler(handler)
     try:
         tdms = TdmsFile.read(path)
     except Exception as exc:  # noqa: BLE001 - nptdms raises many types for a file that is not TDMS
         raise InputFileError(f"{path}: not a TDMS file nptdms can read ({exc})") from None
+    finally:
+        console.setLevel(level)
+        for logger in loggers:
+            logger.removeHandler(handler)
+    if warned and notes is not None:
+        notes.append(f"damaged TDMS, read as far as nptdms could ({len(warned)} warnings; first: {warned[0]})")
 
     def channel(name: str, column: str):
         group, _, chan = column.partition("/")

@@ -1,5 +1,6 @@
-"""A small mutation fuzzer over what users hand the package: MCAP recordings, channel-mapped CSV
-files with their channel maps, and parameter files.
+"""A small mutation fuzzer over what users hand the package: MCAP recordings, channel-mapped CSV,
+Parquet and TDMS files with their channel maps, rosbag2 bags (metadata.yaml and the SQLite file)
+and parameter files.
 
 Each case mutates a valid seed file (truncation, flipped bytes, hostile 64-bit lengths, inserted
 or repeated bytes; hostile YAML constructs for YAML files) and runs the package's own entry
@@ -27,6 +28,8 @@ from rollergear_ros.errors import RollergearError
 
 CASE_TIMEOUT_S = 30  #: a case running longer is a hang (the seeds take milliseconds)
 RSS_BOUND_MB = 1024  #: peak memory may grow at most this much over a whole run
+#: targets that draw from ``Fuzzer.file_rng``
+FILE_TARGETS = ("tdms", "parquet", "rosbag2")
 
 HOSTILE_U64 = (2**63, 2**64 - 1, 2**32, 2**31 - 1, 1 << 40, 0)
 HOSTILE_YAML = (
@@ -141,12 +144,16 @@ class Fuzzer:
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.rng = np.random.default_rng(seed)
+        # the file formats added later draw from a stream of their own, so the first targets' cases
+        # (and the seeds that once found a defect in them) stay what they were
+        self.file_rng = np.random.default_rng([seed, 1])
         self.seed = seed
         self.config = load_config(None)
         self.seeds = _write_seeds(self.workdir)
         self.targets: dict[str, Callable[[int], str]] = {
             "mcap": self._mcap_case, "csv": self._csv_case, "channel_map": self._channel_map_case,
-            "params": self._params_case}
+            "params": self._params_case, "tdms": self._tdms_case, "parquet": self._parquet_case,
+            "rosbag2": self._rosbag2_case}
 
     # ------------------------------------------------------------------ targets
     def _mcap_case(self, k: int) -> str:
@@ -182,6 +189,34 @@ class Fuzzer:
         load_config(p)
         return "result"
 
+    def _tdms_case(self, k: int) -> str:
+        """A TDMS file with damaged bytes (its lead-ins, properties such as wf_increment, data)."""
+        src = self.workdir / f"case{k}.tdms"
+        src.write_bytes(mutate_bytes(self.seeds["tdms"].read_bytes(), self.file_rng))
+        return self._import(src, self.seeds["tdms_map"], k)
+
+    def _parquet_case(self, k: int) -> str:
+        """A Parquet file with damaged bytes (footer, page headers, compressed pages)."""
+        src = self.workdir / f"case{k}.parquet"
+        src.write_bytes(mutate_bytes(self.seeds["parquet"].read_bytes(), self.file_rng))
+        return self._import(src, self.seeds["channel_map"], k)
+
+    def _rosbag2_case(self, k: int) -> str:
+        """A rosbag2 folder whose metadata.yaml (text) or .db3 (bytes) is damaged, imported to MCAP."""
+        import shutil
+
+        from rollergear_ros.importer import import_source
+
+        bag = self.workdir / f"case{k}_rosbag2"
+        shutil.copytree(self.seeds["rosbag2"], bag)
+        target = bag / ("metadata.yaml" if self.file_rng.random() < 0.5 else "seed_rosbag2.db3")
+        if target.suffix == ".yaml":
+            target.write_bytes(mutate_text(target.read_text(), self.file_rng))
+        else:
+            target.write_bytes(mutate_bytes(target.read_bytes(), self.file_rng))
+        out = self.workdir / f"case{k}_rosbag2.mcap"
+        return _writes_valid_mcap(out, lambda: import_source(bag, out, None))
+
     # ------------------------------------------------------------------ running
     def run(self, cases_per_target: int, report: FuzzReport | None = None) -> FuzzReport:
         report = report or FuzzReport()
@@ -190,7 +225,8 @@ class Fuzzer:
         try:
             for k in range(cases_per_target):
                 for name, case in self.targets.items():
-                    state = self.rng.bit_generator.state  # to reproduce a failure
+                    rng = self.file_rng if name in FILE_TARGETS else self.rng
+                    state = rng.bit_generator.state  # to reproduce a failure
                     t0 = time.perf_counter()
                     signal.alarm(CASE_TIMEOUT_S)
                     try:
@@ -241,7 +277,39 @@ def _write_seeds(workdir: Path) -> dict[str, Path]:
                     "motor_speed: {column: n_in, unit: rpm}\noutput_torque: {column: T_out, unit: N*m}\nratio: 1.368\n")
     params = workdir / "seed_params.yaml"
     params.write_text((Path(__file__).resolve().parents[1] / "config" / "gearbox.yaml").read_text())
-    return {"mcap": bag, "csv": csv, "channel_map": cmap, "params": params}
+    return {"mcap": bag, "csv": csv, "channel_map": cmap, "params": params, **_write_file_seeds(workdir, csv, bag)}
+
+
+def _write_file_seeds(workdir: Path, csv: Path, bag: Path) -> dict[str, Path]:
+    """The CSV's rows as Parquet (pyarrow) and as TDMS waveforms (nptdms, with its channel map); the
+    recording as a rosbag2 SQLite bag (rosbags' writer)."""
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+    from mcap.reader import make_reader
+    from nptdms import ChannelObject, TdmsWriter
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    table = pacsv.read_csv(csv)
+    parquet = workdir / "seed.parquet"
+    pq.write_table(table, parquet, row_group_size=64)
+    tdms = workdir / "seed.tdms"
+    with TdmsWriter(tdms) as writer:
+        writer.write_segment([ChannelObject("rig", name, table[name].to_numpy().astype(float),
+                                            properties={"wf_increment": 0.01, "wf_start_offset": 0.0})
+                              for name in ("T_in", "n_in", "T_out")])
+    tdms_map = workdir / "seed_tdms_map.yaml"
+    tdms_map.write_text("motor_torque: {column: rig/T_in, unit: N*mm}\nmotor_speed: {column: rig/n_in, unit: rpm}\n"
+                        "output_torque: {column: rig/T_out, unit: N*m}\nratio: 1.368\n")
+    rosbag2 = workdir / "seed_rosbag2"
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Writer(rosbag2, version=8, storage_plugin=StoragePlugin.SQLITE3) as writer, bag.open("rb") as fh:
+        conns = {}
+        for schema, channel, message in make_reader(fh).iter_messages(log_time_order=False):
+            if channel.topic not in conns:
+                conns[channel.topic] = writer.add_connection(channel.topic, schema.name, typestore=store)
+            writer.write(conns[channel.topic], message.log_time, message.data)
+    return {"parquet": parquet, "tdms": tdms, "tdms_map": tdms_map, "rosbag2": rosbag2}
 
 
 __all__ = ["FuzzReport", "Fuzzer", "mcap_output_problem", "mutate_bytes", "mutate_text"]

@@ -1,35 +1,43 @@
-"""A bounded fuzz run over the MCAP reader (through replay), the channel-map/CSV import and the
-parameter loader: random truncations, flipped bytes, hostile lengths and hostile YAML end in a
-result or one clear error, never a traceback, a hang or unbounded memory, and every MCAP written
-is valid.  ``bench/fuzz.py`` runs the same cases for as long as one likes."""
+"""A bounded fuzz run over the MCAP reader (through replay), the channel-map/CSV, Parquet, TDMS and
+rosbag2 imports and the parameter loader: random truncations, flipped bytes, hostile lengths and
+hostile YAML end in a result or one clear error, never a traceback, a hang or unbounded memory, and
+every MCAP written is valid.  ``bench/fuzz.py`` runs the same cases for as long as one likes."""
 
 from __future__ import annotations
 
 import pytest
 
-from fuzzer import Fuzzer
+from fuzzer import FILE_TARGETS, Fuzzer
 
-CASES_PER_TARGET = 150  # ~7 s here, well under a minute on a machine five times slower
+CASES_PER_TARGET = 100  # 7 targets: ~8 s here, under a minute on a machine five times slower
+FIRST_TARGETS = ("mcap", "csv", "channel_map", "params")  # they share one random stream
 
 
 def test_fuzz_the_readers_and_the_parameter_loader(tmp_path):
     report = Fuzzer(tmp_path, seed=2026).run(CASES_PER_TARGET)
     assert not report.failures, report.text()
-    assert report.cases == 4 * CASES_PER_TARGET
+    assert report.cases == 7 * CASES_PER_TARGET
     # the cases exercise both ends: damaged inputs that still give a result, and refusals
-    assert report.outcomes.get("mcap result", 0) and report.outcomes.get("mcap refused", 0), report.text()
+    for target in ("mcap", "tdms", "parquet", "rosbag2"):
+        assert report.outcomes.get(f"{target} result", 0) and report.outcomes.get(f"{target} refused", 0), \
+            report.text()
     assert report.outcomes.get("params refused", 0) and report.outcomes.get("csv refused", 0), report.text()
 
 
-@pytest.mark.parametrize(("seed", "cases", "found"), [
-    (1, 3, "a CSV header that is not UTF-8: UnicodeDecodeError"),
-    (1, 36, "a channel without its schema record (in a damaged chunk): KeyError copying the inputs"),
-    (11, 66, "a damaged summary: OverflowError in the mcap library's summary reader"),
-    (14, 62, "a summary whose statistics count a channel it does not define: KeyError"),
+@pytest.mark.parametrize(("targets", "seed", "cases", "found"), [
+    (FIRST_TARGETS, 1, 3, "a CSV header that is not UTF-8: UnicodeDecodeError"),
+    (FIRST_TARGETS, 1, 36, "a channel without its schema record (in a damaged chunk): KeyError copying the inputs"),
+    (FIRST_TARGETS, 11, 66, "a damaged summary: OverflowError in the mcap library's summary reader"),
+    (FIRST_TARGETS, 14, 62, "a summary whose statistics count a channel it does not define: KeyError"),
+    (FILE_TARGETS, 1, 1, "a damaged Parquet page: OSError from pyarrow (corrupt snappy data)"),
+    (FILE_TARGETS, 1, 7, "a damaged rosbag2 .db3: apsw.CorruptError while its messages were read"),
+    (FILE_TARGETS, 5, 16, "a rosbag2 metadata.yaml nested past the recursion limit: RecursionError"),
 ])
-def test_cases_the_fuzzer_once_found_stay_fixed(tmp_path, seed, cases, found):
+def test_cases_the_fuzzer_once_found_stay_fixed(tmp_path, targets, seed, cases, found):
     """Each of these runs ends with the case that raised the traceback named in ``found``."""
-    report = Fuzzer(tmp_path, seed=seed).run(cases)
+    fuzzer = Fuzzer(tmp_path, seed=seed)
+    fuzzer.targets = {name: case for name, case in fuzzer.targets.items() if name in targets}
+    report = fuzzer.run(cases)
     assert not report.failures, f"{found}: {report.text()}"
 
 

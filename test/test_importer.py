@@ -865,3 +865,16 @@ def test_bad_constants_are_one_line(tmp_path, entry, message):
                                      + entry + "\n")
     with pytest.raises(InputFileError, match=re.escape(message)):
         load_channel_map(tmp_path / "m.yaml")
+
+
+def test_a_damaged_tdms_is_read_as_far_as_it_goes_and_said_in_one_line(tmp_path):
+    """nptdms printed its own warnings (and a dump of the damaged bytes) to stderr; they are one note
+    in the import's summary now."""
+    src = tmp_path / "rig.tdms"
+    _tdms(src, {"wf_increment": 1e-3})
+    src.write_bytes(src.read_bytes()[:-500])  # the last segment's data cut short
+    (tmp_path / "map.yaml").write_text(TDMS_MAP)
+    proc = run_cli("import", str(src), "--channels", str(tmp_path / "map.yaml"), "--out", str(tmp_path / "o.mcap"))
+    assert "nptdms" not in proc.stderr and proc.stderr == ""
+    assert "damaged TDMS, read as far as nptdms could (" in proc.stdout
+    assert "Last segment of file has less data than expected" in proc.stdout
