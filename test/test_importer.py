@@ -868,8 +868,8 @@ def test_bad_constants_are_one_line(tmp_path, entry, message):
 
 
 def test_a_damaged_tdms_is_read_as_far_as_it_goes_and_said_in_one_line(tmp_path):
-    """nptdms printed its own warnings (and a dump of the damaged bytes) to stderr; they are one note
-    in the import's summary now."""
+    """The warnings nptdms printed to stderr (with a dump of the damaged bytes) are one note in the
+    import's summary."""
     src = tmp_path / "rig.tdms"
     _tdms(src, {"wf_increment": 1e-3})
     src.write_bytes(src.read_bytes()[:-500])  # the last segment's data cut short
