@@ -8,7 +8,10 @@ messages for an hour) unless --bag is given, then times:
   3. decoding message by message with ``mcap-ros2-support`` (on a slice, extrapolated);
   4. ``rollergear replay`` without an output file (what a fleet task does; #13's per-core target);
   5. ``rollergear replay`` (decode + pair + estimate + write the output MCAP).
-Usage: python bench/bench_replay.py [--minutes 60] [--rate 1000] [--keep DIR]
+With ``--memory``: replay (no output file) with the ``dahl`` effect on (a state stepped every sample)
+against the same replay with a memoryless ``drag_constant``, adaptation off and on, interleaved,
+the best of two each (#29: >= 0.7x).
+Usage: python bench/bench_replay.py [--minutes 60] [--rate 1000] [--keep DIR] [--memory]
 """
 
 from __future__ import annotations
@@ -49,17 +52,42 @@ def crc_cost(bag: Path) -> float:
     return total
 
 
+#: ``--memory``: the effect each replay has on (the memoryless twin is the baseline)
+EFFECT_ON = {
+    "drag_constant": {"effects.drag_constant.enabled": True, "effects.drag_constant.c_nm": 0.05},
+    "dahl": {"effects.dahl.enabled": True, "effects.dahl.c_nm": 0.05, "effects.dahl.presliding_rad": 0.01},
+}
+
+
+def memory_cost(bag: Path, config) -> None:
+    """Replay with ``dahl`` against replay with ``drag_constant``, adaptation off and on."""
+    for adapt in (False, True):
+        best = {}
+        for _ in range(2):
+            for name, values in EFFECT_ON.items():
+                cfg = config.with_values({**values, "estimator.adapt": adapt})
+                t0 = time.perf_counter()
+                replay(bag, cfg, show_progress=False)
+                best[name] = min(best.get(name, float("inf")), time.perf_counter() - t0)
+        print(f"replay, adaptation {'on ' if adapt else 'off'}: dahl {best['dahl']:.2f} s, drag_constant "
+              f"{best['drag_constant']:.2f} s -> {best['drag_constant'] / best['dahl']:.2f}x (target >= 0.7x)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--minutes", type=float, default=60.0)
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--bag", type=Path, help="use this recording instead of generating one")
     ap.add_argument("--keep", type=Path, help="directory for the generated files (default: a temp dir)")
+    ap.add_argument("--memory", action="store_true", help="only: replay with the dahl effect against drag_constant")
     args = ap.parse_args()
     work = args.keep or Path(tempfile.mkdtemp(prefix="rollergear_bench_"))
     work.mkdir(parents=True, exist_ok=True)
     config = load_config()
     bag = args.bag or long_bag(work / f"rig_{args.minutes:g}min_{args.rate:g}hz.mcap", args.minutes, args.rate)
+    if args.memory:
+        memory_cost(bag, config)
+        return
 
     from mcap.reader import make_reader
 

@@ -10,18 +10,19 @@ import pytest
 
 from helpers import ROOT
 
-SMALL = {
-    "bench_import.py": ["--minutes", "0.05"],
-    "bench_calibrate.py": ["--minutes", "0.5"],
-    "bench_replay.py": ["--minutes", "0.1"],
-    "bench_model.py": ["--samples", "100000"],
-}
+SMALL = [
+    ("bench_import.py", ["--minutes", "0.05"]),
+    ("bench_calibrate.py", ["--minutes", "0.5"]),
+    ("bench_replay.py", ["--minutes", "0.1"]),
+    ("bench_replay.py", ["--minutes", "0.1", "--memory"]),
+    ("bench_model.py", ["--samples", "100000"]),
+]
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("script", sorted(SMALL))
-def test_a_bench_script_runs_to_its_end(script, tmp_path):
-    args = SMALL[script] + ([] if script == "bench_model.py" else ["--keep", str(tmp_path)])
+@pytest.mark.parametrize(("script", "args"), SMALL)
+def test_a_bench_script_runs_to_its_end(script, args, tmp_path):
+    args = args + ([] if script == "bench_model.py" else ["--keep", str(tmp_path)])
     proc = subprocess.run([sys.executable, str(ROOT / "bench" / script), *args], capture_output=True, text=True,
                           cwd=ROOT / "bench", timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]

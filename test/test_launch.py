@@ -86,6 +86,7 @@ DEPENDENCIES = {
     "numpy": "python3-numpy", "scipy": "python3-scipy", "matplotlib": "python3-matplotlib", "yaml": "python3-yaml",
     "tqdm": "python3-tqdm", "mcap": "mcap-ros2-support", "mcap_ros2": "mcap-ros2-support",
     "zstandard": "mcap-ros2-support", "lz4": "mcap-ros2-support", "rosbags": "python3-rosbags-pip",
+    "apsw": "python3-rosbags-pip",  # rosbags' SQLite driver, installed with it (its errors are caught)
     "rerun": None, "pyarrow": None, "asammdf": None, "nptdms": None, "dask": None, "fsspec": None,
 }
 
