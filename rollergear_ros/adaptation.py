@@ -94,7 +94,6 @@ class RecursiveLeastSquares:
                     row[j] *= s
         return err
 
-
     def _update_one(self, f: float, y: float) -> float:
         """:meth:`update` for one parameter: the same operations in the same order (bit for bit)."""
         p = self.P[0][0]
