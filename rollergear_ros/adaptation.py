@@ -8,8 +8,10 @@ no rclpy import.
 
 from __future__ import annotations
 
+import inspect
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -27,29 +29,31 @@ def effect_coefficients(config: Config) -> dict[str, float]:
     return {n: config.effects.params(n)[EFFECTS[n].coefficient] for n in adaptive_effects(config)}
 
 
-def regressor_plan(names: Iterable[str], config: Config) -> list[tuple]:
-    """For each adaptive effect: its term, its parameters with the coefficient set to 1, and the
-    registry's ``regressor_scale`` -- worked out once, so the per-sample path only evaluates."""
+def regressor_plan(names: Iterable[str], config: Config) -> list[tuple[Callable[[EffectInputs], Any], float]]:
+    """For each adaptive effect: its term bound to its parameters with the coefficient set to 1
+    (positionally: the per-sample path builds no keyword dict), and the registry's
+    ``regressor_scale`` -- worked out once, so the per-sample path only evaluates."""
     plan = []
     for n in names:
-        params = config.effects.params(n)
-        term = EFFECTS[n].term
-        if EFFECTS[n].needs_temperature:  # a missing temperature: the effect at its reference viscosity
-            term = _at_known_temperature(term)
-        plan.append((term, {**params, EFFECTS[n].coefficient: 1.0}, EFFECTS[n].regressor_scale(params)))
+        params = {**config.effects.params(n), EFFECTS[n].coefficient: 1.0}
+        plan.append((_bound_term(EFFECTS[n].term, params, EFFECTS[n].needs_temperature),
+                     EFFECTS[n].regressor_scale(config.effects.params(n))))
     return plan
 
 
-def _at_known_temperature(term):
-    def at_known(x: EffectInputs, **params):
-        return term(with_temperature(x, params), **params)
-    return at_known
+def _bound_term(term, params: dict[str, float], needs_temperature: bool) -> Callable[[EffectInputs], Any]:
+    """``x -> term(x, **params)`` with the parameters passed by position (the same call, cheaper);
+    an effect that follows the oil sees a missing temperature at its reference viscosity."""
+    args = tuple(params[name] for name in list(inspect.signature(term).parameters)[1:])
+    if needs_temperature:
+        return lambda x: term(with_temperature(x, params), *args)
+    return lambda x: term(x, *args)
 
 
 def regressors(plan: list[tuple], x: EffectInputs) -> list:
     """Normalised regressor of each adaptive effect of a :func:`regressor_plan`: its term with
     coefficient 1 over its scale (a well-conditioned RLS covariance); floats or arrays."""
-    return [term(x, **params) / scale for term, params, scale in plan]
+    return [term(x) / scale for term, scale in plan]
 
 
 class RecursiveLeastSquares:
@@ -102,7 +106,7 @@ class RecursiveLeastSquares:
         theta = self.theta[0]
         err = y - theta * f
         k = pphi / denom
-        self.theta = [theta + k * err]
+        self.theta[0] = theta + k * err
         p = (p - k * pphi) * (1.0 / self.lam)
         if p > self.max_trace:
             p *= self.max_trace / p

@@ -110,7 +110,7 @@ class Estimator:
         self.adaptive = adaptive_effects(config) if est.adapt else ()
         coef = effect_coefficients(config)
         self._regressor_plan = regressor_plan(self.adaptive, config)
-        self._scales = [scale for _term, _params, scale in self._regressor_plan]
+        self._scales = [scale for _term, scale in self._regressor_plan]
         self.rls = RecursiveLeastSquares([coef[n] * s for n, s in zip(self.adaptive, self._scales)],
                                          est.rls_forgetting, 1.0, est.rls_max_covariance)
         self.detector = ChangeDetector(est.change_block_samples, est.change_threshold_nm)
@@ -119,6 +119,7 @@ class Estimator:
         self._fr_scaling = any(EFFECTS[n].scales_fr for n in self._active)
         self._needs_temperature = any(EFFECTS[n].needs_temperature for n in self._active)
         self._sensor = [not EFFECTS[n].physical for n in self.adaptive]
+        self._one_physical = self._sensor == [False]
         # effects with their configured coefficients (all of them when adaptation is off)
         self._fixed = {n: p for n, p in self._active.items() if n not in self.adaptive}
         self._fixed_additive = any(not EFFECTS[n].scales_fr for n in self._fixed)
@@ -265,9 +266,9 @@ class Estimator:
         mag = self.model.loss_magnitude_scalar(t, w, vscale)
         # the effects' inputs, fixed terms and regressors, once per sample for the estimate and the RLS
         state = self._advance(s.t_ns, w) if self._stateful else {}
-        x = EffectInputs(at, aw, t, sg, s.temperature_c, state=state) if self._additive or self.adaptive else None
+        x = EffectInputs(at, aw, t, sg, s.temperature_c, 1.0, state) if self._additive or self.adaptive else None
         fixed = additive_terms(self._fixed, x) if self._fixed_additive else None
-        phi = regressors(self._regressor_plan, x) if self.adaptive else ()
+        phi = [term(x) / scale for term, scale in self._regressor_plan] if self.adaptive else ()  # regressors()
         phys, sens = self._effects_scalar(fixed, phi)
         loss = mag + phys
         meas = self._measured_loss_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s, self._previous_speed)
@@ -322,6 +323,8 @@ class Estimator:
         if not self._additive:
             return 0.0, 0.0
         phys, sens = (fixed.physical_nm, fixed.sensor_nm) if fixed is not None else (0.0, 0.0)
+        if self._one_physical:  # the usual case: the loop below for one physical effect
+            return phys + self.rls.theta[0] * phi[0], sens
         for is_sensor, th, f in zip(self._sensor, self.rls.theta, phi):
             if is_sensor:
                 sens += th * f
