@@ -44,12 +44,10 @@ from .model import LossModel
 from .modelparams import MODEL_PARAMETERS
 from .oil import vogel_from_datasheet
 from .params import Config, ParameterError, config_to_yaml, validate
-from .report import write_report
 from .samples import SampleData, load_samples
 from .selection import AmbiguousSet, Calibrator, ErrorStats, RejectedEffect, Term, error_stats, members
 
-__all__ = ["Adequacy", "CalibrationResult", "SampleData", "calibrate", "calibrated_yaml", "load_samples",
-           "write_report"]
+__all__ = ["Adequacy", "CalibrationResult", "SampleData", "calibrate", "calibrated_yaml", "load_samples"]
 
 
 @dataclass(frozen=True)

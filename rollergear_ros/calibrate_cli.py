@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from .cli import config_from_args
+from .cliargs import config_from_args
 from .effects import EFFECTS
 from .paths import Output, check_outputs
 from .progress import TimedProgress

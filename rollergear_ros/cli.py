@@ -19,40 +19,9 @@ import numpy as np
 from .errors import InputFileError, RollergearError, UsageError
 from .interface import package_version
 from .nodehelp import contract_line
-from .params import Config, load_config
+from . import calibrate_cli, fleet_cli, player, replay_cli, watch
+from .cliargs import config_from_args, default_params_path, finite_float
 from .paths import Output, check_input_file, check_outputs
-
-DEFAULT_PARAMS = Path(__file__).resolve().parent.parent / "config" / "gearbox.yaml"
-
-
-def default_params_path() -> Path | None:
-    """The package's ``config/gearbox.yaml``: source tree, or the installed ``share/`` copy."""
-    if DEFAULT_PARAMS.exists():
-        return DEFAULT_PARAMS
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        p = Path(get_package_share_directory("rollergear_ros")) / "config" / "gearbox.yaml"
-        return p if p.exists() else None
-    except Exception:  # noqa: BLE001 - no ament index: fall back to the built-in defaults
-        return None
-
-
-def config_from_args(args: argparse.Namespace) -> Config:
-    path = getattr(args, "params", None)
-    if path is None:
-        path = default_params_path()
-    elif not Path(path).exists():
-        raise UsageError(f"parameter file {path} does not exist")
-    return load_config(path)
-
-
-def _finite(s: str) -> float:
-    v = float(s)
-    if not math.isfinite(v):
-        raise argparse.ArgumentTypeError(f"{s!r} is not a finite number")
-    return v
-
 
 # ---------------------------------------------------------------------------------- model
 def cmd_model(args: argparse.Namespace) -> int:
@@ -198,6 +167,11 @@ def cmd_map(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------- parser
 #: one example per subcommand, shown at the end of its --help
+#: the subcommands living in modules of their own: each module's ``REGISTER`` (functions that add
+#: their subparser); ``model``, ``figures`` and ``map`` are built here
+SUBCOMMAND_REGISTERS = (*replay_cli.REGISTER, *calibrate_cli.REGISTER, *fleet_cli.REGISTER, *player.REGISTER,
+                        *watch.REGISTER)
+
 EXAMPLES = {
     "model": "rollergear model --torque 1 10 50 --speed 104.72 --params calibrated.yaml",
     "figures": "rollergear figures --out figures/",
@@ -224,10 +198,10 @@ def build_parser() -> argparse.ArgumentParser:
         return p
 
     p = with_params(sub.add_parser("model", help="evaluate the loss model at torque/speed points"))
-    p.add_argument("--torque", type=_finite, nargs="+", metavar="NM", help="drive torques [N·m] (signed)")
-    p.add_argument("--speed", type=_finite, nargs="+", metavar="RAD_S", help="drive speeds [rad/s] (signed)")
+    p.add_argument("--torque", type=finite_float, nargs="+", metavar="NM", help="drive torques [N·m] (signed)")
+    p.add_argument("--speed", type=finite_float, nargs="+", metavar="RAD_S", help="drive speeds [rad/s] (signed)")
     p.add_argument("--csv", metavar="FILE", help="CSV with torque_nm, speed_rad_s columns")
-    p.add_argument("--oil-temperature-c", type=_finite, metavar="DEGC",
+    p.add_argument("--oil-temperature-c", type=finite_float, metavar="DEGC",
                    help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=cmd_model)
@@ -239,20 +213,20 @@ def build_parser() -> argparse.ArgumentParser:
     p = with_params(sub.add_parser("map", help="VECTO loss map (.vtlm) of the calibrated model + efficiency/loss PNG"))
     p.add_argument("--out", default="lossmap.vtlm", metavar="VTLM",
                    help="the map (VECTO CSV layout); its PNG goes next to it (default: lossmap.vtlm)")
-    p.add_argument("--speed-rpm", type=_finite, nargs=3, metavar=("START", "STOP", "STEP"),
+    p.add_argument("--speed-rpm", type=finite_float, nargs=3, metavar=("START", "STOP", "STEP"),
                    help="speed grid, >= 0 (default: the map section of the parameter file, 0 to the rated speed)")
-    p.add_argument("--torque-nm", type=_finite, nargs=3, metavar=("START", "STOP", "STEP"),
+    p.add_argument("--torque-nm", type=finite_float, nargs=3, metavar=("START", "STOP", "STEP"),
                    help="torque grid, both signs (default: the map section of the parameter file, -100 100 5)")
     p.add_argument("--both-directions", action="store_true",
                    help="also reverse rotation, to a second file NAME_reverse.vtlm (VECTO maps have speeds >= 0)")
-    p.add_argument("--oil-temperature-c", type=_finite, metavar="DEGC",
+    p.add_argument("--oil-temperature-c", type=finite_float, metavar="DEGC",
                    help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
     p.add_argument("--recording", action="append", default=[], metavar="BAG",
                    help="warn when this recording visited operating points outside the map (repeatable)")
     p.add_argument("--no-plot", action="store_true", help="no PNG")
     p.set_defaults(func=cmd_map)
 
-    for register in _EXTRA_COMMANDS:
+    for register in SUBCOMMAND_REGISTERS:
         register(sub, with_params)
     for name, parser in sub.choices.items():
         parser.formatter_class = argparse.RawDescriptionHelpFormatter
@@ -261,11 +235,7 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-_EXTRA_COMMANDS: list = []
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    _load_extra_commands()
     ap = build_parser()
     args = ap.parse_args(argv)
     try:
@@ -284,23 +254,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         # the file system refused (disk full, permissions changed during the run): one line
         print(f"rollergear: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
         return 2
-
-
-def _load_extra_commands() -> None:
-    """Subcommands living in their own modules register themselves here."""
-    if _EXTRA_COMMANDS:
-        return
-    import importlib
-
-    for name in ("rollergear_ros.replay_cli", "rollergear_ros.calibrate_cli", "rollergear_ros.fleet_cli",
-                 "rollergear_ros.player", "rollergear_ros.watch"):
-        try:
-            mod = importlib.import_module(name)
-        except ModuleNotFoundError as exc:
-            if exc.name != name:
-                raise
-            continue
-        _EXTRA_COMMANDS.extend(mod.REGISTER)
 
 
 if __name__ == "__main__":  # run as the package's module so exception classes are shared

@@ -19,7 +19,8 @@ import numpy as np
 from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, adaptive_effects,
                          effect_coefficients, regressor_plan, regressors)
 from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale
-from .model import LossModel, efficiency, rotation_sign, rotation_sign_scalar
+from .equations import efficiency
+from .model import LossModel, rotation_sign, rotation_sign_scalar
 from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
                       SyncedSample, is_lost, lost_mask, pairing_tolerance_s, samples_to_arrays)
 from .params import Config

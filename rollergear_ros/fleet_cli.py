@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from .calibrate_cli import add_assume_option
-from .cli import config_from_args
+from .cliargs import config_from_args
 from .errors import UsageError
 from .fleet import SLICE_MESSAGES
 from .paths import Output, check_outputs

@@ -28,7 +28,7 @@ from . import safeyaml
 from .effects import EFFECTS, REGISTRY_VERSION
 from .errors import ParameterError
 from .interface import NODE_NAME
-from .model import contact_geometry
+from .equations import contact_geometry
 
 
 

@@ -9,7 +9,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from .bag import TopicMap
-from .cli import config_from_args
+from .cliargs import config_from_args
 from .exports import EXPORT_KINDS
 from .paths import Output, check_outputs
 from .errors import UsageError

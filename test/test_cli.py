@@ -155,7 +155,6 @@ def test_version_help_texts_and_an_example_for_every_subcommand():
     from rollergear_ros import cli
 
     assert run_cli("--version").stdout.strip() == f"rollergear {cli.package_version()}"
-    cli._load_extra_commands()
     parser = cli.build_parser()
     commands = parser._subparsers._group_actions[0].choices
     assert set(commands) == set(cli.EXAMPLES)
