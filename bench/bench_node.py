@@ -11,7 +11,10 @@ on that topic; the echo node still answers four messages with four.
 With ``--memory`` the baseline is loss_estimator itself, against loss_estimator with a memoryless
 ``drag_constant`` and with the ``dahl`` effect on (a state stepped every sample), both adapted online
 (``estimator.adapt``): the cost of adapting an effect, and what a memory adds to it.
+With ``--estimator-only`` no DDS: the estimator each loss_estimator runs, fed the driver's messages
+in-process (what the node adds to rclpy's per-message cost), in µs per sample.
 Usage: python bench/bench_node.py [--seconds 5] [--repeat 3] [--pin] [--no-outputs] [--stamped] [--memory]
+                                  [--estimator-only]
 """
 
 from __future__ import annotations
@@ -42,6 +45,29 @@ EFFECT_ON = {
     "loss_estimator+dahl": ("effects.dahl.enabled:=true", "effects.dahl.c_nm:=0.05",
                             "effects.dahl.presliding_rad:=0.01"),
 }
+
+
+def estimator_cost_us(kind: str, samples: int = 60_000, with_outputs: bool = True) -> float:
+    """µs per sample of the estimator ``kind``'s node runs (arrival pairing, as the events executor),
+    fed the driver's four messages per sample in-process: pairing, model, effects, adaptation."""
+    from rollergear_ros.estimator import Estimator
+    from rollergear_ros.pairing import OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
+    from rollergear_ros.params import load_config
+
+    overrides = dict(arg.split(":=") for arg in EFFECT_ON.get(kind, ()))
+    config = load_config(ROOT / "config" / "gearbox.yaml",
+                         {k: (True if v == "true" else float(v)) for k, v in overrides.items()})
+    push = Estimator(config, "arrival").push
+    t = 1_000_000_000
+    t0 = time.perf_counter()
+    for k in range(samples):
+        t += 100_000
+        push(TORQUE, t, 10.0 + k % 50)
+        push(SPEED, t + 1, 100.0)
+        if with_outputs:
+            push(OUT_TORQUE, t + 2, 13.0 + k % 50)
+            push(OUT_SPEED, t + 3, 73.0)
+    return (time.perf_counter() - t0) / samples * 1e6
 
 
 def start_sut(kind: str, executor: str, cpu: int | None = None, stamped: bool = False) -> subprocess.Popen:
@@ -162,7 +188,18 @@ def main() -> None:
         action="store_true",
         help="driver on CPU 0, system under test on CPU 1 (so they do not compete for a core)",
     )
+    ap.add_argument("--estimator-only", action="store_true",
+                    help="no DDS: the estimator of each loss_estimator in-process, µs per sample")
     args = ap.parse_args()
+    if args.estimator_only:
+        kinds = ("loss_estimator", *EFFECT_ON) if args.memory else ("loss_estimator",)
+        costs = {k: [] for k in kinds}
+        for _ in range(args.repeat):
+            for k in kinds:
+                costs[k].append(estimator_cost_us(k, with_outputs=not args.no_outputs))
+        for k in kinds:
+            print(f"{k:28s} estimator without DDS: {', '.join(f'{c:.1f}' for c in costs[k])} µs per sample")
+        return
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
     if args.pin:
         os.sched_setaffinity(0, {0})
