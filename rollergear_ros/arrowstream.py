@@ -21,6 +21,7 @@ import numpy as np
 
 from .channelmap import ChannelMap
 from .errors import InputFileError
+from .formats import is_format
 from .interface import Channel
 from .timeseries import (TEMPERATURE_MAX_RATE_HZ, Aligned, Series, _first_line, _require, _time_ns, csv_reading,
                          has_value, numeric_column)
@@ -36,7 +37,7 @@ def _batches(path: Path, cmap: ChannelMap, batch_rows: int) -> Iterator:
     import pyarrow as pa
 
     wanted = sorted(set(cmap.columns()))
-    if path.suffix.lower() == ".csv":
+    if is_format(path, "CSV"):
         import pyarrow.csv as pacsv
 
         dialect, convert = csv_reading(path, cmap)
@@ -98,7 +99,7 @@ def aligned_batches(path: str | Path, cmap: ChannelMap, batch_rows: int = BATCH_
     from .csvdialect import sniff
     from .timeseries import time_base
 
-    clock = time_base(path, cmap, sniff(path, cmap) if path.suffix.lower() == ".csv" else None)
+    clock = time_base(path, cmap, sniff(path, cmap) if is_format(path, "CSV") else None)
     batches = _batches(path, cmap, batch_rows)
     final = False
     while not final:

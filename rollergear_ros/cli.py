@@ -166,12 +166,12 @@ def cmd_map(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------------- parser
-#: one example per subcommand, shown at the end of its --help
 #: the subcommands living in modules of their own: each module's ``REGISTER`` (functions that add
 #: their subparser); ``model``, ``figures`` and ``map`` are built here
 SUBCOMMAND_REGISTERS = (*replay_cli.REGISTER, *calibrate_cli.REGISTER, *fleet_cli.REGISTER, *player.REGISTER,
                         *watch.REGISTER)
 
+#: one example per subcommand, shown at the end of its --help
 EXAMPLES = {
     "model": "rollergear model --torque 1 10 50 --speed 104.72 --params calibrated.yaml",
     "figures": "rollergear figures --out figures/",

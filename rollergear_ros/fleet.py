@@ -30,6 +30,7 @@ from pathlib import Path
 
 from .atomic import replacing
 from .errors import RollergearError, UsageError
+from .formats import is_format, recording_suffixes
 from .interface import Metadata
 from .params import Config, config_to_yaml
 
@@ -43,7 +44,6 @@ SLICES_TABLE = "fleet_slices.parquet"  #: the time slices done of recordings not
 #: a recording of more messages is replayed in time slices of about this many: a task then takes
 #: ~10 s here (replay without outputs: ~3 M messages/s per core), under a minute on a machine 5x slower
 SLICE_MESSAGES = 30_000_000
-SOURCE_SUFFIXES = (".mcap", ".db3", ".csv", ".parquet", ".mf4", ".mdf", ".tdms")
 GLOB_CHARS = set("*?[")
 
 
@@ -85,7 +85,7 @@ def discover(logs: Sequence[str], group_by: str = "auto", exclude: str | Path | 
         elif local and os.path.isdir(root):
             paths = _local_files(root)
         elif fs.isdir(root):
-            paths = sorted(p for p in fs.find(root) if p.lower().endswith(SOURCE_SUFFIXES))
+            paths = sorted(p for p in fs.find(root) if p.lower().endswith(recording_suffixes()))
         elif fs.exists(root) or os.path.islink(root):
             paths = [root]
         else:
@@ -104,7 +104,7 @@ def discover(logs: Sequence[str], group_by: str = "auto", exclude: str | Path | 
             gid, span = _identity(url, local, group_by)
             found[url] = Recording(url, gid, int(info.get("size") or 0), mtime, *span)
     if not found:
-        raise UsageError(f"no recordings under {', '.join(map(str, logs))} ({', '.join(SOURCE_SUFFIXES)})")
+        raise UsageError(f"no recordings under {', '.join(map(str, logs))} ({', '.join(recording_suffixes())})")
     return sorted(found.values(), key=lambda r: (r.gearbox_id, r.start_ns or 0, r.path))
 
 
@@ -113,7 +113,7 @@ def _local_files(root: str) -> list[str]:
     never end); a symlink to a file is listed (and checked by :func:`_unreadable`)."""
     paths = []
     for folder, _dirs, files in os.walk(root, followlinks=False):
-        paths += [os.path.join(folder, f) for f in files if f.lower().endswith(SOURCE_SUFFIXES)]
+        paths += [os.path.join(folder, f) for f in files if f.lower().endswith(recording_suffixes())]
     return sorted(paths)
 
 
@@ -138,7 +138,7 @@ def _identity(url: str, local: bool, group_by: str) -> tuple[str, tuple[int | No
     """Gearbox id and (start, end, message count) of a recording (metadata and summary of a local MCAP)."""
     folder = Path(url.rstrip("/")).parent.name or "fleet"
     gid, span = None, (None, None, None)
-    if local and url.lower().endswith(".mcap"):
+    if local and is_format(url, "MCAP"):
         from .bag import inspect_bag, read_metadata
 
         try:

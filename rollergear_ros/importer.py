@@ -36,8 +36,9 @@ import numpy as np
 from .bag import MSG_DEFINITIONS, BagWriter, TopicMap, float64_payloads, temperature_payloads
 from .channelmap import load_channel_map
 from .errors import InputFileError, UsageError
+from .formats import INPUT_FORMATS, input_format
 from .interface import Channel, MessageType
-from .timeseries import TIMESERIES_SUFFIXES, align, read_series
+from .timeseries import align, read_series
 
 __all__ = ["ImportSummary", "as_mcap", "import_source", "source_kind"]
 
@@ -76,23 +77,8 @@ class ImportSummary:
 
 
 def source_kind(path: str | Path) -> str:
-    """MCAP | rosbag2 | CSV | Parquet | MDF4 | TDMS | VTLM, by what ``path`` is."""
-    p = Path(path)
-    if not p.exists():
-        raise InputFileError(f"{p} does not exist")
-    if not (p.is_dir() or p.is_file()):  # a FIFO or a device would block or never end
-        raise InputFileError(f"{p} is not a regular file")
-    if p.is_dir() or p.name == "metadata.yaml" or p.suffix.lower() == ".db3":
-        return "rosbag2"
-    if p.suffix.lower() == ".mcap":
-        return "MCAP"
-    if p.suffix.lower() == ".vtlm":
-        return "VTLM"
-    kind = TIMESERIES_SUFFIXES.get(p.suffix.lower())
-    if kind is None:
-        raise InputFileError(f"{p}: not a recording this package reads (MCAP, a rosbag2 folder or .db3, a VECTO "
-                             f".vtlm, or {', '.join(sorted(TIMESERIES_SUFFIXES))} with --channels MAP.yaml)")
-    return kind
+    """The name of ``path``'s format in :data:`~.formats.INPUT_FORMATS` (MCAP, rosbag2, VTLM, CSV, …)."""
+    return input_format(path).name
 
 
 def import_source(src: str | Path, out: str | Path, channels: str | Path | None = None,
@@ -178,7 +164,7 @@ def _import_timeseries(src: Path, kind: str, out: Path, channels: str | Path, to
     notes: list[str] = []
     # CSV and Parquet in bounded batches (a small Parquet file can hold 30 M rows); MDF4 and TDMS whole,
     # as their libraries read channels
-    parts = aligned_batches(src, cmap, notes=notes) if kind in ("CSV", "Parquet") else \
+    parts = aligned_batches(src, cmap, notes=notes) if INPUT_FORMATS[kind].arrow else \
         iter([align(read_series(src, cmap, notes))])
     ratio_used: list[float] = []
 

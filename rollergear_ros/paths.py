@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import UsageError
+from .formats import suffixes as input_suffixes
 
 #: kind of output -> (what it is, the suffixes it may have)
 OUTPUT_KINDS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -31,9 +32,14 @@ OUTPUT_KINDS: dict[str, tuple[str, tuple[str, ...]]] = {
     "mf4": ("an MDF4 file", (".mf4", ".mdf")),
     "folder": ("a folder", ()),
 }
-#: suffixes that name a kind of file: an output with one of another kind's is refused
-KNOWN_SUFFIXES = frozenset(s for _, suffixes in OUTPUT_KINDS.values() for s in suffixes) | {
-    ".db3", ".tdms", ".json", ".md", ".txt", ".mat", ".jpg", ".jpeg", ".svg", ".pdf"}
+#: suffixes that name a kind of file besides the outputs and the input formats (:mod:`.formats`)
+OTHER_KNOWN_SUFFIXES = frozenset({".json", ".md", ".txt", ".mat", ".jpg", ".jpeg", ".svg", ".pdf"})
+
+
+def known_suffixes() -> frozenset[str]:
+    """Suffixes that name a kind of file: an output with one of another kind's is refused."""
+    return (frozenset(s for _, suffixes in OUTPUT_KINDS.values() for s in suffixes) | frozenset(input_suffixes())
+            | OTHER_KNOWN_SUFFIXES)
 
 
 @dataclass(frozen=True)
@@ -97,7 +103,7 @@ def check_outputs(inputs: Sequence[str | Path | None], outputs: Sequence[Output]
             raise UsageError(f"{out.option} {out.path} is a folder; give a file name")
         what, suffixes = OUTPUT_KINDS[out.kind]
         suffix = p.suffix.lower()
-        if suffix in KNOWN_SUFFIXES and suffix not in suffixes:
+        if suffix in known_suffixes() and suffix not in suffixes:
             raise UsageError(f"{out.option} {out.path}: {out.option} writes {what} ({' or '.join(suffixes)}), "
                              f"not a {suffix} file")
     for i, a in enumerate(given):
@@ -159,5 +165,5 @@ def check_input_file(option: str, path: str | Path | None) -> None:
         raise UsageError(f"{option} {path} is {'a folder' if p.is_dir() else 'not a regular file'}; give a file")
 
 
-__all__ = ["KNOWN_SUFFIXES", "OUTPUT_KINDS", "Output", "check_input_file", "check_output_file",
+__all__ = ["OUTPUT_KINDS", "Output", "check_input_file", "check_output_file", "known_suffixes",
            "check_output_folder", "check_outputs", "refuse_overwriting_inputs"]

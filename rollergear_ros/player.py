@@ -256,15 +256,15 @@ def init_for_command_line() -> None:
 def cmd_play(args: argparse.Namespace) -> int:
     import rclpy
 
-    from .importer import source_kind
+    from .formats import input_format
 
     if not (args.rate > 0):
         raise UsageError("--rate must be > 0")
-    kind = source_kind(args.bag)
-    if kind != "MCAP":  # what was given, and the way to a recording play can publish
-        raise UsageError(f"{args.bag} is a {kind} {'folder' if Path(args.bag).is_dir() else 'file'}: play publishes "
-                         f"ROS 2 MCAP recordings; convert it first: rollergear import {args.bag} --out REC.mcap"
-                         + (" --channels MAP.yaml" if kind not in ("rosbag2", "VTLM") else ""))
+    fmt = input_format(args.bag)
+    if fmt.family != "mcap":  # what was given, and the way to a recording play can publish
+        raise UsageError(f"{args.bag} is a {fmt.name} {'folder' if Path(args.bag).is_dir() else 'file'}: play "
+                         f"publishes ROS 2 MCAP recordings; convert it first: rollergear import {args.bag} --out "
+                         "REC.mcap" + (" --channels MAP.yaml" if fmt.family == "timeseries" else ""))
     init_for_command_line()
     try:
         play(Path(args.bag), args.rate, args.loop, args.clock, args.topics, args.wait_for_subscribers,

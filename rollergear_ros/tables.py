@@ -26,6 +26,7 @@ import numpy as np
 
 from .channelmap import ChannelMap, ChannelSpec
 from .errors import InputFileError
+from .formats import format_by_suffix, is_format
 from .interface import RPM_PER_RAD_S, Channel
 
 __all__ = ["SteadyStateTable", "is_table", "read_table", "read_vtlm"]
@@ -54,7 +55,7 @@ class SteadyStateTable:
 def is_table(path: str | Path, cmap: ChannelMap | None = None) -> bool:
     """Whether ``path`` is read as a steady-state table: a ``.vtlm``, or any file with a
     ``format: steady_state`` channel map."""
-    return Path(path).suffix.lower() == ".vtlm" or (cmap is not None and cmap.format == "steady_state")
+    return is_format(path, "VTLM") or (cmap is not None and cmap.format == "steady_state")
 
 
 def read_table(path: str | Path, cmap: ChannelMap | None = None, ratio: float | None = None) -> SteadyStateTable:
@@ -64,12 +65,12 @@ def read_table(path: str | Path, cmap: ChannelMap | None = None, ratio: float | 
         raise InputFileError(f"{path} does not exist")
     if not path.is_file():  # a folder, a FIFO or a device
         raise InputFileError(f"{path} is not a regular file")
-    if path.suffix.lower() == ".vtlm":
+    if is_format(path, "VTLM"):
         return read_vtlm(path)
     if cmap is None or cmap.format != "steady_state":
         raise InputFileError(f"{path}: a steady-state table is a .vtlm, or CSV/Parquet with a channel map of "
                              "format: steady_state")
-    if path.suffix.lower() not in (".csv", ".parquet"):
+    if not getattr(format_by_suffix(path), "arrow", False):  # read through pyarrow: CSV, Parquet
         raise InputFileError(f"{path}: steady-state tables are read from CSV or Parquet ({path.suffix!r})")
     return _read_mapped(path, cmap, ratio)
 

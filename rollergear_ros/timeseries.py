@@ -31,11 +31,11 @@ import numpy as np
 from .channelmap import ChannelMap, ChannelSpec, unit_matches
 from .csvdialect import is_number, sniff
 from .errors import InputFileError
+from .formats import INPUT_FORMATS, format_by_suffix, is_format, suffixes
 from .interface import Channel
 
-__all__ = ["Aligned", "Series", "TIMESERIES_SUFFIXES", "align", "arrow_table", "numeric_column", "read_series"]
+__all__ = ["Aligned", "Series", "align", "arrow_table", "numeric_column", "read_series"]
 
-TIMESERIES_SUFFIXES = {".csv": "CSV", ".parquet": "Parquet", ".mf4": "MDF4", ".mdf": "MDF4", ".tdms": "TDMS"}
 TEMPERATURE_MAX_RATE_HZ = 1.0
 
 
@@ -65,17 +65,17 @@ def read_series(path: str | Path, cmap: ChannelMap, notes: list[str] | None = No
         raise InputFileError(f"{path} does not exist")
     if not path.is_file():  # a folder, a FIFO or a device
         raise InputFileError(f"{path} is not a regular file")
-    kind = TIMESERIES_SUFFIXES.get(path.suffix.lower())
-    if kind is None:
+    fmt = format_by_suffix(path)
+    if fmt is None or fmt.family != "timeseries":
         raise InputFileError(f"{path}: unknown time-series format {path.suffix!r} "
-                             f"(one of {', '.join(sorted(TIMESERIES_SUFFIXES))})")
+                             f"(one of {', '.join(sorted(suffixes('timeseries')))})")
     if cmap.format != "timeseries":
         raise InputFileError(f"{path}: the channel map {cmap.path} is for format: {cmap.format}, not timeseries")
-    if kind in ("CSV", "Parquet") and cmap.time is None:
-        raise InputFileError(f"{path}: a {kind} file needs time: {{column: …, unit: s|ms|us|ns|datetime}} in the "
-                             f"channel map {cmap.path} (only MDF4 and TDMS carry their own time)")
-    series = _read_arrow(path, cmap, notes) if kind in ("CSV", "Parquet") else \
-        _read_mdf4(path, cmap) if kind == "MDF4" else _read_tdms(path, cmap, notes)
+    if not fmt.own_time and cmap.time is None:
+        own = " and ".join(f.name for f in INPUT_FORMATS.values() if f.own_time)
+        raise InputFileError(f"{path}: a {fmt.name} file needs time: {{column: …, unit: s|ms|us|ns|datetime}} in the "
+                             f"channel map {cmap.path} (only {own} carry their own time)")
+    series = fmt.read_series()(path, cmap, notes)
     for name, s in series.items():
         back = np.flatnonzero(np.diff(s.t_ns) < 0)
         if back.size:
@@ -119,7 +119,7 @@ def arrow_table(path: Path, cmap: ChannelMap):
     import pyarrow as pa
 
     wanted = sorted(set(cmap.columns()))
-    if path.suffix.lower() == ".csv":
+    if is_format(path, "CSV"):
         import pyarrow.csv as pacsv
 
         dialect, convert = csv_reading(path, cmap)
@@ -169,11 +169,11 @@ def numeric_column(path: Path, name: str, spec: ChannelSpec, table) -> np.ndarra
     return col.to_numpy(zero_copy_only=False).astype(np.float64)
 
 
-def _read_arrow(path: Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
+def read_arrow_series(path: Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
     table, _ = arrow_table(path, cmap)
     t_col = table.column(cmap.time.column)
     t_valid = ~np.asarray(t_col.is_null())
-    base = time_base(path, cmap, sniff(path, cmap) if path.suffix.lower() == ".csv" else None)
+    base = time_base(path, cmap, sniff(path, cmap) if is_format(path, "CSV") else None)
     t_ns = _time_ns(path, cmap.time, t_col, base, notes=notes)
     back = np.flatnonzero(np.diff(t_ns[t_valid]) < 0)
     if back.size:
@@ -363,7 +363,7 @@ def _day_of(ns: int) -> str:
 
 
 # ------------------------------------------------------------------------------------ MDF4
-def _read_mdf4(path: Path, cmap: ChannelMap) -> dict[str, Series]:
+def read_mdf4_series(path: Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
     mdf = _open_mdf(path)
     try:
         # the file's own time: each channel's master (time) channel from the measurement's start
@@ -479,7 +479,7 @@ def _numbers(path: Path, name: str, column: str, values) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------ TDMS
-def _read_tdms(path: Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
+def read_tdms_series(path: Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
     """The map's channels of a TDMS file; what nptdms warns of while reading a damaged file (a
     segment cut short, an unknown version) goes to ``notes`` as one line, not to the log."""
     import logging
