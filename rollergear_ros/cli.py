@@ -165,6 +165,15 @@ def cmd_map(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------- info
+def cmd_info(args: argparse.Namespace) -> int:
+    from .info import describe
+
+    info = describe(args.file, args.channels)
+    print(json.dumps(info.as_dict(), indent=2) if args.json else info.text())
+    return 0
+
+
 # ---------------------------------------------------------------------------------- parser
 #: the subcommands living in modules of their own: each module's ``REGISTER`` (functions that add
 #: their subparser); ``model``, ``figures`` and ``map`` are built here
@@ -183,6 +192,7 @@ EXAMPLES = {
     "play": "rollergear play rig.mcap --rate 5 --loop",
     "fleet": "rollergear fleet calibrate fleet/ --out fleet_out/ --workers 2",
     "watch": "rollergear watch --period 1",
+    "info": "rollergear info rig.mcap",
 }
 CONTRACT = contract_line()
 
@@ -225,6 +235,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="warn when this recording visited operating points outside the map (repeatable)")
     p.add_argument("--no-plot", action="store_true", help="no PNG")
     p.set_defaults(func=cmd_map)
+
+    p = sub.add_parser("info", help="what a recording or table holds: topics, types, counts, rates, span, damage",
+                       description="What FILE holds, as ros2 bag info / mcap info print it, for every format import "
+                       "reads: topics (channels, columns) with types, counts and rates, the time span, the metadata "
+                       "keys and the damaged spans.")
+    p.add_argument("file", metavar="FILE", help="MCAP, rosbag2 folder or .db3, CSV, Parquet, MDF4, TDMS or .vtlm")
+    p.add_argument("--channels", metavar="MAP.yaml",
+                   help="channel map: a time-series file channel by channel as import reads it (else its columns)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.set_defaults(func=cmd_info)
 
     for register in SUBCOMMAND_REGISTERS:
         register(sub, with_params)

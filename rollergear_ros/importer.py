@@ -112,16 +112,17 @@ def _rosbag2_paths(src: Path) -> list[Path]:
     return [src]
 
 
-def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
+@contextmanager
+def rosbag2_reader(src: str | Path) -> Iterator:
+    """The rosbags ``AnyReader`` on a rosbag2 bag (a folder, its metadata.yaml, or .mcap/.db3 files),
+    opened; what the bag's damage makes rosbags raise comes out as one :class:`InputFileError` line."""
     import sqlite3
 
     import yaml
     from rosbags.highlevel import AnyReader, AnyReaderError
     from rosbags.rosbag2.errors import ReaderError as Rosbag2Error
 
-    wanted = {topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed,
-              topics.oil_temperature, topics.joint_states}
-    counts: dict[str, int] = {}
+    src = Path(src)
     try:
         import apsw  # rosbags' SQLite driver, where installed: a damaged .db3 raises its errors
 
@@ -136,22 +137,30 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
             raise InputFileError(f"{src}: a damaged rosbag2 metadata.yaml ({type(exc).__name__}: "
                                  f"{str(exc)[:200]})") from None
         with closing(reader):
-            connections = [c for c in reader.connections if c.topic in wanted]
-            if not any(c.topic in (topics.motor_torque, topics.joint_states) for c in connections):
-                found = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
-                raise InputFileError(f"{src}: no input topics {topics.motor_torque} or {topics.joint_states} "
-                                     f"(topics: {found})")
-            with BagWriter(out, background=True) as bw:  # in log-time order whatever order the storage gives
-                bw.add_metadata(IMPORT_METADATA, {"source": str(src), "kind": "rosbag2"})
-                for con, t_ns, raw in reader.messages(connections=connections):
-                    if con.msgtype not in MSG_DEFINITIONS:
-                        raise InputFileError(f"{src}: {con.topic} is {con.msgtype}, not an input type "
-                                             f"({', '.join(sorted(MSG_DEFINITIONS))})")
-                    bw.write_raw(con.topic, con.msgtype, t_ns, bytes(raw))
-                    counts[con.topic] = counts.get(con.topic, 0) + 1
+            yield reader
     except (Rosbag2Error, AnyReaderError, FileNotFoundError, ValueError, yaml.YAMLError, *storage_errors) as exc:
         reason = " ".join(str(exc).split())
         raise InputFileError(f"{src}: not a rosbag2 bag rosbags can read ({reason})") from None
+
+
+def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
+    wanted = {topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed,
+              topics.oil_temperature, topics.joint_states}
+    counts: dict[str, int] = {}
+    with rosbag2_reader(src) as reader:
+        connections = [c for c in reader.connections if c.topic in wanted]
+        if not any(c.topic in (topics.motor_torque, topics.joint_states) for c in connections):
+            found = ", ".join(sorted({f"{c.topic} ({c.msgtype})" for c in reader.connections})) or "none"
+            raise InputFileError(f"{src}: no input topics {topics.motor_torque} or {topics.joint_states} "
+                                 f"(topics: {found})")
+        with BagWriter(out, background=True) as bw:  # in log-time order whatever order the storage gives
+            bw.add_metadata(IMPORT_METADATA, {"source": str(src), "kind": "rosbag2"})
+            for con, t_ns, raw in reader.messages(connections=connections):
+                if con.msgtype not in MSG_DEFINITIONS:
+                    raise InputFileError(f"{src}: {con.topic} is {con.msgtype}, not an input type "
+                                         f"({', '.join(sorted(MSG_DEFINITIONS))})")
+                bw.write_raw(con.topic, con.msgtype, t_ns, bytes(raw))
+                counts[con.topic] = counts.get(con.topic, 0) + 1
     samples = counts.get(topics.motor_torque, counts.get(topics.joint_states, 0))
     return ImportSummary(src, "rosbag2", out, sum(counts.values()), samples, topics=counts)
 

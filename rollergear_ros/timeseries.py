@@ -364,7 +364,7 @@ def _day_of(ns: int) -> str:
 
 # ------------------------------------------------------------------------------------ MDF4
 def read_mdf4_series(path: Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
-    mdf = _open_mdf(path)
+    mdf = open_mdf(path)
     try:
         # the file's own time: each channel's master (time) channel from the measurement's start
         start = mdf.header.start_time
@@ -410,7 +410,7 @@ def _with_constants(out: dict[str, Series], cmap: ChannelMap) -> dict[str, Serie
     return out
 
 
-def _open_mdf(path: Path):
+def open_mdf(path: Path):
     """The ``asammdf`` MDF of ``path``; a file it cannot read is one line (the half-made object's
     ``__del__`` fails too, and would print an "Exception ignored" traceback after the error)."""
     import gc
