@@ -132,6 +132,26 @@ class FloatProbe:
         return np.frombuffer(b"".join(r[4:12] for r in raw), dtype="<f8")
 
 
+def call_until_answered(client, request, timeout: float = 120.0, first_resend_s: float = 1.0):
+    """The answer to an idempotent service ``request`` (set a parameter), sent again while none came.
+
+    A service's answer can be lost without an error on the client's side: the server's reply writer
+    may not yet have matched this client's reply reader when it answers (discovery is asymmetric;
+    rmw_fastrtps waits 100 ms, then drops the reply and rclpy only warns -- ros2/ros2#1253), which
+    a loaded machine makes likely for the first call after ``wait_for_service``.  So the request is
+    sent again after 1, 2, 4 … s without an answer; the first answer to any of them is returned.
+    ``timeout`` only tells a node that never answers from a slow one."""
+    deadline = time.monotonic() + timeout
+    futures = []
+    wait = first_resend_s
+    while True:
+        futures.append(client.call_async(request))
+        if wait_for(lambda: any(f.done() for f in futures), min(wait, max(deadline - time.monotonic(), 0.0))):
+            return next(f for f in futures if f.done()).result()
+        assert time.monotonic() < deadline, f"no answer to {type(request).__name__} in {timeout} s"
+        wait *= 2
+
+
 def wait_for(predicate, timeout: float, step: float = 0.05) -> bool:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

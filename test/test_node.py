@@ -14,7 +14,7 @@ from rollergear_ros.replay import replay
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
 from helpers import BAGS, CONFIG
-from rostools import FloatProbe, NodeProcess, play, ros_context, wait_for
+from rostools import FloatProbe, NodeProcess, call_until_answered, play, ros_context, wait_for
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -241,9 +241,8 @@ def test_parameter_changes_are_validated_and_refused_with_the_reason():
                 pv = ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=value)
             else:
                 pv = ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=value)
-            fut = client.call_async(SetParameters.Request(parameters=[Parameter(name=name, value=pv)]))
-            assert wait_for(fut.done, 10)
-            return fut.result().results[0]
+            return call_until_answered(client, SetParameters.Request(parameters=[Parameter(name=name, value=pv)])
+                                       ).results[0]
 
         bad = set_param("gearbox.f1", 0.45)
         assert not bad.successful and "gearbox.f1" in bad.reason
