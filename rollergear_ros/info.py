@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .channelmap import load_channel_map
+from .channelmap import ChannelMap, load_channel_map
 from .errors import InputFileError
 from .formats import InputFormat, input_format
 
@@ -82,14 +82,15 @@ def describe(path: str | Path, channels: str | Path | None = None) -> FileInfo:
     p = Path(path)
     size = sum(f.stat().st_size for f in p.rglob("*") if f.is_file()) if p.is_dir() else p.stat().st_size
     info = FileInfo(str(path), fmt.name, size)
+    cmap = load_channel_map(channels) if channels is not None and fmt.family in ("table", "timeseries") else None
     if fmt.family == "mcap":
         _mcap(p, info)
     elif fmt.family == "rosbag2":
         _rosbag2(p, info)
-    elif fmt.family == "table" or (channels is not None and load_channel_map(channels).format == "steady_state"):
-        _table(p, info, channels)
-    elif channels is not None:
-        _mapped_series(p, fmt, info, channels)
+    elif fmt.family == "table" or (cmap is not None and cmap.format == "steady_state"):
+        _table(p, info, cmap)
+    elif cmap is not None:
+        _mapped_series(p, info, cmap)
     else:
         _columns(p, fmt, info)
     return info
@@ -147,10 +148,10 @@ def _rosbag2(path: Path, info: FileInfo) -> None:
                                                     "compression_mode") if isinstance(bag, dict) and bag.get(k)]
 
 
-def _table(path: Path, info: FileInfo, channels: str | Path | None) -> None:
+def _table(path: Path, info: FileInfo, cmap: ChannelMap | None) -> None:
     from .tables import read_table
 
-    table = read_table(path, load_channel_map(channels) if channels is not None else None)
+    table = read_table(path, cmap)
     n = len(table.speed_rad_s)
     info.counted = "rows"
     info.streams = [StreamInfo(name, unit, n) for name, unit in (("speed", "rad/s"), ("torque", "N*m"),
@@ -164,10 +165,9 @@ def _table(path: Path, info: FileInfo, channels: str | Path | None) -> None:
         info.damaged.append(f"{table.dropped} rows without a finite torque, speed or loss")
 
 
-def _mapped_series(path: Path, fmt: InputFormat, info: FileInfo, channels: str | Path) -> None:
+def _mapped_series(path: Path, info: FileInfo, cmap: ChannelMap) -> None:
     from .timeseries import read_series
 
-    cmap = load_channel_map(channels)
     series = read_series(path, cmap, info.notes)
     info.counted = "samples"
     starts = [int(s.t_ns[0]) for s in series.values() if len(s.t_ns)]
@@ -178,7 +178,7 @@ def _mapped_series(path: Path, fmt: InputFormat, info: FileInfo, channels: str |
         source = f"constant {spec.constant:g}" if spec.constant is not None else spec.column
         first, last = (int(s.t_ns[0]), int(s.t_ns[-1])) if len(s.t_ns) else (None, None)
         info.streams.append(StreamInfo(f"{name} ({source})", "SI", len(s.t_ns), _rate(len(s.t_ns), first, last)))
-    info.notes.append(f"channels as import reads them with {channels}")
+    info.notes.append(f"channels as import reads them with {cmap.path}")
 
 
 def _columns(path: Path, fmt: InputFormat, info: FileInfo) -> None:
@@ -188,11 +188,12 @@ def _columns(path: Path, fmt: InputFormat, info: FileInfo) -> None:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
+        from .timeseries import _first_line
+
         try:
             meta = pq.ParquetFile(path).metadata
         except (pa.ArrowException, OSError) as exc:
-            raise InputFileError(f"{path}: not a Parquet file ({str(exc).splitlines()[0] if str(exc) else exc})") \
-                from None
+            raise InputFileError(f"{path}: not a Parquet file ({_first_line(exc)})") from None
         schema = meta.schema.to_arrow_schema()
         info.streams = [StreamInfo(f.name, str(f.type), meta.num_rows) for f in schema]
     elif fmt.name == "CSV":
@@ -233,7 +234,7 @@ def _columns(path: Path, fmt: InputFormat, info: FileInfo) -> None:
                                                len(ch), 1.0 / dt if dt else None))
     else:
         info.notes.append(f"a {fmt.name} file is described with its channel map (--channels MAP.yaml)")
-    if fmt.family == "timeseries" and fmt.name in ("CSV", "Parquet"):
+    if fmt.arrow:  # CSV, Parquet: their time is a column the map names
         info.notes.append("give --channels MAP.yaml for each channel's samples, span and rate as import reads them")
 
 
