@@ -210,7 +210,10 @@ def main() -> None:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from rollergear_ros.node import OUTPUT_QOS
+    from rollergear_ros.node import output_qos
+    from rollergear_ros.outputs import OUTPUT_CHANNELS
+
+    OUTPUT_QOS = output_qos(OUTPUT_CHANNELS["loss_torque"])
 
     rclpy.init()
     node = Node("bench_driver")

@@ -14,7 +14,11 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from std_msgs.msg import Float64
 
-from rollergear_ros.node import OUTPUT_QOS, SENSOR_QOS
+from rollergear_ros.node import SENSOR_QOS, output_qos
+from rollergear_ros.outputs import OUTPUT_CHANNELS
+
+#: as the node offers its loss torque
+OUTPUT_QOS = output_qos(OUTPUT_CHANNELS["loss_torque"])
 
 
 def main() -> None:

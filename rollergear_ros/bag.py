@@ -23,6 +23,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 
 from .errors import BagError
 from .interface import NAMESPACE, Channel, MessageType, Metadata, Topic
+from .outputs import OUTPUT_CHANNELS
 
 _HEADER_DEF = """================================================================================
 MSG: std_msgs/Header
@@ -61,11 +62,18 @@ class TopicMap:
     joint_states: str = Topic.JOINT_STATES
     input_joint: str = "motor"
     output_joint: str = "output"
-    loss_torque: str = f"{NAMESPACE}/{Topic.LOSS_TORQUE}"
-    loss_power: str = f"{NAMESPACE}/{Topic.LOSS_POWER}"
-    efficiency: str = f"{NAMESPACE}/{Topic.EFFICIENCY}"
-    residual_torque: str = f"{NAMESPACE}/{Topic.RESIDUAL_TORQUE}"
-    loss_estimate: str = f"{NAMESPACE}/{Topic.LOSS_ESTIMATE}"
+    # the output channels' topics (:mod:`.outputs`), a field each so that ``--topic-<name>`` moves it
+    loss_torque: str = OUTPUT_CHANNELS["loss_torque"].absolute_topic()
+    loss_power: str = OUTPUT_CHANNELS["loss_power"].absolute_topic()
+    efficiency: str = OUTPUT_CHANNELS["efficiency"].absolute_topic()
+    residual_torque: str = OUTPUT_CHANNELS["residual_torque"].absolute_topic()
+    loss_estimate: str = OUTPUT_CHANNELS["loss_estimate"].absolute_topic()
+
+    def output(self, name: str) -> str:
+        """The topic of output channel ``name``: its field here, else (a channel without one) the
+        table's topic under the node's namespace."""
+        topic = getattr(self, name, None)
+        return topic if isinstance(topic, str) else OUTPUT_CHANNELS[name].absolute_topic()
 
     def float64_inputs(self) -> dict[str, str]:
         """Estimator channel name -> topic, for the Float64 inputs."""

@@ -3,9 +3,10 @@
 Stands in for ``ros2 topic echo`` (the ``ros2`` CLI has no PyPI wheels) in the terminal next to a
 node and a player.  Each line gives, over the last period: estimates received per second, the mean
 loss torque [N·m] and loss power [W], the mean efficiency (and its minimum), the mean residual
-[N·m] when measured output torque is present, and the node's latest ``/diagnostics`` level and
-message.  The outputs are taken raw and best effort with shallow queues: a slow terminal never
-holds the node back, and the rate shown is what reached the watcher.
+[N·m] when measured output torque is present, the mean of any further Float64 output channel
+(:mod:`.outputs`), and the node's latest ``/diagnostics`` level and message.  The outputs are taken
+raw and best effort with shallow queues: a slow terminal never holds the node back, and the rate
+shown is what reached the watcher.
 
 :class:`WatchWindow` (no rclpy) collects and formats one period; :func:`watch` is the ROS shell.
 """
@@ -19,30 +20,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .bag import TopicMap, decode_float64
+from .bag import decode_float64
 from .interface import NAMESPACE, Topic
+from .outputs import OUTPUT_CHANNELS, float64_channels
 from .errors import UsageError
 from .diagnostics import LEVEL_NAMES, STATUS_NAME
 from .player import init_for_command_line
 
-_T = TopicMap()
-#: output channel -> topic relative to the node's namespace (``interface.md``)
-OUTPUT_TOPICS = {
-    channel: topic[len(NAMESPACE) + 1 :]
-    for channel, topic in (
-        ("loss", _T.loss_torque),
-        ("power", _T.loss_power),
-        ("efficiency", _T.efficiency),
-        ("residual", _T.residual_torque),
-    )
-}
+#: the channels the line formats in a place of their own; any other is added as ``name mean unit``
+_FORMATTED = ("loss_torque", "loss_power", "efficiency", "residual_torque")
 
 
 @dataclass
 class WatchWindow:
     """Serialized Float64 outputs and the latest diagnostics received during one period."""
 
-    payloads: dict[str, list[bytes]] = field(default_factory=lambda: {k: [] for k in OUTPUT_TOPICS})
+    payloads: dict[str, list[bytes]] = field(default_factory=lambda: {c.name: [] for c in float64_channels()})
     diagnostic: tuple[int, str] | None = None  #: (level, message) of the node's latest status
 
     def add(self, channel: str, raw: bytes) -> None:
@@ -57,21 +50,23 @@ class WatchWindow:
         if self.diagnostic is not None:
             level, message = self.diagnostic
             status = f"  [{LEVEL_NAMES.get(level, str(level))}] {message}"
-        n = len(values["loss"])
+        n = len(values["loss_torque"])
         if n == 0:
             return f"no estimates on {topic_of_loss} in the last {period_s:.1f} s{status}"
         parts = [
             f"{n / period_s:7.0f} est/s",
-            f"loss {_mean(values['loss']):.4f} N·m",
-            f"{_mean(values['power']):.2f} W",
+            f"loss {_mean(values['loss_torque']):.4f} N·m",
+            f"{_mean(values['loss_power']):.2f} W",
         ]
         eff = values["efficiency"]
         if np.isfinite(eff).any():
             parts.append(f"η {100 * _mean(eff):.2f} % (min {100 * np.nanmin(eff):.2f})")
         else:
             parts.append("η —")
-        if len(values["residual"]):
-            parts.append(f"residual {_mean(values['residual']):+.4f} N·m")
+        if len(values["residual_torque"]):
+            parts.append(f"residual {_mean(values['residual_torque']):+.4f} N·m")
+        parts.extend(f"{name} {_mean(v):.4g} {OUTPUT_CHANNELS[name].unit}" for name, v in values.items()
+                     if name not in _FORMATTED and len(v))
         return "  ".join(parts) + status
 
 
@@ -92,8 +87,9 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
     window = WatchWindow()
     node = Node("rollergear_watch")
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-    for channel, rel in OUTPUT_TOPICS.items():
-        node.create_subscription(Float64, f"{ns}/{rel}", lambda raw, c=channel: window.add(c, raw), qos, raw=True)
+    for channel in float64_channels():  # the outputs' table (:mod:`.outputs`)
+        node.create_subscription(Float64, channel.absolute_topic(namespace),
+                                 lambda raw, c=channel.name: window.add(c, raw), qos, raw=True)
 
     def on_diagnostics(msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -108,7 +104,7 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
     # (the single-threaded one manages ~3 k messages/s here, far fewer on a slower machine)
     executor = EventsExecutor()
     executor.add_node(node)
-    topic_of_loss = f"{ns}/{OUTPUT_TOPICS['loss']}"
+    topic_of_loss = OUTPUT_CHANNELS["loss_torque"].absolute_topic(namespace)
     print(
         f"watching {ns or '/'} (outputs and /diagnostics), a line every {period_s:g} s; Ctrl-C to stop", file=sys.stderr
     )

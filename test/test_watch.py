@@ -31,7 +31,8 @@ def _window(**series: list[float]) -> WatchWindow:
 
 
 def test_window_summarises_a_period_and_starts_the_next():
-    w = _window(loss=[0.1, 0.3], power=[10.0, 30.0], efficiency=[0.99, float("nan")], residual=[0.01, 0.03])
+    w = _window(loss_torque=[0.1, 0.3], loss_power=[10.0, 30.0], efficiency=[0.99, float("nan")],
+                residual_torque=[0.01, 0.03])
     w.diagnostic = (1, "motor_torque at 500 Hz, expected 1000 Hz")
     line = w.line(0.5, "/rollergear/loss/torque")
     m = LINE.search(line)
@@ -44,7 +45,7 @@ def test_window_summarises_a_period_and_starts_the_next():
 
 
 def test_window_without_efficiency_or_residual():
-    line = _window(loss=[0.2], power=[0.0], efficiency=[float("nan")]).line(1.0, "/x")
+    line = _window(loss_torque=[0.2], loss_power=[0.0], efficiency=[float("nan")]).line(1.0, "/x")
     assert "η —" in line and "residual" not in line and "[" not in line
 
 
