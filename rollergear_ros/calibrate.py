@@ -38,7 +38,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .blocks import Blocks, make_blocks
-from .effects import EFFECTS
+from .effects import EFFECTS, reading_errors, viscosity_law
 from .errors import BagError, UsageError
 from .model import LossModel
 from .modelparams import MODEL_PARAMETERS
@@ -277,12 +277,13 @@ def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, bl
     ranges = {}  # parameter -> a narrower range than its physical one (the oil's data sheet)
     oil = config.gearbox.datasheet_oil
     if oil is not None:  # the viscosity law from the oil's data sheet: its start, and a range about it
-        theta_ref = EFFECTS["viscosity_temperature"].defaults()["theta_ref"]
+        law = viscosity_law()
+        theta_ref = law.defaults()["theta_ref"]
         b_k, c_k, eta_ref = vogel_from_datasheet(*oil, theta_ref_c=theta_ref)
-        cal.starts["viscosity_temperature"] = (b_k, c_k)
+        cal.starts[law.name] = (b_k, c_k)
         cal.datasheet_law = (b_k, c_k, theta_ref)
-        cal.bounds["viscosity_temperature"] = {"B": (b_k / DATASHEET_B_FACTOR, b_k * DATASHEET_B_FACTOR),
-                                               "C": (max(c_k - DATASHEET_C_SPAN_K, 20.0), c_k + DATASHEET_C_SPAN_K)}
+        cal.bounds[law.name] = {"B": (b_k / DATASHEET_B_FACTOR, b_k * DATASHEET_B_FACTOR),
+                                "C": (max(c_k - DATASHEET_C_SPAN_K, 20.0), c_k + DATASHEET_C_SPAN_K)}
         ranges["gearbox.eta0_pa_s"] = (eta_ref / DATASHEET_ETA_FACTOR, eta_ref * DATASHEET_ETA_FACTOR)
         cal.log.append(f"the oil's data sheet (nu40 {oil[0]:g}, nu100 {oil[1]:g} mm²/s, rho15 {oil[2]:g} kg/m³; "
                        f"ASTM D341): Vogel B = {b_k:.4g} K, C = {c_k:.4g} K, eta({theta_ref:g} °C) = {eta_ref:.4g} "
@@ -310,7 +311,7 @@ def _calibrate_once(data: SampleData, config: Config, delta_nm: float | None, bl
     selected: list[Term] = out.selected
     final = selected + out.provisional
     blocks0, data_c = blocks, data
-    if {t.name for t in final} & {"torque_offset", "torque_gain"}:
+    if any(_is_sensor_error(t.name) for t in final):
         stage("refit at the corrected torque")
         cal, final, data_c = _refit_sensor_errors(cal, data, final, config, block_s, folds)
         selected = final[: len(selected)]
@@ -478,6 +479,12 @@ def _at_search_bound(found: FoundEffect) -> str | None:
     return None
 
 
+def _is_sensor_error(term_name: str) -> bool:
+    """A term that is an effect corrupting the torque reading (not a model parameter, not a loss)."""
+    effect = EFFECTS.get(term_name)
+    return effect is not None and effect.reading_error is not None
+
+
 def _refit_sensor_errors(
     cal: Calibrator,
     data: SampleData,
@@ -499,8 +506,8 @@ def _refit_sensor_errors(
     for _ in range(iterations):
         f = cal.fit(final)
         k0 = len(cal.nuisance)
-        b = float(f.coef[k0 + names.index("torque_offset")]) if "torque_offset" in names else 0.0
-        g = float(f.coef[k0 + names.index("torque_gain")]) if "torque_gain" in names else 0.0
+        b, g = reading_errors({name: {EFFECTS[name].coefficient: float(f.coef[k0 + i])}
+                               for i, name in enumerate(names) if _is_sensor_error(name)})
         t_c = (data.torque - b) / (1.0 + g)
         corrected = dc_replace(
             data, torque=t_c, model_loss=model.loss_magnitude(t_c, data.speed), fr_part=model.fr_part(t_c, data.speed),

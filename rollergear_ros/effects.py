@@ -256,6 +256,14 @@ class Effect:
     #: law that fades with speed): ``calibrate`` evaluates its columns only on the slower samples
     vanishes_above: Callable[[Mapping[str, float]], float] | None = None
     separated_from: Mapping[str, str] = field(default_factory=dict)  #: other effect -> data that tells them apart
+    #: a torque-sensor error: how it corrupts the drive torque reading ``T_meas = (1 + g)·T + b``;
+    #: "offset" (its coefficient adds to ``b``) or "gain" (to ``g``).  The estimator and calibrate
+    #: evaluate the model at the corrected torque (:func:`reading_errors`), simulate corrupts the
+    #: reading with it
+    reading_error: str | None = None
+    #: the oil's viscosity law itself (Vogel ``B``, ``C`` at ``theta_ref``): what ``--oil`` and an
+    #: oil's data sheet set (:func:`viscosity_law`); one effect of the registry carries it
+    viscosity_law: bool = False
     #: the report draws its fitted curve over "speed", "torque", "temperature", "speed_near_zero"
     #: (signed speed, standstill magnified) or "angle_since_reversal" (an effect with memory: per sample)
     plotted_against: str = "speed"
@@ -290,6 +298,24 @@ class Effect:
     def formula(self) -> str:
         """First line of the term's docstring."""
         return (self.term.__doc__ or self.name).strip().splitlines()[0]
+
+
+def reading_errors(enabled: Mapping[str, Mapping[str, float]]) -> tuple[float, float]:
+    """``(b, g)`` of the drive torque reading ``T_meas = (1 + g)·T + b`` from the enabled sensor
+    errors (``enabled``: name -> short parameters; :attr:`Effect.reading_error`)."""
+    offset, gain = 0.0, 0.0
+    for name, params in enabled.items():
+        effect = EFFECTS[name]
+        if effect.reading_error == "offset":
+            offset += params[effect.coefficient]
+        elif effect.reading_error == "gain":
+            gain += params[effect.coefficient]
+    return offset, gain
+
+
+def viscosity_law() -> Effect:
+    """The registry's effect that is the oil's viscosity law (:attr:`Effect.viscosity_law`)."""
+    return next(e for e in EFFECTS.values() if e.viscosity_law)
 
 
 def _grid(start: float, stop: float, step: float) -> tuple[float, ...]:
@@ -398,18 +424,18 @@ for _effect in (
                             "Fr·(1 + scale·((eta/eta0)^0.66 − 1)); 1 = the model at eta(theta)", low=0.0, high=10.0)),
            coefficient="scale", member="B", member_grid=_grid(100.0, 4000.0, 100.0), member_bounds=(1.0, 6000.0),
            second_member="C", second_grid=_grid(50.0, 250.0, 25.0), second_bounds=(20.0, 400.0),
-           profile_coefficient=1.0, adaptive=False, needs_temperature=True, scales_fr=True,
+           profile_coefficient=1.0, adaptive=False, needs_temperature=True, scales_fr=True, viscosity_law=True,
            plotted_against="temperature"),
     Effect("torque_offset", torque_offset, False,
            "input torque sensor zero error (adds offset*sign(w) to the input-referred loss)", "sensor zero error",
            (EffectParameter("b", "offset_nm", 0.0, "input-referred torque offset", "N*m", simulated=0.05),),
            coefficient="b", separated_from={"torque_gain": "a wider torque range in both directions"},
-           plotted_against="torque"),
+           reading_error="offset", plotted_against="torque"),
     Effect("torque_gain", torque_gain, False,
            "torque sensor gain error (adds gain*T*sign(w) to the input-referred loss)", "sensor calibration",
            (EffectParameter("g", "gain", 0.0, "relative gain error", low=-0.5, high=0.5, simulated=0.01),),
            coefficient="g", regressor_scale=lambda params: TORQUE_REF_NM, plotted_against="torque",
-           depends_on_load=True),
+           depends_on_load=True, reading_error="gain"),
 ):
     register(_effect)
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, adaptive_effects,
                          effect_coefficients, regressor_plan, regressors)
-from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale
+from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale, reading_errors
 from .equations import efficiency
 from .model import LossModel, rotation_sign, rotation_sign_scalar
 from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
@@ -131,8 +131,7 @@ class Estimator:
         self._steppers = [(n, EFFECTS[n].state_step, p) for n, p in self._stateful.items()]
         self._state_t_ns: int | None = None
         self._previous_speed = 0.0  # of the last sample estimated: a direction known twice in a row
-        self._sensor_offset = self._active.get("torque_offset", {}).get("b", 0.0)
-        self._sensor_gain = self._active.get("torque_gain", {}).get("g", 0.0)
+        self._sensor_offset, self._sensor_gain = reading_errors(self._active)
         self.residual_stats = ResidualStats()
         self.estimated = 0
         self.last: Estimate | None = None

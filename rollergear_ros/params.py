@@ -25,7 +25,7 @@ import yaml
 
 from . import safeyaml
 
-from .effects import EFFECTS, REGISTRY_VERSION
+from .effects import EFFECTS, REGISTRY_VERSION, viscosity_law
 from .errors import ParameterError
 from .interface import NODE_NAME
 from .equations import contact_geometry
@@ -546,10 +546,12 @@ def _check_consistency(config: Config) -> None:
                              "must be >= map.speed_min_rpm (0: gearbox.rated_speed_rpm)")
     if config.map.torque_max_nm < config.map.torque_min_nm:
         raise ParameterError("map.torque_max_nm", config.map.torque_max_nm, "must be >= map.torque_min_nm")
-    if "viscosity_temperature" in config.effects.enabled():
-        vogel = config.effects.params("viscosity_temperature")
+    law = viscosity_law()
+    if law.name in config.effects.enabled():
+        vogel = config.effects.params(law.name)
         if vogel["theta_ref"] + vogel["C"] <= 0:
-            raise ParameterError("effects.viscosity_temperature.C_k", vogel["C"], "theta_ref + C must be > 0")
+            raise ParameterError(f"effects.{law.name}.{law.parameter('C').key}", vogel["C"],
+                                 "theta_ref + C must be > 0")
 
 
 def _flatten(prefix: str, data: Mapping[str, Any], out: dict[str, Any]) -> None:

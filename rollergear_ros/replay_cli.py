@@ -10,6 +10,7 @@ from pathlib import Path
 
 from .bag import TopicMap
 from .cliargs import config_from_args
+from .effects import viscosity_law
 from .exports import EXPORT_KINDS
 from .paths import Output, check_outputs
 from .errors import UsageError
@@ -50,8 +51,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         n = write_rig_bag(rig, opts, Path(args.out), topics_from_args(args), progress=bar.update)
     dur = (rig.t_ns[-1] - rig.t_ns[0]) * 1e-9
     names = [e.name for e in effects]
-    if opts.oil_nu40_nu100_mm2_s and "viscosity_temperature" not in names:
-        names.append("viscosity_temperature")
+    if opts.oil_nu40_nu100_mm2_s and viscosity_law().name not in names:
+        names.append(viscosity_law().name)
     print(f"wrote {args.out}: {n:,} messages, {dur:.1f} s at {args.rate:g} Hz, profile {args.profile}, "
           f"effects: {', '.join(names) or 'none'}"
           + (" (oil: ASTM D341 through ν40 = {:g}, ν100 = {:g} mm²/s)".format(*opts.oil_nu40_nu100_mm2_s)

@@ -24,7 +24,7 @@ import numpy as np
 
 from .oil import oil_viscosity_ratio, vogel_viscosity_ratio, walther_viscosity_mm2_s  # noqa: F401 - re-exported
 from .bag import BagWriter, TopicMap, encode_float64, stamp
-from .effects import EFFECTS, EffectInputs
+from .effects import EFFECTS, EffectInputs, viscosity_law
 from .errors import UsageError
 from .interface import RAD_S_PER_RPM, MessageType, Metadata
 from .model import LossModel, reference_terms, rotation_sign
@@ -209,21 +209,23 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
     extra = np.zeros(len(w))
     gain, offset = 0.0, 0.0
     effects = list(opts.effects)
-    if opts.oil_nu40_nu100_mm2_s is not None and not any(e.name == "viscosity_temperature" for e in effects):
-        effects.append(DeclaredEffect("viscosity_temperature", EFFECTS["viscosity_temperature"].simulated_defaults()))
+    law = viscosity_law()
+    if opts.oil_nu40_nu100_mm2_s is not None and not any(e.name == law.name for e in effects):
+        effects.append(DeclaredEffect(law.name, law.simulated_defaults()))
     for eff in effects:
         p = eff.params
-        if eff.name == "viscosity_temperature":
+        effect = EFFECTS[eff.name]
+        if effect.viscosity_law:
             if opts.oil_nu40_nu100_mm2_s is not None:
                 eta_ratio = oil_viscosity_ratio(theta, *opts.oil_nu40_nu100_mm2_s, p["theta_ref"]) ** active
             else:
                 eta_ratio = vogel_viscosity_ratio(theta, p["B"], p["C"], p["theta_ref"]) ** active
-        elif eff.name == "torque_offset":  # the sensor reads T_meas = (1 + g)·T + b
-            offset = p["b"] * active
-        elif eff.name == "torque_gain":
-            gain = p["g"] * active
-        elif EFFECTS[eff.name].physical:  # any other loss: its term, added to the true loss
-            extra += EFFECTS[eff.name].term(EffectInputs(at, aw, tq, sg, theta), **p) * active
+        elif effect.reading_error == "offset":  # the sensor reads T_meas = (1 + g)·T + b
+            offset = offset + p[effect.coefficient] * active
+        elif effect.reading_error == "gain":
+            gain = gain + p[effect.coefficient] * active
+        elif effect.physical:  # any other loss: its term, added to the true loss
+            extra += effect.term(EffectInputs(at, aw, tq, sg, theta), **p) * active
         else:
             raise UsageError(f"simulate does not know how the sensor error {eff.name} corrupts a reading")
     model_loss = model.loss_magnitude(tq, w)

@@ -160,3 +160,57 @@ def test_interface_doc_names_every_effect_parameter_as_the_registry_does():
         rows[name.strip("`")] = ([c.strip(" `") for c in short.split(",")], [c.strip(" `") for c in keys.split(",")])
     assert rows == {name: ([p.short for p in e.parameters], [p.key for p in e.parameters])
                     for name, e in EFFECTS.items()}
+
+
+def zero_drift(x: EffectInputs, b):
+    """Torque-sensor zero drift: ``ΔT = b·sgn(ω)`` (a toy sensor error for the registry test)."""
+    return b * x.rot_sign
+
+
+@pytest.fixture
+def toy_sensor_error():
+    effect = effects.register(Effect(
+        "zero_drift", zero_drift, False, "a drifting zero of the torque sensor", "toy",
+        (EffectParameter("b", "drift_nm", 0.0, "zero drift", "N*m", simulated=0.07),), coefficient="b",
+        reading_error="offset"))
+    try:
+        yield effect
+    finally:
+        effects.unregister("zero_drift")
+
+
+def test_a_toy_sensor_error_corrupts_simulate_s_reading_and_the_estimator_corrects_it(toy_sensor_error):
+    """A sensor error is one entry: its descriptor says how it corrupts the reading, and simulate
+    and the estimator take it from there (no module outside the registry names it)."""
+    from rollergear_ros.estimator import Estimator
+    from rollergear_ros.params import validate
+
+    config = load_config(ROOT / "config" / "gearbox.yaml")
+    opts = SimulationOptions(profile="rig_map", rate_hz=50.0, seed=1, torque_noise_nm=0.0,
+                             effects=[DeclaredEffect.parse("zero_drift:b=0.07")])
+    rig = simulate(config, opts)
+    np.testing.assert_allclose(rig.torque_meas_nm - rig.torque_true_nm, 0.07, rtol=0, atol=1e-12)
+    # a sensor error is not a loss: the true loss is the model's alone
+    np.testing.assert_array_equal(rig.loss_true_nm, simulate(config, SimulationOptions(
+        profile="rig_map", rate_hz=50.0, seed=1, torque_noise_nm=0.0)).loss_true_nm)
+    enabled = validate(config.to_flat() | {"effects.zero_drift.enabled": True, "effects.zero_drift.drift_nm": 0.07})
+    assert effects.reading_errors(enabled.effects.active()) == (0.07, 0.0)
+    estimator = Estimator(enabled, "timestamp", 0.001)
+    assert estimator.corrected_torque(10.07) == pytest.approx(10.0, abs=1e-12)
+
+
+def test_no_module_outside_the_registry_names_an_effect():
+    """Estimator, calibrate, simulate, params … ask the descriptors (``reading_error``,
+    ``viscosity_law``, ``scales_fr``, ``state_step`` …), never an effect's name.  The simulated
+    fleet is the one exception: its scenario is which effects its gearboxes develop."""
+    import ast
+
+    allowed = {"effects.py", "fleetsim.py"}
+    named = []
+    for path in sorted((ROOT / "rollergear_ros").glob("*.py")):
+        if path.name in allowed:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in EFFECTS:
+                named.append(f"{path.name}:{node.lineno} {node.value!r}")
+    assert not named, named
