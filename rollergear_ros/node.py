@@ -19,6 +19,7 @@ import struct
 import sys
 import threading
 import time
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -43,8 +44,9 @@ from .lossmap import map_comments, write_vtlm
 from .pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
                       SequenceGaps)
 from .stamped import EstimateCodec, estimate_values
-from .interface import NAMESPACE, OUTPUT_QUEUE_DEPTH, MessageType, Metadata, Topic
+from .interface import NAMESPACE, MessageType, Metadata, Topic
 from .nodehelp import help_text, wants_help
+from .outputs import OUTPUT_CHANNELS, OutputChannel, float64_channels, stamped_channels
 from .params import Config, ParameterError, parameter_specs, validate
 
 #: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
@@ -54,8 +56,16 @@ SENSOR_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=Du
 RELIABLE_INPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
                                 history=HistoryPolicy.KEEP_ALL)
 INPUT_QOS = {"sensor_data": SENSOR_QOS, "reliable": RELIABLE_INPUT_QOS}
-OUTPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                        depth=OUTPUT_QUEUE_DEPTH)
+#: message class of each output channel's type (:mod:`.outputs`)
+_MESSAGE_CLASSES = {MessageType.FLOAT64: Float64, MessageType.JOINT_STATE: JointState}
+
+
+def output_qos(channel: OutputChannel) -> QoSProfile:
+    """The QoS an output channel is offered with (volatile, keep-last; its reliability and depth)."""
+    return QoSProfile(reliability=ReliabilityPolicy.RELIABLE if channel.reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST, depth=channel.depth)
+
+
 #: the loss map: the last one kept for subscribers that join later
 MAP_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      history=HistoryPolicy.KEEP_LAST, depth=1)
@@ -139,28 +149,7 @@ class LossEstimatorNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         kwargs.setdefault("namespace", NAMESPACE)
         super().__init__("loss_estimator", **kwargs)
-        from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-
-        from rclpy.parameter import Parameter
-
-        for spec in parameter_specs():
-            override = self._parameter_overrides.get(spec.name)
-            if spec.kind is float and override is not None and override.type_ == Parameter.Type.INTEGER:
-                # ``expected_rate_hz: 500`` means 500.0, as the CLI reads it
-                self._parameter_overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE,
-                                                                 float(override.value))
-            try:
-                self.declare_parameter(spec.name, spec.default, _descriptor(spec))
-            except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
-                override = self._parameter_overrides.get(spec.name)
-                value = override.value if override is not None else spec.default
-                raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
-        flat = {spec.name: self.get_parameter(spec.name).value for spec in parameter_specs()}
-        # an override of no declared parameter (``-p gearbox.dw_mm:=0.1``) would be ignored by
-        # rclpy, the node running on the default: validate() refuses it with "did you mean"
-        flat.update({name: p.value for name, p in self._parameter_overrides.items()
-                     if name not in flat and not _ros_standard_parameter(name)})
-        self.config: Config = validate(flat)  # ParameterError: refused at start-up with the reason
+        self.config: Config = self._declare_parameters()  # ParameterError: refused with the reason
         # the single-threaded executor gives publisher timestamps; the events executor keeps arrival order
         node = self.config.node
         if node.executor == "single_threaded":
@@ -189,75 +178,15 @@ class LossEstimatorNode(Node):
         self._input_handles: dict[str, Any] = {}  # input thread's subscriptions, by channel
         self._interleaved_warned = False
         topics = bagmod.TopicMap()
-        # the outputs: four Float64 topics (plotting tools) and/or one stamped estimate per sample
-        self._float64_out = node.publish_float64
-        self.out_topics = {}
-        if node.publish_float64:
-            self.out_topics = {"loss": self.resolve_topic_name(Topic.LOSS_TORQUE),
-                               "power": self.resolve_topic_name(Topic.LOSS_POWER),
-                               "eff": self.resolve_topic_name(Topic.EFFICIENCY),
-                               "res": self.resolve_topic_name(Topic.RESIDUAL_TORQUE)}
-            self.pub_loss = self.create_publisher(Float64, Topic.LOSS_TORQUE, OUTPUT_QOS)
-            self.pub_power = self.create_publisher(Float64, Topic.LOSS_POWER, OUTPUT_QOS)
-            self.pub_eff = self.create_publisher(Float64, Topic.EFFICIENCY, OUTPUT_QOS)
-            self.pub_res = self.create_publisher(Float64, Topic.RESIDUAL_TORQUE, OUTPUT_QOS)
-            self._send_loss, self._send_power, self._send_eff, self._send_res = (
-                _raw_publish(p) for p in (self.pub_loss, self.pub_power, self.pub_eff, self.pub_res))
-        self._stamped = EstimateCodec() if node.publish_stamped else None
-        if self._stamped is not None:
-            self.out_topics["est"] = self.resolve_topic_name(Topic.LOSS_ESTIMATE)
-            self.pub_estimate = self.create_publisher(JointState, Topic.LOSS_ESTIMATE, OUTPUT_QOS)
-            self._send_estimate = _raw_publish(self.pub_estimate)
+        self._create_outputs()
         self.pub_diag = self.create_publisher(DiagnosticArray, Topic.DIAGNOSTICS, 10)
         # the live loss map (transient-local: an energy manager that starts later gets the last one)
         self.maps_published = 0
         self._map_coefficients: dict[str, float] | None = None  # of the map last published
         self._oil_temperature_c: float | None = None
         self.pub_map = self.create_publisher(Float64MultiArray, Topic.LOSS_MAP, MAP_QOS) if node.publish_map else None
-        self.recorder: bagmod.BagWriter | None = None
-        # Float64 inputs are recorded at the very times the estimator paired them by (publisher
-        # timestamps, or arrival times), so that replay of the recording pairs them as the node did
-        # (``rollergear_recording`` metadata); under sim time the recording keeps one clock: ROS time
-        self._record_pairing_time = (node.input_mode == "float64" and not self.get_parameter("use_sim_time").value)
-        # every output is checked before any is opened: a refused one leaves no half-written file
-        for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
-            if path:
-                check_new_output(name, path)
-        check_outputs([], [Output("node.record_mcap", node.record_mcap or None, "mcap"),  # of their kinds, apart
-                           Output("node.rerun_rrd", node.rerun_rrd or None, "rrd"),
-                           Output("node.map_file", node.map_file or None, "vtlm")])  # rewritten with each map
-        if self.pub_map is not None or node.map_file:
-            self._update_map()  # before the inputs are subscribed: nothing waits for it
-        if node.record_mcap:
-            # written as the messages come (in arrival order), with the QoS the outputs are offered with
-            output_qos = bagmod.offered_qos_yaml(reliable=True, depth=OUTPUT_QUEUE_DEPTH)
-            self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024, time_ordered=False,
-                                             offered_qos={t: output_qos for t in self.out_topics.values()},
-                                             replace_atomically=False)  # in place: a kill keeps what came
-            self.recorder.add_metadata(Metadata.RECORDING, {
-                "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
-                "pairing": self.pairing if self._record_pairing_time else "timestamp",
-                "input_log_time": ("arrival" if self.pairing in ARRIVAL_PAIRINGS else "source_timestamp")
-                if self._record_pairing_time else "receive",
-                "sample_period_s": repr(1.0 / node.expected_rate_hz)})
-        self.rerun = None
-        self._rr_buffer: list[Estimate] = []
-        if node.rerun_rrd or node.rerun_connect:
-            from .review import RerunLog, SkipEvents
-
-            self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None)
-            self._rr_skips = SkipEvents()
-            self.create_timer(0.5, self._flush_rerun)
-        input_qos = INPUT_QOS[node.input_qos]
-        if node.input_mode == "float64":
-            for channel, rel in Topic.OF_CHANNEL.items():
-                self._input_handles[channel] = self._subscribe(
-                    Float64, rel, self._float_callback(channel, self.resolve_topic_name(rel)), input_qos, raw=True)
-        else:
-            self._subscribe(JointState, topics.joint_states, lambda msg, _info=None: self._joint_state_callback(msg),
-                            input_qos)
-        self._subscribe(Temperature, Topic.OIL_TEMPERATURE, lambda msg, _info=None: self._temperature_callback(msg),
-                        input_qos)
+        self._open_recordings()
+        self._subscribe_inputs(topics)
         # /diagnostics from a thread of its own: an executor flooded with input callbacks starves
         # its timers (a 1 s timer stalled ~5 s at 5 kHz), exactly when the report matters
         self.busy_ns = 0  #: time spent in input callbacks (saturation: /diagnostics)
@@ -277,6 +206,85 @@ class LossEstimatorNode(Node):
             f"effects: {', '.join(self.config.effects.enabled()) or 'none'}; executor: {self.executor_kind}; "
             f"input QoS: {node.input_qos}"
             + (f"; recording {node.record_mcap}" if self.recorder else ""))
+
+    def _declare_parameters(self) -> Config:
+        """Declare the package's parameters (with descriptors) and validate what they were given."""
+        from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+
+        from rclpy.parameter import Parameter
+
+        for spec in parameter_specs():
+            override = self._parameter_overrides.get(spec.name)
+            if spec.kind is float and override is not None and override.type_ == Parameter.Type.INTEGER:
+                # ``expected_rate_hz: 500`` means 500.0, as the CLI reads it
+                self._parameter_overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE,
+                                                                 float(override.value))
+            try:
+                self.declare_parameter(spec.name, spec.default, _descriptor(spec))
+            except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+                override = self._parameter_overrides.get(spec.name)
+                value = override.value if override is not None else spec.default
+                raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
+        flat = {spec.name: self.get_parameter(spec.name).value for spec in parameter_specs()}
+        # an override of no declared parameter (``-p gearbox.dw_mm:=0.1``) would be ignored by
+        # rclpy, the node running on the default: validate() refuses it with "did you mean"
+        flat.update({name: p.value for name, p in self._parameter_overrides.items()
+                     if name not in flat and not _ros_standard_parameter(name)})
+        return validate(flat)
+
+    def _open_recordings(self) -> None:
+        """Check every output file before any is opened, publish the first loss map, and open the
+        MCAP recorder and the rerun log the parameters ask for."""
+        node = self.config.node
+        self.recorder: bagmod.BagWriter | None = None
+        # Float64 inputs are recorded at the very times the estimator paired them by (publisher
+        # timestamps, or arrival times), so that replay of the recording pairs them as the node did
+        # (``rollergear_recording`` metadata); under sim time the recording keeps one clock: ROS time
+        self._record_pairing_time = (node.input_mode == "float64" and not self.get_parameter("use_sim_time").value)
+        # every output is checked before any is opened: a refused one leaves no half-written file
+        for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
+            if path:
+                check_new_output(name, path)
+        check_outputs([], [Output("node.record_mcap", node.record_mcap or None, "mcap"),  # of their kinds, apart
+                           Output("node.rerun_rrd", node.rerun_rrd or None, "rrd"),
+                           Output("node.map_file", node.map_file or None, "vtlm")])  # rewritten with each map
+        if self.pub_map is not None or node.map_file:
+            self._update_map()  # before the inputs are subscribed: nothing waits for it
+        if node.record_mcap:
+            # written as the messages come (in arrival order), with the QoS the outputs are offered with
+            offered = {self.out_topics[c.name]: bagmod.offered_qos_yaml(reliable=c.reliable, depth=c.depth)
+                       for c in OUTPUT_CHANNELS.values() if c.name in self.out_topics}
+            self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024, time_ordered=False,
+                                             offered_qos=offered,
+                                             replace_atomically=False)  # in place: a kill keeps what came
+            self.recorder.add_metadata(Metadata.RECORDING, {
+                "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
+                "pairing": self.pairing if self._record_pairing_time else "timestamp",
+                "input_log_time": ("arrival" if self.pairing in ARRIVAL_PAIRINGS else "source_timestamp")
+                if self._record_pairing_time else "receive",
+                "sample_period_s": repr(1.0 / node.expected_rate_hz)})
+        self.rerun = None
+        self._rr_buffer: list[Estimate] = []
+        if node.rerun_rrd or node.rerun_connect:
+            from .review import RerunLog, SkipEvents
+
+            self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None)
+            self._rr_skips = SkipEvents()
+            self.create_timer(0.5, self._flush_rerun)
+
+    def _subscribe_inputs(self, topics: bagmod.TopicMap) -> None:
+        """The input subscriptions: the four Float64 channels or the joint states, and the oil temperature."""
+        node = self.config.node
+        input_qos = INPUT_QOS[node.input_qos]
+        if node.input_mode == "float64":
+            for channel, rel in Topic.OF_CHANNEL.items():
+                self._input_handles[channel] = self._subscribe(
+                    Float64, rel, self._float_callback(channel, self.resolve_topic_name(rel)), input_qos, raw=True)
+        else:
+            self._subscribe(JointState, topics.joint_states, lambda msg, _info=None: self._joint_state_callback(msg),
+                            input_qos)
+        self._subscribe(Temperature, Topic.OIL_TEMPERATURE, lambda msg, _info=None: self._temperature_callback(msg),
+                        input_qos)
 
     def _subscribe(self, msg_type, topic: str, callback, qos, raw: bool = False):
         """An input subscription: ``callback(message, info)``, on the input thread (events executor;
@@ -517,34 +525,49 @@ class LossEstimatorNode(Node):
                 self.get_logger().warn(f"node.map_file: could not rewrite {self.config.node.map_file}: {exc}")
         self.maps_published += 1
 
+    def _create_outputs(self) -> None:
+        """A publisher for each output channel the parameters switch on (:mod:`.outputs`:
+        ``node.publish_float64``, ``node.publish_stamped``), and the per-sample publishing plan."""
+        node = self.config.node
+        #: output channel -> its resolved topic, for the channels published
+        self.out_topics: dict[str, str] = {}
+        self.output_publishers: dict[str, Any] = {}
+        for channel in OUTPUT_CHANNELS.values():
+            if node.publish_stamped if channel.stamped else node.publish_float64:
+                self.out_topics[channel.name] = self.resolve_topic_name(channel.topic)
+                self.output_publishers[channel.name] = self.create_publisher(
+                    _MESSAGE_CLASSES[channel.message_type], channel.topic, output_qos(channel))
+        # (value of the estimate, raw publish, topic, published only with measured output), per channel
+        self._float64_plan = tuple(
+            (attrgetter(c.value), _raw_publish(self.output_publishers[c.name]), self.out_topics[c.name],
+             c.measured_only) for c in float64_channels() if c.name in self.out_topics)
+        self._stamped_plan = tuple((_raw_publish(self.output_publishers[c.name]), self.out_topics[c.name])
+                                   for c in stamped_channels() if c.name in self.out_topics)
+        self._stamped = EstimateCodec() if self._stamped_plan else None
+
     def _publish(self, est: Estimate, send: bool = True) -> None:
         """Publish one estimate (``send=False``: record it only) and buffer it for rerun."""
         self._published += 1
         if self._every > 1 and self._published % self._every:
             return
-        res = est.residual_nm
-        if self._float64_out:
-            raws = (_PACK(_CDR, est.loss_torque_nm), _PACK(_CDR, est.loss_power_w), _PACK(_CDR, est.efficiency))
-            res_raw = _PACK(_CDR, res) if res == res else None  # NaN: no measured output
+        recorder = self.recorder
+        stamp = self.get_clock().now().nanoseconds if recorder is not None else 0
+        for value_of, publish, topic, measured_only in self._float64_plan:
+            value = value_of(est)
+            if measured_only and value != value:  # NaN: no measured output
+                continue
+            raw = _PACK(_CDR, value)
             if send:
-                self._send_loss(raws[0])
-                self._send_power(raws[1])
-                self._send_eff(raws[2])
-                if res_raw is not None:
-                    self._send_res(res_raw)
+                publish(raw)
+            if recorder is not None:
+                recorder.write_raw(topic, MessageType.FLOAT64, stamp, raw)
         if self._stamped is not None:
-            est_raw = self._stamped.encode(est.t_ns, estimate_values(est))
-            if send:
-                self._send_estimate(est_raw)
-        if self.recorder is not None:
-            stamp = self.get_clock().now().nanoseconds
-            if self._float64_out:
-                for key, raw in zip(("loss", "power", "eff"), raws):
-                    self.recorder.write_raw(self.out_topics[key], MessageType.FLOAT64, stamp, raw)
-                if res_raw is not None:
-                    self.recorder.write_raw(self.out_topics["res"], MessageType.FLOAT64, stamp, res_raw)
-            if self._stamped is not None:
-                self.recorder.write_raw(self.out_topics["est"], MessageType.JOINT_STATE, stamp, est_raw)
+            raw = self._stamped.encode(est.t_ns, estimate_values(est))
+            for publish, topic in self._stamped_plan:
+                if send:
+                    publish(raw)
+                if recorder is not None:
+                    recorder.write_raw(topic, MessageType.JOINT_STATE, stamp, raw)
         if self.rerun is not None:
             self._rr_buffer.append(est)
 
