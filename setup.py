@@ -27,8 +27,8 @@ setup(
     extras_require={"test": ["pytest", "hypothesis"]},
     entry_points={
         "console_scripts": [
-            "rollergear = rollergear_ros.cli:main",
-            "loss_estimator = rollergear_ros.node:main",
+            "rollergear = rollergear_ros.cli.main:main",
+            "loss_estimator = rollergear_ros.ros.node:main",
         ],
     },
 )

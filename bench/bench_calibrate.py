@@ -13,11 +13,11 @@ from pathlib import Path
 
 from common import long_bag
 
-from rollergear_ros.calibrate import calibrate, load_samples
-from rollergear_ros.effects import EffectInputs
-from rollergear_ros.adaptation import RecursiveLeastSquares, regressor_plan, regressors
-from rollergear_ros.estimator import Estimator
-from rollergear_ros.params import load_config
+from rollergear_ros.calibration.calibrate import calibrate, load_samples
+from rollergear_ros.core.effects import EffectInputs
+from rollergear_ros.core.adaptation import RecursiveLeastSquares, regressor_plan, regressors
+from rollergear_ros.core.estimator import Estimator
+from rollergear_ros.core.params import load_config
 
 
 def main() -> None:

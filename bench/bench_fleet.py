@@ -28,9 +28,9 @@ from pathlib import Path
 
 from common import long_bag
 
-from rollergear_ros.fleet import dask_client, discover, run_replay
-from rollergear_ros.params import load_config
-from rollergear_ros.replay import replay
+from rollergear_ros.fleet.run import dask_client, discover, run_replay
+from rollergear_ros.core.params import load_config
+from rollergear_ros.replay.run import replay
 
 
 def _nothing(i: int) -> int:
@@ -39,8 +39,8 @@ def _nothing(i: int) -> int:
 
 def _warm() -> None:
     """Import what a replay task needs (a worker's one-time start-up, not counted per recording)."""
-    import rollergear_ros.importer  # noqa: F401
-    import rollergear_ros.replay  # noqa: F401
+    import rollergear_ros.sources.importer  # noqa: F401
+    import rollergear_ros.replay.run  # noqa: F401
 
 
 def main() -> None:

@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 from common import best_of
 
-from rollergear_ros.calibrate import calibrate
-from rollergear_ros.channelmap import load_channel_map
-from rollergear_ros.importer import import_source, write_aligned
-from rollergear_ros.params import load_config
-from rollergear_ros.samples import table_samples
-from rollergear_ros.timeseries import align, read_series
+from rollergear_ros.calibration.calibrate import calibrate
+from rollergear_ros.sources.channelmap import load_channel_map
+from rollergear_ros.sources.importer import import_source, write_aligned
+from rollergear_ros.core.params import load_config
+from rollergear_ros.calibration.samples import table_samples
+from rollergear_ros.sources.timeseries import align, read_series
 
 CHANNEL_MAP = """format: timeseries
 time: {column: t, unit: s}

@@ -12,8 +12,8 @@ import numpy as np
 
 from common import best_of
 
-from rollergear_ros.model import LossModel
-from rollergear_ros.params import load_config
+from rollergear_ros.core.model import LossModel
+from rollergear_ros.core.params import load_config
 
 
 def main() -> None:

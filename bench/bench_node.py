@@ -50,9 +50,9 @@ EFFECT_ON = {
 def estimator_cost_us(kind: str, samples: int = 60_000, with_outputs: bool = True) -> float:
     """µs per sample of the estimator ``kind``'s node runs (arrival pairing, as the events executor),
     fed the driver's four messages per sample in-process: pairing, model, effects, adaptation."""
-    from rollergear_ros.estimator import Estimator
-    from rollergear_ros.pairing import OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
-    from rollergear_ros.params import load_config
+    from rollergear_ros.core.estimator import Estimator
+    from rollergear_ros.core.pairing import OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
+    from rollergear_ros.core.params import load_config
 
     overrides = dict(arg.split(":=") for arg in EFFECT_ON.get(kind, ()))
     config = load_config(ROOT / "config" / "gearbox.yaml",
@@ -74,7 +74,7 @@ def start_sut(kind: str, executor: str, cpu: int | None = None, stamped: bool = 
     if kind == "echo":
         cmd = [sys.executable, str(ROOT / "bench" / "echo_node.py"), executor]
     else:
-        cmd = [sys.executable, "-m", "rollergear_ros.node", "--ros-args", "--params-file",
+        cmd = [sys.executable, "-m", "rollergear_ros.ros.node", "--ros-args", "--params-file",
                str(ROOT / "config" / "gearbox.yaml"), "-p", f"node.executor:={executor}"]
         if stamped:
             cmd += ["-p", "node.publish_float64:=false"]
@@ -210,8 +210,8 @@ def main() -> None:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from rollergear_ros.node import output_qos
-    from rollergear_ros.outputs import OUTPUT_CHANNELS
+    from rollergear_ros.ros.node import output_qos
+    from rollergear_ros.base.output_channels import OUTPUT_CHANNELS
 
     OUTPUT_QOS = output_qos(OUTPUT_CHANNELS["loss_torque"])
 

@@ -23,8 +23,8 @@ from pathlib import Path
 
 from common import long_bag
 
-from rollergear_ros.params import load_config
-from rollergear_ros.replay import replay
+from rollergear_ros.core.params import load_config
+from rollergear_ros.replay.run import replay
 
 
 def crc_cost(bag: Path) -> float:
@@ -32,7 +32,7 @@ def crc_cost(bag: Path) -> float:
     import struct
     import zlib
 
-    from rollergear_ros.fastmcap import OP_CHUNK, chunk_records
+    from rollergear_ros.recordings.fastmcap import OP_CHUNK, chunk_records
 
     total = 0.0
     with bag.open("rb") as fh:

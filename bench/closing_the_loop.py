@@ -2,7 +2,7 @@
 """Verdicts and held-out error reductions of ``calibrate`` for every effect of the vocabulary.
 
 Each case simulates a recording with effects drawn from physically plausible ranges (the same
-draws as test/test_calibrate.py), runs the analysis without telling it what was simulated, and
+draws as test/calibration/test_calibrate.py), runs the analysis without telling it what was simulated, and
 prints one Markdown table row.  Usage: python bench/closing_the_loop.py
 """
 
@@ -17,9 +17,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
 from test_calibrate import CASES, OILS, datasheet_oil, draw_effect  # noqa: E402
 
-from rollergear_ros.calibrate import calibrate, load_samples  # noqa: E402
-from rollergear_ros.params import load_config  # noqa: E402
-from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag  # noqa: E402
+from rollergear_ros.calibration.calibrate import calibrate, load_samples  # noqa: E402
+from rollergear_ros.core.params import load_config  # noqa: E402
+from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag  # noqa: E402
 
 
 def run(tmp: Path, effects, profile: str, seed: int, **kw):

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rollergear_ros.params import load_config
-from rollergear_ros.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
+from rollergear_ros.core.params import load_config
+from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
 
 
 def long_bag(path: Path, minutes: float, rate_hz: float, effects: list[str] = ()) -> Path:

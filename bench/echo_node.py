@@ -14,8 +14,8 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from std_msgs.msg import Float64
 
-from rollergear_ros.node import SENSOR_QOS, output_qos
-from rollergear_ros.outputs import OUTPUT_CHANNELS
+from rollergear_ros.ros.node import SENSOR_QOS, output_qos
+from rollergear_ros.base.output_channels import OUTPUT_CHANNELS
 
 #: as the node offers its loss torque
 OUTPUT_QOS = output_qos(OUTPUT_CHANNELS["loss_torque"])

@@ -23,9 +23,9 @@ from pathlib import Path
 
 from common import long_bag
 
-from rollergear_ros.calibrate import calibrate, load_samples
-from rollergear_ros.params import load_config
-from rollergear_ros.replay import replay
+from rollergear_ros.calibration.calibrate import calibrate, load_samples
+from rollergear_ros.core.params import load_config
+from rollergear_ros.replay.run import replay
 
 REPLAY_TARGET = 0.5  #: replay rate / raw iteration rate
 CALIBRATE_TARGET = 3.0  #: analysis time / reading time

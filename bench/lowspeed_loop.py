@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The loop near standstill: ``calibrate`` on the joints of test/test_lowspeed.py, friction computed
+"""The loop near standstill: ``calibrate`` on the joints of test/calibration/test_lowspeed.py, friction computed
 there from its own formulas (a Stribeck spin test; the LuGre ODE integrated by scipy), each written
 as a CSV with a constant output torque and calibrated through the command line, as a user would.
 

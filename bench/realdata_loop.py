@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from rollergear_ros.calibrate import calibrate
-from rollergear_ros.channelmap import load_channel_map
-from rollergear_ros.params import load_config
-from rollergear_ros.samples import table_samples
+from rollergear_ros.calibration.calibrate import calibrate
+from rollergear_ros.sources.channelmap import load_channel_map
+from rollergear_ros.core.params import load_config
+from rollergear_ros.calibration.samples import table_samples
 
 ROOT = Path(__file__).resolve().parent.parent
 ADVISOR_MAP = """format: steady_state

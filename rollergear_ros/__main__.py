@@ -2,6 +2,6 @@
 
 import sys
 
-from rollergear_ros.cli import main
+from rollergear_ros.cli.main import main
 
 sys.exit(main())

@@ -30,6 +30,6 @@ def _no_node_outlives_its_test():
 
 @pytest.fixture(scope="session")
 def config():
-    from rollergear_ros.params import load_config
+    from rollergear_ros.core.params import load_config
 
     return load_config(CONFIG)

@@ -5,7 +5,7 @@ and parameter files.
 Each case mutates a valid seed file (truncation, flipped bytes, hostile 64-bit lengths, inserted
 or repeated bytes; hostile YAML constructs for YAML files) and runs the package's own entry
 point on it.  A case passes when it ends in a result or one of the package's errors
-(:class:`~rollergear_ros.errors.RollergearError`, one clear line for the user), within its time
+(:class:`~rollergear_ros.base.errors.RollergearError`, one clear line for the user), within its time
 bound, with the process's peak memory within a bound, and with every output file it wrote valid
 (an MCAP with its summary, readable by the ``mcap`` library).  Used by ``test/test_fuzz.py``
 (bounded) and ``bench/fuzz.py`` (long runs).
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rollergear_ros.errors import RollergearError
+from rollergear_ros.base.errors import RollergearError
 
 CASE_TIMEOUT_S = 30  #: a case running longer is a hang (the seeds take milliseconds)
 RSS_BOUND_MB = 1024  #: peak memory may grow at most this much over a whole run
@@ -139,7 +139,7 @@ class Fuzzer:
     """Runs cases against the targets; ``workdir`` holds the seeds and each case's files."""
 
     def __init__(self, workdir: Path, seed: int = 0) -> None:
-        from rollergear_ros.params import load_config
+        from rollergear_ros.core.params import load_config
 
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
@@ -157,7 +157,7 @@ class Fuzzer:
 
     # ------------------------------------------------------------------ targets
     def _mcap_case(self, k: int) -> str:
-        from rollergear_ros.replay import replay
+        from rollergear_ros.replay.run import replay
 
         src = self.workdir / f"case{k}.mcap"
         src.write_bytes(mutate_bytes(self.seeds["mcap"].read_bytes(), self.rng))
@@ -166,7 +166,7 @@ class Fuzzer:
                                                       warn=lambda m: None))
 
     def _import(self, csv: Path, cmap: Path, k: int) -> str:
-        from rollergear_ros.importer import import_source
+        from rollergear_ros.sources.importer import import_source
 
         out = self.workdir / f"case{k}_import.mcap"
         return _writes_valid_mcap(out, lambda: import_source(csv, out, cmap))
@@ -182,7 +182,7 @@ class Fuzzer:
         return self._import(self.seeds["csv"], cmap, k)
 
     def _params_case(self, k: int) -> str:
-        from rollergear_ros.params import load_config
+        from rollergear_ros.core.params import load_config
 
         p = self.workdir / f"case{k}_params.yaml"
         p.write_bytes(mutate_text(self.seeds["params"].read_text(), self.rng))
@@ -205,7 +205,7 @@ class Fuzzer:
         """A rosbag2 folder whose metadata.yaml (text) or .db3 (bytes) is damaged, imported to MCAP."""
         import shutil
 
-        from rollergear_ros.importer import import_source
+        from rollergear_ros.sources.importer import import_source
 
         bag = self.workdir / f"case{k}_rosbag2"
         shutil.copytree(self.seeds["rosbag2"], bag)
@@ -257,7 +257,7 @@ class Fuzzer:
 
 def _write_seeds(workdir: Path) -> dict[str, Path]:
     """Small valid inputs: a recording of three chunks, a CSV with its channel map, the parameter file."""
-    from rollergear_ros.bag import BagWriter, TopicMap
+    from rollergear_ros.recordings.bag import BagWriter, TopicMap
 
     tm = TopicMap()
     n = 600

@@ -21,7 +21,7 @@ class NodeProcess:
     started: list[NodeProcess] = []
 
     def __init__(self, *params: str, params_file: Path = CONFIG, args: tuple[str, ...] = ()) -> None:
-        cmd = [sys.executable, "-m", "rollergear_ros.node", *args, "--ros-args", "--params-file", str(params_file)]
+        cmd = [sys.executable, "-m", "rollergear_ros.ros.node", *args, "--ros-args", "--params-file", str(params_file)]
         for p in params:
             cmd += ["-p", p]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,

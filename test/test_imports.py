@@ -6,28 +6,60 @@ from __future__ import annotations
 import ast
 from pathlib import Path
 
+from rollergear_ros import WINGS
+
 PACKAGE = Path(__file__).resolve().parent.parent / "rollergear_ros"
 
 
+def module_name(path: Path, package: Path) -> str:
+    """``core/params.py`` -> ``core.params``; a package's ``__init__.py`` is the package."""
+    parts = path.relative_to(package).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
 def import_graph(package: Path = PACKAGE) -> dict[str, set[str]]:
-    """Module -> the package's modules it imports anywhere in its text (``from .x import``,
-    ``from . import x``, ``importlib.import_module("rollergear_ros.x")``)."""
-    modules = {p.stem for p in package.glob("*.py")}
+    """Module (dotted, below the package) -> the package's modules it imports anywhere in its text
+    (``from .x import``, ``from ..wing import x``, ``from rollergear_ros.wing.x import``,
+    ``importlib.import_module("rollergear_ros.wing.x")``)."""
+    files = {module_name(p, package): p for p in package.rglob("*.py")}
+    modules = set(files)
     graph: dict[str, set[str]] = {m: set() for m in modules}
-    for path in package.glob("*.py"):
+
+    def resolve(dotted: str, names: list[str]) -> set[str]:
+        """The modules ``from dotted import names`` reaches (a name that is a module, else ``dotted``)."""
+        found = {f"{dotted}.{n}".strip(".") for n in names} & modules
+        if len(found) < len(names) and dotted in modules:
+            found.add(dotted)
+        return found
+
+    for name, path in files.items():
+        here = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            targets: list[str] = []
-            if isinstance(node, ast.ImportFrom) and node.level == 1:
-                targets = [node.module] if node.module else [a.name for a in node.names]
+            names = [a.name for a in node.names] if isinstance(node, (ast.Import, ast.ImportFrom)) else []
+            if isinstance(node, ast.ImportFrom) and node.level >= 1:
+                base = here[: len(here) - (node.level - 1)]
+                graph[name] |= resolve(".".join(base + ((node.module or "").split(".") if node.module else [])), names)
             elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("rollergear_ros"):
-                rest = node.module.split(".")[1:]
-                targets = rest[:1] or [a.name for a in node.names]
+                graph[name] |= resolve(".".join(node.module.split(".")[1:]), names)
+            elif isinstance(node, ast.Import):
+                graph[name] |= {a.name.split(".", 1)[1] for a in node.names
+                                if a.name.startswith("rollergear_ros.")} & modules
             elif isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "import_module" and node.args:
                 arg = node.args[0]
                 if isinstance(arg, ast.Constant) and str(arg.value).startswith("rollergear_ros."):
-                    targets = [str(arg.value).split(".")[1]]
-            graph[path.stem] |= {t.split(".")[0] for t in targets} & (modules - {path.stem})
+                    graph[name] |= {str(arg.value).split(".", 1)[1]} & modules
+        graph[name].discard(name)
     return graph
+
+
+def climbs(graph: dict[str, set[str]], wings: tuple[str, ...]) -> list[str]:
+    """The imports that run back up: from a module to one in a wing above its own (a module outside
+    the wings, such as ``__main__``, stands at the top)."""
+    def rank(module: str) -> int:
+        wing = module.split(".")[0]
+        return wings.index(wing) if wing in wings else len(wings)
+
+    return sorted(f"{m} -> {t}" for m, targets in graph.items() for t in targets if rank(t) > rank(m))
 
 
 def circles(graph: dict[str, set[str]]) -> list[list[str]]:
@@ -64,8 +96,32 @@ def circles(graph: dict[str, set[str]]) -> list[list[str]]:
 
 def test_the_package_has_no_import_circle():
     graph = import_graph()
-    assert graph["model"] >= {"equations"} and "model" not in graph["params"]  # the graph sees imports
+    # the graph sees imports: within a wing, across wings, lazy ones
+    assert graph["core.model"] >= {"core.equations"} and "core.model" not in graph["core.params"]
+    assert graph["ros.node"] >= {"core.estimator", "recordings.bag", "base.output_channels"}
+    assert "calibration.report" in graph["cli.calibrate"]
     assert circles(graph) == []
+
+
+def test_every_module_is_in_a_wing_and_no_import_runs_back_up():
+    graph = import_graph()
+    outside = sorted(m for m in graph if "." not in m and m not in WINGS and m not in ("", "__main__"))
+    assert outside == [], f"modules outside the wings: {outside}"
+    assert all(w in graph for w in WINGS)  # each wing is a package
+    assert climbs(graph, WINGS) == []
+
+
+def test_a_climb_is_found_where_there_is_one(tmp_path):
+    for wing in ("low", "high"):
+        (tmp_path / wing).mkdir()
+        (tmp_path / wing / "__init__.py").write_text("")
+    (tmp_path / "low" / "a.py").write_text("def f():\n    from ..high import b\n")
+    (tmp_path / "high" / "b.py").write_text("from ..low.a import f\n")
+    (tmp_path / "high" / "c.py").write_text("from . import b\n")
+    graph = import_graph(tmp_path)
+    assert graph["high.c"] == {"high.b"}
+    assert climbs(graph, ("low", "high")) == ["low.a -> high.b"]
+    assert circles(graph) == [["high.b", "low.a"]]
 
 
 def test_a_circle_is_found_where_there_is_one(tmp_path):

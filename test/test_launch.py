@@ -19,7 +19,7 @@ LAUNCH = ROOT / "launch"
 
 def test_the_executable_the_launch_files_name_is_installed():
     scripts = {e.name: e.value for e in entry_points(group="console_scripts")}
-    assert scripts["loss_estimator"] == "rollergear_ros.node:main"
+    assert scripts["loss_estimator"] == "rollergear_ros.ros.node:main"
     setup = (ROOT / "setup.py").read_text()
     assert 'glob("launch/*.launch.py") + glob("launch/*.launch.xml")' in setup and CONFIG.exists()
 

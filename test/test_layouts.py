@@ -10,9 +10,9 @@ import pytest
 from helpers import BAGS, ROOT
 from mcap.reader import make_reader
 
-from rollergear_ros.params import load_config
-from rollergear_ros.replay import replay
-from rollergear_ros.stamped import ESTIMATE_FIELDS
+from rollergear_ros.core.params import load_config
+from rollergear_ros.replay.run import replay
+from rollergear_ros.outputs.stamped import ESTIMATE_FIELDS
 
 LAYOUTS = ROOT / "layouts"
 

@@ -1,0 +1,52 @@
+"""One exception family for what users get wrong: every ``rollergear`` command turns these -- and
+only these -- into one line ``rollergear: error: …`` and exit status 2 (``loss_estimator``:
+``loss_estimator: error: …``).  Anything else is a defect and surfaces as a traceback.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class RollergearError(Exception):
+    """Base of the errors a user can fix: the message says what is wrong and where."""
+
+
+class ParameterError(RollergearError, ValueError):
+    """A parameter value is out of range, of the wrong type, unknown, or inconsistent."""
+
+    def __init__(self, name: str, value: Any, allowed: str) -> None:
+        self.name = name
+        self.value = value
+        self.allowed = allowed
+        super().__init__(f"parameter '{name}' = {_shown(value)} is invalid: {allowed}")
+
+    @classmethod
+    def broken_file(cls, path: str, problem: Exception) -> ParameterError:
+        """A parameter file that cannot be read as YAML: one line, with file, line and column
+        where known (``problem`` is a :class:`~.safeyaml.YamlProblem`)."""
+        err = cls("<file>", path, "")
+        err.args = (str(problem),)
+        return err
+
+
+def _shown(value: Any, limit: int = 80) -> str:
+    """``repr(value)``, shortened: an error line never echoes a huge value."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit - 20]}… ({len(text):,} characters)"
+
+
+class BagError(RollergearError):
+    """A recording cannot be used: missing topics, wrong types, not a ROS 2 MCAP, unreadable, or
+    too little of what a command needs (e.g. no measured output torque to calibrate with)."""
+
+
+class InputFileError(RollergearError):
+    """An input file other than a recording (a CSV of operating points, a table) cannot be used."""
+
+
+class UsageError(RollergearError):
+    """A command-line request that cannot be served (a bad option value, an unknown name)."""
+
+
+__all__ = ["BagError", "InputFileError", "ParameterError", "RollergearError", "UsageError"]

@@ -1,0 +1,99 @@
+"""The estimator's output channels in one table: name, topic, message type, unit, value and QoS.
+
+Every place that publishes, records, writes or shows an estimate loops over :data:`OUTPUT_CHANNELS`:
+the node (its publishers, its per-sample publishing plan and its MCAP recorder), replay's MCAP
+output, ``rollergear watch`` (the Float64 channels) and ``docs/interface.md`` (a test checks that
+each channel has its row there).  A channel's name is also its field of :class:`~recordings.bag.TopicMap`
+(``--topic-<name>``) and its key wherever outputs are keyed.
+
+Two kinds of channel:
+
+- a **Float64** channel carries one value of each estimate: the attribute :attr:`OutputChannel.value`
+  of :class:`~core.estimator.Estimate` (node) and :class:`~core.estimator.BatchEstimate` (replay); the node
+  publishes these when ``node.publish_float64`` is on;
+- the **stamped** channel carries each estimate as one ``sensor_msgs/msg/JointState`` with its
+  sample time (:mod:`outputs.stamped`), when ``node.publish_stamped`` is on.
+
+To add a Float64 output: one :class:`OutputChannel` entry passed to :func:`register` (its value an
+attribute both estimate types have), its row in ``docs/interface.md``, and its tests; the node,
+replay, the recordings and ``watch`` take it from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .interface import NAMESPACE, OUTPUT_QUEUE_DEPTH, MessageType, Topic
+
+__all__ = ["OUTPUT_CHANNELS", "OutputChannel", "float64_channels", "register", "stamped_channels", "unregister"]
+
+
+@dataclass(frozen=True)
+class OutputChannel:
+    """One output of the estimator (see the module docstring)."""
+
+    name: str  #: key of the channel everywhere (TopicMap field, ``watch``, the node's topic table)
+    topic: str  #: relative to the node's namespace
+    message_type: str  #: as MCAP schemas name it (:class:`~.interface.MessageType`)
+    unit: str  #: of the value ("1": dimensionless; "" for the stamped message, whose values have their own)
+    description: str  #: what it carries (docs)
+    #: attribute of :class:`~core.estimator.Estimate` / :class:`~core.estimator.BatchEstimate` a Float64 channel
+    #: carries (None: the stamped channel, which carries :data:`~outputs.stamped.ESTIMATE_FIELDS`)
+    value: str | None = None
+    #: published only for samples with measured output torque (the value is NaN without one)
+    measured_only: bool = False
+    reliable: bool = True  #: QoS reliability the node offers it with (volatile, keep-last)
+    depth: int = OUTPUT_QUEUE_DEPTH  #: QoS history depth
+
+    @property
+    def stamped(self) -> bool:
+        """Each estimate as one stamped message (rather than one Float64 value)."""
+        return self.value is None
+
+    def absolute_topic(self, namespace: str = NAMESPACE) -> str:
+        """The topic under ``namespace`` (the node's default namespace unless given)."""
+        ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+        return f"{ns}/{self.topic}"
+
+
+#: name -> channel, in publishing order
+OUTPUT_CHANNELS: dict[str, OutputChannel] = {}
+
+
+def register(channel: OutputChannel) -> OutputChannel:
+    """Add ``channel`` to :data:`OUTPUT_CHANNELS` (a name already there is refused)."""
+    if channel.name in OUTPUT_CHANNELS:
+        raise ValueError(f"output channel {channel.name!r} is already registered")
+    if channel.stamped and channel.message_type != MessageType.JOINT_STATE:
+        raise ValueError(f"output channel {channel.name!r}: without a value it is the stamped JointState channel")
+    OUTPUT_CHANNELS[channel.name] = channel
+    return channel
+
+
+def unregister(name: str) -> None:
+    """Remove a channel registered with :func:`register` (tests' toy channels)."""
+    del OUTPUT_CHANNELS[name]
+
+
+def float64_channels() -> tuple[OutputChannel, ...]:
+    """The Float64 channels, in publishing order."""
+    return tuple(c for c in OUTPUT_CHANNELS.values() if not c.stamped)
+
+
+def stamped_channels() -> tuple[OutputChannel, ...]:
+    """The stamped channel(s)."""
+    return tuple(c for c in OUTPUT_CHANNELS.values() if c.stamped)
+
+
+for _channel in (
+    OutputChannel("loss_torque", Topic.LOSS_TORQUE, MessageType.FLOAT64, "N*m",
+                  "model (plus accepted effects) loss torque, signed, input-referred", "loss_torque_nm"),
+    OutputChannel("loss_power", Topic.LOSS_POWER, MessageType.FLOAT64, "W", "loss power", "loss_power_w"),
+    OutputChannel("efficiency", Topic.EFFICIENCY, MessageType.FLOAT64, "1", "efficiency, NaN where undefined",
+                  "efficiency"),
+    OutputChannel("residual_torque", Topic.RESIDUAL_TORQUE, MessageType.FLOAT64, "N*m",
+                  "measured loss - estimated loss (only with measured output)", "residual_nm", measured_only=True),
+    OutputChannel("loss_estimate", Topic.LOSS_ESTIMATE, MessageType.JOINT_STATE, "",
+                  "each estimate as one stamped message (sample time in header.stamp)"),
+):
+    register(_channel)

@@ -1,0 +1,175 @@
+"""Loading data for calibration: recordings replayed through the bare model (samples with a
+measured loss), or steady-state tables (:mod:`sources.tables`, one sample per operating point).
+
+Next to :mod:`replay.run`, whose estimator it runs (no effects, no adaptation).  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..recordings.bag import TopicMap
+from ..sources.channelmap import ChannelMap
+from ..base.errors import BagError, InputFileError
+from ..core.model import LossModel
+from ..core.params import Config, validate
+
+
+@dataclass
+class SampleData:
+    """Per-sample inputs and measured loss of one or more bags (valid samples only)."""
+
+    t_ns: np.ndarray
+    bag_id: np.ndarray
+    torque: np.ndarray
+    speed: np.ndarray
+    temperature: np.ndarray
+    measured_loss: np.ndarray
+    model_loss: np.ndarray
+    fr_part: np.ndarray
+    skipped: dict[str, int] = field(default_factory=dict)
+    steady_state: bool = False  #: rows of steady-state tables (dwell means), not a time series
+    ratio: float | None = None  #: the tables' own input/output ratio (one for all), for the calibrated file
+    sign_width_rad_s: float = 0.0  #: the estimator's smooth sign width (its effects see the same direction)
+    #: a spin test: nothing on the output (its torque 0 throughout), the drive torque is the loss itself
+    spin_test: bool = False
+    #: the model's parts at each sample (:meth:`~core.model.LossModel.parts`): what a model parameter scales
+    parts: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def residual(self) -> np.ndarray:
+        return self.measured_loss - self.model_loss
+
+
+def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = TopicMap(),
+                 warn: Callable[[str], None] | None = None, min_speed_rad_s: float = 0.0,
+                 progress: bool = False) -> SampleData:
+    """Replay bags through the bare model (no effects, no adaptation) and keep samples with a measured
+    loss: down to 3 × the speed reading's noise from standstill (closer, the direction is not known and
+    the estimator gives no measured loss), or ``min_speed_rad_s``."""
+    from ..replay.run import replay
+
+    base = validate({k: v for k, v in config.to_flat().items() if not k.startswith("effects.")}
+                    | {"estimator.adapt": False})
+    model = LossModel(base.gearbox, enabled=base.estimator.paper_model)
+    parts = []
+    loaded = False  # any output torque other than 0 (else: a spin test)
+    skipped: dict[str, int] = {}
+    for i, bag in enumerate(bags):
+        summary, batches = replay(bag, base, topics, show_progress=progress, warn=warn, collect=True)
+        for k, v in summary.skipped.items():
+            skipped[k] = skipped.get(k, 0) + v
+        for b in batches:
+            ok = np.isfinite(b.measured_loss_nm) & (np.abs(b.speed_rad_s) >= min_speed_rad_s)
+            temp = b.temperature_c if b.temperature_c is not None else np.full(len(b.t_ns), np.nan)
+            parts.append((b.t_ns[ok], np.full(int(ok.sum()), i), b.torque_nm[ok], b.speed_rad_s[ok], temp[ok],
+                          b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok])))
+            if b.out_torque_nm is not None and np.any(b.out_torque_nm[ok] != 0):
+                loaded = True
+    if not parts or sum(len(p[0]) for p in parts) == 0:
+        raise BagError("no samples with a measured output torque and |speed| >= "
+                       f"{max(min_speed_rad_s, 3 * config.estimator.speed_noise_rad_s):g} rad/s: calibration needs "
+                       "the output torque topic")
+    cols = [np.concatenate([p[j] for p in parts]) for j in range(7)]
+    return SampleData(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6],
+                      model.fr_part(cols[2], cols[3]), skipped, parts=model.parts(cols[2], cols[3]),
+                      sign_width_rad_s=config.estimator.speed_noise_rad_s, spin_test=not loaded)
+
+
+def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[str], None] | None = None,
+                  cmap: ChannelMap | None = None) -> SampleData:
+    """Steady-state tables as samples: one per row, its measured loss the table's (a dwell mean).
+
+    Rows outside the estimator's plausible range (``estimator.max_abs_*``) are skipped and
+    counted, as the estimator skips such samples; the model is the paper's unless
+    ``estimator.paper_model`` switches it off.  Each file, and each value of the map's group
+    column, is a gearbox state of its own (``bag_id``).
+    """
+    from ..sources.tables import read_table
+
+    model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
+    est = config.estimator
+    parts = []
+    implausible = 0
+    ratios: set[float | None] = set()
+    states: dict[tuple[int, str], int] = {}
+    for i, path in enumerate(paths):
+        table = read_table(path, cmap, config.gearbox.ratio_effective)
+        if table.dropped and warn:
+            warn(f"{path}: {table.dropped} rows without a finite torque, speed or loss: skipped")
+        keep = ((np.abs(table.torque_nm) <= est.max_abs_torque_nm)
+                & (np.abs(table.speed_rad_s) <= est.max_abs_speed_rad_s))
+        if np.count_nonzero(~keep) > MAX_BEYOND_SHARE * len(keep):  # the table is another gearbox's size
+            need_t = float(np.max(np.abs(table.torque_nm)))
+            need_w = float(np.max(np.abs(table.speed_rad_s)))
+            raise InputFileError(
+                f"{path}: {np.count_nonzero(~keep)} of {len(keep)} rows lie beyond the estimator's plausible range "
+                f"(estimator.max_abs_torque_nm {est.max_abs_torque_nm:g} N·m, max_abs_speed_rad_s "
+                f"{est.max_abs_speed_rad_s:g} rad/s; the table reaches {need_t:.6g} N·m and {need_w:.6g} rad/s): "
+                f"raise them in the parameter file (--params) to calibrate this table, e.g. "
+                f"estimator.max_abs_torque_nm: {_round_up(need_t):g}, max_abs_speed_rad_s: {_round_up(need_w):g}")
+        ratios.add(table.ratio)
+        if not keep.all():
+            implausible += int(np.count_nonzero(~keep))
+            if warn:
+                warn(f"{path}: {np.count_nonzero(~keep)} of {len(keep)} rows beyond estimator.max_abs_torque_nm "
+                     f"({est.max_abs_torque_nm:g} N·m) or max_abs_speed_rad_s: skipped (raise them in the "
+                     "parameter file for this gearbox)")
+        group = table.group if table.group is not None else np.full(len(keep), "")
+        state = np.array([states.setdefault((i, g), len(states)) for g in group[keep]], dtype=np.int64)
+        parts.append((table.speed_rad_s[keep], table.torque_nm[keep], table.loss_nm[keep], table.temperature_c[keep],
+                      state))
+    speed, torque, loss, temperature, bag_id = (np.concatenate([p[j] for p in parts]) for j in range(5))
+    if len(speed) == 0:
+        raise BagError(f"no rows of {', '.join(map(str, paths))} within the estimator's plausible range")
+    # nominal times 1 s apart: every row is its own block and dwell (see blocks.make_blocks)
+    t_ns = np.arange(len(speed), dtype=np.int64) * 1_000_000_000
+    return SampleData(t_ns, bag_id, torque, speed, temperature, loss, model.loss_magnitude(torque, speed),
+                      model.fr_part(torque, speed), {"implausible": implausible} if implausible else {},
+                      steady_state=True, ratio=ratios.pop() if len(ratios) == 1 else None,
+                      parts=model.parts(torque, speed))
+
+
+MAX_BEYOND_SHARE = 0.25  #: a table with more of its rows beyond the plausible range is refused, not cut
+
+
+def _round_up(value: float) -> float:
+    """A limit just above ``value`` with two significant digits (12 345 -> 13 000)."""
+    if value <= 0:
+        return 1.0
+    scale = 10 ** (math.floor(math.log10(value)) - 1)
+    return math.floor(value / scale + 1) * scale
+
+
+LOADED_SHARE = 0.2  #: a sample is loaded when its |T| is at least this share of the 95th percentile of |T|
+
+
+def power_balance_warning(data: SampleData) -> str | None:
+    """A line saying so when the measured loss exceeds the input torque in most loaded samples.
+
+    A passive gearbox loses less than it takes in: ``|T_loss,meas| < |T_in|`` except at a light
+    load.  When most samples with ``|T| ≥ 20 %`` of the 95th percentile of ``|T|`` break that, the
+    output torque is almost surely in the opposite sign convention (power out counted negative:
+    the measured loss is then about ``2·|T|``), or the ratio or the output's unit is wrong -- a
+    calibration would fit that as an effect.  None when the balance is plausible.
+    """
+    torque = np.abs(data.torque)
+    if len(torque) == 0:
+        return None
+    loaded = torque >= LOADED_SHARE * np.percentile(torque, 95)
+    loaded &= torque > 0
+    if np.count_nonzero(loaded) < 10:
+        return None
+    share = np.abs(data.measured_loss[loaded]) / torque[loaded]
+    over = float(np.mean(share > 1.0))
+    if over <= 0.5:
+        return None
+    return (f"the measured loss exceeds the input torque in {100 * over:.0f} % of the loaded samples (median "
+            f"|loss|/|T| = {float(np.median(share)):.2f}): the output torque is likely in the opposite sign "
+            "convention (power out must be positive: scale: -1 in the channel map), or the ratio or the output's "
+            "unit is wrong")

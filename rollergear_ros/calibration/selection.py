@@ -1,0 +1,730 @@
+"""Forward selection of the missing effects on block means (steps 4-5 of :mod:`.calibrate`).
+
+Weighted least squares with cluster-robust errors (:func:`wls`), one candidate :class:`Term` per
+effect and member of its grid (:func:`members`), and the :class:`Calibrator` that profiles the
+exponents, cross-validates and accepts, rejects or flags as ambiguous one group per step.
+No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .blocks import Blocks, groups
+from ..core.effects import EFFECTS, separating_data
+from ..core.modelparams import MODEL_PARAMETERS
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Error of a prediction of the measured loss (weighted by samples per block)."""
+
+    rmse_nm: float
+    mae_nm: float
+    max_abs_nm: float
+    rel_rmse_pct: float  #: RMSE / RMS measured loss, %
+
+    def to_json(self) -> dict[str, float]:
+        return {"rmse_nm": self.rmse_nm, "mae_nm": self.mae_nm, "max_abs_nm": self.max_abs_nm,
+                "rel_rmse_pct": self.rel_rmse_pct}
+
+
+@dataclass(frozen=True)
+class RejectedEffect:
+    """An effect not accepted, with the upper 95 % bound of its RMS contribution."""
+
+    name: str
+    upper_rms_nm: float
+    estimate_rms_nm: float
+    ambiguous: bool = False  #: in a set the data cannot tell apart (bounds NaN)
+    reason: str = ""  #: why, when it is not the bound (e.g. a fitted value out of range)
+
+    def to_json(self) -> dict:
+        out = {"name": self.name, "upper_rms_nm": self.upper_rms_nm, "estimate_rms_nm": self.estimate_rms_nm,
+               "ambiguous": self.ambiguous}
+        return out | ({"reason": self.reason} if self.reason else {})
+
+
+@dataclass(frozen=True)
+class AmbiguousSet:
+    """Effects whose columns are the same on this data, and the data that would separate them."""
+
+    effects: list[str]
+    needs: str
+    rms_contribution_nm: list[float]  #: 95 % range of the RMS contribution of the set's best
+    assumed: str | None = None  #: the member the user said it is (``calibrate --assume``): accepted and written
+
+    def to_json(self) -> dict:
+        return {"effects": self.effects, "needs": self.needs, "rms_contribution_nm": self.rms_contribution_nm,
+                "assumed": self.assumed}
+
+
+@dataclass
+class Selection:
+    """What forward selection found (:meth:`Calibrator.run`)."""
+
+    selected: list  #: accepted terms, in the order accepted
+    provisional: list  #: the best term of each ambiguous set: kept in the fit, not reported
+    ranges: dict[str, list[float]]  #: profile-likelihood 95 % range of each term's member
+    ambiguous: list[AmbiguousSet]
+    rejected: list[RejectedEffect]
+    unavailable: list[str]  #: effects the data cannot test
+    second_ranges: dict[str, list[float]] = field(default_factory=dict)  #: the same for a second member (Vogel C)
+    #: candidates set aside at some step because their fit needed a negative friction (the model
+    #: over-predicts somewhere)
+    negative: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Fit:
+    coef: np.ndarray
+    cov: np.ndarray
+    wsse: float
+    pred: np.ndarray
+
+
+def wls(x: np.ndarray, y: np.ndarray, w: np.ndarray, groups: np.ndarray | None = None) -> Fit:
+    """Weighted least squares with a cluster-robust (by ``groups``) sandwich covariance."""
+    sw = np.sqrt(w)
+    xs = x * sw[:, None]
+    ys = y * sw
+    coef, *_ = np.linalg.lstsq(xs, ys, rcond=1e-12)
+    pred = x @ coef
+    r = y - pred
+    bread = np.linalg.pinv(xs.T @ xs)
+    if groups is not None and len(np.unique(groups)) > x.shape[1] + 1:
+        score = x * (w * r)[:, None]
+        ug, inv = np.unique(groups, return_inverse=True)
+        sums = np.zeros((len(ug), x.shape[1]))
+        np.add.at(sums, inv, score)
+        g = len(ug)
+        meat = sums.T @ sums * (g / (g - 1))
+        cov = bread @ meat @ bread
+    else:
+        dof = max(len(y) - x.shape[1], 1)
+        cov = bread * float(np.sum(w * r * r)) / dof
+    return Fit(coef, cov, float(np.sum(w * r * r)), pred)
+
+
+@dataclass
+class Term:
+    """One candidate group at one member (exponent / Vogel B): a column in the design."""
+
+    name: str
+    column: np.ndarray
+    member: float | None = None  # p, q or B
+    second: float | None = None  # Vogel C (None: the registry's default)
+    law: tuple[float, float, float] | None = None  # the oil's Vogel B, C, θ_ref (an effect that follows the oil)
+
+    def params(self, coef: float) -> dict[str, float]:
+        """The effect's parameters (short names, registry order): the fitted coefficient, the
+        profiled member, the defaults for the rest."""
+        effect = EFFECTS[self.name]
+        values = effect.defaults()
+        values[effect.coefficient] = coef
+        if effect.member is not None:
+            values[effect.member] = float(self.member)
+        if effect.second_member is not None and self.second is not None:
+            values[effect.second_member] = float(self.second)
+        if self.law is not None:
+            values.update(zip(("B", "C", "theta_ref"), self.law))
+        return values
+
+
+def members(blocks: Blocks, name: str, law: tuple[float, float, float] | None = None) -> list[Term]:
+    """The candidate terms of one group: one column, or one per member of its grid ([] when the
+    data cannot test it, or when it follows the oil and no ``law`` is known)."""
+    if name not in blocks.testable:
+        return []
+    if name in MODEL_PARAMETERS:
+        return [Term(name, blocks.columns[name])]
+    effect = EFFECTS[name]
+    if effect.oil_law:
+        if law is None:
+            return []
+        return [Term(name, blocks.column(name, float(m), None, law), float(m), None, law) for m in effect.member_grid]
+    if effect.member is None:
+        return [Term(name, blocks.columns[name])]
+    return [Term(name, blocks.grids[name][i], float(m)) for i, m in enumerate(effect.member_grid)]
+
+
+class Calibrator:
+    """Forward selection over the physical groups on block means (see the module docstring)."""
+
+    def __init__(
+        self, blocks: Blocks, delta_nm: float | None = None, alpha: float = 0.01, min_improvement: float = 0.02
+    ) -> None:
+        self.b = blocks
+        self.alpha = alpha
+        self.min_improvement = min_improvement
+        nuis = [blocks.columns["dtdt"], blocks.columns["dwdt"]]
+        # drop nuisance columns with no variation (steady data): they would be singular
+        self.nuisance = [c for c in nuis if np.sqrt(np.average(c * c, weights=blocks.count)) > 1e-9]
+        rms_meas = float(np.sqrt(np.average(blocks.measured**2, weights=blocks.count)))
+        # a table's rows carry no noise estimate (equal weights): delta from the measured loss alone
+        se_block = 0.0 if blocks.steady_state else float(np.sqrt(np.median(1.0 / blocks.weight)))
+        self.delta = delta_nm if delta_nm is not None else max(0.005, 0.02 * rms_meas, 3 * se_block)
+        self.rms_measured = rms_meas
+        self.log: list[str] = []
+        self.stage: Callable[[str], None] = lambda text: None  #: told what the selection is doing
+        #: effect -> (member, second member) to start its search from, and -> their search bounds,
+        #: instead of the registry's grids and bounds (a data sheet's viscosity law: ``calibrate``)
+        self.starts: dict[str, tuple[float, float | None]] = {}
+        self.bounds: dict[str, dict[str, tuple[float, float]]] = {}
+        self.datasheet_law: tuple[float, float, float] | None = None  #: the oil's data sheet's Vogel B, C, θ_ref
+
+    def search_ranges(self, name: str) -> dict[str, tuple[float, float]]:
+        """Short name -> search bounds of an effect's profiled members (a start's, else the registry's)."""
+        return self.bounds.get(name) or EFFECTS[name].profiled_ranges()
+
+    # -------------------------------------------------------------- helpers
+    def design(self, terms: Sequence[Term], nuisance: bool = True, skip: Sequence[int] = ()) -> np.ndarray:
+        """The columns of a set (nuisance first), without the terms at ``skip`` (held coefficients)."""
+        cols = (self.nuisance if nuisance else []) + [self.effective_column(t, terms) for i, t in enumerate(terms)
+                                                      if i not in skip]
+        return np.column_stack(cols) if cols else np.zeros((len(self.b.y), 0))
+
+    def effective_column(self, t: Term, terms: Sequence[Term]) -> np.ndarray:
+        """A term's column in a set: the rolling part's parameter (η0) scales the Fr part *at the
+        viscosity law's η(θ)* when a Fr-scaling effect is in the set (its column is ``T_Fr·(s − 1)``
+        at coefficient 1, so the part at η(θ) is ``T_Fr + T_Fr·(s − 1)``); an effect that follows the
+        oil follows the set's viscosity law (one oil: its B and C are fitted once, for both)."""
+        if t.law is not None:
+            law = self.oil_law(terms)
+            if law is not None and law != t.law:
+                return self.b.column(t.name, t.member, t.second, law)
+            return t.column
+        parameter = MODEL_PARAMETERS.get(t.name)
+        if parameter is None or parameter.part != "fr":
+            return t.column
+        coupled = [u.column for u in terms if u.name in EFFECTS and EFFECTS[u.name].scales_fr]
+        return t.column + sum(coupled) if coupled else t.column
+
+    @staticmethod
+    def held(terms: Sequence[Term]) -> dict[int, float]:
+        """Terms whose coefficient is held, not fitted: with the rolling part's parameter (η0) in a
+        set, a Fr-scaling effect (the viscosity law) is held at its profile coefficient -- η0 is the
+        law's level, and the file (η0, the law at scale 1) then predicts exactly what was fitted."""
+        if not any(t.name in MODEL_PARAMETERS and MODEL_PARAMETERS[t.name].part == "fr" for t in terms):
+            return {}
+        return {i: float(EFFECTS[t.name].profile_coefficient) for i, t in enumerate(terms)
+                if t.name in EFFECTS and EFFECTS[t.name].scales_fr and EFFECTS[t.name].profile_coefficient is not None}
+
+    def _offset(self, terms: Sequence[Term], held: dict[int, float]) -> np.ndarray:
+        """What the held terms predict."""
+        out = np.zeros(len(self.b.y))
+        for i, coef in held.items():
+            out = out + coef * self.effective_column(terms[i], terms)
+        return out
+
+    def fit(self, terms: Sequence[Term]) -> Fit:
+        """The weighted fit of a set; a held term's coefficient is its held value (variance 0)."""
+        held = self.held(terms)
+        x = self.design(terms, skip=held)
+        offset = self._offset(terms, held)
+        k0 = len(self.nuisance)
+        if x.shape[1] == 0:
+            f = Fit(np.zeros(0), np.zeros((0, 0)), float(np.sum(self.b.weight * (self.b.y - offset) ** 2)), offset)
+        else:
+            f = wls(x, self.b.y - offset, self.b.weight, self.b.dwell)
+            f.pred = f.pred + offset
+        if not held:
+            return f
+        n = k0 + len(terms)
+        free = [k for k in range(n) if k < k0 or k - k0 not in held]
+        coef, cov = np.zeros(n), np.zeros((n, n))
+        coef[free] = f.coef
+        cov[np.ix_(free, free)] = f.cov
+        for i, c in held.items():
+            coef[k0 + i] = c
+        return Fit(coef, cov, f.wsse, f.pred)
+
+    def wsse(self, terms: Sequence[Term]) -> float:
+        held = self.held(terms)
+        x = self.design(terms, skip=held)
+        y = self.b.y - self._offset(terms, held)
+        if x.shape[1] == 0:
+            return float(np.sum(self.b.weight * y**2))
+        sw = np.sqrt(self.b.weight)
+        coef, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=1e-12)
+        r = y - x @ coef
+        return float(np.sum(self.b.weight * r * r))
+
+    def cv_predictions(self, terms: Sequence[Term], only_terms: int | None = None) -> np.ndarray:
+        """Prediction of every block from a fit that did not see its fold.
+
+        ``only_terms=n``: the part predicted by the first ``n`` terms alone (what a calibrated
+        parameter file adds), without the nuisance columns and later terms fitted alongside them.
+        """
+        held = self.held(terms)
+        x = self.design(terms, skip=held)
+        offset = self._offset(terms, {i: c for i, c in held.items() if only_terms is None or i < only_terms})
+        fit_offset = self._offset(terms, held)
+        pred = offset.copy()
+        if x.shape[1] == 0:
+            return pred
+        k0 = len(self.nuisance)
+        kept = [i for i in range(len(terms)) if i not in held]  # the free terms, in order
+        n_free = sum(1 for i in kept if only_terms is None or i < only_terms)
+        cols = slice(None) if only_terms is None else slice(k0, k0 + n_free)
+        for k in np.unique(self.b.fold):
+            test = self.b.fold == k
+            f = wls(x[~test], self.b.y[~test] - fit_offset[~test], self.b.weight[~test])
+            pred[test] += x[test][:, cols] @ f.coef[cols]
+        return pred
+
+    def cv_rmse(self, terms: Sequence[Term]) -> float:
+        e = self.b.y - self.cv_predictions(terms)
+        return float(np.sqrt(np.average(e * e, weights=self.b.count)))
+
+    def rms_of(self, column: np.ndarray) -> float:
+        return float(np.sqrt(np.average(column * column, weights=self.b.count)))
+
+    def contribution_rms(self, terms: Sequence[Term], i: int) -> float:
+        """RMS of term ``i``'s column as the set uses it (per unit coefficient)."""
+        return self.rms_of(self.effective_column(terms[i], terms))
+
+    def _with_member(self, term: Term, member: float, second: float | None = None) -> Term:
+        second = term.second if second is None else second
+        return Term(term.name, self.b.column(term.name, member, second, term.law), member, second, term.law)
+
+    def oil_law(self, terms: Sequence[Term]) -> tuple[float, float, float] | None:
+        """The calibrated oil's Vogel law: the set's viscosity_temperature, else the data sheet's."""
+        for t in terms:
+            if t.name in EFFECTS and EFFECTS[t.name].scales_fr and t.member is not None:
+                return (float(t.member), float(t.second if t.second is not None
+                                                else EFFECTS[t.name].defaults()["C"]),
+                        float(EFFECTS[t.name].defaults()["theta_ref"]))
+        return self.datasheet_law
+
+    def wsse_held(self, terms: Sequence[Term], i: int) -> float:
+        """:meth:`wsse` with term ``i``'s coefficient held at its effect's ``profile_coefficient``."""
+        held = self.held(terms) | {i: float(EFFECTS[terms[i].name].profile_coefficient)}
+        x = self.design(terms, skip=held)
+        y = self.b.y - self._offset(terms, held)
+        if x.shape[1] == 0:
+            return float(np.sum(self.b.weight * y**2))
+        sw = np.sqrt(self.b.weight)
+        c, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=1e-12)
+        r = y - x @ c
+        return float(np.sum(self.b.weight * r * r))
+
+    def _score(self, terms: list[Term], i: int) -> Callable[[Term], float]:
+        """What term ``i``'s members minimise: the fit's wsse, with the coefficient held where the
+        effect profiles at a fixed one."""
+        held = terms[i].name in EFFECTS and EFFECTS[terms[i].name].profile_coefficient is not None
+        if held:
+            return lambda t: self.wsse_held(terms[:i] + [t] + terms[i + 1 :], i)
+        return lambda t: self.wsse(terms[:i] + [t] + terms[i + 1 :])
+
+    def _best_member(self, terms: list[Term], i: int, second: float | None = None) -> tuple[float, Term]:
+        """Term ``i`` at its best member (grid, then a bounded refinement), at ``second`` if given."""
+        from scipy.optimize import minimize_scalar
+
+        t = terms[i]
+        effect = EFFECTS[t.name]
+        score = self._score(terms, i)
+        grid = [self._with_member(t, m, second) for m in effect.member_grid]
+        scores = [score(g) for g in grid]
+        j = int(np.argmin(scores))
+        lo_b, hi_b = self.search_ranges(t.name)[effect.member]
+        step = (grid[1].member - grid[0].member) if len(grid) > 1 else 0.1
+        # around the grid's best; from the grid's first or last member on to the member's bound (else
+        # an optimum beyond the grid would stop one step outside it and pass for an estimate)
+        lo = lo_b if j == 0 else max(lo_b, grid[j].member - step)
+        hi = hi_b if j == len(grid) - 1 else min(hi_b, grid[j].member + step)
+        res = minimize_scalar(lambda m: score(self._with_member(t, m, second)), bounds=(lo, hi),
+                              method="bounded", options={"xatol": step * 1e-3})
+        if res.fun <= scores[j]:
+            return float(res.fun), self._with_member(t, float(res.x), second)
+        return scores[j], grid[j]
+
+    def _best_pair(self, terms: list[Term], i: int) -> Term:
+        """Term ``i`` at its best member and second member (Vogel B and C): the first time B profiled
+        at each C of the grid, then both refined together (Nelder-Mead) from the best."""
+        from scipy.optimize import minimize
+
+        t = terms[i]
+        effect = EFFECTS[t.name]
+        score = self._score(terms, i)
+        if t.second is None:
+            profile = [self._best_member(terms, i, c) for c in effect.second_grid]
+            t = profile[int(np.argmin([p[0] for p in profile]))][1]
+        start = score(t)
+        ranges = self.search_ranges(t.name)
+        (lo_m, hi_m), (lo_s, hi_s) = ranges[effect.member], ranges[effect.second_member]
+        res = minimize(lambda v: score(self._with_member(t, float(v[0]), float(v[1]))), [t.member, t.second],
+                       method="Nelder-Mead", bounds=[(lo_m, hi_m), (lo_s, hi_s)],
+                       options={"initial_simplex": [[t.member, t.second], [t.member * 1.1, t.second],
+                                                    [t.member, t.second + 10.0]],
+                                "xatol": 0.05, "fatol": 1e-9 * max(start, 1e-12), "maxfev": 200})
+        return self._with_member(t, float(res.x[0]), float(res.x[1])) if res.fun < start else t
+
+    def optimise(self, terms: list[Term], passes: int = 3) -> list[Term]:
+        """Coordinate descent over the exponents / Vogel B and C of the terms (grid, then a bounded
+        refinement)."""
+        terms = list(terms)
+        for _ in range(passes):
+            changed = False
+            for i, t in enumerate(terms):
+                if t.member is None:
+                    continue
+                effect = EFFECTS[t.name]
+                best = self._best_pair(terms, i) if effect.second_member else self._best_member(terms, i)[1]
+                step = effect.member_grid[1] - effect.member_grid[0] if len(effect.member_grid) > 1 else 0.1
+                if abs(best.member - t.member) > step * 1e-2 or (best.second or 0.0) != (t.second or 0.0):
+                    changed = True
+                terms[i] = best
+            if not changed:
+                break
+        return terms
+
+    def best_candidate(self, name: str, base: list[Term]) -> list[Term] | None:
+        """``base`` plus the group's best member, with every exponent re-optimised jointly.  A
+        Fr-scaling effect (the viscosity law) comes with the rolling part's parameter (its level,
+        η(θ_ref)) when that fits better: neither explains an oil of another viscosity alone."""
+        single = self._best_single(name, base)
+        if single is None or name not in EFFECTS or not EFFECTS[name].scales_fr:
+            return single
+        level = next((k for k, p in MODEL_PARAMETERS.items() if p.part == "fr" and p.same_part_as is None), None)
+        if level is None or any(t.name == level for t in base) or not members(self.b, level, None):
+            return single
+        paired = self._best_single(name, base + members(self.b, level))
+        if paired is not None and self.cv_rmse(paired) < (1.0 - self.min_improvement) * self.cv_rmse(single):
+            return paired  # the level too, when it clearly helps (else it would pass untested)
+        return single
+
+    def _best_single(self, name: str, base: list[Term]) -> list[Term] | None:
+        cands = members(self.b, name, self.oil_law(base))
+        if not cands:
+            return None
+        if cands[0].member is None:
+            return self.optimise(base + cands)
+        if name in self.starts:  # a known start (a data sheet): refined from there within its bounds
+            return self.optimise(base + [self._with_member(cands[0], *self.starts[name])])
+        scores = [self.wsse(base + [c]) for c in cands]
+        return self.optimise(base + [cands[int(np.argmin(scores))]])
+
+    def member_range(self, terms: list[Term], i: int, second: bool = False) -> list[float]:
+        """Profile-likelihood 95 % range of term i's exponent (the others held at their optimum); of
+        a pair (Vogel B and C), of either one with the other profiled, at the held coefficient.
+        ``second``: the range of the second member."""
+        from scipy.optimize import brentq, minimize_scalar
+
+        t = terms[i]
+        effect = EFFECTS[t.name]
+        pair = effect.second_member is not None
+        w0 = self.wsse_held(terms, i) if effect.profile_coefficient is not None else self.wsse(terms)
+        dof = max(len(self.b.y) - len(terms) - len(self.nuisance), 1)
+        # blocks weighted by their inverse variance: chi-square with sigma 1, at least (the model may
+        # fit better than the noise says); a table's rows weigh 1 each: sigma^2 is the residual's
+        sigma2 = w0 / dof if self.b.steady_state else max(w0 / dof, 1.0)
+        limit = w0 + 3.84 * sigma2
+        score = self._score(terms, i)
+
+        def other_profiled(m: float) -> float:
+            """The pair's score at member m (or second m), the other one at its best near t's."""
+            ranges = self.search_ranges(t.name)
+            name, bounds, at = ((effect.member, ranges[effect.member], t.member) if second
+                                else (effect.second_member, ranges[effect.second_member], t.second))
+            width = 0.5 * abs(at) + 1.0
+            res = minimize_scalar(
+                lambda o: score(self._with_member(t, m, o) if not second else self._with_member(t, o, m)),
+                bounds=(max(bounds[0], at - width), min(bounds[1], at + width)), method="bounded",
+                options={"xatol": 1e-3 * width})
+            return float(res.fun)
+
+        def excess(m: float) -> float:
+            if pair:
+                return other_profiled(m) - limit
+            return self.wsse(terms[:i] + [self._with_member(t, m)] + terms[i + 1 :]) - limit
+
+        lo_b, hi_b = self.search_ranges(t.name)[effect.second_member if second else effect.member]
+        at = t.second if second else t.member
+        lo = brentq(excess, lo_b, at, xtol=1e-4) if excess(lo_b) > 0 else lo_b
+        hi = brentq(excess, at, hi_b, xtol=1e-4) if excess(hi_b) > 0 else hi_b
+        return [float(lo), float(hi)]
+
+    def coefficient(self, terms: list[Term], i: int) -> tuple[float, float]:
+        f = self.fit(terms)
+        k = len(self.nuisance) + i
+        return float(f.coef[k]), float(math.sqrt(max(f.cov[k, k], 0.0)))
+
+    # -------------------------------------------------------------- selection
+    def screen(self, terms: list[Term], check: Callable[[Term, float], str | None] | None = None) -> str | None:
+        """Why a candidate set (its newest term last) is no explanation, whatever its significance
+        (None: it may be): a physical friction fitted negative, an exponent stopped at the bound of
+        its search, a model parameter driven outside its physical range, or ``check``'s reason (a
+        value the parameter file refuses) -- of the new term, or of an earlier one the new term moves."""
+        fit = self.fit(terms)
+        k0 = len(self.nuisance)
+        for i, t in enumerate(terms):
+            c = float(fit.coef[k0 + i])
+            who = "" if i == len(terms) - 1 else f" (with {terms[-1].name}, {t.name} becomes so)"
+            if t.name in EFFECTS:
+                effect = EFFECTS[t.name]
+                if effect.physical and not effect.scales_fr and c < 0:
+                    return f"needs a negative friction (fits only with c = {c:.4g}){who}: not a loss the gearbox has"
+                for short, v in ((effect.member, t.member), (effect.second_member, t.second)):
+                    if short is None or v is None:
+                        continue
+                    lo, hi = self.search_ranges(t.name)[short]
+                    if min(abs(v - lo), abs(v - hi)) <= 1e-3 * (hi - lo):
+                        return (f"{t.name}'s {short} = {v:.4g} stopped at the bound of its search [{lo:g}, {hi:g}]"
+                                f"{who}: the data want a law outside the vocabulary")
+            if check is not None:
+                why = check(t, c)
+                if why is not None:
+                    return why + who
+        return None
+
+    def _clear(self, terms: list[Term], cv_now: float, cv_new: float, z_crit: float) -> bool:
+        """Whether the newest term of ``terms`` passes the acceptance tests but for its sign."""
+        c, se = self.coefficient(terms, len(terms) - 1)
+        lower = max(0.0, abs(c) - 1.96 * se) * self.contribution_rms(terms, len(terms) - 1)
+        improvement = (cv_now - cv_new) / cv_now if cv_now > 0 else 0.0
+        return (abs(c) / se if se > 0 else math.inf) >= z_crit and lower > self.delta \
+            and improvement > self.min_improvement
+
+    def coefficient_interval(self, terms: list[Term], i: int, member_range: list[float] | None) -> list[float]:
+        """95 % interval of term ``i``'s coefficient, covering its exponent's range (c and p are correlated)."""
+        c, se = self.coefficient(terms, i)
+        lo, hi = c - 1.96 * se, c + 1.96 * se
+        for m in member_range or ():
+            alt = list(terms)
+            alt[i] = self._with_member(terms[i], m)
+            ca, sa = self.coefficient(alt, i)
+            lo, hi = min(lo, ca - 1.96 * sa), max(hi, ca + 1.96 * sa)
+        return [float(lo), float(hi)]
+
+    def run(self, assume: Sequence[str] = (), check: Callable[[Term, float], str | None] | None = None) -> Selection:
+        """Forward selection; ``assume``: effects to take when the data cannot tell them from another
+        (what the user knows of the rig, e.g. torque sensors zeroed at standstill: ``drag_constant``);
+        ``check``: a last word on a candidate's value (:meth:`screen`)."""
+        selected: list[Term] = []  # accepted
+        provisional: list[Term] = []  # best member of each ambiguous set: kept in the fit, not reported
+        ambiguous: list[AmbiguousSet] = []
+        negative: list[str] = []
+        remaining = [g for g in groups() if g in self.b.testable]
+        unavailable = [g for g in groups() if g not in remaining]
+        cv_now = self.cv_rmse([])
+        step = 0
+        while remaining:
+            step += 1
+            base = selected + provisional
+            scored = []
+            for g in remaining:
+                self.stage(f"step {step}: trying {g}")
+                terms = self.best_candidate(g, base)
+                if terms is not None:
+                    scored.append((self.cv_rmse(terms), g, terms))
+            if not scored:
+                break
+            scored.sort(key=lambda x: x[0])
+            # candidates that are no explanation (a negative friction, an exponent at its bound, a
+            # parameter out of its range) are set aside; the best of the rest is tested
+            kept = []
+            z_crit = _z_two_sided(self.alpha / len(remaining))
+            for entry in scored:
+                why_not = self.screen(entry[2], check)
+                if why_not is None:
+                    kept.append(entry)
+                    continue
+                if not kept:  # better than any explanation: said
+                    self.log.append(f"step {step}: {entry[1]} set aside: {why_not}")
+                    # a negative friction the data ask for clearly (significant, beyond delta): the model
+                    # over-predicts, and the paper's model switched off is worth weighing (calibrate)
+                    if "negative friction" in why_not and entry[1] not in negative \
+                            and self._clear(entry[2], cv_now, entry[0], z_crit):
+                        negative.append(entry[1])
+            scored = kept
+            if not scored:
+                break
+            # the smaller explanation first: of the candidates that fit (nearly) as well as the best, the
+            # one with the fewest free parameters -- a model parameter before an effect, a plain law
+            # before one with an exponent or a memory
+            near = [x for x in scored if x[0] <= scored[0][0] * 1.01 + 1e-12]
+            simplest = min(near, key=lambda x: (complexity(x[1]), x[0]))
+            if simplest is not scored[0]:
+                scored.remove(simplest)
+                scored.insert(0, simplest)
+            cv_new, g, terms = scored[0]
+            c, se = self.coefficient(terms, len(terms) - 1)
+            new = terms[-1]
+            rms_col = self.contribution_rms(terms, len(terms) - 1)
+            z = abs(c) / se if se > 0 else math.inf
+            z_crit = _z_two_sided(self.alpha / len(remaining))
+            lower = max(0.0, abs(c) - 1.96 * se) * rms_col
+            upper = (abs(c) + 1.96 * se) * rms_col
+            improvement = (cv_now - cv_new) / cv_now if cv_now > 0 else 0.0
+            reasons = []
+            if z < z_crit:
+                reasons.append(f"not significant (|z| = {z:.1f} < {z_crit:.1f})")
+            if lower <= self.delta:
+                reasons.append(
+                    f"lower 95 % bound of its RMS contribution {lower:.4g} N·m <= delta {self.delta:.4g} N·m"
+                )
+            if improvement <= self.min_improvement:
+                reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
+            if not reasons and g in MODEL_PARAMETERS and check is not None:  # its interval within the physical range
+                for end in (c - 1.96 * se, c + 1.96 * se):
+                    why = check(new, end)
+                    if why is not None:
+                        reasons.append(f"its 95 % interval reaches the bound of the physical range ({why})")
+                        break
+            if not reasons and new.member is not None:  # its interval, over the exponent's range, must not reach 0
+                ci = self.coefficient_interval(terms, len(terms) - 1, self.member_range(terms, len(terms) - 1))
+                if ci[0] <= 0 <= ci[1]:
+                    reasons.append(f"its coefficient's 95 % interval [{ci[0]:.3g}, {ci[1]:.3g}] reaches 0")
+            twin_terms = {
+                h: (cv_h, terms_h)
+                for cv_h, h, terms_h in scored[1:]
+                if cv_h <= cv_new * 1.05 + 1e-12 and self._partial_corr(new, terms_h[-1], base) > 0.995
+            }
+            if g in MODEL_PARAMETERS and twin_terms:  # a parameter of the model is the smaller explanation
+                self.log.append(f"step {step}: {g} fits as well as {', '.join(twin_terms)}: the model's "
+                                "own parameter is taken (no new term)")
+                twin_terms = {}
+            memory = [h for h in twin_terms if _adds_only_memory(h, g)]
+            if memory:  # a memory the data do not show is not claimed: the memoryless law is taken
+                self.log.append(f"step {step}: {g} fits as well as {', '.join(memory)}: no lag after the "
+                                "reversals shows, the term without memory is taken")
+                twin_terms = {h: v for h, v in twin_terms.items() if h not in memory}
+            twins = list(twin_terms)
+            assumed = next((a for a in [g, *twins] if a in assume), None) if twins else None
+            self.log.append(
+                f"step {step}: best {g}"
+                + (f" ({_member_text(new)})" if new.member is not None else "")
+                + f" (held-out RMSE {cv_new:.4g} vs {cv_now:.4g} N·m), |z| = {z:.1f}, RMS contribution "
+                f"[{lower:.4g}, {upper:.4g}] N·m"
+                + (f"; indistinguishable from {', '.join(twins)}" if twins else "")
+                + (
+                    f"; not accepted: {'; '.join(reasons)}"
+                    if reasons
+                    else f"; ambiguous: accepted as {assumed}, as assumed"
+                    if assumed
+                    else "; ambiguous: kept in the fit, not reported"
+                    if twins
+                    else "; accepted"
+                )
+            )
+            if reasons:
+                break
+            if assumed is not None and assumed != g:  # the twin's fit: near the same error, by definition
+                cv_new, terms = twin_terms[assumed]
+                new = terms[-1]
+            # exponents of earlier terms were re-optimised together with the new one; a term that came
+            # with it (the viscosity law's level) is accepted with it
+            n_sel = len(selected)
+            companions = terms[len(base):-1]
+            selected, provisional = terms[:n_sel] + companions, terms[n_sel : len(base)]
+            remaining = [r for r in remaining if r not in {t.name for t in companions}]
+            if twins:
+                group = sorted([g] + twins)
+                needs = "; ".join(
+                    sorted(
+                        {
+                            separating(a, b)
+                            or "data over a wider range of speed, torque, direction and temperature"
+                            for a in group
+                            for b in group
+                            if a < b
+                        }
+                    )
+                )
+                ambiguous.append(AmbiguousSet(group, needs, [lower, upper], assumed))
+                (selected if assumed else provisional).append(new)
+                remaining = [r for r in remaining if r not in group]
+            else:
+                selected.append(new)
+                remaining.remove(g)
+            cv_now = cv_new
+        # the ambiguous sets stay in the final fit (so the accepted coefficients are not biased)
+        final = selected + provisional
+        self.stage("exponent intervals")
+        ranges = {t.name: self.member_range(final, i) for i, t in enumerate(final) if t.member is not None}
+        second_ranges = {t.name: self.member_range(final, i, second=True) for i, t in enumerate(final)
+                         if t.second is not None}
+        rejected = []
+        blocked = {e for a in ambiguous for e in a.effects if e != a.assumed}
+        for g in groups():
+            if g in (t.name for t in selected) or g in unavailable:
+                continue
+            if g in blocked:
+                rejected.append(RejectedEffect(g, math.nan, math.nan, ambiguous=True))
+                continue
+            terms = self.best_candidate(g, final)
+            if terms is None:
+                if g in EFFECTS and EFFECTS[g].oil_law:  # follows the oil: no law to follow
+                    unavailable.append(g)
+                continue
+            c, se = self.coefficient(terms, len(terms) - 1)
+            rms_col = self.contribution_rms(terms, len(terms) - 1)
+            reason = self.screen(terms, check) or ""  # no explanation even now (a negative friction, a bound)
+            rejected.append(RejectedEffect(g, (abs(c) + 1.96 * se) * rms_col, abs(c) * rms_col, reason=reason))
+        return Selection(selected, provisional, ranges, ambiguous, rejected, unavailable, second_ranges, negative)
+
+    def _partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
+        """|correlation| of two columns after removing the nuisance and base columns (weighted)."""
+        w = self.b.weight
+        x = self.design(base)
+
+        def resid(v: np.ndarray) -> np.ndarray:
+            if x.shape[1] == 0:
+                return v
+            return v - x @ wls(x, v, w).coef
+
+        ra, rb = resid(a.column), resid(b.column)
+        den = math.sqrt(float(np.sum(w * ra * ra)) * float(np.sum(w * rb * rb)))
+        return abs(float(np.sum(w * ra * rb))) / den if den > 0 else 1.0
+
+
+def complexity(name: str) -> int:
+    """How much a candidate explains with: a model parameter 0 (it adds no term), an effect 1 for its
+    coefficient, one more for each profiled member and for a memory."""
+    if name in MODEL_PARAMETERS:
+        return 0
+    e = EFFECTS[name]
+    return 1 + (e.member is not None) + (e.second_member is not None) + (e.state_step is not None)
+
+
+def _adds_only_memory(twin: str, name: str) -> bool:
+    """Whether ``twin`` is an effect with memory and ``name`` one without that it settles to (in steady
+    motion the same column: Dahl and a constant drag)."""
+    if twin in MODEL_PARAMETERS or name in MODEL_PARAMETERS:
+        return False
+    return EFFECTS[twin].state_step is not None and EFFECTS[name].state_step is None \
+        and name in EFFECTS[twin].separated_from
+
+
+def separating(a: str, b: str) -> str | None:
+    """The data that tells two candidates apart (effects: their descriptors; a model parameter: its own)."""
+    for x in (a, b):
+        if x in MODEL_PARAMETERS:
+            return MODEL_PARAMETERS[x].tells_apart
+    return separating_data(a, b)
+
+
+def _member_text(t: Term) -> str:
+    effect = EFFECTS[t.name]
+    second = f", {effect.second_member} = {t.second:.3g}" if t.second is not None else ""
+    return f"{effect.member} = {t.member:.3g}{second}"
+
+
+def _z_two_sided(alpha: float) -> float:
+    from scipy.stats import norm
+
+    return float(norm.isf(alpha / 2))
+
+
+def error_stats(err: np.ndarray, measured: np.ndarray, count: np.ndarray) -> ErrorStats:
+    """Errors ``err`` of block means (or samples) weighted by ``count``, relative to the measured loss."""
+    rmse = float(np.sqrt(np.average(err * err, weights=count)))
+    rms_meas = float(np.sqrt(np.average(measured * measured, weights=count)))
+    return ErrorStats(rmse, float(np.average(np.abs(err), weights=count)),
+                      float(np.max(np.abs(err))) if len(err) else 0.0,
+                      100.0 * rmse / rms_meas if rms_meas > 0 else math.nan)

@@ -1,0 +1,3 @@
+"""The ``rollergear`` command: ``main`` (a static table of the subcommand modules) and one module
+per group of subcommands, sharing ``args``.
+"""

@@ -1,0 +1,44 @@
+"""What every ``rollergear`` subcommand module shares: the parameter file from the command line and
+argument types.  The command table (:mod:`.main`) imports the subcommand modules; they import this
+module, never the table."""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+from ..base.errors import UsageError
+from ..core.params import Config, load_config
+
+DEFAULT_PARAMS = Path(__file__).resolve().parents[2] / "config" / "gearbox.yaml"
+
+
+def default_params_path() -> Path | None:
+    """The package's ``config/gearbox.yaml``: source tree, or the installed ``share/`` copy."""
+    if DEFAULT_PARAMS.exists():
+        return DEFAULT_PARAMS
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        p = Path(get_package_share_directory("rollergear_ros")) / "config" / "gearbox.yaml"
+        return p if p.exists() else None
+    except Exception:  # noqa: BLE001 - no ament index: fall back to the built-in defaults
+        return None
+
+
+def config_from_args(args: argparse.Namespace) -> Config:
+    path = getattr(args, "params", None)
+    if path is None:
+        path = default_params_path()
+    elif not Path(path).exists():
+        raise UsageError(f"parameter file {path} does not exist")
+    return load_config(path)
+
+
+def finite_float(s: str) -> float:
+    """An argument that must be a finite number."""
+    v = float(s)
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"{s!r} is not a finite number")
+    return v

@@ -1,0 +1,192 @@
+"""``rollergear calibrate``: residual analysis, effect discovery, error before/after on held-out data."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .args import config_from_args
+from ..core.effects import EFFECTS
+from ..sources.paths import Output, check_outputs
+from ..base.progress import TimedProgress
+from .replay import add_channels_option, add_topic_options, topics_from_args
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    from ..base.atomic import write_text
+    from ..calibration.calibrate import calibrate, calibrated_yaml
+    from ..sources.channelmap import load_channel_map
+    from ..sources.importer import as_mcap
+    from ..base.errors import UsageError
+    from ..calibration.report import write_report
+    from ..calibration.samples import load_samples, power_balance_warning, table_samples
+    from ..sources.tables import is_table
+
+    check_outputs([*args.bags, args.params, args.channels],  # now, not after the whole analysis
+                  [Output("--out", args.out, "yaml"), Output("--report", args.report, "folder")])
+    config = config_from_args(args)
+    if args.oil:  # the oil's data sheet: the viscosity law's start and range
+        config = config.with_values(dict(zip(("gearbox.oil_nu40_mm2_s", "gearbox.oil_nu100_mm2_s",
+                                              "gearbox.oil_density15_kg_m3"), args.oil)))
+
+    def log(msg: str) -> None:
+        print(msg, file=sys.stderr)
+
+    cmap = load_channel_map(args.channels) if args.channels else None
+    tables = [is_table(p, cmap) for p in args.bags]
+    if any(tables) and not all(tables):
+        raise UsageError("give either recordings or steady-state tables (.vtlm), not both: a table's rows are "
+                         "dwell means, a recording's samples are not")
+
+    def warn(msg: str) -> None:
+        log(f"rollergear: warning: {msg}")
+
+    if not args.json:
+        log(f"reading {len(args.bags)} {'table' if all(tables) else 'recording'}(s) …")
+    topics = topics_from_args(args)
+    if all(tables):
+        data = table_samples(args.bags, config, warn=warn, cmap=cmap)
+    else:
+        with as_mcap(args.bags, args.channels, topics, note=None if args.json else log) as bags:
+            data = load_samples(bags, config, topics, warn=warn, progress=not args.json and sys.stderr.isatty())
+    balance = power_balance_warning(data)
+    if balance:
+        warn(balance)
+    if not args.json:
+        log(f"{len(data.t_ns):,} {'rows' if data.steady_state else 'samples with measured output'}; analysing …")
+    with TimedProgress("analysis", unit=" steps", unit_scale=False,
+                       enabled=not args.json and sys.stderr.isatty()) as bar:
+
+        def stage(text: str) -> None:
+            bar.stage = text
+            bar.update(1)
+
+        result = calibrate(data, config, args.delta, args.block_s, stage=stage, assume=args.assume)
+    for line in _error_after_warnings(result, args.assume):
+        warn(line)
+    if args.out and result.written:
+        write_text(args.out, calibrated_yaml(result, args.bags))
+    report = write_report(result, data, Path(args.report), args.bags) if args.report else None
+    if args.json:
+        sys.stdout.write(json.dumps(result.to_json()) + "\n")
+        return 0 if result.written else 1
+    eb, ea = result.error_before, result.error_after
+    print(f"verdict: {result.verdict}")
+    for e in result.effects:
+        params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items())
+        ci = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e.ci95.items())
+        print(f"  effect {e.name}: {params}  (95 %: {ci}; RMS contribution {e.rms_contribution_nm:.4g} N·m)")
+        if e.bound_note():
+            print(f"    note: {e.bound_note()}")
+    for prm in result.parameters:
+        print(f"  parameter {prm.sentence()}")
+    for r in result.rejected:
+        if r.reason:
+            print(f"  {r.name} not accepted: {r.reason}")
+    for a in result.ambiguous:
+        if a.assumed:
+            print(f"  cannot tell apart: {' / '.join(a.effects)} — taken as {a.assumed}, as assumed (record {a.needs} "
+                  "to separate them)")
+        else:
+            print(f"  cannot tell apart: {' / '.join(a.effects)} — record {a.needs} to separate them, or say which it "
+                  f"is with --assume ({' or '.join(a.effects)})")
+    if result.verdict == "no_missing_effect":
+        bounds = ", ".join(f"{r.name} <= {r.upper_rms_nm:.3g}" for r in result.rejected)
+        print(f"  no missing effect larger than delta = {result.delta_nm:.4g} N·m (upper 95 % bounds: {bounds})")
+    print(
+        f"held-out error ({result.samples:,} samples): RMSE {eb.rmse_nm:.4g} -> {ea.rmse_nm:.4g} N·m, "
+        f"MAE {eb.mae_nm:.4g} -> {ea.mae_nm:.4g} N·m, max {eb.max_abs_nm:.4g} -> {ea.max_abs_nm:.4g} N·m, "
+        f"{eb.rel_rmse_pct:.2f} % -> {ea.rel_rmse_pct:.2f} % of the measured loss"
+    )
+    print(f"held out: {result.holdout}")
+    if result.adequacy:
+        print(f"adequacy: {result.adequacy.statement}")
+    if result.structure and result.verdict != "no_missing_effect":
+        print(f"residual left: {result.structure['statement']}")
+    for note in result.notes:
+        print(f"note: {note}")
+    if args.out:
+        print(f"calibrated parameters: {args.out}" if result.written else
+              f"calibrated parameters: {args.out} not written ({_what_would_settle(result)})")
+    if report:
+        print(f"report: {report}")
+    return 0 if result.written else 1
+
+
+def _what_would_settle(result) -> str:
+    """What data or assumption would let a calibration that was not written be one."""
+    open_sets = [a for a in result.ambiguous if a.assumed is None]
+    if open_sets:
+        return "; ".join(f"{' / '.join(a.effects)} cannot be told apart: record {a.needs}, or --assume one of them"
+                         for a in open_sets)
+    return "record a wider range of speed, torque, direction and oil temperature"
+
+
+def _error_after_warnings(result, assume: list[str]) -> list[str]:
+    """Lines for what a user would otherwise misread: an assumption the data did not need."""
+    lines = []
+    in_sets = {e for a in result.ambiguous for e in a.effects}
+    for name in assume:
+        if name not in in_sets:
+            lines.append(f"--assume {name}: not needed, the data did not leave {name} indistinguishable from another "
+                         "effect (nothing assumed)")
+    return lines
+
+
+def add_assume_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    """``--assume EFFECT`` (repeatable), for ``calibrate`` and ``fleet calibrate``."""
+    p.add_argument("--assume", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
+                   help=f"{prefix}when the data cannot tell EFFECT from another effect, take it as EFFECT and write "
+                   "it (what you know of the rig, e.g. drag_constant when the torque sensors were zeroed at "
+                   "standstill); repeatable")
+
+
+def register_calibrate(sub, with_params) -> None:
+    p = with_params(
+        sub.add_parser(
+            "calibrate",
+            help="find effects the model lacks from recordings with measured "
+            "output torque; error before/after on held-out data",
+        )
+    )
+    p.add_argument("bags", nargs="+", metavar="BAG",
+                   help="recordings with measured output torque (MCAP, rosbag2, or CSV/Parquet/MDF4/TDMS with "
+                   "--channels), or steady-state tables (VECTO .vtlm, or CSV/Parquet with a steady_state map)")
+    p.add_argument("--out", metavar="CALIBRATED.yaml", help="parameter file with the accepted effects")
+    p.add_argument("--report", metavar="DIR", help="Markdown report with plots")
+    p.add_argument("--json", action="store_true", help="print exactly the interface.md JSON object on stdout")
+    p.add_argument(
+        "--delta",
+        type=float,
+        default=None,
+        metavar="NM",
+        help="practical minimum effect size (RMS N·m); default from the data",
+    )
+    p.add_argument("--block-s", type=float, default=0.25, help="averaging block length [s]")
+    add_assume_option(p)
+    p.add_argument("--oil", type=_datasheet, metavar="NU40,NU100[,RHO15]",
+                   help="the oil's data sheet: kinematic viscosities at 40 and 100 degC [mm^2/s] and the density at "
+                   "15 degC [kg/m^3, default 880]; the viscosity law (ASTM D341) starts from it and stays near it "
+                   "(also gearbox.oil_* in the parameter file)")
+    add_channels_option(p)
+    add_topic_options(p)
+    p.set_defaults(func=cmd_calibrate)
+
+
+def _datasheet(text: str) -> tuple[float, ...]:
+    """``--oil NU40,NU100[,RHO15]``: ν40 > ν100 > 0 mm²/s, ρ15 in kg/m³."""
+    import math
+
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: NU40,NU100[,RHO15] are numbers") from None
+    if len(values) not in (2, 3) or not all(math.isfinite(v) for v in values) or not values[0] > values[1] > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: need NU40 > NU100 > 0 mm^2/s (an oil is thinner when warm) "
+                                         "and optionally RHO15 kg/m^3")
+    return values
+
+
+REGISTER = [register_calibrate]

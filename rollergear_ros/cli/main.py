@@ -1,0 +1,286 @@
+"""``rollergear``: the command line (model, figures, map, simulate, replay, calibrate, play).
+
+Every subcommand loads its parameters through :func:`core.params.load_config`; errors in
+user input are reported as one line ``rollergear: error: …`` with exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+from pathlib import Path
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..base.errors import InputFileError, RollergearError, UsageError
+from ..base.interface import package_version
+from ..ros.nodehelp import contract_line
+from . import calibrate as calibrate_cli
+from . import fleet as fleet_cli
+from ..ros import player
+from . import replay as replay_cli
+from ..ros import watch
+from .args import config_from_args, default_params_path, finite_float
+from ..sources.paths import Output, check_input_file, check_outputs
+
+# ---------------------------------------------------------------------------------- model
+def cmd_model(args: argparse.Namespace) -> int:
+    from ..core.model import BREAKDOWN_KEYS
+    from ..core.operating_points import evaluate_points
+
+    config = config_from_args(args)
+    if args.csv:
+        check_input_file("--csv", args.csv)
+        torque, speed = _read_points_csv(Path(args.csv))
+    else:
+        if not args.torque or not args.speed:
+            raise UsageError("give --torque and --speed values, or --csv FILE")
+        tt, ww = np.meshgrid(np.asarray(args.torque, float), np.asarray(args.speed, float), indexing="ij")
+        torque, speed = tt.ravel(), ww.ravel()
+    res = evaluate_points(config, torque, speed, args.oil_temperature_c)
+
+    def number(v: float) -> float | None:
+        return None if math.isnan(v) else float(v)
+
+    points = []
+    for i in range(len(torque)):
+        points.append({
+            "torque_nm": float(torque[i]), "speed_rad_s": float(speed[i]),
+            "loss_torque_nm": number(res.loss_torque_nm[i]), "loss_power_w": number(res.loss_power_w[i]),
+            "efficiency": number(res.efficiency[i]),
+            "breakdown_nm": {k: number(res.breakdown_nm[k][i]) for k in BREAKDOWN_KEYS},
+            "model_nm": number(res.model_nm[i]),
+            "effects_nm": {k: number(v[i]) for k, v in res.effects_nm.items()},
+        })
+    if args.json:
+        json.dump({"points": points, "effects": list(res.effects_nm), "oil_temperature_c": args.oil_temperature_c,
+                   "skipped": res.skipped}, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+        return 0
+    head = (f"{'T [N·m]':>10} {'ω [rad/s]':>10} {'T_loss [N·m]':>13} {'P_loss [W]':>11} {'η [%]':>8} "
+            f"{'model [%]':>9}  dominant term")
+    print(head)
+    print("-" * len(head))
+    for p in points:
+        if p["loss_torque_nm"] is None:
+            print(f"{p['torque_nm']:>10.4g} {p['speed_rad_s']:>10.4g}  skipped: outside the estimator's "
+                  "plausible range (estimator.max_abs_*)")
+            continue
+        terms = {**p["breakdown_nm"], **p["effects_nm"]}
+        dom = max(terms, key=lambda k: abs(terms[k]))
+        total = abs(p["loss_torque_nm"])
+        share = 100.0 * terms[dom] / max(total, 1e-300)
+        model_share = 100.0 * p["model_nm"] / max(total, 1e-300)
+        eta = "n/a" if p["efficiency"] is None else f"{100 * p['efficiency']:.3f}"
+        print(f"{p['torque_nm']:>10.4g} {p['speed_rad_s']:>10.4g} {p['loss_torque_nm']:>13.5f} "
+              f"{p['loss_power_w']:>11.4f} {eta:>8} {model_share:>9.1f}  {dom} ({share:.0f} %)")
+    if res.effects_nm:
+        print(f"accepted effects of the parameter file: {', '.join(res.effects_nm)} "
+              "(model [%]: the paper's model's share of the loss)")
+    return 0
+
+
+def _read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """CSV with a header naming a torque column (``torque``/``torque_nm``/``T``) and a speed column."""
+    if not path.exists():
+        raise InputFileError(f"{path} does not exist")
+    with path.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise InputFileError(f"{path} has no data rows")
+    cols = {c.strip().lower(): c for c in rows[0]}
+    tcol = next((cols[c] for c in ("torque_nm", "torque", "t") if c in cols), None)
+    wcol = next((cols[c] for c in ("speed_rad_s", "speed", "omega", "w") if c in cols), None)
+    if tcol is None or wcol is None:
+        raise InputFileError(f"{path}: need columns torque_nm and speed_rad_s (found {', '.join(rows[0])})")
+    try:
+        t = np.array([float(r[tcol]) for r in rows])
+        w = np.array([float(r[wcol]) for r in rows])
+    except ValueError as exc:
+        raise InputFileError(f"{path}: {exc}") from None
+    bad = ~(np.isfinite(t) & np.isfinite(w))
+    if bad.any():
+        raise InputFileError(f"{path}: row(s) {', '.join(str(i + 2) for i in np.flatnonzero(bad)[:10])} are not finite")
+    return t, w
+
+
+# ---------------------------------------------------------------------------------- figures / map
+def cmd_figures(args: argparse.Namespace) -> int:
+    from ..calibration.figures import write_figures
+
+    check_outputs([args.params], [Output("--out", args.out, "folder")])
+    paths = write_figures(config_from_args(args), Path(args.out))
+    for p in paths:
+        print(p)
+    return 0
+
+
+def cmd_map(args: argparse.Namespace) -> int:
+    from ..outputs.lossmap import (build_map, coverage_warning, grid, map_comments, plot_map, reverse_path,
+                                   vtlm_problems, write_vtlm)
+
+    config = config_from_args(args)
+    m = config.map
+    speeds = grid(*(args.speed_rpm or (m.speed_min_rpm, m.last_speed_rpm(config.gearbox), m.speed_step_rpm)))
+    torques = grid(*(args.torque_nm or (m.torque_min_nm, m.torque_max_nm, m.torque_step_nm)))
+    out = Path(args.out)
+    both = args.both_directions or m.both_directions
+    outputs = [Output("--out", out, "vtlm")] + ([Output("its picture", out.with_suffix(".png"), "png")]
+                                                 if not args.no_plot else [])
+    if both:
+        rev = reverse_path(out)
+        outputs += [Output("the reverse map", rev, "vtlm")] + ([Output("its picture", rev.with_suffix(".png"), "png")]
+                                                                if not args.no_plot else [])
+    check_outputs([args.params, *args.recording], outputs)
+    params_path = Path(args.params) if args.params else default_params_path()
+    maps = [(out, build_map(config, speeds, torques, args.oil_temperature_c))]
+    if both:
+        maps.append((reverse_path(out), build_map(config, speeds, torques, args.oil_temperature_c, reverse=True)))
+    for path, loss_map in maps:
+        problems = vtlm_problems(loss_map)
+        if problems:
+            raise UsageError(f"{path} would not be a valid VECTO loss map: {'; '.join(problems)}")
+        write_vtlm(loss_map, path, map_comments(config, params_path, args.oil_temperature_c, loss_map.reverse))
+        png = None if args.no_plot else path.with_suffix(".png")
+        if png is not None:
+            plot_map(loss_map, png, config.estimator.min_torque_for_efficiency_nm)
+        eta = loss_map.efficiency
+        print(f"wrote {path} ({len(speeds)} speeds 0…{speeds.max():g} rpm x {len(torques)} torques"
+              f"{', reverse rotation' if loss_map.reverse else ''})" + (f" and {png}" if png else ""))
+        if np.isfinite(eta).any():
+            model_share = 100.0 * float(np.sum(loss_map.model_nm)) / max(float(np.sum(loss_map.loss_nm)), 1e-300)
+            print(f"  efficiency {100 * np.nanmin(eta):.2f} … {100 * np.nanmax(eta):.2f} %, "
+                  f"max loss {loss_map.loss_nm.max():.4f} N·m; the paper's model: {model_share:.0f} % of the loss")
+    for bag in args.recording:
+        from ..replay.run import replay
+
+        _summary, batches = replay(bag, config, show_progress=False, collect=True)
+        torque = np.concatenate([b.torque_nm for b in batches]) if batches else np.zeros(0)
+        speed = np.concatenate([b.speed_rad_s for b in batches]) if batches else np.zeros(0)
+        warning = coverage_warning(maps[0][1], torque, speed, str(bag))
+        if warning:
+            print(f"rollergear: warning: {warning}", file=sys.stderr)
+        else:
+            print(f"{bag}: every sample lies inside the map")
+    return 0
+
+
+# ---------------------------------------------------------------------------------- info
+def cmd_info(args: argparse.Namespace) -> int:
+    from ..sources.info import describe
+
+    info = describe(args.file, args.channels)
+    print(json.dumps(info.as_dict(), indent=2) if args.json else info.text())
+    return 0
+
+
+# ---------------------------------------------------------------------------------- parser
+#: the subcommands living in modules of their own: each module's ``REGISTER`` (functions that add
+#: their subparser); ``model``, ``figures`` and ``map`` are built here
+SUBCOMMAND_REGISTERS = (*replay_cli.REGISTER, *calibrate_cli.REGISTER, *fleet_cli.REGISTER, *player.REGISTER,
+                        *watch.REGISTER)
+
+#: one example per subcommand, shown at the end of its --help
+EXAMPLES = {
+    "model": "rollergear model --torque 1 10 50 --speed 104.72 --params calibrated.yaml",
+    "figures": "rollergear figures --out figures/",
+    "map": "rollergear map --params calibrated.yaml --out lossmap.vtlm --both-directions",
+    "simulate": "rollergear simulate --out rig.mcap --profile bidirectional_map --effect drag_speed:c=3e-4,p=1.4",
+    "replay": "rollergear replay rig.mcap --params calibrated.yaml --out estimates.mcap --rrd review.rrd",
+    "import": "rollergear import rig.mf4 --channels rig.yaml --out rig.mcap",
+    "calibrate": "rollergear calibrate rig.mcap --out calibrated.yaml --report report/",
+    "play": "rollergear play rig.mcap --rate 5 --loop",
+    "fleet": "rollergear fleet calibrate fleet/ --out fleet_out/ --workers 2",
+    "watch": "rollergear watch --period 1",
+    "info": "rollergear info rig.mcap",
+}
+CONTRACT = contract_line()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="rollergear", description="Roller gearing gearbox loss model, "
+                                 "replay, calibration and ROS 2 tools.", epilog=CONTRACT)
+    ap.add_argument("--version", action="version", version=f"rollergear {package_version()}")
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    def with_params(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+        p.add_argument("--params", metavar="YAML", help="parameter file (default: config/gearbox.yaml)")
+        return p
+
+    p = with_params(sub.add_parser("model", help="evaluate the loss model at torque/speed points"))
+    p.add_argument("--torque", type=finite_float, nargs="+", metavar="NM", help="drive torques [N·m] (signed)")
+    p.add_argument("--speed", type=finite_float, nargs="+", metavar="RAD_S", help="drive speeds [rad/s] (signed)")
+    p.add_argument("--csv", metavar="FILE", help="CSV with torque_nm, speed_rad_s columns")
+    p.add_argument("--oil-temperature-c", type=finite_float, metavar="DEGC",
+                   help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.set_defaults(func=cmd_model)
+
+    p = with_params(sub.add_parser("figures", help="the paper's sensitivity study (Figs. 6-11) as PNG"))
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for fig06.png … fig11.png and figures.csv")
+    p.set_defaults(func=cmd_figures)
+
+    p = with_params(sub.add_parser("map", help="VECTO loss map (.vtlm) of the calibrated model + efficiency/loss PNG"))
+    p.add_argument("--out", default="lossmap.vtlm", metavar="VTLM",
+                   help="the map (VECTO CSV layout); its PNG goes next to it (default: lossmap.vtlm)")
+    p.add_argument("--speed-rpm", type=finite_float, nargs=3, metavar=("START", "STOP", "STEP"),
+                   help="speed grid, >= 0 (default: the map section of the parameter file, 0 to the rated speed)")
+    p.add_argument("--torque-nm", type=finite_float, nargs=3, metavar=("START", "STOP", "STEP"),
+                   help="torque grid, both signs (default: the map section of the parameter file, -100 100 5)")
+    p.add_argument("--both-directions", action="store_true",
+                   help="also reverse rotation, to a second file NAME_reverse.vtlm (VECTO maps have speeds >= 0)")
+    p.add_argument("--oil-temperature-c", type=finite_float, metavar="DEGC",
+                   help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
+    p.add_argument("--recording", action="append", default=[], metavar="BAG",
+                   help="warn when this recording visited operating points outside the map (repeatable)")
+    p.add_argument("--no-plot", action="store_true", help="no PNG")
+    p.set_defaults(func=cmd_map)
+
+    p = sub.add_parser("info", help="what a recording or table holds: topics, types, counts, rates, span, damage",
+                       description="What FILE holds, as ros2 bag info / mcap info print it, for every format import "
+                       "reads: topics (channels, columns) with types, counts and rates, the time span, the metadata "
+                       "keys and the damaged spans.")
+    p.add_argument("file", metavar="FILE", help="MCAP, rosbag2 folder or .db3, CSV, Parquet, MDF4, TDMS or .vtlm")
+    p.add_argument("--channels", metavar="MAP.yaml",
+                   help="channel map: a time-series file channel by channel as import reads it (else its columns)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.set_defaults(func=cmd_info)
+
+    for register in SUBCOMMAND_REGISTERS:
+        register(sub, with_params)
+    for name, parser in sub.choices.items():
+        parser.formatter_class = argparse.RawDescriptionHelpFormatter
+        parser.epilog = "\n".join(filter(None, (parser.epilog, f"example:\n  {EXAMPLES[name]}" if name in EXAMPLES
+                                                else None, CONTRACT)))
+    return ap
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except RollergearError as exc:
+        print(f"rollergear: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("rollergear: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+    except OSError as exc:
+        if exc.filename is None:  # not about a file: a defect, shown as one
+            raise
+        # the file system refused (disk full, permissions changed during the run): one line
+        print(f"rollergear: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # run as the package's module so exception classes are shared
+    from rollergear_ros.cli.main import main as _main
+
+    sys.exit(_main())

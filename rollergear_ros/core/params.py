@@ -1,0 +1,634 @@
+"""One typed parameter set for the whole package, validated in one place.
+
+Every parameter is declared once (:func:`parameter_specs`; the effects' from the registry of
+:mod:`.effects`) with its type, default, unit, allowed range and description.  The same table feeds
+
+* the YAML loader (``config/gearbox.yaml``, ROS 2 parameter-file format
+  ``loss_estimator: ros__parameters: {...}``), which rejects unknown keys;
+* :func:`validate`, the single place where values are checked (the node calls it for run-time
+  parameter changes, so a change is refused with exactly the same message as a bad YAML);
+* the node's ``ParameterDescriptor`` s (description, ranges, read-only flags).
+
+Names are dotted (``gearbox.dw_m``) like ROS parameters loaded from nested YAML.  All lengths are
+metres, angles degrees (``_deg``), viscosities Pa·s.  No rclpy import here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from collections.abc import Mapping
+
+import yaml
+
+from ..base import safeyaml
+
+from .effects import EFFECTS, REGISTRY_VERSION, viscosity_law
+from ..base.errors import ParameterError
+from ..base.interface import NODE_NAME
+from .equations import contact_geometry
+
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """Declaration of one parameter: type, default, unit, range and documentation."""
+
+    name: str
+    kind: type  # float, int, bool or str
+    default: Any
+    description: str
+    unit: str = ""
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False  # True: value must be > low (else >= low)
+    high_open: bool = False  # True: value must be < high (else <= high)
+    choices: tuple[str, ...] = ()
+    read_only: bool = False
+
+    def allowed_text(self) -> str:
+        """Human-readable statement of the allowed values."""
+        if self.choices:
+            return "must be one of " + ", ".join(repr(c) for c in self.choices)
+        if self.kind is bool:
+            return "must be true or false"
+        if self.kind is str:
+            return "must be a string"
+        parts = []
+        if self.low is not None:
+            parts.append(f"{'>' if self.low_open else '>='} {self.low:g}")
+        if self.high is not None:
+            parts.append(f"{'<' if self.high_open else '<='} {self.high:g}")
+        rng = " and ".join(parts) if parts else "any finite value"
+        return f"must be a finite {'integer' if self.kind is int else 'number'} {rng}".rstrip()
+
+    def check(self, value: Any) -> Any:
+        """Return ``value`` coerced to the parameter's type, or raise :class:`ParameterError`."""
+        if self.kind is bool:
+            if not isinstance(value, bool):
+                raise ParameterError(self.name, value, self.allowed_text())
+            return value
+        if self.kind is str:
+            if not isinstance(value, str):
+                raise ParameterError(self.name, value, self.allowed_text())
+            if self.choices and value not in self.choices:
+                raise ParameterError(self.name, value, self.allowed_text())
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParameterError(self.name, value, self.allowed_text())
+        if isinstance(value, int) and abs(value) > 2**53:  # beyond a float's integers (400 digits: no float at all)
+            shown = str(value) if len(str(value)) <= 20 else f"{str(value)[:12]}… ({len(str(value))} digits)"
+            raise ParameterError(self.name, shown, self.allowed_text())
+        if self.kind is int:
+            if isinstance(value, float):
+                if not (math.isfinite(value) and value.is_integer()):
+                    raise ParameterError(self.name, value, self.allowed_text())
+                value = int(value)
+        else:
+            value = float(value)
+        if not math.isfinite(value):
+            raise ParameterError(self.name, value, self.allowed_text())
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            raise ParameterError(self.name, value, self.allowed_text())
+        if self.high is not None and (value >= self.high if self.high_open else value > self.high):
+            raise ParameterError(self.name, value, self.allowed_text())
+        return value
+
+
+def _g(name: str, default: float, unit: str, desc: str, **kw: Any) -> ParamSpec:
+    kind = int if isinstance(default, int) and not isinstance(default, bool) else float
+    return ParamSpec("gearbox." + name, kind, default, desc, unit, read_only=False, **kw)
+
+
+#: Table 1 of the paper plus the assumptions of ``model-spec.md``.
+GEARBOX_SPECS: tuple[ParamSpec, ...] = (
+    _g("dw_m", 0.006, "m", "ball diameter d_w", low=0.0, low_open=True, high=0.1),
+    _g("dm1_m", 0.0475, "m", "track pitch diameter of the drive disc d_m1 (eq. 4, 24)",
+       low=0.0, low_open=True, high=2.0),
+    _g("dm2_m", 0.065, "m", "track pitch diameter of the driven disc d_m2 (eq. 5, 28)",
+       low=0.0, low_open=True, high=2.0),
+    _g("Z", 86, "", "balls in the gearbox (only z of them carry load)", low=1, high=100000),
+    _g("z", 5, "", "connected (loaded) balls sharing the drive torque (eq. 1)", low=1, high=100000),
+    _g("alpha_deg", 20.0, "deg", "contact angle alpha (eq. 2, 4, 5)", low=0.0, high=90.0,
+       high_open=True),
+    _g("beta_deg", 0.0, "deg", "second angle beta of eq. 2", low=-90.0, high=90.0,
+       low_open=True, high_open=True),
+    _g("f1", 0.53, "", "groove curvature parameter, drive disc (eq. 7, 18)", low=0.5,
+       low_open=True, high=5.0),
+    _g("f2", 0.53, "", "groove curvature parameter, driven disc (eq. 7, 18)", low=0.5,
+       low_open=True, high=5.0),
+    _g("eta0_pa_s", 0.1, "Pa*s", "dynamic viscosity at the inlet at the reference temperature (eq. 9)",
+       low=0.0, low_open=True, high=100.0),
+    _g("Y", 0.34, "", "relative pure-rolling point (eq. 17)", low=0.0, high=1.0),
+    _g("mu_m", 0.1, "", "local friction coefficient of eq. 17", low=0.0, high=2.0),
+    _g("mu_b", 0.1, "", "friction coefficient between balls (Tb)", low=0.0, high=2.0),
+    _g("Fg_n", 0.0, "N", "pressure force between balls (eq. 22, 26)", low=0.0, high=1e6),
+    _g("E_eq_pa", 2.3077e11, "Pa", "equivalent modulus E/(1-nu^2) (eq. 3, 8, 9, 15)", low=0.0,
+       low_open=True, high=1e13),
+    _g("alpha_p_per_pa", 2.0e-8, "1/Pa", "pressure-viscosity coefficient (eq. 8)", low=0.0,
+       low_open=True, high=1e-6),
+    _g("internal_ratio", 0.0, "", "ball turns per drive-disc turn (eq. 10-13); 0 = dm1/dw (pure rolling)",
+       low=0.0, high=1e4),
+    _g("ellipse_a", 1.1552, "", "coefficient of eq. 19 (the paper prints 1.552, a typo)", low=0.0,
+       low_open=True, high=10.0),
+    _g("ellipse_b", 1.1502, "", "coefficient of eq. 20 (the paper prints 1.502, a typo)", low=0.0,
+       low_open=True, high=10.0),
+    _g("ratio", 0.0, "", "speed ratio input/output; 0 = dm2/dm1. Only used when output speed is not measured",
+       low=0.0, high=1e4),
+    _g("rated_speed_rpm", 3000.0, "rpm", "rated input speed (the loss map's last speed by default)",
+       low=0.0, low_open=True, high=1e6),
+    _g("oil_nu40_mm2_s", 0.0, "mm^2/s", "the oil's data-sheet kinematic viscosity at 40 degC (0 = not known): "
+       "calibrate's viscosity law starts from it (ASTM D341)", low=0.0, high=1e5),
+    _g("oil_nu100_mm2_s", 0.0, "mm^2/s", "the oil's data-sheet kinematic viscosity at 100 degC (0 = not known)",
+       low=0.0, high=1e5),
+    _g("oil_density15_kg_m3", 880.0, "kg/m^3", "the oil's density at 15 degC (data sheet)", low=500.0, high=1500.0),
+)
+
+def effect_specs() -> tuple[ParamSpec, ...]:
+    """``effects.<name>.enabled`` and ``effects.<name>.<key>`` of every effect in the registry
+    (:mod:`.effects`), in registry order."""
+    specs = []
+    for e in EFFECTS.values():
+        specs.append(ParamSpec(f"effects.{e.name}.enabled", bool, False, e.summary))
+        for q in e.parameters:
+            specs.append(ParamSpec(f"effects.{e.name}.{q.key}", float, q.default, q.description, q.unit,
+                                   low=q.low, high=q.high, low_open=q.low_open))
+    return tuple(specs)
+
+
+ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("estimator.min_torque_for_efficiency_nm", float, 0.2,
+              "efficiency is NaN below this |T|", "N*m", low=0.0, high=1e5),
+    ParamSpec("estimator.min_speed_for_efficiency_rad_s", float, 0.5,
+              "efficiency is NaN below this |w|", "rad/s", low=0.0, high=1e5),
+    ParamSpec("estimator.speed_noise_rad_s", float, 0.02,
+              "standard deviation of the drive speed reading: the loss torque's sign runs smoothly through 0 as "
+              "tanh(w/noise), about the average sign of such a reading; within 3 of it from 0 the direction is not "
+              "known and no loss is measured (calibrate leaves those samples out)", "rad/s", low=0.0, high=100.0),
+    ParamSpec("estimator.sync_tolerance_s", float, 0.0,
+              "input messages whose times differ by at most this are one sample (keep below half the sample "
+              "period); 0 = automatic: 0.4 x the median period of the motor torque messages (offline measured in "
+              "the bag, live 1/node.expected_rate_hz)", "s", low=0.0, high=10.0),
+    ParamSpec("estimator.staleness_s", float, 0.1,
+              "an input silent for longer than this is stale: motor samples no longer wait for it, diagnostics warn",
+              "s", low=0.0, low_open=True, high=3600.0),
+    ParamSpec("estimator.max_abs_torque_nm", float, 5000.0,
+              "|T| above this is implausible: the sample is skipped", "N*m", low=0.0, low_open=True, high=1e7),
+    ParamSpec("estimator.max_abs_speed_rad_s", float, 2000.0,
+              "|w| above this is implausible: the sample is skipped", "rad/s", low=0.0, low_open=True,
+              high=1e6),
+    ParamSpec("estimator.paper_model", bool, True,
+              "include the paper's ball-track model; false: the loss is only the accepted effects (a gearbox the "
+              "paper does not describe, e.g. an axle's loss map)"),
+    ParamSpec("estimator.adapt", bool, True,
+              "update the coefficients of the accepted effects online by RLS when output torque is measured"),
+    ParamSpec("estimator.rls_forgetting", float, 0.9995, "RLS forgetting factor lambda", "",
+              low=0.9, high=1.0),
+    ParamSpec("estimator.rls_max_covariance", float, 1e6, "bound on the RLS covariance trace (anti-windup)",
+              "", low=0.0, low_open=True, high=1e12),
+    ParamSpec("estimator.change_block_samples", int, 200,
+              "block length of the residual block averages fed to the change detector", "", low=1, high=10**7),
+    ParamSpec("estimator.change_threshold_nm", float, 0.02,
+              "CUSUM threshold on block-averaged residuals; 0 disables the detector", "N*m", low=0.0, high=1e4),
+)
+
+NODE_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("node.input_mode", str, "float64", "input topics: Float64 per channel, or one JointState",
+              choices=("float64", "joint_state"), read_only=True),
+    ParamSpec("node.input_joint", str, "motor", "JointState joint carrying motor torque/speed", read_only=True),
+    ParamSpec("node.output_joint", str, "output",
+              "JointState joint carrying measured output torque/speed (absent: no residual)", read_only=True),
+    ParamSpec("node.executor", str, "events",
+              "rclpy executor: events (fast; pairs inputs in arrival order) or single_threaded (pairs inputs by "
+              "publisher timestamps; ~3 k messages/s at most)", choices=("events", "single_threaded"), read_only=True),
+    ParamSpec("node.input_qos", str, "sensor_data",
+              "QoS of the input subscriptions: sensor_data (best effort, 1000 deep: a node that falls behind loses "
+              "samples, the publisher never waits) or reliable (reliable, keep all: a publisher that outpaces the "
+              "node is held back instead, e.g. a recording played into it; nothing is lost)",
+              choices=("sensor_data", "reliable"), read_only=True),
+    ParamSpec("node.publish_every_n", int, 1, "publish every n-th estimate (decimation for slow consumers)",
+              low=1, high=100000),
+    ParamSpec("node.publish_stamped", bool, True,
+              "publish each estimate as one stamped sensor_msgs/JointState on loss/estimate (header.stamp: the "
+              "sample's time; names and values in name/position)", read_only=True),
+    ParamSpec("node.publish_map", bool, True,
+              "publish the loss map (model + accepted effects at their adapted coefficients, the map.* grid) on "
+              "loss/map (transient-local) at start and when an adapted coefficient leaves its 95 % interval",
+              read_only=True),
+    ParamSpec("node.map_file", str, "", "also rewrite this VECTO .vtlm file (atomically) with each map ('' = off)",
+              read_only=True),
+    ParamSpec("node.publish_float64", bool, True,
+              "publish the four std_msgs/Float64 outputs (loss/torque, loss/power, efficiency, residual/torque) for "
+              "plotting tools; off: one publication per sample", read_only=True),
+    ParamSpec("node.expected_rate_hz", float, 1000.0, "expected input rate, for diagnostics", "Hz",
+              low=0.0, low_open=True, high=1e6),
+    ParamSpec("node.learn_input_rate", bool, True,
+              "diagnostics: an input is slow below 80 % of the rate its stream started at (a bag played at another "
+              "rate is no warning); false: below 80 % of node.expected_rate_hz"),
+    ParamSpec("node.min_efficiency_warn", float, 0.9, "WARN when the latest efficiency is below this", "",
+              low=0.0, high=1.0),
+    ParamSpec("node.hardware_id", str, "rollergear_gearbox", "hardware_id in /diagnostics"),
+    ParamSpec("node.record_mcap", str, "", "record inputs and outputs to this MCAP file ('' = off)",
+              read_only=True),
+    ParamSpec("node.rerun_rrd", str, "", "log to this rerun .rrd file ('' = off)", read_only=True),
+    ParamSpec("node.rerun_connect", str, "", "stream to a rerun viewer at this gRPC URL ('' = off)",
+              read_only=True),
+)
+
+MAP_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("map.speed_min_rpm", float, 0.0, "loss map: first input speed", "rpm", low=0.0, high=1e6),
+    ParamSpec("map.speed_max_rpm", float, 0.0, "loss map: last input speed; 0 = gearbox.rated_speed_rpm", "rpm",
+              low=0.0, high=1e6),
+    ParamSpec("map.speed_step_rpm", float, 100.0, "loss map: speed step", "rpm", low=0.0, low_open=True, high=1e6),
+    ParamSpec("map.torque_min_nm", float, -100.0, "loss map: first input torque (negative: regeneration)", "N*m",
+              low=-1e6, high=1e6),
+    ParamSpec("map.torque_max_nm", float, 100.0, "loss map: last input torque", "N*m", low=-1e6, high=1e6),
+    ParamSpec("map.torque_step_nm", float, 5.0, "loss map: torque step", "N*m", low=0.0, low_open=True, high=1e6),
+    ParamSpec("map.both_directions", bool, False,
+              "loss map: also reverse rotation, written to a second file (<name>_reverse.vtlm)"),
+)
+
+_specs_cache: dict[int, tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]] = {}
+
+
+def parameter_specs() -> tuple[ParamSpec, ...]:
+    """Every parameter of the package, effects from the registry as it is now."""
+    return _spec_tables()[0]
+
+
+def spec_by_name() -> dict[str, ParamSpec]:
+    return _spec_tables()[1]
+
+
+def _spec_tables() -> tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]:
+    version = REGISTRY_VERSION[0]
+    if version not in _specs_cache:
+        _specs_cache.clear()
+        specs = GEARBOX_SPECS + effect_specs() + ESTIMATOR_SPECS + NODE_SPECS + MAP_SPECS
+        _specs_cache[version] = (specs, {spec.name: spec for spec in specs})
+    return _specs_cache[version]
+
+
+@dataclass(frozen=True)
+class GearboxParams:
+    """Geometry, material and lubricant of the ball track (paper Table 1, SI units)."""
+
+    dw_m: float = 0.006
+    dm1_m: float = 0.0475
+    dm2_m: float = 0.065
+    Z: int = 86
+    z: int = 5
+    alpha_deg: float = 20.0
+    beta_deg: float = 0.0
+    f1: float = 0.53
+    f2: float = 0.53
+    eta0_pa_s: float = 0.1
+    Y: float = 0.34
+    mu_m: float = 0.1
+    mu_b: float = 0.1
+    Fg_n: float = 0.0
+    E_eq_pa: float = 2.3077e11
+    alpha_p_per_pa: float = 2.0e-8
+    internal_ratio: float = 0.0
+    ellipse_a: float = 1.1552
+    ellipse_b: float = 1.1502
+    ratio: float = 0.0
+    rated_speed_rpm: float = 3000.0
+    oil_nu40_mm2_s: float = 0.0
+    oil_nu100_mm2_s: float = 0.0
+    oil_density15_kg_m3: float = 880.0
+
+    @property
+    def datasheet_oil(self) -> tuple[float, float, float] | None:
+        """The oil's data sheet (ν40, ν100 [mm²/s], ρ15 [kg/m³]) when the file gives one."""
+        if self.oil_nu40_mm2_s > 0:
+            return self.oil_nu40_mm2_s, self.oil_nu100_mm2_s, self.oil_density15_kg_m3
+        return None
+
+    @property
+    def internal_ratio_effective(self) -> float:
+        """Ball turns per drive-disc turn; ``dm1/dw`` (pure rolling) when configured as 0."""
+        return self.internal_ratio if self.internal_ratio > 0 else self.dm1_m / self.dw_m
+
+    @property
+    def ratio_effective(self) -> float:
+        """Input/output speed ratio; ``dm2/dm1`` when configured as 0."""
+        return self.ratio if self.ratio > 0 else self.dm2_m / self.dm1_m
+
+
+@dataclass(frozen=True)
+class EffectParams:
+    """The extra effects of the registry (:mod:`.effects`): which are enabled (accepted by
+    ``calibrate``) and every effect's parameters, by their keys in the parameter file."""
+
+    switches: Mapping[str, bool] = field(default_factory=dict)  #: effect -> enabled
+    values: Mapping[str, Mapping[str, float]] = field(default_factory=dict)  #: effect -> key -> value
+
+    def enabled(self) -> tuple[str, ...]:
+        """Names of the enabled effects, in registry order."""
+        return tuple(n for n in EFFECTS if self.switches.get(n, False))
+
+    def params(self, name: str) -> dict[str, float]:
+        """An effect's parameters by their short names (those of its term and of ``calibrate --json``)."""
+        values = self.values.get(name, {})
+        return {q.short: values.get(q.key, q.default) for q in EFFECTS[name].parameters}
+
+    def active(self) -> dict[str, dict[str, float]]:
+        """Enabled effect -> its parameters by short name (what the terms are evaluated with)."""
+        return {n: self.params(n) for n in self.enabled()}
+
+
+@dataclass(frozen=True)
+class EstimatorParams:
+    """How samples are paired, screened and adapted (see :mod:`.estimator`)."""
+
+    min_torque_for_efficiency_nm: float = 0.2
+    min_speed_for_efficiency_rad_s: float = 0.5
+    speed_noise_rad_s: float = 0.02
+    sync_tolerance_s: float = 0.0
+    staleness_s: float = 0.1
+    max_abs_torque_nm: float = 5000.0
+    max_abs_speed_rad_s: float = 2000.0
+    paper_model: bool = True
+    adapt: bool = True
+    rls_forgetting: float = 0.9995
+    rls_max_covariance: float = 1e6
+    change_block_samples: int = 200
+    change_threshold_nm: float = 0.02
+
+
+@dataclass(frozen=True)
+class NodeParams:
+    """Settings only the live node uses."""
+
+    input_mode: str = "float64"
+    input_joint: str = "motor"
+    output_joint: str = "output"
+    executor: str = "events"
+    input_qos: str = "sensor_data"
+    publish_every_n: int = 1
+    publish_stamped: bool = True
+    publish_map: bool = True
+    map_file: str = ""
+    publish_float64: bool = True
+    expected_rate_hz: float = 1000.0
+    learn_input_rate: bool = True
+    min_efficiency_warn: float = 0.9
+    hardware_id: str = "rollergear_gearbox"
+    record_mcap: str = ""
+    rerun_rrd: str = ""
+    rerun_connect: str = ""
+
+
+@dataclass(frozen=True)
+class MapParams:
+    """Grid of ``rollergear map`` (the command's options override it)."""
+
+    speed_min_rpm: float = 0.0
+    speed_max_rpm: float = 0.0  #: 0: the gearbox's rated speed
+    speed_step_rpm: float = 100.0
+    torque_min_nm: float = -100.0
+    torque_max_nm: float = 100.0
+    torque_step_nm: float = 5.0
+    both_directions: bool = False
+
+    def last_speed_rpm(self, gearbox: GearboxParams) -> float:
+        """The map's last speed: ``speed_max_rpm``, or the rated speed when that is 0."""
+        return self.speed_max_rpm if self.speed_max_rpm > 0 else gearbox.rated_speed_rpm
+
+
+@dataclass(frozen=True)
+class Config:
+    """The complete, validated parameter set."""
+
+    gearbox: GearboxParams = field(default_factory=GearboxParams)
+    effects: EffectParams = field(default_factory=EffectParams)
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    node: NodeParams = field(default_factory=NodeParams)
+    map: MapParams = field(default_factory=MapParams)
+
+    def to_flat(self) -> dict[str, Any]:
+        """Dotted-name dictionary of every parameter (the inverse of :func:`validate`)."""
+        return {spec.name: self.value(spec.name) for spec in parameter_specs()}
+
+    def value(self, name: str) -> Any:
+        """One parameter by its dotted name."""
+        section, rest = name.split(".", 1)
+        if section == "effects":
+            effect, key = rest.split(".", 1)
+            spec = spec_by_name()[name]
+            if key == "enabled":
+                return self.effects.switches.get(effect, spec.default)
+            return self.effects.values.get(effect, {}).get(key, spec.default)
+        return getattr(getattr(self, section), rest)
+
+    def with_values(self, values: Mapping[str, Any]) -> Config:
+        """A new validated config with some dotted parameters changed."""
+        flat = self.to_flat()
+        flat.update(values)
+        return validate(flat)
+
+
+_SECTION_TYPES = {"gearbox": GearboxParams, "estimator": EstimatorParams, "node": NodeParams, "map": MapParams}
+
+
+#: URL schemes rerun's gRPC sink accepts (``node.rerun_connect``)
+RERUN_URL_SCHEMES = ("rerun://", "rerun+http://", "rerun+https://")
+
+
+def rerun_url_problem(url: str) -> str | None:
+    """What is wrong with a rerun gRPC URL ('' = off is fine), parsed, not prefix-matched: one of
+    :data:`RERUN_URL_SCHEMES`, a host, a valid port, and no user-info (``…:9876@evil/`` would send
+    the data to host ``evil``)."""
+    from urllib.parse import urlsplit
+
+    if not url:
+        return None
+    if any(c.isspace() or ord(c) < 32 for c in url):
+        return "a URL has no spaces or control characters"
+    try:
+        parts = urlsplit(url)
+        port = parts.port
+    except ValueError as exc:
+        return f"not a valid URL ({exc})"
+    if parts.scheme + "://" not in RERUN_URL_SCHEMES:
+        return f"a rerun gRPC URL starts with {', '.join(RERUN_URL_SCHEMES)}"
+    if "@" in parts.netloc:
+        return "a rerun URL has no user-info (user@host): the part after '@' would be the host"
+    if not parts.hostname:
+        return "the URL names no host"
+    if port is not None and not 0 < port < 65536:
+        return f"port {port} is out of range"
+    return None
+
+
+def validate(values: Mapping[str, Any]) -> Config:
+    """Check every parameter (range, type, cross-parameter consistency) and build a :class:`Config`.
+
+    ``values`` maps dotted names to values; missing names take their defaults, unknown names are
+    an error.  Raises :class:`ParameterError` naming the first bad parameter, its value and the
+    allowed range.  This is the only place parameters are validated.
+    """
+    specs = spec_by_name()
+    unknown = sorted(set(values) - set(specs))
+    if unknown:
+        import difflib
+
+        name = unknown[0]
+        section, _, key = name.rpartition(".")
+        same = sorted(s for s in specs if s.rpartition(".")[0] == section)
+        # the key against the keys of its own section; a misplaced key against every full name
+        near = [f"{section}.{k}" for k in difflib.get_close_matches(key, [s.rpartition(".")[2] for s in same],
+                                                                     n=3, cutoff=0.6)]
+        near = near or [s for s in specs if s.rpartition(".")[2] == key]
+        if near:
+            hint = "did you mean " + " or ".join(f"'{n}'" for n in near) + "?"
+        else:
+            hint = (f"the keys of '{section}' are {', '.join(same)}" if same else
+                    f"the sections are {', '.join(sorted({s.split('.')[0] for s in specs}))}")
+        more = f" (and {len(unknown) - 1} more unknown: {', '.join(unknown[1:4])})" if len(unknown) > 1 else ""
+        raise ParameterError(name, values[name], f"unknown parameter; {hint}{more}")
+    checked: dict[str, dict[str, Any]] = {k: {} for k in _SECTION_TYPES}
+    switches: dict[str, bool] = {}
+    effect_values: dict[str, dict[str, float]] = {}
+    for spec in parameter_specs():
+        value = spec.check(values[spec.name]) if spec.name in values else spec.default
+        section, rest = spec.name.split(".", 1)
+        if section == "effects":
+            effect, key = rest.split(".", 1)
+            if key == "enabled":
+                switches[effect] = value
+            else:
+                effect_values.setdefault(effect, {})[key] = value
+        else:
+            checked[section][rest] = value
+    config = Config(effects=EffectParams(switches, effect_values),
+                    **{k: _SECTION_TYPES[k](**v) for k, v in checked.items()})
+    _check_consistency(config)
+    return config
+
+
+def _check_consistency(config: Config) -> None:
+    g = config.gearbox
+    if g.z > g.Z:
+        raise ParameterError("gearbox.z", g.z, f"connected balls z must be <= Z = {g.Z}")
+    if g.dm1_m <= g.dw_m:
+        raise ParameterError("gearbox.dm1_m", g.dm1_m,
+                             f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m")
+    if g.dm2_m <= g.dw_m:
+        raise ParameterError(
+            "gearbox.dm2_m", g.dm2_m, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m"
+        )
+    if (g.oil_nu40_mm2_s > 0 or g.oil_nu100_mm2_s > 0) and not (g.oil_nu40_mm2_s > g.oil_nu100_mm2_s > 0):
+        raise ParameterError("gearbox.oil_nu100_mm2_s", g.oil_nu100_mm2_s, f"an oil is thinner when warm: need "
+                             f"oil_nu40_mm2_s ({g.oil_nu40_mm2_s:g}) > oil_nu100_mm2_s > 0, or both 0")
+    # the Snare term (eq. 21) needs k_j = Ry/Rx >= 1; checked on the derived geometry
+    geo = contact_geometry(g)
+    for j, k in ((1, geo.k1), (2, geo.k2)):
+        if not (math.isfinite(k) and k >= 1.0):
+            name = f"gearbox.f{j}"
+            raise ParameterError(
+                name,
+                getattr(g, f"f{j}"),
+                f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove",
+            )
+    if not (config.node.publish_stamped or config.node.publish_float64):
+        raise ParameterError("node.publish_float64", False, "and node.publish_stamped are both off: the node would "
+                             "publish no estimate (switch one on)")
+    problem = rerun_url_problem(config.node.rerun_connect)
+    if problem:
+        raise ParameterError("node.rerun_connect", config.node.rerun_connect,
+                             f"{problem} (e.g. rerun+http://127.0.0.1:9876/proxy)")
+    if config.map.last_speed_rpm(g) < config.map.speed_min_rpm:
+        raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm,
+                             "must be >= map.speed_min_rpm (0: gearbox.rated_speed_rpm)")
+    if config.map.torque_max_nm < config.map.torque_min_nm:
+        raise ParameterError("map.torque_max_nm", config.map.torque_max_nm, "must be >= map.torque_min_nm")
+    law = viscosity_law()
+    if law.name in config.effects.enabled():
+        vogel = config.effects.params(law.name)
+        if vogel["theta_ref"] + vogel["C"] <= 0:
+            raise ParameterError(f"effects.{law.name}.{law.parameter('C').key}", vogel["C"],
+                                 "theta_ref + C must be > 0")
+
+
+def _flatten(prefix: str, data: Mapping[str, Any], out: dict[str, Any]) -> None:
+    for key, value in data.items():
+        name = f"{prefix}.{key}" if prefix else str(key)
+        if isinstance(value, Mapping):
+            _flatten(name, value, out)
+        else:
+            out[name] = value
+
+
+def flat_from_yaml_document(doc: Any, source: str = "<yaml>") -> dict[str, Any]:
+    """Extract the dotted parameters of the ``loss_estimator`` node from a parameter-file document.
+
+    Accepts the node key as ``loss_estimator``, ``/loss_estimator``, ``/**/loss_estimator``,
+    ``<namespace>/loss_estimator`` or ``/**``.
+    """
+    if not isinstance(doc, Mapping):
+        raise ParameterError(
+            "<file>", source, "a ROS 2 parameter file must be a mapping 'loss_estimator: {ros__parameters: {...}}'"
+        )
+    for key, body in doc.items():
+        key_s = str(key)
+        if key_s == "/**" or key_s.rstrip("/").split("/")[-1] == NODE_NAME:
+            if not isinstance(body, Mapping) or "ros__parameters" not in body:
+                raise ParameterError(key_s, body, "the node entry must contain 'ros__parameters'")
+            params = body["ros__parameters"] or {}
+            if not isinstance(params, Mapping):
+                raise ParameterError(key_s + ".ros__parameters", params, "must be a mapping")
+            out: dict[str, Any] = {}
+            _flatten("", params, out)
+            out.pop("use_sim_time", None)  # a standard ROS parameter, handled by rclpy
+            return out
+    raise ParameterError(
+        "<file>", source, f"no '{NODE_NAME}: ros__parameters:' entry (found keys: {', '.join(map(str, doc)) or 'none'})"
+    )
+
+
+def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> Config:
+    """Load and validate a parameter YAML (``None``: the defaults), with optional dotted overrides."""
+    flat: dict[str, Any] = {}
+    if path is not None:
+        try:
+            doc = safeyaml.load(path)
+        except safeyaml.YamlProblem as problem:
+            raise ParameterError.broken_file(str(path), problem) from None
+        flat = flat_from_yaml_document(doc, str(path))
+    if overrides:
+        flat.update(overrides)
+    return validate(flat)
+
+
+def config_to_yaml(config: Config, header: str = "") -> str:
+    """Render a config as a ROS 2 parameter file the node and ``replay`` accept."""
+    nested: dict[str, Any] = {}
+    for name, value in config.to_flat().items():
+        cursor = nested
+        parts = name.split(".")
+        for p in parts[:-1]:
+            cursor = cursor.setdefault(p, {})
+        cursor[parts[-1]] = value
+    body = yaml.safe_dump({"/**/" + NODE_NAME: {"ros__parameters": nested}}, sort_keys=False)
+    return (header + body) if header else body
+
+
+__all__ = [
+    "Config",
+    "EffectParams",
+    "EstimatorParams",
+    "GearboxParams",
+    "NodeParams",
+    "ParamSpec",
+    "ParameterError",
+    "parameter_specs",
+    "spec_by_name",
+    "load_config",
+    "validate",
+    "config_to_yaml",
+    "flat_from_yaml_document",
+]

@@ -1,0 +1,112 @@
+"""The live loss map: the calibrated model with the online-adapted coefficients, for energy managers.
+
+The node publishes it on ``loss/map`` (``std_msgs/msg/Float64MultiArray``; reliable,
+transient-local, depth 1: a late subscriber gets the last one) when it starts and whenever an
+adapted coefficient has moved beyond its 95 % interval since the map last published; and
+optionally rewrites a VECTO ``.vtlm`` file atomically (``node.map_file``).  The grid is the
+parameter file's ``map.*`` (as ``rollergear map``), forward rotation.
+
+Layout of the message (:func:`to_multiarray`, read back by :func:`from_multiarray`)::
+
+    layout.dim[0] = {label: "speed_rpm", size: Ns, stride: Ns*Nt}
+    layout.dim[1] = {label: "torque_nm", size: Nt, stride: Nt}
+    layout.data_offset = Ns + Nt
+    data[0 : Ns]              input speeds [rpm], ascending
+    data[Ns : Ns + Nt]        input torques [N·m], ascending (negative: overrun)
+    data[Ns + Nt + i*Nt + j]  torque loss [N·m] (input-referred magnitude, as in a .vtlm)
+                              at speed i, torque j
+
+No rclpy import (the node fills the message from :func:`to_multiarray`'s plain values).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..core.effects import EFFECTS
+from .lossmap import LossMap, build_map, grid
+from ..core.operating_points import temperature_effects
+from ..core.params import Config, validate
+
+__all__ = ["MapArray", "adapted_config", "coefficients_moved", "from_multiarray", "live_map", "map_grid",
+           "to_multiarray"]
+
+SPEED_LABEL = "speed_rpm"
+TORQUE_LABEL = "torque_nm"
+#: two-sided 95 % quantile of the normal distribution
+Z95 = 1.959963984540054
+
+
+def map_grid(config: Config) -> tuple[np.ndarray, np.ndarray]:
+    """Speeds [rpm] and torques [N·m] of the parameter file's map grid (``map.*``)."""
+    m = config.map
+    return (grid(m.speed_min_rpm, m.last_speed_rpm(config.gearbox), m.speed_step_rpm),
+            grid(m.torque_min_nm, m.torque_max_nm, m.torque_step_nm))
+
+
+def adapted_config(config: Config, coefficients: Mapping[str, float]) -> Config:
+    """``config`` with the adapted linear coefficients of its accepted effects (validated)."""
+    flat = config.to_flat()
+    for name, value in coefficients.items():
+        effect = EFFECTS[name]
+        flat[f"effects.{name}.{effect.parameter(effect.coefficient).key}"] = float(value)
+    return validate(flat)
+
+
+def live_map(config: Config, coefficients: Mapping[str, float],
+             oil_temperature_c: float | None) -> tuple[Config, LossMap]:
+    """The parameters with the adapted ``coefficients``, and their map.  An accepted effect that
+    needs the oil temperature is evaluated at ``oil_temperature_c`` (the last one measured), else
+    at its reference temperature (where it changes nothing)."""
+    adapted = adapted_config(config, coefficients)
+    temperature = oil_temperature_c
+    if temperature is None and temperature_effects(adapted):
+        temperature = adapted.effects.params(temperature_effects(adapted)[0]).get("theta_ref", 40.0)
+    speeds, torques = map_grid(adapted)
+    return adapted, build_map(adapted, speeds, torques, temperature)
+
+
+def coefficients_moved(published: Mapping[str, float], current: Mapping[str, float],
+                       intervals: Mapping[str, tuple[float, float]]) -> list[str]:
+    """The coefficients whose value when the map was published lies outside their current 95 %
+    interval (the adaptation has moved them by more than their uncertainty)."""
+    moved = []
+    for name in current:
+        lo, hi = intervals.get(name, (-math.inf, math.inf))
+        if name not in published or not lo <= published[name] <= hi:
+            moved.append(name)
+    return moved
+
+
+@dataclass(frozen=True)
+class MapArray:
+    """The plain values of a ``Float64MultiArray`` (see the module docstring)."""
+
+    labels: tuple[str, str]
+    sizes: tuple[int, int]
+    strides: tuple[int, int]
+    data_offset: int
+    data: np.ndarray
+
+
+def to_multiarray(loss_map: LossMap) -> MapArray:
+    """The map in the message's layout."""
+    ns, nt = len(loss_map.speeds_rpm), len(loss_map.torques_nm)
+    data = np.concatenate([loss_map.speeds_rpm, loss_map.torques_nm, loss_map.loss_nm.ravel()]).astype(float)
+    return MapArray((SPEED_LABEL, TORQUE_LABEL), (ns, nt), (ns * nt, nt), ns + nt, data)
+
+
+def from_multiarray(labels, sizes, data_offset: int, data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(speeds_rpm, torques_nm, loss_nm[speed, torque])`` from a received message's fields."""
+    if tuple(labels) != (SPEED_LABEL, TORQUE_LABEL):
+        raise ValueError(f"not a loss map: dimensions {list(labels)}")
+    ns, nt = (int(s) for s in sizes)
+    values = np.asarray(data, dtype=float)
+    if data_offset != ns + nt or len(values) != ns + nt + ns * nt:
+        raise ValueError(f"a loss map of {ns} x {nt} needs {ns + nt + ns * nt} values after an offset of "
+                         f"{ns + nt}, got {len(values)} (offset {data_offset})")
+    return values[:ns], values[ns:ns + nt], values[ns + nt:].reshape(ns, nt)

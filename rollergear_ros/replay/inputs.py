@@ -1,0 +1,410 @@
+"""Replay's input side: which topics a recording's inputs are on, decoding them batch by batch
+(Float64 through the numpy chunk reader, other types record by record), and the problems found
+on the way (damaged spans, malformed, duplicated and out-of-order messages).  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from collections.abc import Callable
+
+import numpy as np
+
+from ..recordings.bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, cdr_problem, decode_float64,
+                              decoder_for, float64_problem, iter_raw_batches, read_metadata)
+from ..core.pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
+from ..base.interface import MessageType, Metadata
+
+__all__ = ["InputBatch", "InputPlan", "InputProblems", "decode_batch", "input_batches", "plan_inputs",
+           "recorded_pairing"]
+
+
+@dataclass
+class InputPlan:
+    """Which topics of a bag feed which estimator channel, and how to decode them."""
+
+    mode: str  # "float64" or "joint_state"
+    float64: dict[str, str]  # topic -> channel
+    joint_states: str | None
+    temperature: tuple[str, str] | None  # (topic, type)
+    topics: TopicMap
+
+    @property
+    def all_topics(self) -> set[str]:
+        t = set(self.float64)
+        if self.joint_states:
+            t.add(self.joint_states)
+        if self.temperature:
+            t.add(self.temperature[0])
+        return t
+
+
+def _check_float64_schema(info: BagInfo, topic: str) -> None:
+    """A schema named ``std_msgs/msg/Float64`` must define ``float64 data`` (else its payloads
+    would be decoded as something they are not)."""
+    text = info.schema_texts.get(MessageType.FLOAT64)
+    if text is None:
+        return
+    fields = [line.split("#")[0].strip() for line in text.split("=" * 80)[0].splitlines()]
+    fields = [" ".join(f.split()) for f in fields if f]
+    if fields != ["float64 data"]:
+        shown = "; ".join(fields)[:120]
+        raise BagError(f"topic {topic}: its schema {MessageType.FLOAT64} defines '{shown}', not 'float64 data'")
+
+
+def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
+    """Check the bag has the inputs (with the right types); raise :class:`BagError` saying what it has."""
+    have = info.topics
+
+    def need_type(topic: str, expected: tuple[str, ...]) -> None:
+        if have[topic] not in expected:
+            raise BagError(f"topic {topic} has type {have[topic] or '<no schema>'}, expected "
+                           f"{' or '.join(expected)}")
+
+    temperature = None
+    if topics.oil_temperature in have:
+        need_type(topics.oil_temperature, (MessageType.TEMPERATURE, MessageType.FLOAT64))
+        temperature = (topics.oil_temperature, have[topics.oil_temperature])
+    if topics.motor_torque in have or topics.motor_speed in have:
+        missing = [t for t in (topics.motor_torque, topics.motor_speed) if t not in have]
+        if missing:
+            raise BagError(
+                f"{info.path}: missing input topic {', '.join(missing)}; the bag has: {info.describe_topics()}"
+            )
+        f64 = {}
+        for ch, topic in topics.float64_inputs().items():
+            if topic in have:
+                need_type(topic, (MessageType.FLOAT64,))
+                _check_float64_schema(info, topic)
+                f64[topic] = ch
+        return InputPlan("float64", f64, None, temperature, topics)
+    if topics.joint_states in have:
+        need_type(topics.joint_states, (MessageType.JOINT_STATE,))
+        return InputPlan("joint_state", {}, topics.joint_states, temperature, topics)
+    raise BagError(
+        f"{info.path} has none of the input topics ({topics.motor_torque} and {topics.motor_speed} "
+        f"as std_msgs/msg/Float64, or {topics.joint_states} as sensor_msgs/msg/JointState); "
+        f"the bag has: {info.describe_topics()}"
+    )
+
+
+def _decode_temperature(payload: bytes, plan: InputPlan, info: BagInfo) -> tuple[float, str | None]:
+    """An oil temperature message (Float64 or sensor_msgs/Temperature) -> (°C, problem or None)."""
+    temp_type = plan.temperature[1]
+    if temp_type == MessageType.FLOAT64:
+        problem = float64_problem(payload)
+        return (math.nan, problem) if problem else (float(decode_float64([payload])[0]), None)
+    problem = cdr_problem(payload)
+    if problem:
+        return math.nan, problem
+    try:
+        return float(decoder_for(temp_type, info.schema_texts.get(temp_type))(payload).temperature), None
+    except Exception as exc:  # noqa: BLE001 - the CDR decoder raises assorted errors on a bad payload
+        return math.nan, f"cannot decode {temp_type} ({type(exc).__name__})"
+
+
+def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo,
+                 problems: InputProblems | None = None) -> tuple[list[tuple[int, str, float]], set[int]]:
+    """Decode a raw batch of a JointState recording into ``(time, channel, value)`` in file order,
+    and the indices of the messages that could not be decoded.
+
+    Float64 recordings take the vectorised path (:func:`_float64_batches`); non-finite values are
+    kept.  A message that cannot be decoded is skipped and added to ``problems`` (raised without).
+    """
+    out: list[tuple[int, str, float]] = []
+    bad: set[int] = set()
+    tp = plan.topics
+    temp_topic = plan.temperature[0] if plan.temperature else None
+    js_dec = decoder_for(MessageType.JOINT_STATE, info.schema_texts.get(MessageType.JOINT_STATE))
+    for i, (topic, t, data) in enumerate(zip(batch.topics, batch.log_time_ns, batch.data)):
+        if topic == temp_topic:
+            value, problem = _decode_temperature(data, plan, info)
+            if problem is None:
+                out.append((t, OIL_TEMPERATURE, value))
+        elif topic == plan.joint_states:
+            problem = cdr_problem(data)
+            if problem is None:
+                try:
+                    msg = js_dec(data)
+                except Exception as exc:  # noqa: BLE001 - the CDR decoder raises assorted errors
+                    problem = f"cannot decode {MessageType.JOINT_STATE} ({type(exc).__name__})"
+            if problem is None:
+                names = list(msg.name)
+                for joint, ch_t, ch_w in ((tp.input_joint, TORQUE, SPEED), (tp.output_joint, OUT_TORQUE, OUT_SPEED)):
+                    if joint in names:
+                        k = names.index(joint)
+                        out.append((t, ch_t, float(msg.effort[k]) if k < len(msg.effort) else math.nan))
+                        out.append((t, ch_w, float(msg.velocity[k]) if k < len(msg.velocity) else math.nan))
+        else:
+            problem = None
+        if problem is not None:
+            if problems is None:
+                raise BagError(f"{topic} at log time {t} ns: {problem}")
+            problems.add("malformed", topic, t, problem)
+            bad.add(i)
+    return out, bad
+
+
+class InputProblems:
+    """Input messages replay skips (``malformed``, ``duplicate``: added to the estimator's skip
+    counts) or flags (log time going backwards on a topic), with the first few of each for the warning."""
+
+    EXAMPLES = 3
+
+    def __init__(self, counts: dict[str, int], plan: InputPlan) -> None:
+        self.counts = counts
+        self.backwards = 0
+        self.examples: dict[str, list[str]] = {}
+        self.topic_of = {CHANNELS.index(ch): topic for topic, ch in plan.float64.items()}
+        if plan.temperature:
+            self.topic_of[CHANNELS.index(OIL_TEMPERATURE)] = plan.temperature[0]
+        self._last_t = np.full(len(CHANNELS), np.iinfo(np.int64).min, dtype=np.int64)
+        self._last_v = np.full(len(CHANNELS), np.nan)
+
+    def add(self, kind: str, topic: str, t_ns: int, reason: str, n: int = 1) -> None:
+        if kind == "backwards":
+            self.backwards += n
+        else:
+            self.counts[kind] = self.counts.get(kind, 0) + n
+        shown = self.examples.setdefault(kind, [])
+        if len(shown) < self.EXAMPLES:
+            shown.append(f"{topic} at log time {t_ns} ns{': ' + reason if reason else ''}")
+
+    def check_order(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """Which messages (in file order) to keep: a repeat of its topic's previous message (same
+        log time, same value) is a duplicate and skipped; a log time before its topic's previous
+        one is counted as going backwards (and kept: replay orders by log time)."""
+        keep = np.ones(len(codes), dtype=bool)
+        for code in np.unique(codes).tolist():
+            idx = np.flatnonzero(codes == code)
+            tt, vv = t_ns[idx], values[idx]
+            pt = np.concatenate([self._last_t[code:code + 1], tt[:-1]])
+            pv = np.concatenate([self._last_v[code:code + 1], vv[:-1]])
+            dup = (tt == pt) & ((vv == pv) | (np.isnan(vv) & np.isnan(pv)))
+            back = tt < pt
+            topic = self.topic_of.get(code, CHANNELS[code])
+            for kind, mask, why in (("duplicate", dup, "same log time and value as the one before"),
+                                    ("backwards", back, "log time before the previous message's")):
+                if mask.any():
+                    self.add(kind, topic, int(tt[mask][0]), why, int(mask.sum()))
+            keep[idx[dup]] = False
+            self._last_t[code], self._last_v[code] = tt[-1], vv[-1]
+        return keep
+
+    def warnings(self) -> list[str]:
+        lines = []
+        for kind, what in (("malformed", "malformed input messages skipped"),
+                           ("duplicate", "duplicated input messages skipped"),
+                           ("backwards", "input messages whose log time goes backwards on their topic")):
+            n = self.backwards if kind == "backwards" else self.counts.get(kind, 0)
+            if n:
+                lines.append(f"{n:,} {what} (first: {'; '.join(self.examples.get(kind, []))})")
+        return lines
+
+
+@dataclass
+class InputBatch:
+    """Decoded input messages in file order (``codes`` index :data:`~core.estimator.CHANNELS`)."""
+
+    codes: np.ndarray
+    t_ns: np.ndarray
+    values: np.ndarray
+    write_inputs: Callable[[BagWriter], None]
+    #: the messages' publish times (the node records its inputs' source timestamps there): in file
+    #: order only, where arrival pairing's skew detector measures with them; else None
+    source_ns: np.ndarray | None = None
+
+
+def input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None],
+                   problems: InputProblems, log_time_range: tuple[int, int] | None = None,
+                   file_order: bool = False):
+    """Batches of decoded inputs: Float64 bags through the numpy chunk reader, others record by record.
+
+    Float64 inputs are sorted by log time, except with ``file_order``: a recording the node made,
+    whose inputs stand in the order the node took them (which pairing by publisher timestamps
+    depends on, when the node takes one input's backlog before another's).
+
+    Damaged spans of the file are skipped, malformed and duplicated messages too (``problems``);
+    each is reported through ``warn`` when the read ends.
+    """
+    from ..recordings.fastmcap import ReadState, preload_summary
+
+    state = ReadState(log_time_range=log_time_range)
+    preload_summary(info.path, state)
+    try:
+        if plan.mode == "float64":
+            yield from _float64_batches(info, plan, batch_size, state, problems, file_order)
+        else:
+            yield from _decoded_batches(info, plan, batch_size, state, problems)
+    finally:
+        for line in state.damage_report() + problems.warnings():
+            warn(f"{info.path}: {line}")
+        if state.truncated and not state.damaged:
+            warn(f"{info.path}: stopped reading: {state.problem}")
+
+
+def _decoded_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems):
+    code_of = {c: i for i, c in enumerate(CHANNELS)}
+    for raw in iter_raw_batches(info, plan.all_topics, batch_size, state):
+        events, bad = decode_batch(raw, plan, info, problems)
+        codes = np.array([code_of[c] for _, c, _ in events], dtype=np.int8)
+        t = np.array([e[0] for e in events], dtype=np.int64)
+        v = np.array([e[2] for e in events], dtype=float)
+        keep = problems.check_order(codes, t, v)
+        codes, t, v = codes[keep], t[keep], v[keep]
+
+        def write(writer: BagWriter, raw: RawBatch = raw, bad: set[int] = bad) -> None:
+            for i, (tp, tt, d) in enumerate(zip(raw.topics, raw.log_time_ns, raw.data)):
+                if i not in bad:
+                    writer.write_raw(tp, info.topics[tp], tt, d, info.schema_texts.get(info.topics[tp]))
+
+        yield InputBatch(codes, t, v, write)
+
+
+def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems,
+                     file_order: bool = False):
+    from ..recordings.fastmcap import iter_message_arrays, release_count
+
+    code_of = {c: i for i, c in enumerate(CHANNELS)}
+    temp_code = code_of[OIL_TEMPERATURE]
+    pending: list = []
+    count = 0
+
+    def assemble(parts: list) -> InputBatch:
+        codes, ts, sources, vals, writes = [], [], [], [], []
+        for arrays, lut in parts:
+            code = lut[arrays.channel]
+            keep = np.flatnonzero(code >= 0)
+            c = code[keep]
+            v = np.full(len(keep), np.nan)
+            good = np.ones(len(keep), dtype=bool)
+            f64 = c != temp_code
+            if plan.temperature and plan.temperature[1] == MessageType.FLOAT64:
+                f64[:] = True
+            if f64.any():
+                try:
+                    v[f64] = arrays.float64(keep[f64])
+                except ValueError:  # big-endian, padded or malformed payloads: one by one
+                    rows = np.flatnonzero(f64)
+                    found: list[tuple[int, str]] = []
+                    v[rows] = decode_float64([arrays.payload(i) for i in keep[rows].tolist()], found)
+                    for j, reason in found:
+                        good[rows[j]] = False
+                        problems.add("malformed", problems.topic_of[int(c[rows[j]])],
+                                     int(arrays.log_time[keep[rows[j]]]), reason)
+            for j in np.flatnonzero(~f64).tolist():
+                v[j], reason = _decode_temperature(arrays.payload(int(keep[j])), plan, info)
+                if reason:
+                    good[j] = False
+                    problems.add("malformed", plan.temperature[0], int(arrays.log_time[keep[j]]), reason)
+            decodable = keep[good]  # what the output copies: every message a reader can decode
+            t = arrays.log_time[keep]
+            sub = np.flatnonzero(good)
+            good[sub[~problems.check_order(c[sub], t[sub], v[sub])]] = False
+            codes.append(c[good])
+            ts.append(t[good])
+            sources.append(arrays.publish_time[keep][good])
+            vals.append(v[good])
+            writes.append((arrays, decodable))
+
+        def write(writer: BagWriter) -> None:
+            """Copy the input messages in file order; equal-sized payloads go in with one numpy call."""
+            for arrays, keep in writes:
+                lens = arrays.length[keep]
+                fixed = keep[lens == 12]  # Float64 (and any other 12-byte payloads)
+                cids = sorted(set(arrays.channel[fixed].tolist()))
+                if len(fixed):
+                    meta = []
+                    for cid in cids:
+                        topic, sid, _ = state.channels[cid]
+                        type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
+                        meta.append((topic, type_name, info.schema_texts.get(type_name)))
+                    typed = np.array([bool(m[1]) for m in meta])  # a type lost with a damaged chunk: not copied
+                    which = np.searchsorted(np.array(cids), arrays.channel[fixed])
+                    fixed, which = fixed[typed[which]], (np.cumsum(typed) - 1)[which[typed[which]]]
+                    payload = arrays.buf[arrays.offset[fixed][:, None] + np.arange(12)]
+                    writer.write_fixed_mixed([m for m in meta if m[1]], which, arrays.log_time[fixed], payload)
+                for i in keep[lens != 12].tolist():
+                    topic, sid, _ = state.channels[int(arrays.channel[i])]
+                    type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
+                    if not type_name:
+                        continue
+                    writer.write_raw(
+                        topic, type_name, int(arrays.log_time[i]), arrays.payload(i), info.schema_texts.get(type_name)
+                    )
+
+        return InputBatch(np.concatenate(codes).astype(np.int8), np.concatenate(ts), np.concatenate(vals), write,
+                          np.concatenate(sources))
+
+    carry: InputBatch | None = None
+
+    def in_time_order(batch: InputBatch, final: bool) -> InputBatch:
+        """Prepend what the previous batch held back, sort by log time (file order among equal
+        times), and hold back messages newer than the oldest channel's last one (not final)."""
+        nonlocal carry
+        if file_order:
+            return batch
+        batch.source_ns = None  # sorted by log time: pairing by time needs no publish times
+        if carry is not None:
+            batch = InputBatch(
+                np.concatenate([carry.codes, batch.codes]),
+                np.concatenate([carry.t_ns, batch.t_ns]),
+                np.concatenate([carry.values, batch.values]),
+                batch.write_inputs,
+            )
+        order = np.argsort(batch.t_ns, kind="stable")
+        codes, t, v = batch.codes[order], batch.t_ns[order], batch.values[order]
+        carry = None
+        if not final:
+            cut = release_count(t, codes, ignore_key=temp_code)
+            if cut < len(t):
+                carry = InputBatch(codes[cut:], t[cut:], v[cut:], batch.write_inputs)
+                codes, t, v = codes[:cut], t[:cut], v[:cut]
+        return InputBatch(codes, t, v, batch.write_inputs)
+
+    lut_cache: dict[int, np.ndarray] = {}
+    for arrays in iter_message_arrays(info.path, state):
+        key = len(state.channels)
+        if key not in lut_cache:  # channel id -> estimator channel code (-1: not an input)
+            lut = np.full(65536, -1, dtype=np.int16)
+            for cid, (topic, _sid, _enc) in state.channels.items():
+                if topic in plan.float64:
+                    lut[cid] = code_of[plan.float64[topic]]
+                elif plan.temperature and topic == plan.temperature[0]:
+                    lut[cid] = temp_code
+            lut_cache = {key: lut}
+        pending.append((arrays, lut_cache[key]))
+        count += len(arrays)
+        if count >= batch_size:
+            yield in_time_order(assemble(pending), final=False)
+            pending, count = [], 0
+    if pending or carry is not None:
+        yield in_time_order(
+            assemble(pending)
+            if pending
+            else InputBatch(np.empty(0, np.int8), np.empty(0, np.int64), np.empty(0), lambda w: None),
+            final=True,
+        )
+
+
+def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tuple[str, float | None, bool]:
+    """How to pair the bag's Float64 inputs, the sample period that sets the tolerance, and whether
+    to take them in file order.
+
+    A recording ``loss_estimator`` made (its ``rollergear_recording`` metadata) logged its inputs
+    at the times it paired them by -- arrival times, or publisher timestamps -- in the order it took
+    them, so replay pairs them as the node did: by its pairing and its sample period, in file order.
+    Any other bag: ``("timestamp", period_s, False)``.
+    """
+    recording = read_metadata(path, Metadata.RECORDING) if plan.mode == "float64" else None
+    if recording and (recording.get("pairing") in ARRIVAL_PAIRINGS
+                      or recording.get("input_log_time") == "source_timestamp"):
+        try:
+            node_period_s = float(recording.get("sample_period_s", "nan"))
+        except ValueError:
+            node_period_s = math.nan
+        if math.isfinite(node_period_s) and node_period_s > 0:
+            return recording["pairing"], node_period_s, True
+    return "timestamp", period_s, False

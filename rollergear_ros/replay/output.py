@@ -1,0 +1,131 @@
+"""Where replay's estimates go: the output MCAP (the output channels and the inputs, with the
+recording's provenance), the rerun log, the exported tables, the summary's sums and the caller.
+No rclpy import."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..outputs import stamped
+from ..recordings.bag import BagInfo, BagWriter, TopicMap, offered_qos_yaml
+from ..core.estimator import BatchEstimate, Estimator
+from ..base.interface import MessageType, Metadata
+from ..base.output_channels import OUTPUT_CHANNELS, float64_channels, stamped_channels
+from ..core.params import Config
+from .inputs import InputBatch
+from .summary import Accumulator
+
+__all__ = ["ReplayOutputs", "output_writer", "write_outputs"]
+
+
+class ReplayOutputs:
+    """The destinations of one replay's estimates, opened by :meth:`open`, closed by :meth:`close`.
+
+    Every batch of estimates goes to the running sums and, where asked for, to the caller's list
+    (``collect``), the output MCAP, the rerun log and the exported tables.
+    """
+
+    def __init__(self, topics: TopicMap, acc: Accumulator, collect: bool) -> None:
+        self.topics = topics
+        self.acc = acc
+        self.collected: list[BatchEstimate] = []  #: every batch, with ``collect``
+        self._sink = self.collected if collect else None
+        self.writer: BagWriter | None = None
+        self.rlog = None  #: a :class:`outputs.review.RerunLog`
+        self.tables: list = []  #: the :class:`outputs.exports.Export` tables being written
+        self._skip_events = None
+
+    def open(self, out_mcap, rrd, exports, info: BagInfo, config: Config, estimator: Estimator) -> None:
+        """Open the outputs asked for (``None`` / empty: not that one)."""
+        self.writer = output_writer(out_mcap, info, config, self.topics) if out_mcap else None
+        if exports:
+            from ..outputs.exports import Export
+
+            self.tables = [Export(kind, path) for kind, path in exports]
+        if rrd:
+            from ..outputs.review import RerunLog, SkipEvents
+
+            self.rlog = RerunLog("rollergear_replay", rrd, breakdown_terms=estimator.model.nonzero_terms(),
+                                 with_effects=bool(config.effects.enabled()), replace_atomically=True)
+            self._skip_events = SkipEvents()
+
+    def emit(self, b: BatchEstimate | None) -> None:
+        """Hand one batch of estimates to the writers, the summary and the caller."""
+        if b is None:
+            return
+        self.acc.add(b)
+        if self._sink is not None:
+            self._sink.append(b)
+        if self.writer:
+            write_outputs(self.writer, b, self.topics)
+        if self.rlog:
+            self.rlog.send_estimates(b)
+        for table in self.tables:
+            table.add(b)
+
+    def inputs_done(self, batch: InputBatch, estimator: Estimator, release_lag_ns: int) -> None:
+        """After a batch's estimates: its skips as a rerun event, its inputs into the output MCAP,
+        and what can no longer be followed by an older estimate released to the file."""
+        if self.rlog and len(batch.t_ns):
+            self.skip_event(estimator, int(batch.t_ns.max()))
+        if self.writer:
+            batch.write_inputs(self.writer)
+            if len(batch.t_ns):  # no later estimate can be older than its inputs' hold
+                self.writer.release(int(batch.t_ns.max()) - release_lag_ns)
+
+    def skip_event(self, estimator: Estimator, t_ns: int) -> None:
+        """The samples skipped since the last event, as a warning on the rerun timeline at ``t_ns``."""
+        text = self._skip_events.since_last(estimator.counts)
+        if text:
+            self.rlog.events([t_ns], [text], "WARN")
+
+    def close(self, commit: bool) -> None:
+        """Close every output: in place (``commit``), or an error leaves none in place of an existing one."""
+        if self.writer:
+            self.writer.close(commit=commit)
+        if self.rlog:
+            self.rlog.close(commit=commit)
+        for table in self.tables:
+            table.close(commit_file=commit)
+
+
+def output_writer(path: str | Path, info: BagInfo, config: Config, topics: TopicMap) -> BagWriter:
+    """The estimates' MCAP: in log-time order, the outputs with the QoS the node offers them with,
+    and its provenance (metadata ``rollergear_provenance``: package version, source recording,
+    parameters with the accepted effects, command line)."""
+    import datetime
+
+    from ..base.interface import package_version
+    from ..core.params import config_to_yaml
+
+    offered = {topics.output(c.name): offered_qos_yaml(reliable=c.reliable, depth=c.depth)
+               for c in OUTPUT_CHANNELS.values()}
+    writer = BagWriter(path, offered_qos=offered, background=True)
+    source = Path(info.path)
+    writer.add_metadata(Metadata.PROVENANCE, {
+        "package": "rollergear_ros", "version": package_version(),
+        "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "source": str(source.resolve()), "source_bytes": str(info.bytes_total),
+        "source_messages": str(info.message_count),
+        "accepted_effects": ", ".join(config.effects.enabled()) or "none",
+        "parameters": config_to_yaml(config), "command": " ".join(sys.argv)})
+    return writer
+
+
+def write_outputs(writer: BagWriter, b: BatchEstimate, tm: TopicMap) -> None:
+    """One batch of estimates on every output channel (:mod:`base.output_channels`), as the node publishes them."""
+    for channel in float64_channels():
+        t_ns, values = b.t_ns, getattr(b, channel.value)
+        if channel.measured_only:  # only the samples with measured output
+            measured = np.isfinite(values)
+            if not measured.any():
+                continue
+            t_ns, values = t_ns[measured], values[measured]
+        writer.write_float64_series(tm.output(channel.name), t_ns, values)
+    if stamped_channels():
+        payloads = stamped.codec().payloads(b.t_ns, np.column_stack(stamped.estimate_values(b)))
+        for channel in stamped_channels():
+            writer.write_fixed(tm.output(channel.name), MessageType.JOINT_STATE, b.t_ns, payloads)

@@ -1,0 +1,212 @@
+"""Offline replay: a recorded bag through the same estimator the node runs.
+
+Reads any ROS 2 MCAP with the input topics (Float64 channels or a JointState topic), pairs and
+estimates with :class:`~core.estimator.Estimator`, writes an output MCAP (inputs +
+``interface.md`` outputs) and a rerun recording, and summarises.  Everything is written in
+batches, so an interrupt (Ctrl-C, SIGTERM) leaves valid files holding all processed samples.
+No rclpy import.
+
+The rooms: :mod:`.inputs` (which topics, decoding, batching), :mod:`.window` (a
+time slice), :mod:`.output` (where the estimates go), :mod:`.summary` (the sums and
+the summary), :mod:`base.stopping` (signals between batches); this module runs them in order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from collections.abc import Callable, Iterator, Sequence
+
+from ..recordings.bag import BagInfo, TopicMap, inspect_bag, median_period_s
+from ..base.errors import UsageError
+from ..core.estimator import BatchEstimate, Estimator
+from ..core.params import Config
+from ..base.progress import TimedProgress
+from .inputs import InputBatch, InputProblems, input_batches, plan_inputs, recorded_pairing
+from .output import ReplayOutputs
+from .summary import Accumulator, ReplaySummary
+from .window import MEMORY_LEAD_NS, TimeWindow
+from ..base.stopping import GracefulStop
+
+__all__ = ["GracefulStop", "ReplayRequest", "ReplaySummary", "replay"]
+
+
+@dataclass(frozen=True)
+class ReplayRequest:
+    """What :func:`replay` is asked to do (its arguments, documented there)."""
+
+    bag: str | Path
+    config: Config
+    topics: TopicMap = TopicMap()
+    out_mcap: str | Path | None = None
+    rrd: str | Path | None = None
+    show_progress: bool | None = None
+    batch_size: int = 100_000
+    warn: Callable[[str], None] | None = None
+    collect: bool = False
+    window_ns: tuple[int | None, int | None] | None = None
+    summary_png: str | Path | None = None
+    exports: Sequence[tuple[str, str | Path]] = ()
+
+
+def replay(
+    bag: str | Path,
+    config: Config,
+    topics: TopicMap = TopicMap(),
+    out_mcap: str | Path | None = None,
+    rrd: str | Path | None = None,
+    show_progress: bool | None = None,
+    batch_size: int = 100_000,
+    warn: Callable[[str], None] | None = None,
+    collect: bool = False,
+    window_ns: tuple[int | None, int | None] | None = None,
+    summary_png: str | Path | None = None,
+    exports: Sequence[tuple[str, str | Path]] = (),
+) -> tuple[ReplaySummary, list[BatchEstimate]]:
+    """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``).
+
+    ``summary_png``: draw the summary picture there (:mod:`.plot`), also of an interrupted
+    replay (what was processed).  ``exports``: ``(kind, path)`` tables of the estimates with their
+    inputs, a row per sample (:mod:`outputs.exports`: ``csv``, ``parquet``, ``mf4``).
+
+    ``window_ns``: a time slice ``[start, end)`` of the recording (``None``: open): only its samples
+    are estimated and summed up, so that the slices of a long recording, replayed apart, add up to
+    it (:class:`~.window.TimeWindow`).  Not with outputs (``out_mcap``, ``rrd``).
+    """
+    if window_ns is not None and (out_mcap or rrd or summary_png or exports):
+        raise UsageError("a time slice of a recording is replayed without outputs")
+    request = ReplayRequest(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect, window_ns,
+                            summary_png, exports)
+    stop = GracefulStop()  # first: from here on a signal leaves complete files
+    try:
+        return _replay(request, stop)
+    finally:
+        stop.restore()
+
+
+def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list[BatchEstimate]]:
+    warnings: list[str] = []
+
+    def _warn(msg: str) -> None:
+        warnings.append(msg)
+        if req.warn:
+            req.warn(msg)
+
+    info = inspect_bag(req.bag)
+    _warn_unindexed(info, _warn)
+    plan = plan_inputs(info, req.topics)
+    period_s = median_period_s(info.path, plan.joint_states or req.topics.motor_torque)
+    pairing, period_s, file_order = recorded_pairing(info.path, plan, period_s)
+    estimator = Estimator(req.config, pairing=pairing, sample_period_s=period_s)
+    problems = InputProblems(estimator.counts, plan)
+    window = None if req.window_ns is None else _time_window(req.window_ns, estimator)
+    summary = ReplaySummary(
+        str(req.bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
+    )
+    acc = Accumulator()
+    if req.summary_png:
+        from .plot import SummaryTrace
+
+        acc.trace = SummaryTrace(info.counts.get(plan.joint_states or req.topics.motor_torque, 0))
+    outputs = ReplayOutputs(req.topics, acc, req.collect)
+    bar = None
+    completed = False  # an error (not an interrupt) leaves no output in place of an existing one
+    try:
+        with stop.critical():  # outputs are opened whole
+            outputs.open(req.out_mcap, req.rrd, req.exports, info, req.config, estimator)
+        total = sum(info.counts.get(t, 0) for t in plan.all_topics)
+        bar = TimedProgress("replay", total, "msg", enabled=req.show_progress).start()
+        batches = input_batches(info, plan, req.batch_size, _warn, problems,
+                                window.read_range() if window else None, file_order)
+        _estimate(batches, estimator, outputs, window, summary, stop, bar)
+        completed = True
+    except KeyboardInterrupt:
+        summary.interrupted = completed = True  # what was processed so far is a whole output
+    finally:
+        with stop.critical(raise_after=False):  # outputs are closed whole, whatever comes
+            if bar:
+                bar.close()
+            outputs.close(commit=completed)
+    summary.interrupted |= stop.requested  # a signal near the end is not ignored either
+    _count(summary, estimator, window, acc, _warn)
+    summary.warnings = warnings
+    if acc.trace is not None and acc.n:
+        from .plot import plot_summary
+
+        try:  # a picture of what was processed, also after an interrupt; a second one abandons it
+            summary.summary_png = str(plot_summary(acc.trace, req.config, req.summary_png,
+                                                   f"replay of {Path(req.bag).name}"))
+        except KeyboardInterrupt:
+            _warn(f"interrupted: no summary picture {req.summary_png}")
+        summary.interrupted |= stop.requested
+    return summary, outputs.collected
+
+
+def _warn_unindexed(info: BagInfo, warn: Callable[[str], None]) -> None:
+    """A recording without its index: read linearly, and how much of it could not be read."""
+    if info.truncated or not info.indexed:
+        lost = info.bytes_total - info.bytes_readable
+        warn(
+            f"{info.path} has no index (summary/footer): a recording cut short? Readable: "
+            f"{info.message_count:,} messages; {lost:,} trailing bytes ({100 * lost / max(info.bytes_total, 1):.1f} %) "
+            "could not be read"
+            if info.truncated
+            else f"{info.path} has no index; read linearly"
+        )
+
+
+def _time_window(window_ns: tuple[int | None, int | None], estimator: Estimator) -> TimeWindow:
+    """The slice with a lead-in and -out twice the longest the estimator holds anything."""
+    sync = estimator.sync
+    lead_ns = 2 * max(sync.hold_ns, sync.temperature_hold_ns)
+    if estimator.has_memory:  # an effect with memory: its state settles in the lead-in's motion
+        lead_ns = max(lead_ns, MEMORY_LEAD_NS)
+    return TimeWindow(*window_ns, lead_ns=lead_ns)
+
+
+def _estimate(batches: Iterator[InputBatch], estimator: Estimator, outputs: ReplayOutputs, window: TimeWindow | None,
+              summary: ReplaySummary, stop: GracefulStop, bar: TimedProgress) -> None:
+    """Every batch of inputs through the estimator, its estimates to ``outputs`` (a signal stops
+    between batches: ``summary.interrupted``)."""
+    release_lag_ns = 2 * max(estimator.sync.hold_ns, estimator.sync.tolerance_ns)  # output held back
+    acc = outputs.acc
+    for batch in batches:
+        if stop.requested:
+            summary.interrupted = True
+            break
+        if window is not None:  # a time slice (no outputs): its lead-in, its samples, its lead-out
+            for codes, t, v, source in window.split(batch, estimator):
+                outputs.emit(window.keep(estimator.push_many(codes, t, v, source), acc))
+        else:
+            with stop.critical():  # one batch's estimates and inputs, both or neither
+                summary.input_messages += len(batch.codes)
+                outputs.emit(estimator.push_many(batch.codes, batch.t_ns, batch.values, batch.source_ns))
+                outputs.inputs_done(batch, estimator, release_lag_ns)
+        bar.update(len(batch.codes))
+        if window is not None and window.done:
+            break
+    else:
+        with stop.critical():
+            outputs.emit(window.keep(estimator.flush(), acc) if window else estimator.flush())
+            if outputs.rlog and acc.last_t is not None:
+                outputs.skip_event(estimator, acc.last_t)
+
+
+def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | None, acc: Accumulator,
+           warn: Callable[[str], None]) -> None:
+    """The estimator's counts and the sums in ``summary``; a warning when many samples went unpaired."""
+    summary.samples = estimator.motor_messages
+    summary.estimated = estimator.estimated
+    summary.skipped = dict(estimator.counts)
+    summary.alarms = estimator.detector.alarms
+    if window is not None:
+        window.finish(summary, estimator, acc)
+    unpaired = summary.skipped.get("unpaired", 0)
+    if summary.samples and unpaired > 0.05 * summary.samples:
+        warn(
+            f"{unpaired:,} of {summary.samples:,} motor messages had no partner within the pairing tolerance of "
+            f"{1e3 * estimator.sync_tolerance_s:.2g} ms: do the input topics share one time base? "
+            "Set estimator.sync_tolerance_s (below half the sample period) if they are logged further apart"
+        )
+    acc.fill(summary)
+    summary.coefficients = estimator.coefficients()

@@ -1,0 +1,194 @@
+"""What the node reports on ``/diagnostics``: input rates, staleness, skips, efficiency, residual.
+
+Pure Python (no rclpy): :func:`diagnose` turns an :class:`InputMonitor` and the estimator's state
+into a level, a message and key/value pairs; the node only copies them into a
+``diagnostic_msgs/DiagnosticStatus``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from ..core.estimator import Estimator
+from ..core.pairing import CHANNELS, OUT_TORQUE, SKIP_REASONS, SPEED, TORQUE
+
+OK, WARN, ERROR, STALE = 0, 1, 2, 3
+LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
+#: the node's ``/diagnostics`` status is named ``<node name>: STATUS_NAME``
+STATUS_NAME = "roller gearbox losses"
+STARTUP_GRACE_S = 5.0
+#: an executor lag beyond this share of what the input queue holds is an overload (WARN)
+OVERLOAD_QUEUE_SHARE = 0.5
+#: the lag taken as "holding" a reliable keep-all input (no queue to overflow; its publisher waits)
+RELIABLE_LAG_S = 1.0
+#: a stream's rate is learned as the median of its first this many whole report windows
+RATE_LEARN_WINDOWS = 3
+#: below this share of the expected rate an input is reported as slow (WARN)
+SLOW_RATE_SHARE = 0.8
+
+
+@dataclass
+class InputMonitor:
+    """Counts and last arrival (wall clock, ns) of each input channel, and the rate each stream
+    started at.
+
+    A stream starts with the first report window (:meth:`rates`) in which its channel has messages
+    after one without any (a bag played at another rate, a restarted player).  That first window is
+    partial; the median rate of the next :data:`RATE_LEARN_WINDOWS` whole windows is the stream's
+    learned rate (:meth:`learned_rate_hz`), so a stream that slows down later is still reported.
+    """
+
+    start_ns: int
+    counts: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
+    last_ns: dict[str, int | None] = field(default_factory=lambda: {c: None for c in CHANNELS})
+    #: messages the middleware lost (gaps in the publishers' sequence numbers; arrival pairing only)
+    lost: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
+    _window_counts: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
+    _window_start_ns: int = 0
+    _active_windows: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
+    _learning: dict[str, list[float]] = field(default_factory=lambda: {c: [] for c in CHANNELS})
+    _learned_hz: dict[str, float | None] = field(default_factory=lambda: {c: None for c in CHANNELS})
+
+    def __post_init__(self) -> None:
+        self._window_start_ns = self.start_ns
+
+    def record(self, channel: str, wall_ns: int) -> None:
+        self.counts[channel] += 1
+        self.last_ns[channel] = wall_ns
+
+    def rates(self, now_ns: int) -> dict[str, float]:
+        """Messages per second per channel since the previous call (then a new window starts)."""
+        dt = max((now_ns - self._window_start_ns) * 1e-9, 1e-9)
+        out = {c: (self.counts[c] - self._window_counts[c]) / dt for c in CHANNELS}
+        self._window_counts = dict(self.counts)
+        self._window_start_ns = now_ns
+        for c, rate in out.items():
+            if rate == 0.0:  # silent for a whole window: what comes next is a new stream
+                self._active_windows[c] = 0
+                self._learning[c] = []
+                self._learned_hz[c] = None
+                continue
+            self._active_windows[c] += 1
+            if self._active_windows[c] > 1 and self._learned_hz[c] is None:  # a whole window of the stream
+                self._learning[c].append(rate)
+                if len(self._learning[c]) == RATE_LEARN_WINDOWS:
+                    self._learned_hz[c] = sorted(self._learning[c])[RATE_LEARN_WINDOWS // 2]
+        return out
+
+    def learned_rate_hz(self, channel: str) -> float | None:
+        """The rate the channel's current stream started at (None: not learned yet)."""
+        return self._learned_hz[channel]
+
+
+@dataclass
+class DiagnosticReport:
+    level: int
+    message: str
+    values: list[tuple[str, str]]
+
+
+def _fmt(x: float, digits: int = 4) -> str:
+    return "nan" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}g}"
+
+
+def _slow_input(channel: str, rate_hz: float, expected_hz: float | None, learned: bool) -> list[tuple[int, str]]:
+    """A WARN when ``channel`` runs below :data:`SLOW_RATE_SHARE` of ``expected_hz`` (None: not known yet)."""
+    if expected_hz is None or rate_hz >= SLOW_RATE_SHARE * expected_hz:
+        return []
+    against = "its stream started at" if learned else "expected"
+    return [(WARN, f"{channel} at {rate_hz:.0f} Hz, {against} {expected_hz:.0f} Hz")]
+
+
+def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estimator: Estimator,
+             expected_rate_hz: float, min_efficiency_warn: float, previous_skips: dict[str, int],
+             previous_alarms: int, busy_fraction: float = 0.0, executor_lag_s: float = 0.0,
+             queue_depth: int | None = None, learn_rate: bool = False) -> DiagnosticReport:
+    """Level (worst reason wins), one-line message and the key/value pairs of the status.
+
+    Overload: ``executor_lag_s`` is how long the executor takes to reach an event queued behind the
+    inputs (``busy_fraction`` the share of time spent in input callbacks).  A best-effort input
+    queue of ``queue_depth`` messages holds ``queue_depth / expected_rate_hz`` seconds; an executor
+    running half of that behind is about to lose the oldest of them, so that is a WARN (by arrival,
+    the node counts what was lost, from the publishers' sequence numbers: ``lost in delivery``).
+    ``None``: a reliable keep-all input (the publisher waits instead).
+
+    Input rates: with ``learn_rate`` an input is slow below :data:`SLOW_RATE_SHARE` of the rate its
+    stream started at (:meth:`InputMonitor.learned_rate_hz`; nothing is said while it is learned),
+    so a bag played at another rate is not a warning for ever; otherwise below that share of
+    ``expected_rate_hz``.
+    """
+    est = estimator.config.estimator
+    stale_after_s = max(est.staleness_s, 10.0 / expected_rate_hz)
+    reasons: list[tuple[int, str]] = []
+    values: list[tuple[str, str]] = []
+    since_start = (now_ns - monitor.start_ns) * 1e-9
+    for ch in CHANNELS:
+        last = monitor.last_ns[ch]
+        age = math.inf if last is None else (now_ns - last) * 1e-9
+        values.append((f"{ch} rate [Hz]", _fmt(rates.get(ch, 0.0))))
+        values.append((f"{ch} age [s]", "never" if last is None else _fmt(age, 3)))
+        values.append((f"{ch} messages", str(monitor.counts[ch])))
+        values.append((f"{ch} lost in delivery", str(monitor.lost[ch])))
+        required = ch in (TORQUE, SPEED)
+        if required:  # each estimate takes one message of each: the rest were not estimated
+            values.append((f"{ch} not estimated", str(max(monitor.counts[ch] - estimator.estimated, 0))))
+            learned = monitor.learned_rate_hz(ch)
+            if learn_rate:
+                values.append((f"{ch} learned rate [Hz]", "learning" if learned is None else _fmt(learned)))
+            if last is None:
+                level = WARN if since_start < STARTUP_GRACE_S else ERROR
+                reasons.append((level, f"no input on {ch}"))
+            elif age > stale_after_s:
+                reasons.append((ERROR, f"stale input: {ch} silent for {age:.2f} s"))
+            else:
+                expected = learned if learn_rate else expected_rate_hz
+                reasons += _slow_input(ch, rates.get(ch, 0.0), expected, learn_rate)
+        elif ch == OUT_TORQUE and last is not None and age > stale_after_s:
+            reasons.append((WARN, f"measured output stale ({age:.2f} s): no residual"))
+    values.append(("input callbacks busy [%]", _fmt(100 * busy_fraction, 3)))
+    values.append(("executor lag [s]", _fmt(executor_lag_s, 3)))
+    limit_s = OVERLOAD_QUEUE_SHARE * (queue_depth / expected_rate_hz if queue_depth else RELIABLE_LAG_S)
+    if executor_lag_s > limit_s:
+        lost = " its input queues overflow: the oldest messages are lost" if queue_depth else \
+            " the publishers are slowed down"
+        reasons.append((WARN, f"overloaded: the node runs {executor_lag_s:.2f} s behind its inputs "
+                              f"(callbacks busy {100 * busy_fraction:.0f} %);{lost}"))
+    values.append(("expected rate [Hz]", _fmt(expected_rate_hz)))
+    values.append(("stale after [s]", _fmt(stale_after_s, 3)))
+    values.append(("samples estimated", str(estimator.estimated)))
+    for r in SKIP_REASONS:
+        total = estimator.counts[r]
+        new = total - previous_skips.get(r, 0)
+        values.append((f"skipped {r.replace('_', ' ')}", f"{total} (+{new})"))
+        if new and r in ("non_finite", "implausible"):
+            reasons.append((WARN, f"{new} samples with {r.replace('_', ' ')} input skipped"))
+        elif new and r in ("malformed", "duplicate"):
+            reasons.append((WARN, f"{new} {r} input messages skipped"))
+        elif new and r == "lost":
+            reasons.append((WARN, f"overloaded: {new} samples lost in delivery (the node fell a whole "
+                                  "best-effort input queue behind)"))
+        elif new and r == "unpaired":
+            reasons.append((WARN, f"{new} input messages without partner (dropped or late)"))
+    last = estimator.last
+    if last is not None:
+        values += [("loss torque [N·m]", _fmt(last.loss_torque_nm)), ("loss power [W]", _fmt(last.loss_power_w)),
+                   ("efficiency", _fmt(last.efficiency)), ("drive torque [N·m]", _fmt(last.torque_nm)),
+                   ("drive speed [rad/s]", _fmt(last.speed_rad_s))]
+        if not math.isnan(last.efficiency) and last.efficiency < min_efficiency_warn:
+            reasons.append((WARN, f"efficiency {100 * last.efficiency:.1f} % below {100 * min_efficiency_warn:.0f} %"))
+        if math.isfinite(last.torque_nm) and abs(last.torque_nm) > 0.9 * est.max_abs_torque_nm:
+            reasons.append((WARN, f"drive torque {last.torque_nm:.0f} N·m near the plausibility limit"))
+    stats = estimator.residual_stats
+    if stats.count:
+        values += [("residual mean [N·m]", _fmt(stats.mean)), ("residual RMS [N·m]", _fmt(stats.rms)),
+                   ("residual samples", str(stats.count))]
+    for name, c in estimator.coefficients().items():
+        values.append((f"adapted {name}", _fmt(c, 5)))
+    alarms = estimator.detector.alarms
+    values.append(("residual change alarms", str(alarms)))
+    if alarms > previous_alarms:
+        reasons.append((WARN, "the residual changed (a new or changed effect): re-run `rollergear calibrate`"))
+    level = max((lv for lv, _ in reasons), default=OK)
+    message = "; ".join(m for lv, m in sorted(reasons, key=lambda r: -r[0])) if reasons else "estimating"
+    return DiagnosticReport(level, message, values)

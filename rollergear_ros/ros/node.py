@@ -1,0 +1,782 @@
+"""``loss_estimator``: the live node, a thin rclpy shell over :class:`~core.estimator.Estimator`.
+
+Subscribes to the drive (and optionally output) torque and speed, estimates every paired sample,
+publishes loss torque, loss power, efficiency (and the residual when the output is measured),
+reports ``/diagnostics`` at 1 Hz, and optionally records to MCAP and rerun.  Parameters are the
+package's one parameter set (``config/gearbox.yaml``), declared with descriptors; run-time changes
+go through :func:`core.params.validate` and are refused with its reason.
+
+Run: ``loss_estimator --ros-args --params-file config/gearbox.yaml`` (or ``ros2 run rollergear_ros
+loss_estimator …``).
+"""
+
+from __future__ import annotations
+
+import gc
+import math
+import signal
+import struct
+import sys
+import threading
+import time
+from operator import attrgetter
+from pathlib import Path
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.serialization import serialize_message
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy
+from sensor_msgs.msg import JointState, Temperature
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+
+from ..recordings import bag as bagmod
+from .diagnostics import STATUS_NAME, InputMonitor, diagnose
+from ..core.estimator import Estimate, Estimator
+from ..base.errors import RollergearError
+from .intake import InputTaker
+from ..outputs.livemap import coefficients_moved, live_map, to_multiarray
+from ..sources.paths import Output, check_outputs
+from ..outputs.lossmap import map_comments, write_vtlm
+from ..core.pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
+                            SequenceGaps)
+from ..outputs.stamped import EstimateCodec, estimate_values
+from ..base.interface import NAMESPACE, MessageType, Metadata, Topic
+from .nodehelp import help_text, wants_help
+from ..base.output_channels import OUTPUT_CHANNELS, OutputChannel, float64_channels, stamped_channels
+from ..core.params import Config, ParameterError, parameter_specs, validate
+
+#: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
+SENSOR_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE,
+                        history=HistoryPolicy.KEEP_LAST, depth=1000)
+#: ``node.input_qos: reliable``: nothing lost; a publisher that outpaces the node waits for it
+RELIABLE_INPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+                                history=HistoryPolicy.KEEP_ALL)
+INPUT_QOS = {"sensor_data": SENSOR_QOS, "reliable": RELIABLE_INPUT_QOS}
+#: message class of each output channel's type (:mod:`base.output_channels`)
+_MESSAGE_CLASSES = {MessageType.FLOAT64: Float64, MessageType.JOINT_STATE: JointState}
+
+
+def output_qos(channel: OutputChannel) -> QoSProfile:
+    """The QoS an output channel is offered with (volatile, keep-last; its reliability and depth)."""
+    return QoSProfile(reliability=ReliabilityPolicy.RELIABLE if channel.reliable else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST, depth=channel.depth)
+
+
+#: the loss map: the last one kept for subscribers that join later
+MAP_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     history=HistoryPolicy.KEEP_LAST, depth=1)
+MAP_CHECK_S = 1.0  #: how often the adapted coefficients are compared with those of the last map
+_PACK = struct.Struct("<4sd").pack
+HEARTBEAT_S = 0.1  #: period of the executor heartbeat timer (executor lag in /diagnostics)
+_CDR = bagmod.CDR_LE_HEADER
+_LOST_RAW = _PACK(_CDR, LOST_VALUE)
+#: a gap in a publisher's sequence numbers longer than this is not filled with placeholders message
+#: by message (a node frozen for minutes): the pairing restarts as for a new stream instead
+MAX_PLACEHOLDERS = 100_000
+
+
+def _raw_publish(publisher):
+    """``publisher.publish`` for serialized messages, without rclpy's per-call type check and
+    destruction guard (0.6 of its 1.2 µs per call; four calls per sample).  Safe here: the node's
+    publishers are destroyed only with the node, after the executor has stopped."""
+    return getattr(publisher.handle, "publish_raw", None) or publisher.publish
+
+
+def check_new_output(name: str, path: str) -> None:
+    """Refuse (:class:`ParameterError`) an output file that exists -- the node never overwrites a
+    recording, as ``ros2 bag record`` does not -- or that cannot be created."""
+    target = Path(path)
+    if target.exists() or target.is_symlink():
+        raise ParameterError(name, path, "exists; the node does not overwrite a recording: "
+                                         "move it or choose another name")
+    try:  # by doing: root may write where os.access says so and still fail (e.g. in /proc)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with target.open("xb"):
+            pass
+        target.unlink()
+    except OSError as exc:
+        raise ParameterError(name, path, f"cannot be created: {exc.strerror or exc}") from None
+
+
+def _ros_standard_parameter(name: str) -> bool:
+    """Parameters rclpy itself declares or reads (not the package's)."""
+    return name in ("use_sim_time", "start_type_description_service") or name.startswith("qos_overrides.")
+
+
+def params_files(args: list[str]) -> list[str]:
+    """The ``--params-file`` arguments of a command line's ROS arguments."""
+    files, in_ros = [], False
+    for i, a in enumerate(args):
+        if a == "--ros-args":
+            in_ros = True
+        elif a == "--":
+            in_ros = False
+        elif in_ros and a == "--params-file" and i + 1 < len(args):
+            files.append(args[i + 1])
+    return files
+
+
+def check_params_files(args: list[str]) -> None:
+    """Read each ``--params-file`` as the CLI does (:func:`~core.params.load_config`)
+    before rcl parses it: what rcl refuses gets one line naming file, line and column, and what rcl
+    drops silently (``dw_m: []``, a typo'd key, a file without this node's section) is refused
+    instead of starting the node on the defaults."""
+    from ..core.params import load_config
+
+    for path in params_files(args):
+        if not Path(path).exists():
+            raise ParameterError("--params-file", path, "does not exist")
+        load_config(path)
+
+
+def _descriptor(spec) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]" if spec.unit else spec.description,
+                            read_only=spec.read_only, additional_constraints=spec.allowed_text())
+    if spec.kind is float and spec.low is not None and spec.high is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
+    elif spec.kind is int and spec.low is not None and spec.high is not None:
+        d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
+    return d
+
+
+class LossEstimatorNode(Node):
+    """The ``loss_estimator`` node (see the module docstring)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        kwargs.setdefault("namespace", NAMESPACE)
+        super().__init__("loss_estimator", **kwargs)
+        self.config: Config = self._declare_parameters()  # ParameterError: refused with the reason
+        # the single-threaded executor gives publisher timestamps; the events executor keeps arrival order
+        node = self.config.node
+        if node.executor == "single_threaded":
+            self.pairing = "timestamp"
+        else:  # a reliable, keep-all input loses nothing; over best effort the publishers'
+            # sequence numbers tell what was lost (filled in with placeholders: _push_lost)
+            self.pairing = "arrival_reliable" if node.input_qos == "reliable" else "arrival_sequenced"
+        self.estimator = Estimator(self.config, self.pairing, 1.0 / self.config.node.expected_rate_hz)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.monitor = InputMonitor(time.time_ns())
+        self._skips_reported = dict(self.estimator.counts)
+        self._alarms_reported = 0
+        self._published = 0
+        self._every = self.config.node.publish_every_n
+        #: while the start-up backlog is taken: where the input callbacks hold what they are given
+        self._backlog: list[tuple[str, Any, bytes, dict]] | None = None
+        self.backlog_discarded = 0  #: input messages queued before the first take, discarded
+        self.backlog_kept = 0  #: ... and estimated (the start of their publishers' streams)
+        self.executor_kind = node.executor
+        # the events executor gives no message info: the inputs are taken in a thread of their own
+        # (with it), under this lock, which a parameter change takes too
+        self._input_lock = threading.Lock()
+        self.inputs = InputTaker(self, self._input_lock) if node.executor == "events" else None
+        self._sequence_gaps = {c: SequenceGaps() for c in Topic.OF_CHANNEL}
+        self._last_input_ns: dict[str, int] = {}
+        self._input_handles: dict[str, Any] = {}  # input thread's subscriptions, by channel
+        self._interleaved_warned = False
+        topics = bagmod.TopicMap()
+        self._create_outputs()
+        self.pub_diag = self.create_publisher(DiagnosticArray, Topic.DIAGNOSTICS, 10)
+        # the live loss map (transient-local: an energy manager that starts later gets the last one)
+        self.maps_published = 0
+        self._map_coefficients: dict[str, float] | None = None  # of the map last published
+        self._oil_temperature_c: float | None = None
+        self.pub_map = self.create_publisher(Float64MultiArray, Topic.LOSS_MAP, MAP_QOS) if node.publish_map else None
+        self._open_recordings()
+        self._subscribe_inputs(topics)
+        # /diagnostics from a thread of its own: an executor flooded with input callbacks starves
+        # its timers (a 1 s timer stalled ~5 s at 5 kHz), exactly when the report matters
+        self.busy_ns = 0  #: time spent in input callbacks (saturation: /diagnostics)
+        self._busy_reported = (time.time_ns(), 0)
+        # executor lag: a heartbeat timer queued behind the input events fires as late as they are
+        # taken (single_threaded; the events node's input thread measures how long inputs waited)
+        self._heartbeat_ns = time.time_ns()
+        self._input_lag = (0, 0)  # (when, how long the message taken then had waited), input thread
+        self.create_timer(HEARTBEAT_S, self._heartbeat)
+        if self.pub_map is not None or node.map_file:
+            self.create_timer(MAP_CHECK_S, self._update_map)
+        self._diagnostics_stop = threading.Event()
+        self._diagnostics_thread = threading.Thread(target=self._diagnostics_loop, name="diagnostics", daemon=True)
+        self._diagnostics_thread.start()
+        self.get_logger().info(
+            f"estimating from {'Float64 topics' if node.input_mode == 'float64' else topics.joint_states}; "
+            f"effects: {', '.join(self.config.effects.enabled()) or 'none'}; executor: {self.executor_kind}; "
+            f"input QoS: {node.input_qos}"
+            + (f"; recording {node.record_mcap}" if self.recorder else ""))
+
+    def _declare_parameters(self) -> Config:
+        """Declare the package's parameters (with descriptors) and validate what they were given."""
+        from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+
+        from rclpy.parameter import Parameter
+
+        for spec in parameter_specs():
+            override = self._parameter_overrides.get(spec.name)
+            if spec.kind is float and override is not None and override.type_ == Parameter.Type.INTEGER:
+                # ``expected_rate_hz: 500`` means 500.0, as the CLI reads it
+                self._parameter_overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE,
+                                                                 float(override.value))
+            try:
+                self.declare_parameter(spec.name, spec.default, _descriptor(spec))
+            except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
+                override = self._parameter_overrides.get(spec.name)
+                value = override.value if override is not None else spec.default
+                raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
+        flat = {spec.name: self.get_parameter(spec.name).value for spec in parameter_specs()}
+        # an override of no declared parameter (``-p gearbox.dw_mm:=0.1``) would be ignored by
+        # rclpy, the node running on the default: validate() refuses it with "did you mean"
+        flat.update({name: p.value for name, p in self._parameter_overrides.items()
+                     if name not in flat and not _ros_standard_parameter(name)})
+        return validate(flat)
+
+    def _open_recordings(self) -> None:
+        """Check every output file before any is opened, publish the first loss map, and open the
+        MCAP recorder and the rerun log the parameters ask for."""
+        node = self.config.node
+        self.recorder: bagmod.BagWriter | None = None
+        # Float64 inputs are recorded at the very times the estimator paired them by (publisher
+        # timestamps, or arrival times), so that replay of the recording pairs them as the node did
+        # (``rollergear_recording`` metadata); under sim time the recording keeps one clock: ROS time
+        self._record_pairing_time = (node.input_mode == "float64" and not self.get_parameter("use_sim_time").value)
+        # every output is checked before any is opened: a refused one leaves no half-written file
+        for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
+            if path:
+                check_new_output(name, path)
+        check_outputs([], [Output("node.record_mcap", node.record_mcap or None, "mcap"),  # of their kinds, apart
+                           Output("node.rerun_rrd", node.rerun_rrd or None, "rrd"),
+                           Output("node.map_file", node.map_file or None, "vtlm")])  # rewritten with each map
+        if self.pub_map is not None or node.map_file:
+            self._update_map()  # before the inputs are subscribed: nothing waits for it
+        if node.record_mcap:
+            # written as the messages come (in arrival order), with the QoS the outputs are offered with
+            offered = {self.out_topics[c.name]: bagmod.offered_qos_yaml(reliable=c.reliable, depth=c.depth)
+                       for c in OUTPUT_CHANNELS.values() if c.name in self.out_topics}
+            self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024, time_ordered=False,
+                                             offered_qos=offered,
+                                             replace_atomically=False)  # in place: a kill keeps what came
+            self.recorder.add_metadata(Metadata.RECORDING, {
+                "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
+                "pairing": self.pairing if self._record_pairing_time else "timestamp",
+                "input_log_time": ("arrival" if self.pairing in ARRIVAL_PAIRINGS else "source_timestamp")
+                if self._record_pairing_time else "receive",
+                "sample_period_s": repr(1.0 / node.expected_rate_hz)})
+        self.rerun = None
+        self._rr_buffer: list[Estimate] = []
+        if node.rerun_rrd or node.rerun_connect:
+            from ..outputs.review import RerunLog, SkipEvents
+
+            self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None)
+            self._rr_skips = SkipEvents()
+            self.create_timer(0.5, self._flush_rerun)
+
+    def _subscribe_inputs(self, topics: bagmod.TopicMap) -> None:
+        """The input subscriptions: the four Float64 channels or the joint states, and the oil temperature."""
+        node = self.config.node
+        input_qos = INPUT_QOS[node.input_qos]
+        if node.input_mode == "float64":
+            for channel, rel in Topic.OF_CHANNEL.items():
+                self._input_handles[channel] = self._subscribe(
+                    Float64, rel, self._float_callback(channel, self.resolve_topic_name(rel)), input_qos, raw=True)
+        else:
+            self._subscribe(JointState, topics.joint_states, lambda msg, _info=None: self._joint_state_callback(msg),
+                            input_qos)
+        self._subscribe(Temperature, Topic.OIL_TEMPERATURE, lambda msg, _info=None: self._temperature_callback(msg),
+                        input_qos)
+
+    def _subscribe(self, msg_type, topic: str, callback, qos, raw: bool = False):
+        """An input subscription: ``callback(message, info)``, on the input thread (events executor;
+        returns its handle) or on the executor."""
+        if self.inputs is not None:
+            return self.inputs.subscribe(msg_type, topic, qos, callback, raw=raw)
+        return self.create_subscription(msg_type, topic, callback, qos, raw=raw)
+
+    # ------------------------------------------------------------------ parameters
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        changes = {p.name: p.value for p in params if p.name in {s.name for s in parameter_specs()}}
+        if not changes:
+            return SetParametersResult(successful=True)
+        with self._input_lock:  # never between two messages of one sample's push
+            return self._change_parameters(changes)
+
+    def _change_parameters(self, changes: dict[str, Any]) -> SetParametersResult:
+        try:
+            new = self.config.with_values(changes)
+        except ParameterError as exc:
+            self.get_logger().warn(f"refused: {exc}")
+            return SetParametersResult(successful=False, reason=str(exc))
+        old = self.estimator
+        self.config = new
+        self._every = new.node.publish_every_n
+        self.estimator = Estimator(new, self.pairing, 1.0 / new.node.expected_rate_hz)
+        self.estimator.take_over_inputs(old)
+        self._map_coefficients = None  # the next map check publishes the new parameters' map
+        self.get_logger().info(f"parameters changed: {', '.join(f'{k}={v}' for k, v in changes.items())}")
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ inputs
+    def start_inputs(self, executor) -> int:
+        """Take the start-up backlog (:meth:`take_start_up_backlog`), then start the input thread
+        (events executor); returns how many messages were discarded.
+
+        Under sim time the inputs are stamped with the ROS clock, which the executor sets from
+        ``/clock``: the thread takes nothing, the backlog included, before that has happened (the
+        inputs wait in the middleware's queues meanwhile), and this returns at once."""
+        if self.inputs is None:
+            return 0
+        if self.get_parameter("use_sim_time").value:
+            self.inputs.start(ready=lambda: self.get_clock().now().nanoseconds > 0, first=self.take_start_up_backlog)
+            return 0
+        discarded = self.take_start_up_backlog()
+        self.inputs.start()
+        return discarded
+
+    def take_start_up_backlog(self) -> int:
+        """Take the Float64 inputs queued before the node first takes from its subscriptions
+        (arrival pairing only): estimate them when they are the start of their publishers' streams,
+        else discard them.  Returns how many were discarded.
+
+        A node that joins a running stream finds up to a queue's depth of messages waiting, its
+        subscriptions having matched a few samples apart; taken in one burst, their arrival order
+        says nothing about which torque belongs to which speed, so they are discarded and live
+        messages pair by their arrival.  But a stream that began after the node subscribed -- a
+        player started as soon as the node's subscriptions matched it, while the node was still
+        starting up -- queues the same way and is no backlog to lose: the publishers' sequence
+        numbers tell the two apart.  When every input topic's first queued message is its
+        publisher's first (number 1), each topic is there from the first sample on and first-in
+        first-out pairs them.  Publisher timestamps (``single_threaded``) and JointState header
+        stamps pair any backlog exactly, so it is kept there (and nothing is taken here).
+        """
+        if self.pairing not in ARRIVAL_PAIRINGS or self.config.node.input_mode != "float64":
+            return 0
+        held: list[tuple[str, Any, bytes, dict]] = []
+        with self._input_lock:
+            self._backlog = held
+            try:
+                idle = 0
+                while idle < 3:  # a few empty takes in a row: the queues are drained
+                    before = len(held)
+                    self.inputs.take_round_robin()  # the callbacks hold what they are given
+                    idle = idle + 1 if len(held) == before else 0
+            finally:
+                self._backlog = None
+            first: dict[str, int | None] = {}
+            for channel, _, _, info in held:
+                first.setdefault(channel, info.get("publication_sequence_number"))
+            if held and all(n == 1 for n in first.values()):
+                self.backlog_kept = len(held)
+                for _, callback, raw, info in held:
+                    callback(raw, info)
+                self.get_logger().info(f"took {len(held)} input messages queued at start-up: every topic from "
+                                       "its publisher's first message on (a stream that started with the node)")
+                return 0
+            for channel, _, _, info in held:  # the next live message after them is no loss
+                self._sequence_gaps[channel].lost_before(info.get("publication_sequence_number"))
+            self.backlog_discarded += len(held)
+        if self.backlog_discarded:
+            self.get_logger().info(f"discarded {self.backlog_discarded} input messages queued before start-up "
+                                   "(a running stream: their arrival order cannot pair them)")
+        return self.backlog_discarded
+
+    def _float_callback(self, channel: str, topic: str):
+        """The hot path: one Float64 message (raw CDR bytes) -> estimator -> outputs.
+
+        Paired by the publisher's timestamp (``single_threaded``) or by arrival (``events``; the
+        messages the middleware lost, told by the gaps in the publisher's sequence numbers, are
+        pushed as placeholders in their place: :meth:`_push_lost`)."""
+        counts, last = self.monitor.counts, self.monitor.last_ns
+        unpack = struct.Struct("<d").unpack_from
+        time_ns = time.time_ns
+        record_pairing_time = self._record_pairing_time
+
+        def handle(raw: bytes, t_ns: int, wall_ns: int, source_ns: int | None = None) -> None:
+            counts[channel] += 1
+            last[channel] = wall_ns
+            if self.recorder is not None:
+                self.recorder.write_raw(topic, MessageType.FLOAT64,
+                                        t_ns if record_pairing_time else self.get_clock().now().nanoseconds, raw,
+                                        publish_time_ns=source_ns)
+            if len(raw) >= 12 and raw[1] == 1 and raw[0] == 0:
+                value = unpack(raw, 4)[0]
+            elif bagmod.float64_problem(raw) is None:
+                value = float(bagmod.decode_float64([raw])[0])
+            else:  # not a Float64 payload: counted (diagnostics warn), never decoded as garbage
+                self.estimator.counts["malformed"] += 1
+                return
+            for est in self.estimator.push(channel, t_ns, value, source_ns):
+                self._publish(est)
+
+        if self.pairing not in ARRIVAL_PAIRINGS:
+            def cb_timestamp(raw: bytes, info) -> None:
+                wall = time_ns()
+                handle(raw, info["source_timestamp"] or wall, wall)
+                self.busy_ns += time_ns() - wall
+            return cb_timestamp
+
+        lost_before = self._sequence_gaps[channel].lost_before
+        last_input = self._last_input_ns
+
+        def cb_arrival(raw: bytes, info) -> None:
+            if self._backlog is not None:  # queued before start-up: held until the backlog is judged
+                self._backlog.append((channel, cb_arrival, raw, info))
+                return
+            wall = t_ns = time_ns()
+            self._input_lag = (wall, wall - (info["received_timestamp"] or wall))
+            lost = lost_before(info["publication_sequence_number"])
+            if lost:
+                t_ns = self._push_lost(channel, topic, lost, wall)
+            last_input[channel] = t_ns
+            handle(raw, t_ns, wall, info["source_timestamp"] or None)
+            self.busy_ns += time_ns() - wall
+        return cb_arrival
+
+    def _push_lost(self, channel: str, topic: str, lost: int, t_ns: int) -> int:
+        """``lost`` messages of ``channel`` were lost just before the one taken at ``t_ns``: push
+        (and record) a placeholder for each (:data:`~core.pairing.LOST_VALUE`), 1 ns
+        apart just before it, so that first-in first-out pairing stays aligned.  Returns the time
+        for the message itself (moved on by at most ``lost`` ns where the channel's previous message
+        leaves no room: the times on a topic must grow for replay to keep this order)."""
+        handle = self._input_handles.get(channel)
+        if handle is not None and handle.get_publisher_count() > 1:
+            # two publishers' numbers interleave: a gap between them is no loss
+            if not self._interleaved_warned:
+                self._interleaved_warned = True
+                self.get_logger().warn(f"{topic} has {handle.get_publisher_count()} publishers: messages "
+                                       "lost in delivery cannot be told (one publisher per input topic)")
+            return t_ns
+        self.monitor.lost[channel] += lost
+        if lost > MAX_PLACEHOLDERS:
+            self.estimator.sync.restart()
+            return t_ns
+        t_ns = max(t_ns, self._last_input_ns.get(channel, t_ns) + lost + 1)
+        for t_i in range(t_ns - lost, t_ns):
+            if self.recorder is not None:
+                self.recorder.write_raw(topic, MessageType.FLOAT64, t_i if self._record_pairing_time
+                                        else self.get_clock().now().nanoseconds, _LOST_RAW)
+            for est in self.estimator.push(channel, t_i, LOST_VALUE):
+                self._publish(est)
+        return t_ns
+
+    def _joint_state_callback(self, msg: JointState) -> None:
+        wall = time.time_ns()
+        t_ns = (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec) or wall
+        names = list(msg.name)
+        node = self.config.node
+        if self.recorder is not None:
+            self.recorder.write_raw(Topic.JOINT_STATES, MessageType.JOINT_STATE, self.get_clock().now().nanoseconds,
+                                    serialize_message(msg))
+        for joint, ch_t, ch_w in ((node.input_joint, TORQUE, SPEED), (node.output_joint, OUT_TORQUE, OUT_SPEED)):
+            if joint in names:
+                k = names.index(joint)
+                effort = msg.effort[k] if k < len(msg.effort) else float("nan")
+                velocity = msg.velocity[k] if k < len(msg.velocity) else float("nan")
+                self.monitor.record(ch_t, wall)
+                self.monitor.record(ch_w, wall)
+                for channel, value in ((ch_t, effort), (ch_w, velocity)):
+                    for est in self.estimator.push(channel, t_ns, float(value)):
+                        self._publish(est)
+        self.busy_ns += time.time_ns() - wall
+
+    def _temperature_callback(self, msg: Temperature) -> None:
+        wall = time.time_ns()
+        self.monitor.record(OIL_TEMPERATURE, wall)
+        if self.recorder is not None:
+            self.recorder.write_raw(self.resolve_topic_name(Topic.OIL_TEMPERATURE), MessageType.TEMPERATURE,
+                                    wall if self._record_pairing_time else self.get_clock().now().nanoseconds,
+                                    serialize_message(msg))
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        # the stamp keeps the temperature on the inputs' clock in JointState mode (header stamps)
+        t_ns = stamp if (stamp and self.config.node.input_mode == "joint_state") else wall
+        self.estimator.push(OIL_TEMPERATURE, t_ns, float(msg.temperature))
+        if math.isfinite(msg.temperature):
+            self._oil_temperature_c = float(msg.temperature)
+
+    # ------------------------------------------------------------------ outputs
+    def _update_map(self) -> None:
+        """Publish the loss map (and rewrite ``node.map_file``) at start, after a parameter change,
+        and when an adapted coefficient has left its 95 % interval since the last map."""
+        est = self.estimator
+        current = est.coefficients()
+        if self._map_coefficients is not None and not coefficients_moved(
+                self._map_coefficients, current, est.coefficient_intervals()):
+            return
+        self._map_coefficients = current
+        try:
+            adapted, loss_map = live_map(self.config, current, self._oil_temperature_c)
+        except RollergearError as exc:  # e.g. a map.* grid outside the estimator's plausible range
+            self.get_logger().warn(f"no loss map: {exc}")
+            return
+        if self.pub_map is not None:
+            arr = to_multiarray(loss_map)
+            msg = Float64MultiArray()
+            msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
+                              for label, size, stride in zip(arr.labels, arr.sizes, arr.strides)]
+            msg.layout.data_offset = arr.data_offset
+            msg.data = arr.data.tolist()
+            self.pub_map.publish(msg)
+        if self.config.node.map_file:
+            source = f"{self.get_fully_qualified_name()} (live; adapted coefficients)"
+            try:  # the folder may have gone since start-up: a warning, the node and the topic go on
+                write_vtlm(loss_map, Path(self.config.node.map_file),
+                           map_comments(adapted, source, self._oil_temperature_c, reverse=False))
+            except OSError as exc:
+                self.get_logger().warn(f"node.map_file: could not rewrite {self.config.node.map_file}: {exc}")
+        self.maps_published += 1
+
+    def _create_outputs(self) -> None:
+        """A publisher for each output channel the parameters switch on (:mod:`base.output_channels`:
+        ``node.publish_float64``, ``node.publish_stamped``), and the per-sample publishing plan."""
+        node = self.config.node
+        #: output channel -> its resolved topic, for the channels published
+        self.out_topics: dict[str, str] = {}
+        self.output_publishers: dict[str, Any] = {}
+        for channel in OUTPUT_CHANNELS.values():
+            if node.publish_stamped if channel.stamped else node.publish_float64:
+                self.out_topics[channel.name] = self.resolve_topic_name(channel.topic)
+                self.output_publishers[channel.name] = self.create_publisher(
+                    _MESSAGE_CLASSES[channel.message_type], channel.topic, output_qos(channel))
+        # (value of the estimate, raw publish, topic, published only with measured output), per channel
+        self._float64_plan = tuple(
+            (attrgetter(c.value), _raw_publish(self.output_publishers[c.name]), self.out_topics[c.name],
+             c.measured_only) for c in float64_channels() if c.name in self.out_topics)
+        self._stamped_plan = tuple((_raw_publish(self.output_publishers[c.name]), self.out_topics[c.name])
+                                   for c in stamped_channels() if c.name in self.out_topics)
+        self._stamped = EstimateCodec() if self._stamped_plan else None
+
+    def _publish(self, est: Estimate, send: bool = True) -> None:
+        """Publish one estimate (``send=False``: record it only) and buffer it for rerun."""
+        self._published += 1
+        if self._every > 1 and self._published % self._every:
+            return
+        recorder = self.recorder
+        stamp = self.get_clock().now().nanoseconds if recorder is not None else 0
+        for value_of, publish, topic, measured_only in self._float64_plan:
+            value = value_of(est)
+            if measured_only and value != value:  # NaN: no measured output
+                continue
+            raw = _PACK(_CDR, value)
+            if send:
+                publish(raw)
+            if recorder is not None:
+                recorder.write_raw(topic, MessageType.FLOAT64, stamp, raw)
+        if self._stamped is not None:
+            raw = self._stamped.encode(est.t_ns, estimate_values(est))
+            for publish, topic in self._stamped_plan:
+                if send:
+                    publish(raw)
+                if recorder is not None:
+                    recorder.write_raw(topic, MessageType.JOINT_STATE, stamp, raw)
+        if self.rerun is not None:
+            self._rr_buffer.append(est)
+
+    def _flush_rerun(self) -> None:
+        """The estimates since the last flush to rerun, with the samples skipped meanwhile as an event."""
+        if not self._rr_buffer or self.rerun is None:
+            return
+        import numpy as np
+
+        from ..core.estimator import BatchEstimate
+
+        with self._input_lock:
+            buf, self._rr_buffer = self._rr_buffer, []
+            skipped = self._rr_skips.since_last(self.estimator.counts)
+            alarms = list(self.estimator.detector.alarm_times_ns)
+
+        def column(name: str) -> np.ndarray:
+            return np.array([getattr(e, name) for e in buf], dtype=np.float64)
+
+        t = np.array([e.t_ns for e in buf], dtype=np.int64)
+        self.rerun.send_estimates(BatchEstimate(
+            t, column("torque_nm"), column("speed_rad_s"), column("loss_torque_nm"), column("loss_power_w"),
+            column("efficiency"), column("measured_loss_nm"), column("residual_nm"), column("temperature_c"),
+            alarms_t_ns=alarms, out_torque_nm=column("out_torque_nm"), out_speed_rad_s=column("out_speed_rad_s")))
+        if skipped:
+            self.rerun.events([int(t[-1])], [skipped], "WARN")
+
+    def _heartbeat(self) -> None:
+        self._heartbeat_ns = time.time_ns()
+
+    def executor_lag_s(self) -> float:
+        """How far the node is behind: the heartbeat's age beyond its period, or (input thread) how
+        long the last message taken in the past second had waited since the middleware received it."""
+        now = time.time_ns()
+        taken_ns, waited_ns = self._input_lag
+        waited = waited_ns * 1e-9 if now - taken_ns < 1_000_000_000 else 0.0
+        return max(0.0, (now - self._heartbeat_ns) * 1e-9 - HEARTBEAT_S, waited)
+
+    def _diagnostics_loop(self) -> None:
+        while not self._diagnostics_stop.wait(1.0):
+            try:
+                self._publish_diagnostics()
+            except Exception as exc:  # noqa: BLE001 - a report that fails must not end the reports
+                if self._diagnostics_stop.is_set() or not self.context.ok():
+                    return
+                self.get_logger().warn(f"diagnostics: {type(exc).__name__}: {exc}")
+
+    def _publish_diagnostics(self) -> None:
+        now = time.time_ns()
+        node = self.config.node
+        then, busy_then = self._busy_reported
+        busy = self.busy_ns
+        self._busy_reported = (now, busy)
+        depth = INPUT_QOS[node.input_qos].depth if node.input_qos == "sensor_data" else None
+        report = diagnose(now, self.monitor, self.monitor.rates(now), self.estimator, node.expected_rate_hz,
+                          node.min_efficiency_warn, self._skips_reported, self._alarms_reported,
+                          busy_fraction=(busy - busy_then) / max(now - then, 1), executor_lag_s=self.executor_lag_s(),
+                          queue_depth=depth, learn_rate=node.learn_input_rate)
+        self._skips_reported = dict(self.estimator.counts)
+        self._alarms_reported = self.estimator.detector.alarms
+        status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: {STATUS_NAME}",
+                                  message=report.message, hardware_id=node.hardware_id,
+                                  values=[KeyValue(key=k, value=v) for k, v in report.values]
+                                  + [KeyValue(key="start-up backlog discarded [messages]",
+                                              value=str(self.backlog_discarded))])
+        arr = DiagnosticArray(status=[status])
+        arr.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diag.publish(arr)
+
+    # ------------------------------------------------------------------ shutdown
+    def _stop_diagnostics(self) -> None:
+        self._diagnostics_stop.set()
+        if self._diagnostics_thread.is_alive() and self._diagnostics_thread is not threading.current_thread():
+            self._diagnostics_thread.join(timeout=10)
+
+    def destroy_node(self) -> None:
+        """Stop the input and diagnostics threads before their subscriptions and publisher go away,
+        then destroy the node."""
+        if self.inputs is not None:
+            self.inputs.destroy()
+        self._stop_diagnostics()
+        super().destroy_node()
+
+    def _finish_pending(self) -> None:
+        """Samples paired but still held for a measured output when the node stops: estimated as replay
+        estimates them at the end of a recording, so that replay of the recording gives exactly what
+        the node published; sent while the middleware still runs, recorded either way."""
+        send = self.context.ok()
+        for est in self.estimator.finish():
+            try:
+                self._publish(est, send)
+                continue
+            except Exception as exc:  # noqa: BLE001 - nothing may keep close() from closing the files
+                self._published -= 1
+                problem = exc
+            if send:  # the context went down meanwhile (a second signal): record this one and the rest
+                send = False
+                try:
+                    self._publish(est, False)
+                    continue
+                except Exception as exc:  # noqa: BLE001
+                    self._published -= 1
+                    problem = exc
+            self.get_logger().warn(f"the samples held for an output at shutdown were not recorded: {problem}")
+            return
+
+    def close(self) -> None:
+        """Flush and close the recordings, the MCAP first (safe to call twice).  A rerun viewer
+        that cannot be reached costs its data, with a warning, never the MCAP or a traceback."""
+        if self.inputs is not None:
+            self.inputs.stop()  # no input is taken after this
+        self._stop_diagnostics()
+        self._finish_pending()
+        if self.recorder is not None:
+            self.recorder.close()
+            self.recorder = None
+        if self.rerun is not None:
+            try:
+                self._flush_rerun()
+                self.rerun.close()
+            except Exception as exc:  # rerun raises RuntimeError when its gRPC sink never connected
+                self.get_logger().warn(f"rerun logging incomplete: {exc}")
+            finally:
+                self.rerun = None
+
+
+def make_executor(kind: str, context=None):
+    """``single_threaded`` (message info: pairs by publisher timestamps) or ``events`` (faster)."""
+    if kind == "events":
+        from rclpy.experimental import EventsExecutor
+
+        return EventsExecutor(context=context)
+    return SingleThreadedExecutor(context=context)
+
+
+def stop_on_signals() -> threading.Event:
+    """Make SIGINT and SIGTERM set the returned event, and nothing else.
+
+    The node's main loop ends when it is set, and the files are closed.  A handler that raises
+    (Python's ``KeyboardInterrupt``, which rclpy's own handler chains to) lands wherever the main
+    thread happens to be -- inside an input callback, between the recording of a message and its
+    estimate, it leaves a recording that replays to one estimate more than the node published.
+    A further signal while the node closes its files is reported and does not interrupt that."""
+    stop = threading.Event()
+
+    def handler(signum: int, _frame) -> None:
+        if stop.is_set():
+            print(f"loss_estimator: {signal.Signals(signum).name} again: still closing the recordings "
+                  "(SIGKILL ends at once, leaving an MCAP without its index)", file=sys.stderr)
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
+    return stop
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``loss_estimator``: spin until Ctrl-C/SIGTERM, then close the files cleanly."""
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+    from rclpy.signals import SignalHandlerOptions
+
+    if wants_help(sys.argv[1:] if args is None else list(args)):
+        sys.stdout.write(help_text())
+        return 0
+    stop = stop_on_signals()
+    try:
+        check_params_files(sys.argv if args is None else args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except (ParameterError, rclpy_implementation.RCLError) as exc:
+        # rcl's own message ends with its source locations: not the user's business
+        print(f"loss_estimator: error: {str(exc).split(', at /')[0].strip()}", file=sys.stderr)
+        return 2
+    node = None
+    code = 0
+    try:
+        # the modules loaded so far live as long as the process: keep them out of the garbage
+        # collector's full passes, which otherwise stall the callbacks for milliseconds at high
+        # input rates (collected before the node subscribes: the inputs wait for no collection)
+        gc.collect()
+        gc.freeze()
+        node = LossEstimatorNode()
+        executor = make_executor(node.executor_kind)
+        executor.add_node(node)
+        gc.freeze()  # and the node's own objects (no collection: it would delay the first take)
+        node.start_inputs(executor)
+        # spin_once with a timeout: EventsExecutor.spin() never returns on this rclpy version
+        while rclpy.ok() and not stop.is_set():
+            if node.inputs is not None and node.inputs.error is not None:
+                raise node.inputs.error
+            try:
+                executor.spin_once(timeout_sec=0.1)
+            except RuntimeError:
+                # the context was shut down (from outside) under an executor busy with a backlog:
+                # the EventsExecutor then fails to hand it a callback's argument; that is the end
+                if rclpy.ok():
+                    raise
+                break
+    except RollergearError as exc:  # a parameter, an output file refused at start-up
+        print(f"loss_estimator: error: {exc}", file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

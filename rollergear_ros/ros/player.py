@@ -1,0 +1,297 @@
+"""``rollergear play BAG``: publish a recorded bag over ROS 2 with its original timing.
+
+Stands in for ``ros2 bag play`` (rosbag2 has no PyPI wheels).  Messages are published as the
+bag's serialized bytes (no decode/encode), in log-time order, at ``--rate`` times real time;
+``--clock`` also publishes ``/clock`` so nodes with ``use_sim_time`` see the bag's time.  The bag
+is read a few chunks ahead in a thread; the summary line says how closely the timing was kept.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import queue
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..recordings.bag import inspect_bag
+from ..base.errors import UsageError
+from ..recordings.fastmcap import ReadState, iter_log_time_order
+from ..base.progress import TimedProgress
+
+
+def message_class(type_name: str):
+    """``std_msgs/msg/Float64`` -> the rclpy message class."""
+    try:
+        pkg, kind, name = type_name.split("/")
+        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+    except (ValueError, ImportError, AttributeError):
+        raise UsageError(f"message type {type_name!r} is not available in this ROS installation") from None
+
+
+class _Prefetch:
+    """Reads and orders the bag in a background thread, a few chunks ahead of the publishing loop,
+    so decoding never stalls the timing (the ``mcap`` reader stalled ~100 ms per 1 MB chunk)."""
+
+    def __init__(self, bag: Path, state: ReadState, depth: int = 4) -> None:
+        self._queue: queue.Queue = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(bag, state), daemon=True)
+        self._thread.start()
+
+    def _run(self, bag: Path, state: ReadState) -> None:
+        try:
+            for batch in iter_log_time_order(bag, state):
+                while not self._stop.is_set():
+                    try:
+                        self._queue.put(batch, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if self._stop.is_set():
+                    return
+            self._queue.put(None)
+        except Exception as exc:  # noqa: BLE001 - handed to the publishing thread
+            self._queue.put(exc)
+
+    def __iter__(self):
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            if isinstance(item, Exception):
+                raise item
+            yield item
+
+    def close(self) -> None:
+        self._stop.set()
+
+
+@dataclass
+class PlayStats:
+    """What a play published and how closely it kept the bag's timing."""
+
+    messages: int = 0
+    max_late_ms: float = 0.0  #: worst delay of a publish behind its scheduled time
+    late_over_5ms: int = 0  #: publishes more than 5 ms behind
+    held_back: int = 0  #: publishes that waited for a reliable keep-all subscriber to catch up
+
+    def text(self) -> str:
+        held = f"; held back {self.held_back} times by a subscriber that fell behind" if self.held_back else ""
+        return (f"{self.messages:,} messages; timing: max {self.max_late_ms:.1f} ms late, "
+                f"{self.late_over_5ms} more than 5 ms late{held}")
+
+
+#: after the subscribers have matched, before the first message: they must discover the player as
+#: well (a best-effort subscription drops what a publisher it has not matched yet sends)
+SUBSCRIBER_SETTLE_S = 1.0
+#: by default, how long the player waits for the subscribers already in the ROS graph to match
+GRAPH_WAIT_S = 5.0
+#: at the end: how long reliable subscribers may take to acknowledge the last messages
+FINAL_ACK_TIMEOUT_S = 60.0
+
+
+def wait_for_graph(node, pubs: dict, bound_s: float, every_topic_s: float = 0.0) -> str:
+    """Wait until every subscriber the ROS graph shows on the played topics has matched the
+    player's publishers (a node started first then gets the first message), then
+    :data:`SUBSCRIBER_SETTLE_S` for the subscribers to match the player in turn; at most
+    ``bound_s`` (with ``every_topic_s`` > 0: until every topic has a subscriber, at most that
+    long).  Returns what it found, for the user.
+
+    The graph fills as discovery proceeds: a node that is running is in it within about 0.3 s
+    (sometimes ~3 s), so an empty graph is waited on for the whole bound.
+    """
+    deadline = time.monotonic() + max(bound_s, every_topic_s)
+    while time.monotonic() < deadline:
+        graph = {t: node.count_subscribers(t) for t in pubs}
+        matched = {t: p.get_subscription_count() for t, p in pubs.items()}
+        all_matched = all(matched[t] >= graph[t] for t in pubs)
+        if every_topic_s > 0:
+            if all(matched.values()):
+                break
+        elif any(graph.values()) and all_matched:
+            break
+        time.sleep(0.02)
+    else:
+        missing = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
+        return (f"no subscriber matched {', '.join(sorted(missing))} within {max(bound_s, every_topic_s):g} s"
+                if len(missing) < len(pubs) else f"no subscriber within {max(bound_s, every_topic_s):g} s")
+    time.sleep(SUBSCRIBER_SETTLE_S)
+    n = sum(p.get_subscription_count() for p in pubs.values())
+    return f"{n} subscription(s) matched"
+
+
+def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, topics: list[str] | None = None,
+         wait_for_subscribers: float = 0.0, start_delay: float = 0.0, reliable: bool = True,
+         quiet: bool = False, wait_for_graph_s: float = GRAPH_WAIT_S, show_progress: bool = True) -> PlayStats:
+    """Publish the bag in log-time order at ``rate`` times real time.
+
+    First waits (:func:`wait_for_graph`, at most ``wait_for_graph_s``; 0: not at all) for the
+    subscribers already running to match, or with ``wait_for_subscribers`` > 0 until every topic
+    has one.
+
+    Reliable publishers keep every message until each reliable subscriber has it: a subscriber
+    that keeps all (``node.input_qos: reliable``) and falls behind holds the player back
+    (counted in :attr:`PlayStats.held_back`) instead of losing messages; best-effort subscribers
+    never hold it back.
+    """
+    import rclpy
+    from rclpy.duration import Duration
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+    from rclpy.node import Node
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from rosgraph_msgs.msg import Clock
+
+    info = inspect_bag(bag)
+    selected = {t: ty for t, ty in info.topics.items() if topics is None or t in topics}
+    if not selected:
+        raise UsageError(f"nothing to play: the bag has {info.describe_topics()}")
+    if info.truncated:
+        print(f"warning: {bag}: {info.problem}; playing what is readable", file=sys.stderr)
+    if not rclpy.ok():
+        rclpy.init()
+    node = Node("rollergear_player")
+    qos = (QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE) if reliable
+           else QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
+    publish_failed = rclpy_implementation.RCLError
+    pubs = {t: node.create_publisher(message_class(ty), t, qos) for t, ty in selected.items()}
+    clock_pub = node.create_publisher(Clock, "/clock", 10) if clock else None
+    stats = PlayStats()
+    bar = None
+    late_5ms = 5_000_000
+    try:
+        if wait_for_subscribers > 0 or wait_for_graph_s > 0:
+            found = wait_for_graph(node, pubs, wait_for_graph_s, wait_for_subscribers)
+            if not quiet:
+                print(f"play: {found}", file=sys.stderr)
+        if start_delay > 0:
+            time.sleep(start_delay)
+        total = sum(info.counts.get(t, 0) for t in selected)
+        if not quiet:
+            print(f"play: publishing {total:,} messages on {len(selected)} "
+                  f"topics at {rate:g}x{' (looping)' if loop else ''}", file=sys.stderr, flush=True)
+        # the bar reads the count from a thread of its own: the publishing loop only counts
+        bar = TimedProgress("play", None if loop else total, "msg", read=lambda: stats.messages,
+                            enabled=not quiet and show_progress and sys.stderr.isatty()).start()
+        while True:
+            state = ReadState()
+            reader = _Prefetch(bag, state)
+            publisher_of: dict[int, object] = {}
+            t0_bag = t0_wall = None
+            last_clock = None
+            try:
+                for log_times, channel_ids, payloads in reader:
+                    for t_bag, cid, data in zip(log_times.tolist(), channel_ids.tolist(), payloads):
+                        pub = publisher_of.get(cid)
+                        if pub is None:
+                            pub = publisher_of[cid] = pubs.get(state.channels[cid][0], False)
+                        if pub is False:
+                            continue  # a topic not selected
+                        if t0_bag is None:
+                            t0_bag, t0_wall = t_bag, time.monotonic_ns()
+                        target = t0_wall + int((t_bag - t0_bag) / rate)
+                        while True:
+                            wait = target - time.monotonic_ns()
+                            if wait <= 0:
+                                break
+                            time.sleep(wait * 1e-9 if wait > 2_000_000 else 0.0002)
+                        if -wait > late_5ms:
+                            stats.late_over_5ms += 1
+                        if -wait > stats.max_late_ms * 1e6:
+                            stats.max_late_ms = -wait / 1e6
+                        if clock_pub is not None and t_bag != last_clock:
+                            c = Clock()
+                            c.clock.sec, c.clock.nanosec = divmod(t_bag, 1_000_000_000)
+                            clock_pub.publish(c)
+                            last_clock = t_bag
+                        while True:
+                            try:
+                                pub.publish(data)
+                                break
+                            except publish_failed:  # a keep-all subscriber's queue is full (after ~0.1 s)
+                                if not rclpy.ok():
+                                    raise
+                                stats.held_back += 1
+                        stats.messages += 1
+            finally:
+                reader.close()
+            if not loop:
+                break
+        # every reliable subscriber has the last messages before the publishers go away (bounded);
+        # best-effort ones get a moment for the delivery
+        for pub in pubs.values():
+            pub.wait_for_all_acked(Duration(seconds=FINAL_ACK_TIMEOUT_S))
+        time.sleep(0.3)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if bar is not None:
+            bar.close()
+        node.destroy_node()
+    if not quiet:
+        print(f"played {bag}: {stats.text()}", file=sys.stderr)
+    return stats
+
+
+def init_for_command_line() -> None:
+    """``rclpy.init`` for a command-line tool: Ctrl-C and SIGTERM raise ``KeyboardInterrupt``.
+
+    The main thread takes it as the tool's normal end.  (rclpy's own handler shuts the context down
+    under a running ``publish``, which then fails with ``RCLError: publisher's context is invalid``.)
+    """
+    import signal
+
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(args=None, signal_handler_options=SignalHandlerOptions.NO)
+    # also where the shell started us with SIGINT ignored (a background job without job control)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.default_int_handler)
+
+
+def cmd_play(args: argparse.Namespace) -> int:
+    import rclpy
+
+    from ..sources.formats import input_format
+
+    if not (args.rate > 0):
+        raise UsageError("--rate must be > 0")
+    fmt = input_format(args.bag)
+    if fmt.family != "mcap":  # what was given, and the way to a recording play can publish
+        raise UsageError(f"{args.bag} is a {fmt.name} {'folder' if Path(args.bag).is_dir() else 'file'}: play "
+                         f"publishes ROS 2 MCAP recordings; convert it first: rollergear import {args.bag} --out "
+                         "REC.mcap" + (" --channels MAP.yaml" if fmt.family == "timeseries" else ""))
+    init_for_command_line()
+    try:
+        play(Path(args.bag), args.rate, args.loop, args.clock, args.topics, args.wait_for_subscribers,
+             args.delay, not args.best_effort, wait_for_graph_s=0.0 if args.no_wait else GRAPH_WAIT_S,
+             show_progress=not args.no_progress)
+    finally:
+        rclpy.try_shutdown()
+    return 0
+
+
+def register_play(sub, with_params) -> None:  # noqa: ARG001
+    p = sub.add_parser("play", help="publish a recorded bag over ROS 2 with its original timing")
+    p.add_argument("bag", metavar="BAG", help="ROS 2 MCAP recording (rollergear import converts other formats)")
+    p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
+    p.add_argument("--loop", action="store_true", help="play again and again")
+    p.add_argument("--clock", action="store_true", help="publish /clock with the bag's time (use_sim_time)")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics")
+    p.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="S",
+                   help="wait up to S seconds until every topic has a subscriber (for a node started after "
+                        "the player), then " f"{SUBSCRIBER_SETTLE_S:g} s for them to discover the player")
+    p.add_argument("--no-wait", action="store_true",
+                   help=f"start at once; by default the player first waits (at most {GRAPH_WAIT_S:g} s) until the "
+                        "subscribers already running have matched, so that they get the first message")
+    p.add_argument("--delay", type=float, default=0.0, metavar="S", help="sleep S seconds before playing")
+    p.add_argument("--best-effort", action="store_true", help="publish best effort instead of reliable")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_play)
+
+
+REGISTER = [register_play]

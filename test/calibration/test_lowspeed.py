@@ -1,0 +1,208 @@
+"""Friction near standstill: the smooth sign of the estimator, low-speed samples in the analysis,
+and the ``stribeck`` effect, on a spin test written as a CSV with a constant output torque.
+
+The joint's friction is computed here, from its own formula (not the effect registry's): a Coulomb
+level, a Stribeck excess and a viscous term, each opposing rotation, measured through a drive
+torque sensor with noise.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rollergear_ros.core.estimator import Estimator
+from rollergear_ros.core.params import load_config
+
+from helpers import run_cli
+
+JOINT = "/**/loss_estimator:\n  ros__parameters:\n    estimator: {paper_model: false, speed_noise_rad_s: 0.005}\n"
+
+
+def spin_test_csv(tmp_path, stribeck: bool, seed: int = 0, name: str = "spin"):
+    """A joint driven back and forth at low speeds with nothing on its output: dwells at ±0.08 …
+    5 rad/s, the drive torque all friction (Fc 0.30 N·m, Fs − Fc 0.25 N·m at ω_s 0.15 rad/s,
+    Gaussian, viscous 0.01 N·m/(rad/s)), 1 kHz noise on torque and speed."""
+    rng = np.random.default_rng(seed)
+    levels = [0.08, 0.1, 0.13, 0.17, 0.22, 0.3, 0.4, 0.6, 1.0, 1.5, 2.5, 5.0]
+    rate, dwell = 200.0, 1.5
+    w = np.concatenate([np.full(int(rate * dwell), d * v) for _ in range(2) for v in levels for d in (1, -1)])
+    t = np.arange(len(w)) / rate
+    fc, excess, ws, visc = 0.30, 0.25 if stribeck else 0.0, 0.15, 0.01
+    friction = (fc + excess * np.exp(-(np.abs(w) / ws) ** 2) + visc * np.abs(w)) * np.sign(w)
+    torque = friction + rng.normal(0, 0.005, len(w))
+    speed = w + rng.normal(0, 0.005, len(w))
+    path = tmp_path / f"{name}.csv"
+    path.write_text("t,T,w\n" + "".join(f"{a:.4f},{b:.6f},{c:.6f}\n" for a, b, c in zip(t, torque, speed)))
+    cmap = tmp_path / "spin.yaml"
+    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\n"
+                    "motor_speed: {column: w, unit: rad/s}\noutput_torque: {constant: 0, unit: N*m}\n")
+    params = tmp_path / "joint.yaml"  # a joint (no ball track), its speed reading's noise
+    params.write_text(JOINT)
+    return path, cmap, params
+
+
+def test_a_joints_stribeck_friction_is_found_on_a_spin_test_csv(tmp_path):
+    csv, cmap, params = spin_test_csv(tmp_path, stribeck=True)
+    out = tmp_path / "cal.yaml"
+    result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(params), "--json",
+                                "--out", str(out)).stdout)
+    found = {e["name"]: e for e in result["effects"]}
+    assert "stribeck" in found and "torque_offset" not in found, sorted(found)
+    s = found["stribeck"]
+    assert s["ci95"]["c"][0] <= 0.25 <= s["ci95"]["c"][1], s
+    assert s["ci95"]["omega_s"][0] <= 0.15 <= s["ci95"]["omega_s"][1], s
+    assert found["drag_constant"]["params"]["c"] == pytest.approx(0.30, rel=0.05)
+    assert result["error_after"]["rmse_nm"] < 0.2 * result["error_before"]["rmse_nm"]
+    # the file on another run of the joint: the friction it predicts near standstill
+    csv2, _, _ = spin_test_csv(tmp_path, stribeck=True, seed=1, name="spin2")
+    replayed = run_cli("replay", str(csv2), "--channels", str(cmap), "--params", str(out), "--no-png").stdout
+    rms = float(next(ln for ln in replayed.splitlines() if "residual" in ln and "RMS" in ln).split("RMS")[1]
+                .split()[0])
+    assert rms < 0.02, replayed
+
+
+def test_a_coulomb_joint_gets_no_stribeck_term(tmp_path):
+    csv, cmap, params = spin_test_csv(tmp_path, stribeck=False)
+    result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(params),
+                                "--json").stdout)
+    found = {e["name"] for e in result["effects"]}
+    assert "stribeck" not in found and "drag_constant" in found, found
+
+
+def test_the_estimators_loss_torque_runs_smoothly_through_standstill():
+    """The loss torque's sign is tanh(ω/width) near standstill (width: the speed noise); beyond a
+    few widths it is the sign; no jump through 0 (a speed reading of exactly 0, at rest: sign(T))."""
+    from rollergear_ros.core.operating_points import evaluate_points
+
+    config = load_config().with_values({"estimator.speed_noise_rad_s": 0.01})
+    assert Estimator(config).sign_width_rad_s == pytest.approx(0.01)
+    w = np.linspace(-0.3, 0.3, 6001)
+    t = np.full_like(w, 20.0)
+    drag = config.with_values({"effects.drag_constant.enabled": True, "effects.drag_constant.c_nm": 0.2})
+    loss = evaluate_points(drag, t, w).loss_torque_nm
+    moving = w != 0  # at rest (a speed of exactly 0) the loss opposes the drive torque, as before
+    assert np.max(np.abs(np.diff(loss[moving]))) < 0.01  # 0.1 mrad/s steps: no jump of 2 × 0.2 N·m
+    assert loss[~moving][0] > 0.2  # T = 20 N·m > 0 at rest
+    far = np.abs(w) > 0.25
+    magnitude = np.abs(loss[far])
+    np.testing.assert_allclose(loss[far], np.sign(w[far]) * magnitude)
+    at = np.isclose(w, 0.01)
+    points = evaluate_points(drag, t[at], w[at])
+    np.testing.assert_allclose(points.loss_torque_nm, points.loss_magnitude_nm * np.tanh(1.0), rtol=1e-12)
+
+
+# ------------------------------------------------------------------------------------ memory
+def joint_velocity(rate: float = 500.0, duration_s: float = 40.0) -> tuple[np.ndarray, np.ndarray]:
+    """Back and forth at up to 0.4 rad/s, a 0.5 s dwell at rest before each reversal."""
+    t = np.arange(0, duration_s, 1.0 / rate)
+    phase = t % 5.0
+    v = np.where(phase < 2.0, 0.4 * np.sin(np.pi * phase / 2.0),
+                 np.where(phase < 2.5, 0.0, np.where(phase < 4.5, -0.4 * np.sin(np.pi * (phase - 2.5) / 2.0), 0.0)))
+    return t, v
+
+
+def lugre_friction(t, v, sigma0: float, fc: float, sigma2: float) -> np.ndarray:
+    """The LuGre model integrated by scipy's stiff solver: ``dz/dt = v − σ0·|v|·z/Fc``,
+    ``F = σ0·z + σ2·v`` (no Stribeck rise, no bristle damping: its presliding angle is Fc/σ0)."""
+    from scipy.integrate import solve_ivp
+
+    def rhs(tt, z):
+        vv = np.interp(tt, t, v)
+        return [vv - sigma0 * abs(vv) * z[0] / fc]
+
+    with np.errstate(divide="ignore"):  # Radau's step control divides by a zero error at rest
+        sol = solve_ivp(rhs, (t[0], t[-1]), [0.0], t_eval=t, method="Radau", max_step=0.002, rtol=1e-8, atol=1e-10)
+    return sigma0 * sol.y[0] + sigma2 * v
+
+
+def joint_csv(tmp_path, name: str, friction: np.ndarray, t: np.ndarray, v: np.ndarray, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    torque = friction + rng.normal(0, 0.003, len(t))
+    speed = v + rng.normal(0, 0.002, len(t))
+    path = tmp_path / f"{name}.csv"
+    path.write_text("t,T,w\n" + "".join(f"{a:.4f},{b:.6f},{c:.6f}\n" for a, b, c in zip(t, torque, speed)))
+    (tmp_path / "spin.yaml").write_text(
+        "time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\n"
+        "motor_speed: {column: w, unit: rad/s}\noutput_torque: {constant: 0, unit: N*m}\n")
+    (tmp_path / "joint.yaml").write_text(
+        "/**/loss_estimator:\n  ros__parameters:\n    estimator: {paper_model: false, speed_noise_rad_s: 0.002}\n")
+    return path, tmp_path / "spin.yaml", tmp_path / "joint.yaml"
+
+
+def test_friction_with_memory_is_found_at_its_presliding_angle(tmp_path):
+    """A LuGre joint (presliding Fc/σ0 = 0.3/30 = 0.01 rad): its friction lags each reversal; found as
+    dahl with the angle within its interval, no plain drag beside it, the error cut by far more than 80 %."""
+    t, v = joint_velocity()
+    csv, cmap, params = joint_csv(tmp_path, "lugre", lugre_friction(t, v, 30.0, 0.3, 0.01), t, v)
+    out = tmp_path / "cal.yaml"
+    result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(params), "--json",
+                                "--out", str(out), "--report", str(tmp_path / "report")).stdout)
+    found = {e["name"]: e for e in result["effects"]}
+    assert "dahl" in found and "drag_constant" not in found, sorted(found)
+    # the report draws it over the angle turned since each reversal
+    assert (tmp_path / "report" / "effect_dahl.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    lo, hi = found["dahl"]["ci95"]["presliding"]
+    assert lo <= 0.01 <= hi and found["dahl"]["params"]["c"] == pytest.approx(0.3, rel=0.02)
+    assert result["error_after"]["rmse_nm"] < 0.2 * result["error_before"]["rmse_nm"]
+    # the file, replayed on another run of the joint, follows the lag: its residual is the noise's
+    csv2, _, _ = joint_csv(tmp_path, "lugre2", lugre_friction(t, v, 30.0, 0.3, 0.01), t, v, seed=1)
+    text = run_cli("replay", str(csv2), "--channels", str(cmap), "--params", str(out), "--no-png").stdout
+    rms = float(next(ln for ln in text.splitlines() if "residual" in ln and "RMS" in ln).split("RMS")[1].split()[0])
+    assert rms < 0.01, text
+
+
+def test_a_plain_coulomb_joint_gets_no_memory(tmp_path):
+    t, v = joint_velocity()
+    csv, cmap, params = joint_csv(tmp_path, "coulomb", 0.3 * np.sign(v) + 0.01 * v, t, v)
+    result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(params),
+                                "--json").stdout)
+    found = {e["name"] for e in result["effects"]}
+    assert "dahl" not in found and "drag_constant" in found, found
+
+
+def memory_config():
+    return load_config().with_values({"estimator.paper_model": False, "estimator.speed_noise_rad_s": 0.002,
+                                      "effects.dahl.enabled": True, "effects.dahl.c_nm": 0.3,
+                                      "effects.dahl.presliding_rad": 0.01, "effects.drag_constant.enabled": True,
+                                      "effects.drag_constant.c_nm": 0.02})
+
+
+def test_a_state_is_stepped_the_same_sample_by_sample_and_in_batches():
+    """The node steps the state message by message (``push``), replay in batches (``push_many``):
+    the same state, bit for bit, at every batch boundary (reversals cut), adaptation on and off; the
+    losses as the node and replay always agree (the model's powers: math against numpy)."""
+    t, v = joint_velocity(duration_s=12.0)
+    rng = np.random.default_rng(3)
+    t_ns = (1_700_000_000 * 10**9 + np.round(t * 1e9)).astype(np.int64)
+    torque = 0.3 * np.sign(v) + rng.normal(0, 0.003, len(t))
+    speed = v + rng.normal(0, 0.002, len(t))
+    out = np.zeros(len(t))
+    for adapt in (False, True):
+        config = memory_config().with_values({"estimator.adapt": adapt})
+        one, many = Estimator(config), Estimator(config)
+        streamed, batched = [], []
+        for lo in range(0, len(t), 997):  # batches that cut reversals
+            hi = min(lo + 997, len(t))
+            for i in range(lo, hi):
+                for channel, value in (("motor_torque", torque[i]), ("motor_speed", speed[i]),
+                                       ("output_torque", out[i])):
+                    streamed += [e.loss_torque_nm for e in one.push(channel, int(t_ns[i]), float(value))]
+            codes = np.tile(np.array([0, 1, 2], dtype=np.int8), hi - lo)
+            times = np.repeat(t_ns[lo:hi], 3)
+            values = np.column_stack([torque[lo:hi], speed[lo:hi], out[lo:hi]]).ravel()
+            batched += many.push_many(codes, times, values).loss_torque_nm.tolist()
+            assert one._states == many._states and one._state_t_ns == many._state_t_ns  # bit for bit
+        streamed += [e.loss_torque_nm for e in one.finish()]
+        rest = many.flush()
+        batched += [] if rest is None else rest.loss_torque_nm.tolist()
+        assert len(streamed) == len(batched) == len(t)
+        np.testing.assert_allclose(np.array(streamed), np.array(batched), rtol=1e-12, atol=1e-15)
+        if not adapt:  # (adapting, the plain Coulomb data here move the level from dahl to drag_constant)
+            # after the dwell at rest the friction turns round over the presliding angle, not at once:
+            # moving forwards clearly (beyond 8 noise widths), it still opposes the backward run before
+            loss = np.array(batched)
+            forwards = (t > 5.0) & (t < 5.5) & (speed > 8 * 0.002)
+            assert loss[forwards][:5].max() < -0.15 and loss[forwards & (t > 5.4)].min() > 0.3

@@ -1,0 +1,216 @@
+"""The effect registry: each term is its formula, and a new effect is one entry.
+
+``test_a_registered_toy_effect_flows_through_simulate_calibrate_and_replay`` registers an effect
+the package has never heard of and sees it flow through the parameter file, ``simulate``,
+``calibrate`` (found, fitted within its interval, written to the YAML) and ``replay`` (the
+calibrated estimator removes it from the residual), with no other code touched.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rollergear_ros.core import effects
+from rollergear_ros.calibration.calibrate import calibrate, calibrated_yaml, load_samples
+from rollergear_ros.core.effects import _DRAWN_OVER, EFFECTS, Effect, EffectInputs, EffectParameter
+from rollergear_ros.core.params import load_config, parameter_specs
+from rollergear_ros.replay.run import replay
+from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
+
+ROOT = Path(__file__).resolve().parents[2]
+X = EffectInputs(abs_torque=np.array([2.0, 40.0]), abs_speed=np.array([10.0, 200.0]), torque=np.array([2.0, -40.0]),
+                 rot_sign=np.array([1.0, -1.0]), temperature_c=np.array([20.0, 80.0]), fr_part_nm=np.array([0.1, 0.3]))
+
+
+@pytest.mark.parametrize(("name", "params", "expected"), [
+    ("drag_constant", {"c": 0.04}, 0.04 + 0.0 * X.abs_speed),
+    ("drag_speed", {"c": 3e-4, "p": 1.4}, 3e-4 * X.abs_speed ** 1.4),
+    ("load_dependent", {"c": 2e-3, "q": 1.2}, 2e-3 * X.abs_torque ** 1.2),
+    ("load_speed", {"c": 2e-5, "p": 1.3}, 2e-5 * X.abs_torque * X.abs_speed ** 1.3),
+    ("viscosity_temperature", {"B": 700.0, "C": 95.0, "theta_ref": 40.0, "scale": 1.0},
+     X.fr_part_nm * (np.exp(700.0 / (X.temperature_c + 95.0) - 700.0 / 135.0) ** 0.66 - 1.0)),
+    ("torque_offset", {"b": 0.05}, 0.05 * X.rot_sign),
+    ("torque_gain", {"g": 0.01}, 0.01 * X.torque * X.rot_sign),
+    ("stribeck", {"c": 0.25, "omega_s": 20.0, "delta": 2.0}, 0.25 * np.exp(-(X.abs_speed / 20.0) ** 2)),
+    ("drag_viscous", {"c": 3e-4, "p": 1.5, "a": 0.5, "B": 900.0, "C": 95.0, "theta_ref": 40.0},
+     3e-4 * np.exp(900.0 / (X.temperature_c + 95.0) - 900.0 / 135.0) ** 0.5 * X.abs_speed ** 1.5),
+    ("dahl", {"c": 0.1, "presliding": 0.01}, 0.1 + 0.0 * X.abs_speed),  # no state: steady motion
+])
+def test_each_term_is_its_documented_formula(name, params, expected):
+    np.testing.assert_allclose(EFFECTS[name].term(X, **params), expected, rtol=1e-12)
+    # on Python floats too (the node's per-sample path)
+    x0 = EffectInputs(*(float(v[0]) for v in X[:6]))
+    assert EFFECTS[name].term(x0, **params) == pytest.approx(float(np.asarray(expected)[0]), rel=1e-12)
+
+
+def test_every_effect_is_declared_consistently():
+    specs = {s.name for s in parameter_specs()}
+    for name, e in EFFECTS.items():
+        shorts = [p.short for p in e.parameters]
+        assert e.coefficient in shorts and (e.member is None or e.member in shorts), name
+        assert f"effects.{name}.enabled" in specs
+        assert all(f"effects.{name}.{p.key}" in specs for p in e.parameters)
+        assert all(other in EFFECTS for other in e.separated_from), name
+        assert (e.state_step is None) == (e.state_steps is None), name  # memory: a step and its batch
+        assert e.plotted_against in _DRAWN_OVER, name  # the report knows how to draw it
+        if e.member is not None:
+            lo, hi = e.member_bounds
+            assert lo <= min(e.member_grid) < max(e.member_grid) <= hi, name
+        # the term is linear in its coefficient: term = coefficient x column
+        params = e.simulated_defaults()
+        np.testing.assert_allclose(e.term(X, **{**params, e.coefficient: 2.5}), 2.5 * e.column(X, params),
+                                   rtol=1e-12, atol=1e-300)
+
+
+@pytest.mark.parametrize("name", [n for n, e in EFFECTS.items() if e.state_step is not None])
+def test_a_state_batch_is_its_single_steps_bit_for_bit(name):
+    """Replay's batches and calibrate step the state as the node does, sample by sample: the same
+    floats, also across samples at rest and repeated times (no step)."""
+    e = EFFECTS[name]
+    rng = np.random.default_rng(0)
+    speed = np.where(rng.random(2000) < 0.1, 0.0, rng.normal(0, 0.05, 2000))
+    dt = np.where(rng.random(2000) < 0.05, 0.0, rng.uniform(1e-4, 1e-2, 2000))
+    params = e.simulated_defaults()
+    z, single = 0.3, []
+    for w, d in zip(speed.tolist(), dt.tolist()):
+        z = e.state_step(z, w, d, params)
+        single.append(z)
+    assert e.state_steps(0.3, speed, dt, params).tolist() == single
+    assert len(set(np.sign(single[100:]).tolist())) == 2  # the state turned round within the batch
+
+
+def test_the_dahl_state_follows_its_documented_law():
+    """``z → s + (z − s)·exp(−|ω|·dt/presliding)``: a turn of one presliding angle from −1 forwards
+    leaves ``1 − 2/e``; at rest nothing changes."""
+    from rollergear_ros.core.effects import dahl_step
+
+    p = {"presliding": 0.01}
+    assert dahl_step(-1.0, 0.5, 0.02, p) == pytest.approx(1.0 - 2.0 / np.e, rel=1e-12)
+    assert dahl_step(-0.4, 0.0, 1.0, p) == -0.4 and dahl_step(-0.4, 3.0, 0.0, p) == -0.4
+
+
+def test_docs_table_is_the_registry():
+    assert (ROOT / "docs" / "effects.md").read_text() == effects.markdown_table(), \
+        "regenerate: python -m rollergear_ros.core.effects > docs/effects.md"
+
+
+def speed_load(x: EffectInputs, c):
+    """Speed-root-load friction: ``ΔT = c·|ω|·|T|^0.5`` (a toy effect for the registry test, unlike
+    every effect of the registry)."""
+    return c * x.abs_speed * x.abs_torque ** 0.5
+
+
+@pytest.fixture
+def toy_effect():
+    effect = effects.register(Effect(
+        "speed_load", speed_load, True, "add a speed-root-load friction c*|w|*|T|^0.5", "toy",
+        (EffectParameter("c", "c", 0.0, "speed-load coefficient", simulated=2e-5),), coefficient="c",
+        regressor_scale=lambda params: effects.SPEED_REF_RAD_S * effects.TORQUE_REF_NM ** 0.5))
+    try:
+        yield effect
+    finally:
+        effects.unregister("speed_load")
+
+
+def test_a_registered_toy_effect_flows_through_simulate_calibrate_and_replay(toy_effect, tmp_path):
+    config = load_config(ROOT / "config" / "gearbox.yaml")
+    assert "effects.speed_load.c" in {s.name for s in parameter_specs()}
+    # simulate: a rig with the new effect, declared by its short names
+    opts = SimulationOptions(
+        profile="rig_map", rate_hz=100.0, seed=3, effects=[DeclaredEffect.parse("speed_load:c=2e-4")]
+    )
+    bag = tmp_path / "toy.mcap"
+    write_rig_bag(simulate(config, opts), opts, bag)
+    # calibrate: found (not declared to it), coefficient within its interval
+    result = calibrate(load_samples([bag], config), config)
+    assert result.verdict == "effects_found", result.log
+    found = {e.name: e for e in result.effects}
+    assert "speed_load" in found, result.log
+    lo, hi = found["speed_load"].ci95["c"]
+    assert lo <= 2e-4 <= hi and hi - lo < 0.2 * 2e-4, found["speed_load"]
+    assert result.error_after.rmse_nm < 0.2 * result.error_before.rmse_nm
+    # the parameter file carries it, and replay with it leaves almost no residual
+    yaml_path = tmp_path / "calibrated.yaml"
+    yaml_path.write_text(calibrated_yaml(result, [str(bag)]))
+    calibrated = load_config(yaml_path)
+    assert "speed_load" in calibrated.effects.enabled()
+    assert math.isclose(calibrated.effects.params("speed_load")["c"], found["speed_load"].params["c"])
+
+    def residual_rms(cfg) -> float:
+        _, batches = replay(bag, cfg, show_progress=False, collect=True)
+        r = np.concatenate([b.residual_nm for b in batches])
+        return float(np.sqrt(np.nanmean(r[len(r) // 2 :] ** 2)))  # after the RLS has settled
+
+    before, after = residual_rms(config), residual_rms(calibrated)
+    assert after < 0.2 * before, (before, after)
+
+
+def test_interface_doc_names_every_effect_parameter_as_the_registry_does():
+    lines = (ROOT / "docs" / "interface.md").read_text().splitlines()
+    head = next(i for i, ln in enumerate(lines) if ln.strip().startswith("| effect | JSON / simulate |"))
+    rows = {}
+    for line in lines[head + 2:]:
+        if not line.strip().startswith("|"):
+            break
+        name, short, keys = (c.strip() for c in line.strip().strip("|").split("|"))
+        rows[name.strip("`")] = ([c.strip(" `") for c in short.split(",")], [c.strip(" `") for c in keys.split(",")])
+    assert rows == {name: ([p.short for p in e.parameters], [p.key for p in e.parameters])
+                    for name, e in EFFECTS.items()}
+
+
+def zero_drift(x: EffectInputs, b):
+    """Torque-sensor zero drift: ``ΔT = b·sgn(ω)`` (a toy sensor error for the registry test)."""
+    return b * x.rot_sign
+
+
+@pytest.fixture
+def toy_sensor_error():
+    effect = effects.register(Effect(
+        "zero_drift", zero_drift, False, "a drifting zero of the torque sensor", "toy",
+        (EffectParameter("b", "drift_nm", 0.0, "zero drift", "N*m", simulated=0.07),), coefficient="b",
+        reading_error="offset"))
+    try:
+        yield effect
+    finally:
+        effects.unregister("zero_drift")
+
+
+def test_a_toy_sensor_error_corrupts_simulate_s_reading_and_the_estimator_corrects_it(toy_sensor_error):
+    """A sensor error is one entry: its descriptor says how it corrupts the reading, and simulate
+    and the estimator take it from there (no module outside the registry names it)."""
+    from rollergear_ros.core.estimator import Estimator
+    from rollergear_ros.core.params import validate
+
+    config = load_config(ROOT / "config" / "gearbox.yaml")
+    opts = SimulationOptions(profile="rig_map", rate_hz=50.0, seed=1, torque_noise_nm=0.0,
+                             effects=[DeclaredEffect.parse("zero_drift:b=0.07")])
+    rig = simulate(config, opts)
+    np.testing.assert_allclose(rig.torque_meas_nm - rig.torque_true_nm, 0.07, rtol=0, atol=1e-12)
+    # a sensor error is not a loss: the true loss is the model's alone
+    np.testing.assert_array_equal(rig.loss_true_nm, simulate(config, SimulationOptions(
+        profile="rig_map", rate_hz=50.0, seed=1, torque_noise_nm=0.0)).loss_true_nm)
+    enabled = validate(config.to_flat() | {"effects.zero_drift.enabled": True, "effects.zero_drift.drift_nm": 0.07})
+    assert effects.reading_errors(enabled.effects.active()) == (0.07, 0.0)
+    estimator = Estimator(enabled, "timestamp", 0.001)
+    assert estimator.corrected_torque(10.07) == pytest.approx(10.0, abs=1e-12)
+
+
+def test_no_module_outside_the_registry_names_an_effect():
+    """Estimator, calibrate, simulate, params … ask the descriptors (``reading_error``,
+    ``viscosity_law``, ``scales_fr``, ``state_step`` …), never an effect's name.  The simulated
+    fleet is the one exception: its scenario is which effects its gearboxes develop."""
+    import ast
+
+    allowed = {"effects.py", "fleetsim.py"}
+    named = []
+    for path in sorted((ROOT / "rollergear_ros").glob("*.py")):
+        if path.name in allowed:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in EFFECTS:
+                named.append(f"{path.name}:{node.lineno} {node.value!r}")
+    assert not named, named

@@ -1,0 +1,198 @@
+"""``rollergear map``: VECTO-valid loss maps of the calibrated model.
+
+The written files are checked by :func:`vecto_rules`, written here from VECTO's own reader
+(``VectoCSVFile.Read`` + ``TransmissionLossMapReader`` + the ranges of ``GearLossMapEntry``,
+vecto-sim) and not from the package, and shown to accept VECTO's published generic maps.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rollergear_ros.core.model import LossModel
+
+from helpers import BAGS, CONFIG, REALDATA, run_cli
+
+VECTO_GENERIC = REALDATA / "vecto_generic_lossmaps"
+_UNIT = re.compile(r"\[.*?\]|<|>")
+
+
+def vecto_rules(path: Path) -> list[str]:
+    """What VECTO's loss-map reader would reject in ``path`` (empty list: accepted).
+
+    VECTO CSV: ``,`` delimiter, ``.`` decimal mark, lines starting with ``#`` are comments, a
+    cell is cut at ``#``, one header line whose ``[unit]`` parts are dropped; a loss map has the
+    columns Input Speed, Input Torque, Torque Loss, at least four data lines, input speed in
+    0…1e6 rpm and torque loss in 0…1e6 N·m; the points are triangulated in (speed,
+    ``T_in − T_loss``), so over T_in at each speed ``T_in − T_loss`` must rise.
+    """
+    problems = []
+    lines = [ln for ln in path.read_text(encoding="utf-8").splitlines()
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        return ["empty"]
+    header = [_UNIT.sub("", c.split("#")[0]).strip() for c in lines[0].split(",")]
+    wanted = ["Input Speed", "Input Torque", "Torque Loss"]
+    if not all(w in header for w in wanted):
+        problems.append(f"header {header} lacks {wanted}")
+        return problems
+    idx = [header.index(w) for w in wanted]
+    rows = []
+    for k, ln in enumerate(lines[1:], start=2):
+        cells = [c.split("#")[0].strip() for c in ln.split(",")]
+        try:
+            rows.append([float(cells[i]) for i in idx])
+        except (ValueError, IndexError):
+            problems.append(f"data line {k}: not numeric: {ln!r}")
+    data = np.array(rows, dtype=float).reshape(-1, 3)
+    if len(data) < 4:
+        problems.append(f"{len(data)} data lines (VECTO needs at least 4)")
+    if ((data[:, 0] < 0) | (data[:, 0] > 1e6)).any():
+        problems.append("input speed outside 0..1e6 rpm")
+    if ((data[:, 2] < 0) | (data[:, 2] > 1e6)).any():
+        problems.append("torque loss outside 0..1e6 N·m")
+    for n in np.unique(data[:, 0]):
+        at = data[data[:, 0] == n]
+        at = at[np.argsort(at[:, 1])]
+        if (np.diff(at[:, 1] - at[:, 2]) <= 0).any():
+            problems.append(f"T_in - T_loss does not rise with T_in at {n:g} rpm")
+    if len(np.unique(data[:, 0])) < 2 or len(np.unique(data[:, 1])) < 2:
+        problems.append("the points do not span an area (VECTO triangulates them)")
+    return problems
+
+
+def read_map(path: Path) -> np.ndarray:
+    lines = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")]
+    assert lines[0] == "Input Speed [rpm],Input Torque [Nm],Torque Loss [Nm]"
+    return np.array([ln.split(",") for ln in lines[1:]], dtype=float)
+
+
+@pytest.mark.skipif(not VECTO_GENERIC.exists(), reason=f"no shared real data at {VECTO_GENERIC}")
+def test_the_vecto_rules_accept_vectos_own_generic_maps():
+    maps = sorted(VECTO_GENERIC.rglob("*.vtlm"))
+    assert len(maps) >= 10
+    for path in maps:
+        assert vecto_rules(path) == [], path
+
+
+def test_the_vecto_rules_reject_what_vecto_rejects(tmp_path):
+    header = "Input Speed [rpm],Input Torque [Nm],Torque Loss [Nm]\n"
+    good = "0,-10,1\n0,10,1\n1000,-10,1\n1000,10,1\n"
+    cases = {
+        "negative speed": "-1000,-10,1\n-1000,10,1\n" + good,
+        "negative loss": good + "2000,-10,-0.5\n2000,10,1\n",
+        "three rows": "0,-10,1\n0,10,1\n1000,10,1\n",
+        "folded": good + "2000,-10,1\n2000,10,25\n",
+    }
+    assert vecto_rules(_write(tmp_path / "good.vtlm", header + good)) == []
+    for name, body in cases.items():
+        assert vecto_rules(_write(tmp_path / f"{name}.vtlm", header + body)), name
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def test_map_obeys_vectos_rules_and_reverse_rotation_goes_to_its_own_file(tmp_path, config):
+    out = tmp_path / "map.vtlm"
+    proc = run_cli("map", "--out", str(out), "--speed-rpm", "0", "2000", "500", "--torque-nm", "-50", "50", "25",
+                   "--both-directions")
+    reverse = tmp_path / "map_reverse.vtlm"
+    assert vecto_rules(out) == [] and vecto_rules(reverse) == []
+    text = out.read_text()
+    for line in ("# rollergear_ros", "ratio (input/output speed) 1.36842", f"parameters: {CONFIG}",
+                 "accepted effects: none", "written 20"):
+        assert line in text, line
+    assert "REVERSE rotation" in reverse.read_text() and "REVERSE" not in text
+    lm = LossModel(config.gearbox)
+    forward, backward = read_map(out), read_map(reverse)
+    assert len(forward) == len(backward) == 5 * 5
+    assert sorted(set(forward[:, 0])) == [0, 500, 1000, 1500, 2000]
+    w = forward[:, 0] * 2 * np.pi / 60
+    np.testing.assert_allclose(forward[:, 2], lm.loss_magnitude(forward[:, 1], w), rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(backward[:, 2], lm.loss_magnitude(-backward[:, 1], -w), rtol=1e-5, atol=1e-9)
+    for png in (tmp_path / "map.png", tmp_path / "map_reverse.png"):
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    assert "the paper's model: 100 % of the loss" in proc.stdout
+
+
+def test_map_grid_from_the_parameter_file_ends_at_the_rated_speed(tmp_path):
+    p = tmp_path / "grid.yaml"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    gearbox: {rated_speed_rpm: 1500.0}\n"
+                 "    map: {speed_min_rpm: 500.0, speed_step_rpm: 500.0, torque_min_nm: -20.0, "
+                 "torque_max_nm: 20.0, torque_step_nm: 10.0, both_directions: true}\n")
+    out = tmp_path / "m.vtlm"
+    run_cli("map", "--out", str(out), "--params", str(p), "--no-plot")
+    for path in (out, tmp_path / "m_reverse.vtlm"):
+        data = read_map(path)
+        assert sorted(set(data[:, 0])) == [500, 1000, 1500]
+        assert sorted(set(data[:, 1])) == [-20, -10, 0, 10, 20]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("/**/loss_estimator:\n  ros__parameters:\n    map: {speed_min_rpm: 500.0, speed_max_rpm: 100.0}\n")
+    proc = run_cli("map", "--params", str(bad), "--out", str(out), check=False)
+    assert proc.returncode == 2 and "map.speed_max_rpm" in proc.stderr
+
+
+@pytest.mark.parametrize(("grid", "message"), [
+    (("--speed-rpm", "-1000", "1000", "500"), "speeds >= 0"),
+    (("--torque-nm", "0", "50", "10"), "both torque signs"),
+    (("--speed-rpm", "1000", "1000", "100"), "at least two speeds"),
+])
+def test_map_refuses_grids_vecto_would_not_accept(tmp_path, grid, message):
+    out = tmp_path / "m.vtlm"
+    proc = run_cli("map", "--out", str(out), "--no-plot", *grid, check=False)
+    assert proc.returncode == 2 and message in proc.stderr and proc.stderr.count("\n") == 1
+    assert not out.exists()
+
+
+def test_map_warns_when_a_recording_visited_points_outside_it(tmp_path):
+    out = tmp_path / "m.vtlm"
+    small = run_cli("map", "--out", str(out), "--no-plot", "--speed-rpm", "0", "500", "100",
+                    "--torque-nm", "-5", "5", "5", "--recording", str(BAGS / "rig_map.mcap"))
+    assert "rig_map.mcap" in small.stderr and "% of the samples lie outside the map" in small.stderr
+    covering = run_cli("map", "--out", str(out), "--no-plot", "--recording", str(BAGS / "rig_map.mcap"))
+    assert "warning" not in covering.stderr and "every sample lies inside the map" in covering.stdout
+
+
+def test_map_of_a_calibrated_parameter_file_equals_replays_estimate_at_the_same_points(tmp_path):
+    """The energy manager gets what the estimator computes: a recording that visits the map's
+    grid (read by a torque sensor with the accepted offset and gain errors, at the map's oil
+    temperature) replays to the losses the map holds."""
+    from rollergear_ros.recordings.bag import BagWriter, stamp
+    from rollergear_ros.base.interface import MessageType
+    from rollergear_ros.core.params import config_to_yaml, load_config
+    from rollergear_ros.replay.run import replay
+
+    from test_operating_points import CALIBRATED
+
+    config = load_config(CONFIG, CALIBRATED)
+    params = tmp_path / "calibrated.yaml"
+    params.write_text(config_to_yaml(config))
+    out = tmp_path / "map.vtlm"
+    run_cli("map", "--params", str(params), "--out", str(out), "--no-plot", "--oil-temperature-c", "70",
+            "--speed-rpm", "0", "3000", "250", "--torque-nm", "-100", "100", "10")
+    rows = read_map(out)
+    assert "accepted effects: drag_speed" in out.read_text()
+    # the baseline differs: the map is not the paper's model alone
+    bare = LossModel(config.gearbox).loss_magnitude(rows[:, 1], rows[:, 0] * 2 * np.pi / 60)
+    assert np.mean(rows[:, 2] - bare > 1e-3) > 0.9
+
+    bag = tmp_path / "grid.mcap"
+    offset, gain = CALIBRATED["effects.torque_offset.offset_nm"], CALIBRATED["effects.torque_gain.gain"]
+    t_ns = 10**9 + np.arange(len(rows), dtype=np.int64) * 10**6
+    with BagWriter(bag) as bw:
+        bw.write_float64_series("/rollergear/motor/torque", t_ns, rows[:, 1] * (1 + gain) + offset)
+        bw.write_float64_series("/rollergear/motor/speed", t_ns, rows[:, 0] * 2 * np.pi / 60)
+        for t in t_ns:
+            bw.write_message("/rollergear/oil/temperature", MessageType.TEMPERATURE, int(t),
+                             {"header": {"stamp": stamp(int(t)), "frame_id": "oil"}, "temperature": 70.0,
+                              "variance": 0.0})
+    summary, batches = replay(bag, load_config(params), collect=True, show_progress=False)
+    estimated = np.concatenate([np.abs(b.loss_torque_nm) for b in batches])
+    assert len(estimated) == len(rows) and not any(summary.skipped.values())
+    np.testing.assert_allclose(estimated, rows[:, 2], rtol=1e-5, atol=1e-9)  # the map's 6 significant digits

@@ -1,0 +1,75 @@
+"""The array MCAP writer: background chunk writing gives the same file, and its errors surface."""
+
+from __future__ import annotations
+
+import errno
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rollergear_ros.recordings.mcapwriter import ChunkedMcapWriter
+
+from bagtools import read_mcap_ros2, read_rosbags
+
+
+def write(path, background: bool, n: int = 60_000) -> None:
+    """Interleaved topics over many chunks, messages added one by one, a metadata record between."""
+    rng = np.random.default_rng(0)
+    w = ChunkedMcapWriter(path, chunk_size=32 * 1024, background=background)
+    sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+    a, b = w.register_channel("/a", "cdr", sid), w.register_channel("/b", "cdr", sid)
+    t = 1_000_000_000 + np.repeat(np.arange(n // 2, dtype=np.int64), 2) * 1_000_000
+    payload = np.zeros((n, 12), dtype=np.uint8)
+    payload[:, 1] = 1
+    payload[:, 4:] = rng.normal(size=n).view(np.uint8).reshape(n, 8)
+    w.add_messages(np.tile([a, b], n // 2), t[: n], payload)
+    w.add_metadata("m", {"k": "v"})
+    for i in range(100):
+        w.add_message(a, int(t[-1]) + 1000 * (i + 1), bytes(payload[i]))
+    w.add_messages(b, t[-1] + 10**6 + np.arange(5000, dtype=np.int64), payload[:5000])
+    w.close()
+
+
+def test_chunks_written_in_the_background_make_the_same_file(tmp_path):
+    write(tmp_path / "fg.mcap", background=False)
+    write(tmp_path / "bg.mcap", background=True)
+    assert (tmp_path / "bg.mcap").read_bytes() == (tmp_path / "fg.mcap").read_bytes()
+    for messages in (read_mcap_ros2(tmp_path / "bg.mcap"), read_rosbags(tmp_path / "bg.mcap")):
+        assert len(messages["/a"][0]) == 30_100 and len(messages["/b"][0]) == 35_000
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full")
+def test_an_error_of_the_writing_thread_is_raised_in_the_caller():
+    """A disk that is full (``/dev/full``: every write fails with ENOSPC) is an OSError of the call
+    that adds or closes, never a file silently cut short."""
+    for background in (True, False):
+        with pytest.raises(OSError) as err:
+            write(Path("/dev/full"), background=background)
+        assert err.value.filename == "/dev/full" and err.value.errno == errno.ENOSPC
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_interleave_equals_a_byte_by_byte_layout(seed):
+    """The strided copy of repeating patterns lays out the same bytes as placing each record alone,
+    for periodic sequences broken by stray records and for sequences with no period at all."""
+    from rollergear_ros.recordings.mcapwriter import interleave
+
+    rng = np.random.default_rng(seed)
+    widths = {0: 43, 1: 219, 2: 61}
+    motif = rng.integers(0, 2, size=int(rng.integers(1, 12)))
+    group = np.tile(motif, int(rng.integers(1, 400)))
+    for _ in range(int(rng.integers(0, 30))):  # stray records (an oil temperature now and then)
+        group = np.insert(group, int(rng.integers(0, len(group) + 1)), int(rng.integers(0, 3)))
+    if seed == 5:
+        group = rng.integers(0, 3, size=500)
+    lens = np.array([widths[g] for g in group.tolist()], dtype=np.int64)
+    offsets = np.cumsum(lens) - lens
+    rows = {g: rng.integers(0, 256, size=(int(np.count_nonzero(group == g)), w), dtype=np.uint8)
+            for g, w in widths.items() if np.any(group == g)}
+    expected = bytearray()
+    used = dict.fromkeys(rows, 0)
+    for g in group.tolist():
+        expected += rows[g][used[g]].tobytes()
+        used[g] += 1
+    assert interleave(group, rows, offsets, int(lens.sum())).tobytes() == bytes(expected)

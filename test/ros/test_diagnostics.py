@@ -1,0 +1,115 @@
+"""The node's /diagnostics levels and messages (rollergear_ros.ros.diagnostics), without ROS."""
+
+from __future__ import annotations
+
+import math
+
+from rollergear_ros.ros.diagnostics import ERROR, OK, WARN, InputMonitor, diagnose
+from rollergear_ros.core.estimator import Estimator
+from rollergear_ros.core.pairing import SPEED, TORQUE
+from rollergear_ros.core.params import load_config
+
+MS = 1_000_000
+
+
+def _monitor(now, last):
+    m = InputMonitor(now - 10 * 10**9)
+    for ch, t in last.items():
+        m.record(ch, t)
+    return m
+
+
+def test_diagnostics_levels():
+    est = Estimator(load_config())
+    now = 100 * 10**9
+    healthy = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
+    rates = {TORQUE: 1000.0, SPEED: 1000.0}
+    rep = diagnose(now, healthy, rates, est, 1000.0, 0.9, dict(est.counts), 0)
+    assert rep.level == OK and rep.message == "estimating"
+    stale = _monitor(now, {TORQUE: now - MS, SPEED: now - 3 * 10**9})
+    rep = diagnose(now, stale, rates, est, 1000.0, 0.9, dict(est.counts), 0)
+    assert rep.level == ERROR and "stale input: motor_speed" in rep.message
+    rep = diagnose(now, healthy, {TORQUE: 500.0, SPEED: 500.0}, est, 1000.0, 0.9, dict(est.counts), 0)
+    assert rep.level == WARN and "expected 1000 Hz" in rep.message
+    missing = _monitor(now, {TORQUE: now - MS})
+    rep = diagnose(now, missing, rates, est, 1000.0, 0.9, dict(est.counts), 0)
+    assert rep.level == ERROR and "no input on motor_speed" in rep.message
+    est.counts["non_finite"] += 3
+    rep = diagnose(now, healthy, rates, est, 1000.0, 0.9, {**est.counts, "non_finite": 0}, 0)
+    assert rep.level == WARN and "3 samples with non finite" in rep.message
+    values = dict(rep.values)
+    assert values["skipped non finite"] == "3 (+3)" and math.isfinite(float(values["expected rate [Hz]"]))
+
+
+def test_an_executor_behind_its_input_queue_is_an_overload_warning():
+    """Half of what a best-effort queue holds (1000 messages at 1 kHz: 1 s) behind: WARN, before
+    the queue overflows and messages are lost uncounted; a reliable keep-all input is allowed 0.5 s."""
+    est = Estimator(load_config(None))
+    now = 100 * 10**9
+    healthy = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
+
+    def report(lag_s: float, depth: int | None, rate: float = 1000.0):
+        return diagnose(now, healthy, {TORQUE: rate, SPEED: rate}, est, rate, 0.9, dict(est.counts), 0,
+                        busy_fraction=0.4, executor_lag_s=lag_s, queue_depth=depth)
+
+    assert report(0.45, 1000).level == OK
+    rep = report(0.55, 1000)
+    assert rep.level == WARN and "overloaded: the node runs 0.55 s behind" in rep.message
+    assert "input queues overflow" in rep.message and dict(rep.values)["executor lag [s]"] == "0.55"
+    assert report(0.15, 1000, rate=5000.0).level == WARN  # 1000 messages at 5 kHz hold 0.2 s
+    assert report(0.45, None).level == OK and "publishers are slowed" in report(0.55, None).message
+
+
+def test_received_and_not_estimated_per_input():
+    est = Estimator(load_config(None))
+    now = 100 * 10**9
+    mon = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
+    mon.counts[TORQUE], mon.counts[SPEED] = 120, 117
+    est.estimated = 110
+    values = dict(diagnose(now, mon, {TORQUE: 1000.0, SPEED: 1000.0}, est, 1000.0, 0.9, dict(est.counts), 0).values)
+    assert (values["motor_torque messages"], values["motor_torque not estimated"]) == ("120", "10")
+    assert (values["motor_speed messages"], values["motor_speed not estimated"]) == ("117", "7")
+
+
+def _feed(monitor, start_s, seconds, rate_hz, est, learn=True):
+    """Both drive inputs at ``rate_hz`` from ``start_s`` for ``seconds``, a report at each whole
+    second (as the node's 1 s loop) -> the reports."""
+    reports = []
+    t_ns, period_ns = round(start_s * 1e9), round(1e9 / rate_hz)
+    for second in range(math.floor(start_s) + 1, math.floor(start_s + seconds) + 1):
+        while t_ns < second * 10**9:
+            for ch in (TORQUE, SPEED):
+                monitor.record(ch, t_ns)
+            t_ns += period_ns
+        now = second * 10**9
+        reports.append(diagnose(now, monitor, monitor.rates(now), est, 1000.0, 0.5, dict(est.counts), 0,
+                                learn_rate=learn))
+    return reports
+
+
+def test_a_bag_played_at_another_rate_is_learned_not_warned_about_for_ever():
+    """500 Hz against the configured 1000 Hz from the stream's start: with learning, nothing is
+    said while three whole windows are learned (the first, partial window is not one of them), then
+    OK; without, a WARN at every report."""
+    est = Estimator(load_config())
+    learning = InputMonitor(0)
+    reports = _feed(learning, 0.4, 8.0, 500.0, est)
+    assert all(r.level == OK for r in reports), [r.message for r in reports]
+    values = dict(reports[-1].values)
+    assert values["motor_torque learned rate [Hz]"] == "500" and dict(reports[1].values)[
+        "motor_torque learned rate [Hz]"] == "learning"
+    assert learning.learned_rate_hz(TORQUE) == 500.0  # not the partial first window's 300 Hz
+    fixed = _feed(InputMonitor(0), 0.4, 8.0, 500.0, est, learn=False)
+    assert all(r.level == WARN and "motor_torque at 500 Hz, expected 1000 Hz" in r.message for r in fixed[1:])
+
+
+def test_a_stream_that_slows_down_is_still_a_warning_and_a_new_stream_is_learned_anew():
+    est = Estimator(load_config())
+    monitor = InputMonitor(0)
+    assert all(r.level == OK for r in _feed(monitor, 0.0, 6.0, 1000.0, est))
+    slowed = _feed(monitor, 6.0, 3.0, 400.0, est)
+    assert slowed[-1].level == WARN and "motor_torque at 400 Hz, its stream started at 1000 Hz" in slowed[-1].message
+    monitor.rates(10 * 10**9)  # a whole window without a message: the player stopped
+    assert monitor.learned_rate_hz(TORQUE) is None
+    restarted = _feed(monitor, 10.5, 6.0, 200.0, est)
+    assert all(r.level == OK for r in restarted) and monitor.learned_rate_hz(TORQUE) == 200.0

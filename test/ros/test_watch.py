@@ -1,0 +1,119 @@
+"""``rollergear watch``: the period summary (pure) and the command against a live node over DDS."""
+
+from __future__ import annotations
+
+import re
+import signal
+import subprocess
+import sys
+import threading
+
+import numpy as np
+import pytest
+
+from rollergear_ros.recordings.bag import encode_float64
+from rollergear_ros.core.params import load_config
+from rollergear_ros.replay.run import replay
+from rollergear_ros.ros.watch import WatchWindow
+
+from helpers import BAGS, CONFIG, ROOT, run_cli
+from rostools import NodeProcess, play, wait_for
+
+LINE = re.compile(r"(\d+) est/s  loss (\S+) N·m  (\S+) W  η (\S+) % \(min (\S+)\)")
+
+
+def _window(**series: list[float]) -> WatchWindow:
+    w = WatchWindow()
+    for channel, values in series.items():
+        for raw in encode_float64(np.asarray(values, dtype=float)):
+            w.add(channel, raw)
+    return w
+
+
+def test_window_summarises_a_period_and_starts_the_next():
+    w = _window(loss_torque=[0.1, 0.3], loss_power=[10.0, 30.0], efficiency=[0.99, float("nan")],
+                residual_torque=[0.01, 0.03])
+    w.diagnostic = (1, "motor_torque at 500 Hz, expected 1000 Hz")
+    line = w.line(0.5, "/rollergear/loss/torque")
+    m = LINE.search(line)
+    assert m and m.groups() == ("4", "0.2000", "20.00", "99.00", "99.00"), line
+    assert "residual +0.0200 N·m" in line and line.endswith("[WARN] motor_torque at 500 Hz, expected 1000 Hz")
+    # the next period starts empty; the latest status is kept
+    assert w.line(1.0, "/rollergear/loss/torque").startswith(
+        "no estimates on /rollergear/loss/torque in the last 1.0 s"
+    )
+
+
+def test_window_without_efficiency_or_residual():
+    line = _window(loss_torque=[0.2], loss_power=[0.0], efficiency=[float("nan")]).line(1.0, "/x")
+    assert "η —" in line and "residual" not in line and "[" not in line
+
+
+def test_watch_refuses_a_bad_period():
+    proc = run_cli("watch", "--period", "0", check=False)
+    assert proc.returncode == 2 and "--period must be > 0" in proc.stderr
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_watch_shows_a_running_nodes_estimates_and_status():
+    """Node, player and watcher as three processes (the README's terminals): the watcher's lines
+    carry estimates within what offline replay computes for the bag, and the node's status."""
+    node = NodeProcess()
+    watcher = subprocess.Popen(
+        [sys.executable, "-m", "rollergear_ros", "watch"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
+    lines: list[str] = []  # the watcher's lines as it prints them (a line a period, flushed)
+    errors: list[str] = []
+
+    def read_lines(stream, into: list[str]) -> None:
+        for line in stream:
+            into.append(line.rstrip("\n"))
+
+    readers = [threading.Thread(target=read_lines, args=(stream, into), daemon=True)
+               for stream, into in ((watcher.stdout, lines), (watcher.stderr, errors))]
+    for reader in readers:
+        reader.start()
+
+    def stale_after_the_play() -> bool:  # a line with no estimates and the stale-input status
+        return any("no estimates on /rollergear/loss/torque" in line and "[ERROR] stale input" in line
+                   for line in list(lines))
+
+    try:
+        play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
+        assert wait_for(stale_after_the_play, 300), "\n".join(lines)
+    finally:
+        watcher.send_signal(signal.SIGINT)
+        watcher.wait(timeout=60)
+        for reader in readers:
+            reader.join(timeout=10)
+        assert node.stop() == 0, node.stderr
+    err = "\n".join(errors)
+    assert watcher.returncode == 0 and "Traceback" not in err, err
+    out = "\n".join(lines)
+    found = [m for m in map(LINE.search, lines) if m]
+    assert len(found) >= 5, out
+    _, batches = replay(BAGS / "rig_map.mcap", load_config(CONFIG), show_progress=False, collect=True)
+    eff = np.concatenate([b.efficiency for b in batches])
+    power = np.concatenate([b.loss_power_w for b in batches])
+    for m in found:
+        assert np.nanmin(eff) - 1e-6 <= float(m.group(4)) / 100 <= np.nanmax(eff) + 1e-6, m.group(0)
+        assert 0 <= float(m.group(3)) <= power.max() + 0.01, m.group(0)
+    # the bag plays at 1 kHz; a best-effort watcher sees most of it
+    assert max(int(m.group(1)) for m in found) > 500, out
+    assert "[OK]" in out or "[WARN]" in out, out
+    assert "no estimates on /rollergear/loss/torque" in lines[-1] and "[ERROR] stale input" in lines[-1], out
+
+
+@pytest.mark.ros
+def test_watch_count_ends_by_itself_without_a_node():
+    count = 2
+    proc = run_cli("watch", "--period", "0.5", "--count", str(count), timeout=30)
+    lines = proc.stdout.splitlines()
+    assert len(lines) == count and all(
+        "no estimates on /rollergear/loss/torque in the last 0.5 s" in ln for ln in lines
+    ), proc.stdout
