@@ -266,80 +266,18 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     """
     t = d.t_ns.astype(np.float64) * 1e-9
     sg = rotation_sign(d.speed, d.torque, d.sign_width_rad_s)
-    n = len(t)
-    dt = np.diff(t)
-    typical = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1e-3
-    brk = np.ones(n, bool)
-    if n > 1:
-        tb = np.floor((t - t[0]) / block_s)
-        brk[1:] = (
-            (tb[1:] != tb[:-1])
-            | (d.bag_id[1:] != d.bag_id[:-1])
-            | (np.sign(d.speed[1:]) != np.sign(d.speed[:-1]))
-            | (np.sign(d.torque[1:]) != np.sign(d.torque[:-1]))
-            | (dt > 5 * typical)
-            | (dt < 0)
-        )
-    start = np.flatnonzero(brk) if like is None else like.start
-    count = np.diff(np.append(start, n))
-    if like is not None:
-        brk = np.zeros(n, bool)
-        brk[start] = True
+    start, count, brk = _block_starts(d, t, block_s, like)
 
     def mean(x: np.ndarray) -> np.ndarray:
         return np.add.reduceat(x, start) / count
 
-    y = d.residual
-    ym = mean(y)
-    # derivative columns within each bag (np.gradient over time; zero across breaks)
-    dtdt = np.zeros(n)
-    dwdt = np.zeros(n)
-    for b in np.unique(d.bag_id) if not d.steady_state else ():  # a table's rows have no time derivatives
-        idx = np.flatnonzero(d.bag_id == b)
-        if len(idx) > 2:
-            tt = t[idx] + 1e-12 * np.arange(len(idx))
-            dtdt[idx] = np.gradient(d.torque[idx], tt)
-            dwdt[idx] = np.gradient(d.speed[idx], tt)
-    # noise of each block mean: within-block variance, inflated for autocorrelation
-    dev = y - np.repeat(ym, count)
-    var_within = np.add.reduceat(dev * dev, start) / np.maximum(count - 1, 1)
-    same_block = ~brk[1:]
-    if same_block.sum() > 10:
-        a, b_ = dev[:-1][same_block], dev[1:][same_block]
-        rho = float(np.dot(a, b_) / max(np.sqrt(np.dot(a, a) * np.dot(b_, b_)), 1e-300))
-    else:
-        rho = 0.0
-    rho = min(max(rho, 0.0), 0.98)
-    inflation = (1 + rho) / (1 - rho)
-    var_mean = var_within * inflation / count
-    floor = max(float(np.median(var_mean[count > 1])) * 0.05 if np.any(count > 1) else 1e-12, 1e-16)
-    var_mean = np.where(count > 1, np.maximum(var_mean, floor), float(np.max(var_mean)) if len(var_mean) else 1.0)
-    if d.steady_state:
-        weight, inflation = np.ones(len(start)), 1.0
-    else:
-        weight = 1.0 / var_mean
+    ym = mean(d.residual)
+    dtdt, dwdt = _time_derivatives(d, t)
+    weight, inflation = _block_weights(d, ym, start, count, brk)
     aw, at = np.abs(d.speed), np.abs(d.torque)
     spd, trq = mean(d.speed), mean(d.torque)
     temp = mean(np.nan_to_num(d.temperature, nan=np.nan))
-    # dwells: consecutive blocks at the same operating point (<= 5 s), folds by dwell
-    nb = len(start)
-    dwell = np.zeros(nb, dtype=np.int64)
-    max_blocks = max(int(round(5.0 / block_s)), 1)
-    cur, run = 0, 0
-    for i in range(1, nb):
-        same = (
-            abs(spd[i] - spd[i - 1]) <= 0.03 * abs(spd[i - 1]) + 1.0
-            and abs(trq[i] - trq[i - 1]) <= 0.03 * abs(trq[i - 1]) + 0.5
-            and d.bag_id[start[i]] == d.bag_id[start[i - 1]]
-        )
-        run += 1
-        if not same or run >= max_blocks:
-            cur += 1
-            run = 0
-        dwell[i] = cur
-    if d.steady_state:
-        dwell = np.arange(nb, dtype=np.int64)
-    fold = dwell % folds
+    dwell, fold = _dwells(d, spd, trq, start, block_s, folds)
     if like is not None:
         dwell, fold = like.dwell, like.fold
     theta = d.temperature
@@ -397,3 +335,90 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
             columns[key] = mean(part)
             blocks.testable += (key,)
     return blocks
+
+
+def _block_starts(d: SampleData, t: np.ndarray, block_s: float,
+                  like: Blocks | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each block starts, its sample count, and the samples that start one (a new time slot,
+    recording or sign of speed or torque, a gap; ``like``'s boundaries when given)."""
+    n = len(t)
+    dt = np.diff(t)
+    typical = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1e-3
+    brk = np.ones(n, bool)
+    if n > 1:
+        tb = np.floor((t - t[0]) / block_s)
+        brk[1:] = (
+            (tb[1:] != tb[:-1])
+            | (d.bag_id[1:] != d.bag_id[:-1])
+            | (np.sign(d.speed[1:]) != np.sign(d.speed[:-1]))
+            | (np.sign(d.torque[1:]) != np.sign(d.torque[:-1]))
+            | (dt > 5 * typical)
+            | (dt < 0)
+        )
+    start = np.flatnonzero(brk) if like is None else like.start
+    count = np.diff(np.append(start, n))
+    if like is not None:
+        brk = np.zeros(n, bool)
+        brk[start] = True
+    return start, count, brk
+
+
+def _time_derivatives(d: SampleData, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """dT/dt and dω/dt within each recording (np.gradient over time; none for a table's rows)."""
+    n = len(t)
+    dtdt = np.zeros(n)
+    dwdt = np.zeros(n)
+    for b in np.unique(d.bag_id) if not d.steady_state else ():  # a table's rows have no time derivatives
+        idx = np.flatnonzero(d.bag_id == b)
+        if len(idx) > 2:
+            tt = t[idx] + 1e-12 * np.arange(len(idx))
+            dtdt[idx] = np.gradient(d.torque[idx], tt)
+            dwdt[idx] = np.gradient(d.speed[idx], tt)
+    return dtdt, dwdt
+
+
+def _block_weights(d: SampleData, ym: np.ndarray, start: np.ndarray, count: np.ndarray,
+                   brk: np.ndarray) -> tuple[np.ndarray, float]:
+    """Each block mean's weight (1 / its noise variance: the within-block variance, inflated for the
+    residual's autocorrelation) and the inflation; equal weights for a table's rows."""
+    y = d.residual
+    dev = y - np.repeat(ym, count)
+    var_within = np.add.reduceat(dev * dev, start) / np.maximum(count - 1, 1)
+    same_block = ~brk[1:]
+    if same_block.sum() > 10:
+        a, b_ = dev[:-1][same_block], dev[1:][same_block]
+        rho = float(np.dot(a, b_) / max(np.sqrt(np.dot(a, a) * np.dot(b_, b_)), 1e-300))
+    else:
+        rho = 0.0
+    rho = min(max(rho, 0.0), 0.98)
+    inflation = (1 + rho) / (1 - rho)
+    var_mean = var_within * inflation / count
+    floor = max(float(np.median(var_mean[count > 1])) * 0.05 if np.any(count > 1) else 1e-12, 1e-16)
+    var_mean = np.where(count > 1, np.maximum(var_mean, floor), float(np.max(var_mean)) if len(var_mean) else 1.0)
+    if d.steady_state:
+        return np.ones(len(start)), 1.0
+    return 1.0 / var_mean, inflation
+
+
+def _dwells(d: SampleData, spd: np.ndarray, trq: np.ndarray, start: np.ndarray, block_s: float,
+            folds: int) -> tuple[np.ndarray, np.ndarray]:
+    """Dwells (consecutive blocks at the same operating point, <= 5 s; each row of a table) and the
+    folds, by dwell."""
+    nb = len(start)
+    dwell = np.zeros(nb, dtype=np.int64)
+    max_blocks = max(int(round(5.0 / block_s)), 1)
+    cur, run = 0, 0
+    for i in range(1, nb):
+        same = (
+            abs(spd[i] - spd[i - 1]) <= 0.03 * abs(spd[i - 1]) + 1.0
+            and abs(trq[i] - trq[i - 1]) <= 0.03 * abs(trq[i - 1]) + 0.5
+            and d.bag_id[start[i]] == d.bag_id[start[i - 1]]
+        )
+        run += 1
+        if not same or run >= max_blocks:
+            cur += 1
+            run = 0
+        dwell[i] = cur
+    if d.steady_state:
+        dwell = np.arange(nb, dtype=np.int64)
+    return dwell, dwell % folds

@@ -152,6 +152,20 @@ def members(blocks: Blocks, name: str, law: tuple[float, float, float] | None = 
     return [Term(name, blocks.grids[name][i], float(m)) for i, m in enumerate(effect.member_grid)]
 
 
+@dataclass
+class _Forward:
+    """Where a forward selection stands (:meth:`Calibrator.run`)."""
+
+    remaining: list[str]  #: candidates not yet accepted
+    cv_now: float  #: held-out RMSE of what is accepted so far
+    step: int = 0
+    selected: list[Term] = field(default_factory=list)  #: accepted
+    #: the best member of each ambiguous set: kept in the fit, not reported
+    provisional: list[Term] = field(default_factory=list)
+    ambiguous: list[AmbiguousSet] = field(default_factory=list)
+    negative: list[str] = field(default_factory=list)  #: set aside for a clear negative friction
+
+
 class Calibrator:
     """Forward selection over the physical groups on block means (see the module docstring)."""
 
@@ -505,154 +519,174 @@ class Calibrator:
         """Forward selection; ``assume``: effects to take when the data cannot tell them from another
         (what the user knows of the rig, e.g. torque sensors zeroed at standstill: ``drag_constant``);
         ``check``: a last word on a candidate's value (:meth:`screen`)."""
-        selected: list[Term] = []  # accepted
-        provisional: list[Term] = []  # best member of each ambiguous set: kept in the fit, not reported
-        ambiguous: list[AmbiguousSet] = []
-        negative: list[str] = []
-        remaining = [g for g in groups() if g in self.b.testable]
-        unavailable = [g for g in groups() if g not in remaining]
-        cv_now = self.cv_rmse([])
-        step = 0
-        while remaining:
-            step += 1
-            base = selected + provisional
-            scored = []
-            for g in remaining:
-                self.stage(f"step {step}: trying {g}")
-                terms = self.best_candidate(g, base)
-                if terms is not None:
-                    scored.append((self.cv_rmse(terms), g, terms))
-            if not scored:
-                break
-            scored.sort(key=lambda x: x[0])
-            # candidates that are no explanation (a negative friction, an exponent at its bound, a
-            # parameter out of its range) are set aside; the best of the rest is tested
-            kept = []
-            z_crit = _z_two_sided(self.alpha / len(remaining))
-            for entry in scored:
-                why_not = self.screen(entry[2], check)
-                if why_not is None:
-                    kept.append(entry)
-                    continue
-                if not kept:  # better than any explanation: said
-                    self.log.append(f"step {step}: {entry[1]} set aside: {why_not}")
-                    # a negative friction the data ask for clearly (significant, beyond delta): the model
-                    # over-predicts, and the paper's model switched off is worth weighing (calibrate)
-                    if "negative friction" in why_not and entry[1] not in negative \
-                            and self._clear(entry[2], cv_now, entry[0], z_crit):
-                        negative.append(entry[1])
-            scored = kept
-            if not scored:
-                break
-            # the smaller explanation first: of the candidates that fit (nearly) as well as the best, the
-            # one with the fewest free parameters -- a model parameter before an effect, a plain law
-            # before one with an exponent or a memory
-            near = [x for x in scored if x[0] <= scored[0][0] * 1.01 + 1e-12]
-            simplest = min(near, key=lambda x: (complexity(x[1]), x[0]))
-            if simplest is not scored[0]:
-                scored.remove(simplest)
-                scored.insert(0, simplest)
-            cv_new, g, terms = scored[0]
-            c, se = self.coefficient(terms, len(terms) - 1)
-            new = terms[-1]
-            rms_col = self.contribution_rms(terms, len(terms) - 1)
-            z = abs(c) / se if se > 0 else math.inf
-            z_crit = _z_two_sided(self.alpha / len(remaining))
-            lower = max(0.0, abs(c) - 1.96 * se) * rms_col
-            upper = (abs(c) + 1.96 * se) * rms_col
-            improvement = (cv_now - cv_new) / cv_now if cv_now > 0 else 0.0
-            reasons = []
-            if z < z_crit:
-                reasons.append(f"not significant (|z| = {z:.1f} < {z_crit:.1f})")
-            if lower <= self.delta:
-                reasons.append(
-                    f"lower 95 % bound of its RMS contribution {lower:.4g} N·m <= delta {self.delta:.4g} N·m"
-                )
-            if improvement <= self.min_improvement:
-                reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
-            if not reasons and g in MODEL_PARAMETERS and check is not None:  # its interval within the physical range
-                for end in (c - 1.96 * se, c + 1.96 * se):
-                    why = check(new, end)
-                    if why is not None:
-                        reasons.append(f"its 95 % interval reaches the bound of the physical range ({why})")
-                        break
-            if not reasons and new.member is not None:  # its interval, over the exponent's range, must not reach 0
-                ci = self.coefficient_interval(terms, len(terms) - 1, self.member_range(terms, len(terms) - 1))
-                if ci[0] <= 0 <= ci[1]:
-                    reasons.append(f"its coefficient's 95 % interval [{ci[0]:.3g}, {ci[1]:.3g}] reaches 0")
-            twin_terms = {
-                h: (cv_h, terms_h)
-                for cv_h, h, terms_h in scored[1:]
-                if cv_h <= cv_new * 1.05 + 1e-12 and self._partial_corr(new, terms_h[-1], base) > 0.995
-            }
-            if g in MODEL_PARAMETERS and twin_terms:  # a parameter of the model is the smaller explanation
-                self.log.append(f"step {step}: {g} fits as well as {', '.join(twin_terms)}: the model's "
-                                "own parameter is taken (no new term)")
-                twin_terms = {}
-            memory = [h for h in twin_terms if _adds_only_memory(h, g)]
-            if memory:  # a memory the data do not show is not claimed: the memoryless law is taken
-                self.log.append(f"step {step}: {g} fits as well as {', '.join(memory)}: no lag after the "
-                                "reversals shows, the term without memory is taken")
-                twin_terms = {h: v for h, v in twin_terms.items() if h not in memory}
-            twins = list(twin_terms)
-            assumed = next((a for a in [g, *twins] if a in assume), None) if twins else None
-            self.log.append(
-                f"step {step}: best {g}"
-                + (f" ({_member_text(new)})" if new.member is not None else "")
-                + f" (held-out RMSE {cv_new:.4g} vs {cv_now:.4g} N·m), |z| = {z:.1f}, RMS contribution "
-                f"[{lower:.4g}, {upper:.4g}] N·m"
-                + (f"; indistinguishable from {', '.join(twins)}" if twins else "")
-                + (
-                    f"; not accepted: {'; '.join(reasons)}"
-                    if reasons
-                    else f"; ambiguous: accepted as {assumed}, as assumed"
-                    if assumed
-                    else "; ambiguous: kept in the fit, not reported"
-                    if twins
-                    else "; accepted"
-                )
-            )
-            if reasons:
-                break
-            if assumed is not None and assumed != g:  # the twin's fit: near the same error, by definition
-                cv_new, terms = twin_terms[assumed]
-                new = terms[-1]
-            # exponents of earlier terms were re-optimised together with the new one; a term that came
-            # with it (the viscosity law's level) is accepted with it
-            n_sel = len(selected)
-            companions = terms[len(base):-1]
-            selected, provisional = terms[:n_sel] + companions, terms[n_sel : len(base)]
-            remaining = [r for r in remaining if r not in {t.name for t in companions}]
-            if twins:
-                group = sorted([g] + twins)
-                needs = "; ".join(
-                    sorted(
-                        {
-                            separating(a, b)
-                            or "data over a wider range of speed, torque, direction and temperature"
-                            for a in group
-                            for b in group
-                            if a < b
-                        }
-                    )
-                )
-                ambiguous.append(AmbiguousSet(group, needs, [lower, upper], assumed))
-                (selected if assumed else provisional).append(new)
-                remaining = [r for r in remaining if r not in group]
-            else:
-                selected.append(new)
-                remaining.remove(g)
-            cv_now = cv_new
+        state = _Forward(remaining=[g for g in groups() if g in self.b.testable], cv_now=self.cv_rmse([]))
+        unavailable = [g for g in groups() if g not in state.remaining]
+        while state.remaining and self._step(state, assume, check):
+            pass
         # the ambiguous sets stay in the final fit (so the accepted coefficients are not biased)
-        final = selected + provisional
+        final = state.selected + state.provisional
         self.stage("exponent intervals")
         ranges = {t.name: self.member_range(final, i) for i, t in enumerate(final) if t.member is not None}
         second_ranges = {t.name: self.member_range(final, i, second=True) for i, t in enumerate(final)
                          if t.second is not None}
+        rejected = self._rejected(final, state, unavailable, check)
+        return Selection(state.selected, state.provisional, ranges, state.ambiguous, rejected, unavailable,
+                         second_ranges, state.negative)
+
+    def _step(self, state: _Forward, assume: Sequence[str], check) -> bool:
+        """One step of the forward selection: the best explanation among the remaining candidates is
+        tested and accepted (or kept in the fit as an ambiguous set); False when the selection ends."""
+        state.step += 1
+        step = state.step
+        base = state.selected + state.provisional
+        scored = []
+        for g in state.remaining:
+            self.stage(f"step {step}: trying {g}")
+            terms = self.best_candidate(g, base)
+            if terms is not None:
+                scored.append((self.cv_rmse(terms), g, terms))
+        if not scored:
+            return False
+        scored.sort(key=lambda x: x[0])
+        scored = self._explanations(scored, state, check)
+        if not scored:
+            return False
+        # the smaller explanation first: of the candidates that fit (nearly) as well as the best, the
+        # one with the fewest free parameters -- a model parameter before an effect, a plain law
+        # before one with an exponent or a memory
+        near = [x for x in scored if x[0] <= scored[0][0] * 1.01 + 1e-12]
+        simplest = min(near, key=lambda x: (complexity(x[1]), x[0]))
+        if simplest is not scored[0]:
+            scored.remove(simplest)
+            scored.insert(0, simplest)
+        cv_new, g, terms = scored[0]
+        new = terms[-1]
+        lower, upper, z, reasons = self._test(terms, g, state, cv_new, check)
+        twin_terms = self._twins(scored, g, new, base, step)
+        twins = list(twin_terms)
+        assumed = next((a for a in [g, *twins] if a in assume), None) if twins else None
+        self.log.append(
+            f"step {step}: best {g}"
+            + (f" ({_member_text(new)})" if new.member is not None else "")
+            + f" (held-out RMSE {cv_new:.4g} vs {state.cv_now:.4g} N·m), |z| = {z:.1f}, RMS contribution "
+            f"[{lower:.4g}, {upper:.4g}] N·m"
+            + (f"; indistinguishable from {', '.join(twins)}" if twins else "")
+            + (
+                f"; not accepted: {'; '.join(reasons)}"
+                if reasons
+                else f"; ambiguous: accepted as {assumed}, as assumed"
+                if assumed
+                else "; ambiguous: kept in the fit, not reported"
+                if twins
+                else "; accepted"
+            )
+        )
+        if reasons:
+            return False
+        if assumed is not None and assumed != g:  # the twin's fit: near the same error, by definition
+            cv_new, terms = twin_terms[assumed]
+            new = terms[-1]
+        # exponents of earlier terms were re-optimised together with the new one; a term that came
+        # with it (the viscosity law's level) is accepted with it
+        n_sel = len(state.selected)
+        companions = terms[len(base):-1]
+        state.selected, state.provisional = terms[:n_sel] + companions, terms[n_sel : len(base)]
+        state.remaining = [r for r in state.remaining if r not in {t.name for t in companions}]
+        if twins:
+            group = sorted([g] + twins)
+            needs = "; ".join(sorted({separating(a, b) or "data over a wider range of speed, torque, direction and "
+                                      "temperature" for a in group for b in group if a < b}))
+            state.ambiguous.append(AmbiguousSet(group, needs, [lower, upper], assumed))
+            (state.selected if assumed else state.provisional).append(new)
+            state.remaining = [r for r in state.remaining if r not in group]
+        else:
+            state.selected.append(new)
+            state.remaining.remove(g)
+        state.cv_now = cv_new
+        return True
+
+    def _explanations(self, scored: list, state: _Forward, check) -> list:
+        """The scored candidates that are an explanation: one asking for a negative friction, an
+        exponent at its bound or a parameter out of its range is set aside (said, when it fits better
+        than any explanation; a clear negative friction is noted in ``state.negative``)."""
+        kept = []
+        z_crit = _z_two_sided(self.alpha / len(state.remaining))
+        for entry in scored:
+            why_not = self.screen(entry[2], check)
+            if why_not is None:
+                kept.append(entry)
+                continue
+            if not kept:  # better than any explanation: said
+                self.log.append(f"step {state.step}: {entry[1]} set aside: {why_not}")
+                # a negative friction the data ask for clearly (significant, beyond delta): the model
+                # over-predicts, and the paper's model switched off is worth weighing (calibrate)
+                if "negative friction" in why_not and entry[1] not in state.negative \
+                        and self._clear(entry[2], state.cv_now, entry[0], z_crit):
+                    state.negative.append(entry[1])
+        return kept
+
+    def _test(self, terms: list[Term], g: str, state: _Forward, cv_new: float,
+              check) -> tuple[float, float, float, list[str]]:
+        """The best candidate's test: its RMS contribution's 95 % bounds, its |z|, and the reasons it
+        is not accepted (none: accepted)."""
+        c, se = self.coefficient(terms, len(terms) - 1)
+        new = terms[-1]
+        rms_col = self.contribution_rms(terms, len(terms) - 1)
+        z = abs(c) / se if se > 0 else math.inf
+        z_crit = _z_two_sided(self.alpha / len(state.remaining))
+        lower = max(0.0, abs(c) - 1.96 * se) * rms_col
+        upper = (abs(c) + 1.96 * se) * rms_col
+        improvement = (state.cv_now - cv_new) / state.cv_now if state.cv_now > 0 else 0.0
+        reasons = []
+        if z < z_crit:
+            reasons.append(f"not significant (|z| = {z:.1f} < {z_crit:.1f})")
+        if lower <= self.delta:
+            reasons.append(
+                f"lower 95 % bound of its RMS contribution {lower:.4g} N·m <= delta {self.delta:.4g} N·m"
+            )
+        if improvement <= self.min_improvement:
+            reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
+        if not reasons and g in MODEL_PARAMETERS and check is not None:  # its interval within the physical range
+            for end in (c - 1.96 * se, c + 1.96 * se):
+                why = check(new, end)
+                if why is not None:
+                    reasons.append(f"its 95 % interval reaches the bound of the physical range ({why})")
+                    break
+        if not reasons and new.member is not None:  # its interval, over the exponent's range, must not reach 0
+            ci = self.coefficient_interval(terms, len(terms) - 1, self.member_range(terms, len(terms) - 1))
+            if ci[0] <= 0 <= ci[1]:
+                reasons.append(f"its coefficient's 95 % interval [{ci[0]:.3g}, {ci[1]:.3g}] reaches 0")
+        return lower, upper, z, reasons
+
+    def _twins(self, scored: list, g: str, new: Term, base: list[Term], step: int) -> dict:
+        """The candidates the data cannot tell from the best one (name -> (held-out RMSE, terms)):
+        none when the best is a parameter of the model (the smaller explanation), and never one that
+        only adds a memory the data do not show."""
+        cv_new = scored[0][0]
+        twin_terms = {
+            h: (cv_h, terms_h)
+            for cv_h, h, terms_h in scored[1:]
+            if cv_h <= cv_new * 1.05 + 1e-12 and self._partial_corr(new, terms_h[-1], base) > 0.995
+        }
+        if g in MODEL_PARAMETERS and twin_terms:  # a parameter of the model is the smaller explanation
+            self.log.append(f"step {step}: {g} fits as well as {', '.join(twin_terms)}: the model's "
+                            "own parameter is taken (no new term)")
+            twin_terms = {}
+        memory = [h for h in twin_terms if _adds_only_memory(h, g)]
+        if memory:  # a memory the data do not show is not claimed: the memoryless law is taken
+            self.log.append(f"step {step}: {g} fits as well as {', '.join(memory)}: no lag after the "
+                            "reversals shows, the term without memory is taken")
+            twin_terms = {h: v for h, v in twin_terms.items() if h not in memory}
+        return twin_terms
+
+    def _rejected(self, final: list[Term], state: _Forward, unavailable: list[str], check) -> list[RejectedEffect]:
+        """Each candidate not accepted, with the upper bound of what it could contribute on top of the
+        final set (or why it is no explanation even now); a law that follows an oil nobody fitted joins
+        ``unavailable``."""
         rejected = []
-        blocked = {e for a in ambiguous for e in a.effects if e != a.assumed}
+        blocked = {e for a in state.ambiguous for e in a.effects if e != a.assumed}
         for g in groups():
-            if g in (t.name for t in selected) or g in unavailable:
+            if g in (t.name for t in state.selected) or g in unavailable:
                 continue
             if g in blocked:
                 rejected.append(RejectedEffect(g, math.nan, math.nan, ambiguous=True))
@@ -666,7 +700,7 @@ class Calibrator:
             rms_col = self.contribution_rms(terms, len(terms) - 1)
             reason = self.screen(terms, check) or ""  # no explanation even now (a negative friction, a bound)
             rejected.append(RejectedEffect(g, (abs(c) + 1.96 * se) * rms_col, abs(c) * rms_col, reason=reason))
-        return Selection(selected, provisional, ranges, ambiguous, rejected, unavailable, second_ranges, negative)
+        return rejected
 
     def _partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
         """|correlation| of two columns after removing the nuisance and base columns (weighted)."""
