@@ -88,3 +88,13 @@ def partial_files(path: str | Path) -> list[Path]:
     """The files an atomic writer of ``path`` is writing (``NAME.<random>.partial`` beside it)."""
     p = Path(path)
     return sorted(p.parent.glob(f"{p.name}.*.partial")) if p.parent.exists() else []
+
+
+#: a parameter file with accepted effects of every kind but memory (the operating points' and the map's tests)
+CALIBRATED = {
+    "effects.drag_speed.enabled": True, "effects.drag_speed.c": 2e-4, "effects.drag_speed.p": 1.5,
+    "effects.load_dependent.enabled": True, "effects.load_dependent.c": 1e-3, "effects.load_dependent.q": 1.2,
+    "effects.viscosity_temperature.enabled": True, "effects.viscosity_temperature.B_k": 900.0,
+    "effects.torque_offset.enabled": True, "effects.torque_offset.offset_nm": 0.3,
+    "effects.torque_gain.enabled": True, "effects.torque_gain.gain": 0.02,
+}

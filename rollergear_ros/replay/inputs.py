@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from collections.abc import Callable
 
@@ -265,88 +266,146 @@ def _decoded_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
 
 def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems,
                      file_order: bool = False):
-    from ..recordings.fastmcap import iter_message_arrays, release_count
+    """Batches of a Float64 recording's inputs through the numpy chunk reader, in log-time order
+    (file order with ``file_order``)."""
+    from ..recordings.fastmcap import iter_message_arrays
 
     code_of = {c: i for i, c in enumerate(CHANNELS)}
     temp_code = code_of[OIL_TEMPERATURE]
+    decode = _PartDecoder(plan, info, problems, temp_code)
+    order = _TimeOrder(temp_code, file_order)
     pending: list = []
     count = 0
+    lut_cache: dict[int, np.ndarray] = {}
+    for arrays in iter_message_arrays(info.path, state):
+        key = len(state.channels)
+        if key not in lut_cache:  # channel id -> estimator channel code (-1: not an input)
+            lut_cache = {key: _channel_codes(state, plan, code_of, temp_code)}
+        pending.append((arrays, lut_cache[key]))
+        count += len(arrays)
+        if count >= batch_size:
+            yield order(_assemble(pending, decode, state, info), final=False)
+            pending, count = [], 0
+    if pending or order.carry is not None:
+        yield order(
+            _assemble(pending, decode, state, info)
+            if pending
+            else InputBatch(np.empty(0, np.int8), np.empty(0, np.int64), np.empty(0), lambda w: None),
+            final=True,
+        )
 
-    def assemble(parts: list) -> InputBatch:
-        codes, ts, sources, vals, writes = [], [], [], [], []
-        for arrays, lut in parts:
-            code = lut[arrays.channel]
-            keep = np.flatnonzero(code >= 0)
-            c = code[keep]
-            v = np.full(len(keep), np.nan)
-            good = np.ones(len(keep), dtype=bool)
-            f64 = c != temp_code
-            if plan.temperature and plan.temperature[1] == MessageType.FLOAT64:
-                f64[:] = True
-            if f64.any():
-                try:
-                    v[f64] = arrays.float64(keep[f64])
-                except ValueError:  # big-endian, padded or malformed payloads: one by one
-                    rows = np.flatnonzero(f64)
-                    found: list[tuple[int, str]] = []
-                    v[rows] = decode_float64([arrays.payload(i) for i in keep[rows].tolist()], found)
-                    for j, reason in found:
-                        good[rows[j]] = False
-                        problems.add("malformed", problems.topic_of[int(c[rows[j]])],
-                                     int(arrays.log_time[keep[rows[j]]]), reason)
-            for j in np.flatnonzero(~f64).tolist():
-                v[j], reason = _decode_temperature(arrays.payload(int(keep[j])), plan, info)
-                if reason:
-                    good[j] = False
-                    problems.add("malformed", plan.temperature[0], int(arrays.log_time[keep[j]]), reason)
-            decodable = keep[good]  # what the output copies: every message a reader can decode
-            t = arrays.log_time[keep]
-            sub = np.flatnonzero(good)
-            good[sub[~problems.check_order(c[sub], t[sub], v[sub])]] = False
-            codes.append(c[good])
-            ts.append(t[good])
-            sources.append(arrays.publish_time[keep][good])
-            vals.append(v[good])
-            writes.append((arrays, decodable))
 
-        def write(writer: BagWriter) -> None:
-            """Copy the input messages in file order; equal-sized payloads go in with one numpy call."""
-            for arrays, keep in writes:
-                lens = arrays.length[keep]
-                fixed = keep[lens == 12]  # Float64 (and any other 12-byte payloads)
-                cids = sorted(set(arrays.channel[fixed].tolist()))
-                if len(fixed):
-                    meta = []
-                    for cid in cids:
-                        topic, sid, _ = state.channels[cid]
-                        type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
-                        meta.append((topic, type_name, info.schema_texts.get(type_name)))
-                    typed = np.array([bool(m[1]) for m in meta])  # a type lost with a damaged chunk: not copied
-                    which = np.searchsorted(np.array(cids), arrays.channel[fixed])
-                    fixed, which = fixed[typed[which]], (np.cumsum(typed) - 1)[which[typed[which]]]
-                    payload = arrays.buf[arrays.offset[fixed][:, None] + np.arange(12)]
-                    writer.write_fixed_mixed([m for m in meta if m[1]], which, arrays.log_time[fixed], payload)
-                for i in keep[lens != 12].tolist():
-                    topic, sid, _ = state.channels[int(arrays.channel[i])]
-                    type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
-                    if not type_name:
-                        continue
-                    writer.write_raw(
-                        topic, type_name, int(arrays.log_time[i]), arrays.payload(i), info.schema_texts.get(type_name)
-                    )
+def _channel_codes(state, plan: InputPlan, code_of: dict[str, int], temp_code: int) -> np.ndarray:
+    """MCAP channel id -> estimator channel code (-1: not an input), for the channels read so far."""
+    lut = np.full(65536, -1, dtype=np.int16)
+    for cid, (topic, _sid, _enc) in state.channels.items():
+        if topic in plan.float64:
+            lut[cid] = code_of[plan.float64[topic]]
+        elif plan.temperature and topic == plan.temperature[0]:
+            lut[cid] = temp_code
+    return lut
 
-        return InputBatch(np.concatenate(codes).astype(np.int8), np.concatenate(ts), np.concatenate(vals), write,
-                          np.concatenate(sources))
 
-    carry: InputBatch | None = None
+class _PartDecoder:
+    """Decodes one chunk's messages of the input channels (Float64 vectorised; the temperature one
+    by one), setting aside malformed and out-of-order messages (``problems``)."""
 
-    def in_time_order(batch: InputBatch, final: bool) -> InputBatch:
+    def __init__(self, plan: InputPlan, info: BagInfo, problems: InputProblems, temp_code: int) -> None:
+        self.plan, self.info, self.problems, self.temp_code = plan, info, problems, temp_code
+
+    def __call__(self, arrays, lut: np.ndarray) -> tuple[np.ndarray, ...]:
+        """``(codes, log times, publish times, values, decodable)`` of the part's input messages;
+        ``decodable``: the indices of the messages the output copies (every one a reader can decode)."""
+        plan, problems = self.plan, self.problems
+        code = lut[arrays.channel]
+        keep = np.flatnonzero(code >= 0)
+        c = code[keep]
+        v = np.full(len(keep), np.nan)
+        good = np.ones(len(keep), dtype=bool)
+        f64 = c != self.temp_code
+        if plan.temperature and plan.temperature[1] == MessageType.FLOAT64:
+            f64[:] = True
+        if f64.any():
+            try:
+                v[f64] = arrays.float64(keep[f64])
+            except ValueError:  # big-endian, padded or malformed payloads: one by one
+                rows = np.flatnonzero(f64)
+                found: list[tuple[int, str]] = []
+                v[rows] = decode_float64([arrays.payload(i) for i in keep[rows].tolist()], found)
+                for j, reason in found:
+                    good[rows[j]] = False
+                    problems.add("malformed", problems.topic_of[int(c[rows[j]])],
+                                 int(arrays.log_time[keep[rows[j]]]), reason)
+        for j in np.flatnonzero(~f64).tolist():
+            v[j], reason = _decode_temperature(arrays.payload(int(keep[j])), plan, self.info)
+            if reason:
+                good[j] = False
+                problems.add("malformed", plan.temperature[0], int(arrays.log_time[keep[j]]), reason)
+        decodable = keep[good]
+        t = arrays.log_time[keep]
+        sub = np.flatnonzero(good)
+        good[sub[~problems.check_order(c[sub], t[sub], v[sub])]] = False
+        return c[good], t[good], arrays.publish_time[keep][good], v[good], decodable
+
+
+def _assemble(parts: list, decode: _PartDecoder, state, info: BagInfo) -> InputBatch:
+    """One batch of the decoded parts, in file order, with the copy of their input messages."""
+    codes, ts, sources, vals, writes = [], [], [], [], []
+    for arrays, lut in parts:
+        c, t, source, v, decodable = decode(arrays, lut)
+        codes.append(c)
+        ts.append(t)
+        sources.append(source)
+        vals.append(v)
+        writes.append((arrays, decodable))
+    return InputBatch(np.concatenate(codes).astype(np.int8), np.concatenate(ts), np.concatenate(vals),
+                      partial(_copy_inputs, writes=writes, state=state, info=info), np.concatenate(sources))
+
+
+def _copy_inputs(writer: BagWriter, writes: list, state, info: BagInfo) -> None:
+    """Copy the input messages in file order; equal-sized payloads go in with one numpy call."""
+    for arrays, keep in writes:
+        lens = arrays.length[keep]
+        fixed = keep[lens == 12]  # Float64 (and any other 12-byte payloads)
+        cids = sorted(set(arrays.channel[fixed].tolist()))
+        if len(fixed):
+            meta = []
+            for cid in cids:
+                topic, sid, _ = state.channels[cid]
+                type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
+                meta.append((topic, type_name, info.schema_texts.get(type_name)))
+            typed = np.array([bool(m[1]) for m in meta])  # a type lost with a damaged chunk: not copied
+            which = np.searchsorted(np.array(cids), arrays.channel[fixed])
+            fixed, which = fixed[typed[which]], (np.cumsum(typed) - 1)[which[typed[which]]]
+            payload = arrays.buf[arrays.offset[fixed][:, None] + np.arange(12)]
+            writer.write_fixed_mixed([m for m in meta if m[1]], which, arrays.log_time[fixed], payload)
+        for i in keep[lens != 12].tolist():
+            topic, sid, _ = state.channels[int(arrays.channel[i])]
+            type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
+            if not type_name:
+                continue
+            writer.write_raw(
+                topic, type_name, int(arrays.log_time[i]), arrays.payload(i), info.schema_texts.get(type_name)
+            )
+
+
+class _TimeOrder:
+    """Batches in log-time order across batch boundaries: what a batch holds back (newer than the
+    oldest channel's last message) goes in front of the next (``file_order``: as they come)."""
+
+    def __init__(self, temp_code: int, file_order: bool) -> None:
+        self.temp_code, self.file_order = temp_code, file_order
+        self.carry: InputBatch | None = None
+
+    def __call__(self, batch: InputBatch, final: bool) -> InputBatch:
         """Prepend what the previous batch held back, sort by log time (file order among equal
         times), and hold back messages newer than the oldest channel's last one (not final)."""
-        nonlocal carry
-        if file_order:
+        from ..recordings.fastmcap import release_count
+
+        if self.file_order:
             return batch
         batch.source_ns = None  # sorted by log time: pairing by time needs no publish times
+        carry = self.carry
         if carry is not None:
             batch = InputBatch(
                 np.concatenate([carry.codes, batch.codes]),
@@ -356,37 +415,13 @@ def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
             )
         order = np.argsort(batch.t_ns, kind="stable")
         codes, t, v = batch.codes[order], batch.t_ns[order], batch.values[order]
-        carry = None
+        self.carry = None
         if not final:
-            cut = release_count(t, codes, ignore_key=temp_code)
+            cut = release_count(t, codes, ignore_key=self.temp_code)
             if cut < len(t):
-                carry = InputBatch(codes[cut:], t[cut:], v[cut:], batch.write_inputs)
+                self.carry = InputBatch(codes[cut:], t[cut:], v[cut:], batch.write_inputs)
                 codes, t, v = codes[:cut], t[:cut], v[:cut]
         return InputBatch(codes, t, v, batch.write_inputs)
-
-    lut_cache: dict[int, np.ndarray] = {}
-    for arrays in iter_message_arrays(info.path, state):
-        key = len(state.channels)
-        if key not in lut_cache:  # channel id -> estimator channel code (-1: not an input)
-            lut = np.full(65536, -1, dtype=np.int16)
-            for cid, (topic, _sid, _enc) in state.channels.items():
-                if topic in plan.float64:
-                    lut[cid] = code_of[plan.float64[topic]]
-                elif plan.temperature and topic == plan.temperature[0]:
-                    lut[cid] = temp_code
-            lut_cache = {key: lut}
-        pending.append((arrays, lut_cache[key]))
-        count += len(arrays)
-        if count >= batch_size:
-            yield in_time_order(assemble(pending), final=False)
-            pending, count = [], 0
-    if pending or carry is not None:
-        yield in_time_order(
-            assemble(pending)
-            if pending
-            else InputBatch(np.empty(0, np.int8), np.empty(0, np.int64), np.empty(0), lambda w: None),
-            final=True,
-        )
 
 
 def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tuple[str, float | None, bool]:

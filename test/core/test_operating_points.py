@@ -13,14 +13,7 @@ from rollergear_ros.core.model import LossModel, evaluate_reference
 from rollergear_ros.core.operating_points import evaluate_points
 from rollergear_ros.core.params import load_config
 
-CALIBRATED = {
-    "effects.drag_speed.enabled": True, "effects.drag_speed.c": 2e-4, "effects.drag_speed.p": 1.5,
-    "effects.load_dependent.enabled": True, "effects.load_dependent.c": 1e-3, "effects.load_dependent.q": 1.2,
-    "effects.viscosity_temperature.enabled": True, "effects.viscosity_temperature.B_k": 900.0,
-    "effects.torque_offset.enabled": True, "effects.torque_offset.offset_nm": 0.3,
-    "effects.torque_gain.enabled": True, "effects.torque_gain.gain": 0.02,
-}
-
+from helpers import CALIBRATED
 
 @pytest.fixture(scope="module")
 def calibrated():

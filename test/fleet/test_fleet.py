@@ -82,7 +82,7 @@ def test_time_slices_with_memory_on_the_cluster_add_up_to_one_replay(client, tmp
     """A joint with friction that lags each reversal (LuGre, scipy), the ``dahl`` effect on: a fleet
     replays it in three time slices on the cluster, each slice's state settling in its lead-in;
     the recording's row equals one replay of the whole."""
-    from test_lowspeed import joint_csv, joint_velocity, lugre_friction, memory_config
+    from joints import joint_csv, joint_velocity, lugre_friction, memory_config
 
     from rollergear_ros.sources.importer import import_source
 

@@ -168,7 +168,7 @@ def test_map_of_a_calibrated_parameter_file_equals_replays_estimate_at_the_same_
     from rollergear_ros.core.params import config_to_yaml, load_config
     from rollergear_ros.replay.run import replay
 
-    from test_operating_points import CALIBRATED
+    from helpers import CALIBRATED
 
     config = load_config(CONFIG, CALIBRATED)
     params = tmp_path / "calibrated.yaml"
