@@ -70,17 +70,28 @@ def estimator_cost_us(kind: str, samples: int = 60_000, with_outputs: bool = Tru
     return (time.perf_counter() - t0) / samples * 1e6
 
 
-def start_sut(kind: str, executor: str, cpu: int | None = None, stamped: bool = False) -> subprocess.Popen:
+def start_sut(kind: str, executor: str, cpu: int | None = None, stamped: bool = False,
+              baseline_tree: Path | None = None) -> subprocess.Popen:
+    """A system under test: the echo node, loss_estimator (with an effect on, for the ``EFFECT_ON``
+    kinds), or ``baseline``: loss_estimator of another source tree (``--against``)."""
+    env = None
     if kind == "echo":
         cmd = [sys.executable, str(ROOT / "bench" / "echo_node.py"), executor]
     else:
-        cmd = [sys.executable, "-m", "rollergear_ros.ros.node", "--ros-args", "--params-file",
-               str(ROOT / "config" / "gearbox.yaml"), "-p", f"node.executor:={executor}"]
+        tree = baseline_tree if kind == "baseline" else ROOT
+        # the tree's node module: in the ros wing, or (code before the wings) at the package's top
+        module = "rollergear_ros.ros.node" if (tree / "rollergear_ros" / "ros" / "node.py").exists() \
+            else "rollergear_ros.node"
+        cmd = [sys.executable, "-m", module, "--ros-args", "--params-file",
+               str(tree / "config" / "gearbox.yaml"), "-p", f"node.executor:={executor}"]
         if stamped:
             cmd += ["-p", "node.publish_float64:=false"]
         cmd += [arg for value in EFFECT_ON.get(kind, ()) for arg in ("-p", value)]
+        if kind == "baseline":
+            env = {**os.environ, "PYTHONPATH": str(tree)}
     pin = (lambda: os.sched_setaffinity(0, {cpu})) if cpu is not None else None
-    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=pin)
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=pin,
+                            env=env, cwd=str(baseline_tree) if kind == "baseline" else None)
 
 
 def run(driver, sut: subprocess.Popen, rate: float, seconds: float, with_outputs: bool) -> dict:
@@ -188,6 +199,9 @@ def main() -> None:
         action="store_true",
         help="driver on CPU 0, system under test on CPU 1 (so they do not compete for a core)",
     )
+    ap.add_argument("--against", type=Path, metavar="TREE",
+                    help="also run loss_estimator of another source tree (e.g. a worktree of the previous main), "
+                         "interleaved, and print this tree's rate over its")
     ap.add_argument("--estimator-only", action="store_true",
                     help="no DDS: the estimator of each loss_estimator in-process, µs per sample")
     args = ap.parse_args()
@@ -223,7 +237,8 @@ def main() -> None:
     ]
     received: list[int] = []
     estimate = "/rollergear/loss/estimate" if args.stamped else "/rollergear/loss/torque"
-    answer = {"echo": "/rollergear/loss/torque", "loss_estimator": estimate} | dict.fromkeys(EFFECT_ON, estimate)
+    answer = ({"echo": "/rollergear/loss/torque", "loss_estimator": estimate, "baseline": estimate}
+              | dict.fromkeys(EFFECT_ON, estimate))
     node.create_subscription(
         Float64, "/rollergear/loss/torque", lambda raw: received.append(time.monotonic_ns()), OUTPUT_QOS, raw=True
     )
@@ -243,10 +258,12 @@ def main() -> None:
     driver = (node, pubs, received)
     with_outputs = not args.no_outputs
     kinds = ("loss_estimator", *EFFECT_ON) if args.memory else ("echo", "loss_estimator")
+    if args.against is not None:
+        kinds += ("baseline",)
     best_of: dict[str, list[float]] = {k: [] for k in kinds}
     for rep in range(args.repeat):
         for kind in kinds if rep % 2 == 0 else kinds[::-1]:  # interleaved: drifts hit all alike
-            sut = start_sut(kind, args.executor, 1 if args.pin else None, args.stamped)
+            sut = start_sut(kind, args.executor, 1 if args.pin else None, args.stamped, args.against)
             deadline = time.monotonic() + 30
             while time.monotonic() < deadline and (
                 pubs[0].get_subscription_count() == 0 or node.count_publishers(answer[kind]) == 0
@@ -271,6 +288,8 @@ def main() -> None:
     channels = 4 if with_outputs else 2
     pairs = ([(kinds[0], kinds[1], None), (kinds[0], kinds[2], 0.9), (kinds[1], kinds[2], 0.9)] if args.memory
              else [(kinds[0], kinds[1], 1.0 if args.stamped else 0.8)])
+    if args.against is not None:
+        pairs.append(("baseline", "loss_estimator", None))
     print(f"executor: {args.executor}{'; driver on CPU 0, SUT on CPU 1' if args.pin else ''}"
           f"{'; loss_estimator publishes only the stamped estimate' if args.stamped else ''}; inputs per sample: "
           f"{channels} topics")

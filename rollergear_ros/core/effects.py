@@ -37,10 +37,14 @@ Adding an effect
    their YAML key, short name, default, unit and range; ``physical``; ``coefficient``; for a
    nonlinear parameter ``member`` with its grid and bounds; ``regressor_scale`` when the RLS needs
    a normalised column; ``separated_from`` for effects whose columns look alike, with the data
-   that tells them apart; ``plotted_against``, the variable the report draws its curve over.
+   that tells them apart; ``plotted_against``, the variable the report draws its curve over.  Its
+   kind is said by the descriptor too, never by its name elsewhere: a sensor error says how it
+   corrupts the torque reading (``reading_error``), a factor on the model's Fr part sets
+   ``scales_fr``, an effect with memory its ``state_step``/``state_steps``, the oil's own viscosity
+   law ``viscosity_law``.
 3. Tests: the function against its formula, and a recording simulated with the effect declared
-   that ``calibrate`` finds (``test/core/test_effects.py`` shows both, for a toy effect registered at
-   run time).
+   that ``calibrate`` finds (``test/core/test_effects.py`` shows both, for a toy loss registered at
+   run time, and a toy sensor error that simulate and the estimator take from its descriptor).
 
 Everything else follows from the entry: the parameter file's ``effects.<name>.*`` keys and their
 validation (:mod:`.params`), the estimator's terms and its RLS regressors (:mod:`.estimator`), the

@@ -122,6 +122,29 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
     stale_after_s = max(est.staleness_s, 10.0 / expected_rate_hz)
     reasons: list[tuple[int, str]] = []
     values: list[tuple[str, str]] = []
+    _input_status(now_ns, monitor, rates, estimator, expected_rate_hz, stale_after_s, learn_rate, reasons, values)
+    values.append(("input callbacks busy [%]", _fmt(100 * busy_fraction, 3)))
+    values.append(("executor lag [s]", _fmt(executor_lag_s, 3)))
+    limit_s = OVERLOAD_QUEUE_SHARE * (queue_depth / expected_rate_hz if queue_depth else RELIABLE_LAG_S)
+    if executor_lag_s > limit_s:
+        lost = " its input queues overflow: the oldest messages are lost" if queue_depth else \
+            " the publishers are slowed down"
+        reasons.append((WARN, f"overloaded: the node runs {executor_lag_s:.2f} s behind its inputs "
+                              f"(callbacks busy {100 * busy_fraction:.0f} %);{lost}"))
+    values.append(("expected rate [Hz]", _fmt(expected_rate_hz)))
+    values.append(("stale after [s]", _fmt(stale_after_s, 3)))
+    values.append(("samples estimated", str(estimator.estimated)))
+    _skip_status(estimator, previous_skips, reasons, values)
+    _estimate_status(estimator, min_efficiency_warn, previous_alarms, reasons, values)
+    level = max((lv for lv, _ in reasons), default=OK)
+    message = "; ".join(m for lv, m in sorted(reasons, key=lambda r: -r[0])) if reasons else "estimating"
+    return DiagnosticReport(level, message, values)
+
+
+def _input_status(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estimator: Estimator,
+                  expected_rate_hz: float, stale_after_s: float, learn_rate: bool,
+                  reasons: list[tuple[int, str]], values: list[tuple[str, str]]) -> None:
+    """Each input's rate, age, counts and losses; a missing, stale or slow drive input."""
     since_start = (now_ns - monitor.start_ns) * 1e-9
     for ch in CHANNELS:
         last = monitor.last_ns[ch]
@@ -146,17 +169,11 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
                 reasons += _slow_input(ch, rates.get(ch, 0.0), expected, learn_rate)
         elif ch == OUT_TORQUE and last is not None and age > stale_after_s:
             reasons.append((WARN, f"measured output stale ({age:.2f} s): no residual"))
-    values.append(("input callbacks busy [%]", _fmt(100 * busy_fraction, 3)))
-    values.append(("executor lag [s]", _fmt(executor_lag_s, 3)))
-    limit_s = OVERLOAD_QUEUE_SHARE * (queue_depth / expected_rate_hz if queue_depth else RELIABLE_LAG_S)
-    if executor_lag_s > limit_s:
-        lost = " its input queues overflow: the oldest messages are lost" if queue_depth else \
-            " the publishers are slowed down"
-        reasons.append((WARN, f"overloaded: the node runs {executor_lag_s:.2f} s behind its inputs "
-                              f"(callbacks busy {100 * busy_fraction:.0f} %);{lost}"))
-    values.append(("expected rate [Hz]", _fmt(expected_rate_hz)))
-    values.append(("stale after [s]", _fmt(stale_after_s, 3)))
-    values.append(("samples estimated", str(estimator.estimated)))
+
+
+def _skip_status(estimator: Estimator, previous_skips: dict[str, int], reasons: list[tuple[int, str]],
+                 values: list[tuple[str, str]]) -> None:
+    """The samples skipped, by reason, in total and since the last report; a WARN for new ones."""
     for r in SKIP_REASONS:
         total = estimator.counts[r]
         new = total - previous_skips.get(r, 0)
@@ -170,6 +187,13 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
                                   "best-effort input queue behind)"))
         elif new and r == "unpaired":
             reasons.append((WARN, f"{new} input messages without partner (dropped or late)"))
+
+
+def _estimate_status(estimator: Estimator, min_efficiency_warn: float, previous_alarms: int,
+                     reasons: list[tuple[int, str]], values: list[tuple[str, str]]) -> None:
+    """The latest estimate, the residual's statistics, the adapted coefficients and the change
+    alarms; a low efficiency, a torque near its limit or a new alarm is a WARN."""
+    est = estimator.config.estimator
     last = estimator.last
     if last is not None:
         values += [("loss torque [N·m]", _fmt(last.loss_torque_nm)), ("loss power [W]", _fmt(last.loss_power_w)),
@@ -189,6 +213,3 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
     values.append(("residual change alarms", str(alarms)))
     if alarms > previous_alarms:
         reasons.append((WARN, "the residual changed (a new or changed effect): re-run `rollergear calibrate`"))
-    level = max((lv for lv, _ in reasons), default=OK)
-    message = "; ".join(m for lv, m in sorted(reasons, key=lambda r: -r[0])) if reasons else "estimating"
-    return DiagnosticReport(level, message, values)

@@ -140,7 +140,6 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     """
     import rclpy
     from rclpy.duration import Duration
-    from rclpy.impl.implementation_singleton import rclpy_implementation
     from rclpy.node import Node
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
@@ -156,12 +155,10 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     node = Node("rollergear_player")
     qos = (QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE) if reliable
            else QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
-    publish_failed = rclpy_implementation.RCLError
     pubs = {t: node.create_publisher(message_class(ty), t, qos) for t, ty in selected.items()}
     clock_pub = node.create_publisher(Clock, "/clock", 10) if clock else None
     stats = PlayStats()
     bar = None
-    late_5ms = 5_000_000
     try:
         if wait_for_subscribers > 0 or wait_for_graph_s > 0:
             found = wait_for_graph(node, pubs, wait_for_graph_s, wait_for_subscribers)
@@ -177,47 +174,7 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
         bar = TimedProgress("play", None if loop else total, "msg", read=lambda: stats.messages,
                             enabled=not quiet and show_progress and sys.stderr.isatty()).start()
         while True:
-            state = ReadState()
-            reader = _Prefetch(bag, state)
-            publisher_of: dict[int, object] = {}
-            t0_bag = t0_wall = None
-            last_clock = None
-            try:
-                for log_times, channel_ids, payloads in reader:
-                    for t_bag, cid, data in zip(log_times.tolist(), channel_ids.tolist(), payloads):
-                        pub = publisher_of.get(cid)
-                        if pub is None:
-                            pub = publisher_of[cid] = pubs.get(state.channels[cid][0], False)
-                        if pub is False:
-                            continue  # a topic not selected
-                        if t0_bag is None:
-                            t0_bag, t0_wall = t_bag, time.monotonic_ns()
-                        target = t0_wall + int((t_bag - t0_bag) / rate)
-                        while True:
-                            wait = target - time.monotonic_ns()
-                            if wait <= 0:
-                                break
-                            time.sleep(wait * 1e-9 if wait > 2_000_000 else 0.0002)
-                        if -wait > late_5ms:
-                            stats.late_over_5ms += 1
-                        if -wait > stats.max_late_ms * 1e6:
-                            stats.max_late_ms = -wait / 1e6
-                        if clock_pub is not None and t_bag != last_clock:
-                            c = Clock()
-                            c.clock.sec, c.clock.nanosec = divmod(t_bag, 1_000_000_000)
-                            clock_pub.publish(c)
-                            last_clock = t_bag
-                        while True:
-                            try:
-                                pub.publish(data)
-                                break
-                            except publish_failed:  # a keep-all subscriber's queue is full (after ~0.1 s)
-                                if not rclpy.ok():
-                                    raise
-                                stats.held_back += 1
-                        stats.messages += 1
-            finally:
-                reader.close()
+            _play_once(bag, pubs, rate, clock_pub, stats)
             if not loop:
                 break
         # every reliable subscriber has the last messages before the publishers go away (bounded);
@@ -234,6 +191,58 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     if not quiet:
         print(f"played {bag}: {stats.text()}", file=sys.stderr)
     return stats
+
+
+def _play_once(bag: Path, pubs: dict, rate: float, clock_pub, stats: PlayStats) -> None:
+    """One pass through the bag: each selected message published at its log time scaled by
+    ``rate`` (and the bag's clock on ``clock_pub``), counted in ``stats``."""
+    import rclpy
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+    from rosgraph_msgs.msg import Clock
+
+    publish_failed = rclpy_implementation.RCLError
+    late_5ms = 5_000_000
+    state = ReadState()
+    reader = _Prefetch(bag, state)
+    publisher_of: dict[int, object] = {}
+    t0_bag = t0_wall = None
+    last_clock = None
+    try:
+        for log_times, channel_ids, payloads in reader:
+            for t_bag, cid, data in zip(log_times.tolist(), channel_ids.tolist(), payloads):
+                pub = publisher_of.get(cid)
+                if pub is None:
+                    pub = publisher_of[cid] = pubs.get(state.channels[cid][0], False)
+                if pub is False:
+                    continue  # a topic not selected
+                if t0_bag is None:
+                    t0_bag, t0_wall = t_bag, time.monotonic_ns()
+                target = t0_wall + int((t_bag - t0_bag) / rate)
+                while True:
+                    wait = target - time.monotonic_ns()
+                    if wait <= 0:
+                        break
+                    time.sleep(wait * 1e-9 if wait > 2_000_000 else 0.0002)
+                if -wait > late_5ms:
+                    stats.late_over_5ms += 1
+                if -wait > stats.max_late_ms * 1e6:
+                    stats.max_late_ms = -wait / 1e6
+                if clock_pub is not None and t_bag != last_clock:
+                    c = Clock()
+                    c.clock.sec, c.clock.nanosec = divmod(t_bag, 1_000_000_000)
+                    clock_pub.publish(c)
+                    last_clock = t_bag
+                while True:
+                    try:
+                        pub.publish(data)
+                        break
+                    except publish_failed:  # a keep-all subscriber's queue is full (after ~0.1 s)
+                        if not rclpy.ok():
+                            raise
+                        stats.held_back += 1
+                stats.messages += 1
+    finally:
+        reader.close()
 
 
 def init_for_command_line() -> None:

@@ -214,3 +214,95 @@ def test_no_module_outside_the_registry_names_an_effect():
             if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in EFFECTS:
                 named.append(f"{path.name}:{node.lineno} {node.value!r}")
     assert not named, named
+
+
+def running_in(x: EffectInputs, c, angle):
+    """A running-in drag that wears off with the angle turned: ``ΔT = c·(1 − z)``, ``z`` → 1 over
+    ``angle`` radians (a toy effect with memory for the registry test; steady state: worn in)."""
+    return c * (1.0 - x.state.get("running_in", 1.0))
+
+
+def running_in_step(z: float, speed_rad_s: float, dt_s: float, params) -> float:
+    """``z → 1 − (1 − z)·exp(−|ω|·dt/angle)``."""
+    if speed_rad_s == 0.0 or dt_s <= 0.0:
+        return z
+    return 1.0 - (1.0 - z) * math.exp(-abs(speed_rad_s) * dt_s / params["angle"])
+
+
+def running_in_steps(z: float, speed_rad_s, dt_s, params):
+    """:func:`running_in_step` over a batch, the same float operations in time order."""
+    out = []
+    for w, dt in zip(np.asarray(speed_rad_s, float).tolist(), np.asarray(dt_s, float).tolist()):
+        z = running_in_step(z, w, dt, params)
+        out.append(z)
+    return np.array(out)
+
+
+def fr_thinning(x: EffectInputs, k):
+    """A toy Fr-scaling effect: ``ΔT = −k·T_Fr`` (an oil that rolls thinner than the model's)."""
+    return -k * x.fr_part_nm + 0.0 * x.abs_speed
+
+
+@pytest.fixture
+def toy_memory_and_fr_effects():
+    effects.register(Effect(
+        "running_in", running_in, True, "a running-in drag wearing off with the angle turned", "toy",
+        (EffectParameter("c", "c_nm", 0.0, "initial drag", "N*m"),
+         EffectParameter("angle", "angle_rad", 50.0, "running-in angle", "rad", low=1e-3, high=1e6)),
+        coefficient="c", adaptive=False, state_step=running_in_step, state_steps=running_in_steps))
+    effects.register(Effect(
+        "fr_thinning", fr_thinning, True, "scale the model's Fr part by 1 - k", "toy",
+        (EffectParameter("k", "k", 0.0, "relative thinning", low=-0.5, high=0.5),), coefficient="k",
+        adaptive=False, scales_fr=True))
+    try:
+        yield
+    finally:
+        effects.unregister("running_in")
+        effects.unregister("fr_thinning")
+
+
+def test_toy_effects_with_memory_and_on_the_fr_part_are_one_entry_each(toy_memory_and_fr_effects):
+    """An effect with memory is stepped by the estimator from its descriptor, the same sample by
+    sample (node) as in batches (replay), and wears off as its law says; an Fr-scaling one scales
+    the model's Fr part, nothing else."""
+    from rollergear_ros.core.estimator import Estimator
+    from rollergear_ros.core.model import LossModel
+    from rollergear_ros.core.params import validate
+
+    base = load_config(ROOT / "config" / "gearbox.yaml").with_values({"estimator.adapt": False})
+    config = validate(base.to_flat() | {"effects.running_in.enabled": True, "effects.running_in.c_nm": 0.2,
+                                        "effects.running_in.angle_rad": 5.0})
+    rate, n = 100.0, 400
+    t_ns = (1_700_000_000 * 10**9 + np.arange(n) * int(1e9 / rate)).astype(np.int64)
+    torque, speed = np.full(n, 20.0), np.full(n, 10.0)
+    one, many = Estimator(config), Estimator(config)
+    streamed = []
+    for i in range(n):
+        for channel, value in (("motor_torque", torque[i]), ("motor_speed", speed[i])):
+            streamed += [e.loss_torque_nm for e in one.push(channel, int(t_ns[i]), float(value))]
+    streamed += [e.loss_torque_nm for e in one.finish()]
+    batched = []
+    for lo in range(0, n, 137):
+        hi = min(lo + 137, n)
+        b = many.push_many(np.tile(np.array([0, 1], np.int8), hi - lo), np.repeat(t_ns[lo:hi], 2),
+                           np.column_stack([torque[lo:hi], speed[lo:hi]]).ravel())
+        batched += [] if b is None else b.loss_torque_nm.tolist()
+    rest = many.flush()
+    batched += [] if rest is None else rest.loss_torque_nm.tolist()
+    assert one._states == many._states  # noqa: SLF001 - bit for bit
+    np.testing.assert_allclose(streamed, batched, rtol=1e-12, atol=1e-15)
+    model = LossModel(config.gearbox).loss_magnitude(torque, speed)
+    drag = np.array(batched) - model
+    # worn in after 5 rad: at 10 rad/s, the drag falls from 0.2 N·m to e^-1 of it in 0.5 s
+    turned = 10.0 * np.arange(len(drag)) / rate
+    np.testing.assert_allclose(drag, 0.2 * np.exp(-turned / 5.0), rtol=1e-9, atol=1e-12)
+    # an Fr-scaling effect: the model's Fr part times (1 - k)
+    thin = validate(base.to_flat() | {"effects.fr_thinning.enabled": True, "effects.fr_thinning.k": 0.1})
+    est = Estimator(thin)
+    got = est.push_many(np.tile(np.array([0, 1], np.int8), 5), np.repeat(t_ns[:5], 2),
+                        np.column_stack([torque[:5], speed[:5]]).ravel())
+    rest = est.flush()
+    loss = np.concatenate([got.loss_torque_nm if got is not None else [], rest.loss_torque_nm])
+    m = LossModel(thin.gearbox)
+    np.testing.assert_allclose(loss, m.loss_magnitude(torque[:5], speed[:5]) - 0.1 * m.fr_part(torque[:5], speed[:5]),
+                               rtol=1e-12)
