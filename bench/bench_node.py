@@ -151,13 +151,15 @@ def loss_free(
 
 
 def max_loss_free_rate(
-    driver, sut: subprocess.Popen, with_outputs: bool, seconds: float = 3.0, ceiling: float = 20000.0
+    driver, sut: subprocess.Popen, with_outputs: bool, seconds: float = 3.0, ceiling: float = 20000.0,
+    step: float = 1000.0,
 ) -> tuple[float, bool]:
-    """Highest rate with no dropped sample: ramp in 1 k samples/s steps until a rate fails (see
-    :func:`loss_free`), then bisect three times (resolution 125 samples/s).  Also says whether the
-    driver could not keep up."""
+    """Highest rate with no dropped sample: ramp in ``step`` samples/s steps until a rate fails (see
+    :func:`loss_free`), then bisect three times (resolution ``step``/8: 125 samples/s by default).
+    Also says whether the driver could not keep up.  A system still loss-free at ``ceiling`` is
+    reported at it: raise the ceiling on a machine where both systems reach it."""
     good = 0.0
-    rate = 1000.0
+    rate = step
     while rate <= ceiling:
         ok, achieved, driver_bound = loss_free(driver, sut, rate, seconds, with_outputs)
         if driver_bound:
@@ -165,10 +167,10 @@ def max_loss_free_rate(
         if not ok:
             break
         good = achieved
-        rate += 1000.0
+        rate += step
     else:
         return good, False
-    lo, hi = rate - 1000.0, rate
+    lo, hi = rate - step, rate
     for _ in range(3):
         mid = (lo + hi) / 2
         ok, achieved, _ = loss_free(driver, sut, mid, seconds, with_outputs)
@@ -199,6 +201,8 @@ def main() -> None:
         action="store_true",
         help="driver on CPU 0, system under test on CPU 1 (so they do not compete for a core)",
     )
+    ap.add_argument("--ceiling", type=float, default=20000.0, help="highest rate tried [samples/s]")
+    ap.add_argument("--step", type=float, default=1000.0, help="the ramp's step [samples/s]")
     ap.add_argument("--against", type=Path, metavar="TREE",
                     help="also run loss_estimator of another source tree (e.g. a worktree of the previous main), "
                          "interleaved, and print this tree's rate over its")
@@ -272,15 +276,17 @@ def main() -> None:
             time.sleep(1.0)
             run(driver, sut, 200, 1.0, with_outputs)  # warm-up
             r1k = run(driver, sut, 1000, args.seconds, with_outputs)
-            best, driver_bound = max_loss_free_rate(driver, sut, with_outputs)
+            best, driver_bound = max_loss_free_rate(driver, sut, with_outputs, ceiling=args.ceiling, step=args.step)
             sut.send_signal(signal.SIGINT)
             sut.wait(timeout=20)
             best_of[kind].append(best)
+            at_ceiling = best >= args.ceiling - args.step / 8
             print(
                 f"run {rep + 1} {kind:28s} 1 kHz: dropped {r1k['dropped']}/{r1k['sent']}, latency p50 "
                 f"{r1k['p50_us']:.0f} µs, p99 {r1k['p99_us']:.0f} µs, CPU {r1k['cpu_pct']:.0f} % of a core per "
                 f"1 k samples/s; max loss-free rate {best:.0f} samples/s"
-                + (" (driver-bound: the publisher could not go faster)" if driver_bound else ""),
+                + (" (driver-bound: the publisher could not go faster)" if driver_bound else "")
+                + (" (at the ceiling: raise --ceiling)" if at_ceiling else ""),
                 flush=True,
             )
     stop.set()
