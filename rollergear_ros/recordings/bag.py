@@ -3,7 +3,7 @@
 Bags follow ``interface.md``: MCAP, ``ros2`` profile, ``ros2msg`` schemas named like
 ``std_msgs/msg/Float64``, ``cdr`` messages — so ``ros2 bag``, Foxglove and ``rosbags`` open them.
 Float64 payloads are decoded with numpy (4-byte CDR encapsulation header + one float64); other
-types go through ``mcap-ros2-support``'s dynamic CDR codec.  No rclpy import here.
+types are decoded and encoded by ``rosbags`` (:func:`decoder_for`, :func:`encoder_for`).  No rclpy import here.
 """
 
 from __future__ import annotations
