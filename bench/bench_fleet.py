@@ -28,7 +28,7 @@ from pathlib import Path
 
 from common import long_bag
 
-from rollergear_ros.fleet.run import dask_client, discover, run_replay
+from rollergear_ros.fleet.run import FleetRun, dask_client, discover, run_replay
 from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 
@@ -76,7 +76,7 @@ def main() -> None:
         out = work / "out"
         shutil.rmtree(out, ignore_errors=True)
         t0 = time.perf_counter()
-        rows, ran = run_replay(recs, out, client, config)
+        rows, ran = run_replay(recs, out, FleetRun(client, config))
         fleet = time.perf_counter() - t0
         assert ran == len(recs) and all(r["status"] == "ok" for r in rows)
         n = 200
@@ -90,7 +90,7 @@ def main() -> None:
         out = work / "out_sliced"
         shutil.rmtree(out, ignore_errors=True)
         t0 = time.perf_counter()
-        rows, _ = run_replay([long], out, client, config, slice_messages=-(-long.messages // args.slices))
+        rows, _ = run_replay([long], out, FleetRun(client, config), slice_messages=-(-long.messages // args.slices))
         sliced = time.perf_counter() - t0
         assert rows[0]["status"] == "ok" and rows[0]["slices"] == args.slices and rows[0]["samples"] == whole.samples
     print(f"fleet replay on a LocalCluster of {args.workers} worker processes: {fleet:.2f} s = "

@@ -228,7 +228,7 @@ def main() -> None:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from rollergear_ros.ros.node import output_qos
+    from rollergear_ros.ros.qos import output_qos
     from rollergear_ros.base.output_channels import OUTPUT_CHANNELS
 
     OUTPUT_QOS = output_qos(OUTPUT_CHANNELS["loss_torque"])

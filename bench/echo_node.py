@@ -14,7 +14,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from std_msgs.msg import Float64
 
-from rollergear_ros.ros.node import SENSOR_QOS, output_qos
+from rollergear_ros.ros.qos import SENSOR_QOS, output_qos
 from rollergear_ros.base.output_channels import OUTPUT_CHANNELS
 
 #: as the node offers its loss torque

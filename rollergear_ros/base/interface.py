@@ -46,6 +46,7 @@ class Topic:
     JOINT_STATES = "/joint_states"  #: absolute
     DIAGNOSTICS = "/diagnostics"  #: absolute
     CLOCK = "/clock"  #: absolute
+    PARAMETER_EVENTS = "/parameter_events"  #: absolute: the node's run-time parameter changes, in its recording
     #: Float64 input topic of each paired channel
     OF_CHANNEL: dict[str, str] = {Channel.MOTOR_TORQUE: MOTOR_TORQUE, Channel.MOTOR_SPEED: MOTOR_SPEED,
                                   Channel.OUTPUT_TORQUE: OUTPUT_TORQUE, Channel.OUTPUT_SPEED: OUTPUT_SPEED}
@@ -58,6 +59,7 @@ class MessageType:
     TEMPERATURE = "sensor_msgs/msg/Temperature"
     JOINT_STATE = "sensor_msgs/msg/JointState"
     FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
+    PARAMETER_EVENT = "rcl_interfaces/msg/ParameterEvent"
     CLOCK = "rosgraph_msgs/msg/Clock"
 
 
@@ -67,7 +69,7 @@ class Metadata:
     RECORDING = "rollergear_recording"  #: written by the node: how it paired its inputs
     GEARBOX = "rollergear"  #: key ``gearbox_id``: which gearbox a recording is of (fleets)
     SIMULATION = "rollergear_simulation"  #: written by ``simulate``: the ground truth (tests only)
-    PROVENANCE = "rollergear_provenance"  #: written by ``replay --out``: what made the estimates
+    PROVENANCE = "rollergear_provenance"  #: written by ``replay --out`` and the node: what made the estimates
 
 
 #: depth of the node's (reliable, volatile, keep-last) output publishers

@@ -4,15 +4,21 @@ Every place that publishes, records, writes or shows an estimate loops over :dat
 the node (its publishers, its per-sample publishing plan and its MCAP recorder), replay's MCAP
 output, ``rollergear watch`` (the Float64 channels) and ``docs/interface.md`` (a test checks that
 each channel has its row there).  A channel's name is also its field of :class:`~recordings.bag.TopicMap`
-(``--topic-<name>``) and its key wherever outputs are keyed.
+(per-sample channels: ``--topic-<name>``) and its key wherever outputs are keyed.
 
-Two kinds of channel:
+Three kinds of channel:
 
 - a **Float64** channel carries one value of each estimate: the attribute :attr:`OutputChannel.value`
   of :class:`~core.estimator.Estimate` (node) and :class:`~core.estimator.BatchEstimate` (replay); the node
   publishes these when ``node.publish_float64`` is on;
 - the **stamped** channel carries each estimate as one ``sensor_msgs/msg/JointState`` with its
-  sample time (:mod:`outputs.stamped`), when ``node.publish_stamped`` is on.
+  sample time (:mod:`outputs.stamped`), when ``node.publish_stamped`` is on;
+- the **map** channel carries the live loss map (:mod:`outputs.livemap`), one message per map rather
+  than per estimate, latched (transient-local) for subscribers that join later, when
+  ``node.publish_map`` is on.  Only the node publishes it (replay writes maps as ``.vtlm`` files).
+
+The per-sample channels (Float64 and stamped) are also the fields of
+:class:`~recordings.bag.TopicMap`, so ``--topic-<name>`` moves them in a recording.
 
 To add a Float64 output: one :class:`OutputChannel` entry passed to :func:`register` (its value an
 attribute both estimate types have), its row in ``docs/interface.md``, and its tests; the node,
@@ -25,7 +31,8 @@ from dataclasses import dataclass
 
 from .interface import NAMESPACE, OUTPUT_QUEUE_DEPTH, MessageType, Topic
 
-__all__ = ["OUTPUT_CHANNELS", "OutputChannel", "float64_channels", "register", "stamped_channels", "unregister"]
+__all__ = ["OUTPUT_CHANNELS", "OutputChannel", "float64_channels", "map_channels", "register", "sample_channels",
+           "stamped_channels", "unregister"]
 
 
 @dataclass(frozen=True)
@@ -42,13 +49,17 @@ class OutputChannel:
     value: str | None = None
     #: published only for samples with measured output torque (the value is NaN without one)
     measured_only: bool = False
-    reliable: bool = True  #: QoS reliability the node offers it with (volatile, keep-last)
+    reliable: bool = True  #: QoS reliability the node offers it with (keep-last)
     depth: int = OUTPUT_QUEUE_DEPTH  #: QoS history depth
+    #: one message per estimate ("sample") or per loss map ("map")
+    per: str = "sample"
+    #: QoS durability: transient-local (the last ``depth`` messages kept for late joiners), else volatile
+    transient_local: bool = False
 
     @property
     def stamped(self) -> bool:
         """Each estimate as one stamped message (rather than one Float64 value)."""
-        return self.value is None
+        return self.per == "sample" and self.value is None
 
     def absolute_topic(self, namespace: str = NAMESPACE) -> str:
         """The topic under ``namespace`` (the node's default namespace unless given)."""
@@ -64,8 +75,12 @@ def register(channel: OutputChannel) -> OutputChannel:
     """Add ``channel`` to :data:`OUTPUT_CHANNELS` (a name already there is refused)."""
     if channel.name in OUTPUT_CHANNELS:
         raise ValueError(f"output channel {channel.name!r} is already registered")
+    if channel.per not in ("sample", "map"):
+        raise ValueError(f"output channel {channel.name!r}: per is 'sample' or 'map', not {channel.per!r}")
     if channel.stamped and channel.message_type != MessageType.JOINT_STATE:
         raise ValueError(f"output channel {channel.name!r}: without a value it is the stamped JointState channel")
+    if channel.per == "map" and channel.message_type != MessageType.FLOAT64_MULTI_ARRAY:
+        raise ValueError(f"output channel {channel.name!r}: a map channel carries a Float64MultiArray")
     OUTPUT_CHANNELS[channel.name] = channel
     return channel
 
@@ -75,14 +90,24 @@ def unregister(name: str) -> None:
     del OUTPUT_CHANNELS[name]
 
 
+def sample_channels() -> tuple[OutputChannel, ...]:
+    """The channels published once per estimate (Float64 and stamped), in publishing order."""
+    return tuple(c for c in OUTPUT_CHANNELS.values() if c.per == "sample")
+
+
 def float64_channels() -> tuple[OutputChannel, ...]:
     """The Float64 channels, in publishing order."""
-    return tuple(c for c in OUTPUT_CHANNELS.values() if not c.stamped)
+    return tuple(c for c in OUTPUT_CHANNELS.values() if c.per == "sample" and not c.stamped)
 
 
 def stamped_channels() -> tuple[OutputChannel, ...]:
     """The stamped channel(s)."""
     return tuple(c for c in OUTPUT_CHANNELS.values() if c.stamped)
+
+
+def map_channels() -> tuple[OutputChannel, ...]:
+    """The channel(s) published once per loss map."""
+    return tuple(c for c in OUTPUT_CHANNELS.values() if c.per == "map")
 
 
 for _channel in (
@@ -95,5 +120,8 @@ for _channel in (
                   "measured loss - estimated loss (only with measured output)", "residual_nm", measured_only=True),
     OutputChannel("loss_estimate", Topic.LOSS_ESTIMATE, MessageType.JOINT_STATE, "",
                   "each estimate as one stamped message (sample time in header.stamp)"),
+    OutputChannel("loss_map", Topic.LOSS_MAP, MessageType.FLOAT64_MULTI_ARRAY, "",
+                  "the live loss map on the map.* grid (speeds in rpm, torques and losses in N*m)",
+                  per="map", depth=1, transient_local=True),
 ):
     register(_channel)

@@ -281,19 +281,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     if like is not None:
         dwell, fold = like.dwell, like.fold
     theta = d.temperature
-    have_theta = np.isfinite(theta)
-    varies = (
-        bool(have_theta.mean() > 0.9 and np.nanmax(theta) - np.nanmin(theta) >= MIN_TEMPERATURE_SPAN_C)
-        if have_theta.any()
-        else False
-    )
-    # memory shows only at reversals within a recording, and not in a table's dwell means
-    reverses = not d.steady_state and _reverses(d.speed, d.bag_id, 3.0 * d.sign_width_rad_s)
-    testable = tuple(n for n, e in EFFECTS.items()
-                     if (varies or not e.needs_temperature) and (e.physical or not d.steady_state)
-                     and (e.needs_speeds_below is None
-                          or np.mean(np.abs(d.speed) <= e.needs_speeds_below) >= MIN_SLOW_SHARE)
-                     and not (d.spin_test and e.depends_on_load) and (e.state_step is None or reverses))
+    testable = _testable_effects(d)
     columns = {"dtdt": mean(dtdt * sg), "dwdt": mean(dwdt * sg)}
     x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
     blocks = Blocks(
@@ -319,22 +307,47 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         sample_speed=d.speed,
         sign_width_rad_s=d.sign_width_rad_s,
     )
-    for name in testable:
+    _add_columns(blocks, d, mean)
+    return blocks
+
+
+def _testable_effects(d: SampleData) -> tuple[str, ...]:
+    """The effects this data can show: those needing a varying oil temperature only when it
+    varies, sensor errors not in a table, low-speed ones with enough slow samples, load-dependent
+    ones not in a spin test, effects with memory only where the speed reverses."""
+    theta = d.temperature
+    have_theta = np.isfinite(theta)
+    varies = (
+        bool(have_theta.mean() > 0.9 and np.nanmax(theta) - np.nanmin(theta) >= MIN_TEMPERATURE_SPAN_C)
+        if have_theta.any()
+        else False
+    )
+    # memory shows only at reversals within a recording, and not in a table's dwell means
+    reverses = not d.steady_state and _reverses(d.speed, d.bag_id, 3.0 * d.sign_width_rad_s)
+    return tuple(n for n, e in EFFECTS.items()
+                 if (varies or not e.needs_temperature) and (e.physical or not d.steady_state)
+                 and (e.needs_speeds_below is None
+                      or np.mean(np.abs(d.speed) <= e.needs_speeds_below) >= MIN_SLOW_SHARE)
+                 and not (d.spin_test and e.depends_on_load) and (e.state_step is None or reverses))
+
+
+def _add_columns(blocks: Blocks, d: SampleData, mean) -> None:
+    """Each testable effect's block column (or grid of columns over its member), and the model's
+    own parameters' columns: the part each scales, where the model has it (not switched off, not 0
+    as the ball friction without a ball force)."""
+    for name in blocks.testable:
         effect = EFFECTS[name]
         if effect.oil_law:  # its columns need the oil's law: computed when the selection knows it
             continue
         if effect.member is None:
-            columns[name] = blocks.column(name)
+            blocks.columns[name] = blocks.column(name)
         else:
             blocks.grids[name] = np.stack([blocks.column(name, m) for m in effect.member_grid])
-    # the model's own parameters: the part each scales, where the model has it (not switched off,
-    # not 0 as the ball friction without a ball force)
     for key in fitted_parameters():
         part = d.parts.get(MODEL_PARAMETERS[key].part)
         if part is not None and np.any(part != 0) and not d.spin_test:  # every part depends on the load
-            columns[key] = mean(part)
+            blocks.columns[key] = mean(part)
             blocks.testable += (key,)
-    return blocks
 
 
 def _block_starts(d: SampleData, t: np.ndarray, block_s: float,

@@ -47,7 +47,8 @@ from ..core.params import Config, ParameterError, config_to_yaml, validate
 from .samples import SampleData, load_samples
 from .selection import AmbiguousSet, Calibrator, ErrorStats, RejectedEffect, Term, error_stats, members
 
-__all__ = ["Adequacy", "CalibrationResult", "SampleData", "calibrate", "calibrated_yaml", "load_samples"]
+__all__ = ["Adequacy", "CalibrationResult", "CalibrationSettings", "SampleData", "calibrate", "calibrated_yaml",
+           "load_samples"]
 
 
 @dataclass(frozen=True)
@@ -196,15 +197,25 @@ class CalibrationResult:
         }
 
 
-def calibrate(
-    data: SampleData, config: Config, delta_nm: float | None = None, block_s: float = 0.25, folds: int = 5,
-    stage: Callable[[str], None] | None = None, assume: Sequence[str] = (),
-) -> CalibrationResult:
-    """Run the whole analysis on loaded samples; ``stage`` is told what it is doing (a progress bar).
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """How :func:`calibrate` analyses (besides the data and the parameter set)."""
 
-    ``assume``: effects to accept when the data cannot tell them from another (a set of
-    indistinguishable effects otherwise stays in the fit unreported and makes the verdict
-    inconclusive); what the user knows of the rig decides, not the data.
+    #: practical minimum effect size (RMS N·m); None: from the data
+    delta_nm: float | None = None
+    block_s: float = 0.25  #: averaging block length [s]
+    folds: int = 5  #: cross-validation folds (held-out dwells)
+    #: told what the analysis is doing (a progress bar)
+    stage: Callable[[str], None] | None = None
+    #: effects to accept when the data cannot tell them from another (a set of indistinguishable
+    #: effects otherwise stays in the fit unreported and makes the verdict inconclusive); what the
+    #: user knows of the rig decides, not the data
+    assume: Sequence[str] = ()
+
+
+def calibrate(data: SampleData, config: Config,
+              settings: CalibrationSettings = CalibrationSettings()) -> CalibrationResult:
+    """Run the whole analysis on loaded samples (``settings``: :class:`CalibrationSettings`).
 
     Candidates are the registry's effects and the model's own parameters (:mod:`core.modelparams`);
     none is accepted as a negative friction, at the bound of its exponent's search, or outside its
@@ -214,11 +225,11 @@ def calibrate(
     exactly the parameter file the result writes; a file that would predict held-out data worse
     than the one calibrated is not written (:attr:`CalibrationResult.written`).
     """
-    unknown = [a for a in assume if a not in EFFECTS]
+    unknown = [a for a in settings.assume if a not in EFFECTS]
     if unknown:
         raise UsageError(f"unknown effect(s) to assume: {', '.join(unknown)} (one of {', '.join(EFFECTS)})")
-    stage = stage or (lambda text: None)
-    how = _Analysis(delta_nm, block_s, folds, stage, tuple(assume))
+    stage = settings.stage or (lambda text: None)
+    how = _Analysis(settings.delta_nm, settings.block_s, settings.folds, stage, tuple(settings.assume))
     result = _calibrate_once(data, config, how)
     if result.negative and config.estimator.paper_model:
         stage("the paper's model switched off")

@@ -255,17 +255,29 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
     """Markdown report with PNG plots: residual before/after over the inputs and over time, each
     accepted effect's curve with its 95 % band, measured against estimated loss."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    b = result.blocks
-    assert b is not None and result.pred_after is not None
+    assert result.blocks is not None and result.pred_after is not None
     plots: list[Path] = []
     _residual_scatter(result, out_dir, plots)
     _residual_over_time(result, data, out_dir, plots)
     _effect_curves(result, out_dir, plots)
     _measured_vs_estimated(result, out_dir, plots)
     _residual_structure(result, out_dir, plots)
+    lines = [*_summary_lines(result, sources), *_effect_lines(result), *_not_accepted_lines(result),
+             "\n## Selection log\n", *(f"- {entry}" for entry in result.log),
+             "\n## Plots\n", *(f"![{p.stem}]({p.name})" for p in plots),
+             "\nMethod: see the docstring of `rollergear_ros/calibration/calibrate.py` and "
+             "docs/closing-the-loop.md."]
+    report = out_dir / "report.md"
+    write_text(out_dir / "result.json", json.dumps(result.to_json(), indent=1))
+    write_text(report, "\n".join(lines) + "\n")  # last: a report.md is one whose plots are all there
+    return report
 
+
+def _summary_lines(result: CalibrationResult, sources: Sequence[str]) -> list[str]:
+    """The report's head: what was used, the verdict, the held-out error, the parameters changed."""
+    b = result.blocks
     eb, ea = result.error_before, result.error_after
-    lines = [
+    return [
         "# Calibration report\n",
         f"{'Tables' if b.steady_state else 'Recordings'}: {', '.join(map(str, sources))}  ",
         (f"Rows used: {result.samples:,} (steady-state operating points)  " if b.steady_state else
@@ -288,8 +300,12 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
         *(f"**Note:** {n}.\n" for n in result.notes),
         "## The model's own parameters changed\n",
         *([f"- {p.sentence()}" for p in result.parameters] or ["None."]),
-        "\n## Accepted effects\n",
     ]
+
+
+def _effect_lines(result: CalibrationResult) -> list[str]:
+    """The accepted effects' table, and the effects the data cannot tell apart."""
+    lines = ["\n## Accepted effects\n"]
     if result.effects:
         lines += ["| effect | parameters | 95 % intervals | RMS contribution [N·m] (95 %) |", "|---|---|---|---|"]
         for e in result.effects:
@@ -311,7 +327,12 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
                 + (f" Taken as **{a.assumed}**, as the user assumed (`--assume`): accepted and written."
                    if a.assumed else " Kept in the fit, not written: `--assume` one of them to write it.")
             )
-    lines.append("\n## Groups not accepted (upper 95 % bound of their RMS contribution)\n")
+    return lines
+
+
+def _not_accepted_lines(result: CalibrationResult) -> list[str]:
+    """The groups not accepted with the upper bound of their contribution, and those not testable."""
+    lines = ["\n## Groups not accepted (upper 95 % bound of their RMS contribution)\n"]
     for r in result.rejected:
         lines.append(
             f"- {r.name}: ≤ {r.upper_rms_nm:.3g} N·m"
@@ -323,13 +344,4 @@ def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sou
             f"- {u}: not testable on this data (needs an oil temperature that varies by "
             f"≥ {MIN_TEMPERATURE_SPAN_C:g} °C)"
         )
-    lines.append("\n## Selection log\n")
-    lines += [f"- {entry}" for entry in result.log]
-    lines.append("\n## Plots\n")
-    lines += [f"![{p.stem}]({p.name})" for p in plots]
-    lines.append("\nMethod: see the docstring of `rollergear_ros/calibration/calibrate.py` and "
-                 "docs/closing-the-loop.md.")
-    report = out_dir / "report.md"
-    write_text(out_dir / "result.json", json.dumps(result.to_json(), indent=1))
-    write_text(report, "\n".join(lines) + "\n")  # last: a report.md is one whose plots are all there
-    return report
+    return lines

@@ -539,26 +539,9 @@ class Calibrator:
         state.step += 1
         step = state.step
         base = state.selected + state.provisional
-        scored = []
-        for g in state.remaining:
-            self.stage(f"step {step}: trying {g}")
-            terms = self.best_candidate(g, base)
-            if terms is not None:
-                scored.append((self.cv_rmse(terms), g, terms))
+        scored = self._ranked(state, base, check)
         if not scored:
             return False
-        scored.sort(key=lambda x: x[0])
-        scored = self._explanations(scored, state, check)
-        if not scored:
-            return False
-        # the smaller explanation first: of the candidates that fit (nearly) as well as the best, the
-        # one with the fewest free parameters -- a model parameter before an effect, a plain law
-        # before one with an exponent or a memory
-        near = [x for x in scored if x[0] <= scored[0][0] * 1.01 + 1e-12]
-        simplest = min(near, key=lambda x: (complexity(x[1]), x[0]))
-        if simplest is not scored[0]:
-            scored.remove(simplest)
-            scored.insert(0, simplest)
         cv_new, g, terms = scored[0]
         new = terms[-1]
         lower, upper, z, reasons = self._test(terms, g, state, cv_new, check)
@@ -585,25 +568,53 @@ class Calibrator:
             return False
         if assumed is not None and assumed != g:  # the twin's fit: near the same error, by definition
             cv_new, terms = twin_terms[assumed]
-            new = terms[-1]
+        ambiguous = _ambiguous_set(g, twins, [lower, upper], assumed) if twins else None
+        self._accept(state, base, g, terms, ambiguous)
+        state.cv_now = cv_new
+        return True
+
+    def _ranked(self, state: _Forward, base: list, check) -> list:
+        """The remaining candidates' best fits with ``base`` that are explanations, best first --
+        the smaller explanation first among those that fit (nearly) as well as the best: the one with
+        the fewest free parameters, a model parameter before an effect, a plain law before one with
+        an exponent or a memory.  Entries ``(held-out RMSE, candidate, terms)``."""
+        scored = []
+        for g in state.remaining:
+            self.stage(f"step {state.step}: trying {g}")
+            terms = self.best_candidate(g, base)
+            if terms is not None:
+                scored.append((self.cv_rmse(terms), g, terms))
+        if not scored:
+            return []
+        scored.sort(key=lambda x: x[0])
+        scored = self._explanations(scored, state, check)
+        if not scored:
+            return []
+        near = [x for x in scored if x[0] <= scored[0][0] * 1.01 + 1e-12]
+        simplest = min(near, key=lambda x: (complexity(x[1]), x[0]))
+        if simplest is not scored[0]:
+            scored.remove(simplest)
+            scored.insert(0, simplest)
+        return scored
+
+    def _accept(self, state: _Forward, base: list, g: str, terms: list, ambiguous: AmbiguousSet | None) -> None:
+        """Take the step's fit (``terms``: ``base`` re-fitted, then the new term) into the state: the
+        new term selected, or with its twins an ambiguous set (selected when assumed, else kept in the
+        fit provisionally)."""
+        new = terms[-1]
         # exponents of earlier terms were re-optimised together with the new one; a term that came
         # with it (the viscosity law's level) is accepted with it
         n_sel = len(state.selected)
         companions = terms[len(base):-1]
         state.selected, state.provisional = terms[:n_sel] + companions, terms[n_sel : len(base)]
         state.remaining = [r for r in state.remaining if r not in {t.name for t in companions}]
-        if twins:
-            group = sorted([g] + twins)
-            needs = "; ".join(sorted({separating(a, b) or "data over a wider range of speed, torque, direction and "
-                                      "temperature" for a in group for b in group if a < b}))
-            state.ambiguous.append(AmbiguousSet(group, needs, [lower, upper], assumed))
-            (state.selected if assumed else state.provisional).append(new)
-            state.remaining = [r for r in state.remaining if r not in group]
+        if ambiguous is not None:
+            state.ambiguous.append(ambiguous)
+            (state.selected if ambiguous.assumed else state.provisional).append(new)
+            state.remaining = [r for r in state.remaining if r not in ambiguous.effects]
         else:
             state.selected.append(new)
             state.remaining.remove(g)
-        state.cv_now = cv_new
-        return True
 
     def _explanations(self, scored: list, state: _Forward, check) -> list:
         """The scored candidates that are an explanation: one asking for a negative friction, an
@@ -741,6 +752,14 @@ def separating(a: str, b: str) -> str | None:
         if x in MODEL_PARAMETERS:
             return MODEL_PARAMETERS[x].tells_apart
     return separating_data(a, b)
+
+
+def _ambiguous_set(g: str, twins: list[str], rms_range: list[float], assumed: str | None) -> AmbiguousSet:
+    """``g`` and the candidates the data cannot tell from it, with what would separate them."""
+    group = sorted([g] + twins)
+    needs = "; ".join(sorted({separating(a, b) or "data over a wider range of speed, torque, direction and "
+                              "temperature" for a in group for b in group if a < b}))
+    return AmbiguousSet(group, needs, rms_range, assumed)
 
 
 def _member_text(t: Term) -> str:

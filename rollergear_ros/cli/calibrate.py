@@ -14,15 +14,18 @@ from ..base.progress import TimedProgress
 from .replay import add_channels_option, add_topic_options, topics_from_args
 
 
+def _log(msg: str) -> None:
+    print(msg, file=sys.stderr)
+
+
+def _warn(msg: str) -> None:
+    _log(f"rollergear: warning: {msg}")
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..base.atomic import write_text
-    from ..calibration.calibrate import calibrate, calibrated_yaml
-    from ..sources.channelmap import load_channel_map
-    from ..sources.importer import as_mcap
-    from ..base.errors import UsageError
+    from ..calibration.calibrate import calibrated_yaml
     from ..calibration.report import write_report
-    from ..calibration.samples import load_samples, power_balance_warning, table_samples
-    from ..sources.tables import is_table
 
     check_outputs([*args.bags, args.params, args.channels],  # now, not after the whole analysis
                   [Output("--out", args.out, "yaml"), Output("--report", args.report, "folder")])
@@ -30,32 +33,58 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.oil:  # the oil's data sheet: the viscosity law's start and range
         config = config.with_values(dict(zip(("gearbox.oil_nu40_mm2_s", "gearbox.oil_nu100_mm2_s",
                                               "gearbox.oil_density15_kg_m3"), args.oil)))
+    data = _load(args, config)
+    result = _analyse(args, data, config)
+    for line in _error_after_warnings(result, args.assume):
+        _warn(line)
+    if args.out and result.written:
+        write_text(args.out, calibrated_yaml(result, args.bags))
+    report = write_report(result, data, Path(args.report), args.bags) if args.report else None
+    if args.json:
+        sys.stdout.write(json.dumps(result.to_json()) + "\n")
+        return 0 if result.written else 1
+    _print_result(result)
+    if args.out:
+        print(f"calibrated parameters: {args.out}" if result.written else
+              f"calibrated parameters: {args.out} not written ({_what_would_settle(result)})")
+    if report:
+        print(f"report: {report}")
+    return 0 if result.written else 1
 
-    def log(msg: str) -> None:
-        print(msg, file=sys.stderr)
+
+def _load(args: argparse.Namespace, config):
+    """The samples with measured output of the recordings, or the rows of the steady-state tables."""
+    from ..base.errors import UsageError
+    from ..calibration.samples import load_samples, power_balance_warning, table_samples
+    from ..sources.channelmap import load_channel_map
+    from ..sources.importer import as_mcap
+    from ..sources.tables import is_table
 
     cmap = load_channel_map(args.channels) if args.channels else None
     tables = [is_table(p, cmap) for p in args.bags]
     if any(tables) and not all(tables):
         raise UsageError("give either recordings or steady-state tables (.vtlm), not both: a table's rows are "
                          "dwell means, a recording's samples are not")
-
-    def warn(msg: str) -> None:
-        log(f"rollergear: warning: {msg}")
-
     if not args.json:
-        log(f"reading {len(args.bags)} {'table' if all(tables) else 'recording'}(s) …")
+        _log(f"reading {len(args.bags)} {'table' if all(tables) else 'recording'}(s) …")
     topics = topics_from_args(args)
     if all(tables):
-        data = table_samples(args.bags, config, warn=warn, cmap=cmap)
+        data = table_samples(args.bags, config, warn=_warn, cmap=cmap)
     else:
-        with as_mcap(args.bags, args.channels, topics, note=None if args.json else log) as bags:
-            data = load_samples(bags, config, topics, warn=warn, progress=not args.json and sys.stderr.isatty())
+        with as_mcap(args.bags, args.channels, topics, note=None if args.json else _log) as bags:
+            data = load_samples(bags, config, topics, warn=_warn, progress=not args.json and sys.stderr.isatty())
     balance = power_balance_warning(data)
     if balance:
-        warn(balance)
+        _warn(balance)
+    return data
+
+
+def _analyse(args: argparse.Namespace, data, config):
+    """:func:`~calibration.calibrate.calibrate` with a progress bar of its stages."""
+    from ..calibration.calibrate import CalibrationSettings, calibrate
+
     if not args.json:
-        log(f"{len(data.t_ns):,} {'rows' if data.steady_state else 'samples with measured output'}; analysing …")
+        _log(f"{len(data.t_ns):,} {'rows' if data.steady_state else 'samples with measured output'}; analysing …")
     with TimedProgress("analysis", unit=" steps", unit_scale=False,
                        enabled=not args.json and sys.stderr.isatty()) as bar:
 
@@ -63,15 +92,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             bar.stage = text
             bar.update(1)
 
-        result = calibrate(data, config, args.delta, args.block_s, stage=stage, assume=args.assume)
-    for line in _error_after_warnings(result, args.assume):
-        warn(line)
-    if args.out and result.written:
-        write_text(args.out, calibrated_yaml(result, args.bags))
-    report = write_report(result, data, Path(args.report), args.bags) if args.report else None
-    if args.json:
-        sys.stdout.write(json.dumps(result.to_json()) + "\n")
-        return 0 if result.written else 1
+        return calibrate(data, config, CalibrationSettings(args.delta, args.block_s, stage=stage, assume=args.assume))
+
+
+def _print_result(result) -> None:
+    """The verdict, what was found and not, and the held-out error before and after."""
     eb, ea = result.error_before, result.error_after
     print(f"verdict: {result.verdict}")
     for e in result.effects:
@@ -82,6 +107,23 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             print(f"    note: {e.bound_note()}")
     for prm in result.parameters:
         print(f"  parameter {prm.sentence()}")
+    _print_not_found(result)
+    print(
+        f"held-out error ({result.samples:,} samples): RMSE {eb.rmse_nm:.4g} -> {ea.rmse_nm:.4g} N·m, "
+        f"MAE {eb.mae_nm:.4g} -> {ea.mae_nm:.4g} N·m, max {eb.max_abs_nm:.4g} -> {ea.max_abs_nm:.4g} N·m, "
+        f"{eb.rel_rmse_pct:.2f} % -> {ea.rel_rmse_pct:.2f} % of the measured loss"
+    )
+    print(f"held out: {result.holdout}")
+    if result.adequacy:
+        print(f"adequacy: {result.adequacy.statement}")
+    if result.structure and result.verdict != "no_missing_effect":
+        print(f"residual left: {result.structure['statement']}")
+    for note in result.notes:
+        print(f"note: {note}")
+
+
+def _print_not_found(result) -> None:
+    """The effects not accepted and why, the sets the data cannot tell apart, the bounds on the rest."""
     for r in result.rejected:
         if r.reason:
             print(f"  {r.name} not accepted: {r.reason}")
@@ -95,24 +137,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if result.verdict == "no_missing_effect":
         bounds = ", ".join(f"{r.name} <= {r.upper_rms_nm:.3g}" for r in result.rejected)
         print(f"  no missing effect larger than delta = {result.delta_nm:.4g} N·m (upper 95 % bounds: {bounds})")
-    print(
-        f"held-out error ({result.samples:,} samples): RMSE {eb.rmse_nm:.4g} -> {ea.rmse_nm:.4g} N·m, "
-        f"MAE {eb.mae_nm:.4g} -> {ea.mae_nm:.4g} N·m, max {eb.max_abs_nm:.4g} -> {ea.max_abs_nm:.4g} N·m, "
-        f"{eb.rel_rmse_pct:.2f} % -> {ea.rel_rmse_pct:.2f} % of the measured loss"
-    )
-    print(f"held out: {result.holdout}")
-    if result.adequacy:
-        print(f"adequacy: {result.adequacy.statement}")
-    if result.structure and result.verdict != "no_missing_effect":
-        print(f"residual left: {result.structure['statement']}")
-    for note in result.notes:
-        print(f"note: {note}")
-    if args.out:
-        print(f"calibrated parameters: {args.out}" if result.written else
-              f"calibrated parameters: {args.out} not written ({_what_would_settle(result)})")
-    if report:
-        print(f"report: {report}")
-    return 0 if result.written else 1
 
 
 def _what_would_settle(result) -> str:

@@ -19,7 +19,7 @@ MIN_SLICE_MESSAGES = 10_000
 
 
 def cmd_fleet(args: argparse.Namespace) -> int:
-    from ..fleet.run import dask_client, discover, run_calibrate, run_replay
+    from ..fleet.run import FleetRun, dask_client, discover, run_calibrate, run_replay
     from ..fleet.report import drift, write_fleet_report
 
     config = config_from_args(args)
@@ -40,12 +40,11 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     out = Path(args.out)
     note(f"{len(recs)} recordings of {len({r.gearbox_id for r in recs})} gearboxes")
     with dask_client(args.scheduler, args.workers, note) as client:
+        run = FleetRun(client, config, args.channels, progress=sys.stderr.isatty(), note=note)
         if args.action == "replay":
-            rows, ran = run_replay(recs, out, client, config, args.channels, progress=sys.stderr.isatty(), note=note,
-                                   slice_messages=args.slice_messages)
+            rows, ran = run_replay(recs, out, run, slice_messages=args.slice_messages)
         else:
-            rows, ran = run_calibrate(recs, out, client, config, int(args.window_days * DAY_S * 1e9), args.channels,
-                                      progress=sys.stderr.isatty(), note=note, assume=args.assume)
+            rows, ran = run_calibrate(recs, out, run, int(args.window_days * DAY_S * 1e9), assume=args.assume)
     failed = [r for r in rows if r.get("status") != "ok"]
     print(f"{args.action}: {ran} run now, {len(rows)} rows in {out}; {len(failed)} failed")
     for r in failed[:10]:

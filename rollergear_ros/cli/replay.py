@@ -105,7 +105,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     topics = topics_from_args(args)
     with as_mcap([args.bag], args.channels, topics, note=lambda m: print(m, file=sys.stderr)) as (bag,):
-        summary, _ = replay(bag, config, topics, args.out, args.rrd,
+        summary, _ = replay(bag, config, topics, out_mcap=args.out, rrd=args.rrd,
                             show_progress=None if not args.no_progress else False,
                             warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr), summary_png=png,
                             exports=exports)
@@ -129,7 +129,7 @@ def summary_png_path(args: argparse.Namespace) -> str | None:
 
 
 def _simulate_fleet(args: argparse.Namespace, config) -> int:
-    from ..fleet.simulated import simulate_fleet
+    from ..fleet.simulated import FleetScenario, simulate_fleet
 
     if args.fleet < 1 or args.days < 1:
         raise UsageError("--fleet and --days must be at least 1")
@@ -137,7 +137,7 @@ def _simulate_fleet(args: argparse.Namespace, config) -> int:
     if out.exists() and any(out.iterdir()):
         raise UsageError(f"{out} is not empty: a fleet goes into a new folder")
     with TimedProgress("simulate fleet", args.fleet * args.days, "log") as bar:
-        truth = simulate_fleet(config, out, args.fleet, args.days, rate_hz=args.rate, seed=args.seed,
+        truth = simulate_fleet(config, out, FleetScenario(args.fleet, args.days, rate_hz=args.rate, seed=args.seed),
                                progress=bar.update)
     print(f"wrote {args.fleet} gearboxes x {args.days} daily logs to {out} (truth: {out / 'fleet_truth.json'}; "
           f"{len(truth['gearboxes'])} drifting)")

@@ -342,7 +342,7 @@ class Estimator:
     # ------------------------------------------------------------------ batch (replay)
     def process_batch(self, t_ns: np.ndarray, torque: np.ndarray, speed: np.ndarray,
                       out_torque: np.ndarray | None = None, out_speed: np.ndarray | None = None,
-                      temperature: np.ndarray | None = None, breakdown: bool = True) -> BatchEstimate:
+                      temperature: np.ndarray | None = None, *, breakdown: bool = True) -> BatchEstimate:
         """Vectorised :meth:`process` over paired samples (invalid ones are removed and counted).
 
         Gives the same numbers as calling :meth:`process` sample by sample, including the
@@ -350,34 +350,15 @@ class Estimator:
         """
         n = len(t_ns)
         nan = np.full(n, np.nan)
-        out_torque = nan if out_torque is None else np.asarray(out_torque, float)
-        out_speed = nan if out_speed is None else np.asarray(out_speed, float)
-        temperature = nan if temperature is None else np.asarray(temperature, float)
-        torque = np.asarray(torque, float)
-        speed = np.asarray(speed, float)
-        est = self.config.estimator
-        finite = np.isfinite(torque) & np.isfinite(speed)
-        with np.errstate(invalid="ignore"):
-            plausible = (np.abs(torque) <= est.max_abs_torque_nm) & (np.abs(speed) <= est.max_abs_speed_rad_s)
-        if not finite.all():
-            lost = lost_mask(torque) | lost_mask(speed)
-            self.counts["lost"] += int(np.count_nonzero(lost))
-            self.counts["non_finite"] += int(np.count_nonzero(~finite & ~lost))
-        self.counts["implausible"] += int(np.count_nonzero(finite & ~plausible))
-        keep = finite & plausible
-        t_ns, torque, speed = np.asarray(t_ns)[keep], torque[keep], speed[keep]
-        out_torque, out_speed, temperature = out_torque[keep], out_speed[keep], temperature[keep]
-        torque_meas = torque
+        t_ns, torque_meas, speed, out_torque, out_speed, temperature = self._plausible(
+            np.asarray(t_ns), np.asarray(torque, float), np.asarray(speed, float),
+            nan if out_torque is None else np.asarray(out_torque, float),
+            nan if out_speed is None else np.asarray(out_speed, float),
+            nan if temperature is None else np.asarray(temperature, float))
         torque = self.corrected_torque(torque_meas)
         at, aw = np.abs(torque), np.abs(speed)
         sg = rotation_sign(speed, torque, self.sign_width_rad_s)
-        vscale = None
-        if self._fr_scaling:
-            have_t = np.isfinite(temperature) if self._needs_temperature else np.ones(len(torque), bool)
-            self.counts["temperature_missing"] += int(np.count_nonzero(~have_t))
-            x = EffectInputs(at, aw, torque, sg, np.where(have_t, temperature, 0.0))
-            vscale = np.where(have_t, fr_scale(self._active, x), 1.0)
-        res = self.model.evaluate(torque, speed, vscale, breakdown=breakdown)
+        res = self._model_result(torque, speed, sg, temperature, breakdown=breakdown, count=True)
         mag = res.loss_magnitude_nm
         bad_out = ~np.isnan(out_torque) & (~np.isfinite(out_torque) | (~np.isfinite(out_speed) & ~np.isnan(out_speed)))
         self.counts["output_non_finite"] += int(np.count_nonzero(bad_out))
@@ -386,31 +367,9 @@ class Estimator:
             meas = np.where(bad_out, np.nan, self.measured_loss(torque_meas, speed, out_torque, out_speed, previous))
         if len(speed):
             self._previous_speed = float(speed[-1])
-        coefficients: dict[str, np.ndarray] = {}
         state = self._advance_many(t_ns, speed) if self._stateful else {}
         x = EffectInputs(at, aw, torque, sg, temperature, state=state)
-        if self.adaptive:
-            phys = np.zeros(len(mag))
-            sens = np.zeros(len(mag))
-            if self._fixed_additive:
-                fixed = additive_terms(self._fixed, x)
-                phys, sens = phys + fixed.physical_nm, sens + fixed.sensor_nm
-            phis = regressors(self._regressor_plan, x)
-            theta_hist = self._adapt_batch(phis, meas - mag - phys - sens, t_ns)
-            for i, (name, phi) in enumerate(zip(self.adaptive, phis)):
-                contrib = theta_hist[:, i] * phi
-                if self._sensor[i]:
-                    sens += contrib
-                else:
-                    phys += contrib
-                coefficients[name] = theta_hist[:, i] / self._scales[i]
-        else:
-            terms = additive_terms(self._active, x)
-            phys, sens = np.asarray(terms.physical_nm) + 0.0 * mag, np.asarray(terms.sensor_nm) + 0.0 * mag
-            y = meas - mag - phys - sens
-            ok = np.isfinite(y)
-            self.detector.add_many(y[ok], t_ns[ok])
-            self.residual_stats.add_many(y[ok])
+        phys, sens, coefficients = self._effects_batch(x, meas, mag, t_ns)
         loss = mag + phys
         residual = meas - (loss + sens)
         eff = efficiency(torque, speed, loss, self.model.min_torque_nm, self.model.min_speed_rad_s)
@@ -433,6 +392,79 @@ class Estimator:
             out_torque_nm=out_torque,
             out_speed_rad_s=out_speed,
         )
+
+    def _model_result(self, torque: np.ndarray, speed: np.ndarray, sg: np.ndarray, temperature: np.ndarray, *,
+                      breakdown: bool, count: bool = False):
+        """The paper's model at (corrected) ``torque`` and ``speed``, its Fr part scaled by the
+        Fr-scaling effects at ``temperature`` (``count``: samples without one counted as skipped
+        ``temperature_missing``; they are evaluated unscaled)."""
+        vscale = None
+        if self._fr_scaling:
+            have_t = np.isfinite(temperature) if self._needs_temperature else np.ones(len(torque), bool)
+            if count:
+                self.counts["temperature_missing"] += int(np.count_nonzero(~have_t))
+            x = EffectInputs(np.abs(torque), np.abs(speed), torque, sg, np.where(have_t, temperature, 0.0))
+            vscale = np.where(have_t, fr_scale(self._active, x), 1.0)
+        return self.model.evaluate(torque, speed, vscale, breakdown=breakdown)
+
+    def breakdown(self, torque_nm: np.ndarray, speed_rad_s: np.ndarray, temperature_c: np.ndarray,
+                  loss_torque_nm: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """The loss's parts at samples already estimated (the node's rerun view, off its input path):
+        the paper's terms (as :meth:`process_batch` gives them) and the effects' share of the loss
+        magnitude, from the measured torque, the speed, the oil temperature and the signed loss."""
+        torque = self.corrected_torque(np.asarray(torque_nm, float))
+        speed = np.asarray(speed_rad_s, float)
+        sg = rotation_sign(speed, torque, self.sign_width_rad_s)
+        res = self._model_result(torque, speed, sg, np.asarray(temperature_c, float), breakdown=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            effects = np.where(sg != 0, np.asarray(loss_torque_nm, float) / sg - res.loss_magnitude_nm, 0.0)
+        return res.breakdown_nm, effects
+
+    def _plausible(self, t_ns: np.ndarray, torque: np.ndarray, speed: np.ndarray,
+                   *others: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The samples with finite, plausible drive torque and speed (the rest counted by reason):
+        ``t_ns``, ``torque``, ``speed`` and each of ``others`` at those samples."""
+        est = self.config.estimator
+        finite = np.isfinite(torque) & np.isfinite(speed)
+        with np.errstate(invalid="ignore"):
+            plausible = (np.abs(torque) <= est.max_abs_torque_nm) & (np.abs(speed) <= est.max_abs_speed_rad_s)
+        if not finite.all():
+            lost = lost_mask(torque) | lost_mask(speed)
+            self.counts["lost"] += int(np.count_nonzero(lost))
+            self.counts["non_finite"] += int(np.count_nonzero(~finite & ~lost))
+        self.counts["implausible"] += int(np.count_nonzero(finite & ~plausible))
+        keep = finite & plausible
+        return tuple(a[keep] for a in (t_ns, torque, speed, *others))
+
+    def _effects_batch(self, x: EffectInputs, meas: np.ndarray, mag: np.ndarray,
+                       t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+        """The effects' (physical, sensor) contributions of a batch and the adapted coefficients of
+        each sample: the adaptive effects by RLS sample by sample, the rest as configured (their
+        residual fed to the change detector)."""
+        coefficients: dict[str, np.ndarray] = {}
+        if self.adaptive:
+            phys = np.zeros(len(mag))
+            sens = np.zeros(len(mag))
+            if self._fixed_additive:
+                fixed = additive_terms(self._fixed, x)
+                phys, sens = phys + fixed.physical_nm, sens + fixed.sensor_nm
+            phis = regressors(self._regressor_plan, x)
+            theta_hist = self._adapt_batch(phis, meas - mag - phys - sens, t_ns)
+            for i, (name, phi) in enumerate(zip(self.adaptive, phis)):
+                contrib = theta_hist[:, i] * phi
+                if self._sensor[i]:
+                    sens += contrib
+                else:
+                    phys += contrib
+                coefficients[name] = theta_hist[:, i] / self._scales[i]
+            return phys, sens, coefficients
+        terms = additive_terms(self._active, x)
+        phys, sens = np.asarray(terms.physical_nm) + 0.0 * mag, np.asarray(terms.sensor_nm) + 0.0 * mag
+        y = meas - mag - phys - sens
+        ok = np.isfinite(y)
+        self.detector.add_many(y[ok], t_ns[ok])
+        self.residual_stats.add_many(y[ok])
+        return phys, sens, coefficients
 
     def _adapt_batch(self, phis: list[np.ndarray], y: np.ndarray, t_ns: np.ndarray) -> np.ndarray:
         """Run RLS sample by sample (it is order dependent); returns the a-priori θ of each sample."""

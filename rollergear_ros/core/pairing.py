@@ -331,18 +331,12 @@ class SampleSynchronizer:
         return samples_to_arrays(out)
 
     def _pair_vectorised(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray):
-        if len(codes) == 0:
+        """The batch paired first-in first-out in one go, when that is exactly what pushing its
+        messages one by one would give (every channel present, in step within the tolerance, in
+        time order, the leftovers after every paired message); None when the streaming rule must decide."""
+        present = self._vector_channels(codes)
+        if present is None:
             return None
-        idx = {c: np.flatnonzero(codes == k) for k, c in enumerate(CHANNELS)}
-        present = [c for c in (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED) if len(idx[c]) or self.queues[c]]
-        if TORQUE not in present or SPEED not in present:
-            return None
-        if any(self.active[c] and c not in present for c in _OPTIONAL):
-            return None  # an output channel falls silent: the streaming rule decides
-        outputs_known = (self.received[OUT_TORQUE] or OUT_TORQUE in present) and (
-            self.received[OUT_SPEED] or OUT_SPEED in present)
-        if not outputs_known and (self.first_ns is None or self.latest_ns - self.first_ns <= self.staleness_ns):
-            return None  # start-up hold: the streaming rule decides
         held_queues = any(self.queues[c] for c in self.queues)
         if held_queues:
             # messages held from the previous batch (a sample cut by the batch boundary) go first
@@ -351,7 +345,7 @@ class SampleSynchronizer:
             codes = np.concatenate([np.array([h[1] for h in held], dtype=codes.dtype), codes])
             t_ns = np.concatenate([np.array([h[0] for h in held], dtype=np.int64), t_ns])
             values = np.concatenate([np.array([h[2] for h in held], dtype=float), values])
-            idx = {c: np.flatnonzero(codes == k) for k, c in enumerate(CHANNELS)}
+        idx = {c: np.flatnonzero(codes == k) for k, c in enumerate(CHANNELS)}
         n = min(len(idx[c]) for c in present)
         if n == 0 or any(len(idx[c]) - n > 1 for c in present):
             return None
@@ -371,19 +365,7 @@ class SampleSynchronizer:
             return None
         t = t_ns[rows[TORQUE]]
         cols = {c: values[rows[c]] if c in rows else np.full(n, np.nan) for c in (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED)}
-        # zero-order hold of the temperature: the last one received before each sample completed
-        temp = np.full(n, np.nan)
-        tpos = idx[OIL_TEMPERATURE]
-        k = np.searchsorted(tpos, complete_at) - 1
-        have = k >= 0
-        temp_t = np.where(have, t_ns[tpos[np.maximum(k, 0)]] if len(tpos) else 0, 0)
-        temp_v = np.where(have, values[tpos[np.maximum(k, 0)]] if len(tpos) else np.nan, np.nan)
-        if self.temperature is not None:
-            temp_t = np.where(have, temp_t, self.temperature[0])
-            temp_v = np.where(have, temp_v, self.temperature[1])
-            have = np.ones(n, bool)
-        ok = have & (t - temp_t <= self.temperature_hold_ns)
-        temp[ok] = temp_v[ok]
+        temp = self._held_temperature(t, t_ns, values, idx[OIL_TEMPERATURE], complete_at)
         # bring the streaming state to where message-by-message pushing would leave it
         if held_queues:
             for c in self.queues:
@@ -399,6 +381,7 @@ class SampleSynchronizer:
                 self._set_active(c, True)
         if OUT_TORQUE not in present and self.received[OUT_TORQUE]:
             self.counts["output_missing"] += n
+        tpos = idx[OIL_TEMPERATURE]
         self.received[OIL_TEMPERATURE] += len(tpos)
         if len(tpos):
             self.temperature = (int(t_ns[tpos[-1]]), float(values[tpos[-1]]))
@@ -406,6 +389,41 @@ class SampleSynchronizer:
             extra = self.push(CHANNELS[int(codes[i])], int(t_ns[i]), float(values[i]))
             assert not extra  # an incomplete set cannot complete on its own
         return (t, cols[TORQUE], cols[SPEED], cols[OUT_TORQUE], cols[OUT_SPEED], temp)
+
+    def _vector_channels(self, codes: np.ndarray) -> list[str] | None:
+        """The paired channels a batch (with what is queued) has, or None where the streaming rule
+        decides: no motor torque or speed, an output channel falling silent, the start-up hold."""
+        if len(codes) == 0:
+            return None
+        present = [c for c in (TORQUE, SPEED, OUT_TORQUE, OUT_SPEED)
+                   if np.any(codes == CHANNELS.index(c)) or self.queues[c]]
+        if TORQUE not in present or SPEED not in present:
+            return None
+        if any(self.active[c] and c not in present for c in _OPTIONAL):
+            return None  # an output channel falls silent: the streaming rule decides
+        outputs_known = (self.received[OUT_TORQUE] or OUT_TORQUE in present) and (
+            self.received[OUT_SPEED] or OUT_SPEED in present)
+        if not outputs_known and (self.first_ns is None or self.latest_ns - self.first_ns <= self.staleness_ns):
+            return None  # start-up hold: the streaming rule decides
+        return present
+
+    def _held_temperature(self, t: np.ndarray, t_ns: np.ndarray, values: np.ndarray, tpos: np.ndarray,
+                          complete_at: np.ndarray) -> np.ndarray:
+        """Zero-order hold of the temperature: for each sample (time ``t``, completed at message
+        ``complete_at``) the last one received before, within the hold time; NaN without one."""
+        n = len(t)
+        temp = np.full(n, np.nan)
+        k = np.searchsorted(tpos, complete_at) - 1
+        have = k >= 0
+        temp_t = np.where(have, t_ns[tpos[np.maximum(k, 0)]] if len(tpos) else 0, 0)
+        temp_v = np.where(have, values[tpos[np.maximum(k, 0)]] if len(tpos) else np.nan, np.nan)
+        if self.temperature is not None:
+            temp_t = np.where(have, temp_t, self.temperature[0])
+            temp_v = np.where(have, temp_v, self.temperature[1])
+            have = np.ones(n, bool)
+        ok = have & (t - temp_t <= self.temperature_hold_ns)
+        temp[ok] = temp_v[ok]
+        return temp
 
     def _drain(self) -> list[SyncedSample]:
         out: list[SyncedSample] = []
@@ -505,13 +523,9 @@ class SampleSynchronizer:
         lossless delivery (nothing is ever missing) it acts only during the first
         :data:`LOSSLESS_SKEW_WINDOW` timed pairs of a stream, where a start out of step is undone.
         """
-        prev, self._skew_last = self._skew_last, times
-        if len(prev) == len(times):
-            burst = [0 <= t - p < SKEW_MIN_PERIOD_NS for t, p in zip(times, prev)]
-            if any(burst) and not all(burst) and (min(t for t, b in zip(times, burst) if b)
-                                                  > max(t for t, b in zip(times, burst) if not b)):
-                self._last_pair_ns = times[0]
-                return False
+        if self._held_up_burst(times):
+            self._last_pair_ns = times[0]
+            return False
         t0 = times[0]
         last, self._last_pair_ns = self._last_pair_ns, t0
         # a node catching up takes its queued samples faster than they were sent: such a burst carries
@@ -542,13 +556,28 @@ class SampleSynchronizer:
         limit = SKEW_LIMIT * period
         if lead - min(mean) <= limit:
             return False
+        self._drop_lagging(chans, mean, lead, limit)
+        return True
+
+    def _held_up_burst(self, times: list[int]) -> bool:
+        """Whether this pair's late messages came in a burst (each within ``SKEW_MIN_PERIOD_NS`` of
+        its channel's previous one) while the earlier ones did not: no timing in it."""
+        prev, self._skew_last = self._skew_last, times
+        if len(prev) != len(times):
+            return False
+        burst = [0 <= t - p < SKEW_MIN_PERIOD_NS for t, p in zip(times, prev)]
+        return any(burst) and not all(burst) and (min(t for t, b in zip(times, burst) if b)
+                                                  > max(t for t, b in zip(times, burst) if not b))
+
+    def _drop_lagging(self, chans: tuple[str, ...], mean: list[float], lead: float, limit: float) -> None:
+        """Drop the heads of the channels whose mean offset lags the ``lead`` by more than ``limit``
+        (``unpaired`` for the motor's), and observe the new pairing afresh."""
         for ch, m in zip(chans, mean):
             if lead - m > limit:
                 self.queues[ch].popleft()
                 if ch in _REQUIRED:
                     self.counts["unpaired"] += 1
-        self._skew_chans, self._skew_last = (), []  # observe the new pairing afresh
-        return True
+        self._skew_chans, self._skew_last = (), []
 
     def _expire_required(self) -> None:
         """Drop motor messages whose partner has not come within the staleness limit (the

@@ -109,7 +109,6 @@ def write_fleet_report(out_dir: Path) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     cal_rows = read_table(out_dir / CALIBRATE_TABLE)
     replay_rows = read_table(out_dir / FLEET_TABLE)
@@ -128,46 +127,10 @@ def write_fleet_report(out_dir: Path) -> Path:
         lines.append("None: no gearbox's effects moved beyond their 95 % intervals in two consecutive windows.")
     lines.append(f"\nHealthy: {', '.join(g.gearbox_id for g in gearboxes if not g.drifts) or 'none'}.\n")
     if drifting:
-        fig, axes = plt.subplots(len(drifting), 1, figsize=(8, 2.6 * len(drifting)), dpi=100, squeeze=False)
-        for ax, g in zip(axes[:, 0], drifting):
-            days = [_day(w["window_start_ns"]) for w in g.windows]
-            for d in g.drifts:
-                col = f"{d.effect}.{d.coefficient}"
-                coef = [float(w.get(col) or 0.0) for w in g.windows]
-                lo = [_num(w.get(f"{col}_lo")) for w in g.windows]
-                hi = [_num(w.get(f"{col}_hi")) for w in g.windows]
-                ax.plot(days, coef, "o-", label=f"{d.effect} {d.coefficient}")
-                ax.fill_between(days, np.nan_to_num(lo, nan=0.0), np.nan_to_num(hi, nan=0.0), alpha=0.2)
-                ax.axvline(_day(d.since_ns), color="tab:red", ls="--", lw=0.8)
-            ax.set_title(f"{g.gearbox_id}: accepted coefficient per window (95 % band); red: drift starts")
-            ax.legend(fontsize=8)
-            ax.grid(alpha=0.3)
-        fig.autofmt_xdate()
-        fig.tight_layout()
-        try:
-            save_figure(fig, out_dir / "drift.png")
-        finally:
-            plt.close(fig)
+        _drift_figure(drifting, out_dir / "drift.png")
         lines.append("![drift](drift.png)\n")
     if replay_rows:
-        ok = [r for r in replay_rows if r.get("status") == "ok"]
-        measured = np.array([_num(r.get("efficiency_measured")) for r in ok])
-        kind = "measured" if np.isfinite(measured).any() else "estimated"
-        eta = measured if kind == "measured" else np.array([_num(r.get("efficiency_energy")) for r in ok])
-        eta = eta[np.isfinite(eta)]
-        if eta.size:
-            fig, ax = plt.subplots(figsize=(7, 3.5), dpi=100)
-            ax.hist(100 * eta, bins=min(30, max(5, eta.size // 2)), color="tab:blue", alpha=0.8)
-            ax.set_xlabel(f"{kind} efficiency of a recording (energy out / energy in) [%]")
-            ax.set_ylabel("recordings")
-            ax.set_title(f"Efficiency over the fleet ({eta.size} recordings)")
-            fig.tight_layout()
-            try:
-                save_figure(fig, out_dir / "efficiency.png")
-            finally:
-                plt.close(fig)
-            lines.append(f"{kind.capitalize()} efficiency over the fleet: {100 * eta.mean():.2f} % (recordings from "
-                         f"{100 * eta.min():.2f} to {100 * eta.max():.2f} %).\n\n![efficiency](efficiency.png)\n")
+        lines += _efficiency_lines(replay_rows, out_dir)
     lines += ["## Per gearbox\n", "| gearbox | windows | latest verdict | latest held-out RMSE [N·m] | map |",
               "|---|---|---|---|---|"]
     for g in sorted(gearboxes, key=lambda g: g.gearbox_id):
@@ -181,6 +144,58 @@ def write_fleet_report(out_dir: Path) -> Path:
     report = out_dir / "report.md"
     write_text(report, "\n".join(lines) + "\n")
     return report
+
+
+def _drift_figure(drifting: list, path: Path) -> None:
+    """Each drifting gearbox's accepted coefficients per window with their 95 % band."""
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(drifting), 1, figsize=(8, 2.6 * len(drifting)), dpi=100, squeeze=False)
+    for ax, g in zip(axes[:, 0], drifting):
+        days = [_day(w["window_start_ns"]) for w in g.windows]
+        for d in g.drifts:
+            col = f"{d.effect}.{d.coefficient}"
+            coef = [float(w.get(col) or 0.0) for w in g.windows]
+            lo = [_num(w.get(f"{col}_lo")) for w in g.windows]
+            hi = [_num(w.get(f"{col}_hi")) for w in g.windows]
+            ax.plot(days, coef, "o-", label=f"{d.effect} {d.coefficient}")
+            ax.fill_between(days, np.nan_to_num(lo, nan=0.0), np.nan_to_num(hi, nan=0.0), alpha=0.2)
+            ax.axvline(_day(d.since_ns), color="tab:red", ls="--", lw=0.8)
+        ax.set_title(f"{g.gearbox_id}: accepted coefficient per window (95 % band); red: drift starts")
+        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.autofmt_xdate()
+    fig.tight_layout()
+    try:
+        save_figure(fig, path)
+    finally:
+        plt.close(fig)
+
+
+def _efficiency_lines(replay_rows: list[dict], out_dir: Path) -> list[str]:
+    """The fleet's efficiency per recording (measured when the recordings have output torque, else
+    estimated) as a histogram and one line; nothing without a finite one."""
+    import matplotlib.pyplot as plt
+
+    ok = [r for r in replay_rows if r.get("status") == "ok"]
+    measured = np.array([_num(r.get("efficiency_measured")) for r in ok])
+    kind = "measured" if np.isfinite(measured).any() else "estimated"
+    eta = measured if kind == "measured" else np.array([_num(r.get("efficiency_energy")) for r in ok])
+    eta = eta[np.isfinite(eta)]
+    if not eta.size:
+        return []
+    fig, ax = plt.subplots(figsize=(7, 3.5), dpi=100)
+    ax.hist(100 * eta, bins=min(30, max(5, eta.size // 2)), color="tab:blue", alpha=0.8)
+    ax.set_xlabel(f"{kind} efficiency of a recording (energy out / energy in) [%]")
+    ax.set_ylabel("recordings")
+    ax.set_title(f"Efficiency over the fleet ({eta.size} recordings)")
+    fig.tight_layout()
+    try:
+        save_figure(fig, out_dir / "efficiency.png")
+    finally:
+        plt.close(fig)
+    return [f"{kind.capitalize()} efficiency over the fleet: {100 * eta.mean():.2f} % (recordings from "
+            f"{100 * eta.min():.2f} to {100 * eta.max():.2f} %).\n\n![efficiency](efficiency.png)\n"]
 
 
 def _day(t_ns: int):

@@ -25,8 +25,9 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from ..base.atomic import replacing
 from ..base.errors import RollergearError, UsageError
@@ -34,9 +35,9 @@ from ..sources.formats import is_format, recording_suffixes
 from ..base.interface import Metadata
 from ..core.params import Config, config_to_yaml
 
-__all__ = ["FLEET_TABLE", "CALIBRATE_TABLE", "SLICES_TABLE", "SLICE_MESSAGES", "Recording", "combine_slices",
-           "dask_client", "discover", "read_table", "run_calibrate", "run_replay", "settings_fingerprint",
-           "time_slices"]
+__all__ = ["FLEET_TABLE", "CALIBRATE_TABLE", "SLICES_TABLE", "SLICE_MESSAGES", "CalibrationWindow", "FleetRun",
+           "FleetTable", "Recording", "combine_slices", "dask_client", "discover", "read_table", "run_calibrate",
+           "run_replay", "settings_fingerprint", "time_slices"]
 
 FLEET_TABLE = "fleet.parquet"
 CALIBRATE_TABLE = "fleet_calibrate.parquet"
@@ -269,20 +270,34 @@ def combine_slices(parts: Sequence[dict]) -> dict:
     return row
 
 
-def calibrate_task(gearbox_id: str, window: int, window_ns: int, recs: Sequence[Recording], config: Config,
-                   channels: str | None, assume: Sequence[str] = ()) -> dict:
+@dataclass(frozen=True)
+class CalibrationWindow:
+    """One gearbox's recordings in one time window (number ``window`` of ``window_ns`` each)."""
+
+    gearbox_id: str
+    window: int
+    window_ns: int
+    recordings: tuple[Recording, ...]
+
+    @property
+    def key(self) -> str:
+        """The window's row key: gearbox, window and its recordings' keys."""
+        return _window_key(self.gearbox_id, self.window, self.recordings)
+
+
+def calibrate_task(win: CalibrationWindow, config: Config, channels: str | None, assume: Sequence[str] = ()) -> dict:
     """Calibrate one gearbox over one time window (all its recordings there); ``assume``: as
     :func:`~calibration.calibrate.calibrate`'s."""
     from contextlib import ExitStack
 
-    from ..calibration.calibrate import calibrate, load_samples
-    from ..core.effects import EFFECTS
+    from ..calibration.calibrate import CalibrationSettings, calibrate, load_samples
     from ..sources.importer import as_mcap
 
+    gearbox_id, window, window_ns, recs = win.gearbox_id, win.window, win.window_ns, win.recordings
     row = {"gearbox_id": gearbox_id, "window": window, "window_start_ns": window * window_ns,
            "window_end_ns": (window + 1) * window_ns, "window_start": utc_text(window * window_ns),
            "window_end": utc_text((window + 1) * window_ns), "recordings": len(recs),
-           "key": _window_key(gearbox_id, window, recs), "status": "ok", "reason": ""}
+           "key": win.key, "status": "ok", "reason": ""}
     t0 = time.perf_counter()
     bad = [r for r in recs if r.problem]
     if bad:
@@ -292,15 +307,23 @@ def calibrate_task(gearbox_id: str, window: int, window_ns: int, recs: Sequence[
             local = [stack.enter_context(_local(r.path)) for r in recs]
             bags = stack.enter_context(as_mcap(local, channels))
             data = load_samples(bags, config)
-            result = calibrate(data, config, assume=assume)
+            result = calibrate(data, config, CalibrationSettings(assume=assume))
     except Exception as exc:  # noqa: BLE001 - one bad window must not stop the fleet; the row says why
         return _failed(row, exc) | {"seconds": time.perf_counter() - t0}
     row |= {"samples": result.samples, "verdict": result.verdict,
             "effects": json.dumps([e.to_json() for e in result.effects]),
             "error_before_rmse_nm": result.error_before.rmse_nm, "error_after_rmse_nm": result.error_after.rmse_nm,
             "calibrated_yaml": config_to_yaml(result.config), "seconds": time.perf_counter() - t0}
-    found = {e.name: e for e in result.effects}
-    for name, effect in EFFECTS.items():  # flat columns: one coefficient (and its interval) per effect
+    return row | _effect_columns(result.effects)
+
+
+def _effect_columns(effects) -> dict:
+    """Flat columns: one coefficient (and its interval and RMS contribution) per effect, 0 where not found."""
+    from ..core.effects import EFFECTS
+
+    row = {}
+    found = {e.name: e for e in effects}
+    for name, effect in EFFECTS.items():
         e = found.get(name)
         coef = effect.coefficient
         lo, hi = e.ci95[coef] if e else (math.nan, math.nan)
@@ -390,79 +413,137 @@ def settings_fingerprint(config: Config, channels: str | None, *extra: object) -
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def _run(client, table: Path, units: list[Unit], progress: bool, what: str, note: Callable[[str], None],
-         parts_table: Path | None = None, settings: str = "") -> tuple[list[dict], int]:
-    """Run the units not yet in ``table`` with these ``settings`` (:func:`settings_fingerprint`: rows
-    made with others are done again and replaced); a unit's row (:func:`combine_slices` of its
-    tasks' rows) lands when its last task does.  ``parts_table`` keeps the rows of the tasks of units
-    not yet complete (a resumed run does not redo them)."""
+@dataclass(frozen=True)
+class FleetRun:
+    """How a fleet job runs: on which Dask client, with which parameters and channel map, and how it
+    tells what it does (a progress bar, notes)."""
+
+    client: Any
+    config: Config
+    channels: str | None = None  #: channel map of the recordings that are not MCAP or rosbag2
+    progress: bool = False
+    note: Callable[[str], None] = field(default=lambda m: None)
+
+
+@dataclass(frozen=True)
+class FleetTable:
+    """Where a fleet job's rows go: the table, what its units are called (in notes), the settings
+    that make a row current (:func:`settings_fingerprint`) and the table of units' finished parts."""
+
+    path: Path
+    what: str
+    settings: str = ""
+    parts: Path | None = None
+
+
+def _run(run: FleetRun, table: FleetTable, units: list[Unit]) -> tuple[list[dict], int]:
+    """Run the units not yet in ``table`` with its settings (rows made with others are done again and
+    replaced); a unit's row (:func:`combine_slices` of its tasks' rows) lands when its last task
+    does.  ``table.parts`` keeps the rows of the tasks of units not yet complete (a resumed run does
+    not redo them)."""
     from dask.distributed import as_completed
 
     from ..base.progress import TimedProgress
 
-    rows = read_table(table)
-    stale = [r for r in rows if r.get("settings") != settings]
-    if stale:
-        note(f"{len(stale)} rows of {table} were made with other parameters, channel map or window: done again")
-        rows = [r for r in rows if r.get("settings") == settings]
+    rows = _current_rows(table, run.note)
     done = {r["key"] for r in rows}
     todo = [u for u in units if u[0] not in done]
     skipped = len(units) - len(todo)
     if skipped:
-        note(f"{skipped} of {len(units)} {what} already in {table}: not done again")
+        run.note(f"{skipped} of {len(units)} {table.what} already in {table.path}: not done again")
     if not todo:
         return rows, 0
-    kept = {r["key"]: r for r in read_table(parts_table) if r.get("settings") == settings} if parts_table else {}
-    parts = {key: {k: kept[k] for k, _, _ in tasks if k in kept} for key, tasks in todo}
-    if kept:
-        note(f"{sum(map(len, parts.values()))} time slices already in {parts_table}: not done again")
-    unit_of: dict = {}
+    progress = _Progress(table, rows, todo, _kept_parts(table, todo, run.note))
     futures = []
     for key, tasks in todo:
         for part_key, fn, args in tasks:
-            if part_key not in parts[key]:
-                future = client.submit(fn, *args, key=f"rollergear-{abs(hash(part_key))}-{len(futures)}", pure=False)
-                unit_of[future.key] = (key, part_key)
+            if part_key not in progress.parts[key]:
+                future = run.client.submit(fn, *args, key=f"rollergear-{abs(hash(part_key))}-{len(futures)}",
+                                           pure=False)
+                progress.unit_of[future.key] = (key, part_key)
                 futures.append(future)
-    tasks_of = {key: [k for k, _, _ in tasks] for key, tasks in todo}
-    failed = samples = finished = 0
-    t0 = time.perf_counter()
-    last_write = 0.0
-
-    def complete(key: str) -> None:
-        nonlocal failed, finished
-        row = combine_slices([parts[key][k] for k in tasks_of[key]]) | {"settings": settings}
-        rows.append(row)
-        failed += row["status"] != "ok"
-        finished += 1
-
-    for key in tasks_of:  # units whose tasks were all done before an interruption
-        if len(parts[key]) == len(tasks_of[key]):
-            complete(key)
-    with TimedProgress("fleet", len(futures), "task", enabled=progress) as bar:
+    with TimedProgress("fleet", len(futures), "task", enabled=run.progress) as bar:
         for future in as_completed(futures):
-            key, part_key = unit_of[future.key]
+            key, part_key = progress.unit_of[future.key]
             try:
-                row = future.result() | {"settings": settings}
+                row = future.result() | {"settings": table.settings}
             except Exception as exc:  # noqa: BLE001 - the task's worker died (KilledWorker): its row fails
-                row = {"key": part_key, "status": "failed", "settings": settings,
+                row = {"key": part_key, "status": "failed", "settings": table.settings,
                        "reason": f"its task could not finish: {type(exc).__name__}: {exc}"}
                 row |= _unit_identity(todo, key) | ({"recording_key": key, "slice": part_key.rsplit("|slice ", 1)[-1]}
                                                    if part_key != key else {})
-            parts[key][part_key] = row
-            samples += int(row.get("samples") or 0)
-            if len(parts[key]) == len(tasks_of[key]):
-                complete(key)
+            progress.add(key, part_key, row)
             bar.update(1)
             running = sum(f.status == "pending" for f in futures)
-            bar.stage = (f"{what} {finished}/{len(todo)}, failed {failed}, running "
-                         f"{min(running, len(client.scheduler_info()['workers']))}, "
-                         f"{samples / max(time.perf_counter() - t0, 1e-9):,.0f} samples/s")
-            if time.perf_counter() - last_write > 1.0:
-                _write_tables(table, rows, parts_table, parts, tasks_of)
-                last_write = time.perf_counter()
-    _write_tables(table, rows, parts_table, parts, tasks_of)
+            bar.stage = (f"{table.what} {progress.finished}/{len(todo)}, failed {progress.failed}, running "
+                         f"{min(running, len(run.client.scheduler_info()['workers']))}, "
+                         f"{progress.samples / max(time.perf_counter() - progress.t0, 1e-9):,.0f} samples/s")
+            if time.perf_counter() - progress.last_write > 1.0:
+                progress.write()
+    progress.write()
     return rows, len(todo)
+
+
+def _current_rows(table: FleetTable, note: Callable[[str], None]) -> list[dict]:
+    """The table's rows made with its settings (the others are dropped, to be done again)."""
+    rows = read_table(table.path)
+    stale = [r for r in rows if r.get("settings") != table.settings]
+    if stale:
+        note(f"{len(stale)} rows of {table.path} were made with other parameters, channel map or window: done again")
+        rows = [r for r in rows if r.get("settings") == table.settings]
+    return rows
+
+
+def _kept_parts(table: FleetTable, todo: list[Unit], note: Callable[[str], None]) -> dict[str, dict[str, dict]]:
+    """Unit -> the rows of its tasks already finished by an interrupted run (from ``table.parts``)."""
+    kept = ({r["key"]: r for r in read_table(table.parts) if r.get("settings") == table.settings}
+            if table.parts else {})
+    parts = {key: {k: kept[k] for k, _, _ in tasks if k in kept} for key, tasks in todo}
+    if kept:
+        note(f"{sum(map(len, parts.values()))} time slices already in {table.parts}: not done again")
+    return parts
+
+
+class _Progress:
+    """The rows of a fleet run as its tasks finish: a unit's row when its last task's is in, the
+    counts the progress bar shows, and the tables written as it goes."""
+
+    def __init__(self, table: FleetTable, rows: list[dict], todo: list[Unit], parts: dict[str, dict[str, dict]]):
+        self.table, self.rows, self.parts = table, rows, parts
+        self.tasks_of = {key: [k for k, _, _ in tasks] for key, tasks in todo}
+        self.unit_of: dict = {}  # future key -> (unit key, task key)
+        self.failed = self.samples = self.finished = 0
+        self.t0 = time.perf_counter()
+        self.last_write = 0.0
+        for key in self.tasks_of:  # units whose tasks were all done before an interruption
+            if len(parts[key]) == len(self.tasks_of[key]):
+                self._complete(key)
+
+    def add(self, key: str, part_key: str, row: dict) -> None:
+        """A task's row; the unit's row when it was the last."""
+        self.parts[key][part_key] = row
+        self.samples += int(row.get("samples") or 0)
+        if len(self.parts[key]) == len(self.tasks_of[key]):
+            self._complete(key)
+
+    def _complete(self, key: str) -> None:
+        row = combine_slices([self.parts[key][k] for k in self.tasks_of[key]]) | {"settings": self.table.settings}
+        self.rows.append(row)
+        self.failed += row["status"] != "ok"
+        self.finished += 1
+
+    def write(self) -> None:
+        """The table, and the parts of the units not yet complete (none: the parts table goes)."""
+        _write_table(self.table.path, self.rows)
+        self.last_write = time.perf_counter()
+        parts_table = self.table.parts
+        if parts_table is None:
+            return
+        pending = [r for key, got in self.parts.items() if len(got) < len(self.tasks_of[key]) for r in got.values()]
+        if pending:
+            _write_table(parts_table, pending)
+        elif parts_table.exists():
+            parts_table.unlink()
 
 
 def _unit_identity(todo: list[Unit], key: str) -> dict:
@@ -472,29 +553,17 @@ def _unit_identity(todo: list[Unit], key: str) -> dict:
             args = tasks[0][2]
             if args and isinstance(args[0], Recording):
                 return {"gearbox_id": args[0].gearbox_id, "recording": args[0].path}
-            if tasks[0][1] is calibrate_task:
-                return {"gearbox_id": args[0], "window": args[1]}
+            if args and isinstance(args[0], CalibrationWindow):
+                return {"gearbox_id": args[0].gearbox_id, "window": args[0].window}
     return {}
 
 
-def _write_tables(table: Path, rows: list[dict], parts_table: Path | None, parts: dict, tasks_of: dict) -> None:
-    """The table, and the parts of the units not yet complete (none: the parts table goes)."""
-    _write_table(table, rows)
-    if parts_table is None:
-        return
-    pending = [r for key, got in parts.items() if len(got) < len(tasks_of[key]) for r in got.values()]
-    if pending:
-        _write_table(parts_table, pending)
-    elif parts_table.exists():
-        parts_table.unlink()
-
-
-def run_replay(recs: Sequence[Recording], out_dir: Path, client, config: Config, channels: str | None = None,
-               progress: bool = False, note: Callable[[str], None] = lambda m: None,
+def run_replay(recs: Sequence[Recording], out_dir: Path, run: FleetRun,
                slice_messages: int = SLICE_MESSAGES) -> tuple[list[dict], int]:
     """Replay every recording on the cluster (a long one in time slices of about ``slice_messages``
     messages); returns the table's rows and how many recordings were run now."""
     out_dir.mkdir(parents=True, exist_ok=True)
+    config, channels = run.config, run.channels
     units: list[Unit] = []
     for r in recs:
         windows = time_slices(r, slice_messages)
@@ -504,13 +573,12 @@ def run_replay(recs: Sequence[Recording], out_dir: Path, client, config: Config,
             n = len(windows)
             units.append((r.key, [(f"{r.key}|slice {i}/{n}", replay_task, (r, config, channels, w, f"{i}/{n}"))
                                   for i, w in enumerate(windows, 1)]))
-    return _run(client, out_dir / FLEET_TABLE, units, progress, "recordings", note, out_dir / SLICES_TABLE,
-                settings_fingerprint(config, channels))
+    return _run(run, FleetTable(out_dir / FLEET_TABLE, "recordings", settings_fingerprint(config, channels),
+                                out_dir / SLICES_TABLE), units)
 
 
-def run_calibrate(recs: Sequence[Recording], out_dir: Path, client, config: Config, window_ns: int,
-                  channels: str | None = None, progress: bool = False,
-                  note: Callable[[str], None] = lambda m: None, assume: Sequence[str] = ()) -> tuple[list[dict], int]:
+def run_calibrate(recs: Sequence[Recording], out_dir: Path, run: FleetRun, window_ns: int,
+                  assume: Sequence[str] = ()) -> tuple[list[dict], int]:
     """Calibrate every gearbox over each time window (``assume``: as :func:`~calibration.calibrate.calibrate`'s);
     returns the table's rows and how many ran now."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -520,8 +588,7 @@ def run_calibrate(recs: Sequence[Recording], out_dir: Path, client, config: Conf
         groups.setdefault((r.gearbox_id, start // window_ns), []).append(r)
     units: list[Unit] = []
     for (gid, w), rs in sorted(groups.items()):
-        key = _window_key(gid, w, rs)
-        units.append((key, [(key, calibrate_task, (gid, w, window_ns, rs, config, channels, tuple(assume)))]))
-    return _run(client, out_dir / CALIBRATE_TABLE, units, progress, "windows", note,
-                settings=settings_fingerprint(config, channels, window_ns, sorted(assume)))
-
+        win = CalibrationWindow(gid, w, window_ns, tuple(rs))
+        units.append((win.key, [(win.key, calibrate_task, (win, run.config, run.channels, tuple(assume)))]))
+    settings = settings_fingerprint(run.config, run.channels, window_ns, sorted(assume))
+    return _run(run, FleetTable(out_dir / CALIBRATE_TABLE, "windows", settings), units)

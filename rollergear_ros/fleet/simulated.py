@@ -11,6 +11,7 @@ gearboxes develop an effect from a day drawn at random -- a seal starting to dra
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,9 +33,20 @@ def _drift(rng: np.random.Generator, k: int) -> DeclaredEffect:
     return DeclaredEffect("load_dependent", {"c": float(rng.uniform(0.15, 0.25)) / 90.0 ** q, "q": q})
 
 
-def simulate_fleet(config: Config, out_dir: Path, gearboxes: int = 6, days: int = 8, rate_hz: float = 100.0,
-                   seed: int = 0, progress=None) -> dict:
+@dataclass(frozen=True)
+class FleetScenario:
+    """The simulated fleet's size and sampling: how many gearboxes, how many daily logs each, the
+    logs' sample rate and the random seed (the same seed, the same fleet)."""
+
+    gearboxes: int = 6
+    days: int = 8
+    rate_hz: float = 100.0
+    seed: int = 0
+
+
+def simulate_fleet(config: Config, out_dir: Path, scenario: FleetScenario = FleetScenario(), progress=None) -> dict:
     """Write the fleet (see the module docstring); returns the truth written to ``fleet_truth.json``."""
+    gearboxes, days, rate_hz, seed = scenario.gearboxes, scenario.days, scenario.rate_hz, scenario.seed
     rng = np.random.default_rng(seed)
     ids = [f"gb{g:02d}" for g in range(gearboxes)]
     drifting = sorted(rng.choice(gearboxes, size=max(1, gearboxes // 3), replace=False).tolist())

@@ -45,6 +45,34 @@ MSG_DEFINITIONS: dict[str, str] = {
     ),
     MessageType.CLOCK: ("builtin_interfaces/Time clock\n" + "=" * 80 + "\n"
                         "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"),
+    # as rosbags' type store generates it (rcl_interfaces/msg/ParameterEvent with its nested types)
+    MessageType.PARAMETER_EVENT: (
+        "builtin_interfaces/Time stamp\n"
+        "string node\n"
+        "rcl_interfaces/Parameter[] new_parameters\n"
+        "rcl_interfaces/Parameter[] changed_parameters\n"
+        "rcl_interfaces/Parameter[] deleted_parameters\n"
+        "================================================================================\n"
+        "MSG: builtin_interfaces/Time\n"
+        "int32 sec\n"
+        "uint32 nanosec\n"
+        "================================================================================\n"
+        "MSG: rcl_interfaces/Parameter\n"
+        "string name\n"
+        "rcl_interfaces/ParameterValue value\n"
+        "================================================================================\n"
+        "MSG: rcl_interfaces/ParameterValue\n"
+        "uint8 type\n"
+        "bool bool_value\n"
+        "int64 integer_value\n"
+        "float64 double_value\n"
+        "string string_value\n"
+        "byte[] byte_array_value\n"
+        "bool[] bool_array_value\n"
+        "int64[] integer_array_value\n"
+        "float64[] double_array_value\n"
+        "string[] string_array_value\n"
+    ),
 }
 
 CDR_LE_HEADER = b"\x00\x01\x00\x00"

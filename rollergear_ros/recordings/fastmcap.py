@@ -346,71 +346,92 @@ def iter_message_arrays(path: str | Path, state: ReadState | None = None) -> Ite
         file_size = os.fstat(fh.fileno()).st_size
         if fh.read(8) != MAGIC:
             raise BagError(f"{path} is not an MCAP file")
-        pos = 8
-        after_damage: DamagedSpan | None = None  # message-index records right after it count its losses
-        while True:
-            if pos + 9 > file_size:
-                state.truncated = True
-                state.problem = "file ends without a data-end record"
-                if pos < file_size:
-                    _damaged(state, pos, file_size, "the file ends inside a record")
-                break
-            fh.seek(pos)
-            head = fh.read(9)
-            op = head[0]
-            ln = int.from_bytes(head[1:], "little")
-            end = pos + 9 + ln
-            if op == 0 or end > file_size:
-                nxt = find_next_chunk(fh, pos + 1, file_size)
-                if op == 0:
-                    reason = "invalid record (opcode 0)"
-                elif nxt is None:
-                    reason = "the file ends inside this record (cut short)"
-                else:
-                    reason = f"a record declares {ln:,} bytes, beyond the end of the file"
-                after_damage = _damaged(state, pos, nxt if nxt is not None else file_size, reason,
-                                        fh if op == OP_CHUNK and end > file_size else None, ln)
-                if nxt is None:
-                    state.truncated = True
-                    state.problem = f"{reason} (byte {pos:,}); nothing readable after it"
-                    break
-                pos = nxt
-                continue
-            try:
-                arrays = None
-                if op == OP_CHUNK:
-                    if state.log_time_range is not None and _outside(fh.read(64), ln, state.log_time_range):
-                        state.chunks_skipped += 1
-                        state.bytes_read = pos = end
-                        continue
-                    fh.seek(pos + 9)
-                    body = fh.read(ln)
-                    arrays = parse_records(chunk_records(body), state)
-                elif op in (OP_MESSAGE, OP_SCHEMA, OP_CHANNEL):
-                    run = _loose_records(fh, pos, file_size)
-                    arrays = parse_records(run, state)
-                    end = pos + len(run)
-                elif op == OP_MESSAGE_INDEX and after_damage is not None:
-                    count = _message_index_count(fh.read(ln))
-                    if count is not None:
-                        after_damage.messages_lost = (after_damage.messages_lost or 0) + count
-                    pos = end
-                    continue
-                elif op in (OP_DATA_END, OP_FOOTER):
-                    state.bytes_read = end
-                    break
-            except Exception as exc:  # noqa: BLE001 - damaged data (bad fields, decompression, CRC): skip the record
-                after_damage = _damaged(state, pos, end, str(exc) or type(exc).__name__,
-                                        fh if op == OP_CHUNK else None, ln)
-                pos = end
-                continue
-            after_damage = None
-            state.bytes_read = pos = end
+        reader = _LinearRead(fh, file_size, state)
+        while reader.pos is not None:
+            arrays = reader.next_record()
             if arrays is not None and len(arrays):
                 _close_gap(state, int(arrays.log_time.min()))
                 state.last_log_time = int(arrays.log_time.max())
                 yield arrays
         _close_gap(state, None)
+
+
+class _LinearRead:
+    """:func:`iter_message_arrays`' walk through the records: where it is (``pos``, None at the
+    end) and the damaged span whose chunk's message-index records may still follow."""
+
+    def __init__(self, fh, file_size: int, state: ReadState) -> None:
+        self.fh, self.file_size, self.state = fh, file_size, state
+        self.pos: int | None = 8
+        self.after_damage: DamagedSpan | None = None  # message-index records right after it count its losses
+
+    def next_record(self) -> MessageArrays | None:
+        """Read the record at ``pos`` and move past it: its messages (a chunk, a run of loose
+        messages), or None (another record, a damaged one skipped, the end)."""
+        fh, state, pos, file_size = self.fh, self.state, self.pos, self.file_size
+        if pos + 9 > file_size:
+            state.truncated = True
+            state.problem = "file ends without a data-end record"
+            if pos < file_size:
+                _damaged(state, pos, file_size, "the file ends inside a record")
+            self.pos = None
+            return None
+        fh.seek(pos)
+        head = fh.read(9)
+        op = head[0]
+        ln = int.from_bytes(head[1:], "little")
+        end = pos + 9 + ln
+        if op == 0 or end > file_size:
+            self._skip_invalid(op, ln, end)
+            return None
+        try:
+            arrays = None
+            if op == OP_CHUNK:
+                if state.log_time_range is not None and _outside(fh.read(64), ln, state.log_time_range):
+                    state.chunks_skipped += 1
+                    state.bytes_read = self.pos = end
+                    return None
+                fh.seek(pos + 9)
+                arrays = parse_records(chunk_records(fh.read(ln)), state)
+            elif op in (OP_MESSAGE, OP_SCHEMA, OP_CHANNEL):
+                run = _loose_records(fh, pos, file_size)
+                arrays = parse_records(run, state)
+                end = pos + len(run)
+            elif op == OP_MESSAGE_INDEX and self.after_damage is not None:
+                count = _message_index_count(fh.read(ln))
+                if count is not None:
+                    self.after_damage.messages_lost = (self.after_damage.messages_lost or 0) + count
+                self.pos = end
+                return None
+            elif op in (OP_DATA_END, OP_FOOTER):
+                state.bytes_read = end
+                self.pos = None
+                return None
+        except Exception as exc:  # noqa: BLE001 - damaged data (bad fields, decompression, CRC): skip the record
+            self.after_damage = _damaged(state, pos, end, str(exc) or type(exc).__name__,
+                                         fh if op == OP_CHUNK else None, ln)
+            self.pos = end
+            return None
+        self.after_damage = None
+        state.bytes_read = self.pos = end
+        return arrays
+
+    def _skip_invalid(self, op: int, ln: int, end: int) -> None:
+        """A record with opcode 0 or longer than the file: resume at the next chunk, or stop."""
+        fh, state, pos, file_size = self.fh, self.state, self.pos, self.file_size
+        nxt = find_next_chunk(fh, pos + 1, file_size)
+        if op == 0:
+            reason = "invalid record (opcode 0)"
+        elif nxt is None:
+            reason = "the file ends inside this record (cut short)"
+        else:
+            reason = f"a record declares {ln:,} bytes, beyond the end of the file"
+        self.after_damage = _damaged(state, pos, nxt if nxt is not None else file_size, reason,
+                                     fh if op == OP_CHUNK and end > file_size else None, ln)
+        if nxt is None:
+            state.truncated = True
+            state.problem = f"{reason} (byte {pos:,}); nothing readable after it"
+        self.pos = nxt
 
 
 def _outside(head: bytes, record_length: int, log_time_range: tuple[int, int]) -> bool:

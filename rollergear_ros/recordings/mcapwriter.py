@@ -19,6 +19,8 @@ from ..base import atomic
 from .fastmcap import _MSG_FIXED, _MSG_HEAD, OP_MESSAGE
 
 _MAX_PENDING = 4  #: chunks waiting for the background thread before the caller waits too
+#: zstd level of the chunks: on streams of Float64 messages 3x faster to compress than level 3 and no larger
+ZSTD_LEVEL = 1
 
 
 def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray,
@@ -141,8 +143,7 @@ class ChunkedMcapWriter:
     zstd level 1: on streams of Float64 messages 3x faster to compress than level 3 and no larger.
     """
 
-    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, profile: str = Profile.ROS2,
-                 library: str = "rollergear_ros", compression_level: int = 1, background: bool = False,
+    def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, background: bool = False,
                  replace_atomically: bool = False) -> None:
         """``replace_atomically``: written beside ``path`` and renamed onto it by :meth:`close`
         (:mod:`~base.atomic`), so an existing file stays whole until the new one is; a
@@ -155,7 +156,7 @@ class ChunkedMcapWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._partial = atomic.partial_path(self.path) if replace_atomically else None
         self._fh = (self._partial or self.path).open("wb")
-        self._zstd = zstandard.ZstdCompressor(level=compression_level)
+        self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         # background: one thread compresses and writes finished chunks (zstd, crc32 and file writes
         # release the GIL) while the caller builds the next; for bulk writers (import), not the
         # node's recorder, whose chunks must reach the file as soon as they are full
@@ -184,7 +185,7 @@ class ChunkedMcapWriter:
         self.closed = False
         self._fh.write(MAGIC)
         rb = RecordBuilder()
-        Header(profile=profile, library=library).write(rb)
+        Header(profile=Profile.ROS2, library="rollergear_ros").write(rb)
         self._fh.write(rb.end())
 
     # -------------------------------------------------------------- registration
@@ -440,7 +441,7 @@ class ChunkedMcapWriter:
 
     def _close(self) -> None:
         from mcap.data_stream import RecordBuilder
-        from mcap.records import DataEnd, Footer, Statistics, SummaryOffset
+        from mcap.records import DataEnd, Footer
 
         try:
             self.flush_chunk()
@@ -449,43 +450,7 @@ class ChunkedMcapWriter:
             DataEnd(data_section_crc=0).write(rb)
             self._fh.write(rb.end())
             summary_start = self._fh.tell()
-            sb = RecordBuilder()
-            offsets = []
-            groups = (
-                (Opcode.SCHEMA, list(self._schemas.values())),
-                (Opcode.CHANNEL, list(self._channels.values())),
-                (
-                    Opcode.STATISTICS,
-                    [
-                        Statistics(
-                            attachment_count=0,
-                            channel_count=len(self._channels),
-                            channel_message_counts=dict(self._counts),
-                            chunk_count=len(self._chunk_indexes),
-                            message_count=self._message_count,
-                            message_end_time=self._t_max or 0,
-                            message_start_time=self._t_min or 0,
-                            metadata_count=len(self._metadata_indexes),
-                            schema_count=len(self._schemas),
-                        )
-                    ],
-                ),
-                (Opcode.CHUNK_INDEX, self._chunk_indexes),
-                (Opcode.METADATA_INDEX, self._metadata_indexes),
-            )
-            for opcode, records in groups:
-                if not records:
-                    continue
-                g0 = sb.count
-                for r in records:
-                    r.write(sb)
-                offsets.append(
-                    SummaryOffset(group_opcode=opcode, group_start=summary_start + g0, group_length=sb.count - g0)
-                )
-            summary_offset_start = summary_start + sb.count
-            for o in offsets:
-                o.write(sb)
-            summary = sb.end()
+            summary, summary_offset_start = self._summary(summary_start)
             self._fh.write(summary)
             # the summary CRC covers the summary section and the footer's fields before it (MCAP spec)
             footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
@@ -503,6 +468,48 @@ class ChunkedMcapWriter:
 
             os.fsync(self._fh.fileno())
             self._fh.close()
+
+
+    def _summary(self, summary_start: int) -> tuple[bytes, int]:
+        """The summary section (schemas, channels, statistics, chunk and metadata indexes, and the
+        summary offsets of each group) for a summary that starts at byte ``summary_start``;
+        returns it and where its summary offsets start."""
+        from mcap.data_stream import RecordBuilder
+        from mcap.records import Statistics, SummaryOffset
+
+        sb = RecordBuilder()
+        offsets = []
+        statistics = Statistics(
+            attachment_count=0,
+            channel_count=len(self._channels),
+            channel_message_counts=dict(self._counts),
+            chunk_count=len(self._chunk_indexes),
+            message_count=self._message_count,
+            message_end_time=self._t_max or 0,
+            message_start_time=self._t_min or 0,
+            metadata_count=len(self._metadata_indexes),
+            schema_count=len(self._schemas),
+        )
+        groups = (
+            (Opcode.SCHEMA, list(self._schemas.values())),
+            (Opcode.CHANNEL, list(self._channels.values())),
+            (Opcode.STATISTICS, [statistics]),
+            (Opcode.CHUNK_INDEX, self._chunk_indexes),
+            (Opcode.METADATA_INDEX, self._metadata_indexes),
+        )
+        for opcode, records in groups:
+            if not records:
+                continue
+            g0 = sb.count
+            for r in records:
+                r.write(sb)
+            offsets.append(
+                SummaryOffset(group_opcode=opcode, group_start=summary_start + g0, group_length=sb.count - g0)
+            )
+        summary_offset_start = summary_start + sb.count
+        for o in offsets:
+            o.write(sb)
+        return sb.end(), summary_offset_start
 
 
 class TimeOrderBuffer:

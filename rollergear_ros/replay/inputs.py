@@ -31,6 +31,9 @@ class InputPlan:
     joint_states: str | None
     temperature: tuple[str, str] | None  # (topic, type)
     topics: TopicMap
+    #: read the Float64 inputs in file order rather than by log time: a recording the node made,
+    #: whose inputs stand in the order the node took them (:func:`recorded_pairing`)
+    file_order: bool = False
 
     @property
     def all_topics(self) -> set[str]:
@@ -219,12 +222,11 @@ class InputBatch:
 
 
 def input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None],
-                   problems: InputProblems, log_time_range: tuple[int, int] | None = None,
-                   file_order: bool = False):
+                  problems: InputProblems, log_time_range: tuple[int, int] | None = None):
     """Batches of decoded inputs: Float64 bags through the numpy chunk reader, others record by record.
 
-    Float64 inputs are sorted by log time, except with ``file_order``: a recording the node made,
-    whose inputs stand in the order the node took them (which pairing by publisher timestamps
+    Float64 inputs are sorted by log time, except with ``plan.file_order``: a recording the node
+    made, whose inputs stand in the order the node took them (which pairing by publisher timestamps
     depends on, when the node takes one input's backlog before another's).
 
     Damaged spans of the file are skipped, malformed and duplicated messages too (``problems``);
@@ -236,7 +238,7 @@ def input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callabl
     preload_summary(info.path, state)
     try:
         if plan.mode == "float64":
-            yield from _float64_batches(info, plan, batch_size, state, problems, file_order)
+            yield from _float64_batches(info, plan, batch_size, state, problems, plan.file_order)
         else:
             yield from _decoded_batches(info, plan, batch_size, state, problems)
     finally:

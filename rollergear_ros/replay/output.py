@@ -13,7 +13,7 @@ from ..outputs import stamped
 from ..recordings.bag import BagInfo, BagWriter, TopicMap, offered_qos_yaml
 from ..core.estimator import BatchEstimate, Estimator
 from ..base.interface import MessageType, Metadata
-from ..base.output_channels import OUTPUT_CHANNELS, float64_channels, stamped_channels
+from ..base.output_channels import float64_channels, sample_channels, stamped_channels
 from ..core.params import Config
 from .inputs import InputBatch
 from .summary import Accumulator
@@ -102,7 +102,7 @@ def output_writer(path: str | Path, info: BagInfo, config: Config, topics: Topic
     from ..core.params import config_to_yaml
 
     offered = {topics.output(c.name): offered_qos_yaml(reliable=c.reliable, depth=c.depth)
-               for c in OUTPUT_CHANNELS.values()}
+               for c in sample_channels()}
     writer = BagWriter(path, offered_qos=offered, background=True)
     source = Path(info.path)
     writer.add_metadata(Metadata.PROVENANCE, {

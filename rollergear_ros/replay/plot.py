@@ -171,6 +171,22 @@ def summary_figure(trace: SummaryTrace, config: Config, title: str):
     axes = [fig.add_subplot(grid[0, 0])]
     axes += [fig.add_subplot(grid[i, 0], sharex=axes[0]) for i in range(1, rows)]
 
+    _time_axes(axes, trace, has_residual)
+    axes[-1].set_xlabel("time since the start of the recording [s]")
+
+    ax_map = fig.add_subplot(grid[:, 1])
+    _operating_map(fig, ax_map, trace, config)
+    ax_map.set_xlabel("drive speed [rpm]")
+    ax_map.set_ylabel("drive torque [N·m]")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def _time_axes(axes: list, trace: SummaryTrace, has_residual: bool) -> None:
+    """Loss (measured under estimated), efficiency and residual over time, bin means with their
+    range shaded, the change alarms as dashed lines."""
+
     def draw(ax, key: str, label: str, color: str, zorder: float = 2.0) -> None:
         t_s, mean, low, high = trace.series(key)
         if len(t_s):
@@ -195,9 +211,10 @@ def summary_figure(trace: SummaryTrace, config: Config, title: str):
                        label="residual change alarm" if i == 0 and ax is axes[0] else None)
     if trace.alarms_t_ns:
         axes[0].legend(fontsize=8, loc="upper right")
-    axes[-1].set_xlabel("time since the start of the recording [s]")
 
-    ax_map = fig.add_subplot(grid[:, 1])
+
+def _operating_map(fig, ax_map, trace: SummaryTrace, config: Config) -> None:
+    """The operating points over the model's efficiency map, the quadrants named."""
     speed, torque = trace.operating_points()
     if len(speed):
         ws, ts, eta, note = _efficiency_map(config, speed, torque, trace.median_temperature_c())
@@ -219,8 +236,3 @@ def summary_figure(trace: SummaryTrace, config: Config, title: str):
                             va="top" if y > 0.5 else "bottom", fontsize=8, color="w",
                             bbox={"facecolor": "0.2", "alpha": 0.5, "linewidth": 0})
         ax_map.legend(fontsize=8, loc="lower center")
-    ax_map.set_xlabel("drive speed [rpm]")
-    ax_map.set_ylabel("drive torque [N·m]")
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    return fig

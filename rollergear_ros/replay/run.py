@@ -13,7 +13,7 @@ the summary), :mod:`base.stopping` (signals between batches); this module runs t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from collections.abc import Callable, Iterator, Sequence
 
@@ -53,6 +53,7 @@ def replay(
     bag: str | Path,
     config: Config,
     topics: TopicMap = TopicMap(),
+    *,
     out_mcap: str | Path | None = None,
     rrd: str | Path | None = None,
     show_progress: bool | None = None,
@@ -64,6 +65,8 @@ def replay(
     exports: Sequence[tuple[str, str | Path]] = (),
 ) -> tuple[ReplaySummary, list[BatchEstimate]]:
     """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``).
+
+    The options after ``topics`` are keywords, the fields of the :class:`ReplayRequest` they make.
 
     ``summary_png``: draw the summary picture there (:mod:`.plot`), also of an interrupted
     replay (what was processed).  ``exports``: ``(kind, path)`` tables of the estimates with their
@@ -97,6 +100,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
     plan = plan_inputs(info, req.topics)
     period_s = median_period_s(info.path, plan.joint_states or req.topics.motor_torque)
     pairing, period_s, file_order = recorded_pairing(info.path, plan, period_s)
+    plan = replace(plan, file_order=file_order)
     estimator = Estimator(req.config, pairing=pairing, sample_period_s=period_s)
     problems = InputProblems(estimator.counts, plan)
     window = None if req.window_ns is None else _time_window(req.window_ns, estimator)
@@ -116,9 +120,8 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
             outputs.open(req.out_mcap, req.rrd, req.exports, info, req.config, estimator)
         total = sum(info.counts.get(t, 0) for t in plan.all_topics)
         bar = TimedProgress("replay", total, "msg", enabled=req.show_progress).start()
-        batches = input_batches(info, plan, req.batch_size, _warn, problems,
-                                window.read_range() if window else None, file_order)
-        _estimate(batches, estimator, outputs, window, summary, stop, bar)
+        batches = input_batches(info, plan, req.batch_size, _warn, problems, window.read_range() if window else None)
+        _estimate(batches, _Pass(estimator, outputs, window, summary, stop), bar)
         completed = True
     except KeyboardInterrupt:
         summary.interrupted = completed = True  # what was processed so far is a whole output
@@ -164,10 +167,22 @@ def _time_window(window_ns: tuple[int | None, int | None], estimator: Estimator)
     return TimeWindow(*window_ns, lead_ns=lead_ns)
 
 
-def _estimate(batches: Iterator[InputBatch], estimator: Estimator, outputs: ReplayOutputs, window: TimeWindow | None,
-              summary: ReplaySummary, stop: GracefulStop, bar: TimedProgress) -> None:
-    """Every batch of inputs through the estimator, its estimates to ``outputs`` (a signal stops
+@dataclass(frozen=True)
+class _Pass:
+    """One pass of a replay through its inputs: the estimator, where its estimates go, the time
+    slice (None: the whole recording), the summary and the signal guard."""
+
+    estimator: Estimator
+    outputs: ReplayOutputs
+    window: TimeWindow | None
+    summary: ReplaySummary
+    stop: GracefulStop
+
+
+def _estimate(batches: Iterator[InputBatch], run: _Pass, bar: TimedProgress) -> None:
+    """Every batch of inputs through the estimator, its estimates to the outputs (a signal stops
     between batches: ``summary.interrupted``)."""
+    estimator, outputs, window, summary, stop = run.estimator, run.outputs, run.window, run.summary, run.stop
     release_lag_ns = 2 * max(estimator.sync.hold_ns, estimator.sync.tolerance_ns)  # output held back
     acc = outputs.acc
     for batch in batches:

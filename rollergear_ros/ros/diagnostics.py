@@ -88,6 +88,44 @@ class DiagnosticReport:
     values: list[tuple[str, str]]
 
 
+@dataclass(frozen=True)
+class InputsNow:
+    """The inputs as a report sees them: at ``now_ns``, their monitor and their rates over the
+    window that just ended (:meth:`InputMonitor.rates`)."""
+
+    now_ns: int
+    monitor: InputMonitor
+    rates: dict[str, float]
+
+
+@dataclass(frozen=True)
+class DiagnosticLimits:
+    """What a report judges against (the node's parameters)."""
+
+    expected_rate_hz: float
+    min_efficiency_warn: float
+    #: messages a best-effort input queue holds (None: a reliable keep-all input, whose publisher waits)
+    queue_depth: int | None = None
+    #: judge an input's rate against the rate its stream started at (else ``expected_rate_hz``)
+    learn_rate: bool = False
+
+
+@dataclass(frozen=True)
+class SinceLast:
+    """What the previous report counted: skips by reason and change alarms (the new ones are WARNs)."""
+
+    skips: dict[str, int]
+    alarms: int
+
+
+@dataclass(frozen=True)
+class NodeLoad:
+    """How busy the node is: the share of time in input callbacks, and how far its executor lags."""
+
+    busy_fraction: float = 0.0
+    executor_lag_s: float = 0.0
+
+
 def _fmt(x: float, digits: int = 4) -> str:
     return "nan" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}g}"
 
@@ -100,29 +138,29 @@ def _slow_input(channel: str, rate_hz: float, expected_hz: float | None, learned
     return [(WARN, f"{channel} at {rate_hz:.0f} Hz, {against} {expected_hz:.0f} Hz")]
 
 
-def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estimator: Estimator,
-             expected_rate_hz: float, min_efficiency_warn: float, previous_skips: dict[str, int],
-             previous_alarms: int, busy_fraction: float = 0.0, executor_lag_s: float = 0.0,
-             queue_depth: int | None = None, learn_rate: bool = False) -> DiagnosticReport:
+def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, since: SinceLast,
+             load: NodeLoad = NodeLoad()) -> DiagnosticReport:
     """Level (worst reason wins), one-line message and the key/value pairs of the status.
 
-    Overload: ``executor_lag_s`` is how long the executor takes to reach an event queued behind the
-    inputs (``busy_fraction`` the share of time spent in input callbacks).  A best-effort input
-    queue of ``queue_depth`` messages holds ``queue_depth / expected_rate_hz`` seconds; an executor
-    running half of that behind is about to lose the oldest of them, so that is a WARN (by arrival,
-    the node counts what was lost, from the publishers' sequence numbers: ``lost in delivery``).
-    ``None``: a reliable keep-all input (the publisher waits instead).
+    Overload: ``load.executor_lag_s`` is how long the executor takes to reach an event queued behind
+    the inputs (``load.busy_fraction`` the share of time spent in input callbacks).  A best-effort
+    input queue of ``limits.queue_depth`` messages holds ``queue_depth / expected_rate_hz`` seconds;
+    an executor running half of that behind is about to lose the oldest of them, so that is a WARN
+    (by arrival, the node counts what was lost, from the publishers' sequence numbers: ``lost in
+    delivery``).  ``None``: a reliable keep-all input (the publisher waits instead).
 
-    Input rates: with ``learn_rate`` an input is slow below :data:`SLOW_RATE_SHARE` of the rate its
-    stream started at (:meth:`InputMonitor.learned_rate_hz`; nothing is said while it is learned),
-    so a bag played at another rate is not a warning for ever; otherwise below that share of
-    ``expected_rate_hz``.
+    Input rates: with ``limits.learn_rate`` an input is slow below :data:`SLOW_RATE_SHARE` of the
+    rate its stream started at (:meth:`InputMonitor.learned_rate_hz`; nothing is said while it is
+    learned), so a bag played at another rate is not a warning for ever; otherwise below that share
+    of ``expected_rate_hz``.
     """
     est = estimator.config.estimator
+    expected_rate_hz = limits.expected_rate_hz
     stale_after_s = max(est.staleness_s, 10.0 / expected_rate_hz)
     reasons: list[tuple[int, str]] = []
     values: list[tuple[str, str]] = []
-    _input_status(now_ns, monitor, rates, estimator, expected_rate_hz, stale_after_s, learn_rate, reasons, values)
+    _input_status(inputs, estimator, limits, stale_after_s, reasons, values)
+    busy_fraction, executor_lag_s, queue_depth = load.busy_fraction, load.executor_lag_s, limits.queue_depth
     values.append(("input callbacks busy [%]", _fmt(100 * busy_fraction, 3)))
     values.append(("executor lag [s]", _fmt(executor_lag_s, 3)))
     limit_s = OVERLOAD_QUEUE_SHARE * (queue_depth / expected_rate_hz if queue_depth else RELIABLE_LAG_S)
@@ -134,17 +172,17 @@ def diagnose(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estima
     values.append(("expected rate [Hz]", _fmt(expected_rate_hz)))
     values.append(("stale after [s]", _fmt(stale_after_s, 3)))
     values.append(("samples estimated", str(estimator.estimated)))
-    _skip_status(estimator, previous_skips, reasons, values)
-    _estimate_status(estimator, min_efficiency_warn, previous_alarms, reasons, values)
+    _skip_status(estimator, since.skips, reasons, values)
+    _estimate_status(estimator, limits.min_efficiency_warn, since.alarms, reasons, values)
     level = max((lv for lv, _ in reasons), default=OK)
     message = "; ".join(m for lv, m in sorted(reasons, key=lambda r: -r[0])) if reasons else "estimating"
     return DiagnosticReport(level, message, values)
 
 
-def _input_status(now_ns: int, monitor: InputMonitor, rates: dict[str, float], estimator: Estimator,
-                  expected_rate_hz: float, stale_after_s: float, learn_rate: bool,
+def _input_status(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, stale_after_s: float,
                   reasons: list[tuple[int, str]], values: list[tuple[str, str]]) -> None:
     """Each input's rate, age, counts and losses; a missing, stale or slow drive input."""
+    now_ns, monitor, rates = inputs.now_ns, inputs.monitor, inputs.rates
     since_start = (now_ns - monitor.start_ns) * 1e-9
     for ch in CHANNELS:
         last = monitor.last_ns[ch]
@@ -157,7 +195,7 @@ def _input_status(now_ns: int, monitor: InputMonitor, rates: dict[str, float], e
         if required:  # each estimate takes one message of each: the rest were not estimated
             values.append((f"{ch} not estimated", str(max(monitor.counts[ch] - estimator.estimated, 0))))
             learned = monitor.learned_rate_hz(ch)
-            if learn_rate:
+            if limits.learn_rate:
                 values.append((f"{ch} learned rate [Hz]", "learning" if learned is None else _fmt(learned)))
             if last is None:
                 level = WARN if since_start < STARTUP_GRACE_S else ERROR
@@ -165,8 +203,8 @@ def _input_status(now_ns: int, monitor: InputMonitor, rates: dict[str, float], e
             elif age > stale_after_s:
                 reasons.append((ERROR, f"stale input: {ch} silent for {age:.2f} s"))
             else:
-                expected = learned if learn_rate else expected_rate_hz
-                reasons += _slow_input(ch, rates.get(ch, 0.0), expected, learn_rate)
+                expected = learned if limits.learn_rate else limits.expected_rate_hz
+                reasons += _slow_input(ch, rates.get(ch, 0.0), expected, limits.learn_rate)
         elif ch == OUT_TORQUE and last is not None and age > stale_after_s:
             reasons.append((WARN, f"measured output stale ({age:.2f} s): no residual"))
 

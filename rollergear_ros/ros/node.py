@@ -14,61 +14,47 @@ from __future__ import annotations
 
 import gc
 import math
-import signal
 import struct
 import sys
 import threading
 import time
 from operator import attrgetter
-from pathlib import Path
 from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.serialization import serialize_message
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, DurabilityPolicy
 from sensor_msgs.msg import JointState, Temperature
-from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+from std_msgs.msg import Float64, Float64MultiArray
 
 from ..recordings import bag as bagmod
-from .diagnostics import STATUS_NAME, InputMonitor, diagnose
+from .diagnostics import (STATUS_NAME, DiagnosticLimits, InputMonitor, InputsNow, NodeLoad, SinceLast,
+                          diagnose)
 from ..core.estimator import Estimate, Estimator
 from ..base.errors import RollergearError
 from .intake import InputTaker
-from ..outputs.livemap import coefficients_moved, live_map, to_multiarray
+from .livemaps import LiveMapPublisher
 from ..sources.paths import Output, check_outputs
-from ..outputs.lossmap import map_comments, write_vtlm
 from ..core.pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
                             SequenceGaps)
 from ..outputs.stamped import EstimateCodec, estimate_values
 from ..base.interface import NAMESPACE, MessageType, Metadata, Topic
 from .nodehelp import help_text, wants_help
-from ..base.output_channels import OUTPUT_CHANNELS, OutputChannel, float64_channels, stamped_channels
-from ..core.params import Config, ParameterError, parameter_specs, validate
+from ..base.output_channels import OUTPUT_CHANNELS, float64_channels, map_channels, sample_channels, stamped_channels
+from ..core.params import Config, ParameterError
+from .parameters import (check_new_output, check_params_files, declare_parameters, live_provenance,
+                         package_parameter_names, parameter_event)
+from .qos import INPUT_QOS, output_qos
+from .spin import make_executor, stop_on_signals
 
-#: best effort and volatile like rclpy's qos_profile_sensor_data, with a deeper queue for 1 kHz bursts
-SENSOR_QOS = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE,
-                        history=HistoryPolicy.KEEP_LAST, depth=1000)
-#: ``node.input_qos: reliable``: nothing lost; a publisher that outpaces the node waits for it
-RELIABLE_INPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
-                                history=HistoryPolicy.KEEP_ALL)
-INPUT_QOS = {"sensor_data": SENSOR_QOS, "reliable": RELIABLE_INPUT_QOS}
 #: message class of each output channel's type (:mod:`base.output_channels`)
-_MESSAGE_CLASSES = {MessageType.FLOAT64: Float64, MessageType.JOINT_STATE: JointState}
+_MESSAGE_CLASSES = {MessageType.FLOAT64: Float64, MessageType.JOINT_STATE: JointState,
+                    MessageType.FLOAT64_MULTI_ARRAY: Float64MultiArray}
 
 
-def output_qos(channel: OutputChannel) -> QoSProfile:
-    """The QoS an output channel is offered with (volatile, keep-last; its reliability and depth)."""
-    return QoSProfile(reliability=ReliabilityPolicy.RELIABLE if channel.reliable else ReliabilityPolicy.BEST_EFFORT,
-                      durability=DurabilityPolicy.VOLATILE, history=HistoryPolicy.KEEP_LAST, depth=channel.depth)
-
-
-#: the loss map: the last one kept for subscribers that join later
-MAP_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                     history=HistoryPolicy.KEEP_LAST, depth=1)
 MAP_CHECK_S = 1.0  #: how often the adapted coefficients are compared with those of the last map
 _PACK = struct.Struct("<4sd").pack
 HEARTBEAT_S = 0.1  #: period of the executor heartbeat timer (executor lag in /diagnostics)
@@ -86,70 +72,13 @@ def _raw_publish(publisher):
     return getattr(publisher.handle, "publish_raw", None) or publisher.publish
 
 
-def check_new_output(name: str, path: str) -> None:
-    """Refuse (:class:`ParameterError`) an output file that exists -- the node never overwrites a
-    recording, as ``ros2 bag record`` does not -- or that cannot be created."""
-    target = Path(path)
-    if target.exists() or target.is_symlink():
-        raise ParameterError(name, path, "exists; the node does not overwrite a recording: "
-                                         "move it or choose another name")
-    try:  # by doing: root may write where os.access says so and still fail (e.g. in /proc)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        with target.open("xb"):
-            pass
-        target.unlink()
-    except OSError as exc:
-        raise ParameterError(name, path, f"cannot be created: {exc.strerror or exc}") from None
-
-
-def _ros_standard_parameter(name: str) -> bool:
-    """Parameters rclpy itself declares or reads (not the package's)."""
-    return name in ("use_sim_time", "start_type_description_service") or name.startswith("qos_overrides.")
-
-
-def params_files(args: list[str]) -> list[str]:
-    """The ``--params-file`` arguments of a command line's ROS arguments."""
-    files, in_ros = [], False
-    for i, a in enumerate(args):
-        if a == "--ros-args":
-            in_ros = True
-        elif a == "--":
-            in_ros = False
-        elif in_ros and a == "--params-file" and i + 1 < len(args):
-            files.append(args[i + 1])
-    return files
-
-
-def check_params_files(args: list[str]) -> None:
-    """Read each ``--params-file`` as the CLI does (:func:`~core.params.load_config`)
-    before rcl parses it: what rcl refuses gets one line naming file, line and column, and what rcl
-    drops silently (``dw_m: []``, a typo'd key, a file without this node's section) is refused
-    instead of starting the node on the defaults."""
-    from ..core.params import load_config
-
-    for path in params_files(args):
-        if not Path(path).exists():
-            raise ParameterError("--params-file", path, "does not exist")
-        load_config(path)
-
-
-def _descriptor(spec) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]" if spec.unit else spec.description,
-                            read_only=spec.read_only, additional_constraints=spec.allowed_text())
-    if spec.kind is float and spec.low is not None and spec.high is not None:
-        d.floating_point_range = [FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
-    elif spec.kind is int and spec.low is not None and spec.high is not None:
-        d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]
-    return d
-
-
 class LossEstimatorNode(Node):
     """The ``loss_estimator`` node (see the module docstring)."""
 
     def __init__(self, **kwargs: Any) -> None:
         kwargs.setdefault("namespace", NAMESPACE)
         super().__init__("loss_estimator", **kwargs)
-        self.config: Config = self._declare_parameters()  # ParameterError: refused with the reason
+        self.config: Config = declare_parameters(self)  # ParameterError: refused with the reason
         # the single-threaded executor gives publisher timestamps; the events executor keeps arrival order
         node = self.config.node
         if node.executor == "single_threaded":
@@ -158,6 +87,8 @@ class LossEstimatorNode(Node):
             # sequence numbers tell what was lost (filled in with placeholders: _push_lost)
             self.pairing = "arrival_reliable" if node.input_qos == "reliable" else "arrival_sequenced"
         self.estimator = Estimator(self.config, self.pairing, 1.0 / self.config.node.expected_rate_hz)
+        self._package_parameters = package_parameter_names()
+        self.parameter_changes = 0  #: accepted run-time changes
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.monitor = InputMonitor(time.time_ns())
         self._skips_reported = dict(self.estimator.counts)
@@ -172,6 +103,7 @@ class LossEstimatorNode(Node):
         # the events executor gives no message info: the inputs are taken in a thread of their own
         # (with it), under this lock, which a parameter change takes too
         self._input_lock = threading.Lock()
+        self._closed = False
         self.inputs = InputTaker(self, self._input_lock) if node.executor == "events" else None
         self._sequence_gaps = {c: SequenceGaps() for c in Topic.OF_CHANNEL}
         self._last_input_ns: dict[str, int] = {}
@@ -181,10 +113,7 @@ class LossEstimatorNode(Node):
         self._create_outputs()
         self.pub_diag = self.create_publisher(DiagnosticArray, Topic.DIAGNOSTICS, 10)
         # the live loss map (transient-local: an energy manager that starts later gets the last one)
-        self.maps_published = 0
-        self._map_coefficients: dict[str, float] | None = None  # of the map last published
-        self._oil_temperature_c: float | None = None
-        self.pub_map = self.create_publisher(Float64MultiArray, Topic.LOSS_MAP, MAP_QOS) if node.publish_map else None
+        self.live_map = LiveMapPublisher(self._map_publishers, self.get_fully_qualified_name(), self.get_logger())
         self._open_recordings()
         self._subscribe_inputs(topics)
         # /diagnostics from a thread of its own: an executor flooded with input callbacks starves
@@ -196,7 +125,7 @@ class LossEstimatorNode(Node):
         self._heartbeat_ns = time.time_ns()
         self._input_lag = (0, 0)  # (when, how long the message taken then had waited), input thread
         self.create_timer(HEARTBEAT_S, self._heartbeat)
-        if self.pub_map is not None or node.map_file:
+        if self._map_publishers or node.map_file:
             self.create_timer(MAP_CHECK_S, self._update_map)
         self._diagnostics_stop = threading.Event()
         self._diagnostics_thread = threading.Thread(target=self._diagnostics_loop, name="diagnostics", daemon=True)
@@ -206,31 +135,6 @@ class LossEstimatorNode(Node):
             f"effects: {', '.join(self.config.effects.enabled()) or 'none'}; executor: {self.executor_kind}; "
             f"input QoS: {node.input_qos}"
             + (f"; recording {node.record_mcap}" if self.recorder else ""))
-
-    def _declare_parameters(self) -> Config:
-        """Declare the package's parameters (with descriptors) and validate what they were given."""
-        from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-
-        from rclpy.parameter import Parameter
-
-        for spec in parameter_specs():
-            override = self._parameter_overrides.get(spec.name)
-            if spec.kind is float and override is not None and override.type_ == Parameter.Type.INTEGER:
-                # ``expected_rate_hz: 500`` means 500.0, as the CLI reads it
-                self._parameter_overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE,
-                                                                 float(override.value))
-            try:
-                self.declare_parameter(spec.name, spec.default, _descriptor(spec))
-            except (InvalidParameterValueException, InvalidParameterTypeException) as exc:
-                override = self._parameter_overrides.get(spec.name)
-                value = override.value if override is not None else spec.default
-                raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
-        flat = {spec.name: self.get_parameter(spec.name).value for spec in parameter_specs()}
-        # an override of no declared parameter (``-p gearbox.dw_mm:=0.1``) would be ignored by
-        # rclpy, the node running on the default: validate() refuses it with "did you mean"
-        flat.update({name: p.value for name, p in self._parameter_overrides.items()
-                     if name not in flat and not _ros_standard_parameter(name)})
-        return validate(flat)
 
     def _open_recordings(self) -> None:
         """Check every output file before any is opened, publish the first loss map, and open the
@@ -248,12 +152,12 @@ class LossEstimatorNode(Node):
         check_outputs([], [Output("node.record_mcap", node.record_mcap or None, "mcap"),  # of their kinds, apart
                            Output("node.rerun_rrd", node.rerun_rrd or None, "rrd"),
                            Output("node.map_file", node.map_file or None, "vtlm")])  # rewritten with each map
-        if self.pub_map is not None or node.map_file:
+        if self._map_publishers or node.map_file:
             self._update_map()  # before the inputs are subscribed: nothing waits for it
         if node.record_mcap:
             # written as the messages come (in arrival order), with the QoS the outputs are offered with
             offered = {self.out_topics[c.name]: bagmod.offered_qos_yaml(reliable=c.reliable, depth=c.depth)
-                       for c in OUTPUT_CHANNELS.values() if c.name in self.out_topics}
+                       for c in sample_channels() if c.name in self.out_topics}
             self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024, time_ordered=False,
                                              offered_qos=offered,
                                              replace_atomically=False)  # in place: a kill keeps what came
@@ -263,12 +167,16 @@ class LossEstimatorNode(Node):
                 "input_log_time": ("arrival" if self.pairing in ARRIVAL_PAIRINGS else "source_timestamp")
                 if self._record_pairing_time else "receive",
                 "sample_period_s": repr(1.0 / node.expected_rate_hz)})
+            self.recorder.add_metadata(Metadata.PROVENANCE,
+                                       live_provenance(self.get_fully_qualified_name(), self.config, sys.argv))
         self.rerun = None
         self._rr_buffer: list[Estimate] = []
         if node.rerun_rrd or node.rerun_connect:
             from ..outputs.review import RerunLog, SkipEvents
 
-            self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None)
+            self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None,
+                                  breakdown_terms=self.estimator.model.nonzero_terms(),
+                                  with_effects=bool(self.config.effects.enabled()))
             self._rr_skips = SkipEvents()
             self.create_timer(0.5, self._flush_rerun)
 
@@ -295,7 +203,7 @@ class LossEstimatorNode(Node):
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
-        changes = {p.name: p.value for p in params if p.name in {s.name for s in parameter_specs()}}
+        changes = {p.name: p.value for p in params if p.name in self._package_parameters}
         if not changes:
             return SetParametersResult(successful=True)
         with self._input_lock:  # never between two messages of one sample's push
@@ -312,7 +220,12 @@ class LossEstimatorNode(Node):
         self._every = new.node.publish_every_n
         self.estimator = Estimator(new, self.pairing, 1.0 / new.node.expected_rate_hz)
         self.estimator.take_over_inputs(old)
-        self._map_coefficients = None  # the next map check publishes the new parameters' map
+        self.live_map.renew()  # the next map check publishes the new parameters' map
+        self.parameter_changes += 1
+        if self.recorder is not None:  # as it happens: a killed node's recording keeps it
+            stamp = self.get_clock().now().nanoseconds
+            self.recorder.write_message(Topic.PARAMETER_EVENTS, MessageType.PARAMETER_EVENT, stamp,
+                                        parameter_event(self.get_fully_qualified_name(), stamp, changes))
         self.get_logger().info(f"parameters changed: {', '.join(f'{k}={v}' for k, v in changes.items())}")
         return SetParametersResult(successful=True)
 
@@ -491,49 +404,32 @@ class LossEstimatorNode(Node):
         t_ns = stamp if (stamp and self.config.node.input_mode == "joint_state") else wall
         self.estimator.push(OIL_TEMPERATURE, t_ns, float(msg.temperature))
         if math.isfinite(msg.temperature):
-            self._oil_temperature_c = float(msg.temperature)
+            self.live_map.oil_temperature_c = float(msg.temperature)
 
     # ------------------------------------------------------------------ outputs
     def _update_map(self) -> None:
-        """Publish the loss map (and rewrite ``node.map_file``) at start, after a parameter change,
-        and when an adapted coefficient has left its 95 % interval since the last map."""
-        est = self.estimator
-        current = est.coefficients()
-        if self._map_coefficients is not None and not coefficients_moved(
-                self._map_coefficients, current, est.coefficient_intervals()):
-            return
-        self._map_coefficients = current
-        try:
-            adapted, loss_map = live_map(self.config, current, self._oil_temperature_c)
-        except RollergearError as exc:  # e.g. a map.* grid outside the estimator's plausible range
-            self.get_logger().warn(f"no loss map: {exc}")
-            return
-        if self.pub_map is not None:
-            arr = to_multiarray(loss_map)
-            msg = Float64MultiArray()
-            msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
-                              for label, size, stride in zip(arr.labels, arr.sizes, arr.strides)]
-            msg.layout.data_offset = arr.data_offset
-            msg.data = arr.data.tolist()
-            self.pub_map.publish(msg)
-        if self.config.node.map_file:
-            source = f"{self.get_fully_qualified_name()} (live; adapted coefficients)"
-            try:  # the folder may have gone since start-up: a warning, the node and the topic go on
-                write_vtlm(loss_map, Path(self.config.node.map_file),
-                           map_comments(adapted, source, self._oil_temperature_c, reverse=False))
-            except OSError as exc:
-                self.get_logger().warn(f"node.map_file: could not rewrite {self.config.node.map_file}: {exc}")
-        self.maps_published += 1
+        """The map timer: a new loss map when the adapted coefficients moved (:class:`LiveMapPublisher`)."""
+        self.live_map.update(self.config, self.estimator)
+
+    @property
+    def maps_published(self) -> int:
+        """Loss maps made so far."""
+        return self.live_map.published
 
     def _create_outputs(self) -> None:
         """A publisher for each output channel the parameters switch on (:mod:`base.output_channels`:
-        ``node.publish_float64``, ``node.publish_stamped``), and the per-sample publishing plan."""
+        ``node.publish_float64``, ``node.publish_stamped``, ``node.publish_map``), and the per-sample
+        publishing plan."""
         node = self.config.node
         #: output channel -> its resolved topic, for the channels published
         self.out_topics: dict[str, str] = {}
         self.output_publishers: dict[str, Any] = {}
         for channel in OUTPUT_CHANNELS.values():
-            if node.publish_stamped if channel.stamped else node.publish_float64:
+            if channel.per == "map":
+                published = node.publish_map
+            else:
+                published = node.publish_stamped if channel.stamped else node.publish_float64
+            if published:
                 self.out_topics[channel.name] = self.resolve_topic_name(channel.topic)
                 self.output_publishers[channel.name] = self.create_publisher(
                     _MESSAGE_CLASSES[channel.message_type], channel.topic, output_qos(channel))
@@ -544,6 +440,9 @@ class LossEstimatorNode(Node):
         self._stamped_plan = tuple((_raw_publish(self.output_publishers[c.name]), self.out_topics[c.name])
                                    for c in stamped_channels() if c.name in self.out_topics)
         self._stamped = EstimateCodec() if self._stamped_plan else None
+        #: the loss map's publishers (one message per map, not per estimate)
+        self._map_publishers = tuple(self.output_publishers[c.name] for c in map_channels()
+                                     if c.name in self.output_publishers)
 
     def _publish(self, est: Estimate, send: bool = True) -> None:
         """Publish one estimate (``send=False``: record it only) and buffer it for rerun."""
@@ -583,15 +482,19 @@ class LossEstimatorNode(Node):
             buf, self._rr_buffer = self._rr_buffer, []
             skipped = self._rr_skips.since_last(self.estimator.counts)
             alarms = list(self.estimator.detector.alarm_times_ns)
+            estimator = self.estimator  # the one that made them (a parameter change makes another)
 
         def column(name: str) -> np.ndarray:
             return np.array([getattr(e, name) for e in buf], dtype=np.float64)
 
         t = np.array([e.t_ns for e in buf], dtype=np.int64)
+        torque, speed, temperature, loss = (column("torque_nm"), column("speed_rad_s"), column("temperature_c"),
+                                            column("loss_torque_nm"))
+        breakdown, effects = estimator.breakdown(torque, speed, temperature, loss)  # off the input path
         self.rerun.send_estimates(BatchEstimate(
-            t, column("torque_nm"), column("speed_rad_s"), column("loss_torque_nm"), column("loss_power_w"),
-            column("efficiency"), column("measured_loss_nm"), column("residual_nm"), column("temperature_c"),
-            alarms_t_ns=alarms, out_torque_nm=column("out_torque_nm"), out_speed_rad_s=column("out_speed_rad_s")))
+            t, torque, speed, loss, column("loss_power_w"), column("efficiency"), column("measured_loss_nm"),
+            column("residual_nm"), temperature, breakdown_nm=breakdown, effects_nm=effects, alarms_t_ns=alarms,
+            out_torque_nm=column("out_torque_nm"), out_speed_rad_s=column("out_speed_rad_s")))
         if skipped:
             self.rerun.events([int(t[-1])], [skipped], "WARN")
 
@@ -622,10 +525,11 @@ class LossEstimatorNode(Node):
         busy = self.busy_ns
         self._busy_reported = (now, busy)
         depth = INPUT_QOS[node.input_qos].depth if node.input_qos == "sensor_data" else None
-        report = diagnose(now, self.monitor, self.monitor.rates(now), self.estimator, node.expected_rate_hz,
-                          node.min_efficiency_warn, self._skips_reported, self._alarms_reported,
-                          busy_fraction=(busy - busy_then) / max(now - then, 1), executor_lag_s=self.executor_lag_s(),
-                          queue_depth=depth, learn_rate=node.learn_input_rate)
+        report = diagnose(InputsNow(now, self.monitor, self.monitor.rates(now)), self.estimator,
+                          DiagnosticLimits(node.expected_rate_hz, node.min_efficiency_warn, depth,
+                                           node.learn_input_rate),
+                          SinceLast(self._skips_reported, self._alarms_reported),
+                          NodeLoad((busy - busy_then) / max(now - then, 1), self.executor_lag_s()))
         self._skips_reported = dict(self.estimator.counts)
         self._alarms_reported = self.estimator.detector.alarms
         status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: {STATUS_NAME}",
@@ -675,11 +579,15 @@ class LossEstimatorNode(Node):
             return
 
     def close(self) -> None:
-        """Flush and close the recordings, the MCAP first (safe to call twice).  A rerun viewer
-        that cannot be reached costs its data, with a warning, never the MCAP or a traceback."""
+        """Flush and close the recordings, the MCAP first (safe to call twice), then log one summary
+        line.  A rerun viewer that cannot be reached costs its data, with a warning, never the MCAP
+        or a traceback."""
         if self.inputs is not None:
             self.inputs.stop()  # no input is taken after this
         self._stop_diagnostics()
+        if self._closed:
+            return
+        self._closed = True
         self._finish_pending()
         if self.recorder is not None:
             self.recorder.close()
@@ -692,36 +600,19 @@ class LossEstimatorNode(Node):
                 self.get_logger().warn(f"rerun logging incomplete: {exc}")
             finally:
                 self.rerun = None
+        self.get_logger().info(self.summary_line())
 
-
-def make_executor(kind: str, context=None):
-    """``single_threaded`` (message info: pairs by publisher timestamps) or ``events`` (faster)."""
-    if kind == "events":
-        from rclpy.experimental import EventsExecutor
-
-        return EventsExecutor(context=context)
-    return SingleThreadedExecutor(context=context)
-
-
-def stop_on_signals() -> threading.Event:
-    """Make SIGINT and SIGTERM set the returned event, and nothing else.
-
-    The node's main loop ends when it is set, and the files are closed.  A handler that raises
-    (Python's ``KeyboardInterrupt``, which rclpy's own handler chains to) lands wherever the main
-    thread happens to be -- inside an input callback, between the recording of a message and its
-    estimate, it leaves a recording that replays to one estimate more than the node published.
-    A further signal while the node closes its files is reported and does not interrupt that."""
-    stop = threading.Event()
-
-    def handler(signum: int, _frame) -> None:
-        if stop.is_set():
-            print(f"loss_estimator: {signal.Signals(signum).name} again: still closing the recordings "
-                  "(SIGKILL ends at once, leaving an MCAP without its index)", file=sys.stderr)
-        stop.set()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, handler)
-    return stop
+    def summary_line(self) -> str:
+        """What the run did, in one line: samples estimated of those received, skips by reason,
+        change alarms, parameter changes, loss maps and the files written."""
+        est = self.estimator
+        skips = ", ".join(f"{reason.replace('_', ' ')} {n}" for reason, n in est.counts.items() if n) or "none"
+        node = self.config.node
+        files = [path for path in (node.record_mcap, node.rerun_rrd) if path]
+        files += [node.map_file] if node.map_file and self.maps_published else []
+        return (f"stopped: {est.estimated:,} samples estimated of {est.motor_messages:,} received; skipped: {skips}; "
+                f"change alarms: {est.detector.alarms}; parameter changes: {self.parameter_changes}; "
+                f"loss maps: {self.maps_published}; wrote: {', '.join(files) or 'no file'}")
 
 
 def main(args: list[str] | None = None) -> int:

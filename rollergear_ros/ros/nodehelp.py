@@ -7,6 +7,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+from ..base.output_channels import OUTPUT_CHANNELS
 from ..base.interface import NAMESPACE, Topic
 from ..core.params import parameter_specs
 
@@ -61,8 +62,7 @@ def help_text(width: int = 100) -> str:
     """The whole ``--help`` text."""
     inputs = ", ".join(f"{NAMESPACE}/{t}" for t in (Topic.MOTOR_TORQUE, Topic.MOTOR_SPEED, Topic.OUTPUT_TORQUE,
                                                      Topic.OUTPUT_SPEED, Topic.OIL_TEMPERATURE))
-    outputs = ", ".join(f"{NAMESPACE}/{t}" for t in (Topic.LOSS_TORQUE, Topic.LOSS_POWER, Topic.EFFICIENCY,
-                                                      Topic.RESIDUAL_TORQUE, Topic.LOSS_ESTIMATE, Topic.LOSS_MAP))
+    outputs = ", ".join(c.absolute_topic() for c in OUTPUT_CHANNELS.values())  # :mod:`base.output_channels`
     parts = [
         "usage: loss_estimator [-h] [--ros-args [--params-file YAML] [-p NAME:=VALUE ...] [-r __ns:=/NS]]",
         "",

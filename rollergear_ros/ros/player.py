@@ -14,6 +14,8 @@ import queue
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,6 +32,14 @@ def message_class(type_name: str):
         return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
     except (ValueError, ImportError, AttributeError):
         raise UsageError(f"message type {type_name!r} is not available in this ROS installation") from None
+
+
+def _available_class(type_name: str):
+    """The rclpy message class of ``type_name``, or None where this installation has none."""
+    try:
+        return message_class(type_name)
+    except UsageError:
+        return None
 
 
 class _Prefetch:
@@ -124,10 +134,26 @@ def wait_for_graph(node, pubs: dict, bound_s: float, every_topic_s: float = 0.0)
     return f"{n} subscription(s) matched"
 
 
-def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, topics: list[str] | None = None,
-         wait_for_subscribers: float = 0.0, start_delay: float = 0.0, reliable: bool = True,
-         quiet: bool = False, wait_for_graph_s: float = GRAPH_WAIT_S, show_progress: bool = True) -> PlayStats:
-    """Publish the bag in log-time order at ``rate`` times real time.
+@dataclass(frozen=True)
+class PlayOptions:
+    """How :func:`play` publishes a bag (``rollergear play``'s options)."""
+
+    rate: float = 1.0  #: times real time
+    loop: bool = False  #: again and again
+    clock: bool = False  #: publish ``/clock`` with the bag's time
+    topics: list[str] | None = None  #: only these (None: all)
+    #: > 0: wait up to this long until every topic has a subscriber (a node started after the player)
+    wait_for_subscribers: float = 0.0
+    start_delay: float = 0.0  #: seconds to sleep before playing
+    reliable: bool = True  #: reliable, keep-all publishers (else best effort)
+    quiet: bool = False  #: nothing on stderr
+    wait_for_graph_s: float = GRAPH_WAIT_S  #: bound on the wait for the subscribers already running (0: none)
+    show_progress: bool = True  #: a progress bar (on a terminal)
+    label: str | None = None  #: what the bag is called in what play prints (None: its path)
+
+
+def play(bag: Path, options: PlayOptions = PlayOptions()) -> PlayStats:
+    """Publish the bag in log-time order at ``options.rate`` times real time.
 
     First waits (:func:`wait_for_graph`, at most ``wait_for_graph_s``; 0: not at all) for the
     subscribers already running to match, or with ``wait_for_subscribers`` > 0 until every topic
@@ -144,38 +170,32 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
 
+    o = options
     info = inspect_bag(bag)
-    selected = {t: ty for t, ty in info.topics.items() if topics is None or t in topics}
-    if not selected:
-        raise UsageError(f"nothing to play: the bag has {info.describe_topics()}")
+    selected = _playable(info, o.topics)
     if info.truncated:
-        print(f"warning: {bag}: {info.problem}; playing what is readable", file=sys.stderr)
+        print(f"warning: {o.label or bag}: {info.problem}; playing what is readable", file=sys.stderr)
     if not rclpy.ok():
         rclpy.init()
     node = Node("rollergear_player")
-    qos = (QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE) if reliable
+    qos = (QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE) if o.reliable
            else QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
-    pubs = {t: node.create_publisher(message_class(ty), t, qos) for t, ty in selected.items()}
-    clock_pub = node.create_publisher(Clock, "/clock", 10) if clock else None
+    pubs = {t: node.create_publisher(cls, t, qos) for t, cls in selected.items()}
+    clock_pub = node.create_publisher(Clock, "/clock", 10) if o.clock else None
     stats = PlayStats()
     bar = None
     try:
-        if wait_for_subscribers > 0 or wait_for_graph_s > 0:
-            found = wait_for_graph(node, pubs, wait_for_graph_s, wait_for_subscribers)
-            if not quiet:
-                print(f"play: {found}", file=sys.stderr)
-        if start_delay > 0:
-            time.sleep(start_delay)
+        _wait_to_start(node, pubs, o)
         total = sum(info.counts.get(t, 0) for t in selected)
-        if not quiet:
+        if not o.quiet:
             print(f"play: publishing {total:,} messages on {len(selected)} "
-                  f"topics at {rate:g}x{' (looping)' if loop else ''}", file=sys.stderr, flush=True)
+                  f"topics at {o.rate:g}x{' (looping)' if o.loop else ''}", file=sys.stderr, flush=True)
         # the bar reads the count from a thread of its own: the publishing loop only counts
-        bar = TimedProgress("play", None if loop else total, "msg", read=lambda: stats.messages,
-                            enabled=not quiet and show_progress and sys.stderr.isatty()).start()
+        bar = TimedProgress("play", None if o.loop else total, "msg", read=lambda: stats.messages,
+                            enabled=not o.quiet and o.show_progress and sys.stderr.isatty()).start()
         while True:
-            _play_once(bag, pubs, rate, clock_pub, stats)
-            if not loop:
+            _play_once(bag, pubs, o.rate, clock_pub, stats)
+            if not o.loop:
                 break
         # every reliable subscriber has the last messages before the publishers go away (bounded);
         # best-effort ones get a moment for the delivery
@@ -188,9 +208,36 @@ def play(bag: Path, rate: float = 1.0, loop: bool = False, clock: bool = False, 
         if bar is not None:
             bar.close()
         node.destroy_node()
-    if not quiet:
-        print(f"played {bag}: {stats.text()}", file=sys.stderr)
+    if not o.quiet:
+        print(f"played {o.label or bag}: {stats.text()}", file=sys.stderr)
     return stats
+
+
+def _playable(info, topics: list[str] | None) -> dict:
+    """Topic -> message class of the topics to play: those asked for (all: None) whose message type
+    this ROS installation has; the others are named in a warning (none left: :class:`UsageError`)."""
+    selected = {t: ty for t, ty in info.topics.items() if topics is None or t in topics}
+    if not selected:
+        raise UsageError(f"nothing to play: the bag has {info.describe_topics()}")
+    classes = {ty: _available_class(ty) for ty in set(selected.values())}
+    missing = sorted(t for t, ty in selected.items() if classes[ty] is None)
+    if len(missing) == len(selected):
+        raise UsageError(f"nothing to play: no message type of the bag is available in this ROS installation "
+                         f"({', '.join(sorted(set(selected.values())))})")
+    if missing:
+        print(f"warning: not played (their message types are not available in this ROS installation): "
+              f"{', '.join(f'{t} ({selected[t]})' for t in missing)}", file=sys.stderr)
+    return {t: classes[ty] for t, ty in selected.items() if classes[ty] is not None}
+
+
+def _wait_to_start(node, pubs: dict, o: PlayOptions) -> None:
+    """Wait for the subscribers (:func:`wait_for_graph`) and the start delay, as the options say."""
+    if o.wait_for_subscribers > 0 or o.wait_for_graph_s > 0:
+        found = wait_for_graph(node, pubs, o.wait_for_graph_s, o.wait_for_subscribers)
+        if not o.quiet:
+            print(f"play: {found}", file=sys.stderr)
+    if o.start_delay > 0:
+        time.sleep(o.start_delay)
 
 
 def _play_once(bag: Path, pubs: dict, rate: float, clock_pub, stats: PlayStats) -> None:
@@ -270,23 +317,45 @@ def cmd_play(args: argparse.Namespace) -> int:
     if not (args.rate > 0):
         raise UsageError("--rate must be > 0")
     fmt = input_format(args.bag)
-    if fmt.family != "mcap":  # what was given, and the way to a recording play can publish
+    if fmt.family not in ("mcap", "rosbag2"):  # what was given, and the way to a recording play can publish
         raise UsageError(f"{args.bag} is a {fmt.name} {'folder' if Path(args.bag).is_dir() else 'file'}: play "
-                         f"publishes ROS 2 MCAP recordings; convert it first: rollergear import {args.bag} --out "
-                         "REC.mcap" + (" --channels MAP.yaml" if fmt.family == "timeseries" else ""))
-    init_for_command_line()
-    try:
-        play(Path(args.bag), args.rate, args.loop, args.clock, args.topics, args.wait_for_subscribers,
-             args.delay, not args.best_effort, wait_for_graph_s=0.0 if args.no_wait else GRAPH_WAIT_S,
-             show_progress=not args.no_progress)
-    finally:
-        rclpy.try_shutdown()
+                         f"publishes ROS 2 recordings (MCAP, rosbag2); convert it first: rollergear import "
+                         f"{args.bag} --out REC.mcap" + (" --channels MAP.yaml" if fmt.family == "timeseries" else ""))
+    options = PlayOptions(args.rate, args.loop, args.clock, args.topics, args.wait_for_subscribers, args.delay,
+                          not args.best_effort, wait_for_graph_s=0.0 if args.no_wait else GRAPH_WAIT_S,
+                          show_progress=not args.no_progress, label=args.bag)
+    with _as_mcap_recording(Path(args.bag), fmt.family) as bag:
+        init_for_command_line()
+        try:
+            play(bag, options)
+        finally:
+            rclpy.try_shutdown()
     return 0
+
+
+@contextmanager
+def _as_mcap_recording(bag: Path, family: str) -> Iterator[Path]:
+    """The MCAP to publish: the bag itself, or a rosbag2 bag (MCAP or SQLite storage, split or not)
+    with every topic copied into a temporary MCAP in log-time order, removed afterwards."""
+    if family == "mcap":
+        yield bag
+        return
+    import tempfile
+
+    from ..sources.importer import copy_rosbag2
+
+    with tempfile.TemporaryDirectory(prefix="rollergear-play-") as tmp:
+        copy = Path(tmp) / "bag.mcap"
+        counts = copy_rosbag2(bag, copy)
+        print(f"play: read the rosbag2 bag {bag}: {sum(counts.values()):,} messages on {len(counts)} topics",
+              file=sys.stderr)
+        yield copy
 
 
 def register_play(sub, with_params) -> None:  # noqa: ARG001
     p = sub.add_parser("play", help="publish a recorded bag over ROS 2 with its original timing")
-    p.add_argument("bag", metavar="BAG", help="ROS 2 MCAP recording (rollergear import converts other formats)")
+    p.add_argument("bag", metavar="BAG", help="ROS 2 recording: MCAP, or a rosbag2 folder (metadata.yaml; MCAP or "
+                   "SQLite storage); rollergear import converts other formats")
     p.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1)")
     p.add_argument("--loop", action="store_true", help="play again and again")
     p.add_argument("--clock", action="store_true", help="publish /clock with the bag's time (use_sim_time)")

@@ -74,6 +74,17 @@ class _Held:
     values: dict[str, np.ndarray] = field(default_factory=dict)
     present: dict[str, np.ndarray] = field(default_factory=dict)
 
+    def then(self, later: _Held) -> _Held:
+        """These rows followed by ``later``'s."""
+        return _Held(np.concatenate([self.t_ns, later.t_ns]), np.concatenate([self.t_valid, later.t_valid]),
+                     {n: np.concatenate([v, later.values[n]]) for n, v in self.values.items()},
+                     {n: np.concatenate([v, later.present[n]]) for n, v in self.present.items()})
+
+    def rows(self, part: slice) -> _Held:
+        """The rows of ``part``."""
+        return _Held(self.t_ns[part], self.t_valid[part], {n: v[part] for n, v in self.values.items()},
+                     {n: v[part] for n, v in self.present.items()})
+
 
 def aligned_batches(path: str | Path, cmap: ChannelMap, batch_rows: int = BATCH_ROWS,
                     notes: list[str] | None = None) -> Iterator[Aligned]:
@@ -84,109 +95,137 @@ def aligned_batches(path: str | Path, cmap: ChannelMap, batch_rows: int = BATCH_
         raise InputFileError(f"{path}: a {path.suffix.lstrip('.').upper()} file needs time: {{column: …, unit: "
                              f"s|ms|us|ns|datetime}} in the channel map {cmap.path} (only MDF4 and TDMS carry their "
                              "own time)")
-    names = list(cmap.channels)
-    paired = [c for c in Channel.PAIRED if c in cmap.channels]
-    held = _Held(values={n: np.zeros(0) for n in names}, present={n: np.zeros(0, bool) for n in names})
-    anchor: dict[str, tuple[int, float]] = {}  # channel -> its last sample aligned so far
-    origin: dict[str, int] = {}  # channel -> its first sample's time (the interpolation's origin)
-    resampled: set[str] = set()
-    last_t: int | None = None
-    shift: int | None = None
-    temp_first: int | None = None
-    temp_slot: int | None = None
-    rows_read = 0
-    period = int(1e9 / TEMPERATURE_MAX_RATE_HZ)
-    from .csvdialect import sniff
-    from .timeseries import time_base
-
-    clock = time_base(path, cmap, sniff(path, cmap) if is_format(path, "CSV") else None)
+    aligner = _Aligner(path, cmap, batch_rows, notes)
     batches = _batches(path, cmap, batch_rows)
     final = False
     while not final:
         table = next(batches, None)
         final = table is None
         if table is not None:
-            t_col = table.column(cmap.time.column)
-            t_valid = ~np.asarray(t_col.is_null())
-            t_ns = _time_ns(path, cmap.time, t_col, clock, last_t, notes)
-            values, present = {}, {}
-            for name, spec in cmap.channels.items():
-                try:
-                    raw = numeric_column(path, name, spec, table)
-                except InputFileError as exc:  # its data row counts from this batch: from the file's start
-                    raise InputFileError(_renumber(str(exc), rows_read)) from None
-                values[name] = spec.to_si(raw)
-                present[name] = t_valid & has_value(table, spec)
-            valid_t = t_ns[t_valid]
-            back = np.flatnonzero(np.diff(valid_t) < 0)
-            if back.size or (last_t is not None and len(valid_t) and valid_t[0] < last_t):
-                row = rows_read + (int(np.flatnonzero(t_valid)[back[0]]) + 1 if back.size else 0)
-                raise InputFileError(f"{path}: time ({cmap.time.column}) runs backwards after data row {row} "
-                                     "(time must not decrease)")
-            if len(valid_t):
-                last_t = int(valid_t[-1])
-            rows_read += table.num_rows
-            if shift is None:
-                any_present = np.logical_or.reduce([present[n] for n in names])
-                if any_present.any():
-                    first = int(t_ns[np.flatnonzero(any_present)[0]])
-                    shift = 0 if first >= 0 else -first
-                    if shift:
-                        if cmap.time.unit == "datetime":
-                            raise InputFileError(f"{path}: time ({cmap.time.column}) lies before 1970-01-01: not "
-                                                 "a recording's date")
-                        if notes is not None:
-                            notes.append(f"time started at {first * 1e-9:g} s: shifted by {shift * 1e-9:g} s "
-                                         "to start at 0")
-            t_ns = t_ns + (shift or 0)
-            held = _Held(np.concatenate([held.t_ns, t_ns]), np.concatenate([held.t_valid, t_valid]),
-                         {n: np.concatenate([held.values[n], values[n]]) for n in names},
-                         {n: np.concatenate([held.present[n], present[n]]) for n in names})
-        elif rows_read == 0:
+            aligner.read(table)
+        elif aligner.rows_read == 0:
             raise InputFileError(f"{path}: no data rows (only the column names)")
-        # the rows up to the last one with every paired channel can be aligned now
-        if final or not paired:
+        part = aligner.take(final)
+        if part is not None:
+            yield aligner.align(part)
+
+
+class _Aligner:
+    """The state :func:`aligned_batches` carries from one batch to the next: the rows held back,
+    each channel's anchor and origin, the time's shift and the temperature's thinning."""
+
+    def __init__(self, path: Path, cmap: ChannelMap, batch_rows: int, notes: list[str] | None) -> None:
+        from .csvdialect import sniff
+        from .timeseries import time_base
+
+        self.path, self.cmap, self.batch_rows, self.notes = path, cmap, batch_rows, notes
+        self.names = list(cmap.channels)
+        self.paired = [c for c in Channel.PAIRED if c in cmap.channels]
+        self.held = _Held(values={n: np.zeros(0) for n in self.names},
+                          present={n: np.zeros(0, bool) for n in self.names})
+        self.anchor: dict[str, tuple[int, float]] = {}  # channel -> its last sample aligned so far
+        self.origin: dict[str, int] = {}  # channel -> its first sample's time (the interpolation's origin)
+        self.resampled: set[str] = set()
+        self.last_t: int | None = None
+        self.shift: int | None = None
+        self.temp_first: int | None = None
+        self.temp_slot: int | None = None
+        self.rows_read = 0
+        self.clock = time_base(path, cmap, sniff(path, cmap) if is_format(path, "CSV") else None)
+
+    def read(self, table) -> None:
+        """Convert one batch's columns to SI, check its time and hold its rows."""
+        path, cmap = self.path, self.cmap
+        t_col = table.column(cmap.time.column)
+        t_valid = ~np.asarray(t_col.is_null())
+        t_ns = _time_ns(path, cmap.time, t_col, self.clock, self.last_t, self.notes)
+        values, present = {}, {}
+        for name, spec in cmap.channels.items():
+            try:
+                raw = numeric_column(path, name, spec, table)
+            except InputFileError as exc:  # its data row counts from this batch: from the file's start
+                raise InputFileError(_renumber(str(exc), self.rows_read)) from None
+            values[name] = spec.to_si(raw)
+            present[name] = t_valid & has_value(table, spec)
+        valid_t = t_ns[t_valid]
+        back = np.flatnonzero(np.diff(valid_t) < 0)
+        if back.size or (self.last_t is not None and len(valid_t) and valid_t[0] < self.last_t):
+            row = self.rows_read + (int(np.flatnonzero(t_valid)[back[0]]) + 1 if back.size else 0)
+            raise InputFileError(f"{path}: time ({cmap.time.column}) runs backwards after data row {row} "
+                                 "(time must not decrease)")
+        if len(valid_t):
+            self.last_t = int(valid_t[-1])
+        self.rows_read += table.num_rows
+        if self.shift is None:
+            self._find_shift(t_ns, present)
+        self.held = self.held.then(_Held(t_ns + (self.shift or 0), t_valid, values, present))
+
+    def _find_shift(self, t_ns: np.ndarray, present: dict[str, np.ndarray]) -> None:
+        """A relative time that starts below 0 is shifted to start at 0 (a date may not)."""
+        any_present = np.logical_or.reduce([present[n] for n in self.names])
+        if not any_present.any():
+            return
+        first = int(t_ns[np.flatnonzero(any_present)[0]])
+        self.shift = 0 if first >= 0 else -first
+        if self.shift:
+            if self.cmap.time.unit == "datetime":
+                raise InputFileError(f"{self.path}: time ({self.cmap.time.column}) lies before 1970-01-01: not "
+                                     "a recording's date")
+            if self.notes is not None:
+                self.notes.append(f"time started at {first * 1e-9:g} s: shifted by {self.shift * 1e-9:g} s "
+                                  "to start at 0")
+
+    def take(self, final: bool) -> _Held | None:
+        """The held rows that can be aligned now: up to the last one with every paired channel
+        (all of them at the end, or once a channel has been gone for too long); None if none."""
+        held = self.held
+        if final or not self.paired:
             cut = len(held.t_ns)
         else:
-            complete = np.logical_and.reduce([held.present[n] for n in paired])
+            complete = np.logical_and.reduce([held.present[n] for n in self.paired])
             idx = np.flatnonzero(complete)
             cut = int(idx[-1]) + 1 if len(idx) else 0
-            if len(held.t_ns) - cut > max(MAX_HELD_ROWS, 4 * batch_rows):  # a channel gone for good: stop waiting
+            if len(held.t_ns) - cut > max(MAX_HELD_ROWS, 4 * self.batch_rows):  # a channel gone for good
                 cut = len(held.t_ns)
         if cut == 0:
-            continue
-        part = _Held(held.t_ns[:cut], held.t_valid[:cut], {n: v[:cut] for n, v in held.values.items()},
-                     {n: p[:cut] for n, p in held.present.items()})
-        held = _Held(held.t_ns[cut:], held.t_valid[cut:], {n: v[cut:] for n, v in held.values.items()},
-                     {n: p[cut:] for n, p in held.present.items()})
+            return None
+        self.held = held.rows(slice(cut, None))
+        return held.rows(slice(None, cut))
+
+    def align(self, part: _Held) -> Aligned:
+        """``part``'s paired channels on the motor torque's time base, and its thinned temperature."""
         base = part.present[Channel.MOTOR_TORQUE]
         base_t = part.t_ns[base]
         out = {Channel.MOTOR_TORQUE: part.values[Channel.MOTOR_TORQUE][base]}
-        for name in paired[1:]:
+        for name in self.paired[1:]:
             has = part.present[name]
             s_t, s_v = part.t_ns[has], part.values[name][has]
-            if name not in origin and len(s_t):
-                origin[name] = int(s_t[0])
+            if name not in self.origin and len(s_t):
+                self.origin[name] = int(s_t[0])
             if not np.array_equal(has, base):
-                resampled.add(name)
-            if name in resampled:
-                out[name] = _interpolate(s_t, s_v, base_t, anchor.get(name), origin.get(name))
+                self.resampled.add(name)
+            if name in self.resampled:
+                out[name] = _interpolate(s_t, s_v, base_t, self.anchor.get(name), self.origin.get(name))
             else:
                 out[name] = s_v
             if len(s_t):
-                anchor[name] = (int(s_t[-1]), float(s_v[-1]))
-        temperature = None
-        if Channel.OIL_TEMPERATURE in cmap.channels:
-            has = part.present[Channel.OIL_TEMPERATURE]
-            tt, tv = part.t_ns[has], part.values[Channel.OIL_TEMPERATURE][has]
-            if len(tt):
-                if temp_first is None:
-                    temp_first = int(tt[0])
-                slot = (tt - temp_first) // period
-                keep = np.r_[temp_slot is None or slot[0] != temp_slot, slot[1:] != slot[:-1]]
-                temp_slot = int(slot[-1])
-                temperature = Series(tt[keep], tv[keep])
-        yield Aligned(base_t, out, temperature, [c for c in paired if c in resampled])
+                self.anchor[name] = (int(s_t[-1]), float(s_v[-1]))
+        return Aligned(base_t, out, self._temperature(part), [c for c in self.paired if c in self.resampled])
+
+    def _temperature(self, part: _Held) -> Series | None:
+        """The oil temperature of ``part``, at most one a second over the whole file."""
+        if Channel.OIL_TEMPERATURE not in self.cmap.channels:
+            return None
+        has = part.present[Channel.OIL_TEMPERATURE]
+        tt, tv = part.t_ns[has], part.values[Channel.OIL_TEMPERATURE][has]
+        if not len(tt):
+            return None
+        if self.temp_first is None:
+            self.temp_first = int(tt[0])
+        slot = (tt - self.temp_first) // int(1e9 / TEMPERATURE_MAX_RATE_HZ)
+        keep = np.r_[self.temp_slot is None or slot[0] != self.temp_slot, slot[1:] != slot[:-1]]
+        self.temp_slot = int(slot[-1])
+        return Series(tt[keep], tv[keep])
 
 
 def _interpolate(s_t: np.ndarray, s_v: np.ndarray, t_ns: np.ndarray, anchor: tuple[int, float] | None,

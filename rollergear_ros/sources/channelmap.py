@@ -170,41 +170,10 @@ def load_channel_map(path: str | Path) -> ChannelMap:
     if fmt not in FORMATS:
         raise InputFileError(f"{path}: format: {fmt!r} is not one of {', '.join(FORMATS)}")
     channels = {k: _spec(path, k, v) for k, v in doc.items() if k in UNITS and k != "time"}
-    output_side = fmt == "steady_state" and Channel.MOTOR_TORQUE not in channels and Channel.MOTOR_SPEED not in channels
-    if output_side:
-        missing = [k for k in (Channel.OUTPUT_TORQUE, Channel.OUTPUT_SPEED, "efficiency") if k not in channels]
-        if missing or doc.get("ratio") is None:
-            raise InputFileError(f"{path}: no motor_torque and motor_speed channels; a table of the output side needs "
-                                 f"output_torque, output_speed, efficiency and ratio (missing: "
-                                 f"{', '.join(missing + ([] if doc.get('ratio') is not None else ['ratio']))})")
-    else:
-        # a bench map of input torque, output speed and the ratio: the input speed is output speed x ratio
-        speed_from_output = (fmt == "steady_state" and Channel.OUTPUT_SPEED in channels
-                             and doc.get("ratio") is not None)
-        for needed in (Channel.MOTOR_TORQUE,) + (() if speed_from_output else (Channel.MOTOR_SPEED,)):
-            if needed not in channels:
-                raise InputFileError(f"{path}: no {needed} channel (every file needs motor_torque and motor_speed; "
-                                     "a steady-state table may give the output side instead)")
+    _check_sides(path, doc, fmt, channels)
     time = _spec(path, "time", doc["time"]) if "time" in doc else None
-    if channels.get(Channel.MOTOR_TORQUE) is not None and channels[Channel.MOTOR_TORQUE].constant is not None:
-        raise InputFileError(f"{path}: motor_torque: the drive torque is measured, not a constant")
-    if fmt == "timeseries":  # time: needed by CSV and Parquet; MDF4 and TDMS carry their own (see timeseries)
-        steady_only = [k for k in ("loss_torque", "efficiency") if k in channels]
-        if steady_only:
-            raise InputFileError(f"{path}: {', '.join(steady_only)} belong to format: steady_state")
-    elif not any(k in channels for k in STEADY_LOSS_CHANNELS):
-        raise InputFileError(f"{path}: a steady_state map needs loss_torque, output_torque or efficiency")
-    ratio = doc.get("ratio")
-    ratio_column = None
-    if isinstance(ratio, dict) and fmt == "steady_state":
-        if set(ratio) != {"column"}:
-            raise InputFileError(f"{path}: ratio: expected a number > 0 or {{column: NAME}}, got {ratio!r}")
-        ratio_column, ratio = str(ratio["column"]), None
-    elif ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float) or not ratio > 0
-                                or not math.isfinite(ratio)):
-        raise InputFileError(f"{path}: ratio must be a finite number > 0"
-                             f"{' (or {column: NAME} in a steady_state map)' if fmt == 'steady_state' else ''}, "
-                             f"got {ratio!r}")
+    _check_kinds(path, fmt, channels)
+    ratio, ratio_column = _ratio(path, doc.get("ratio"), fmt)
     group = doc.get("group")
     if group is not None:
         if not isinstance(group, dict) or set(group) != {"column"}:
@@ -221,6 +190,51 @@ def load_channel_map(path: str | Path) -> ChannelMap:
     return ChannelMap(path, fmt, channels, time, None if ratio is None else float(ratio), group,
                       ratio_column=ratio_column, timezone=zone, date=date, date_label=date_label,
                       date_format=date_format)
+
+
+def _check_sides(path: Path, doc: dict, fmt: str, channels: dict[str, ChannelSpec]) -> None:
+    """The motor's torque and speed are there, or (a steady-state table) the output side with the ratio."""
+    output_side = fmt == "steady_state" and Channel.MOTOR_TORQUE not in channels and Channel.MOTOR_SPEED not in channels
+    if output_side:
+        missing = [k for k in (Channel.OUTPUT_TORQUE, Channel.OUTPUT_SPEED, "efficiency") if k not in channels]
+        if missing or doc.get("ratio") is None:
+            raise InputFileError(f"{path}: no motor_torque and motor_speed channels; a table of the output side needs "
+                                 f"output_torque, output_speed, efficiency and ratio (missing: "
+                                 f"{', '.join(missing + ([] if doc.get('ratio') is not None else ['ratio']))})")
+    else:
+        # a bench map of input torque, output speed and the ratio: the input speed is output speed x ratio
+        speed_from_output = (fmt == "steady_state" and Channel.OUTPUT_SPEED in channels
+                             and doc.get("ratio") is not None)
+        for needed in (Channel.MOTOR_TORQUE,) + (() if speed_from_output else (Channel.MOTOR_SPEED,)):
+            if needed not in channels:
+                raise InputFileError(f"{path}: no {needed} channel (every file needs motor_torque and motor_speed; "
+                                     "a steady-state table may give the output side instead)")
+
+
+def _check_kinds(path: Path, fmt: str, channels: dict[str, ChannelSpec]) -> None:
+    """The drive torque is measured, and no channel belongs to the other format."""
+    if channels.get(Channel.MOTOR_TORQUE) is not None and channels[Channel.MOTOR_TORQUE].constant is not None:
+        raise InputFileError(f"{path}: motor_torque: the drive torque is measured, not a constant")
+    if fmt == "timeseries":  # time: needed by CSV and Parquet; MDF4 and TDMS carry their own (see timeseries)
+        steady_only = [k for k in ("loss_torque", "efficiency") if k in channels]
+        if steady_only:
+            raise InputFileError(f"{path}: {', '.join(steady_only)} belong to format: steady_state")
+    elif not any(k in channels for k in STEADY_LOSS_CHANNELS):
+        raise InputFileError(f"{path}: a steady_state map needs loss_torque, output_torque or efficiency")
+
+
+def _ratio(path: Path, ratio, fmt: str) -> tuple[float | None, str | None]:
+    """The map's ratio: (a number > 0, None), (None, a column of a steady-state table) or (None, None)."""
+    if isinstance(ratio, dict) and fmt == "steady_state":
+        if set(ratio) != {"column"}:
+            raise InputFileError(f"{path}: ratio: expected a number > 0 or {{column: NAME}}, got {ratio!r}")
+        return None, str(ratio["column"])
+    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float) or not ratio > 0
+                              or not math.isfinite(ratio)):
+        raise InputFileError(f"{path}: ratio must be a finite number > 0"
+                             f"{' (or {column: NAME} in a steady_state map)' if fmt == 'steady_state' else ''}, "
+                             f"got {ratio!r}")
+    return ratio, None
 
 
 def zone_info(name: str):

@@ -40,7 +40,7 @@ from .formats import INPUT_FORMATS, input_format
 from ..base.interface import Channel, MessageType
 from .timeseries import align, read_series
 
-__all__ = ["ImportSummary", "as_mcap", "import_source", "source_kind"]
+__all__ = ["ImportSummary", "as_mcap", "copy_rosbag2", "import_source", "source_kind"]
 
 IMPORT_METADATA = "rollergear_import"
 RESAMPLING_RULE = ("paired channels on the motor torque's time stamps: taken as they are where they coincide, "
@@ -143,6 +143,36 @@ def rosbag2_reader(src: str | Path) -> Iterator:
         raise InputFileError(f"{src}: not a rosbag2 bag rosbags can read ({reason})") from None
 
 
+def rosbag2_messages(reader, topics: set[str] | None = None) -> Iterator[tuple[object, int, bytes]]:
+    """``(connection, log time, CDR bytes)`` of every message an open :func:`rosbag2_reader` holds
+    (of ``topics`` only, when given), each storage file read by its own topics.
+
+    rosbags pairs a storage file's topics with ``metadata.yaml``'s by name, type *and* offered QoS;
+    where the two QoS texts differ (rosbag2 of 2020 wrote a deadline of 0 s to one and of ~68 years
+    to the other) its reader yields none of that topic's messages, and a bag reads as empty.  Read
+    by the storage's own topics, every message it holds comes (message compression undone); files
+    are taken one after the other, in each one's time order."""
+    for bag in reader.readers:
+        folder = bag.storage
+        storages = getattr(folder, "storages", None)
+        if storages is None:  # a storage file given as it is: its own topics already
+            conns = [c for c in bag.connections if topics is None or c.topic in topics]
+            if conns:
+                yield from bag.messages(connections=conns)
+            continue
+        decompress = None
+        if bag.compression_mode == "message":
+            import zstandard
+
+            decompress = zstandard.ZstdDecompressor().decompress
+        for storage in storages:
+            conns = [c for c in storage.connections if topics is None or c.topic in topics]
+            if not conns:
+                continue
+            for con, t_ns, raw in storage.messages(conns):
+                yield con, t_ns, decompress(raw) if decompress else raw
+
+
 def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
     wanted = {topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed,
               topics.oil_temperature, topics.joint_states}
@@ -155,7 +185,7 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
                                  f"(topics: {found})")
         with BagWriter(out, background=True) as bw:  # in log-time order whatever order the storage gives
             bw.add_metadata(IMPORT_METADATA, {"source": str(src), "kind": "rosbag2"})
-            for con, t_ns, raw in reader.messages(connections=connections):
+            for con, t_ns, raw in rosbag2_messages(reader, {c.topic for c in connections}):
                 if con.msgtype not in MSG_DEFINITIONS:
                     raise InputFileError(f"{src}: {con.topic} is {con.msgtype}, not an input type "
                                          f"({', '.join(sorted(MSG_DEFINITIONS))})")
@@ -163,6 +193,24 @@ def _import_rosbag2(src: Path, out: Path, topics: TopicMap) -> ImportSummary:
                 counts[con.topic] = counts.get(con.topic, 0) + 1
     samples = counts.get(topics.motor_torque, counts.get(topics.joint_states, 0))
     return ImportSummary(src, "rosbag2", out, sum(counts.values()), samples, topics=counts)
+
+
+def copy_rosbag2(src: str | Path, out: str | Path) -> dict[str, int]:
+    """Every topic of a rosbag2 bag (MCAP or SQLite storage, split or not) into one ROS 2 MCAP, in
+    log-time order, with the message definitions the bag carries (what ``play`` publishes a rosbag2
+    bag from; :func:`import_source` keeps only the estimator's inputs).  Returns topic -> messages."""
+    src = Path(src)
+    counts: dict[str, int] = {}
+    with rosbag2_reader(src) as reader, BagWriter(out, background=True) as bw:
+        bw.add_metadata(IMPORT_METADATA, {"source": str(src), "kind": "rosbag2 (every topic)"})
+        for con in reader.connections:  # topics without messages are kept (their publishers are made)
+            definition = MSG_DEFINITIONS.get(con.msgtype) or getattr(getattr(con, "msgdef", None), "data", "")
+            bw.channel(con.topic, con.msgtype, definition)
+            counts.setdefault(con.topic, 0)
+        for con, t_ns, raw in rosbag2_messages(reader):
+            bw.write_raw(con.topic, con.msgtype, t_ns, bytes(raw))
+            counts[con.topic] = counts.get(con.topic, 0) + 1
+    return counts
 
 
 # ------------------------------------------------------------------------------------ time series
@@ -224,8 +272,9 @@ def write_aligned_parts(parts, out: Path, topics: TopicMap = TopicMap(),
             payloads = float64_payloads(np.stack([aligned.values[c] for c in names], axis=1).ravel())
             float_topics = [(topic_of[c], MessageType.FLOAT64, None) for c in names]
             temp = aligned.temperature
-            _write_in_time_order(bw, topics, float_topics, np.tile(np.arange(k), n), np.repeat(aligned.t_ns, k),
-                                 payloads, ([], []) if temp is None else (temp.t_ns, temp.values))
+            _write_in_time_order(bw, topics, _FloatMessages(float_topics, np.tile(np.arange(k), n),
+                                                            np.repeat(aligned.t_ns, k), payloads),
+                                 ([], []) if temp is None else (temp.t_ns, temp.values))
             written += n * k + (0 if temp is None else len(temp.t_ns))
             samples += n
         record = metadata() if metadata is not None else None
@@ -234,11 +283,22 @@ def write_aligned_parts(parts, out: Path, topics: TopicMap = TopicMap(),
     return written, samples
 
 
-def _write_in_time_order(bw: BagWriter, topics: TopicMap, float_topics: list, which: np.ndarray, t_ns: np.ndarray,
-                         payloads: np.ndarray, temperatures: tuple[np.ndarray, np.ndarray]) -> None:
-    """Float64 messages (``which`` indexes ``float_topics``) and oil temperatures ``(times, °C)`` in
-    log-time order across topics: each temperature before the samples at and after its time (the
-    writer takes them as they come: ``bw`` need not hold anything back)."""
+@dataclass(frozen=True)
+class _FloatMessages:
+    """Float64 messages in time order: message i is on topic ``topics[which[i]]`` at ``t_ns[i]``."""
+
+    topics: list  #: (topic, type, None) as :meth:`BagWriter.write_fixed_mixed` takes them
+    which: np.ndarray
+    t_ns: np.ndarray
+    payloads: np.ndarray
+
+
+def _write_in_time_order(bw: BagWriter, topics: TopicMap, floats: _FloatMessages,
+                         temperatures: tuple[np.ndarray, np.ndarray]) -> None:
+    """Float64 messages and oil temperatures ``(times, °C)`` in log-time order across topics: each
+    temperature before the samples at and after its time (the writer takes them as they come:
+    ``bw`` need not hold anything back)."""
+    float_topics, which, t_ns, payloads = floats.topics, floats.which, floats.t_ns, floats.payloads
     temp_t = np.asarray(temperatures[0], dtype=np.int64)
     temp_rows = temperature_payloads(temp_t, np.asarray(temperatures[1], dtype=np.float64))
     cuts = np.searchsorted(t_ns, temp_t, side="left").tolist()
@@ -287,8 +347,9 @@ def _import_table(src: Path, kind: str, out: Path, channels: str | Path | None, 
                     "loss L as output torque T - L*sgn(w) at an output speed equal to the input speed",
             "standstill_rows_left_out": str(standstill)})
         have = np.isfinite(theta)
-        _write_in_time_order(bw, topics, [(topic_of[c], MessageType.FLOAT64, None) for c in names], which,
-                             np.repeat(t_rows, len(names)), payloads, (t_rows[have], theta[have]))
+        _write_in_time_order(bw, topics, _FloatMessages([(topic_of[c], MessageType.FLOAT64, None) for c in names],
+                                                        which, np.repeat(t_rows, len(names)), payloads),
+                             (t_rows[have], theta[have]))
     written = n * len(names) + int(np.count_nonzero(np.isfinite(theta)))
     return ImportSummary(src, f"{kind} steady-state table", out, written, n, left_out=standstill)
 

@@ -482,33 +482,7 @@ def _numbers(path: Path, name: str, column: str, values) -> np.ndarray:
 def read_tdms_series(path: Path, cmap: ChannelMap, notes: list[str] | None = None) -> dict[str, Series]:
     """The map's channels of a TDMS file; what nptdms warns of while reading a damaged file (a
     segment cut short, an unknown version) goes to ``notes`` as one line, not to the log."""
-    import logging
-
-    from nptdms import TdmsFile
-
-    warned: list[str] = []
-
-    class Collect(logging.Handler):
-        def emit(self, record: logging.LogRecord) -> None:
-            warned.append(" ".join(record.getMessage().split())[:120])
-
-    from nptdms.log import log_manager  # nptdms prints through a console handler of its own
-
-    handler, console = Collect(logging.WARNING), log_manager.console_handler
-    loggers, level = list(log_manager.loggers.values()), console.level
-    console.setLevel(logging.CRITICAL + 1)
-    for logger in loggers:
-        logger.addHandler(handler)
-    try:
-        tdms = TdmsFile.read(path)
-    except Exception as exc:  # noqa: BLE001 - nptdms raises many types for a file that is not TDMS
-        raise InputFileError(f"{path}: not a TDMS file nptdms can read ({exc})") from None
-    finally:
-        console.setLevel(level)
-        for logger in loggers:
-            logger.removeHandler(handler)
-    if warned and notes is not None:
-        notes.append(f"damaged TDMS, read as far as nptdms could ({len(warned)} warnings; first: {warned[0]})")
+    tdms = _read_tdms(path, notes)
 
     def channel(name: str, column: str):
         group, _, chan = column.partition("/")
@@ -546,6 +520,38 @@ def read_tdms_series(path: Path, cmap: ChannelMap, notes: list[str] | None = Non
             t_ns = _waveform_ns(path, f"{name} ({spec.column})", ch.properties, len(values))
         out[name] = Series(t_ns, spec.to_si(values))
     return _with_constants(out, cmap)
+
+
+def _read_tdms(path: Path, notes: list[str] | None):
+    """The whole TDMS file (nptdms), its warnings collected into one line of ``notes``."""
+    import logging
+
+    from nptdms import TdmsFile
+
+    warned: list[str] = []
+
+    class Collect(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            warned.append(" ".join(record.getMessage().split())[:120])
+
+    from nptdms.log import log_manager  # nptdms prints through a console handler of its own
+
+    handler, console = Collect(logging.WARNING), log_manager.console_handler
+    loggers, level = list(log_manager.loggers.values()), console.level
+    console.setLevel(logging.CRITICAL + 1)
+    for logger in loggers:
+        logger.addHandler(handler)
+    try:
+        tdms = TdmsFile.read(path)
+    except Exception as exc:  # noqa: BLE001 - nptdms raises many types for a file that is not TDMS
+        raise InputFileError(f"{path}: not a TDMS file nptdms can read ({exc})") from None
+    finally:
+        console.setLevel(level)
+        for logger in loggers:
+            logger.removeHandler(handler)
+    if warned and notes is not None:
+        notes.append(f"damaged TDMS, read as far as nptdms could ({len(warned)} warnings; first: {warned[0]})")
+    return tdms
 
 
 def _waveform_ns(path: Path, what: str, properties, n: int) -> np.ndarray:

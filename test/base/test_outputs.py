@@ -11,8 +11,9 @@ import yaml
 
 from rollergear_ros.recordings.bag import TopicMap, inspect_bag, read_metadata
 from rollergear_ros.core.estimator import Estimate
-from rollergear_ros.base.interface import MessageType
-from rollergear_ros.base.output_channels import OUTPUT_CHANNELS, OutputChannel, float64_channels, register, unregister
+from rollergear_ros.base.interface import MessageType, Topic
+from rollergear_ros.base.output_channels import (OUTPUT_CHANNELS, OutputChannel, float64_channels, map_channels,
+                                                 register, sample_channels, unregister)
 from rollergear_ros.replay.run import replay
 from rollergear_ros.ros.watch import WatchWindow
 
@@ -40,14 +41,34 @@ def test_every_output_channel_has_its_row_in_the_interface_document():
         assert row.search(text), f"docs/interface.md has no row for {channel.name} ({channel.topic})"
 
 
-def test_every_channel_is_a_topic_map_field_and_a_name_is_registered_once():
+def test_every_per_sample_channel_is_a_topic_map_field_and_a_name_is_registered_once():
     topics = TopicMap()
-    for channel in OUTPUT_CHANNELS.values():
+    assert {c.name for c in sample_channels()} | {c.name for c in map_channels()} == set(OUTPUT_CHANNELS)
+    for channel in sample_channels():
         assert getattr(topics, channel.name) == topics.output(channel.name) == channel.absolute_topic()
+    for channel in map_channels():  # the node's alone: no recording's topic to move
+        assert not hasattr(topics, channel.name)
     with pytest.raises(ValueError, match="already registered"):
         register(OUTPUT_CHANNELS["loss_torque"])
     with pytest.raises(ValueError, match="stamped"):
         register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "no value and not a JointState"))
+    with pytest.raises(ValueError, match="Float64MultiArray"):
+        register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "a map as a Float64", per="map"))
+    with pytest.raises(ValueError, match="per is"):
+        register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "neither", "loss_torque_nm", per="hour"))
+    assert "bad" not in OUTPUT_CHANNELS
+
+
+def test_the_loss_map_channel_is_offered_latched_and_the_node_takes_its_qos_from_the_table():
+    from rollergear_ros.ros.qos import output_qos
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+
+    (channel,) = map_channels()
+    qos = output_qos(channel)
+    assert channel.topic == Topic.LOSS_MAP and qos.depth == 1
+    assert qos.durability == DurabilityPolicy.TRANSIENT_LOCAL and qos.reliability == ReliabilityPolicy.RELIABLE
+    sample = output_qos(OUTPUT_CHANNELS["loss_torque"])
+    assert sample.durability == DurabilityPolicy.VOLATILE and sample.depth == OUTPUT_CHANNELS["loss_torque"].depth
 
 
 def test_a_toy_channel_is_written_by_replay_and_read_back_by_both_readers(toy_channel, tmp_path, config):

@@ -12,7 +12,7 @@ import pytest
 
 from rollergear_ros.core.model import BREAKDOWN_KEYS, LossModel
 
-from helpers import BAGS, ROOT, run_cli
+from helpers import BAGS, REALDATA, ROOT, run_cli
 
 
 def test_model_json_matches_the_library(config):
@@ -227,6 +227,18 @@ def test_play_names_the_format_it_was_given_and_takes_no_progress(tmp_path):
     fake.write_bytes(b"not an mcap at all")
     proc = run_cli("play", str(fake), "--no-progress", check=False)
     assert proc.returncode == 2 and "is not an MCAP file" in proc.stderr and "db3" not in proc.stderr
+
+
+def test_play_of_a_rosbag2_bag_whose_message_types_this_ros_lacks_is_one_line():
+    """ros2/rosbag2's cdr_test bag (test_msgs types, not installed here): copied, then refused in one
+    line naming the types, before anything is published."""
+    bag = REALDATA / "rosbag2_test_fixtures/rosbag2_tests/resources/mcap/cdr_test"
+    if not bag.exists():
+        pytest.skip(f"no shared real data at {bag}")
+    proc = run_cli("play", str(bag), "--no-progress", "--no-wait", check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert "no message type of the bag is available" in proc.stderr
+    assert "test_msgs/msg/Arrays" in proc.stderr and "test_msgs/msg/BasicTypes" in proc.stderr
 
 
 @pytest.mark.parametrize(("args", "message"), [

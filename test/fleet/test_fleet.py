@@ -15,10 +15,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from rollergear_ros.fleet.run import (FLEET_TABLE, SLICES_TABLE, dask_client, discover, read_table, replay_task,
-                                      run_calibrate, run_replay, settings_fingerprint, time_slices)
+from rollergear_ros.fleet.run import (FLEET_TABLE, SLICES_TABLE, FleetRun, dask_client, discover, read_table,
+                                      replay_task, run_calibrate, run_replay, settings_fingerprint, time_slices)
 from rollergear_ros.fleet.report import drift, write_fleet_report
-from rollergear_ros.fleet.simulated import DAY_NS, simulate_fleet
+from rollergear_ros.fleet.simulated import DAY_NS, FleetScenario, simulate_fleet
 from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 
@@ -31,7 +31,7 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory):
     out = tmp_path_factory.mktemp("fleet")
-    truth = simulate_fleet(load_config(CONFIG), out, gearboxes=6, days=6, rate_hz=100.0, seed=3)
+    truth = simulate_fleet(load_config(CONFIG), out, FleetScenario(gearboxes=6, days=6, rate_hz=100.0, seed=3))
     return out, truth
 
 
@@ -45,7 +45,7 @@ def test_fleet_replay_equals_single_process_replay_of_each_recording(fleet, clie
     logs, _ = fleet
     recs = discover([str(logs)])
     assert len(recs) == 36 and {r.gearbox_id for r in recs} == {f"gb{g:02d}" for g in range(6)}
-    rows, ran = run_replay(recs, tmp_path, client, load_config(CONFIG))
+    rows, ran = run_replay(recs, tmp_path, FleetRun(client, load_config(CONFIG)))
     assert ran == 36 and len(rows) == 36 and all(r["status"] == "ok" for r in rows)
     by_path = {r["recording"]: r for r in rows}
     config = load_config(CONFIG)
@@ -64,7 +64,7 @@ def test_long_recordings_are_replayed_in_time_slices_that_add_up_to_them(client,
     recs = discover([str(BAGS)])
     slices = {r.path: len(time_slices(r, 20_000)) for r in recs}
     assert sorted(slices.values()) == [1, 3, 3, 5]  # 13 200, 40 824 (x2) and 98 400 messages
-    rows, ran = run_replay(recs, tmp_path, client, load_config(CONFIG), slice_messages=20_000)
+    rows, ran = run_replay(recs, tmp_path, FleetRun(client, load_config(CONFIG)), slice_messages=20_000)
     assert ran == len(recs) and len(rows) == len(recs) and all(r["status"] == "ok" for r in rows)
     config = load_config(CONFIG)
     for row in rows:
@@ -93,7 +93,7 @@ def test_time_slices_with_memory_on_the_cluster_add_up_to_one_replay(client, tmp
     config = memory_config().with_values({"estimator.adapt": False})  # slices would adapt each from the file
     recs = discover([str(tmp_path / "logs")])
     assert len(time_slices(recs[0], 25_000)) == 3
-    (row,), ran = run_replay(recs, tmp_path / "out", client, config, slice_messages=25_000)
+    (row,), ran = run_replay(recs, tmp_path / "out", FleetRun(client, config), slice_messages=25_000)
     assert ran == 1 and row["status"] == "ok" and row["slices"] == 3
     whole, _ = replay(recs[0].path, config, show_progress=False)
     assert (row["samples"], row["estimated"]) == (whole.samples, whole.estimated)
@@ -112,7 +112,7 @@ def test_a_resumed_run_does_not_redo_the_slices_done(client, tmp_path):
     done[0]["energy_lost_j"] += 1000.0  # a mark: the slice's row is taken, not recomputed
     pq.write_table(pa.Table.from_pylist(done), tmp_path / SLICES_TABLE)
     notes: list[str] = []
-    rows, ran = run_replay([rec], tmp_path, client, config, slice_messages=20_000, note=notes.append)
+    rows, ran = run_replay([rec], tmp_path, FleetRun(client, config, note=notes.append), slice_messages=20_000)
     assert ran == 1 and "2 time slices already in" in " ".join(notes)
     s, _ = replay(rec.path, config, show_progress=False)
     assert rows[0]["energy_lost_j"] == pytest.approx(s.energy_lost_j + 1000.0, rel=1e-9)
@@ -121,7 +121,7 @@ def test_a_resumed_run_does_not_redo_the_slices_done(client, tmp_path):
 
 def test_drifting_gearboxes_are_found_with_their_effect_and_day_and_no_healthy_one(fleet, client, tmp_path):
     logs, truth = fleet
-    rows, _ = run_calibrate(discover([str(logs)]), tmp_path, client, load_config(CONFIG), DAY_NS)
+    rows, _ = run_calibrate(discover([str(logs)]), tmp_path, FleetRun(client, load_config(CONFIG)), DAY_NS)
     assert len(rows) == 36 and all(r["status"] == "ok" for r in rows)
     # each window as a date people read, the same instant as its nanoseconds
     from datetime import UTC, datetime
@@ -153,9 +153,9 @@ def test_fleet_calibrate_takes_what_the_user_assumes(client, tmp_path):
                              effects=[DeclaredEffect.parse("drag_constant:c=0.08")])
     write_rig_bag(simulate(config, opts), opts, tmp_path / "logs" / "gb07" / "day00.mcap")
     recs = discover([str(tmp_path / "logs")])
-    (row,), _ = run_calibrate(recs, tmp_path / "out", client, config, DAY_NS)
+    (row,), _ = run_calibrate(recs, tmp_path / "out", FleetRun(client, config), DAY_NS)
     assert row["verdict"] == "inconclusive" and json.loads(row["effects"]) == []
-    (row,), ran = run_calibrate(recs, tmp_path / "out", client, config, DAY_NS, assume=["drag_constant"])
+    (row,), ran = run_calibrate(recs, tmp_path / "out", FleetRun(client, config), DAY_NS, assume=["drag_constant"])
     assert ran == 1 and row["verdict"] == "effects_found"
     (effect,) = json.loads(row["effects"])
     assert effect["name"] == "drag_constant" and effect["params"]["c"] == pytest.approx(0.08, rel=0.1)
@@ -170,7 +170,7 @@ def test_bad_recordings_are_failed_rows_and_the_rest_go_on(fleet, client, tmp_pa
     data = (logs / "gb00" / "day01.mcap").read_bytes()
     (mixed / "truncated.mcap").write_bytes(data[: len(data) // 3])
     (mixed / "foreign.mcap").write_text("not a recording\n")
-    rows, _ = run_replay(discover([str(tmp_path / "logs")]), tmp_path / "out", client, load_config(CONFIG))
+    rows, _ = run_replay(discover([str(tmp_path / "logs")]), tmp_path / "out", FleetRun(client, load_config(CONFIG)))
     status = {os.path.basename(r["recording"]): (r["status"], r["reason"]) for r in rows}
     assert status["good.mcap"] == ("ok", "")
     assert status["foreign.mcap"][0] == "failed" and "MCAP" in status["foreign.mcap"][1]
@@ -182,12 +182,12 @@ def test_bad_recordings_are_failed_rows_and_the_rest_go_on(fleet, client, tmp_pa
 def test_a_resumed_run_does_no_work_twice(fleet, client, tmp_path):
     logs, _ = fleet
     recs = discover([str(logs / "gb01")])
-    rows, ran = run_replay(recs[:3], tmp_path, client, load_config(CONFIG))
+    rows, ran = run_replay(recs[:3], tmp_path, FleetRun(client, load_config(CONFIG)))
     assert ran == 3
-    rows, ran = run_replay(recs, tmp_path, client, load_config(CONFIG))
+    rows, ran = run_replay(recs, tmp_path, FleetRun(client, load_config(CONFIG)))
     assert ran == len(recs) - 3 and len(rows) == len(recs)
     assert len({r["key"] for r in rows}) == len(recs)
-    rows, ran = run_replay(recs, tmp_path, client, load_config(CONFIG))
+    rows, ran = run_replay(recs, tmp_path, FleetRun(client, load_config(CONFIG)))
     assert ran == 0 and len(rows) == len(recs)
 
 
@@ -201,17 +201,17 @@ def test_a_run_with_other_parameters_does_the_rows_again(fleet, client, tmp_path
     recs = discover([str(logs / "gb02")])[:3]
     config = load_config(CONFIG)
     notes = []
-    rows_a, ran = run_replay(recs, tmp_path, client, config)
+    rows_a, ran = run_replay(recs, tmp_path, FleetRun(client, config))
     assert ran == 3
     other = replace(config, estimator=replace(config.estimator, paper_model=False))
-    rows_b, ran = run_replay(recs, tmp_path, client, other, note=notes.append)
+    rows_b, ran = run_replay(recs, tmp_path, FleetRun(client, other, note=notes.append))
     assert ran == 3 and len(rows_b) == 3
     assert any("3 rows" in n and "other parameters" in n for n in notes), notes
     assert {r["settings"] for r in rows_a}.isdisjoint({r["settings"] for r in rows_b})
     by_key = {r["key"]: r for r in rows_a}
     assert all(r["mean_loss_nm"] != by_key[r["key"]]["mean_loss_nm"] for r in rows_b)
     assert read_table(tmp_path / FLEET_TABLE) == rows_b
-    _, ran = run_replay(recs, tmp_path, client, other)
+    _, ran = run_replay(recs, tmp_path, FleetRun(client, other))
     assert ran == 0
 
 
@@ -223,7 +223,7 @@ def test_a_killed_workers_task_is_retried_and_the_table_is_complete(fleet, tmp_p
     result: dict = {}
     with dask_client(workers=2) as c:
         run = threading.Thread(target=lambda: result.update(
-            rows=run_replay(recs, tmp_path, c, load_config(CONFIG))[0]))
+            rows=run_replay(recs, tmp_path, FleetRun(c, load_config(CONFIG)))[0]))
         run.start()
         busy: dict = {}
 
@@ -269,7 +269,7 @@ def test_a_fifo_a_symlink_loop_and_the_fleets_own_output_among_the_logs_are_no_h
     out = logs / "out"
     recs = discover([str(logs)], exclude=out)
     assert sorted(os.path.basename(r.path) for r in recs) == ["day1.mcap", "day2.mcap", "self.mcap"]
-    rows, _ = run_replay(recs, out, client, load_config(CONFIG))
+    rows, _ = run_replay(recs, out, FleetRun(client, load_config(CONFIG)))
     by_name = {os.path.basename(r["recording"]): r for r in rows}
     assert by_name["day1.mcap"]["status"] == "ok"
     assert by_name["day2.mcap"]["status"] == "failed" and "is a FIFO" in by_name["day2.mcap"]["reason"]
@@ -283,7 +283,7 @@ def test_a_task_whose_worker_keeps_dying_is_a_failed_row_and_the_rest_finish(tmp
     """A task that kills its worker every time ended the run with a ``KilledWorker`` traceback and no table."""
     import dask
 
-    from rollergear_ros.fleet.run import _run
+    from rollergear_ros.fleet.run import FleetTable, _run
 
     rec = discover([str(BAGS / "rig_map.mcap")])[0]
     units = [("dies", [("dies", os._exit, (3,))]),
@@ -291,7 +291,8 @@ def test_a_task_whose_worker_keeps_dying_is_a_failed_row_and_the_rest_finish(tmp
     # two workers: the dying task takes one down (and again, until the scheduler gives up on it); the
     # other task waits in the scheduler's queue for a free worker, never on the one that dies
     with dask.config.set({"distributed.scheduler.allowed-failures": 2}), dask_client(workers=2) as client:
-        rows, ran = _run(client, tmp_path / FLEET_TABLE, units, False, "recordings", lambda m: None, settings="s")
+        rows, ran = _run(FleetRun(client, load_config(CONFIG)), FleetTable(tmp_path / FLEET_TABLE, "recordings", "s"),
+                         units)
     assert ran == 2 and len(rows) == 2
     by_key = {r["key"]: r for r in rows}
     assert by_key["dies"]["status"] == "failed" and "KilledWorker" in by_key["dies"]["reason"]

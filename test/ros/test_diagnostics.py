@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 
-from rollergear_ros.ros.diagnostics import ERROR, OK, WARN, InputMonitor, diagnose
+from rollergear_ros.ros.diagnostics import (ERROR, OK, WARN, DiagnosticLimits, InputMonitor, InputsNow, NodeLoad,
+                                            SinceLast, diagnose)
 from rollergear_ros.core.estimator import Estimator
 from rollergear_ros.core.pairing import SPEED, TORQUE
 from rollergear_ros.core.params import load_config
@@ -24,18 +25,20 @@ def test_diagnostics_levels():
     now = 100 * 10**9
     healthy = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
     rates = {TORQUE: 1000.0, SPEED: 1000.0}
-    rep = diagnose(now, healthy, rates, est, 1000.0, 0.9, dict(est.counts), 0)
+    rep = diagnose(InputsNow(now, healthy, rates), est, DiagnosticLimits(1000.0, 0.9), SinceLast(dict(est.counts), 0))
     assert rep.level == OK and rep.message == "estimating"
     stale = _monitor(now, {TORQUE: now - MS, SPEED: now - 3 * 10**9})
-    rep = diagnose(now, stale, rates, est, 1000.0, 0.9, dict(est.counts), 0)
+    rep = diagnose(InputsNow(now, stale, rates), est, DiagnosticLimits(1000.0, 0.9), SinceLast(dict(est.counts), 0))
     assert rep.level == ERROR and "stale input: motor_speed" in rep.message
-    rep = diagnose(now, healthy, {TORQUE: 500.0, SPEED: 500.0}, est, 1000.0, 0.9, dict(est.counts), 0)
+    rep = diagnose(InputsNow(now, healthy, {TORQUE: 500.0, SPEED: 500.0}), est, DiagnosticLimits(1000.0, 0.9),
+                   SinceLast(dict(est.counts), 0))
     assert rep.level == WARN and "expected 1000 Hz" in rep.message
     missing = _monitor(now, {TORQUE: now - MS})
-    rep = diagnose(now, missing, rates, est, 1000.0, 0.9, dict(est.counts), 0)
+    rep = diagnose(InputsNow(now, missing, rates), est, DiagnosticLimits(1000.0, 0.9), SinceLast(dict(est.counts), 0))
     assert rep.level == ERROR and "no input on motor_speed" in rep.message
     est.counts["non_finite"] += 3
-    rep = diagnose(now, healthy, rates, est, 1000.0, 0.9, {**est.counts, "non_finite": 0}, 0)
+    rep = diagnose(InputsNow(now, healthy, rates), est, DiagnosticLimits(1000.0, 0.9),
+                   SinceLast({**est.counts, "non_finite": 0}, 0))
     assert rep.level == WARN and "3 samples with non finite" in rep.message
     values = dict(rep.values)
     assert values["skipped non finite"] == "3 (+3)" and math.isfinite(float(values["expected rate [Hz]"]))
@@ -49,8 +52,9 @@ def test_an_executor_behind_its_input_queue_is_an_overload_warning():
     healthy = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
 
     def report(lag_s: float, depth: int | None, rate: float = 1000.0):
-        return diagnose(now, healthy, {TORQUE: rate, SPEED: rate}, est, rate, 0.9, dict(est.counts), 0,
-                        busy_fraction=0.4, executor_lag_s=lag_s, queue_depth=depth)
+        return diagnose(InputsNow(now, healthy, {TORQUE: rate, SPEED: rate}), est,
+                        DiagnosticLimits(rate, 0.9, queue_depth=depth), SinceLast(dict(est.counts), 0),
+                        NodeLoad(busy_fraction=0.4, executor_lag_s=lag_s))
 
     assert report(0.45, 1000).level == OK
     rep = report(0.55, 1000)
@@ -66,7 +70,8 @@ def test_received_and_not_estimated_per_input():
     mon = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
     mon.counts[TORQUE], mon.counts[SPEED] = 120, 117
     est.estimated = 110
-    values = dict(diagnose(now, mon, {TORQUE: 1000.0, SPEED: 1000.0}, est, 1000.0, 0.9, dict(est.counts), 0).values)
+    values = dict(diagnose(InputsNow(now, mon, {TORQUE: 1000.0, SPEED: 1000.0}), est, DiagnosticLimits(1000.0, 0.9),
+                           SinceLast(dict(est.counts), 0)).values)
     assert (values["motor_torque messages"], values["motor_torque not estimated"]) == ("120", "10")
     assert (values["motor_speed messages"], values["motor_speed not estimated"]) == ("117", "7")
 
@@ -82,8 +87,8 @@ def _feed(monitor, start_s, seconds, rate_hz, est, learn=True):
                 monitor.record(ch, t_ns)
             t_ns += period_ns
         now = second * 10**9
-        reports.append(diagnose(now, monitor, monitor.rates(now), est, 1000.0, 0.5, dict(est.counts), 0,
-                                learn_rate=learn))
+        reports.append(diagnose(InputsNow(now, monitor, monitor.rates(now)), est,
+                                DiagnosticLimits(1000.0, 0.5, learn_rate=learn), SinceLast(dict(est.counts), 0)))
     return reports
 
 

@@ -13,7 +13,7 @@ from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
-from helpers import BAGS, CONFIG
+from helpers import BAGS, CONFIG, REALDATA
 from rostools import FloatProbe, NodeProcess, call_until_answered, play, ros_context, wait_for
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -131,7 +131,7 @@ def test_player_keeps_the_bag_timing_across_chunk_boundaries(monkeypatch):
     monkeypatch.setattr(player, "iter_log_time_order", slow_reader)
     info = inspect_bag(BAGS / "rig_map_drag.mcap")
     try:
-        stats = player.play(BAGS / "rig_map_drag.mcap", rate=10.0, quiet=True)
+        stats = player.play(BAGS / "rig_map_drag.mcap", player.PlayOptions(rate=10.0, quiet=True))
     finally:
         rclpy.try_shutdown()
     assert stats.messages == info.message_count
@@ -253,6 +253,66 @@ def test_parameter_changes_are_validated_and_refused_with_the_reason():
         ok = set_param("gearbox.z", 6)
         assert ok.successful
     assert node.stop() == 0
+
+
+def test_a_live_recording_holds_what_made_it_its_parameter_changes_and_the_breakdown_view(tmp_path):
+    """The node's MCAP carries its provenance with the parameter file as loaded (text, SHA-256) and
+    each run-time parameter change as a ``/parameter_events`` message when it came (both readers);
+    its rerun recording has the loss breakdown replay's has; it ends with one summary line whose
+    counts are the recording's."""
+    import hashlib
+
+    from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    from rcl_interfaces.srv import SetParameters
+
+    from rollergear_ros.outputs.review import BREAKDOWN, LOSS_TORQUE, read_rrd_series
+    from rollergear_ros.recordings.bag import read_metadata
+
+    rec, rrd = tmp_path / "live.mcap", tmp_path / "live.rrd"
+    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}", LOSSLESS)
+    with ros_context() as probe:
+        client = probe.create_client(SetParameters, "/rollergear/loss_estimator/set_parameters")
+        assert client.wait_for_service(timeout_sec=60)
+        change = Parameter(name="node.min_efficiency_warn",
+                           value=ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=0.55))
+        assert call_until_answered(client, SetParameters.Request(parameters=[change])).results[0].successful
+    n = inspect_bag(BAGS / "rig_map_drag.mcap").counts[T.motor_torque]
+    play_and_receive(BAGS / "rig_map_drag.mcap", PLAY_RATE["rig_map_drag"], n)
+    assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
+
+    provenance = read_metadata(rec, "rollergear_provenance")
+    assert provenance is not None and provenance["params_file"] == str(CONFIG.resolve())
+    assert provenance["params_file_text"] == CONFIG.read_text(encoding="utf-8")
+    assert provenance["params_file_sha256"] == hashlib.sha256(CONFIG.read_bytes()).hexdigest()
+    assert provenance["parameters_sha256"] == hashlib.sha256(provenance["parameters"].encode()).hexdigest()
+    assert "min_efficiency_warn: 0.9" in provenance["parameters"]  # as loaded, before the change
+    assert provenance["host"] and provenance["version"] and provenance["created_utc"]
+    events = []
+    for messages in (read_mcap_ros2(rec), read_rosbags(rec)):
+        times, decoded = messages["/parameter_events"]
+        changed = [(p.name, p.value.double_value) for e in decoded for p in e.changed_parameters]
+        assert changed and set(changed) == {("node.min_efficiency_warn", 0.55)}
+        assert all(e.node == "/rollergear/loss_estimator" for e in decoded)
+        first_input = messages[T.motor_torque][0][0]
+        assert np.all(np.asarray(times) < first_input)  # recorded when it came: before the play
+        events.append(len(decoded))
+    assert events[0] == events[1]
+    summary = [line for line in node.stderr.splitlines() if "stopped: " in line]
+    assert len(summary) == 1, node.stderr
+    assert f"{n:,} samples estimated of {n:,} received" in summary[0]
+    assert f"parameter changes: {events[0]};" in summary[0] and str(rec) in summary[0] and str(rrd) in summary[0]
+
+    series = read_rrd_series(rrd)
+    terms = sorted(k for k in series if k.startswith(BREAKDOWN))
+    assert terms and len(series[LOSS_TORQUE][0]) == n
+    for key in terms:
+        assert len(series[key][0]) == n and np.isfinite(series[key][1]).all(), key
+    # the breakdown is replay's: the same terms and values, sample for sample
+    replay(BAGS / "rig_map_drag.mcap", load_config(CONFIG), rrd=tmp_path / "replay.rrd", show_progress=False)
+    offline = read_rrd_series(tmp_path / "replay.rrd")
+    assert terms == sorted(k for k in offline if k.startswith(BREAKDOWN))
+    for key in terms:
+        np.testing.assert_allclose(series[key][1], offline[key][1], rtol=1e-12, atol=1e-15)
 
 
 def test_a_map_file_that_can_no_longer_be_written_costs_only_the_file(tmp_path):
@@ -448,7 +508,9 @@ def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inpu
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
 
-    from rollergear_ros.ros.node import SENSOR_QOS, LossEstimatorNode, make_executor
+    from rollergear_ros.ros.node import LossEstimatorNode
+    from rollergear_ros.ros.qos import SENSOR_QOS
+    from rollergear_ros.ros.spin import make_executor
     from rollergear_ros.core.pairing import SPEED, TORQUE
 
     rec = tmp_path / "lost.mcap"
@@ -700,6 +762,42 @@ def test_play_into_a_running_node_loses_nothing_at_the_start(tmp_path):
         assert node.stop() == 0, node.stderr
 
 
+@pytest.mark.skipif(not REALDATA.exists(), reason=f"no shared real data at {REALDATA}")
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_play_publishes_a_rosbag2_folder_as_ros2_bag_play_would(storage):
+    """ros2/rosbag2's talker bag (a folder with metadata.yaml; SQLite or MCAP storage) played as it
+    is: a subscriber gets its ten std_msgs/String messages, in order, as the storage holds them."""
+    from rclpy.serialization import deserialize_message
+    from std_msgs.msg import String
+
+    src = REALDATA / f"rosbag2_test_fixtures/rosbag2_py/test/resources/{storage}/talker"
+    expected = [deserialize_message(raw, String).data for raw in _storage_messages(src, "/topic")]
+    with ros_context() as probe_node:
+        probe = FloatProbe(probe_node, "/topic", String)
+        proc = play(src, "--rate", "10", "--topics", "/topic", "--wait-for-subscribers", "20")
+        assert wait_for(lambda: len(probe) >= len(expected), 600), f"{len(probe)} of {len(expected)}"
+        received = [deserialize_message(raw, String).data for raw in probe.raw]
+    assert len(expected) == 10 and received == expected
+    assert "read the rosbag2 bag" in proc.stderr and "20 messages on 3 topics" in proc.stderr, proc.stderr
+    assert f"played {src}: " in proc.stderr, proc.stderr
+
+
+def _storage_messages(folder, topic: str) -> list[bytes]:
+    """A topic's messages in time order, read from a rosbag2 bag's storage file by its own library."""
+    db3, mcap = sorted(folder.glob("*.db3")), sorted(folder.glob("*.mcap"))
+    if db3:
+        import sqlite3
+        from contextlib import closing
+
+        with closing(sqlite3.connect(db3[0])) as db:
+            return [bytes(d) for (d,) in db.execute("SELECT data FROM messages JOIN topics ON messages.topic_id = "
+                                                    "topics.id WHERE topics.name = ? ORDER BY timestamp", (topic,))]
+    from mcap.reader import make_reader
+
+    with mcap[0].open("rb") as fh:
+        return [m.data for _, c, m in make_reader(fh).iter_messages(topics=[topic], log_time_order=True)]
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_player_interrupted_while_publishing_ends_cleanly(sig):
     """A signal that arrives during a publish (4 k messages/s) ends the player with exit code 0 and
@@ -807,7 +905,7 @@ def test_a_signal_during_an_input_callback_never_interrupts_it():
     estimate more than the node published."""
     import os
 
-    from rollergear_ros.ros.node import stop_on_signals
+    from rollergear_ros.ros.spin import stop_on_signals
 
     before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:

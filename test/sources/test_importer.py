@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import re
+from contextlib import closing
 
 import numpy as np
 import pytest
@@ -378,6 +379,76 @@ def test_rosbag2_replays_like_the_mcap_it_was_made_from(tmp_path, storage):
         t1, v1 = float_series(imported, topic)
         np.testing.assert_array_equal(t0, t1)
         np.testing.assert_array_equal(v0, v1)
+
+
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_a_rosbag2_bag_whose_metadata_qos_differs_from_its_storage_is_imported_whole(tmp_path, storage):
+    """rosbag2 of 2020 wrote one QoS text to metadata.yaml and another to the storage; rosbags then
+    finds none of the topics' messages (shown here), and the import reads every one of them."""
+    import yaml
+    from rosbags.highlevel import AnyReader
+
+    from rollergear_ros.recordings.bag import offered_qos_yaml
+
+    bag = _rosbag2(tmp_path, storage)
+    meta = bag / "metadata.yaml"
+    doc = yaml.safe_load(meta.read_text())
+    for topic in doc["rosbag2_bagfile_information"]["topics_with_message_count"]:
+        topic["topic_metadata"]["offered_qos_profiles"] = offered_qos_yaml(reliable=False, depth=7)
+    meta.write_text(yaml.safe_dump(doc))
+    with AnyReader([bag]) as reader:
+        assert reader.message_count > 0 and next(reader.messages(), None) is None  # the trap
+    run_cli("import", str(bag), "--out", str(tmp_path / "imported.mcap"))
+    original, imported = read_mcap_ros2(BAGS / "rig_map_drag.mcap"), read_rosbags(tmp_path / "imported.mcap")
+    for topic in ("/rollergear/motor/torque", "/rollergear/motor/speed", "/rollergear/output/torque"):
+        t0, v0 = float_series(original, topic)
+        t1, v1 = float_series(imported, topic)
+        np.testing.assert_array_equal(t0, t1)
+        np.testing.assert_array_equal(v0, v1)
+
+
+@pytest.mark.skipif(not REALDATA.exists(), reason=f"no shared real data at {REALDATA}")
+@pytest.mark.parametrize("storage", ["sqlite3", "mcap"])
+def test_every_topic_of_a_rosbag2_bag_is_copied_for_play(tmp_path, storage):
+    """``copy_rosbag2`` (what ``play`` publishes a rosbag2 bag from): every topic and message of
+    ros2/rosbag2's talker bag, whose metadata and storage QoS differ, against the storage read by
+    its own library (SQLite) or the mcap reader."""
+    from rollergear_ros.recordings.bag import inspect_bag
+    from rollergear_ros.sources.importer import copy_rosbag2
+
+    src = REALDATA / f"rosbag2_test_fixtures/rosbag2_py/test/resources/{storage}/talker"
+    expected: dict[str, list[tuple[int, bytes]]] = {}
+    if storage == "sqlite3":
+        import sqlite3
+
+        with closing(sqlite3.connect(src / "talker.db3")) as db:
+            for topic, t_ns, data in db.execute("SELECT topics.name, timestamp, data FROM messages JOIN topics "
+                                                "ON messages.topic_id = topics.id ORDER BY timestamp"):
+                expected.setdefault(topic, []).append((t_ns, bytes(data)))
+    else:
+        from mcap.reader import make_reader
+
+        with (src / "talker.mcap").open("rb") as fh:
+            for _, channel, message in make_reader(fh).iter_messages(log_time_order=True):
+                expected.setdefault(channel.topic, []).append((message.log_time, message.data))
+    out = tmp_path / "copy.mcap"
+    counts = copy_rosbag2(src, out)
+    assert counts == {"/topic": 10, "/rosout": 10, "/parameter_events": 0}
+    assert {t: len(m) for t, m in expected.items()} == {"/topic": 10, "/rosout": 10}
+    got: dict[str, list[tuple[int, bytes]]] = {}
+    for topic, t_ns, data in _raw_messages(out):
+        got.setdefault(topic, []).append((t_ns, data))
+    assert got == expected
+    assert inspect_bag(out).topics == {"/topic": "std_msgs/msg/String", "/rosout": "rcl_interfaces/msg/Log",
+                                       "/parameter_events": "rcl_interfaces/msg/ParameterEvent"}
+
+
+def _raw_messages(path):
+    """(topic, log time, bytes) of an MCAP in log-time order, by the mcap library."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as fh:
+        return [(c.topic, m.log_time, m.data) for _, c, m in make_reader(fh).iter_messages(log_time_order=True)]
 
 
 FIXTURES = REALDATA / "rosbag2_test_fixtures"

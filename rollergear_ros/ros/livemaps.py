@@ -1,0 +1,69 @@
+"""The node's live loss map: published on the map channel and written to ``node.map_file``.
+
+The map (:mod:`outputs.livemap`) is the model with the accepted effects at their adapted
+coefficients on the ``map.*`` grid.  :class:`LiveMapPublisher` makes one at start, after a
+parameter change and whenever an adapted coefficient has left its 95 % interval since the last one.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from std_msgs.msg import Float64MultiArray, MultiArrayDimension
+
+from ..base.errors import RollergearError
+from ..core.estimator import Estimator
+from ..core.params import Config
+from ..outputs.livemap import coefficients_moved, live_map, to_multiarray
+from ..outputs.lossmap import map_comments, write_vtlm
+
+__all__ = ["LiveMapPublisher"]
+
+
+class LiveMapPublisher:
+    """Publishes the loss map (``publishers``: the map channels') and rewrites the map file when
+    the adapted coefficients have moved; ``source`` names the node in the file's comments."""
+
+    def __init__(self, publishers: tuple, source: str, logger) -> None:
+        self.publishers = publishers
+        self.source = source
+        self.logger = logger
+        self.published = 0  #: maps made so far
+        self.oil_temperature_c: float | None = None  #: the last finite oil temperature the node received
+        self._coefficients: dict[str, float] | None = None  # of the map last published
+
+    def renew(self) -> None:
+        """Make the next :meth:`update` publish a map (the parameters changed)."""
+        self._coefficients = None
+
+    def update(self, config: Config, estimator: Estimator) -> None:
+        """Publish the map (and rewrite ``node.map_file``) if there is none yet or an adapted
+        coefficient has left its 95 % interval since the last one."""
+        current = estimator.coefficients()
+        if self._coefficients is not None and not coefficients_moved(
+                self._coefficients, current, estimator.coefficient_intervals()):
+            return
+        self._coefficients = current
+        try:
+            adapted, loss_map = live_map(config, current, self.oil_temperature_c)
+        except RollergearError as exc:  # e.g. a map.* grid outside the estimator's plausible range
+            self.logger.warn(f"no loss map: {exc}")
+            return
+        if self.publishers:
+            arr = to_multiarray(loss_map)
+            msg = Float64MultiArray()
+            msg.layout.dim = [MultiArrayDimension(label=label, size=size, stride=stride)
+                              for label, size, stride in zip(arr.labels, arr.sizes, arr.strides)]
+            msg.layout.data_offset = arr.data_offset
+            msg.data = arr.data.tolist()
+            for publisher in self.publishers:
+                publisher.publish(msg)
+        map_file = config.node.map_file
+        if map_file:
+            try:  # the folder may have gone since start-up: a warning, the node and the topic go on
+                write_vtlm(loss_map, Path(map_file),
+                           map_comments(adapted, f"{self.source} (live; adapted coefficients)",
+                                        self.oil_temperature_c, reverse=False))
+            except OSError as exc:
+                self.logger.warn(f"node.map_file: could not rewrite {map_file}: {exc}")
+        self.published += 1
