@@ -482,7 +482,7 @@ class LossEstimatorNode(Node):
             buf, self._rr_buffer = self._rr_buffer, []
             skipped = self._rr_skips.since_last(self.estimator.counts)
             alarms = list(self.estimator.detector.alarm_times_ns)
-            estimator = self.estimator  # the one that made them (a parameter change makes another)
+            estimator = self.estimator  # the breakdown is the current model's (a parameter change makes another)
 
         def column(name: str) -> np.ndarray:
             return np.array([getattr(e, name) for e in buf], dtype=np.float64)
