@@ -11,10 +11,13 @@ on that topic; the echo node still answers four messages with four.
 With ``--memory`` the baseline is loss_estimator itself, against loss_estimator with a memoryless
 ``drag_constant`` and with the ``dahl`` effect on (a state stepped every sample), both adapted online
 (``estimator.adapt``): the cost of adapting an effect, and what a memory adds to it.
+With ``--tracing`` loss_estimator without its online tracer (``node.trace:=false``) against it
+tracing back to back (``node.trace_period_s:=1``: the worker process is busy throughout, and the
+node copies its buffer for each trace): the cost of tracing to the input path.
 With ``--estimator-only`` no DDS: the estimator each loss_estimator runs, fed the driver's messages
 in-process (what the node adds to rclpy's per-message cost), in µs per sample.
 Usage: python bench/bench_node.py [--seconds 5] [--repeat 3] [--pin] [--no-outputs] [--stamped] [--memory]
-                                  [--estimator-only]
+                                  [--tracing] [--estimator-only]
 """
 
 from __future__ import annotations
@@ -39,6 +42,10 @@ def cpu_seconds(pid: int) -> float:
     return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
 
 
+#: ``--tracing``: the node without its online tracer, and with it tracing back to back (a trace of the
+#: last window started each second: the worker is busy throughout the measurement)
+TRACING = {"loss_estimator-untraced": ("node.trace:=false",),
+           "loss_estimator+tracing": ("node.trace:=true", "node.trace_period_s:=1.0")}
 #: ``--memory``: the effect each system under test has on (adapted online like any accepted effect)
 EFFECT_ON = {
     "loss_estimator+drag_constant": ("effects.drag_constant.enabled:=true", "effects.drag_constant.c_nm:=0.05"),
@@ -86,7 +93,7 @@ def start_sut(kind: str, executor: str, cpu: int | None = None, stamped: bool = 
                str(tree / "config" / "gearbox.yaml"), "-p", f"node.executor:={executor}"]
         if stamped:
             cmd += ["-p", "node.publish_float64:=false"]
-        cmd += [arg for value in EFFECT_ON.get(kind, ()) for arg in ("-p", value)]
+        cmd += [arg for value in EFFECT_ON.get(kind, TRACING.get(kind, ())) for arg in ("-p", value)]
         if kind == "baseline":
             env = {**os.environ, "PYTHONPATH": str(tree)}
     pin = (lambda: os.sched_setaffinity(0, {cpu})) if cpu is not None else None
@@ -206,6 +213,8 @@ def main() -> None:
     ap.add_argument("--against", type=Path, metavar="TREE",
                     help="also run loss_estimator of another source tree (e.g. a worktree of the previous main), "
                          "interleaved, and print this tree's rate over its")
+    ap.add_argument("--tracing", action="store_true",
+                    help="loss_estimator tracing back to back (node.trace_period_s:=1) against it without tracing")
     ap.add_argument("--estimator-only", action="store_true",
                     help="no DDS: the estimator of each loss_estimator in-process, µs per sample")
     args = ap.parse_args()
@@ -242,7 +251,7 @@ def main() -> None:
     received: list[int] = []
     estimate = "/rollergear/loss/estimate" if args.stamped else "/rollergear/loss/torque"
     answer = ({"echo": "/rollergear/loss/torque", "loss_estimator": estimate, "baseline": estimate}
-              | dict.fromkeys(EFFECT_ON, estimate))
+              | dict.fromkeys(EFFECT_ON, estimate) | dict.fromkeys(TRACING, estimate))
     node.create_subscription(
         Float64, "/rollergear/loss/torque", lambda raw: received.append(time.monotonic_ns()), OUTPUT_QOS, raw=True
     )
@@ -261,10 +270,12 @@ def main() -> None:
     th.start()
     driver = (node, pubs, received)
     with_outputs = not args.no_outputs
-    kinds = ("loss_estimator", *EFFECT_ON) if args.memory else ("echo", "loss_estimator")
+    kinds = (("loss_estimator", *EFFECT_ON) if args.memory else tuple(TRACING) if args.tracing
+             else ("echo", "loss_estimator"))
     if args.against is not None:
         kinds += ("baseline",)
     best_of: dict[str, list[float]] = {k: [] for k in kinds}
+    p99_of: dict[str, list[float]] = {k: [] for k in kinds}
     for rep in range(args.repeat):
         for kind in kinds if rep % 2 == 0 else kinds[::-1]:  # interleaved: drifts hit all alike
             sut = start_sut(kind, args.executor, 1 if args.pin else None, args.stamped, args.against)
@@ -280,6 +291,7 @@ def main() -> None:
             sut.send_signal(signal.SIGINT)
             sut.wait(timeout=20)
             best_of[kind].append(best)
+            p99_of[kind].append(r1k["p99_us"] if r1k["dropped"] == 0 else float("nan"))
             at_ceiling = best >= args.ceiling - args.step / 8
             print(
                 f"run {rep + 1} {kind:28s} 1 kHz: dropped {r1k['dropped']}/{r1k['sent']}, latency p50 "
@@ -293,6 +305,7 @@ def main() -> None:
     th.join()
     channels = 4 if with_outputs else 2
     pairs = ([(kinds[0], kinds[1], None), (kinds[0], kinds[2], 0.9), (kinds[1], kinds[2], 0.9)] if args.memory
+             else [(kinds[0], kinds[1], 0.9)] if args.tracing
              else [(kinds[0], kinds[1], 1.0 if args.stamped else 0.8)])
     if args.against is not None:
         pairs.append(("baseline", "loss_estimator", None))
@@ -303,6 +316,10 @@ def main() -> None:
         ratios = [lo / e if e else float("nan") for lo, e in zip(best_of[sut], best_of[base])]
         print(f"{sut} max rate / {base} max rate per run: {', '.join(f'{r:.2f}' for r in ratios)}; "
               f"median {float(np.median(ratios)):.2f}" + (f" (target >= {target})" if target else ""))
+    if args.tracing:  # 1 kHz latency with a trace under way against without (NaN: a run that dropped samples)
+        ratios = [t / u for t, u in zip(p99_of[kinds[1]], p99_of[kinds[0]])]
+        print(f"{kinds[1]} 1 kHz p99 / {kinds[0]} 1 kHz p99 per run: {', '.join(f'{r:.2f}' for r in ratios)}; "
+              f"median {float(np.median(ratios)):.2f} (target <= 1.5)")
     rclpy.shutdown()
 
 

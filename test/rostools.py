@@ -51,6 +51,42 @@ class NodeProcess:
         return self.proc.returncode
 
 
+class WatchProcess:
+    """``rollergear watch`` in a subprocess; its output lines collected as it prints them."""
+
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "watch", *args], stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True, cwd=ROOT, env=dict(os.environ))
+        self.lines: list[str] = []
+        self._errors: list[str] = []
+        self._readers = [threading.Thread(target=self._read, args=(stream, into), daemon=True)
+                         for stream, into in ((self.proc.stdout, self.lines), (self.proc.stderr, self._errors))]
+        for reader in self._readers:
+            reader.start()
+
+    @staticmethod
+    def _read(stream, into: list[str]) -> None:
+        for line in stream:
+            into.append(line.rstrip("\n"))
+
+    @property
+    def errors(self) -> str:
+        return "\n".join(self._errors)
+
+    def stop(self) -> int:
+        """Ctrl-C, and its exit status once its output is read."""
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        for reader in self._readers:
+            reader.join(timeout=10)
+        return self.proc.returncode
+
+
 def play(bag: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     proc = subprocess.run([sys.executable, "-m", "rollergear_ros", "play", str(bag), *args], capture_output=True,
                           text=True, timeout=timeout, cwd=ROOT, env=dict(os.environ))

@@ -43,6 +43,7 @@ class Topic:
     RESIDUAL_TORQUE = "residual/torque"
     LOSS_ESTIMATE = "loss/estimate"  #: one stamped sensor_msgs/JointState per estimate (:mod:`outputs.stamped`)
     LOSS_MAP = "loss/map"  #: the live loss map, std_msgs/Float64MultiArray, transient-local (:mod:`outputs.livemap`)
+    LOSS_TRACED = "loss/traced"  #: the latest online trace, diagnostic_msgs/DiagnosticStatus, transient-local
     JOINT_STATES = "/joint_states"  #: absolute
     DIAGNOSTICS = "/diagnostics"  #: absolute
     CLOCK = "/clock"  #: absolute
@@ -60,6 +61,7 @@ class MessageType:
     JOINT_STATE = "sensor_msgs/msg/JointState"
     FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
     PARAMETER_EVENT = "rcl_interfaces/msg/ParameterEvent"
+    DIAGNOSTIC_STATUS = "diagnostic_msgs/msg/DiagnosticStatus"
     CLOCK = "rosgraph_msgs/msg/Clock"
 
 

@@ -6,7 +6,7 @@ output, ``rollergear watch`` (the Float64 channels) and ``docs/interface.md`` (a
 each channel has its row there).  A channel's name is also its field of :class:`~recordings.bag.TopicMap`
 (per-sample channels: ``--topic-<name>``) and its key wherever outputs are keyed.
 
-Three kinds of channel:
+Four kinds of channel:
 
 - a **Float64** channel carries one value of each estimate: the attribute :attr:`OutputChannel.value`
   of :class:`~core.estimator.Estimate` (node) and :class:`~core.estimator.BatchEstimate` (replay); the node
@@ -15,7 +15,10 @@ Three kinds of channel:
   sample time (:mod:`outputs.stamped`), when ``node.publish_stamped`` is on;
 - the **map** channel carries the live loss map (:mod:`outputs.livemap`), one message per map rather
   than per estimate, latched (transient-local) for subscribers that join later, when
-  ``node.publish_map`` is on.  Only the node publishes it (replay writes maps as ``.vtlm`` files).
+  ``node.publish_map`` is on.  Only the node publishes it (replay writes maps as ``.vtlm`` files);
+- the **trace** channel carries each online trace's result (:mod:`ros.tracer`) as one
+  ``diagnostic_msgs/msg/DiagnosticStatus``, latched, when ``node.trace`` is on.  Only the node
+  publishes it (and records it).
 
 The per-sample channels (Float64 and stamped) are also the fields of
 :class:`~recordings.bag.TopicMap`, so ``--topic-<name>`` moves them in a recording.
@@ -32,7 +35,7 @@ from dataclasses import dataclass
 from .interface import NAMESPACE, OUTPUT_QUEUE_DEPTH, MessageType, Topic
 
 __all__ = ["OUTPUT_CHANNELS", "OutputChannel", "float64_channels", "map_channels", "register", "sample_channels",
-           "stamped_channels", "unregister"]
+           "stamped_channels", "trace_channels", "unregister"]
 
 
 @dataclass(frozen=True)
@@ -51,7 +54,7 @@ class OutputChannel:
     measured_only: bool = False
     reliable: bool = True  #: QoS reliability the node offers it with (keep-last)
     depth: int = OUTPUT_QUEUE_DEPTH  #: QoS history depth
-    #: one message per estimate ("sample") or per loss map ("map")
+    #: one message per estimate ("sample"), per loss map ("map") or per online trace ("trace")
     per: str = "sample"
     #: QoS durability: transient-local (the last ``depth`` messages kept for late joiners), else volatile
     transient_local: bool = False
@@ -75,12 +78,14 @@ def register(channel: OutputChannel) -> OutputChannel:
     """Add ``channel`` to :data:`OUTPUT_CHANNELS` (a name already there is refused)."""
     if channel.name in OUTPUT_CHANNELS:
         raise ValueError(f"output channel {channel.name!r} is already registered")
-    if channel.per not in ("sample", "map"):
-        raise ValueError(f"output channel {channel.name!r}: per is 'sample' or 'map', not {channel.per!r}")
+    if channel.per not in ("sample", "map", "trace"):
+        raise ValueError(f"output channel {channel.name!r}: per is 'sample', 'map' or 'trace', not {channel.per!r}")
     if channel.stamped and channel.message_type != MessageType.JOINT_STATE:
         raise ValueError(f"output channel {channel.name!r}: without a value it is the stamped JointState channel")
     if channel.per == "map" and channel.message_type != MessageType.FLOAT64_MULTI_ARRAY:
         raise ValueError(f"output channel {channel.name!r}: a map channel carries a Float64MultiArray")
+    if channel.per == "trace" and channel.message_type != MessageType.DIAGNOSTIC_STATUS:
+        raise ValueError(f"output channel {channel.name!r}: a trace channel carries a DiagnosticStatus")
     OUTPUT_CHANNELS[channel.name] = channel
     return channel
 
@@ -110,6 +115,11 @@ def map_channels() -> tuple[OutputChannel, ...]:
     return tuple(c for c in OUTPUT_CHANNELS.values() if c.per == "map")
 
 
+def trace_channels() -> tuple[OutputChannel, ...]:
+    """The channel(s) published once per online trace."""
+    return tuple(c for c in OUTPUT_CHANNELS.values() if c.per == "trace")
+
+
 for _channel in (
     OutputChannel("loss_torque", Topic.LOSS_TORQUE, MessageType.FLOAT64, "N*m",
                   "model (plus accepted effects) loss torque, signed, input-referred", "loss_torque_nm"),
@@ -123,5 +133,9 @@ for _channel in (
     OutputChannel("loss_map", Topic.LOSS_MAP, MessageType.FLOAT64_MULTI_ARRAY, "",
                   "the live loss map on the map.* grid (speeds in rpm, torques and losses in N*m)",
                   per="map", depth=1, transient_local=True),
+    OutputChannel("loss_traced", Topic.LOSS_TRACED, MessageType.DIAGNOSTIC_STATUS, "",
+                  "the latest online trace of the residual (ros/tracer.py): verdict, change point, effects with "
+                  "their 95 % intervals, error now and with the candidate", per="trace", depth=1,
+                  transient_local=True),
 ):
     register(_channel)

@@ -54,16 +54,33 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
     the estimator gives no measured loss), or ``min_speed_rad_s``."""
     from ..replay.run import replay
 
-    base = validate({k: v for k, v in config.to_flat().items() if not k.startswith("effects.")}
-                    | {"estimator.adapt": False})
-    model = LossModel(base.gearbox, enabled=base.estimator.paper_model)
-    parts = []
-    loaded = False  # any output torque other than 0 (else: a spin test)
+    base = bare_config(config)
+    batches_of_bags = []
     skipped: dict[str, int] = {}
-    for i, bag in enumerate(bags):
-        summary, batches = replay(bag, base, topics, show_progress=progress, warn=warn, collect=True)
+    for bag in bags:
+        summary, batches = replay(bag, base, topics, show_progress=progress, warn=warn, collect=True,
+                                  parameter_changes=False)  # the bare model throughout
         for k, v in summary.skipped.items():
             skipped[k] = skipped.get(k, 0) + v
+        batches_of_bags.append(batches)
+    return samples_from_estimates(batches_of_bags, config, skipped, min_speed_rad_s)
+
+
+def bare_config(config: Config) -> Config:
+    """``config`` without its effects and adaptation: the model whose residual calibration analyses."""
+    return validate({k: v for k, v in config.to_flat().items() if not k.startswith("effects.")}
+                    | {"estimator.adapt": False})
+
+
+def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, skipped: dict[str, int] | None = None,
+                           min_speed_rad_s: float = 0.0) -> SampleData:
+    """The samples with a measured loss of estimates made with :func:`bare_config` (a list of
+    :class:`~core.estimator.BatchEstimate` per recording; ``bag_id`` its index): what
+    :func:`load_samples` returns for recordings, and the live tracer for the node's own samples."""
+    model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
+    parts = []
+    loaded = False  # any output torque other than 0 (else: a spin test)
+    for i, batches in enumerate(batches_of_bags):
         for b in batches:
             ok = np.isfinite(b.measured_loss_nm) & (np.abs(b.speed_rad_s) >= min_speed_rad_s)
             temp = b.temperature_c if b.temperature_c is not None else np.full(len(b.t_ns), np.nan)
@@ -77,7 +94,7 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
                        "the output torque topic")
     cols = [np.concatenate([p[j] for p in parts]) for j in range(7)]
     return SampleData(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6],
-                      model.fr_part(cols[2], cols[3]), skipped, parts=model.parts(cols[2], cols[3]),
+                      model.fr_part(cols[2], cols[3]), dict(skipped or {}), parts=model.parts(cols[2], cols[3]),
                       sign_width_rad_s=config.estimator.speed_noise_rad_s, spin_test=not loaded)
 
 

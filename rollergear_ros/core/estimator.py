@@ -89,6 +89,7 @@ class Estimator:
         ``sample_period_s``: the motor torque's median message period, for the automatic pairing
         tolerance (:func:`pairing_tolerance_s`; 1 ms when not given)."""
         self.config = config
+        self.pairing, self.sample_period_s = pairing, sample_period_s  # for an estimator that takes over
         est = config.estimator
         self.sync_tolerance_s = pairing_tolerance_s(est.sync_tolerance_s, sample_period_s)
         self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s,

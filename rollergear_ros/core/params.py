@@ -71,6 +71,8 @@ class ParamSpec:
                 raise ParameterError(self.name, value, self.allowed_text())
             return value
         if self.kind is str:
+            if isinstance(value, bool) and {"on", "off"} <= set(self.choices or ()):
+                value = "on" if value else "off"  # YAML 1.1 (ROS parameter files, -p x:=on) reads on/off as booleans
             if not isinstance(value, str):
                 raise ParameterError(self.name, value, self.allowed_text())
             if self.choices and value not in self.choices:
@@ -235,6 +237,27 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("node.rerun_rrd", str, "", "log to this rerun .rrd file ('' = off)", read_only=True),
     ParamSpec("node.rerun_connect", str, "", "stream to a rerun viewer at this gRPC URL ('' = off)",
               read_only=True),
+    ParamSpec("node.trace", bool, True,
+              "trace the residual online: calibrate's discovery on the node's recent samples with measured output, "
+              "in a worker process, after each change alarm (and every node.trace_period_s); the result on "
+              "loss/traced and /diagnostics", read_only=True),
+    ParamSpec("node.trace_window_s", float, 60.0,
+              "the longest window of samples traced on each side of a change point (and by a periodic trace)", "s",
+              low=10.0, high=3600.0, read_only=True),
+    ParamSpec("node.trace_min_after_s", float, 20.0,
+              "samples needed after a change point before it is traced (the delay from onset to result)", "s",
+              low=5.0, high=3600.0),
+    ParamSpec("node.trace_period_s", float, 300.0,
+              "also trace the last node.trace_window_s every this many seconds, for drift the change detector "
+              "misses (0 = after alarms only)", "s", low=0.0, high=1e6),
+    ParamSpec("node.accept_traced", str, "propose",
+              "what a traced effect does: off (reported only), propose (also writes the candidate parameter file, "
+              "atomically, to node.traced_params_file) or on (also takes the candidate's parameters in, as a "
+              "run-time parameter change at a sample boundary, recorded; the parameter file on disk never changes)",
+              choices=("off", "propose", "on")),
+    ParamSpec("node.traced_params_file", str, "",
+              "where 'propose' writes the candidate parameter file ('' = beside node.record_mcap as "
+              "NAME.traced.yaml, else loss_estimator.traced.yaml in the working directory)", read_only=True),
 )
 
 MAP_SPECS: tuple[ParamSpec, ...] = (
@@ -380,6 +403,20 @@ class NodeParams:
     record_mcap: str = ""
     rerun_rrd: str = ""
     rerun_connect: str = ""
+    trace: bool = True
+    trace_window_s: float = 60.0
+    trace_min_after_s: float = 20.0
+    trace_period_s: float = 300.0
+    accept_traced: str = "propose"
+    traced_params_file: str = ""
+
+    def traced_params_path(self) -> str:
+        """Where ``propose`` writes the candidate parameter file (``node.traced_params_file``)."""
+        if self.traced_params_file:
+            return self.traced_params_file
+        if self.record_mcap:
+            return str(Path(self.record_mcap).with_suffix("")) + ".traced.yaml"
+        return "loss_estimator.traced.yaml"
 
 
 @dataclass(frozen=True)

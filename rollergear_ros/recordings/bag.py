@@ -45,6 +45,11 @@ MSG_DEFINITIONS: dict[str, str] = {
     ),
     MessageType.CLOCK: ("builtin_interfaces/Time clock\n" + "=" * 80 + "\n"
                         "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n"),
+    # as rosbags' type store generates it (with the level constants and the nested KeyValue)
+    MessageType.DIAGNOSTIC_STATUS: (
+        "byte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\nbyte level\nstring name\nstring message\n"
+        "string hardware_id\ndiagnostic_msgs/KeyValue[] values\n" + "=" * 80 + "\n"
+        "MSG: diagnostic_msgs/KeyValue\nstring key\nstring value\n"),
     # as rosbags' type store generates it (rcl_interfaces/msg/ParameterEvent with its nested types)
     MessageType.PARAMETER_EVENT: (
         "builtin_interfaces/Time stamp\n"

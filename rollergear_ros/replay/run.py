@@ -24,6 +24,7 @@ from ..core.params import Config
 from ..base.progress import TimedProgress
 from .inputs import InputBatch, InputProblems, input_batches, plan_inputs, recorded_pairing
 from .output import ReplayOutputs
+from .switches import ParameterSwitch, apply_switch, recorded_switches, split_at
 from .summary import Accumulator, ReplaySummary
 from .window import MEMORY_LEAD_NS, TimeWindow
 from ..base.stopping import GracefulStop
@@ -47,6 +48,7 @@ class ReplayRequest:
     window_ns: tuple[int | None, int | None] | None = None
     summary_png: str | Path | None = None
     exports: Sequence[tuple[str, str | Path]] = ()
+    parameter_changes: bool = True
 
 
 def replay(
@@ -63,6 +65,7 @@ def replay(
     window_ns: tuple[int | None, int | None] | None = None,
     summary_png: str | Path | None = None,
     exports: Sequence[tuple[str, str | Path]] = (),
+    parameter_changes: bool = True,
 ) -> tuple[ReplaySummary, list[BatchEstimate]]:
     """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``).
 
@@ -75,11 +78,15 @@ def replay(
     ``window_ns``: a time slice ``[start, end)`` of the recording (``None``: open): only its samples
     are estimated and summed up, so that the slices of a long recording, replayed apart, add up to
     it (:class:`~.window.TimeWindow`).  Not with outputs (``out_mcap``, ``rrd``).
+
+    ``parameter_changes``: apply the run-time parameter changes a live recording holds where the node
+    applied them (:mod:`.switches`); off for an analysis that wants ``config`` throughout (calibration's
+    bare model).
     """
     if window_ns is not None and (out_mcap or rrd or summary_png or exports):
         raise UsageError("a time slice of a recording is replayed without outputs")
     request = ReplayRequest(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect, window_ns,
-                            summary_png, exports)
+                            summary_png, exports, parameter_changes)
     stop = GracefulStop()  # first: from here on a signal leaves complete files
     try:
         return _replay(request, stop)
@@ -102,6 +109,8 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
     pairing, period_s, file_order = recorded_pairing(info.path, plan, period_s)
     plan = replace(plan, file_order=file_order)
     estimator = Estimator(req.config, pairing=pairing, sample_period_s=period_s)
+    # the node's run-time parameter changes, where it applied them
+    switches = recorded_switches(info) if req.parameter_changes else []
     problems = InputProblems(estimator.counts, plan)
     window = None if req.window_ns is None else _time_window(req.window_ns, estimator)
     summary = ReplaySummary(
@@ -121,7 +130,11 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
         total = sum(info.counts.get(t, 0) for t in plan.all_topics)
         bar = TimedProgress("replay", total, "msg", enabled=req.show_progress).start()
         batches = input_batches(info, plan, req.batch_size, _warn, problems, window.read_range() if window else None)
-        _estimate(batches, _Pass(estimator, outputs, window, summary, stop), bar)
+        run = _Pass(estimator, outputs, window, summary, stop, switches)
+        try:
+            _estimate(batches, run, bar)
+        finally:
+            estimator = run.estimator  # the last one: after the recorded parameter changes
         completed = True
     except KeyboardInterrupt:
         summary.interrupted = completed = True  # what was processed so far is a whole output
@@ -167,41 +180,61 @@ def _time_window(window_ns: tuple[int | None, int | None], estimator: Estimator)
     return TimeWindow(*window_ns, lead_ns=lead_ns)
 
 
-@dataclass(frozen=True)
+@dataclass
 class _Pass:
-    """One pass of a replay through its inputs: the estimator, where its estimates go, the time
-    slice (None: the whole recording), the summary and the signal guard."""
+    """One pass of a replay through its inputs: the estimator (replaced at each recorded parameter
+    change), where its estimates go, the time slice (None: the whole recording), the summary, the
+    signal guard and the recorded parameter changes still to come."""
 
     estimator: Estimator
     outputs: ReplayOutputs
     window: TimeWindow | None
     summary: ReplaySummary
     stop: GracefulStop
+    switches: list[ParameterSwitch]
+
+    def push(self, codes, t_ns, values, source_ns) -> Iterator[BatchEstimate]:
+        """The inputs through the estimator; at a recorded parameter change within them, the
+        estimates before it, then those of the estimator after it."""
+        while self.switches and len(t_ns) and t_ns[-1] > self.switches[0].at_ns:
+            switch = self.switches.pop(0)
+            k = split_at(t_ns, switch.at_ns)
+            if k:
+                yield self.estimator.push_many(codes[:k], t_ns[:k], values[:k],
+                                               None if source_ns is None else source_ns[:k])
+                codes, t_ns, values = codes[k:], t_ns[k:], values[k:]
+                source_ns = None if source_ns is None else source_ns[k:]
+            self.estimator = apply_switch(self.estimator, switch)
+        if len(t_ns):
+            yield self.estimator.push_many(codes, t_ns, values, source_ns)
 
 
 def _estimate(batches: Iterator[InputBatch], run: _Pass, bar: TimedProgress) -> None:
     """Every batch of inputs through the estimator, its estimates to the outputs (a signal stops
     between batches: ``summary.interrupted``)."""
-    estimator, outputs, window, summary, stop = run.estimator, run.outputs, run.window, run.summary, run.stop
-    release_lag_ns = 2 * max(estimator.sync.hold_ns, estimator.sync.tolerance_ns)  # output held back
+    outputs, window, summary, stop = run.outputs, run.window, run.summary, run.stop
+    release_lag_ns = 2 * max(run.estimator.sync.hold_ns, run.estimator.sync.tolerance_ns)  # output held back
     acc = outputs.acc
     for batch in batches:
         if stop.requested:
             summary.interrupted = True
             break
         if window is not None:  # a time slice (no outputs): its lead-in, its samples, its lead-out
-            for codes, t, v, source in window.split(batch, estimator):
-                outputs.emit(window.keep(estimator.push_many(codes, t, v, source), acc))
+            for codes, t, v, source in window.split(batch, run.estimator):
+                for estimates in run.push(codes, t, v, source):
+                    outputs.emit(window.keep(estimates, acc))
         else:
             with stop.critical():  # one batch's estimates and inputs, both or neither
                 summary.input_messages += len(batch.codes)
-                outputs.emit(estimator.push_many(batch.codes, batch.t_ns, batch.values, batch.source_ns))
-                outputs.inputs_done(batch, estimator, release_lag_ns)
+                for estimates in run.push(batch.codes, batch.t_ns, batch.values, batch.source_ns):
+                    outputs.emit(estimates)
+                outputs.inputs_done(batch, run.estimator, release_lag_ns)
         bar.update(len(batch.codes))
         if window is not None and window.done:
             break
     else:
         with stop.critical():
+            estimator = run.estimator
             outputs.emit(window.keep(estimator.flush(), acc) if window else estimator.flush())
             if outputs.rlog and acc.last_t is not None:
                 outputs.skip_event(estimator, acc.last_t)

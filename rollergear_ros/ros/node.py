@@ -19,6 +19,7 @@ import sys
 import threading
 import time
 from operator import attrgetter
+from pathlib import Path
 from typing import Any
 
 import rclpy
@@ -43,16 +44,18 @@ from ..core.pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_S
 from ..outputs.stamped import EstimateCodec, estimate_values
 from ..base.interface import NAMESPACE, MessageType, Metadata, Topic
 from .nodehelp import help_text, wants_help
-from ..base.output_channels import OUTPUT_CHANNELS, float64_channels, map_channels, sample_channels, stamped_channels
+from ..base.output_channels import (OUTPUT_CHANNELS, float64_channels, map_channels, sample_channels, stamped_channels,
+                                    trace_channels)
 from ..core.params import Config, ParameterError
 from .parameters import (check_new_output, check_params_files, declare_parameters, live_provenance,
-                         package_parameter_names, parameter_event)
+                         package_parameter_names, parameter_event, params_files)
 from .qos import INPUT_QOS, output_qos
 from .spin import make_executor, stop_on_signals
+from .tracer import CHECK_S, LiveTracer
 
 #: message class of each output channel's type (:mod:`base.output_channels`)
 _MESSAGE_CLASSES = {MessageType.FLOAT64: Float64, MessageType.JOINT_STATE: JointState,
-                    MessageType.FLOAT64_MULTI_ARRAY: Float64MultiArray}
+                    MessageType.FLOAT64_MULTI_ARRAY: Float64MultiArray, MessageType.DIAGNOSTIC_STATUS: DiagnosticStatus}
 
 
 MAP_CHECK_S = 1.0  #: how often the adapted coefficients are compared with those of the last map
@@ -107,6 +110,7 @@ class LossEstimatorNode(Node):
         self.inputs = InputTaker(self, self._input_lock) if node.executor == "events" else None
         self._sequence_gaps = {c: SequenceGaps() for c in Topic.OF_CHANNEL}
         self._last_input_ns: dict[str, int] = {}
+        self._input_log_ns = 0  #: log time of the last input recorded (the sample boundary of a change)
         self._input_handles: dict[str, Any] = {}  # input thread's subscriptions, by channel
         self._interleaved_warned = False
         topics = bagmod.TopicMap()
@@ -115,6 +119,12 @@ class LossEstimatorNode(Node):
         # the live loss map (transient-local: an energy manager that starts later gets the last one)
         self.live_map = LiveMapPublisher(self._map_publishers, self.get_fully_qualified_name(), self.get_logger())
         self._open_recordings()
+        # the online tracer: its buffer is filled on the input path, its timer starts traces in a worker
+        self.params_file_paths = {Path(p).resolve() for p in params_files(sys.argv)}
+        self.tracer = LiveTracer(self, self.config, self._trace_publishers)
+        self._trace_add = self.tracer.add if node.trace else None
+        if node.trace:
+            self.create_timer(CHECK_S, self.tracer.check)
         self._subscribe_inputs(topics)
         # /diagnostics from a thread of its own: an executor flooded with input callbacks starves
         # its timers (a 1 s timer stalled ~5 s at 5 kHz), exactly when the report matters
@@ -223,11 +233,19 @@ class LossEstimatorNode(Node):
         self.live_map.renew()  # the next map check publishes the new parameters' map
         self.parameter_changes += 1
         if self.recorder is not None:  # as it happens: a killed node's recording keeps it
-            stamp = self.get_clock().now().nanoseconds
-            self.recorder.write_message(Topic.PARAMETER_EVENTS, MessageType.PARAMETER_EVENT, stamp,
-                                        parameter_event(self.get_fully_qualified_name(), stamp, changes))
+            # logged now; stamped with the sample boundary the change applies at, where replay applies it
+            self.recorder.write_message(Topic.PARAMETER_EVENTS, MessageType.PARAMETER_EVENT,
+                                        self.get_clock().now().nanoseconds,
+                                        parameter_event(self.get_fully_qualified_name(), self.input_boundary_ns(),
+                                                        changes))
         self.get_logger().info(f"parameters changed: {', '.join(f'{k}={v}' for k, v in changes.items())}")
         return SetParametersResult(successful=True)
+
+    def input_boundary_ns(self) -> int:
+        """The log time of the last input message the recording holds (0: none yet): a change made
+        now applies after it, where replay, which takes the inputs in log-time order, applies it
+        (:mod:`replay.switches`)."""
+        return self._input_log_ns
 
     # ------------------------------------------------------------------ inputs
     def start_inputs(self, executor) -> int:
@@ -308,9 +326,8 @@ class LossEstimatorNode(Node):
             counts[channel] += 1
             last[channel] = wall_ns
             if self.recorder is not None:
-                self.recorder.write_raw(topic, MessageType.FLOAT64,
-                                        t_ns if record_pairing_time else self.get_clock().now().nanoseconds, raw,
-                                        publish_time_ns=source_ns)
+                log_ns = self._input_log_ns = t_ns if record_pairing_time else self.get_clock().now().nanoseconds
+                self.recorder.write_raw(topic, MessageType.FLOAT64, log_ns, raw, publish_time_ns=source_ns)
             if len(raw) >= 12 and raw[1] == 1 and raw[0] == 0:
                 value = unpack(raw, 4)[0]
             elif bagmod.float64_problem(raw) is None:
@@ -366,8 +383,9 @@ class LossEstimatorNode(Node):
         t_ns = max(t_ns, self._last_input_ns.get(channel, t_ns) + lost + 1)
         for t_i in range(t_ns - lost, t_ns):
             if self.recorder is not None:
-                self.recorder.write_raw(topic, MessageType.FLOAT64, t_i if self._record_pairing_time
-                                        else self.get_clock().now().nanoseconds, _LOST_RAW)
+                log_ns = self._input_log_ns = (t_i if self._record_pairing_time
+                                               else self.get_clock().now().nanoseconds)
+                self.recorder.write_raw(topic, MessageType.FLOAT64, log_ns, _LOST_RAW)
             for est in self.estimator.push(channel, t_i, LOST_VALUE):
                 self._publish(est)
         return t_ns
@@ -378,8 +396,8 @@ class LossEstimatorNode(Node):
         names = list(msg.name)
         node = self.config.node
         if self.recorder is not None:
-            self.recorder.write_raw(Topic.JOINT_STATES, MessageType.JOINT_STATE, self.get_clock().now().nanoseconds,
-                                    serialize_message(msg))
+            log_ns = self._input_log_ns = self.get_clock().now().nanoseconds
+            self.recorder.write_raw(Topic.JOINT_STATES, MessageType.JOINT_STATE, log_ns, serialize_message(msg))
         for joint, ch_t, ch_w in ((node.input_joint, TORQUE, SPEED), (node.output_joint, OUT_TORQUE, OUT_SPEED)):
             if joint in names:
                 k = names.index(joint)
@@ -427,6 +445,8 @@ class LossEstimatorNode(Node):
         for channel in OUTPUT_CHANNELS.values():
             if channel.per == "map":
                 published = node.publish_map
+            elif channel.per == "trace":
+                published = node.trace
             else:
                 published = node.publish_stamped if channel.stamped else node.publish_float64
             if published:
@@ -443,9 +463,16 @@ class LossEstimatorNode(Node):
         #: the loss map's publishers (one message per map, not per estimate)
         self._map_publishers = tuple(self.output_publishers[c.name] for c in map_channels()
                                      if c.name in self.output_publishers)
+        #: the online trace's publishers, and the topic its results are recorded on
+        self._trace_publishers = tuple(self.output_publishers[c.name] for c in trace_channels())
+        self.traced_topic = next((self.out_topics[c.name] for c in trace_channels()), "")
 
     def _publish(self, est: Estimate, send: bool = True) -> None:
-        """Publish one estimate (``send=False``: record it only) and buffer it for rerun."""
+        """Publish one estimate (``send=False``: record it only) and buffer it for rerun and, with a
+        measured output, for the online tracer."""
+        if self._trace_add is not None and est.measured_loss_nm == est.measured_loss_nm:  # not NaN
+            self._trace_add((est.t_ns, est.torque_nm, est.speed_rad_s, est.out_torque_nm, est.out_speed_rad_s,
+                             est.temperature_c))
         self._published += 1
         if self._every > 1 and self._published % self._every:
             return
@@ -537,7 +564,8 @@ class LossEstimatorNode(Node):
                                   values=[KeyValue(key=k, value=v) for k, v in report.values]
                                   + [KeyValue(key="start-up backlog discarded [messages]",
                                               value=str(self.backlog_discarded))])
-        arr = DiagnosticArray(status=[status])
+        traced = self.tracer.latest_status
+        arr = DiagnosticArray(status=[status] if traced is None else [status, traced])
         arr.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(arr)
 
@@ -588,6 +616,7 @@ class LossEstimatorNode(Node):
         if self._closed:
             return
         self._closed = True
+        self.tracer.close()
         self._finish_pending()
         if self.recorder is not None:
             self.recorder.close()
@@ -610,8 +639,11 @@ class LossEstimatorNode(Node):
         node = self.config.node
         files = [path for path in (node.record_mcap, node.rerun_rrd) if path]
         files += [node.map_file] if node.map_file and self.maps_published else []
+        files += [self.tracer.proposed] if self.tracer.proposed else []
         return (f"stopped: {est.estimated:,} samples estimated of {est.motor_messages:,} received; skipped: {skips}; "
-                f"change alarms: {est.detector.alarms}; parameter changes: {self.parameter_changes}; "
+                f"change alarms: {est.detector.alarms}; traces: {self.tracer.traces} (effects traced in "
+                f"{self.tracer.traced}, taken in {self.tracer.taken_in}); "
+                f"parameter changes: {self.parameter_changes}; "
                 f"loss maps: {self.maps_published}; wrote: {', '.join(files) or 'no file'}")
 
 

@@ -92,6 +92,9 @@ def declare_parameters(node) -> Config:
         if spec.kind is float and override is not None and override.type_ == Parameter.Type.INTEGER:
             # ``expected_rate_hz: 500`` means 500.0, as the CLI reads it
             overrides[spec.name] = Parameter(spec.name, Parameter.Type.DOUBLE, float(override.value))
+        elif spec.kind is str and override is not None and override.type_ == Parameter.Type.BOOL:
+            # ``node.accept_traced:=on`` reaches rclpy as a boolean (YAML 1.1): the spec reads it back
+            overrides[spec.name] = Parameter(spec.name, Parameter.Type.STRING, spec.check(override.value))
         try:
             node.declare_parameter(spec.name, spec.default, _descriptor(spec))
         except (InvalidParameterValueException, InvalidParameterTypeException) as exc:

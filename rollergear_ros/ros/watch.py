@@ -4,7 +4,9 @@ Stands in for ``ros2 topic echo`` (the ``ros2`` CLI has no PyPI wheels) in the t
 node and a player.  Each line gives, over the last period: estimates received per second, the mean
 loss torque [N·m] and loss power [W], the mean efficiency (and its minimum), the mean residual
 [N·m] when measured output torque is present, the mean of any further Float64 output channel
-(:mod:`base.output_channels`), and the node's latest ``/diagnostics`` level and message.  The outputs are taken
+(:mod:`base.output_channels`), and the node's latest ``/diagnostics`` level and message; each online
+trace's result (``loss/traced``, latched: also the last one before the watcher started) on a line of
+its own.  The outputs are taken
 raw and best effort with shallow queues: a slow terminal never holds the node back, and the rate
 shown is what reached the watcher.
 
@@ -22,7 +24,7 @@ import numpy as np
 
 from ..recordings.bag import decode_float64
 from ..base.interface import NAMESPACE, Topic
-from ..base.output_channels import OUTPUT_CHANNELS, float64_channels
+from ..base.output_channels import OUTPUT_CHANNELS, float64_channels, trace_channels
 from ..base.errors import UsageError
 from .diagnostics import LEVEL_NAMES, STATUS_NAME
 from .player import init_for_command_line
@@ -37,6 +39,15 @@ class WatchWindow:
 
     payloads: dict[str, list[bytes]] = field(default_factory=lambda: {c.name: [] for c in float64_channels()})
     diagnostic: tuple[int, str] | None = None  #: (level, message) of the node's latest status
+    traced: list[str] = field(default_factory=list)  #: online trace results received, not yet printed
+
+    def add_traced(self, level: int, message: str) -> None:
+        """An online trace's result (``loss/traced``): printed on a line of its own."""
+        self.traced.append(f"traced [{LEVEL_NAMES.get(level, str(level))}] {message}")
+
+    def take_traced(self) -> list[str]:
+        lines, self.traced = self.traced, []
+        return lines
 
     def add(self, channel: str, raw: bytes) -> None:
         self.payloads[channel].append(raw)
@@ -77,11 +88,13 @@ def _mean(v: np.ndarray) -> float:
 
 def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out=sys.stdout) -> int:
     """Print one :meth:`WatchWindow.line` per ``period_s`` until Ctrl-C (or ``count`` lines)."""
-    from diagnostic_msgs.msg import DiagnosticArray
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
+
+    from .qos import output_qos
 
     ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
     window = WatchWindow()
@@ -100,6 +113,11 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
                 )
 
     node.create_subscription(DiagnosticArray, Topic.DIAGNOSTICS, on_diagnostics, 10)
+    for channel in trace_channels():  # latched: the last result, also one made before watch started
+        node.create_subscription(
+            DiagnosticStatus, channel.absolute_topic(namespace),
+            lambda msg: window.add_traced(msg.level[0] if isinstance(msg.level, bytes) else int(msg.level),
+                                          msg.message), output_qos(channel))
     # the events executor takes a message for a few µs: a watcher of four 1 kHz topics keeps up
     # (the single-threaded one manages ~3 k messages/s here, far fewer on a slower machine)
     executor = EventsExecutor()
@@ -115,7 +133,10 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
             deadline = start + (lines + 1) * period_s
             while (left := deadline - time.monotonic()) > 0:
                 executor.spin_once(timeout_sec=min(left, 0.1))
-            print(f"{time.strftime('%H:%M:%S')}  {window.line(period_s, topic_of_loss)}", file=out, flush=True)
+            stamp = time.strftime('%H:%M:%S')
+            for traced in window.take_traced():
+                print(f"{stamp}  {traced}", file=out, flush=True)
+            print(f"{stamp}  {window.line(period_s, topic_of_loss)}", file=out, flush=True)
             lines += 1
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the normal end
         pass

@@ -13,7 +13,7 @@ from rollergear_ros.recordings.bag import TopicMap, inspect_bag, read_metadata
 from rollergear_ros.core.estimator import Estimate
 from rollergear_ros.base.interface import MessageType, Topic
 from rollergear_ros.base.output_channels import (OUTPUT_CHANNELS, OutputChannel, float64_channels, map_channels,
-                                                 register, sample_channels, unregister)
+                                                 register, sample_channels, trace_channels, unregister)
 from rollergear_ros.replay.run import replay
 from rollergear_ros.ros.watch import WatchWindow
 
@@ -43,10 +43,11 @@ def test_every_output_channel_has_its_row_in_the_interface_document():
 
 def test_every_per_sample_channel_is_a_topic_map_field_and_a_name_is_registered_once():
     topics = TopicMap()
-    assert {c.name for c in sample_channels()} | {c.name for c in map_channels()} == set(OUTPUT_CHANNELS)
+    node_only = map_channels() + trace_channels()
+    assert {c.name for c in sample_channels()} | {c.name for c in node_only} == set(OUTPUT_CHANNELS)
     for channel in sample_channels():
         assert getattr(topics, channel.name) == topics.output(channel.name) == channel.absolute_topic()
-    for channel in map_channels():  # the node's alone: no recording's topic to move
+    for channel in node_only:  # the node's alone: no recording's topic to move
         assert not hasattr(topics, channel.name)
     with pytest.raises(ValueError, match="already registered"):
         register(OUTPUT_CHANNELS["loss_torque"])
@@ -54,19 +55,23 @@ def test_every_per_sample_channel_is_a_topic_map_field_and_a_name_is_registered_
         register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "no value and not a JointState"))
     with pytest.raises(ValueError, match="Float64MultiArray"):
         register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "a map as a Float64", per="map"))
+    with pytest.raises(ValueError, match="DiagnosticStatus"):
+        register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "a trace as a Float64", per="trace"))
     with pytest.raises(ValueError, match="per is"):
         register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "neither", "loss_torque_nm", per="hour"))
     assert "bad" not in OUTPUT_CHANNELS
 
 
-def test_the_loss_map_channel_is_offered_latched_and_the_node_takes_its_qos_from_the_table():
+def test_the_loss_map_and_trace_channels_are_offered_latched_and_the_node_takes_their_qos_from_the_table():
     from rollergear_ros.ros.qos import output_qos
     from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
 
     (channel,) = map_channels()
-    qos = output_qos(channel)
-    assert channel.topic == Topic.LOSS_MAP and qos.depth == 1
-    assert qos.durability == DurabilityPolicy.TRANSIENT_LOCAL and qos.reliability == ReliabilityPolicy.RELIABLE
+    (traced,) = trace_channels()
+    assert channel.topic == Topic.LOSS_MAP and traced.topic == Topic.LOSS_TRACED
+    for qos in (output_qos(channel), output_qos(traced)):
+        assert qos.depth == 1
+        assert qos.durability == DurabilityPolicy.TRANSIENT_LOCAL and qos.reliability == ReliabilityPolicy.RELIABLE
     sample = output_qos(OUTPUT_CHANNELS["loss_torque"])
     assert sample.durability == DurabilityPolicy.VOLATILE and sample.depth == OUTPUT_CHANNELS["loss_torque"].depth
 

@@ -14,7 +14,7 @@ from rollergear_ros.replay.run import replay
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
 from helpers import BAGS, CONFIG, REALDATA
-from rostools import FloatProbe, NodeProcess, call_until_answered, play, ros_context, wait_for
+from rostools import FloatProbe, NodeProcess, WatchProcess, call_until_answered, play, ros_context, wait_for
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -1112,3 +1112,171 @@ def test_the_live_loss_map_reaches_a_late_subscriber_and_follows_the_adaptation(
     np.testing.assert_allclose(rows[:, 2], build_map(adapted, speeds, torques).loss_nm.ravel(), rtol=1e-5)
     # the file holds a map the node published (the last one written; written after publishing)
     assert any(np.allclose(rows[:, 2], loss.ravel(), rtol=1e-5) for loss in received[1:])
+
+
+#: onset of the undeclared effect in the traced recordings [s], and what each effect is
+TRACE_ONSET_S = 50.0
+TRACED = {"drag_constant": "drag_constant:c=0.06", "drag_speed": "drag_speed:c=3e-4,p=1.4"}
+
+
+@pytest.mark.parametrize("effect", sorted(TRACED))
+def test_the_node_traces_an_effect_that_appears_mid_play_and_proposes_a_parameter_file(effect, tmp_path):
+    """A gearbox develops an undeclared effect at 50 s of a 120 s drive cycle played into the node:
+    the node's tracer names it (and only it) on the latched ``loss/traced``, its change point within
+    a second of the onset, each true value within its 95 % interval, from a window that ends
+    ``node.trace_min_after_s`` (20 s) after the alarm; ``propose`` writes a candidate file the package's
+    validation loads, whose estimates after the onset are closer to the measured loss than the running
+    parameters'; the node's MCAP holds the result (both readers) and ``/diagnostics`` carries it."""
+    import json
+    import subprocess
+    import sys
+
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    from rollergear_ros.calibration.simulate import read_truth
+    from rollergear_ros.core.effects import EFFECTS
+    from rollergear_ros.outputs.review import read_rrd_events
+
+    bag, rec, rrd, cand = (tmp_path / "onset.mcap", tmp_path / "live.mcap", tmp_path / "live.rrd",
+                           tmp_path / "candidate.yaml")
+    subprocess.run([sys.executable, "-m", "rollergear_ros", "simulate", "--profile", "drive_cycle", "--joint-states",
+                    "--rate", "200", "--seed", "4", "--effect", TRACED[effect], "--step-change-at",
+                    str(TRACE_ONSET_S), "--out", str(bag)], check=True, capture_output=True)
+    truth = read_truth(bag)
+    node = NodeProcess("node.input_mode:=joint_state", LOSSLESS, f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}",
+                       f"node.traced_params_file:={cand}")
+    watcher = WatchProcess()  # the README's third terminal
+    traced, diagnosed = [], []
+    with ros_context() as probe:
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        probe.create_subscription(DiagnosticStatus, "/rollergear/loss/traced", traced.append, latched)
+        probe.create_subscription(DiagnosticArray, "/diagnostics", lambda m: diagnosed.extend(
+            s for s in m.status if s.name.endswith(": traced")), 10)
+        FloatProbe(probe, T.loss_torque).wait_matched()
+        play(bag, "--rate", "10", "--wait-for-subscribers", "20")
+        assert wait_for(lambda: traced and traced[-1].level == DiagnosticStatus.WARN and diagnosed
+                        and diagnosed[-1].message == traced[-1].message, 600), "no effect traced"
+        # watch prints it on a line of its own
+        assert wait_for(lambda: any(f"traced [WARN] {traced[-1].message}" in line for line in watcher.lines), 600), \
+            "\n".join(watcher.lines)
+    assert watcher.stop() == 0, watcher.errors
+    assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
+
+    results = [json.loads({kv.key: kv.value for kv in m.values}["json"]) for m in traced]
+    # before the one that names the effect, only traces that said what they still need
+    assert all(r["verdict"] == "inconclusive" for r in results[:-1]), results
+    result = results[-1]
+    assert result["reason"] == "alarm" and result["verdict"] == "traced", result
+    # the stated delay: the window after the change point is at most node.trace_window_s (60 s) long
+    assert result["window_ns"][1] - result["since_ns"] <= 60e9
+    assert [e["name"] for e in result["effects"]] == [effect], result
+    _, batches = replay(bag, load_config(CONFIG), collect=True, show_progress=False)
+    onset_ns = int(batches[0].t_ns[0]) + int(truth["step_change_at_s"] * 1e9)  # the profile's time 0: the first sample
+    assert abs(result["since_ns"] - onset_ns) <= 1e9, (result["since_ns"] - onset_ns) / 1e9
+    declared = next(e for e in truth["effects"] if e["name"] == effect)["params"]
+    found = result["effects"][0]
+    for name, value in declared.items():
+        low, high = found["ci95"][name]
+        assert low <= value <= high, (name, value, found)
+    assert result["error_candidate_nm"] < result["error_now_nm"], result
+
+    proposed = load_config(cand)  # the package's one validation, as calibrate and replay load it
+    assert proposed.effects.enabled() == (effect,), proposed.effects.enabled()
+    # replayed after the onset: the candidate as close to the measured loss as the declared effect
+    # itself (the noise floor), the running parameters well above it
+    declared_config = load_config(CONFIG).with_values(
+        {f"effects.{effect}.enabled": True} | {f"effects.{effect}.{q.key}": declared[q.short]
+                                              for q in EFFECTS[effect].parameters})
+    errors = []
+    for cfg in (load_config(CONFIG), proposed, declared_config):
+        _, batches = replay(bag, cfg, collect=True, show_progress=False, window_ns=(onset_ns, None))
+        r = np.concatenate([b.residual_nm for b in batches])
+        errors.append(float(np.sqrt(np.nanmean(r ** 2))))
+    assert errors[1] <= 1.05 * errors[2] and errors[0] >= 1.5 * errors[2], errors
+    for messages in (read_mcap_ros2(rec), read_rosbags(rec)):
+        _, recorded = messages["/rollergear/loss/traced"]
+        assert [m.message for m in recorded] == [m.message for m in traced]
+    assert f"traces: {len(traced)} (effects traced in 1, taken in 0)" in node.stderr, node.stderr
+    assert str(cand) in node.stderr
+    # and on the rerun timeline, at the change point (rerun's own loader)
+    events = [(t, text) for t, _level, text in read_rrd_events(rrd) if text.startswith("traced")]
+    assert sorted(text for _, text in events) == sorted(f"traced (alarm): {m.message}" for m in traced)
+    assert (result["since_ns"], f"traced (alarm): {traced[-1].message}") in events
+
+
+def test_a_traced_effect_taken_in_switches_the_estimator_at_a_recorded_sample_and_replay_reproduces_it(tmp_path):
+    """``node.accept_traced: on``: a speed drag appears at 50 s; once traced, the node takes it in
+    (a run-time parameter change at a sample boundary, recorded on ``/parameter_events``); a second
+    recording, continuing the first in time with the drag on, is then played.  Replay of the node's
+    recording gives what the node published, before and after the switch (to the rounding of the
+    node's scalar arithmetic); the estimates after it carry the drag (their residual at the noise
+    floor of the declared effect)."""
+    import json
+
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
+
+    config = load_config(CONFIG)
+    drag = DeclaredEffect("drag_speed", {"c": 3e-4, "p": 1.4})
+    first = SimulationOptions("drive_cycle", 200.0, 4, [drag], step_change_at_s=TRACE_ONSET_S, joint_states=True)
+    rig = simulate(config, first)
+    write_rig_bag(rig, first, tmp_path / "first.mcap")
+    then = SimulationOptions("drive_cycle", 200.0, 6, [drag], joint_states=True, start_ns=int(rig.t_ns[-1]) + 5_000_000)
+    write_rig_bag(simulate(config, then), then, tmp_path / "then.mcap")
+    rec = tmp_path / "live.mcap"
+    node = NodeProcess("node.input_mode:=joint_state", LOSSLESS, f"node.record_mcap:={rec}", "node.accept_traced:=on",
+                       f"node.traced_params_file:={tmp_path / 'candidate.yaml'}")
+    n = sum(inspect_bag(tmp_path / b).counts[T.joint_states] for b in ("first.mcap", "then.mcap"))
+    traced = []
+    with ros_context() as probe_node:
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        probe_node.create_subscription(DiagnosticStatus, "/rollergear/loss/traced", traced.append, latched)
+        probe = FloatProbe(probe_node, T.loss_torque)
+        probe.wait_matched()
+        play(tmp_path / "first.mcap", "--rate", "10", "--wait-for-subscribers", "20")
+        assert wait_for(lambda: traced and "taken in after the sample at" in traced[-1].message, 600), \
+            [m.message for m in traced]
+        play(tmp_path / "then.mcap", "--rate", "10", "--wait-for-subscribers", "20")
+        assert wait_for(lambda: len(probe) >= n, 600), (len(probe), n)
+        published = probe.values()
+    assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
+    assert "taken in 1)" in node.stderr, node.stderr
+
+    result = json.loads({kv.key: kv.value for kv in traced[-1].values}["json"])
+    assert [e["name"] for e in result["effects"]] == ["drag_speed"], result
+    live = read_rosbags(rec)
+    _, events = live["/parameter_events"]
+    (event,) = events
+    boundary = event.stamp.sec * 1_000_000_000 + event.stamp.nanosec
+    changed = {p.name: p.value.double_value for p in event.changed_parameters if p.value.type == 3}
+    assert changed["effects.drag_speed.c"] == pytest.approx(result["effects"][0]["params"]["c"], rel=1e-12)
+    # the boundary: the log time of an input of the first recording, after the onset
+    log_ns, joint_states = live[T.joint_states]
+    header_ns = np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in joint_states])
+    at = int(np.flatnonzero(np.asarray(log_ns) == boundary)[0])
+    assert rig.t_ns[0] + TRACE_ONSET_S * 1e9 < header_ns[at] <= rig.t_ns[-1]
+    _, recorded = float_series(live, T.loss_torque)
+    np.testing.assert_array_equal(recorded, published)
+    # replay of the node's recording: the node's estimates across the switch, to the rounding of its
+    # scalar arithmetic against replay's vectorised one (as without a switch: the first test here)
+    _, batches = replay(rec, config, collect=True, show_progress=False)
+    t = np.concatenate([b.t_ns for b in batches])
+    replayed = np.concatenate([b.loss_torque_nm for b in batches])
+    np.testing.assert_allclose(replayed, recorded, rtol=1e-12, atol=1e-15)
+    after = t > boundary
+    assert after.sum() > n / 2  # the second recording is estimated after the switch
+    # without the recorded change replay estimates the gearbox without the drag: not what the node did
+    _, without = replay(rec, config, collect=True, show_progress=False, parameter_changes=False)
+    assert not np.array_equal(np.concatenate([b.loss_torque_nm for b in without])[after], replayed[after])
+    # and the drag taken in describes the gearbox: the residual after the switch as low as with the declared drag
+    declared = config.with_values({"effects.drag_speed.enabled": True, "effects.drag_speed.c": 3e-4,
+                                   "effects.drag_speed.p": 1.4})
+    _, truth = replay(rec, declared, collect=True, show_progress=False, parameter_changes=False)
+    rms = [float(np.sqrt(np.nanmean(np.concatenate([b.residual_nm for b in run])[after] ** 2)))
+           for run in (batches, truth)]
+    assert rms[0] <= 1.1 * rms[1], rms

@@ -1,0 +1,317 @@
+"""Online tracing: ``calibrate``'s discovery on a window of the live node's own samples.
+
+The node keeps its recent samples with measured output (:class:`TraceBuffer`); when its change
+detector fires, once enough samples have come after the alarm, or every ``node.trace_period_s``,
+it hands a snapshot (:class:`TraceRequest`) to a worker process (:class:`TraceWorker`) that runs
+:func:`trace`:
+
+1. the samples are estimated with the bare model (:func:`~.samples.bare_config`) into the very
+   :class:`~.samples.SampleData` that ``calibrate`` analyses for a recording
+   (:func:`~.samples.samples_from_estimates`);
+2. with an alarm, the change point is where the running parameters' residual (block means of
+   ``block_s``) splits best into two levels -- least squares, searched before the alarm;
+3. :func:`~.calibrate.calibrate` runs on the window after the change point and, when it holds
+   enough samples, on the window before it, both with the node's parameters (their accepted
+   effects assumed, as ``--assume``, where the data cannot tell them from another);
+4. an effect *traced* is one accepted after the change, not enabled in the node's parameters and
+   not accepted before the change (it did not appear then); a periodic trace (no change point)
+   names the effects the parameters lack over the whole window;
+5. the errors are those of exactly the parameter sets compared: the node's and the candidate file
+   (``calibrate``'s result: the node's parameters with the accepted effects), each run through the
+   estimator over the window after the change; ``calibrate``'s held-out errors are kept beside.
+
+No rclpy import: the worker process never loads ROS.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing
+import os
+from collections import deque
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..base.errors import RollergearError
+from ..core.estimator import Estimator
+from ..core.params import Config, config_to_yaml, validate
+from .calibrate import CalibrationResult, CalibrationSettings, calibrate
+from .samples import bare_config, samples_from_estimates
+
+__all__ = ["TraceBuffer", "TraceRequest", "TraceResult", "TraceWorker", "change_point", "trace"]
+
+#: the fields of an estimate the buffer keeps, in its tuples' order
+SAMPLE_FIELDS = ("t_ns", "torque_nm", "speed_rad_s", "out_torque_nm", "out_speed_rad_s", "temperature_c")
+MIN_BEFORE_S = 10.0  #: a window before the change point shorter than this is not analysed
+CHANGE_BLOCK_S = 0.25  #: block length of the change point's search [s]
+
+
+class TraceBuffer:
+    """The node's most recent samples with measured output, as tuples (:data:`SAMPLE_FIELDS`).
+
+    Appending is the one thing the input path does (a deque append); :meth:`arrays` turns a copy
+    into arrays off that path."""
+
+    def __init__(self, capacity: int) -> None:
+        self.samples: deque[tuple] = deque(maxlen=max(int(capacity), 1))
+        self.add = self.samples.append  #: ``add((t_ns, torque, speed, out_torque, out_speed, temperature))``
+
+    def copy(self) -> list[tuple]:
+        """The buffered samples (a shallow copy, fast: take it under the input lock)."""
+        return list(self.samples)
+
+    @staticmethod
+    def arrays(rows: list[tuple]) -> dict[str, np.ndarray]:
+        """Rows of :meth:`copy` as one array per field."""
+        if not rows:
+            return {f: np.empty(0) for f in SAMPLE_FIELDS}
+        cols = list(zip(*rows))
+        out = {f: np.asarray(c, dtype=np.float64) for f, c in zip(SAMPLE_FIELDS, cols)}
+        out["t_ns"] = np.asarray(cols[0], dtype=np.int64)
+        return out
+
+
+@dataclass(frozen=True)
+class TraceRequest:
+    """What the worker traces: samples, the node's parameters, and why."""
+
+    samples: dict[str, np.ndarray]  #: :data:`SAMPLE_FIELDS` -> arrays, in time order
+    parameters: dict  #: the node's parameter set, flat (:meth:`~core.params.Config.to_flat`)
+    reason: str  #: "alarm" or "period"
+    alarm_ns: int | None = None  #: the change alarm's sample time (reason "alarm")
+    window_s: float = 60.0  #: the longest window on each side of the change point
+    min_after_s: float = 20.0  #: samples needed after the change point
+    #: the last sample time analysed (None: all): a trace scheduled for a time sees exactly the samples
+    #: up to it, however late the worker gets to it -- the same samples give the same result
+    end_ns: int | None = None
+
+
+@dataclass
+class TraceResult:
+    """What a trace found; :meth:`to_json` is what the node publishes and records."""
+
+    reason: str
+    verdict: str  #: traced | nothing_new | inconclusive
+    message: str  #: one sentence
+    since_ns: int | None  #: the change point (alarm) or the window's start (period)
+    window_ns: tuple[int, int]  #: the samples analysed after the change point (or the whole window)
+    samples: int  #: in that window
+    effects: list[dict] = field(default_factory=list)  #: traced: name, params, ci95
+    error_now_nm: float = math.nan  #: RMS residual of the node's parameters over the window
+    error_candidate_nm: float = math.nan  #: ... of the candidate parameter set
+    heldout_rmse_nm: tuple[float, float] = (math.nan, math.nan)  #: calibrate's held-out RMSE before/after
+    candidate_yaml: str | None = None  #: the candidate parameter file (None: nothing to propose)
+    candidate_changes: dict = field(default_factory=dict)  #: its parameters that differ from the node's
+    elapsed_s: float = 0.0  #: the worker's time for this trace
+    notes: list[str] = field(default_factory=list)
+    alarm_ns: int | None = None  #: the change alarm traced (reason "alarm")
+
+    def to_json(self) -> dict:
+        return {"reason": self.reason, "alarm_ns": self.alarm_ns, "verdict": self.verdict, "message": self.message,
+                "since_ns": self.since_ns, "window_ns": list(self.window_ns), "samples": self.samples,
+                "effects": self.effects, "error_now_nm": self.error_now_nm,
+                "error_candidate_nm": self.error_candidate_nm, "heldout_rmse_nm": list(self.heldout_rmse_nm),
+                "elapsed_s": self.elapsed_s, "notes": self.notes}
+
+    def key_values(self) -> list[tuple[str, str]]:
+        """Key/values of the ``/diagnostics`` entry and the ``loss/traced`` status."""
+        kv = [("reason", self.reason), ("verdict", self.verdict),
+              ("since [ns]", "" if self.since_ns is None else str(self.since_ns)),
+              ("window [ns]", f"{self.window_ns[0]} {self.window_ns[1]}"), ("samples", str(self.samples)),
+              ("error now RMS [N*m]", f"{self.error_now_nm:.6g}"),
+              ("error with candidate RMS [N*m]", f"{self.error_candidate_nm:.6g}"),
+              ("held-out RMSE before/after [N*m]", f"{self.heldout_rmse_nm[0]:.6g} {self.heldout_rmse_nm[1]:.6g}"),
+              ("trace time [s]", f"{self.elapsed_s:.2f}")]
+        for e in self.effects:
+            kv.append((f"effect {e['name']}", _effect_text(e)))
+        kv += [("note", n) for n in self.notes]
+        kv.append(("json", json.dumps(self.to_json())))  # the whole result, for programs
+        return kv
+
+
+def _effect_text(effect: dict) -> str:
+    """An effect as ``c=0.06 (95 %: c in [0.058, 0.062])``."""
+    params = ", ".join(f"{k}={v:.4g}" for k, v in effect["params"].items())
+    ci = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in effect["ci95"].items())
+    return f"{params} (95 %: {ci})" if ci else params
+
+
+def change_point(t_ns: np.ndarray, residual: np.ndarray, alarm_ns: int, block_s: float = CHANGE_BLOCK_S) -> int:
+    """The time before ``alarm_ns`` where ``residual`` splits best into two levels.
+
+    Residuals are averaged over blocks of ``block_s``; the split minimises the sum of squared
+    deviations of the block means from the mean of their side (the least-squares single change
+    point), searched among the blocks that start before the alarm.  Returns the first sample time
+    of the block after the split (``t_ns[0]`` when there is nothing to split)."""
+    ok = np.isfinite(residual)
+    t, r = t_ns[ok], residual[ok]
+    if len(t) < 4:
+        return int(t_ns[0]) if len(t_ns) else alarm_ns
+    block = ((t - t[0]) // int(block_s * 1e9)).astype(np.int64)
+    starts = np.flatnonzero(np.diff(block, prepend=-1))
+    means = np.add.reduceat(r, starts) / np.diff(np.append(starts, len(r)))
+    n = len(means)
+    if n < 2:
+        return int(t[0])
+    k = np.arange(1, n)  # split before block k
+    csum, csq = np.cumsum(means), np.cumsum(means ** 2)
+    left = csq[k - 1] - csum[k - 1] ** 2 / k
+    right = (csq[-1] - csq[k - 1]) - (csum[-1] - csum[k - 1]) ** 2 / (n - k)
+    cost = left + right
+    cost[t[starts[k]] > alarm_ns] = np.inf
+    if not np.isfinite(cost).any():
+        return int(t[0])
+    return int(t[starts[k[int(np.argmin(cost))]]])
+
+
+def _estimates(config: Config, s: dict[str, np.ndarray], keep: np.ndarray):
+    """The estimator with ``config`` over the samples where ``keep``, fresh (one batch)."""
+    return Estimator(config).process_batch(s["t_ns"][keep], s["torque_nm"][keep], s["speed_rad_s"][keep],
+                                           s["out_torque_nm"][keep], s["out_speed_rad_s"][keep],
+                                           s["temperature_c"][keep], breakdown=False)
+
+
+def _rms_residual(config: Config, s: dict[str, np.ndarray], keep: np.ndarray) -> float:
+    r = _estimates(config, s, keep).residual_nm
+    r = r[np.isfinite(r)]
+    return float(np.sqrt(np.mean(r ** 2))) if len(r) else math.nan
+
+
+def _calibrate(config: Config, s: dict[str, np.ndarray], keep: np.ndarray) -> CalibrationResult:
+    """``calibrate`` on the samples where ``keep``, exactly as on a recording of them."""
+    data = samples_from_estimates([[_estimates(bare_config(config), s, keep)]], config)
+    # the effects the parameters already accept are assumed where the data cannot tell them from another
+    return calibrate(data, config, CalibrationSettings(assume=tuple(config.effects.enabled())))
+
+
+def trace(request: TraceRequest) -> TraceResult:
+    """Trace the residual of ``request``'s samples (see the module docstring)."""
+    import time
+
+    start = time.perf_counter()
+    config = validate(request.parameters)
+    s = request.samples
+    if request.end_ns is not None:
+        keep = s["t_ns"] <= request.end_ns
+        s = {k: v[keep] for k, v in s.items()}
+    t = s["t_ns"]
+    window_ns = int(request.window_s * 1e9)
+    end = int(t[-1]) if len(t) else 0
+    if request.reason == "alarm" and request.alarm_ns is not None and len(t):
+        residual = _estimates(config, s, np.ones(len(t), bool)).residual_nm
+        since = change_point(t, residual, request.alarm_ns)
+    else:
+        since = max(int(t[0]), end - window_ns) if len(t) else 0
+    after = (t >= since) & (t <= since + window_ns)
+    before = (t < since) & (t >= since - window_ns)
+    span = (int(t[after][0]), int(t[after][-1])) if after.any() else (since, since)
+    result = TraceResult(request.reason, "inconclusive", "", since, span, int(after.sum()), alarm_ns=request.alarm_ns)
+    after_s = (span[1] - span[0]) * 1e-9
+    if request.reason == "alarm" and after_s < request.min_after_s:
+        result.message = (f"inconclusive: needs {request.min_after_s:g} s of samples with measured output after the "
+                          f"change, has {after_s:.1f} s")
+        return _timed(result, start)
+    try:
+        cal = _calibrate(config, s, after)
+        before_cal = (_calibrate(config, s, before) if request.reason == "alarm"
+                      and (t[before][-1] - t[before][0]) * 1e-9 >= MIN_BEFORE_S else None) if before.any() else None
+    except RollergearError as exc:
+        result.message = f"inconclusive: {exc}"
+        return _timed(result, start)
+    _judge(result, config, cal, before_cal, s, after)
+    return _timed(result, start)
+
+
+def _judge(result: TraceResult, config: Config, cal: CalibrationResult, before_cal: CalibrationResult | None,
+           s: dict[str, np.ndarray], after: np.ndarray) -> None:
+    """Fill ``result`` from the calibration after the change (and before it)."""
+    enabled = set(config.effects.enabled())
+    there_before = {e.name for e in before_cal.effects} if before_cal is not None and before_cal.written else set()
+    new = [e for e in cal.effects if e.name not in enabled and e.name not in there_before]
+    result.heldout_rmse_nm = (cal.error_before.rmse_nm, cal.error_after.rmse_nm)
+    result.error_now_nm = _rms_residual(config, s, after)
+    result.notes = list(cal.notes)
+    if before_cal is not None:
+        result.notes.append(f"before the change: {before_cal.verdict}"
+                            + (f" ({', '.join(e.name for e in before_cal.effects)})" if before_cal.effects else ""))
+    when = "since the change" if result.reason == "alarm" else "over the window"
+    if cal.verdict == "inconclusive" or not cal.written:
+        sets = "; ".join(f"{' / '.join(a.effects)} cannot be told apart (needs {a.needs})" for a in cal.ambiguous)
+        result.message = f"inconclusive: {sets or 'needs a wider range of speed, torque and direction'}"
+        return
+    if not new:
+        result.verdict = "nothing_new"
+        result.message = f"nothing new {when}: the residual holds no effect the parameters lack"
+        return
+    result.verdict = "traced"
+    result.effects = [{"name": e.name, "params": e.params, "ci95": e.ci95,
+                       "rms_contribution_nm": e.rms_contribution_nm} for e in new]
+    result.error_candidate_nm = _rms_residual(cal.config, s, after)
+    named = "; ".join(f"{e['name']} {_effect_text(e)}" for e in result.effects)
+    result.message = (f"{when} the residual is {named}; with it the error falls from {result.error_now_nm:.4g} to "
+                      f"{result.error_candidate_nm:.4g} N*m (RMS over {result.samples:,} samples)")
+    now = config.to_flat()
+    result.candidate_changes = {k: v for k, v in cal.config.to_flat().items() if now.get(k) != v}
+    result.candidate_yaml = config_to_yaml(cal.config, (
+        f"# Candidate written by the live tracer of rollergear's loss_estimator ({result.reason} trace of the samples "
+        f"{result.window_ns[0]}..{result.window_ns[1]} ns)\n# {result.message}\n"
+        "# Not in use: the node runs on the parameters it was started with.\n"))
+
+
+def _timed(result: TraceResult, start: float) -> TraceResult:
+    import time
+
+    result.elapsed_s = time.perf_counter() - start
+    return result
+
+
+def _worker_start() -> None:
+    """The worker process yields the CPU to the node's input path."""
+    try:
+        os.nice(10)
+    except OSError:
+        pass
+
+
+class TraceWorker:
+    """One worker process (spawned: a process that runs rclpy must not fork) tracing one request at
+    a time; started with the first request."""
+
+    def __init__(self) -> None:
+        self._pool: ProcessPoolExecutor | None = None
+        self.future: Future | None = None
+
+    @property
+    def busy(self) -> bool:
+        return self.future is not None and not self.future.done()
+
+    def submit(self, request: TraceRequest) -> None:
+        if self._pool is None:
+            # one BLAS thread: the worker must leave the other core to the node
+            for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+                os.environ.setdefault(var, "1")
+            self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_worker_start)
+        self.future = self._pool.submit(trace, request)
+
+    def result(self) -> TraceResult | Exception | None:
+        """The finished trace (its exception if it failed), once; None while none is done."""
+        if self.future is None or not self.future.done():
+            return None
+        future, self.future = self.future, None
+        exc = future.exception()
+        return exc if exc is not None else future.result()
+
+    def close(self) -> None:
+        """Stop the worker now (a trace under way is dropped: nothing of it was published)."""
+        if self._pool is None:
+            return
+        processes = list(getattr(self._pool, "_processes", {}).values())
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        self._pool = None
+

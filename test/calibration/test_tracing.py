@@ -1,0 +1,146 @@
+"""The live tracer's analysis (no ROS): what the node's worker runs on the node's own samples.
+
+The samples are a simulated gearbox's (the whole model plus a declared effect switched on at a
+known time), estimated by the node's estimator and kept as the node keeps them
+(:class:`TraceBuffer`: the samples with a measured output); the alarm is the estimator's own
+change detector's.  The tracer is not told what was simulated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate
+from rollergear_ros.calibration.tracing import (SAMPLE_FIELDS, TraceBuffer, TraceRequest, TraceWorker, change_point,
+                                                trace)
+from rollergear_ros.core.effects import EFFECTS
+from rollergear_ros.core.estimator import Estimator
+from rollergear_ros.core.params import validate
+
+ONSET_S = 50.0
+
+
+def node_samples(config, effects=(), seed=0, onset_s=ONSET_S, rate_hz=200.0):
+    """A simulated drive cycle estimated as the node estimates it: (the buffer's arrays, the alarms)."""
+    rig = simulate(config, SimulationOptions("drive_cycle", rate_hz, seed, list(effects),
+                                             step_change_at_s=onset_s if effects else None))
+    est = Estimator(config).process_batch(rig.t_ns, rig.torque_meas_nm, rig.speed_rad_s, rig.out_torque_meas_nm,
+                                          rig.out_speed_meas_rad_s, rig.temperature_c, breakdown=False)
+    buffer = TraceBuffer(10 ** 6)
+    for i in np.flatnonzero(np.isfinite(est.measured_loss_nm)):  # the node's _publish: measured output only
+        buffer.add((int(est.t_ns[i]), float(est.torque_nm[i]), float(est.speed_rad_s[i]),
+                    float(est.out_torque_nm[i]), float(est.out_speed_rad_s[i]), float(est.temperature_c[i])))
+    return TraceBuffer.arrays(buffer.copy()), est.alarms_t_ns, int(rig.t_ns[0])
+
+
+def rms_residual(config, samples, window_ns):
+    """The RMS residual of ``config``'s estimator, started fresh, over the samples in ``window_ns``."""
+    keep = (samples["t_ns"] >= window_ns[0]) & (samples["t_ns"] <= window_ns[1])
+    est = Estimator(config).process_batch(*(samples[f][keep] for f in SAMPLE_FIELDS), breakdown=False)
+    return float(np.sqrt(np.nanmean(est.residual_nm ** 2)))
+
+
+def up_to(samples, end_ns):
+    """What the buffer held at ``end_ns`` (the node traces before the recording is over)."""
+    keep = samples["t_ns"] <= end_ns
+    return {k: v[keep] for k, v in samples.items()}
+
+
+@pytest.mark.parametrize(("effect", "seed"), [(DeclaredEffect("drag_constant", {"c": 0.06}), 1),
+                                              (DeclaredEffect("drag_speed", {"c": 3e-4, "p": 1.4}), 2),
+                                              (DeclaredEffect("drag_speed", {"c": 2e-4, "p": 1.2}), 3)])
+def test_an_effect_appearing_mid_run_is_named_with_its_value_inside_its_interval(config, effect, seed):
+    samples, alarms, start = node_samples(config, [effect], seed)
+    assert alarms and alarms[0] > start + ONSET_S * 1e9  # the detector fired after the onset
+    result = trace(TraceRequest(samples, config.to_flat(), "alarm", alarms[0], window_s=60.0))
+    assert result.verdict == "traced", result.message
+    assert abs(result.since_ns - (start + ONSET_S * 1e9)) <= 0.5e9  # the change point: within two blocks
+    assert [e["name"] for e in result.effects] == [effect.name]
+    for name, value in effect.params.items():
+        low, high = result.effects[0]["ci95"][name]
+        assert low <= value <= high, (name, value, result.effects[0])
+    # the errors are those of the parameter sets compared, over the window after the change: the
+    # candidate's as low as the declared effect's own (the noise floor), the running parameters' above
+    declared = config.with_values({f"effects.{effect.name}.enabled": True}
+                                  | {f"effects.{effect.name}.{q.key}": effect.params[q.short]
+                                     for q in EFFECTS[effect.name].parameters})
+    floor = rms_residual(declared, samples, result.window_ns)
+    assert result.error_candidate_nm <= 1.05 * floor
+    assert result.error_now_nm >= 1.5 * floor
+    assert result.error_now_nm == pytest.approx(rms_residual(config, samples, result.window_ns), rel=1e-12)
+    candidate = validate(_flat(result.candidate_yaml))
+    assert candidate.effects.enabled() == (effect.name,)
+
+
+def _flat(text: str) -> dict:
+    from rollergear_ros.core.params import flat_from_yaml_document
+    import yaml
+
+    return flat_from_yaml_document(yaml.safe_load(text))
+
+
+def test_too_few_samples_after_the_change_is_inconclusive_and_says_what_it_needs(config):
+    samples, alarms, start = node_samples(config, [DeclaredEffect("drag_constant", {"c": 0.06})], 1)
+    result = trace(TraceRequest(up_to(samples, alarms[0] + int(5e9)), config.to_flat(), "alarm", alarms[0],
+                                min_after_s=20.0))
+    assert result.verdict == "inconclusive" and "needs 20 s" in result.message and not result.effects
+
+
+@pytest.mark.parametrize("seed", range(10, 22))
+def test_no_effect_is_named_on_a_gearbox_without_a_change(config, seed):
+    """Twelve seeds of an unchanged gearbox: neither a trace at an alarm in the middle (as after a
+    false alarm) nor a periodic trace names an effect."""
+    samples, alarms, start = node_samples(config, (), seed)
+    assert not alarms  # the detector stays quiet
+    middle = start + int(60e9)
+    for request in (TraceRequest(samples, config.to_flat(), "alarm", middle),
+                    TraceRequest(samples, config.to_flat(), "period")):
+        result = trace(request)
+        assert result.verdict != "traced" and not result.effects and result.candidate_yaml is None, result.message
+
+
+def test_an_effect_already_in_the_parameters_is_not_traced_again(config):
+    effect = DeclaredEffect("drag_constant", {"c": 0.06})
+    samples, _, start = node_samples(config, [effect], 1, onset_s=0.0)
+    with_it = config.with_values({"effects.drag_constant.enabled": True, "effects.drag_constant.c_nm": 0.06})
+    result = trace(TraceRequest(samples, with_it.to_flat(), "period"))
+    assert result.verdict == "nothing_new", result.message
+
+
+def test_the_change_point_is_the_least_squares_split_before_the_alarm():
+    rng = np.random.default_rng(0)
+    t = np.arange(20_000, dtype=np.int64) * 5_000_000  # 200 Hz, 100 s
+    r = rng.normal(0, 0.01, len(t)) + np.where(t >= 40e9, 0.03, 0.0)
+    assert abs(change_point(t, r, alarm_ns=int(45e9)) - 40e9) <= 0.25e9
+    # never after the alarm: a later step is not this alarm's change
+    r2 = rng.normal(0, 0.01, len(t)) + np.where(t >= 80e9, 0.05, 0.0)
+    assert change_point(t, r2, alarm_ns=int(30e9)) <= 30e9
+
+
+def test_the_buffer_keeps_the_latest_samples_in_time_order():
+    buffer = TraceBuffer(3)
+    for i in range(5):
+        buffer.add((i, 1.0 * i, 2.0, 3.0, 4.0, float("nan")))
+    arrays = TraceBuffer.arrays(buffer.copy())
+    assert list(arrays) == list(SAMPLE_FIELDS)
+    assert arrays["t_ns"].dtype == np.int64 and arrays["t_ns"].tolist() == [2, 3, 4]
+    assert arrays["torque_nm"].tolist() == [2.0, 3.0, 4.0] and np.isnan(arrays["temperature_c"]).all()
+
+
+def test_the_worker_process_traces_and_returns_the_result(config):
+    """A real spawned worker gives what :func:`trace` gives in this process."""
+    samples, alarms, _ = node_samples(config, [DeclaredEffect("drag_constant", {"c": 0.06})], 1)
+    request = TraceRequest(samples, config.to_flat(), "alarm", alarms[0])
+    worker = TraceWorker()
+    try:
+        worker.submit(request)
+        assert worker.busy or worker.future.done()
+        worker.future.result(timeout=600)  # waits for the condition; 600 s only tells a hang
+        done = worker.result()
+    finally:
+        worker.close()
+    here = trace(request)
+    assert done.verdict == here.verdict == "traced"
+    assert done.effects == here.effects and done.message == here.message
+    assert worker.result() is None  # taken once
