@@ -67,7 +67,7 @@ class TraceBuffer:
     def arrays(rows: list[tuple]) -> dict[str, np.ndarray]:
         """Rows of :meth:`copy` as one array per field."""
         if not rows:
-            return {f: np.empty(0) for f in SAMPLE_FIELDS}
+            return {f: np.empty(0, dtype=np.int64 if f == "t_ns" else np.float64) for f in SAMPLE_FIELDS}
         cols = list(zip(*rows))
         out = {f: np.asarray(c, dtype=np.float64) for f, c in zip(SAMPLE_FIELDS, cols)}
         out["t_ns"] = np.asarray(cols[0], dtype=np.int64)

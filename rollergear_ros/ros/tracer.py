@@ -157,7 +157,7 @@ class LiveTracer:
         except OSError as exc:
             return f"candidate not written: {path}: {exc.strerror or exc}"
         self.proposed = path
-        return f"candidate written: {path} (not in use)"
+        return f"candidate written: {path}" + ("" if self.node.config.node.accept_traced == "on" else " (not in use)")
 
     def _take_in(self, done: TraceResult) -> str:
         """Apply the candidate's parameters to the running node as a run-time parameter change (the
@@ -170,7 +170,7 @@ class LiveTracer:
         if not result.successful:
             return f"not taken in: {result.reason}"
         self.taken_in += 1
-        return f"taken in after the sample at {node.input_boundary_ns()} ns"
+        return f"taken in after the input logged at {node.input_boundary_ns()} ns"
 
     def close(self) -> None:
         self.worker.close()

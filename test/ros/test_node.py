@@ -1239,7 +1239,7 @@ def test_a_traced_effect_taken_in_switches_the_estimator_at_a_recorded_sample_an
         probe = FloatProbe(probe_node, T.loss_torque)
         probe.wait_matched()
         play(tmp_path / "first.mcap", "--rate", "10", "--wait-for-subscribers", "20")
-        assert wait_for(lambda: traced and "taken in after the sample at" in traced[-1].message, 600), \
+        assert wait_for(lambda: traced and "taken in after the input logged at" in traced[-1].message, 600), \
             [m.message for m in traced]
         play(tmp_path / "then.mcap", "--rate", "10", "--wait-for-subscribers", "20")
         assert wait_for(lambda: len(probe) >= n, 600), (len(probe), n)
