@@ -29,7 +29,8 @@ import json
 import math
 import multiprocessing
 import os
-from collections import deque
+import time
+from array import array
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 
@@ -50,28 +51,46 @@ CHANGE_BLOCK_S = 0.25  #: block length of the change point's search [s]
 
 
 class TraceBuffer:
-    """The node's most recent samples with measured output, as tuples (:data:`SAMPLE_FIELDS`).
+    """The node's most recent samples with measured output: their times (``int64``) and the other
+    :data:`SAMPLE_FIELDS` (``float64``, interleaved) in two growing ``array.array``.
 
-    Appending is the one thing the input path does (a deque append); :meth:`arrays` turns a copy
-    into arrays off that path."""
+    The input path appends with two C calls (:attr:`add_time`, :attr:`add_values`), no Python
+    function; :meth:`snapshot` copies the buffer into numpy arrays in a memory copy (milliseconds,
+    taken under the input lock, so that a trace never holds the interpreter long enough to delay an
+    input), and :meth:`trim` drops what is older than ``capacity`` samples (from a timer)."""
 
     def __init__(self, capacity: int) -> None:
-        self.samples: deque[tuple] = deque(maxlen=max(int(capacity), 1))
-        self.add = self.samples.append  #: ``add((t_ns, torque, speed, out_torque, out_speed, temperature))``
+        self.capacity = max(int(capacity), 1)
+        self.times = array("q")
+        self.values = array("d")
+        self.add_time = self.times.append  #: ``add_time(t_ns)``
+        self.add_values = self.values.extend  #: ``add_values((torque, speed, out_torque, out_speed, temperature))``
 
-    def copy(self) -> list[tuple]:
-        """The buffered samples (a shallow copy, fast: take it under the input lock)."""
-        return list(self.samples)
+    def __len__(self) -> int:
+        return len(self.times)
 
-    @staticmethod
-    def arrays(rows: list[tuple]) -> dict[str, np.ndarray]:
-        """Rows of :meth:`copy` as one array per field."""
-        if not rows:
-            return {f: np.empty(0, dtype=np.int64 if f == "t_ns" else np.float64) for f in SAMPLE_FIELDS}
-        cols = list(zip(*rows))
-        out = {f: np.asarray(c, dtype=np.float64) for f, c in zip(SAMPLE_FIELDS, cols)}
-        out["t_ns"] = np.asarray(cols[0], dtype=np.int64)
-        return out
+    def last_ns(self) -> int | None:
+        return self.times[-1] if self.times else None
+
+    def add(self, row: tuple) -> None:
+        """One sample: ``(t_ns, torque, speed, out_torque, out_speed, temperature)``."""
+        self.add_time(row[0])
+        self.add_values(row[1:])
+
+    def trim(self) -> None:
+        """Drop all but the last ``capacity`` samples."""
+        extra = len(self.times) - self.capacity
+        if extra > 0:
+            del self.times[:extra]
+            del self.values[:extra * (len(SAMPLE_FIELDS) - 1)]
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """The last ``capacity`` buffered samples as one array per field, in time order (copies)."""
+        n = min(len(self.times), self.capacity)
+        width = len(SAMPLE_FIELDS) - 1
+        times = np.frombuffer(self.times, dtype=np.int64)[len(self.times) - n:].copy()
+        values = np.frombuffer(self.values, dtype=np.float64)[(len(self.times) - n) * width:].reshape(n, width).copy()
+        return {"t_ns": times} | {f: values[:, k].copy() for k, f in enumerate(SAMPLE_FIELDS[1:])}
 
 
 @dataclass(frozen=True)
@@ -189,8 +208,6 @@ def _calibrate(config: Config, s: dict[str, np.ndarray], keep: np.ndarray) -> Ca
 
 def trace(request: TraceRequest) -> TraceResult:
     """Trace the residual of ``request``'s samples (see the module docstring)."""
-    import time
-
     start = time.perf_counter()
     config = validate(request.parameters)
     s = request.samples
@@ -214,10 +231,10 @@ def trace(request: TraceRequest) -> TraceResult:
         result.message = (f"inconclusive: needs {request.min_after_s:g} s of samples with measured output after the "
                           f"change, has {after_s:.1f} s")
         return _timed(result, start)
+    before_s = (t[before][-1] - t[before][0]) * 1e-9 if before.any() else 0.0
     try:
         cal = _calibrate(config, s, after)
-        before_cal = (_calibrate(config, s, before) if request.reason == "alarm"
-                      and (t[before][-1] - t[before][0]) * 1e-9 >= MIN_BEFORE_S else None) if before.any() else None
+        before_cal = _calibrate(config, s, before) if request.reason == "alarm" and before_s >= MIN_BEFORE_S else None
     except RollergearError as exc:
         result.message = f"inconclusive: {exc}"
         return _timed(result, start)
@@ -258,12 +275,10 @@ def _judge(result: TraceResult, config: Config, cal: CalibrationResult, before_c
     result.candidate_yaml = config_to_yaml(cal.config, (
         f"# Candidate written by the live tracer of rollergear's loss_estimator ({result.reason} trace of the samples "
         f"{result.window_ns[0]}..{result.window_ns[1]} ns)\n# {result.message}\n"
-        "# Not in use: the node runs on the parameters it was started with.\n"))
+        "# The parameter file the node was started with is not changed.\n"))
 
 
 def _timed(result: TraceResult, start: float) -> TraceResult:
-    import time
-
     result.elapsed_s = time.perf_counter() - start
     return result
 

@@ -205,6 +205,8 @@ class _Pass:
                 codes, t_ns, values = codes[k:], t_ns[k:], values[k:]
                 source_ns = None if source_ns is None else source_ns[k:]
             self.estimator = apply_switch(self.estimator, switch)
+            self.summary.parameter_changes.append(
+                f"{', '.join(f'{k}={v}' for k, v in switch.changes.items())} after {switch.at_ns} ns")
         if len(t_ns):
             yield self.estimator.push_many(codes, t_ns, values, source_ns)
 

@@ -46,6 +46,8 @@ class ReplaySummary:
     warnings: list[str] = field(default_factory=list)
     coefficients: dict[str, float] = field(default_factory=dict)
     summary_png: str | None = None  #: the summary picture, when one was drawn
+    #: the recording's run-time parameter changes applied where the node applied them (:mod:`.switches`)
+    parameter_changes: list[str] = field(default_factory=list)
 
     def text(self) -> str:
         lines = [
@@ -76,6 +78,9 @@ class ReplaySummary:
                 f"residual (measured − estimated loss): RMS {self.residual_rms_nm:.4f} N·m over "
                 f"{self.residual_samples:,} samples; change alarms: {self.alarms}"
             )
+        if self.parameter_changes:
+            lines.append(f"parameter changes the node made, applied where it made them: "
+                         f"{'; '.join(self.parameter_changes)}")
         if self.coefficients:
             lines.append("adapted coefficients: " + ", ".join(f"{k} {v:.4g}" for k, v in self.coefficients.items()))
         if self.interrupted:

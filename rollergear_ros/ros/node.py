@@ -122,7 +122,8 @@ class LossEstimatorNode(Node):
         # the online tracer: its buffer is filled on the input path, its timer starts traces in a worker
         self.params_file_paths = {Path(p).resolve() for p in params_files(sys.argv)}
         self.tracer = LiveTracer(self, self.config, self._trace_publishers)
-        self._trace_add = self.tracer.add if node.trace else None
+        buffer = self.tracer.buffer
+        self._trace_time, self._trace_values = (buffer.add_time, buffer.add_values) if node.trace else (None, None)
         if node.trace:
             self.create_timer(CHECK_S, self.tracer.check)
         self._subscribe_inputs(topics)
@@ -464,15 +465,17 @@ class LossEstimatorNode(Node):
         self._map_publishers = tuple(self.output_publishers[c.name] for c in map_channels()
                                      if c.name in self.output_publishers)
         #: the online trace's publishers, and the topic its results are recorded on
-        self._trace_publishers = tuple(self.output_publishers[c.name] for c in trace_channels())
-        self.traced_topic = next((self.out_topics[c.name] for c in trace_channels()), "")
+        self._trace_publishers = tuple(self.output_publishers[c.name] for c in trace_channels()
+                                       if c.name in self.output_publishers)
+        self.traced_topic = next((self.out_topics[c.name] for c in trace_channels() if c.name in self.out_topics), "")
 
     def _publish(self, est: Estimate, send: bool = True) -> None:
         """Publish one estimate (``send=False``: record it only) and buffer it for rerun and, with a
         measured output, for the online tracer."""
-        if self._trace_add is not None and est.measured_loss_nm == est.measured_loss_nm:  # not NaN
-            self._trace_add((est.t_ns, est.torque_nm, est.speed_rad_s, est.out_torque_nm, est.out_speed_rad_s,
-                             est.temperature_c))
+        if self._trace_time is not None and est.measured_loss_nm == est.measured_loss_nm:  # not NaN
+            self._trace_time(est.t_ns)
+            self._trace_values((est.torque_nm, est.speed_rad_s, est.out_torque_nm, est.out_speed_rad_s,
+                                est.temperature_c))
         self._published += 1
         if self._every > 1 and self._published % self._every:
             return

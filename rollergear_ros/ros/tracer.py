@@ -57,7 +57,6 @@ class LiveTracer:
         self.publishers = publishers
         params = config.node
         self.buffer = TraceBuffer(int(BUFFER_SPAN * params.trace_window_s * params.expected_rate_hz))
-        self.add = self.buffer.add
         self.worker = TraceWorker()
         self.name = f"{node.get_name()}: traced"
         self.latest: TraceResult | None = None  #: the last result (``/diagnostics``)
@@ -94,9 +93,11 @@ class LiveTracer:
             if detector.alarm_times_ns:
                 alarm = detector.alarm_times_ns[-1]
                 self._pending = (alarm, alarm + int(params.trace_min_after_s * 1e9))
-        if self.worker.busy or not self.buffer.samples:
+        with self.node._input_lock:
+            self.buffer.trim()
+        last_ns = self.buffer.last_ns()
+        if self.worker.busy or last_ns is None:
             return
-        last_ns = self.buffer.samples[-1][0]
         if self._pending is not None and last_ns >= self._pending[1]:
             self._start("alarm", *self._pending)
             self._pending = None
@@ -105,10 +106,10 @@ class LiveTracer:
             self._start("period", None, None)
 
     def _start(self, reason: str, alarm_ns: int | None, end_ns: int | None) -> None:
-        with self.node._input_lock:  # the copy is quick; the arrays are made outside the lock
-            rows = self.buffer.copy()
+        with self.node._input_lock:  # a memory copy: milliseconds
+            samples = self.buffer.snapshot()
         config = self.node.config
-        self.worker.submit(TraceRequest(TraceBuffer.arrays(rows), config.to_flat(), reason, alarm_ns,
+        self.worker.submit(TraceRequest(samples, config.to_flat(), reason, alarm_ns,
                                         config.node.trace_window_s, config.node.trace_min_after_s, end_ns))
 
     def _deliver(self, done: TraceResult | Exception) -> None:

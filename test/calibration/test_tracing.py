@@ -31,7 +31,7 @@ def node_samples(config, effects=(), seed=0, onset_s=ONSET_S, rate_hz=200.0):
     for i in np.flatnonzero(np.isfinite(est.measured_loss_nm)):  # the node's _publish: measured output only
         buffer.add((int(est.t_ns[i]), float(est.torque_nm[i]), float(est.speed_rad_s[i]),
                     float(est.out_torque_nm[i]), float(est.out_speed_rad_s[i]), float(est.temperature_c[i])))
-    return TraceBuffer.arrays(buffer.copy()), est.alarms_t_ns, int(rig.t_ns[0])
+    return buffer.snapshot(), est.alarms_t_ns, int(rig.t_ns[0])
 
 
 def rms_residual(config, samples, window_ns):
@@ -121,11 +121,19 @@ def test_the_change_point_is_the_least_squares_split_before_the_alarm():
 def test_the_buffer_keeps_the_latest_samples_in_time_order():
     buffer = TraceBuffer(3)
     for i in range(5):
-        buffer.add((i, 1.0 * i, 2.0, 3.0, 4.0, float("nan")))
-    arrays = TraceBuffer.arrays(buffer.copy())
+        buffer.add_time(1_700_000_000_000_000_000 + i)  # as the node appends: two calls a sample
+        buffer.add_values((1.0 * i, 2.0 * i, 3.0, 4.0, float("nan")))
+    arrays = buffer.snapshot()  # the last `capacity` samples, also before a trim
     assert list(arrays) == list(SAMPLE_FIELDS)
-    assert arrays["t_ns"].dtype == np.int64 and arrays["t_ns"].tolist() == [2, 3, 4]
-    assert arrays["torque_nm"].tolist() == [2.0, 3.0, 4.0] and np.isnan(arrays["temperature_c"]).all()
+    assert arrays["t_ns"].dtype == np.int64 and (arrays["t_ns"] - 1_700_000_000_000_000_000).tolist() == [2, 3, 4]
+    assert arrays["torque_nm"].tolist() == [2.0, 3.0, 4.0] and arrays["speed_rad_s"].tolist() == [4.0, 6.0, 8.0]
+    assert np.isnan(arrays["temperature_c"]).all()
+    buffer.trim()
+    assert len(buffer) == 3 and len(buffer.values) == 15 and buffer.last_ns() == 1_700_000_000_000_000_004
+    for name, values in buffer.snapshot().items():
+        np.testing.assert_array_equal(values, arrays[name])
+    buffer.add((9, 9.0, 9.0, 9.0, 9.0, 9.0))  # and appends go on after a trim
+    assert buffer.snapshot()["t_ns"].tolist()[-1] == 9 and TraceBuffer(5).snapshot()["t_ns"].dtype == np.int64
 
 
 def test_the_worker_process_traces_and_returns_the_result(config):

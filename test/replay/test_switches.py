@@ -45,7 +45,10 @@ def test_a_recorded_change_applies_from_its_sample_boundary_on(tmp_path, config)
     with_change(bag, rec, boundary, DRAG)
     assert [(s.at_ns, s.changes) for s in recorded_switches(inspect_bag(rec))] == [(boundary, DRAG)]
 
-    _, switched = replay(rec, config, collect=True, show_progress=False, batch_size=977)  # batches split anywhere
+    summary, switched = replay(rec, config, collect=True, show_progress=False, batch_size=977)  # split anywhere
+    assert summary.parameter_changes == [f"effects.drag_constant.enabled=True, effects.drag_constant.c_nm=0.05 "
+                                         f"after {boundary} ns"]
+    assert "parameter changes the node made, applied where it made them" in summary.text()
     _, dragged = replay(bag, config.with_values(DRAG), collect=True, show_progress=False)
     assert np.array_equal(_series(switched, "t_ns"), t)
     before = t <= boundary

@@ -688,11 +688,14 @@ def _raise_priority() -> None:
 
 def test_decimated_outputs_are_every_nth_estimate(tmp_path):
     """``node.publish_every_n``: outputs (published and recorded) are every n-th estimate of
-    offline replay, for consumers that cannot take the input rate."""
+    offline replay, for consumers that cannot take the input rate.  (With the online tracer off:
+    no ``loss/traced`` topic, and the rest as with it.)"""
     rec = tmp_path / "every10.mcap"
-    node = NodeProcess(f"node.record_mcap:={rec}", "node.publish_every_n:=10", LOSSLESS)
+    node = NodeProcess(f"node.record_mcap:={rec}", "node.publish_every_n:=10", LOSSLESS, "node.trace:=false")
     got = play_and_receive(BAGS / "rig_map.mcap", 5, 10080 // 10)
     assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
+    assert "traces: 0 (effects traced in 0, taken in 0)" in node.stderr
+    assert "/rollergear/loss/traced" not in inspect_bag(rec).topics
     _, batches = replay(BAGS / "rig_map.mcap", load_config(CONFIG), show_progress=False, collect=True)
     ref_loss = np.concatenate([b.loss_torque_nm for b in batches])
     _, loss = float_series(read_rosbags(rec), T.loss_torque)
