@@ -284,11 +284,16 @@ def _timed(result: TraceResult, start: float) -> TraceResult:
 
 
 def _worker_start() -> None:
-    """The worker process yields the CPU to the node's input path."""
+    """The worker process yields the CPU to the node's input path: scheduled only when nothing else
+    wants the core (``SCHED_IDLE``: a waking input callback takes the core at once; a nice level
+    alone still lets the worker finish its time slice, milliseconds), else at the lowest nice level."""
     try:
-        os.nice(10)
-    except OSError:
-        pass
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        try:
+            os.nice(19)
+        except OSError:
+            pass
 
 
 class TraceWorker:
