@@ -283,6 +283,11 @@ def _timed(result: TraceResult, start: float) -> TraceResult:
     return result
 
 
+def _ready() -> bool:
+    """The worker's first task: nothing (unpickling it imported this module and what it imports)."""
+    return True
+
+
 def _worker_start() -> None:
     """The worker process yields the CPU to the node's input path: scheduled only when nothing else
     wants the core (``SCHED_IDLE``: a waking input callback takes the core at once; a nice level
@@ -298,7 +303,7 @@ def _worker_start() -> None:
 
 class TraceWorker:
     """One worker process (spawned: a process that runs rclpy must not fork) tracing one request at
-    a time; started with the first request."""
+    a time; started by :meth:`start` (the node: at start-up, before its inputs) or the first request."""
 
     def __init__(self) -> None:
         self._pool: ProcessPoolExecutor | None = None
@@ -308,13 +313,19 @@ class TraceWorker:
     def busy(self) -> bool:
         return self.future is not None and not self.future.done()
 
-    def submit(self, request: TraceRequest) -> None:
+    def start(self) -> None:
+        """Start the process now and let it import what a trace needs: the first trace then costs
+        the caller no process start (tens of milliseconds of the interpreter, imports included)."""
         if self._pool is None:
             # one BLAS thread: the worker must leave the other core to the node
             for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
                 os.environ.setdefault(var, "1")
             self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
                                              initializer=_worker_start)
+            self._pool.submit(_ready)
+
+    def submit(self, request: TraceRequest) -> None:
+        self.start()
         self.future = self._pool.submit(trace, request)
 
     def result(self) -> TraceResult | Exception | None:

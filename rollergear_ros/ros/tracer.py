@@ -58,6 +58,8 @@ class LiveTracer:
         params = config.node
         self.buffer = TraceBuffer(int(BUFFER_SPAN * params.trace_window_s * params.expected_rate_hz))
         self.worker = TraceWorker()
+        if params.trace:  # now, before the inputs: starting a process costs the interpreter milliseconds
+            self.worker.start()
         self.name = f"{node.get_name()}: traced"
         self.latest: TraceResult | None = None  #: the last result (``/diagnostics``)
         self.latest_status: DiagnosticStatus | None = None
