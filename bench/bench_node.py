@@ -45,7 +45,7 @@ def cpu_seconds(pid: int) -> float:
 #: ``--tracing``: the node without its online tracer, and with it tracing back to back (a trace of the
 #: last window started each second: the worker is busy throughout the measurement)
 TRACING = {"loss_estimator-untraced": ("node.trace:=false",),
-           "loss_estimator+tracing": ("node.trace:=true", "node.trace_period_s:=1.0")}
+           "loss_estimator+tracing": ("node.trace:=true", "node.trace_period_s:=1.0", "node.accept_traced:=off")}
 #: ``--memory``: the effect each system under test has on (adapted online like any accepted effect)
 EFFECT_ON = {
     "loss_estimator+drag_constant": ("effects.drag_constant.enabled:=true", "effects.drag_constant.c_nm:=0.05"),
