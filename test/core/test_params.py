@@ -186,3 +186,13 @@ def test_the_rerun_url_is_parsed_not_prefix_matched(url, ok):
     else:
         with pytest.raises(ParameterError, match="node.rerun_connect"):
             validate({"node.rerun_connect": url})
+
+
+def test_on_and_off_read_as_booleans_are_the_words_where_a_choice_is_on_or_off(tmp_path):
+    """YAML 1.1 (ROS parameter files, ``-p node.accept_traced:=on``) reads ``on``/``off`` as booleans."""
+    path = tmp_path / "p.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    node:\n      accept_traced: on\n", encoding="utf-8")
+    assert load_config(path).node.accept_traced == "on"
+    assert validate({"node.accept_traced": False}).node.accept_traced == "off"
+    with pytest.raises(ParameterError, match="node.input_mode"):  # a choice without on/off takes no boolean
+        validate({"node.input_mode": True})
