@@ -688,8 +688,8 @@ def _raise_priority() -> None:
 
 def test_decimated_outputs_are_every_nth_estimate(tmp_path):
     """``node.publish_every_n``: outputs (published and recorded) are every n-th estimate of
-    offline replay, for consumers that cannot take the input rate.  (With the online tracer off:
-    no ``loss/traced`` topic, and the rest as with it.)"""
+    offline replay, for consumers that cannot take the input rate; with the online tracer off, no
+    ``loss/traced`` topic and the rest as with it."""
     rec = tmp_path / "every10.mcap"
     node = NodeProcess(f"node.record_mcap:={rec}", "node.publish_every_n:=10", LOSSLESS, "node.trace:=false")
     got = play_and_receive(BAGS / "rig_map.mcap", 5, 10080 // 10)
