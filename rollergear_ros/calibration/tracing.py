@@ -288,10 +288,22 @@ def _ready() -> bool:
     return True
 
 
-def _worker_start() -> None:
-    """The worker process yields the CPU to the node's input path: scheduled only when nothing else
-    wants the core (``SCHED_IDLE``: a waking input callback takes the core at once; a nice level
-    alone still lets the worker finish its time slice, milliseconds), else at the lowest nice level."""
+def worker_cpus(node_cpus: set[int], cpu_count: int) -> set[int]:
+    """The CPUs the worker runs on: those the node was not given, when there are any (a node pinned
+    to a core, its input path on it alone), else the node's own."""
+    return (set(range(cpu_count)) - node_cpus) or node_cpus
+
+
+def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
+    """The worker process keeps off the node's input path: on the CPUs the node was not pinned to
+    (:func:`worker_cpus`; a spawned process inherits the node's affinity, and a worker on the node's
+    only core delays its inputs by milliseconds whatever its priority), and scheduled only when nothing
+    else wants a core (``SCHED_IDLE``), else at the lowest nice level."""
+    if node_cpus and hasattr(os, "sched_setaffinity"):
+        try:
+            os.sched_setaffinity(0, worker_cpus(set(node_cpus), os.cpu_count() or 1))
+        except OSError:  # a CPU outside this process's cpuset: stay where the node is
+            pass
     try:
         os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
@@ -320,8 +332,9 @@ class TraceWorker:
             # one BLAS thread: the worker must leave the other core to the node
             for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
                 os.environ.setdefault(var, "1")
+            node_cpus = tuple(sorted(os.sched_getaffinity(0))) if hasattr(os, "sched_getaffinity") else ()
             self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_worker_start)
+                                             initializer=_worker_start, initargs=(node_cpus,))
             self._pool.submit(_ready)
 
     def submit(self, request: TraceRequest) -> None:

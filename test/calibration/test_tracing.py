@@ -8,12 +8,14 @@ change detector's.  The tracer is not told what was simulated.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
 from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate
 from rollergear_ros.calibration.tracing import (SAMPLE_FIELDS, TraceBuffer, TraceRequest, TraceWorker, change_point,
-                                                trace)
+                                                trace, worker_cpus)
 from rollergear_ros.core.effects import EFFECTS
 from rollergear_ros.core.estimator import Estimator
 from rollergear_ros.core.params import validate
@@ -152,3 +154,28 @@ def test_the_worker_process_traces_and_returns_the_result(config):
     assert done.verdict == here.verdict == "traced"
     assert done.effects == here.effects and done.message == here.message
     assert worker.result() is None  # taken once
+
+
+def test_the_worker_runs_off_the_cores_the_node_is_pinned_to():
+    """The rule: the CPUs the node was not given, or the node's own when it has them all."""
+    assert worker_cpus({1}, 2) == {0} and worker_cpus({0, 1}, 4) == {2, 3}
+    assert worker_cpus({0, 1}, 2) == {0, 1} and worker_cpus({0}, 1) == {0}
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs two CPUs this process may run on")
+def test_a_real_worker_of_a_pinned_node_runs_on_the_other_cores_at_idle_priority():
+    """A spawned process inherits the node's affinity; the worker leaves the node's core."""
+    allowed = os.sched_getaffinity(0)
+    node_cpu = min(allowed)
+    os.sched_setaffinity(0, {node_cpu})
+    worker = TraceWorker()
+    try:
+        worker.start()
+        cpus = worker._pool.submit(os.sched_getaffinity, 0).result(timeout=600)
+        policy = worker._pool.submit(os.sched_getscheduler, 0).result(timeout=600)
+    finally:
+        worker.close()
+        os.sched_setaffinity(0, allowed)
+    assert node_cpu not in cpus and cpus <= set(range(os.cpu_count()))
+    assert policy == os.SCHED_IDLE
