@@ -6,8 +6,9 @@ loss -- plus an :class:`Effect` descriptor: its parameters (names in the paramet
 ``calibrate --json`` / ``simulate --effect``, defaults, ranges), whether it is a physical loss or a
 sensor error, which parameter is its linear coefficient, which one ``calibrate`` profiles on a
 grid, the regressor scale of the online RLS, and which other effects the data may confuse it
-with.  The functions use only ``abs``, ``**``, ``*``, ``+`` so they run on Python floats (the
-node's per-sample path) and on numpy arrays (replay, calibration, simulation) alike.
+with.  The functions use only ``abs``, ``*``, ``+`` and :func:`.floatops.power` (and ``math.exp``
+where a batch repeats single steps) so they run on Python floats (the node's per-sample path) and
+on numpy arrays (replay, calibration, simulation) alike -- and give the same floats on both.
 
 =========================  ===========================================  ======================
 effect                     contribution to the measured loss [N·m]      kind
@@ -59,6 +60,8 @@ from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 from collections.abc import Callable, Mapping
 
+from .floatops import power
+
 FR_VISCOSITY_EXPONENT = 0.66  # Fr ∝ U^0.66 ∝ η^0.66 (eq. 3, 9)
 #: regressors of the RLS are normalised at these operating points (a well-conditioned covariance)
 SPEED_REF_RAD_S = 100.0
@@ -87,7 +90,7 @@ def drag_constant(x: EffectInputs, c):
 
 def drag_speed(x: EffectInputs, c, p):
     """Speed drag: ``ΔT = c·|ω|^p`` (churning p≈1–2, viscous p=1, windage p≈2)."""
-    return c * x.abs_speed ** p
+    return c * power(x.abs_speed, p)
 
 
 def stribeck(x: EffectInputs, c, omega_s, delta):
@@ -96,17 +99,17 @@ def stribeck(x: EffectInputs, c, omega_s, delta):
     With ``drag_constant`` (the Coulomb level ``Fc``) it is ``(Fc + (Fs − Fc)·exp(−(|ω|/ω_s)^δ))·sgn ω``;
     ``c = Fs − Fc`` the breakaway excess, ``ω_s`` the Stribeck speed, ``δ`` its shape (2: Gaussian).
     """
-    return c * math.e ** (-((x.abs_speed / omega_s) ** delta))
+    return c * power(math.e, -power(x.abs_speed / omega_s, delta))
 
 
 def load_dependent(x: EffectInputs, c, q):
     """Load-dependent friction: ``ΔT = c·|T|^q`` (bearing load friction, sliding)."""
-    return c * x.abs_torque ** q
+    return c * power(x.abs_torque, q)
 
 
 def load_speed(x: EffectInputs, c, p):
     """Load-speed friction: ``ΔT = c·|T|·|ω|^p`` (a loss power ∝ transmitted power·|ω|^(p−1): mesh sliding)."""
-    return c * x.abs_torque * x.abs_speed ** p
+    return c * x.abs_torque * power(x.abs_speed, p)
 
 
 def drag_viscous(x: EffectInputs, c, p, a, B, C, theta_ref):
@@ -115,7 +118,7 @@ def drag_viscous(x: EffectInputs, c, p, a, B, C, theta_ref):
     ISO/TR 14179-2 writes no-load losses with the viscosity inside; ``η(θ)/η_ref = exp(B/(θ + C) −
     B/(θ_ref + C))`` is the calibrated oil's Vogel law (the model's rolling part follows the same oil).
     """
-    return c * math.e ** (a * (B / (x.temperature_c + C) - B / (theta_ref + C))) * x.abs_speed ** p
+    return c * power(math.e, a * (B / (x.temperature_c + C) - B / (theta_ref + C))) * power(x.abs_speed, p)
 
 
 def dahl(x: EffectInputs, c, presliding):
@@ -158,7 +161,7 @@ def dahl_steps(z: float, speed_rad_s, dt_s, params: Mapping[str, float]):
 
 def viscosity_scale(b_k, c_k, theta_ref_c, theta_c):
     """``s = (η(θ)/η0)^0.66`` with Vogel ``η(θ)/η0 = exp(B/(θ + C) − B/(θ_ref + C))``."""
-    return math.e ** (FR_VISCOSITY_EXPONENT * (b_k / (theta_c + c_k) - b_k / (theta_ref_c + c_k)))
+    return power(math.e, FR_VISCOSITY_EXPONENT * (b_k / (theta_c + c_k) - b_k / (theta_ref_c + c_k)))
 
 
 def viscosity_temperature(x: EffectInputs, B, C, theta_ref, scale):

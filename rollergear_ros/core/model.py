@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .floatops import tanh
 from .equations import (ball_friction_torque_nm, contact_geometry, curvature_torque_nm,
                         drive_contact_force_n, drive_force_n, driven_contact_force_n, efficiency,
                         ellipse_semi_major_m, ellipse_semi_minor_m, hysteresis_torque_nm, load_parameter,
@@ -144,6 +145,7 @@ class LossModel:
         self.k_tc = coef["tc1"] + coef["tc2"]
         self.k_ter = coef["ter1"] + coef["ter2"]
         self.k_0 = coef["tb"] + coef["fg"]
+        self._exponents = np.array((self.EXP_FR_W, self.EXP_FR_T, self.EXP_TC_T, self.EXP_TER_T))
 
     def nonzero_terms(self) -> tuple[str, ...]:
         """The breakdown terms whose coefficient is not 0 (``tb`` and ``fg`` are 0 without a ball
@@ -204,11 +206,14 @@ class LossModel:
 
     # ---------------------------------------------------------------- per sample
     def loss_magnitude_scalar(self, torque_nm: float, speed_rad_s: float, viscosity_scale: float = 1.0) -> float:
-        """Per-sample ``T_loss`` [N·m] with ``math`` on Python floats (for the node's hot path)."""
+        """Per-sample ``T_loss`` [N·m] on Python floats (the node's hot path), bit for bit what
+        :meth:`evaluate` gives for the sample in an array."""
         at = abs(torque_nm)
         aw = abs(speed_rad_s)
-        return (self.k_fr * viscosity_scale * (aw ** self.EXP_FR_W) * (at ** self.EXP_FR_T)
-                + self.k_tc * at ** self.EXP_TC_T + self.k_ter * at ** self.EXP_TER_T + self.k_0)
+        # the four powers in one call of numpy's power, the operations in :meth:`evaluate`'s order: the
+        # same float as the vectorised path to the last bit (:mod:`.floatops`)
+        p_fr_w, p_fr_t, p_tc, p_ter = np.power((aw, at, at, at), self._exponents).tolist()
+        return self.k_fr * (p_fr_w * p_fr_t * viscosity_scale) + self.k_tc * p_tc + self.k_ter * p_ter + self.k_0
 
     def efficiency_scalar(self, torque_nm: float, speed_rad_s: float, loss_nm: float) -> float:
         """Per-sample eq. 30 in four quadrants (NaN where undefined, see :func:`efficiency`)."""
@@ -238,7 +243,7 @@ def rotation_sign(speed_rad_s, torque_nm, width_rad_s: float = 0.0):
 def rotation_sign_scalar(speed_rad_s: float, torque_nm: float, width_rad_s: float = 0.0) -> float:
     """Scalar :func:`rotation_sign`."""
     if width_rad_s > 0 and 0 < abs(speed_rad_s) < SIGN_BAND * width_rad_s:
-        return math.tanh(speed_rad_s / width_rad_s)
+        return tanh(speed_rad_s / width_rad_s)  # numpy's, as the vectorised sign (:mod:`.floatops`)
     if speed_rad_s > 0:
         return 1.0
     if speed_rad_s < 0:

@@ -1,11 +1,16 @@
-"""The estimator (rollergear_ros.core.estimator): the sensor errors it removes from the model's input."""
+"""The estimator (rollergear_ros.core.estimator): the sensor errors it removes from the model's input; its
+per-sample path (the node's) against its batch path (replay's)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
+from rollergear_ros.calibration.simulate import SimulationOptions, simulate
+from rollergear_ros.core.effects import EFFECTS
 from rollergear_ros.core.estimator import Estimator
+from rollergear_ros.core.model import SIGN_BAND
+from rollergear_ros.core.pairing import SyncedSample
 from rollergear_ros.core.params import load_config
 
 
@@ -18,3 +23,32 @@ def test_sensor_errors_are_removed_from_the_model_input():
     b = est.process_batch(np.array([0]), np.array([20.0]), np.array([100.0]))
     plain = Estimator(load_config()).process_batch(np.array([0]), np.array([(20.0 - 0.5) / 1.01]), np.array([100.0]))
     assert b.loss_torque_nm[0] == pytest.approx(plain.loss_torque_nm[0], rel=1e-12)
+
+
+def _with_effect(name: str, adapt: bool):
+    """The parameter file's defaults with ``name`` on at its simulated values."""
+    values = {f"effects.{name}.enabled": True, "estimator.adapt": adapt}
+    simulated = EFFECTS[name].simulated_defaults()
+    values.update({f"effects.{name}.{p.key}": simulated[p.short] for p in EFFECTS[name].parameters})
+    return load_config().with_values(values)
+
+
+@pytest.mark.parametrize("adapt", [True, False], ids=["adapted", "fixed"])
+@pytest.mark.parametrize("name", [None, *EFFECTS])
+def test_the_nodes_sample_by_sample_path_equals_replays_arrays_bit_for_bit(name, adapt):
+    """What the node publishes (:meth:`Estimator.process` on Python floats) is what replay computes
+    for the same samples (:meth:`Estimator.process_batch` on arrays), to the last bit: a drive cycle
+    through standstill (the smooth sign) with the oil warming (the temperature effects), each
+    effect on, adapted online and fixed."""
+    config = load_config().with_values({"estimator.adapt": adapt}) if name is None else _with_effect(name, adapt)
+    rig = simulate(config, SimulationOptions("drive_cycle", 100.0, 5))
+    columns = (rig.t_ns, rig.torque_meas_nm, rig.speed_rad_s, rig.out_torque_meas_nm, rig.out_speed_meas_rad_s,
+               rig.temperature_c)
+    batch = Estimator(config).process_batch(*columns, breakdown=False)
+    node = Estimator(config)
+    live = [e for e in (node.process(SyncedSample(*row)) for row in zip(*(np.asarray(c).tolist() for c in columns)))
+            if e is not None]
+    assert len(live) == len(batch.t_ns) > 1000
+    assert np.any(np.abs(rig.speed_rad_s) < SIGN_BAND * config.estimator.speed_noise_rad_s)  # the tanh band
+    for field in ("loss_torque_nm", "loss_power_w", "efficiency", "measured_loss_nm", "residual_nm"):
+        np.testing.assert_array_equal(np.array([getattr(e, field) for e in live]), getattr(batch, field), err_msg=field)

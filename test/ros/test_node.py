@@ -63,16 +63,16 @@ def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     own_summary, own = replay(rec, load_config(CONFIG), show_progress=False, collect=True)
     assert len(loss) == len(ref_loss) == n_expected, (
         f"dropped samples: {len(loss)} of {n_expected}; skipped {own_summary.skipped}; {node.stderr}")
-    np.testing.assert_allclose(loss, ref_loss, rtol=1e-12, atol=1e-15)
-    np.testing.assert_allclose(eff, ref_eff, rtol=1e-12, equal_nan=True)
-    np.testing.assert_allclose(res, ref_res[np.isfinite(ref_res)], rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(loss, ref_loss)
+    np.testing.assert_array_equal(eff, ref_eff)
+    np.testing.assert_array_equal(res, ref_res[np.isfinite(ref_res)])
     # what went over DDS is what was recorded
     assert len(got) == len(loss)
     np.testing.assert_allclose(got, loss, rtol=0, atol=0)
     # the recording is a valid ROS 2 MCAP for the other reader too
     assert len(read_mcap_ros2(rec)[T.loss_torque][0]) == len(loss)
     # and replaying the node's own recording gives exactly what the node published
-    np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in own]), loss, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(np.concatenate([b.loss_torque_nm for b in own]), loss)
     # the stamped estimate of every sample: the Float64 values, stamped with the time the node paired
     # the sample's inputs by (the time its recording logs the motor input at)
     _, estimates = live[T.loss_estimate]
@@ -106,7 +106,7 @@ def test_with_only_the_stamped_estimate_the_node_publishes_one_message_per_sampl
     _, batches = replay(bag, load_config(CONFIG), show_progress=False, collect=True)
     for name in ESTIMATE_FIELDS:
         expect = np.concatenate([getattr(b, name) for b in batches])
-        np.testing.assert_allclose(got[name], expect, rtol=1e-9, atol=1e-12, equal_nan=True, err_msg=name)
+        np.testing.assert_array_equal(got[name], expect, err_msg=name)
 
 
 def test_player_keeps_the_bag_timing_across_chunk_boundaries(monkeypatch):
@@ -583,8 +583,8 @@ def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inpu
     assert np.array_equal(k_t, k_w), f"{np.sum(k_t != k_w)} estimates from inputs of different samples"
     assert counts["lost"] == len(missing[TORQUE] | missing[SPEED]) == summary.skipped["lost"]
     assert estimated == len(k_t) >= last_k + 1 - counts["lost"] - 10
-    np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in batches]),
-                               float_series(recorded, T.loss_torque)[1], rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(np.concatenate([b.loss_torque_nm for b in batches]),
+                                  float_series(recorded, T.loss_torque)[1])
 
 
 @pytest.mark.parametrize("executor", ["single_threaded", "events"])
@@ -631,7 +631,7 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
     config = load_config(CONFIG)
     summary, own = replay(rec, config, show_progress=False, collect=True)
     assert summary.pairing == ("timestamp" if executor == "single_threaded" else "arrival_sequenced")
-    np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in own]), loss, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(np.concatenate([b.loss_torque_nm for b in own]), loss)
     # each estimate's inputs, as indices into the bag (by value); best-effort delivery may lose
     # inputs (their samples are then not estimated), never pair them wrongly
     bag = read_rosbags(BAGS / "rig_map.mcap")
@@ -700,7 +700,7 @@ def test_decimated_outputs_are_every_nth_estimate(tmp_path):
     ref_loss = np.concatenate([b.loss_torque_nm for b in batches])
     _, loss = float_series(read_rosbags(rec), T.loss_torque)
     assert len(loss) == len(ref_loss) // 10
-    np.testing.assert_allclose(loss, ref_loss[9::10], rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(loss, ref_loss[9::10])
     np.testing.assert_array_equal(got, loss)
 
 
@@ -897,7 +897,7 @@ def test_a_sample_waiting_for_its_output_at_shutdown_is_estimated_and_recorded(e
     loss = float_series(read_rosbags(rec), T.loss_torque)[1]
     assert len(loss) > 0
     _, batches = replay(rec, load_config(CONFIG), show_progress=False, collect=True)
-    np.testing.assert_allclose(np.concatenate([b.loss_torque_nm for b in batches]), loss, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(np.concatenate([b.loss_torque_nm for b in batches]), loss)
 
 
 def test_a_signal_during_an_input_callback_never_interrupts_it():
@@ -1213,9 +1213,8 @@ def test_a_traced_effect_taken_in_switches_the_estimator_at_a_recorded_sample_an
     """``node.accept_traced: on``: a speed drag appears at 50 s; once traced, the node takes it in
     (a run-time parameter change at a sample boundary, recorded on ``/parameter_events``); a second
     recording, continuing the first in time with the drag on, is then played.  Replay of the node's
-    recording gives what the node published, before and after the switch (to the rounding of the
-    node's scalar arithmetic); the estimates after it carry the drag (their residual at the noise
-    floor of the declared effect)."""
+    recording gives what the node published, before and after the switch, bit for bit; the estimates
+    after it carry the drag (their residual at the noise floor of the declared effect)."""
     import json
 
     from diagnostic_msgs.msg import DiagnosticStatus
@@ -1265,12 +1264,11 @@ def test_a_traced_effect_taken_in_switches_the_estimator_at_a_recorded_sample_an
     assert rig.t_ns[0] + TRACE_ONSET_S * 1e9 < header_ns[at] <= rig.t_ns[-1]
     _, recorded = float_series(live, T.loss_torque)
     np.testing.assert_array_equal(recorded, published)
-    # replay of the node's recording: the node's estimates across the switch, to the rounding of its
-    # scalar arithmetic against replay's vectorised one (as without a switch: the first test here)
+    # replay of the node's recording: the node's estimates across the switch, bit for bit
     _, batches = replay(rec, config, collect=True, show_progress=False)
     t = np.concatenate([b.t_ns for b in batches])
     replayed = np.concatenate([b.loss_torque_nm for b in batches])
-    np.testing.assert_allclose(replayed, recorded, rtol=1e-12, atol=1e-15)
+    np.testing.assert_array_equal(replayed, recorded)
     after = t > boundary
     # every sample of the second recording after the switch (played once the switch was made), and
     # those of the first that came after the trace (none when it finished after the first play)
