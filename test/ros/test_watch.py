@@ -3,10 +3,6 @@
 from __future__ import annotations
 
 import re
-import signal
-import subprocess
-import sys
-import threading
 
 import numpy as np
 import pytest
@@ -16,8 +12,8 @@ from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 from rollergear_ros.ros.watch import WatchWindow
 
-from helpers import BAGS, CONFIG, ROOT, run_cli
-from rostools import NodeProcess, play, wait_for
+from helpers import BAGS, CONFIG, run_cli
+from rostools import NodeProcess, WatchProcess, play, wait_for
 
 LINE = re.compile(r"(\d+) est/s  loss (\S+) N·m  (\S+) W  η (\S+) % \(min (\S+)\)")
 
@@ -60,24 +56,8 @@ def test_watch_shows_a_running_nodes_estimates_and_status():
     """Node, player and watcher as three processes (the README's terminals): the watcher's lines
     carry estimates within what offline replay computes for the bag, and the node's status."""
     node = NodeProcess()
-    watcher = subprocess.Popen(
-        [sys.executable, "-m", "rollergear_ros", "watch"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=ROOT,
-    )
-    lines: list[str] = []  # the watcher's lines as it prints them (a line a period, flushed)
-    errors: list[str] = []
-
-    def read_lines(stream, into: list[str]) -> None:
-        for line in stream:
-            into.append(line.rstrip("\n"))
-
-    readers = [threading.Thread(target=read_lines, args=(stream, into), daemon=True)
-               for stream, into in ((watcher.stdout, lines), (watcher.stderr, errors))]
-    for reader in readers:
-        reader.start()
+    watcher = WatchProcess()
+    lines = watcher.lines  # the watcher's lines as it prints them (a line a period, flushed)
 
     def stale_after_the_play() -> bool:  # a line with no estimates and the stale-input status
         return any("no estimates on /rollergear/loss/torque" in line and "[ERROR] stale input" in line
@@ -87,13 +67,9 @@ def test_watch_shows_a_running_nodes_estimates_and_status():
         play(BAGS / "rig_map.mcap", "--rate", "5", "--wait-for-subscribers", "20")
         assert wait_for(stale_after_the_play, 300), "\n".join(lines)
     finally:
-        watcher.send_signal(signal.SIGINT)
-        watcher.wait(timeout=60)
-        for reader in readers:
-            reader.join(timeout=10)
+        returncode = watcher.stop()
         assert node.stop() == 0, node.stderr
-    err = "\n".join(errors)
-    assert watcher.returncode == 0 and "Traceback" not in err, err
+    assert returncode == 0 and "Traceback" not in watcher.errors, watcher.errors
     out = "\n".join(lines)
     found = [m for m in map(LINE.search, lines) if m]
     assert len(found) >= 5, out
