@@ -10,8 +10,9 @@ it hands a snapshot (:class:`TraceRequest`) to a worker process (:class:`TraceWo
    (:func:`~.samples.samples_from_estimates`);
 2. with an alarm, the change point is where the running parameters' residual (block means of
    ``block_s``) splits best into two levels -- least squares, searched before the alarm;
-3. :func:`~.calibrate.calibrate` runs on the window after the change point and, when it holds
-   enough samples, on the window before it, both with the node's parameters (their accepted
+3. :func:`~.calibrate.calibrate` runs on the latest window after the change point (at most
+   ``window_s``: a trace of the same change later on slides it on) and, when it holds enough
+   samples, on the window before it, both with the node's parameters (their accepted
    effects assumed, as ``--assume``, where the data cannot tell them from another);
 4. an effect *traced* is one accepted after the change, not enabled in the node's parameters and
    not accepted before the change (it did not appear then); a periodic trace (no change point)
@@ -72,6 +73,10 @@ class TraceBuffer:
     def last_ns(self) -> int | None:
         return self.times[-1] if self.times else None
 
+    def first_ns(self) -> int | None:
+        """The oldest sample kept once trimmed (None: empty)."""
+        return self.times[max(len(self.times) - self.capacity, 0)] if self.times else None
+
     def add(self, row: tuple) -> None:
         """One sample: ``(t_ns, torque, speed, out_torque, out_speed, temperature)``."""
         self.add_time(row[0])
@@ -101,7 +106,7 @@ class TraceRequest:
     parameters: dict  #: the node's parameter set, flat (:meth:`~core.params.Config.to_flat`)
     reason: str  #: "alarm" or "period"
     alarm_ns: int | None = None  #: the change alarm's sample time (reason "alarm")
-    window_s: float = 60.0  #: the longest window on each side of the change point
+    window_s: float = 60.0  #: the longest window on each side of the change point (after it: the latest)
     min_after_s: float = 20.0  #: samples needed after the change point
     #: the last sample time analysed (None: all): a trace scheduled for a time sees exactly the samples
     #: up to it, however late the worker gets to it -- the same samples give the same result
@@ -222,7 +227,8 @@ def trace(request: TraceRequest) -> TraceResult:
         since = change_point(t, residual, request.alarm_ns)
     else:
         since = max(int(t[0]), end - window_ns) if len(t) else 0
-    after = (t >= since) & (t <= since + window_ns)
+    # the latest window after the change point (a later trace of the same change slides it on)
+    after = t >= max(since, end - window_ns)
     before = (t < since) & (t >= since - window_ns)
     span = (int(t[after][0]), int(t[after][-1])) if after.any() else (since, since)
     result = TraceResult(request.reason, "inconclusive", "", since, span, int(after.sum()), alarm_ns=request.alarm_ns)

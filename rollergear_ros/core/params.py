@@ -242,7 +242,8 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
               "in a worker process, after each change alarm (and every node.trace_period_s); the result on "
               "loss/traced and /diagnostics", read_only=True),
     ParamSpec("node.trace_window_s", float, 60.0,
-              "the longest window of samples traced on each side of a change point (and by a periodic trace)", "s",
+              "the longest window of samples traced on each side of a change point (after it: the latest; and by a "
+              "periodic trace)", "s",
               low=10.0, high=3600.0, read_only=True),
     ParamSpec("node.trace_min_after_s", float, 20.0,
               "samples needed after a change point before it is traced (the delay from onset to result)", "s",

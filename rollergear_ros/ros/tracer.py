@@ -4,8 +4,8 @@
 (:class:`~calibration.tracing.TraceBuffer`, appended on the input path), and from a timer on the
 executor: hands a snapshot to the worker process after a new change alarm -- once
 ``node.trace_min_after_s`` of samples have come after it, and again each ``node.trace_min_after_s``
-later while the result is inconclusive and the window after the change is shorter than
-``node.trace_window_s`` -- and every ``node.trace_period_s``; and
+later while the result is inconclusive and the buffer still holds the change point (the latest
+``node.trace_window_s`` after it analysed) -- and every ``node.trace_period_s``; and
 takes a finished result out: published latched on ``loss/traced`` (a row of
 :mod:`base.output_channels`), recorded in the node's MCAP on that topic, sent to rerun as an event,
 logged, kept for ``/diagnostics``; with ``node.accept_traced: propose`` (or ``on``) its candidate
@@ -123,9 +123,10 @@ class LiveTracer:
         self.traces += 1
         params = node.config.node
         if done.reason == "alarm" and done.verdict == "inconclusive" and self._pending is None and done.since_ns:
-            # the window after the change grows up to node.trace_window_s: traced again with more samples
-            span_ns = done.window_ns[1] - done.since_ns
-            if span_ns < params.trace_window_s * 1e9:
+            # traced again with more samples (the window after the change grows, then slides on) for as
+            # long as the buffer holds the change point: what tells two effects apart may come later
+            first = self.buffer.first_ns()
+            if first is not None and first < done.since_ns:
                 self._pending = (done.alarm_ns, done.window_ns[1] + int(params.trace_min_after_s * 1e9))
                 done.notes.append(f"traced again when {params.trace_min_after_s:g} s more samples have come")
         if done.verdict == "traced":

@@ -55,7 +55,9 @@ def up_to(samples, end_ns):
 def test_an_effect_appearing_mid_run_is_named_with_its_value_inside_its_interval(config, effect, seed):
     samples, alarms, start = node_samples(config, [effect], seed)
     assert alarms and alarms[0] > start + ONSET_S * 1e9  # the detector fired after the onset
-    result = trace(TraceRequest(samples, config.to_flat(), "alarm", alarms[0], window_s=60.0))
+    # what the buffer holds 60 s after the onset (a later trace slides the window after the change on)
+    held = up_to(samples, start + int((ONSET_S + 60.0) * 1e9))
+    result = trace(TraceRequest(held, config.to_flat(), "alarm", alarms[0], window_s=60.0))
     assert result.verdict == "traced", result.message
     assert abs(result.since_ns - (start + ONSET_S * 1e9)) <= 0.5e9  # the change point: within two blocks
     assert [e["name"] for e in result.effects] == [effect.name]
@@ -140,8 +142,8 @@ def test_the_buffer_keeps_the_latest_samples_in_time_order():
 
 def test_the_worker_process_traces_and_returns_the_result(config):
     """A real spawned worker gives what :func:`trace` gives in this process."""
-    samples, alarms, _ = node_samples(config, [DeclaredEffect("drag_constant", {"c": 0.06})], 1)
-    request = TraceRequest(samples, config.to_flat(), "alarm", alarms[0])
+    samples, alarms, start = node_samples(config, [DeclaredEffect("drag_constant", {"c": 0.06})], 1)
+    request = TraceRequest(up_to(samples, start + int((ONSET_S + 60.0) * 1e9)), config.to_flat(), "alarm", alarms[0])
     worker = TraceWorker()
     try:
         worker.submit(request)
@@ -179,3 +181,31 @@ def test_a_real_worker_of_a_pinned_node_runs_on_the_other_cores_at_idle_priority
         os.sched_setaffinity(0, allowed)
     assert node_cpu not in cpus and cpus <= set(range(os.cpu_count()))
     assert policy == os.SCHED_IDLE
+
+
+@pytest.mark.parametrize("onset_s", [12.0, 30.0])
+def test_a_drag_that_appears_long_before_the_drive_reverses_is_named_once_the_reversal_is_in_the_window(
+        config, onset_s):
+    """The node's schedule (its tracer re-traces an inconclusive change every ``min_after_s`` of
+    samples while its buffer holds the change point): a constant drag from 12 s (30 s) of a drive cycle
+    that first reverses after 90 s cannot be told from a torque offset until then; the window after
+    the change grows to 60 s, then slides on, and the drag is named with its value in its interval."""
+    effect = DeclaredEffect("drag_constant", {"c": 0.06})
+    samples, alarms, start = node_samples(config, [effect], 7, onset_s=onset_s)
+    assert alarms
+    due, results = alarms[0] + int(20e9), []
+    while due <= samples["t_ns"][-1]:
+        result = trace(TraceRequest(up_to(samples, due), config.to_flat(), "alarm", alarms[0]))
+        results.append(result)
+        assert result.window_ns[1] - result.window_ns[0] <= 60e9 and result.window_ns[1] <= due
+        if result.verdict != "inconclusive":
+            break
+        due = result.window_ns[1] + int(20e9)
+    assert [r.verdict for r in results[:-1]] == ["inconclusive"] * (len(results) - 1)
+    assert all("reverse rotation" in r.message for r in results[:-1]) and len(results) >= 3
+    last = results[-1]
+    assert last.verdict == "traced", last.message
+    assert abs(last.since_ns - (start + onset_s * 1e9)) <= 0.5e9
+    assert last.window_ns[0] > last.since_ns  # slid on past the change point
+    low, high = last.effects[0]["ci95"]["c"]
+    assert [e["name"] for e in last.effects] == ["drag_constant"] and low <= 0.06 <= high
