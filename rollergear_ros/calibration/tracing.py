@@ -303,8 +303,10 @@ def worker_cpus(node_cpus: set[int], cpu_count: int) -> set[int]:
 def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
     """The worker process keeps off the node's input path: on the CPUs the node was not pinned to
     (:func:`worker_cpus`; a spawned process inherits the node's affinity, and a worker on the node's
-    only core delays its inputs by milliseconds whatever its priority), and scheduled only when nothing
-    else wants a core (``SCHED_IDLE``), else at the lowest nice level."""
+    only core delays its inputs by milliseconds whatever its priority), and scheduled when nothing else
+    wants a core (``SCHED_IDLE``: a waking thread of the node takes the core from it at once), else at
+    the lowest nice level.  On a machine whose cores are all busy it runs at the idle weight only
+    (a fraction of a percent of a core): its trace is late, never the node's inputs."""
     if node_cpus and hasattr(os, "sched_setaffinity"):
         try:
             os.sched_setaffinity(0, worker_cpus(set(node_cpus), os.cpu_count() or 1))
