@@ -362,8 +362,13 @@ class TraceWorker:
         if self._pool is None:
             return
         processes = list(getattr(self._pool, "_processes", {}).values())
+        manager = getattr(self._pool, "_executor_manager_thread", None)
         self._pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
             process.terminate()
-        self._pool = None
+        # the pool's manager thread closes its wake-up pipe as it ends; one still ending when the
+        # interpreter exits races the exit hook's wake-up ("Bad file descriptor" on the node's stderr)
+        if manager is not None:
+            manager.join(timeout=30)
+        self._pool = self.future = None
 

@@ -150,9 +150,12 @@ def test_the_worker_process_traces_and_returns_the_result(config):
         assert worker.busy or worker.future.done()
         worker.future.result(timeout=600)  # waits for the condition; 600 s only tells a hang
         done = worker.result()
+        worker.submit(request)  # and one under way when it is closed
+        manager = worker._pool._executor_manager_thread
     finally:
         worker.close()
     here = trace(request)
+    assert not manager.is_alive()  # closed: nothing left to race the interpreter's exit
     assert done.verdict == here.verdict == "traced"
     assert done.effects == here.effects and done.message == here.message
     assert worker.result() is None  # taken once
