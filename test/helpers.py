@@ -84,6 +84,15 @@ def preempted_catch_up(seed: int) -> list[tuple[str, int, float, int | None]]:
     return events
 
 
+def with_effect(config, name: str, params: dict):
+    """``config`` with the effect ``name`` on at ``params`` (its short names, as ``simulate --effect``
+    and ``calibrate --json`` give them)."""
+    from rollergear_ros.core.effects import EFFECTS
+
+    return config.with_values({f"effects.{name}.enabled": True}
+                              | {f"effects.{name}.{q.key}": params[q.short] for q in EFFECTS[name].parameters})
+
+
 def partial_files(path: str | Path) -> list[Path]:
     """The files an atomic writer of ``path`` is writing (``NAME.<random>.partial`` beside it)."""
     p = Path(path)

@@ -16,9 +16,10 @@ import pytest
 from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate
 from rollergear_ros.calibration.tracing import (SAMPLE_FIELDS, TraceBuffer, TraceRequest, TraceWorker, change_point,
                                                 trace, worker_cpus)
-from rollergear_ros.core.effects import EFFECTS
 from rollergear_ros.core.estimator import Estimator
 from rollergear_ros.core.params import validate
+
+from helpers import with_effect
 
 ONSET_S = 50.0
 
@@ -66,9 +67,7 @@ def test_an_effect_appearing_mid_run_is_named_with_its_value_inside_its_interval
         assert low <= value <= high, (name, value, result.effects[0])
     # the errors are those of the parameter sets compared, over the window after the change: the
     # candidate's as low as the declared effect's own (the noise floor), the running parameters' above
-    declared = config.with_values({f"effects.{effect.name}.enabled": True}
-                                  | {f"effects.{effect.name}.{q.key}": effect.params[q.short]
-                                     for q in EFFECTS[effect.name].parameters})
+    declared = with_effect(config, effect.name, effect.params)
     floor = rms_residual(declared, samples, result.window_ns)
     assert result.error_candidate_nm <= 1.05 * floor
     assert result.error_now_nm >= 1.5 * floor

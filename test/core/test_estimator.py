@@ -13,6 +13,8 @@ from rollergear_ros.core.model import SIGN_BAND
 from rollergear_ros.core.pairing import SyncedSample
 from rollergear_ros.core.params import load_config
 
+from helpers import with_effect
+
 
 def test_sensor_errors_are_removed_from_the_model_input():
     cfg = load_config().with_values({"effects.torque_offset.enabled": True, "effects.torque_offset.offset_nm": 0.5,
@@ -25,14 +27,6 @@ def test_sensor_errors_are_removed_from_the_model_input():
     assert b.loss_torque_nm[0] == pytest.approx(plain.loss_torque_nm[0], rel=1e-12)
 
 
-def _with_effect(name: str, adapt: bool):
-    """The parameter file's defaults with ``name`` on at its simulated values."""
-    values = {f"effects.{name}.enabled": True, "estimator.adapt": adapt}
-    simulated = EFFECTS[name].simulated_defaults()
-    values.update({f"effects.{name}.{p.key}": simulated[p.short] for p in EFFECTS[name].parameters})
-    return load_config().with_values(values)
-
-
 @pytest.mark.parametrize("adapt", [True, False], ids=["adapted", "fixed"])
 @pytest.mark.parametrize("name", [None, *EFFECTS])
 def test_the_nodes_sample_by_sample_path_equals_replays_arrays_bit_for_bit(name, adapt):
@@ -40,7 +34,9 @@ def test_the_nodes_sample_by_sample_path_equals_replays_arrays_bit_for_bit(name,
     for the same samples (:meth:`Estimator.process_batch` on arrays), to the last bit: a drive cycle
     through standstill (the smooth sign) with the oil warming (the temperature effects), each
     effect on, adapted online and fixed."""
-    config = load_config().with_values({"estimator.adapt": adapt}) if name is None else _with_effect(name, adapt)
+    config = load_config().with_values({"estimator.adapt": adapt})
+    if name is not None:  # on at the values simulate gives it
+        config = with_effect(config, name, EFFECTS[name].simulated_defaults())
     rig = simulate(config, SimulationOptions("drive_cycle", 100.0, 5))
     columns = (rig.t_ns, rig.torque_meas_nm, rig.speed_rad_s, rig.out_torque_meas_nm, rig.out_speed_meas_rad_s,
                rig.temperature_c)

@@ -13,7 +13,7 @@ from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
-from helpers import BAGS, CONFIG, REALDATA
+from helpers import BAGS, CONFIG, REALDATA, with_effect
 from rostools import FloatProbe, NodeProcess, WatchProcess, call_until_answered, play, ros_context, wait_for
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -1139,7 +1139,6 @@ def test_the_node_traces_an_effect_that_appears_mid_play_and_proposes_a_paramete
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     from rollergear_ros.calibration.simulate import read_truth
-    from rollergear_ros.core.effects import EFFECTS
     from rollergear_ros.outputs.review import read_rrd_events
 
     bag, rec, rrd, cand = (tmp_path / "onset.mcap", tmp_path / "live.mcap", tmp_path / "live.rrd",
@@ -1192,9 +1191,7 @@ def test_the_node_traces_an_effect_that_appears_mid_play_and_proposes_a_paramete
     assert proposed.effects.enabled() == (effect,), proposed.effects.enabled()
     # replayed after the onset: the candidate as close to the measured loss as the declared effect
     # itself (the noise floor), the running parameters well above it
-    declared_config = load_config(CONFIG).with_values(
-        {f"effects.{effect}.enabled": True} | {f"effects.{effect}.{q.key}": declared[q.short]
-                                              for q in EFFECTS[effect].parameters})
+    declared_config = with_effect(load_config(CONFIG), effect, declared)
     errors = []
     for cfg in (load_config(CONFIG), proposed, declared_config):
         _, batches = replay(bag, cfg, collect=True, show_progress=False, window_ns=(onset_ns, None))
