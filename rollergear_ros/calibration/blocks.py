@@ -8,6 +8,7 @@ cross-validation folds never split.  The candidate columns come from the effect 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -16,6 +17,8 @@ import numpy as np
 from ..core.effects import EFFECTS, EffectInputs
 from ..core.modelparams import MODEL_PARAMETERS, fitted_parameters
 from ..core.model import rotation_sign
+from .noise import Repeatability, difference_variance, reading_noise, repeatability
+from .nuisance import nuisance_columns
 from .samples import SampleData
 
 #: an effect that needs the oil temperature is testable when it varies by at least this much
@@ -66,7 +69,7 @@ class Blocks:
     weight: np.ndarray  # inverse variance of the block mean
     dwell: np.ndarray
     fold: np.ndarray
-    columns: dict[str, np.ndarray]  # nuisance columns dtdt, dwdt; effects without a member, by name
+    columns: dict[str, np.ndarray]  # effects without a member and model parameters, by name
     grids: dict[str, np.ndarray]  # effect with a member -> (len(member_grid), n_blocks) columns
     inflation: float
     block_s: float
@@ -77,6 +80,11 @@ class Blocks:
     bag_id: np.ndarray | None = None
     sample_speed: np.ndarray | None = None
     sign_width_rad_s: float = 0.0  # the smooth sign's width: 3 of it beyond standstill the direction is known
+    repeat: Repeatability | None = None  # the scatter of a block mean at one operating point (δ)
+    full_count: float = 1.0  # samples in a whole block (a transient's parts hold fewer)
+    untestable: dict[str, str] = field(default_factory=dict)  # candidate -> why this data cannot test it
+    #: the rig's nuisances' columns (:mod:`.nuisance`: a channel's lag, the inertia), always in the fit
+    nuisance: dict[str, np.ndarray] = field(default_factory=dict)
     _distinct: tuple | None = field(default=None, repr=False)  # distinct temperatures, inverse index
     _runs: _DirectionRuns | None = field(default=None, repr=False)  # runs of one direction (memory), once
     _speed_order: tuple | None = field(default=None, repr=False)  # samples by |ω| (laws that fade with speed)
@@ -272,17 +280,19 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         return np.add.reduceat(x, start) / count
 
     ym = mean(d.residual)
-    dtdt, dwdt = _time_derivatives(d, t)
-    weight, inflation = _block_weights(d, ym, start, count, brk)
     aw, at = np.abs(d.speed), np.abs(d.torque)
     spd, trq = mean(d.speed), mean(d.torque)
     temp = mean(np.nan_to_num(d.temperature, nan=np.nan))
-    dwell, fold = _dwells(d, spd, trq, start, block_s, folds)
+    dwell, fold = _dwells(d, spd, trq, start, block_s, folds, t)
     if like is not None:
         dwell, fold = like.dwell, like.fold
+    weight, inflation, repeat = _block_weights(d, start, count, brk, dwell, mean(d.measured_loss),
+                                               _full_block(t, block_s))
     theta = d.temperature
-    testable = _testable_effects(d)
-    columns = {"dtdt": mean(dtdt * sg), "dwdt": mean(dwdt * sg)}
+    untestable = {n: r for n, r in testability(d).items() if r}
+    testable = tuple(n for n in EFFECTS if n not in untestable)
+    columns: dict[str, np.ndarray] = {}
+    nuisance = {name: mean(col) for name, col in nuisance_columns(d, sg).items()}
     x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
     blocks = Blocks(
         start,
@@ -307,28 +317,50 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         sample_speed=d.speed,
         sign_width_rad_s=d.sign_width_rad_s,
     )
+    blocks.repeat = repeat
+    blocks.full_count = _full_block(t, block_s)
+    blocks.untestable = untestable
+    blocks.nuisance = nuisance
     _add_columns(blocks, d, mean)
     return blocks
 
 
-def _testable_effects(d: SampleData) -> tuple[str, ...]:
-    """The effects this data can show: those needing a varying oil temperature only when it
-    varies, sensor errors not in a table, low-speed ones with enough slow samples, load-dependent
-    ones not in a spin test, effects with memory only where the speed reverses."""
+def testability(d: SampleData) -> dict[str, str]:
+    """Each effect of the registry -> why this data cannot show it ("" where it can): one that needs a
+    varying oil temperature, speeds near standstill, regeneration or both directions of rotation
+    where the data have them; sensor errors not in a table (its rows are losses, not readings);
+    load-dependent ones not in a spin test; effects with memory only where the speed reverses."""
     theta = d.temperature
     have_theta = np.isfinite(theta)
-    varies = (
-        bool(have_theta.mean() > 0.9 and np.nanmax(theta) - np.nanmin(theta) >= MIN_TEMPERATURE_SPAN_C)
-        if have_theta.any()
-        else False
-    )
+    span = float(np.nanmax(theta) - np.nanmin(theta)) if have_theta.any() else 0.0
+    varies = bool(have_theta.mean() > 0.9 and span >= MIN_TEMPERATURE_SPAN_C)
     # memory shows only at reversals within a recording, and not in a table's dwell means
     reverses = not d.steady_state and _reverses(d.speed, d.bag_id, 3.0 * d.sign_width_rad_s)
-    return tuple(n for n, e in EFFECTS.items()
-                 if (varies or not e.needs_temperature) and (e.physical or not d.steady_state)
-                 and (e.needs_speeds_below is None
-                      or np.mean(np.abs(d.speed) <= e.needs_speeds_below) >= MIN_SLOW_SHARE)
-                 and not (d.spin_test and e.depends_on_load) and (e.state_step is None or reverses))
+    regenerating = float(np.mean(d.torque * d.speed < 0)) if len(d.speed) else 0.0
+    directions = min(float(np.mean(d.speed > 0)), float(np.mean(d.speed < 0))) if len(d.speed) else 0.0
+    why = {}
+    for n, e in EFFECTS.items():
+        reason = ""
+        if e.needs_temperature and not varies:
+            reason = ("no oil temperature" if not have_theta.any() else
+                      f"the oil temperature varies by {span:.2g} °C only (needs {MIN_TEMPERATURE_SPAN_C:g} °C over "
+                      "90 % of the samples)")
+        elif not e.physical and d.steady_state:
+            reason = "a table's rows are losses, not a sensor's readings"
+        elif e.needs_speeds_below is not None and (
+                not len(d.speed) or np.mean(np.abs(d.speed) <= e.needs_speeds_below) < MIN_SLOW_SHARE):
+            reason = (f"too few samples at |speed| <= {e.needs_speeds_below:g} rad/s (needs "
+                      f"{100 * MIN_SLOW_SHARE:g} % of them)")
+        elif d.spin_test and e.depends_on_load:
+            reason = "a spin test (nothing on the output): the drive torque is the loss, no load to depend on"
+        elif e.needs_regeneration and regenerating < MIN_SLOW_SHARE:
+            reason = f"no regeneration (the output driving the input) in {100 * MIN_SLOW_SHARE:g} % of the samples"
+        elif e.needs_both_directions and directions < MIN_SLOW_SHARE:
+            reason = "the drive turns one way only"
+        elif e.state_step is not None and not reverses:
+            reason = "no reversal of the drive within a recording (beyond the speed reading's noise)"
+        why[n] = reason
+    return why
 
 
 def _add_columns(blocks: Blocks, d: SampleData, mean) -> None:
@@ -345,7 +377,13 @@ def _add_columns(blocks: Blocks, d: SampleData, mean) -> None:
             blocks.grids[name] = np.stack([blocks.column(name, m) for m in effect.member_grid])
     for key in fitted_parameters():
         part = d.parts.get(MODEL_PARAMETERS[key].part)
-        if part is not None and np.any(part != 0) and not d.spin_test:  # every part depends on the load
+        if d.spin_test:
+            blocks.untestable[key] = "a spin test (nothing on the output): every part of the model depends on the load"
+        elif part is None:
+            blocks.untestable[key] = "the paper's model is switched off (estimator.paper_model: false)"
+        elif not np.any(part != 0):
+            blocks.untestable[key] = f"the model's {MODEL_PARAMETERS[key].part} part is 0 on this data"
+        else:
             blocks.columns[key] = mean(part)
             blocks.testable += (key,)
 
@@ -353,7 +391,11 @@ def _add_columns(blocks: Blocks, d: SampleData, mean) -> None:
 def _block_starts(d: SampleData, t: np.ndarray, block_s: float,
                   like: Blocks | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where each block starts, its sample count, and the samples that start one (a new time slot,
-    recording or sign of speed or torque, a gap; ``like``'s boundaries when given)."""
+    recording or sign of speed or torque, a gap; ``like``'s boundaries when given).  A slot through
+    which the operating point moves (a ramp, a reversal) is cut into equal parts short enough that
+    the speed and the torque each move less than :data:`OPERATING_POINT_TOLERANCE` of their level
+    (and beyond six times their reading's noise) within one: the block means keep the shape of a
+    transient instead of averaging across it."""
     n = len(t)
     dt = np.diff(t)
     typical = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 1e-3
@@ -368,70 +410,143 @@ def _block_starts(d: SampleData, t: np.ndarray, block_s: float,
             | (dt > 5 * typical)
             | (dt < 0)
         )
-    start = np.flatnonzero(brk) if like is None else like.start
-    count = np.diff(np.append(start, n))
     if like is not None:
+        start = like.start
         brk = np.zeros(n, bool)
         brk[start] = True
-    return start, count, brk
+        return start, np.diff(np.append(start, n)), brk
+    if n > 1 and not d.steady_state:
+        brk = _cut_transients(d, brk)
+    start = np.flatnonzero(brk)
+    return start, np.diff(np.append(start, n)), brk
 
 
-def _time_derivatives(d: SampleData, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """dT/dt and dω/dt within each recording (np.gradient over time; none for a table's rows)."""
-    n = len(t)
-    dtdt = np.zeros(n)
-    dwdt = np.zeros(n)
-    for b in np.unique(d.bag_id) if not d.steady_state else ():  # a table's rows have no time derivatives
-        idx = np.flatnonzero(d.bag_id == b)
-        if len(idx) > 2:
-            tt = t[idx] + 1e-12 * np.arange(len(idx))
-            dtdt[idx] = np.gradient(d.torque[idx], tt)
-            dwdt[idx] = np.gradient(d.speed[idx], tt)
-    return dtdt, dwdt
+#: within a block the speed and the torque each move less than this share of their level
+OPERATING_POINT_TOLERANCE = 0.05
+#: a transient's parts hold at least this many samples
+MIN_PART_SAMPLES = 4
 
 
-def _block_weights(d: SampleData, ym: np.ndarray, start: np.ndarray, count: np.ndarray,
-                   brk: np.ndarray) -> tuple[np.ndarray, float]:
-    """Each block mean's weight (1 / its noise variance: the within-block variance, inflated for the
-    residual's autocorrelation) and the inflation; equal weights for a table's rows."""
-    y = d.residual
-    dev = y - np.repeat(ym, count)
-    var_within = np.add.reduceat(dev * dev, start) / np.maximum(count - 1, 1)
-    same_block = ~brk[1:]
-    if same_block.sum() > 10:
-        a, b_ = dev[:-1][same_block], dev[1:][same_block]
-        rho = float(np.dot(a, b_) / max(np.sqrt(np.dot(a, a) * np.dot(b_, b_)), 1e-300))
-    else:
-        rho = 0.0
-    rho = min(max(rho, 0.0), 0.98)
-    inflation = (1 + rho) / (1 - rho)
-    var_mean = var_within * inflation / count
-    floor = max(float(np.median(var_mean[count > 1])) * 0.05 if np.any(count > 1) else 1e-12, 1e-16)
-    var_mean = np.where(count > 1, np.maximum(var_mean, floor), float(np.max(var_mean)) if len(var_mean) else 1.0)
+def _cut_transients(d: SampleData, brk: np.ndarray) -> np.ndarray:
+    """``brk`` with the blocks through which the speed moves cut into equal parts: a block's drift is
+    1.5 × the difference of the means of its last and first thirds (a ramp's whole rise; noise
+    averages out of the thirds), its tolerance :data:`OPERATING_POINT_TOLERANCE` of the block's
+    speed or four standard errors of that difference, whichever is larger."""
+    n = len(brk)
+    start = np.flatnonzero(brk)
+    count = np.diff(np.append(start, n))
+    within = np.arange(n) - np.repeat(start, count)
+    third = np.repeat(np.maximum(count // 3, 1), count)
+    first, last = within < third, within >= np.repeat(count, count) - third
+    x = d.speed
+    k = np.maximum(count // 3, 1).astype(float)
+    drift = 1.5 * np.abs(np.add.reduceat(np.where(last, x, 0.0), start) - np.add.reduceat(np.where(first, x, 0.0),
+                                                                                           start)) / k
+    level = np.abs(np.add.reduceat(x, start)) / count
+    noise = noise_of(x, d.bag_id)
+    tol = np.maximum(OPERATING_POINT_TOLERANCE * level, 4.0 * (noise if np.isfinite(noise) else 0.0) * np.sqrt(2.0 / k))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        parts = np.where(tol > 0, np.ceil(drift / tol), 1.0)
+    parts = np.clip(np.nan_to_num(parts, nan=1.0, posinf=1.0), 1, np.maximum(count // MIN_PART_SAMPLES, 1))
+    parts = parts.astype(np.int64)
+    if np.all(parts == 1):
+        return brk
+    piece = within * np.repeat(parts, count) // np.repeat(count, count)
+    out = brk.copy()
+    out[1:] |= piece[1:] != piece[:-1]
+    return out
+
+
+def _full_block(t: np.ndarray, block_s: float) -> float:
+    """Samples in a whole block: the block length over the median sample period."""
+    dt = np.diff(t)
+    dt = dt[dt > 0]
+    return max(block_s / float(np.median(dt)), 1.0) if len(dt) else 1.0
+
+
+def noise_of(x: np.ndarray, bag_id: np.ndarray) -> float:
+    """A reading's noise (:func:`.noise.reading_noise`) over the recordings."""
+    return reading_noise(x, bag_id)
+
+
+def _block_weights(d: SampleData, start: np.ndarray, count: np.ndarray, brk: np.ndarray, dwell: np.ndarray,
+                   measured: np.ndarray, full: float) -> tuple[np.ndarray, float, Repeatability | None]:
+    """Each block mean's weight (1 / its noise variance), the factor from a sample's noise variance to
+    a block mean's (times ``1/count``), and the repeatability of a whole block's mean.
+
+    Blocks weigh by their samples; one whose residual is clearly noisier than the typical block's (a
+    spike, a rough patch: its samples' differences, which the model's slow misfit through a ramp
+    barely inflates; :func:`.noise.difference_variance`) weighs less in proportion.  The factor is what
+    the scatter of consecutive whole blocks of a dwell says (:func:`.noise.repeatability`: whatever the
+    noise's colour), else the AR(1) inflation of the differences.  A table's rows weigh 1 each."""
     if d.steady_state:
-        return np.ones(len(start)), 1.0
-    return 1.0 / var_mean, inflation
+        return np.ones(len(start)), 1.0, None
+    var_sample, inflation = difference_variance(d.residual, start, count, brk)
+    repeat = repeatability(measured, dwell, count, full, _cells(d, start, count))
+    whole = count >= 0.8 * full
+    if math.isfinite(repeat.se_block_nm) and repeat.se_block_nm > 0 and whole.any():
+        inflation = repeat.se_block_nm ** 2 * full / float(np.median(var_sample[whole]))
+    return count / (var_sample * inflation), inflation, repeat
+
+
+#: operating-point cells (visited again): the speed's and the torque's magnitude in bins this wide
+#: (relative), the oil temperature in bins of :data:`CELL_TEMPERATURE_C`
+CELL_RELATIVE = 0.02
+CELL_TEMPERATURE_C = 1.0
+
+
+def _cells(d: SampleData, start: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """A label per block for its operating-point cell: the recording, the direction, the speed's and
+    (unless a spin test, whose drive torque is the loss measured) the torque's magnitude in bins
+    :data:`CELL_RELATIVE` wide, the oil temperature's in :data:`CELL_TEMPERATURE_C`; -1 for a block
+    that does not hold one operating point (its speed spans more than a bin)."""
+    def mean(x):
+        return np.add.reduceat(x, start) / count
+
+    w = mean(d.speed)
+    keys = [d.bag_id[start], np.sign(w), _log_bin(np.abs(w))]
+    if not d.spin_test:
+        keys.append(_log_bin(np.abs(mean(d.torque))))
+    theta = mean(np.nan_to_num(d.temperature, nan=-1e6))
+    keys.append(np.floor(theta / CELL_TEMPERATURE_C))
+    span = np.maximum.reduceat(d.speed, start) - np.minimum.reduceat(d.speed, start)
+    steady = span <= 2 * CELL_RELATIVE * np.maximum(np.abs(w), 1e-12) + 6.0 * max(d.sign_width_rad_s, 0.0)
+    _u, label = np.unique(np.column_stack(keys), axis=0, return_inverse=True)
+    return np.where(steady & (w != 0), label.ravel(), -1)
+
+
+def _log_bin(x: np.ndarray) -> np.ndarray:
+    return np.floor(np.log(np.maximum(x, 1e-12)) / np.log1p(CELL_RELATIVE))
+
+
+#: consecutive blocks are one dwell while speed and torque stay within this share of their level
+#: plus :data:`DWELL_SCALE_SHARE` of the data's scale (the 95th percentile of their magnitude)
+DWELL_LEVEL_SHARE = 0.03
+DWELL_SCALE_SHARE = 0.01
+DWELL_MAX_S = 5.0  #: a dwell ends after this long (whole dwells are held out: folds need many)
 
 
 def _dwells(d: SampleData, spd: np.ndarray, trq: np.ndarray, start: np.ndarray, block_s: float,
-            folds: int) -> tuple[np.ndarray, np.ndarray]:
-    """Dwells (consecutive blocks at the same operating point, <= 5 s; each row of a table) and the
-    folds, by dwell."""
+            folds: int, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Dwells (consecutive blocks at the same operating point, at most :data:`DWELL_MAX_S`; each row
+    of a table) and the folds, by dwell."""
     nb = len(start)
-    dwell = np.zeros(nb, dtype=np.int64)
-    max_blocks = max(int(round(5.0 / block_s)), 1)
-    cur, run = 0, 0
-    for i in range(1, nb):
-        same = (
-            abs(spd[i] - spd[i - 1]) <= 0.03 * abs(spd[i - 1]) + 1.0
-            and abs(trq[i] - trq[i - 1]) <= 0.03 * abs(trq[i - 1]) + 0.5
-            and d.bag_id[start[i]] == d.bag_id[start[i - 1]]
-        )
-        run += 1
-        if not same or run >= max_blocks:
-            cur += 1
-            run = 0
-        dwell[i] = cur
     if d.steady_state:
         dwell = np.arange(nb, dtype=np.int64)
+        return dwell, dwell % folds
+    dwell = np.zeros(nb, dtype=np.int64)
+    scale_w = DWELL_SCALE_SHARE * float(np.percentile(np.abs(spd), 95)) if nb else 0.0
+    scale_t = DWELL_SCALE_SHARE * float(np.percentile(np.abs(trq), 95)) if nb else 0.0
+    t_start = t[start].tolist()
+    bag = d.bag_id[start].tolist()
+    w, q = spd.tolist(), trq.tolist()
+    cur, since = 0, t_start[0] if nb else 0.0
+    for i in range(1, nb):
+        same = (abs(w[i] - w[i - 1]) <= DWELL_LEVEL_SHARE * abs(w[i - 1]) + scale_w
+                and abs(q[i] - q[i - 1]) <= DWELL_LEVEL_SHARE * abs(q[i - 1]) + scale_t
+                and bag[i] == bag[i - 1] and t_start[i] - since < DWELL_MAX_S - 1e-9)
+        if not same:
+            cur += 1
+            since = t_start[i]
+        dwell[i] = cur
     return dwell, dwell % folds

@@ -3,198 +3,58 @@
 Procedure (after ``shared/closing-the-loop.md``):
 
 1. **Measured loss** ``T_loss,meas = (T_in·ω_in − T_out·ω_out)/|ω_in|`` (any quadrant) and the
-   residual ``y = T_loss,meas − T_loss,model`` per sample (never the efficiency).
-2. **Block averages.** Samples are averaged over short blocks (default 0.25 s, never across a bag,
-   a sign change of ω or T, or a gap).  Every candidate term is linear in its coefficient, so block
-   means of the regressors keep the relation exact while coloured noise averages out.  Each block
-   is weighted by the inverse variance of its mean (within-block variance × the AR(1) inflation
-   ``(1+ρ)/(1−ρ)`` measured on the data).
-3. **Dwells and folds.** Consecutive blocks at the same operating point form a dwell (≤ 5 s);
+   residual ``y = T_loss,meas − T_loss,model`` per sample (never the efficiency), the model being the
+   paper's at the parameter file's values (:mod:`.samples`; the speed reading's noise learned or
+   checked against the recording).
+2. **Block averages** (:mod:`.blocks`): samples averaged over short blocks (default 0.25 s, never
+   across a recording, a sign change of ω or T, or a gap; a transient cut into shorter ones).  Every
+   candidate term is linear in its coefficient, so block means of the regressors keep the relation
+   exact while noise averages out.  Blocks weigh by their samples (a clearly noisier one less).
+3. **Dwells and folds**: consecutive blocks at the same operating point form a dwell (≤ 5 s);
    5-fold grouped cross-validation assigns whole dwells to folds (never random rows).
-4. **Candidate groups** are the physical laws of the vocabulary, one column each; a law's exponent
-   (``p``, ``q``) or Vogel ``B`` is chosen by profiling the weighted fit over a grid and reported
-   with its profile-likelihood 95 % range.  Two nuisance columns are always in the fit and never
-   reported: ``dT/dt·sgn ω`` (time misalignment of the torque channels) and ``dω/dt·sgn ω``
-   (inertia).
-5. **Forward selection**, one group per step: the group with the lowest cross-validated error is
-   accepted only if (a) its coefficient passes a Wald test with cluster-robust (by dwell) standard
-   errors at α = 0.01, Bonferroni-corrected over the groups left, (b) the lower 95 % bound of its
-   RMS contribution exceeds δ, and (c) held-out RMSE improves by more than 2 %.  A group whose
-   column the data cannot tell apart from another's (partial correlation > 0.995, similar error)
-   makes the verdict *inconclusive*, naming both and the data that would separate them.
-6. **Verdict**: ``effects_found``; ``no_missing_effect`` (every group's upper 95 % bound < δ); or
-   ``inconclusive``.  Errors before/after are cross-validated predictions on held-out dwells.
+4. **Candidates** are the physical laws of the vocabulary and the model's own parameters, one column
+   each; a law's exponent (``p``, ``q``) or Vogel ``B``/``C`` is profiled (:mod:`.selection`).  The
+   rig's nuisances -- each channel's lag behind the drive torque, the drive's inertia -- are always
+   in the fit (:mod:`.nuisance`); a lag worth it is applied to the samples and the analysis run again.
+5. **Selection** (:mod:`.forward`) from the parameter file's own effects: every candidate tested,
+   the first that passes at each step accepted -- significance (cluster-robust by dwell, α = 0.01
+   Bonferroni-corrected), the lower 95 % bound of its RMS contribution above δ, held-out RMSE better
+   by more than 2 % -- then a backward check; two readings of one part of the loss both named;
+   columns the data cannot tell apart make the verdict *inconclusive* unless ``--assume`` chooses.
+6. **Verdict**: ``effects_found``; ``no_missing_effect`` (every candidate's upper 95 % bound < δ); or
+   ``inconclusive``.  Errors before (the parameter file as given) and after (exactly what the result
+   writes) are on held-out dwells; a result that would predict worse than the file is not written.
 
-δ, the practical minimum effect size, defaults to ``max(0.005 N·m, 2 % of the RMS measured loss,
-3 × the standard error of a block-mean loss)`` and is stated in the report.  No rclpy import.
+δ, the practical minimum effect size, comes from what the data can tell (:mod:`.noise`): 3 × the
+standard error of a block mean at one operating point, or the sensors' stated accuracy, or the
+user's ``--delta``; the result says which.  No rclpy import.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .blocks import Blocks, make_blocks
-from ..core.effects import EFFECTS, reading_errors, viscosity_law
+from .forward import select
+from .noise import sensor_delta
+from .nuisance import apply_lags, lag_channel, median_period_s, worth_applying, ChannelLag
+from .outcome import CalibrationResult, Change, FoundEffect, FoundParameter, segment_summary
+from .samples import SampleData, load_samples
+from .segments import find_changes
+from .selection import Calibrator, ErrorStats, Term, error_stats, members
+from .structure import adequacy, angle_spectrum, residual_structure
 from ..base.errors import BagError, UsageError
+from ..core.effects import EFFECTS, reading_errors, viscosity_law
 from ..core.model import LossModel
 from ..core.modelparams import MODEL_PARAMETERS
 from ..core.oil import vogel_from_datasheet
 from ..core.params import Config, ParameterError, config_to_yaml, validate
-from .samples import SampleData, load_samples
-from .selection import AmbiguousSet, Calibrator, ErrorStats, RejectedEffect, Term, error_stats, members
 
-__all__ = ["Adequacy", "CalibrationResult", "CalibrationSettings", "SampleData", "calibrate", "calibrated_yaml",
-           "load_samples"]
-
-
-@dataclass(frozen=True)
-class FoundEffect:
-    """An accepted effect: its parameters (short names of the registry) with 95 % intervals."""
-
-    name: str
-    params: dict[str, float]
-    ci95: dict[str, list[float]]  #: the coefficient's (covering the member's range) and the member's
-    rms_contribution_nm: float
-    rms_contribution_ci95_nm: list[float]
-    at_bound: list[str] = field(default_factory=list)  #: members (p, q, B, C) at a bound of their range
-
-    def to_json(self) -> dict:
-        return {"name": self.name, "params": self.params, "ci95": self.ci95,
-                "rms_contribution_nm": self.rms_contribution_nm,
-                "rms_contribution_ci95_nm": self.rms_contribution_ci95_nm, "at_bound": self.at_bound}
-
-    def bound_note(self) -> str | None:
-        """A sentence when a member sits at a bound of its physical range (the data want a law the
-        vocabulary lacks: the fit is the closest within it), else None."""
-        if not self.at_bound:
-            return None
-        ranges = EFFECTS[self.name].profiled_ranges()
-        said = ", ".join(f"{m} = {self.params[m]:.4g} at the bound of its range [{ranges[m][0]:g}, {ranges[m][1]:g}]"
-                         for m in self.at_bound)
-        return f"{self.name}: {said} -- the data want a law outside the vocabulary; this is the closest within it"
-
-
-@dataclass(frozen=True)
-class FoundParameter:
-    """A parameter of the paper's model that calibrate changed (:mod:`core.modelparams`)."""
-
-    name: str  #: its parameter-file key (``gearbox.eta0_pa_s``)
-    file: float  #: the value in the parameter file calibrated
-    fitted: float
-    ci95: list[float]
-    rms_contribution_nm: float  #: RMS of the change it makes to the model's loss
-    same_part: list[str] = field(default_factory=list)  #: parameters of the same part, not told apart
-
-    def to_json(self) -> dict:
-        return {"name": self.name, "file": self.file, "fitted": self.fitted, "ci95": self.ci95,
-                "label": MODEL_PARAMETERS[self.name].label, "unit": MODEL_PARAMETERS[self.name].unit,
-                "rms_contribution_nm": self.rms_contribution_nm, "not_told_apart_from": self.same_part}
-
-    def sentence(self) -> str:
-        """``oil viscosity at the reference temperature: 0.13 Pa·s (file 0.1; 95 % 0.127–0.133)``."""
-        p = MODEL_PARAMETERS[self.name]
-        unit = f" {p.unit}" if p.unit else ""
-        text = (f"{p.label} ({self.name}): {self.fitted:.4g}{unit} (file {self.file:.4g}; 95 % "
-                f"{self.ci95[0]:.4g}–{self.ci95[1]:.4g})")
-        if self.same_part:
-            text += f"; {', '.join(self.same_part)} scales the same part: not told apart, left at the file's value"
-        return text
-
-
-@dataclass(frozen=True)
-class Adequacy:
-    """Which share of the measured loss the paper's model and each accepted effect explain
-    (means over all samples, relative to the mean measured loss), said in words."""
-
-    model_share_pct: float  #: the paper's model (0 when switched off)
-    effects_share_pct: dict[str, float]  #: accepted effect -> its share (sensor errors included)
-    unexplained_pct: float  #: what neither explains (mean error after)
-    paper_model: bool  #: the paper's model was part of the fit (``estimator.paper_model``)
-    statement: str
-
-    def to_json(self) -> dict:
-        return {"model_share_pct": self.model_share_pct, "effects_share_pct": self.effects_share_pct,
-                "unexplained_pct": self.unexplained_pct, "paper_model": self.paper_model,
-                "statement": self.statement}
-
-
-def adequacy(model_mean_nm: float, measured_mean_nm: float, effects_mean_nm: dict[str, float],
-             paper_model: bool, viscous: bool = False) -> Adequacy:
-    """The shares of the measured loss, and a sentence a reader of the report can act on;
-    ``viscous``: the model's share is at the oil's viscosity law (said)."""
-    scale = 100.0 / measured_mean_nm if measured_mean_nm > 0 else math.nan
-    model = model_mean_nm * scale
-    effects = {n: v * scale for n, v in effects_mean_nm.items()}
-    rest = 100.0 - model - sum(effects.values())
-    listed = ", ".join(f"{n} {v:.0f} %" for n, v in effects.items()) or "no accepted effect"
-    at = " (at the oil's viscosity law)" if viscous else ""
-    if not paper_model:
-        text = (f"the paper's ball-track model is switched off (estimator.paper_model: false); the accepted effects "
-                f"explain the loss: {listed}")
-    elif model > 150.0:
-        text = (f"the ball-track model{at} predicts {model:.0f} % of the measured loss: it does not describe this "
-                f"gearbox (the accepted effects must cancel most of it: {listed}); try estimator.paper_model: false")
-    elif model < 50.0:
-        text = f"the ball-track model{at} explains {model:.0f} % of this gearbox's loss; the rest is {listed}"
-    else:
-        text = f"the ball-track model{at} explains {model:.0f} % of the loss; {listed}"
-    if abs(rest) >= 1.0:
-        text += f"; {rest:.0f} % is unexplained"
-    return Adequacy(model, effects, rest, paper_model, text)
-
-
-@dataclass
-class CalibrationResult:
-    """What ``calibrate`` found; :meth:`to_json` is the ``calibrate --json`` object."""
-
-    verdict: str  #: effects_found | no_missing_effect | inconclusive
-    effects: list[FoundEffect]
-    error_before: ErrorStats  #: held-out, the model alone
-    error_after: ErrorStats  #: held-out, the model with the accepted effects
-    holdout: str  #: how the held-out data was chosen
-    samples: int
-    delta_nm: float  #: the practical minimum effect size
-    rejected: list[RejectedEffect]
-    ambiguous: list[AmbiguousSet]
-    unavailable: list[str]
-    log: list[str]
-    sample_level: dict[str, ErrorStats]  #: before/after per sample (sensor noise included)
-    config: Config  #: the input parameters with the accepted effects
-    adequacy: Adequacy | None = None
-    blocks: Blocks | None = None
-    pred_after: np.ndarray | None = None
-    parameters: list[FoundParameter] = field(default_factory=list)
-    written: bool = True  #: ``config`` is what --out writes (False: it would predict worse than the file)
-    notes: list[str] = field(default_factory=list)  #: what was decided and why (paper model off, not written)
-    negative: list[str] = field(default_factory=list)  #: candidates whose fit needed a negative friction
-    structure: dict | None = None  #: the unexplained residual against each input (:func:`residual_structure`)
-    before_residual: np.ndarray | None = None  #: per sample, the file as given (the "before" errors)
-    after_residual: np.ndarray | None = None  #: per sample, after the accepted terms (held out, per block)
-
-    def to_json(self) -> dict:
-        """The ``interface.md`` object (plus extra keys: delta, rejected, ambiguous, ...)."""
-        return {
-            "verdict": self.verdict,
-            "effects": [e.to_json() for e in self.effects],
-            "parameters": [p.to_json() for p in self.parameters],
-            "error_before": self.error_before.to_json(),
-            "error_after": self.error_after.to_json(),
-            "holdout": self.holdout,
-            "samples": self.samples,
-            "delta_nm": self.delta_nm,
-            "rejected": [r.to_json() for r in self.rejected],
-            "ambiguous": [a.to_json() for a in self.ambiguous],
-            "unavailable": self.unavailable,
-            "sample_level_errors": {k: v.to_json() for k, v in self.sample_level.items()},
-            "adequacy": self.adequacy.to_json() if self.adequacy else None,
-            "written": self.written,
-            "notes": self.notes,
-            "residual_structure": self.structure,
-        }
+__all__ = ["CalibrationResult", "CalibrationSettings", "SampleData", "calibrate", "calibrated_yaml", "load_samples"]
 
 
 @dataclass(frozen=True)
@@ -208,9 +68,14 @@ class CalibrationSettings:
     #: told what the analysis is doing (a progress bar)
     stage: Callable[[str], None] | None = None
     #: effects to accept when the data cannot tell them from another (a set of indistinguishable
-    #: effects otherwise stays in the fit unreported and makes the verdict inconclusive); what the
-    #: user knows of the rig decides, not the data
+    #: effects otherwise stays in the fit unreported and makes the verdict inconclusive), or to take
+    #: between two readings of one part of the loss; what the user knows of the rig decides
     assume: Sequence[str] = ()
+    #: changes inside the recordings: "latest" (calibrate the stretch after the last), "each" (also
+    #: every stretch), "off" (all samples at once)
+    segments: str = "latest"
+    start_s: float | None = None  #: the window analysed, seconds after the first sample (None: open)
+    end_s: float | None = None
 
 
 def calibrate(data: SampleData, config: Config,
@@ -219,51 +84,181 @@ def calibrate(data: SampleData, config: Config,
 
     Candidates are the registry's effects and the model's own parameters (:mod:`core.modelparams`);
     none is accepted as a negative friction, at the bound of its exponent's search, or outside its
-    physical range.  When candidates were set aside for needing a negative friction (the paper's
-    model over-predicts), the analysis is repeated with the paper's model switched off and the one
-    that predicts held-out data better is the result, saying so.  The errors after are those of
-    exactly the parameter file the result writes; a file that would predict held-out data worse
-    than the one calibrated is not written (:attr:`CalibrationResult.written`).
+    physical range.  The parameter file's accepted effects are where the selection starts, and the
+    file as given is the "before".  A channel that lags the drive torque clearly is aligned and the
+    analysis run again on the aligned samples.  When candidates were set aside for needing a
+    negative friction (the paper's model over-predicts), the analysis is repeated with the paper's
+    model switched off and the one that predicts held-out data better is the result, saying so.
+    A change inside the recordings (:mod:`.segments`) is said, and the latest stretch after it is
+    analysed (``settings.segments``: ``latest``; ``each``: every stretch too; ``off``: all at once).
+    The errors after are those of exactly the parameter file the result writes; a file that would
+    predict held-out data worse than the one calibrated is not written (:attr:`CalibrationResult.written`).
     """
     unknown = [a for a in settings.assume if a not in EFFECTS]
     if unknown:
         raise UsageError(f"unknown effect(s) to assume: {', '.join(unknown)} (one of {', '.join(EFFECTS)})")
     stage = settings.stage or (lambda text: None)
     how = _Analysis(settings.delta_nm, settings.block_s, settings.folds, stage, tuple(settings.assume))
+    data, window = _window(data, settings.start_s, settings.end_s)
+    result = _analyse(data, config, how)
+    if settings.segments == "off" or data.steady_state or result.calibrator is None:
+        result.stretch = window or "every sample"
+        return result
+    stage("changes inside the recordings")
+    splits = find_changes(result.calibrator, result.terms)
+    if not splits:
+        result.stretch = window or "every sample (no change found inside the recordings)"
+        return result
+    blocks = result.calibrator.b
+    cuts = [int(blocks.start[sp.block]) for sp in splits]  # the first sample after each change
+    changes = [Change(int(data.t_ns[i]), sp.t_s, sp.ci95_s, sp.rms_change_nm, sp.heldout_one_nm, sp.heldout_two_nm,
+                      int(data.bag_id[i]), math.nan if sp.between_recordings else _temperature_at(data, i),
+                      sp.between_recordings) for i, sp in zip(cuts, splits)]
+    n = len(data.t_ns)
+    stretches = list(zip([0, *cuts], [*cuts, n]))
+    start_s = [0.0, *(sp.t_s for sp in splits)]
+    summaries = []
+    if settings.segments == "each":
+        for (lo, hi), t_lo, t_hi in zip(stretches[:-1], start_s, start_s[1:]):
+            stage(f"the stretch from {t_lo:.1f} s")
+            part = _analyse(data.select(_between(n, lo, hi)), config, how)
+            summaries.append(segment_summary(part, t_lo, t_hi))
+    lo = stretches[-1][0]
+    stage("the latest stretch")
+    latest = data.select(_between(n, lo, n))
+    final = _analyse(latest, config, how)
+    end_s = float(blocks.t_s[-1] - blocks.t_s[0]) if len(np.unique(data.bag_id)) == 1 else math.nan
+    if settings.segments == "each":
+        summaries.append(segment_summary(final, start_s[-1], end_s))
+    final.changes, final.segments = changes, summaries
+    when = ", ".join(c.when() for c in changes)
+    final.stretch = (f"the latest stretch, {len(latest.t_ns):,} samples after the change at {changes[-1].when()}"
+                     + (f" ({window})" if window else ""))
+    final.notes.insert(0, f"the gearbox changed inside the recordings at {when} (one fit across "
+                          f"{'them' if len(changes) > 1 else 'it'}: held-out RMSE {changes[-1].heldout_one_nm:.4g} "
+                          f"N·m, a fit on each side {changes[-1].heldout_two_nm:.4g}); the latest stretch is "
+                          "calibrated (--segments each: every stretch; --start/--end: a window)"
+                          + _time_or_temperature(data, changes))
+    return final
+
+
+def _temperature_at(data: SampleData, i: int) -> float:
+    """The oil temperature at sample ``i`` (the median of the samples about it; NaN: none)."""
+    near = data.temperature[max(i - 50, 0): i + 50]
+    near = near[np.isfinite(near)]
+    return float(np.median(near)) if len(near) else math.nan
+
+
+def _time_or_temperature(data: SampleData, changes: list[Change]) -> str:
+    """What to add where the oil's temperature rose (or fell) all along: a change in time and a loss
+    that follows the oil are the same on such a recording."""
+    ok = np.isfinite(data.temperature)
+    if ok.mean() < 0.9 or not any(math.isfinite(c.temperature_c) for c in changes):
+        return ""
+    from scipy.stats import spearmanr
+
+    rho = float(spearmanr(data.t_ns[ok], data.temperature[ok]).statistic)
+    if abs(rho) < MONOTONIC_TEMPERATURE:
+        return ""
+    at = ", ".join(f"{c.temperature_c:.1f} °C" for c in changes if math.isfinite(c.temperature_c))
+    return (f"; the oil passed {at} there, and its temperature {'rose' if rho > 0 else 'fell'} all along: this "
+            "recording cannot tell a change in time from a loss that follows the oil's temperature (the same "
+            "temperatures at another time can: a second warm-up, a cool-down; --segments off analyses it at once)")
+
+
+#: a recording whose oil temperature follows time this closely (|Spearman ρ|) confounds the two
+MONOTONIC_TEMPERATURE = 0.9
+
+
+def _between(n: int, lo: int, hi: int) -> np.ndarray:
+    keep = np.zeros(n, bool)
+    keep[lo:hi] = True
+    return keep
+
+
+def _analyse(data: SampleData, config: Config, how: _Analysis) -> CalibrationResult:
+    """One analysis of all of ``data``: aligned where a channel lags, and weighed against the paper's
+    model switched off where fits needed a negative friction."""
     result = _calibrate_once(data, config, how)
+    first, original, lags = result, data, {}
+    for _ in range(MAX_ALIGNMENTS):  # a channel clearly behind the drive torque: aligned, analysed again
+        more = {lag.channel: lag.lag_s for lag in result.lags if lag.applied and lag.lag_s != lags.get(lag.channel)}
+        if not more:
+            break
+        how.stage("aligning the channels that lag")
+        lags.update(more)
+        model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
+        data = apply_lags(original, lags, model)
+        result = _calibrate_once(data, config, how, applied=lags)
+    if lags:
+        result.notes.insert(0, "the analysis ran on the samples aligned by the lags found ("
+                            + ", ".join(f"{c} {1e3 * v:.3g} ms" for c, v in lags.items())
+                            + f"; before aligning, held-out RMSE {first.error_before.rmse_nm:.4g} -> "
+                            f"{first.error_after.rmse_nm:.4g} N·m): its errors are of the aligned samples; put lag_s "
+                            "in the channel map to align them in replay")
     if result.negative and config.estimator.paper_model:
-        stage("the paper's model switched off")
-        off = config.with_values({"estimator.paper_model": False})
-        zero = np.zeros(len(data.t_ns))
-        without = replace(data, model_loss=zero, fr_part=zero, parts={})
-        alt = _calibrate_once(without, off, how, before=result)
-        on_text = f"{result.error_after.rmse_nm:.4g}" if result.written else "no file"
-        explains = (alt.error_after.rel_rmse_pct <= ALTERNATIVE_MAX_ERROR_PCT
-                    or not (alt.structure or {}).get("strongest"))
-        if alt.written and alt.verdict == "effects_found" and explains and (
-                not result.written or alt.error_after.rmse_nm
-                < (1.0 - ALTERNATIVE_MIN_IMPROVEMENT) * result.error_after.rmse_nm):
-            alt.notes.insert(0, (
-                f"the paper's model over-predicts this gearbox's loss: with it, the fits needed a negative friction "
-                f"({', '.join(result.negative)}); written with estimator.paper_model: false, whose effects predict the "
-                f"held-out data better (RMSE {alt.error_after.rmse_nm:.4g} N·m against {on_text} with the model)"))
-            return alt
-        if not alt.written:
-            why = "it would not be written"
-        elif alt.verdict != "effects_found":
-            why = f"its verdict is {alt.verdict}"
-        elif not explains:
-            why = (f"its effects leave {alt.error_after.rel_rmse_pct:.0f} % of the loss unexplained "
-                   f"({(alt.structure or {}).get('statement', '')})")
-        else:
-            why = "it predicts no better"
-        result.notes.append(
-            f"fits with a negative friction were set aside ({', '.join(result.negative)}); the paper's model switched "
-            f"off was weighed and not taken: {why} (held-out RMSE {alt.error_after.rmse_nm:.4g} N·m against "
-            f"{on_text} with the model)")
+        result = _without_paper_model(data, config, how, result)
+    result.speed_noise = data.speed_noise_text
     return result
 
 
+def _window(data: SampleData, start_s: float | None, end_s: float | None) -> tuple[SampleData, str]:
+    """The samples from ``start_s`` to ``end_s`` seconds after the first one (``--start/--end``)."""
+    if start_s is None and end_s is None:
+        return data, ""
+    t = (data.t_ns - data.t_ns[0]) * 1e-9
+    keep = np.ones(len(t), bool)
+    if start_s is not None:
+        keep &= t >= start_s
+    if end_s is not None:
+        keep &= t < end_s
+    if not keep.any():
+        raise UsageError(f"no sample between --start {start_s} and --end {end_s} s (the recordings span "
+                         f"{float(t[-1]):.1f} s)")
+    text = f"the window from {start_s or 0:g} s to {end_s if end_s is not None else float(t[-1]):g} s"
+    return data.select(keep), text
+
+
+def _without_paper_model(data: SampleData, config: Config, how: _Analysis,
+                         result: CalibrationResult) -> CalibrationResult:
+    """The analysis again with the paper's model switched off, taken when it explains the loss and
+    predicts the held-out data clearly better (said either way)."""
+    how.stage("the paper's model switched off")
+    off = config.with_values({"estimator.paper_model": False})
+    zero = np.zeros(len(data.t_ns))
+    without = replace(data, model_loss=zero, fr_part=zero, parts={})
+    applied = {lag.channel: lag.lag_s for lag in result.lags if lag.applied}
+    alt = _calibrate_once(without, off, how, before=result, applied=applied)
+    on_text = f"{result.error_after.rmse_nm:.4g}" if result.written else "no file"
+    explains = (alt.error_after.rel_rmse_pct <= ALTERNATIVE_MAX_ERROR_PCT
+                or not (alt.structure or {}).get("strongest"))
+    if alt.written and alt.verdict == "effects_found" and explains and (
+            not result.written or alt.error_after.rmse_nm
+            < (1.0 - ALTERNATIVE_MIN_IMPROVEMENT) * result.error_after.rmse_nm):
+        alt.notes.insert(0, (
+            f"the paper's model over-predicts this gearbox's loss: with it, the fits needed a negative friction "
+            f"({', '.join(result.negative)}); written with estimator.paper_model: false, whose effects predict the "
+            f"held-out data better (RMSE {alt.error_after.rmse_nm:.4g} N·m against {on_text} with the model)"))
+        return alt
+    if not alt.written:
+        why = "it would not be written"
+    elif alt.verdict != "effects_found":
+        why = f"its verdict is {alt.verdict}"
+    elif not explains:
+        why = (f"its effects leave {alt.error_after.rel_rmse_pct:.0f} % of the loss unexplained "
+               f"({(alt.structure or {}).get('statement', '')})")
+    else:
+        why = "it predicts no better"
+    result.notes.append(
+        f"fits with a negative friction were set aside ({', '.join(result.negative)}); the paper's model switched "
+        f"off was weighed and not taken: {why} (held-out RMSE {alt.error_after.rmse_nm:.4g} N·m against "
+        f"{on_text} with the model)")
+    return result
+
+
+#: a lag is re-estimated on the samples aligned by the last estimate at most this often (the first
+#: order of ``x(t − τ) ≈ x − τ·dx/dt`` underestimates a lag of several samples a little)
+MAX_ALIGNMENTS = 3
 ALTERNATIVE_MIN_IMPROVEMENT = 0.02  #: the paper's model is switched off only for a held-out RMSE this much lower
 #: ... and only when the effects then explain the loss: a held-out error within this share of it, or a
 #: residual left without structure (switching the model off is a claim about the gearbox)
@@ -286,12 +281,14 @@ class _Analysis:
     assume: Sequence[str]
 
 
-def _calibrate_once(data: SampleData, config: Config, how: _Analysis,
-                    before: CalibrationResult | None = None) -> CalibrationResult:
+def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: CalibrationResult | None = None,
+                    applied: Mapping[str, float] | None = None) -> CalibrationResult:
     """One analysis with ``config``'s model (:func:`calibrate`); ``before``: the errors "before" are
-    that result's (the parameter file as given), when this one switched the paper's model off."""
+    that result's (the parameter file as given), when this one switched the paper's model off;
+    ``applied``: the lags the samples were aligned by (channel -> s)."""
     blocks, cal, ranges = _calibrator(data, config, how)
-    out = cal.run(how.assume, _value_check(config, ranges))
+    start = _file_terms(cal, config)
+    out = select(cal, start, how.assume, _value_check(config, ranges))
     selected: list[Term] = out.selected
     final = selected + out.provisional
     blocks0, data_c = blocks, data
@@ -306,34 +303,146 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis,
     # held out: exactly what the file writes -- the accepted terms, fitted with the rest of the set
     # (nuisance columns, ambiguous sets kept in the fit) on the other folds
     pred_after = cal.cv_predictions(final, only_terms=len(selected))
-    err_b = blocks0.y if before is None else before.blocks.y  # the file as given: its model alone
+    idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
+    if before is None:  # the parameter file as given: its model and its accepted effects, nothing fitted
+        file_pred = _file_prediction(data, config, blocks0, start)
+        err_b = blocks0.y - file_pred
+        s_b = data.residual - file_pred[idx_block]
+        error_before = error_stats(err_b, blocks.measured, blocks.count)
+    else:
+        s_b, error_before = before.before_residual, before.error_before
     err_a = blocks.y - pred_after
-    error_before = error_stats(err_b, blocks.measured, blocks.count) if before is None else before.error_before
     error_after = error_stats(err_a, blocks.measured, blocks.count)
     verdict = _verdict(out, selected, cal.delta)
-    idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
-    s_b = data.residual if before is None else before.before_residual
     s_a = data_c.residual - pred_after[idx_block]
     sample_level = {
         "before": error_stats(s_b, data.measured_loss, np.ones(len(s_b))),
         "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a))),
     }
-    new_config = _calibrated_config(config, effects, parameters)
+    new_config = _calibrated_config(config, effects, parameters, kept=_untested_file_effects(config, cal))
     if data.ratio is not None:  # the table's own ratio: what a map of the file states
         new_config = new_config.with_values({"gearbox.ratio": data.ratio})
+    if data.speed_noise_override is not None:  # the recordings' speed noise, not the file's far-off one
+        new_config = new_config.with_values({"estimator.speed_noise_rad_s": data.speed_noise_override})
     notes: list[str] = []
-    why_not = not_written_because(error_before, error_after, len(selected))
+    same_terms = {e.name for e in effects} == {t.name for t in start} and not parameters
+    if start and same_terms and before is None and error_after.rmse_nm >= error_before.rmse_nm:
+        # the file's own effects, refitted, predict no better than as given: the file stands
+        notes.append(f"the parameter file's effects ({', '.join(t.name for t in start)}) predict the held-out data "
+                     f"as well as a refit of them (RMSE {error_before.rmse_nm:.4g} against {error_after.rmse_nm:.4g} "
+                     "N·m): written as given")
+        effects = [_as_given(e, config) for e in effects]
+        new_config = config if data.speed_noise_override is None else config.with_values(
+            {"estimator.speed_noise_rad_s": data.speed_noise_override})
+        error_after, s_a, pred_after = error_before, s_b, blocks0.y - err_b
+        sample_level["after"] = sample_level["before"]
+        err_a = err_b
+    why_not = not_written_because(error_before, error_after, _changed(config, new_config))
     written = why_not is None
     if not written:
         verdict = "inconclusive"
         notes.append(why_not)
     fit_adequacy = _adequacy(data, config, cal, full, final, selected)
+    angle = angle_spectrum(data.t_ns * 1e-9, data.bag_id, data.speed, _output_speed(data), s_a) \
+        if not data.steady_state else None
     result = CalibrationResult(
         verdict, effects, error_before, error_after, _holdout_text(blocks, how.folds), int(len(data.t_ns)), cal.delta,
         out.rejected, out.ambiguous, out.unavailable, cal.log, sample_level, new_config, fit_adequacy, blocks,
-        pred_after, parameters, written, notes, out.negative, residual_structure(blocks, err_a))
+        pred_after, parameters, written, notes, out.negative,
+        residual_structure(blocks, err_a, angle=angle, spin_test=data.spin_test))
     result.before_residual, result.after_residual = s_b, s_a
+    result.decisions, result.minimum, result.untestable = out.decisions, cal.minimum, out.untestable
+    result.lags, result.inertia = _nuisances(cal, full, data, applied or {})
+    result.from_file = [t.name for t in start]
+    result.calibrator, result.terms = cal, final
     return result
+
+
+def _file_terms(cal: Calibrator, config: Config) -> list[Term]:
+    """The parameter file's accepted effects as terms at its exponents (where the selection starts)."""
+    terms = []
+    for name, params in config.effects.active().items():
+        if name not in cal.b.testable:
+            continue
+        effect = EFFECTS[name]
+        law = tuple(params[k] for k in ("B", "C", "theta_ref")) if effect.oil_law else None
+        member = second = None
+        if effect.member is not None:
+            lo, hi = cal.search_ranges(name)[effect.member]
+            member = float(min(max(params[effect.member], lo), hi))
+        if effect.second_member is not None:
+            lo, hi = cal.search_ranges(name)[effect.second_member]
+            second = float(min(max(params[effect.second_member], lo), hi))
+        terms.append(Term(name, cal.b.column(name, member, second, law), member, second, law))
+    return terms
+
+
+def _untested_file_effects(config: Config, cal: Calibrator) -> list[str]:
+    """The parameter file's accepted effects this data cannot test: written as they are."""
+    return [n for n in config.effects.enabled() if n not in cal.b.testable]
+
+
+def _file_prediction(data: SampleData, config: Config, blocks: Blocks, start: list[Term]) -> np.ndarray:
+    """Per block: what the parameter file as given adds to the bare model's prediction of the
+    measured loss -- its accepted effects at its own coefficients (columns as the selection fits
+    them), with its torque-sensor errors also in the model's input (the estimator's correction)."""
+    pred = np.zeros(len(blocks.y))
+    active = config.effects.active()
+    for t in start:
+        effect = EFFECTS[t.name]
+        column = blocks.column(t.name, t.member, t.second, t.law)
+        pred = pred + active[t.name][effect.coefficient] * column
+    offset, gain = reading_errors({n: p for n, p in active.items() if n in {t.name for t in start}})
+    if offset or gain:  # the model at the corrected torque, as the estimator evaluates it
+        model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
+        corrected = model.loss_magnitude((data.torque - offset) / (1.0 + gain), data.speed)
+        pred = pred + blocks.mean(corrected - data.model_loss)
+    return pred
+
+
+def _as_given(found: FoundEffect, config: Config) -> FoundEffect:
+    """An accepted effect at the parameter file's values (its intervals from the refit)."""
+    return replace(found, params=config.effects.params(found.name))
+
+
+def _changed(config: Config, new: Config) -> bool:
+    """Whether the calibrated file differs from the one given in an effect or a model parameter
+    calibrate fits (not in what it only states: a table's ratio, the recordings' speed noise)."""
+    a, b = config.to_flat(), new.to_flat()
+    keys = [k for k in a if k.startswith("effects.")] + [p.key for p in MODEL_PARAMETERS.values()]
+    return any(a[k] != b[k] for k in keys)
+
+
+def _nuisances(cal: Calibrator, full, data: SampleData,
+               applied: Mapping[str, float]) -> tuple[list[ChannelLag], dict | None]:
+    """Each channel's lag behind the drive torque (what the samples were aligned by plus what this fit
+    still finds) and the drive's inertia, with 95 % intervals."""
+    period = median_period_s(data)
+    lags, inertia = [], None
+    for k, name in enumerate(cal.nuisance_names):
+        c, se = float(full.coef[k]), float(math.sqrt(max(full.cov[k, k], 0.0)))
+        channel = lag_channel(name)
+        if channel is not None:
+            before = applied.get(channel, 0.0)
+            total = before + c
+            lags.append(ChannelLag(channel, total, (total - 1.96 * se, total + 1.96 * se),
+                                   bool(before) or worth_applying(c, se, period)))
+        elif name == "inertia":
+            inertia = {"j_kg_m2": c, "ci95": [c - 1.96 * se, c + 1.96 * se],
+                       "text": f"the drive's inertia between the torque sensor and the loss: J = {c:.4g} kg·m² "
+                               f"(95 %: {c - 1.96 * se:.4g} to {c + 1.96 * se:.4g}), J·dω/dt removed in the analysis"}
+    for channel, lag in applied.items():  # aligned, and nothing left of it in the fit
+        if not any(x.channel == channel for x in lags):
+            lags.append(ChannelLag(channel, lag, (lag, lag), True))
+    return lags, inertia
+
+
+def _output_speed(data: SampleData) -> np.ndarray:
+    """The output speed of each sample: measured, else the drive's over the ratio."""
+    ratio = data.speed_ratio if data.speed_ratio and data.speed_ratio > 0 else 1.0
+    if data.out_speed is None:
+        return data.speed / ratio
+    return np.where(np.isnan(data.out_speed), data.speed / ratio, data.out_speed)
 
 
 def _calibrator(data: SampleData, config: Config, how: _Analysis) -> tuple[Blocks, Calibrator, dict]:
@@ -343,8 +452,9 @@ def _calibrator(data: SampleData, config: Config, how: _Analysis) -> tuple[Block
     blocks = make_blocks(data, how.block_s, how.folds)
     if len(blocks.y) < 4 * how.folds:
         raise BagError(f"only {len(blocks.y)} blocks of {how.block_s:g} s: too little data to calibrate")
-    cal = Calibrator(blocks, how.delta_nm)
+    cal = Calibrator(blocks, how.delta_nm, sensors_nm=sensor_delta(data, config))
     cal.stage = how.stage
+    cal.log.append(cal.minimum.text)
     ranges = {}  # parameter -> a narrower range than its physical one (the oil's data sheet)
     oil = config.gearbox.datasheet_oil
     if oil is not None:  # the viscosity law from the oil's data sheet: its start, and a range about it
@@ -398,7 +508,8 @@ def _found(cal: Calibrator, out, full, final: list[Term], selected: list[Term],
         if term.name in MODEL_PARAMETERS:
             p = MODEL_PARAMETERS[term.name]
             file_value = _flat(config)[p.key]
-            ends = sorted(p.value(file_value, a) for a in (c - 1.96 * se, c + 1.96 * se))
+            lo, hi = _interval_over_ranges(cal, out, final, i, c - 1.96 * se, c + 1.96 * se)
+            ends = sorted(p.value(file_value, a) for a in (lo, hi))
             same = [k for k, q in MODEL_PARAMETERS.items() if q.same_part_as == term.name]
             parameters.append(FoundParameter(term.name, file_value, p.value(file_value, c),
                                              [float(np.nan_to_num(ends[0], nan=p.low)),
@@ -419,20 +530,37 @@ def _found(cal: Calibrator, out, full, final: list[Term], selected: list[Term],
     return effects, parameters
 
 
+def _interval_over_ranges(cal: Calibrator, out, final: list[Term], i: int, lo: float, hi: float) -> tuple[float, float]:
+    """Term ``i``'s coefficient interval ``[lo, hi]`` widened over the 95 % ranges of the exponents (and
+    Vogel B, C) of the other terms fitted with it: a model parameter's level and an effect's shape
+    are fitted together, so the level's interval covers the shapes the data allow."""
+    for j, t in enumerate(final):
+        if j == i or t.member is None:
+            continue
+        ends = [(m, None) for m in out.ranges.get(t.name, ())] + [(None, s) for s in out.second_ranges.get(t.name, ())]
+        for member, second in ends:
+            alt = list(final)
+            alt[j] = cal._with_member(t, t.member if member is None else member, second)
+            c, se = cal.coefficient(alt, i)
+            lo, hi = min(lo, c - 1.96 * se), max(hi, c + 1.96 * se)
+    return lo, hi
+
+
 def _verdict(out, selected: list[Term], delta_nm: float) -> str:
     """``effects_found``, ``no_missing_effect`` (every rejected candidate bounded below ``delta``) or
     ``inconclusive`` (an ambiguous set nobody resolved, or a candidate that could not be bounded)."""
-    if any(a.assumed is None for a in out.ambiguous):
+    if any(a.assumed is None and a.taken is None for a in out.ambiguous):
         return "inconclusive"
     if selected:
         return "effects_found"
-    if all(r.upper_rms_nm < delta_nm for r in out.rejected if not r.reason):
+    if all(r.upper_rms_nm < delta_nm for r in out.rejected if not r.ambiguous and "negative" not in r.reason
+           and "bound of its search" not in r.reason and "physical range" not in r.reason):
         return "no_missing_effect"
     return "inconclusive"
 
 
 def _adequacy(data: SampleData, config: Config, cal: Calibrator, full, final: list[Term], selected: list[Term]):
-    """How much of the measured loss the calibrated file explains, and by what (:func:`adequacy`)."""
+    """How much of the measured loss the calibrated file explains, and by what (:func:`.structure.adequacy`)."""
     k0 = len(cal.nuisance)
     blocks = cal.b
     contributions = {term.name: float(np.sum(blocks.count * full.coef[k0 + i] * cal.effective_column(term, final)))
@@ -441,17 +569,20 @@ def _adequacy(data: SampleData, config: Config, cal: Calibrator, full, final: li
     # oil's viscosity (a Fr-scaling effect is the model's rolling part at η(θ), not a loss of its own)
     in_model = {k for k in contributions if k in MODEL_PARAMETERS or EFFECTS[k].scales_fr}
     model_mean = float(np.mean(data.model_loss)) + sum(contributions[k] for k in in_model)
-    return adequacy(model_mean, float(np.mean(data.measured_loss)),
-                    {k: v for k, v in contributions.items() if k not in in_model},
-                    config.estimator.paper_model, viscous=any(k in EFFECTS for k in in_model))
+    # a sensor's error is no loss, a difference between directions no loss of its own: said apart
+    apart = [k for k in contributions if k not in in_model and (not EFFECTS[k].physical or EFFECTS[k].signed)]
+    measured = float(np.mean(data.measured_loss)) - sum(contributions[k] for k in apart)
+    losses = {k: v for k, v in contributions.items() if k not in in_model and k not in apart}
+    return adequacy(model_mean, measured, losses, config.estimator.paper_model,
+                    viscous=any(k in EFFECTS for k in in_model), apart=apart)
 
 
-def not_written_because(error_before: ErrorStats, error_after: ErrorStats, accepted: int) -> str | None:
-    """Why a calibration is not written (None: it is): with anything accepted, it would predict the
-    held-out data no better than the parameter file calibrated (nothing accepted: the file as it was)."""
-    if accepted and error_after.rmse_nm >= error_before.rmse_nm:
-        return (f"not written: the calibrated parameters would predict the held-out data worse than the file alone "
-                f"(RMSE {error_after.rmse_nm:.4g} >= {error_before.rmse_nm:.4g} N·m)")
+def not_written_because(error_before: ErrorStats, error_after: ErrorStats, changed: bool) -> str | None:
+    """Why a calibration is not written (None: it is): when it changes anything, it would predict the
+    held-out data no better than the parameter file calibrated (nothing changed: the file as it was)."""
+    if changed and error_after.rmse_nm >= error_before.rmse_nm:
+        return (f"not written: the calibrated parameters would predict the held-out data no better than the "
+                f"parameter file as given (RMSE {error_after.rmse_nm:.4g} >= {error_before.rmse_nm:.4g} N·m)")
     return None
 
 
@@ -466,53 +597,9 @@ def _holdout_text(blocks: Blocks, folds: int) -> str:
                 f"rows' losses predicted by a fit that did not see them ({len(blocks.y)} rows; no sensor noise model: "
                 "a table's rows are taken as exact means)")
     return (f"{folds}-fold cross-validation grouped by dwell ({int(blocks.dwell.max()) + 1} dwells of steady "
-            f"operation, at most 5 s each; whole dwells held out, never single rows); errors are of {blocks.block_s:g} "
-            f"s block means of every held-out block, predicted by a fit that did not see its fold "
-            f"({len(blocks.y)} blocks)")
-
-
-RESIDUAL_BINS = 8  #: quantile bins of an input for the residual's structure
-STRUCTURE_SHARE = 0.1  #: below this share of the variance, no input explains the residual left
-
-
-def residual_structure(blocks: Blocks, residual: np.ndarray) -> dict:
-    """How much of the unexplained (held-out) residual each input explains: the weighted share of its
-    variance carried by its mean over ``RESIDUAL_BINS`` quantile bins of speed, torque, oil
-    temperature, and by direction (motoring/overrun, forward/reverse).  The strongest is where a
-    person looks first when the vocabulary has no answer."""
-    w = blocks.count.astype(float)
-    r = residual - np.average(residual, weights=w)
-    total = float(np.sum(w * r * r))
-    inputs = {"speed": np.abs(blocks.speed), "torque": np.abs(blocks.torque), "temperature": blocks.temperature}
-    shares: dict[str, float] = {}
-    for name, x in inputs.items():
-        ok = np.isfinite(x)
-        if ok.sum() < 2 * RESIDUAL_BINS or np.ptp(x[ok]) <= 0 or total <= 0:
-            continue
-        edges = np.unique(np.quantile(x[ok], np.linspace(0, 1, RESIDUAL_BINS + 1)))
-        shares[name] = _explained(np.digitize(x[ok], edges[1:-1]), r[ok], w[ok], total)
-    for name, key in (("direction", np.sign(blocks.speed)), ("power flow", np.sign(blocks.speed * blocks.torque))):
-        if len(np.unique(key)) > 1 and total > 0:
-            shares[name] = _explained(np.unique(key, return_inverse=True)[1], r, w, total)
-    strongest = max(shares, key=shares.get) if shares else None
-    if total <= 0 or strongest is None:
-        statement = "nothing left to explain"
-    elif shares[strongest] < STRUCTURE_SHARE:
-        statement = (f"the residual left shows no structure: no input carries more than "
-                     f"{100 * shares[strongest]:.0f} % of its variance (noise)")
-        strongest = None
-    else:
-        statement = (f"the residual left depends most on {strongest} ({100 * shares[strongest]:.0f} % of its "
-                     f"variance is its mean per {strongest} bin)")
-    return {"explained_share": {k: round(v, 4) for k, v in shares.items()}, "strongest": strongest,
-            "statement": statement}
-
-
-def _explained(label: np.ndarray, r: np.ndarray, w: np.ndarray, total: float) -> float:
-    sums = np.bincount(label, weights=w * r)
-    weights = np.bincount(label, weights=w)
-    means = np.divide(sums, weights, out=np.zeros_like(sums), where=weights > 0)
-    return float(np.sum(weights * means * means) / total)
+            f"operation, at most 5 s each, a transient cut into shorter blocks; whole dwells held out, never single "
+            f"rows); errors are of {blocks.block_s:g} s block means of every held-out block, predicted by a fit that "
+            f"did not see its fold ({len(blocks.y)} blocks)")
 
 
 def _members_at_bound(name: str, params: dict[str, float]) -> list[str]:
@@ -560,18 +647,22 @@ def _refit_sensor_errors(cal: Calibrator, data: SampleData, final: list[Term], c
             parts=model.parts(t_c, data.speed))
         new = Calibrator(make_blocks(corrected, how.block_s, how.folds, like=cal.b), cal.delta, cal.alpha,
                          cal.min_improvement)
+        new.minimum = cal.minimum
         new.log = cal.log
         final = [new._with_member(t, t.member) if t.member is not None else members(new.b, t.name)[0] for t in final]
         cal = new
     return cal, final, corrected
 
 
-def _calibrated_config(config: Config, effects: list[FoundEffect], parameters: list[FoundParameter]) -> Config:
-    """``config`` with exactly the accepted effects enabled, at their fitted parameters, and the
-    model's parameters calibrate changed."""
+def _calibrated_config(config: Config, effects: list[FoundEffect], parameters: list[FoundParameter],
+                       kept: Sequence[str] = ()) -> Config:
+    """``config`` with exactly the accepted effects enabled, at their fitted parameters (and the file's
+    ``kept`` ones as they are: this data could not test them), and the model's parameters calibrate
+    changed."""
     flat = {k: v for k, v in config.to_flat().items()}
     for name in EFFECTS:
-        flat[f"effects.{name}.enabled"] = False
+        if name not in kept:
+            flat[f"effects.{name}.enabled"] = False
     for e in effects:
         flat[f"effects.{e.name}.enabled"] = True
         for q in EFFECTS[e.name].parameters:

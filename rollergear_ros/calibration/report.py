@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..base.atomic import save_figure, write_text
-from .blocks import MIN_TEMPERATURE_SPAN_C
 from ..core.effects import EFFECTS
 
 if TYPE_CHECKING:
@@ -277,30 +276,48 @@ def _summary_lines(result: CalibrationResult, sources: Sequence[str]) -> list[st
     """The report's head: what was used, the verdict, the held-out error, the parameters changed."""
     b = result.blocks
     eb, ea = result.error_before, result.error_after
+    before = ("the parameter file as given (" + ", ".join(result.from_file) + ", not refitted)"
+              if result.from_file else "the model of the parameter file")
     return [
         "# Calibration report\n",
         f"{'Tables' if b.steady_state else 'Recordings'}: {', '.join(map(str, sources))}  ",
         (f"Rows used: {result.samples:,} (steady-state operating points)  " if b.steady_state else
-         f"Samples used: {result.samples:,} (|ω| ≥ 2 rad/s, measured output torque present)  "),
+         f"Samples used: {result.samples:,} (those with a measured loss: output torque present, the direction "
+         f"known -- beyond 3 × the speed reading's noise from standstill)  "),
+        *([f"Speed reading's noise: {result.speed_noise}  "] if result.speed_noise else []),
+        *([f"Fitted: {result.stretch}  "] if result.changes or "window" in result.stretch else []),
         f"Verdict: **{result.verdict.replace('_', ' ')}**  ",
-        f"Practical minimum effect size δ = {result.delta_nm:.4g} N·m (RMS contribution); "
-        f"RMS measured loss {np.sqrt(np.average(b.measured**2, weights=b.count)):.4g} N·m\n",
+        "Practical minimum effect size (RMS contribution): "
+        f"{result.minimum.text if result.minimum else result.delta_nm}; RMS measured loss "
+        f"{np.sqrt(np.average(b.measured**2, weights=b.count)):.4g} N·m\n",
         "## Error on held-out data\n",
         result.holdout + ".\n",
         "| | RMSE [N·m] | MAE [N·m] | max \\|error\\| [N·m] | RMSE / RMS measured loss |",
         "|---|---|---|---|---|",
         *(f"| {label} | {e.rmse_nm:.4g} | {e.mae_nm:.4g} | {e.max_abs_nm:.4g} | {e.rel_rmse_pct:.2f} % |"
-          for label, e in (("before (model)", eb), ("after (model + accepted effects)", ea))),
+          for label, e in ((f"before: {before}", eb), ("after: what the calibrated file writes", ea))),
         f"\nReduction of held-out RMSE: {100 * (1 - ea.rmse_nm / eb.rmse_nm) if eb.rmse_nm else 0:.1f} %. "
         f"Per sample (sensor noise included): RMSE {result.sample_level['before'].rmse_nm:.4g} → "
         f"{result.sample_level['after'].rmse_nm:.4g} N·m.\n",
         *([f"**Model adequacy:** {result.adequacy.statement}.\n"] if result.adequacy else []),
         *([f"**Residual left:** {result.structure['statement']} (see residual_structure.png).\n"]
-          if result.structure and result.structure["strongest"] else []),
+          if result.structure else []),
+        *(f"**Rig:** {line}.\n" for line in _rig_lines(result)),
         *(f"**Note:** {n}.\n" for n in result.notes),
         "## The model's own parameters changed\n",
         *([f"- {p.sentence()}" for p in result.parameters] or ["None."]),
     ]
+
+
+def _rig_lines(result: CalibrationResult) -> list[str]:
+    """The rig's nuisances: each channel's lag that matters, the inertia, what is periodic in the angle."""
+    lines = [lag.sentence() for lag in result.lags if lag.applied]
+    if result.inertia is not None and result.inertia["ci95"][0] * result.inertia["ci95"][1] > 0:
+        lines.append(result.inertia["text"])
+    for p in (result.structure or {}).get("periodic", []):
+        if p["share"] >= 0.05:
+            lines.append(f"the residual left over the {p['over']}: {p['text']}")
+    return lines
 
 
 def _effect_lines(result: CalibrationResult) -> list[str]:
@@ -318,8 +335,14 @@ def _effect_lines(result: CalibrationResult) -> list[str]:
     else:
         lines.append("None.")
     if result.ambiguous:
-        lines.append("\n## Effects the data cannot tell apart\n")
+        lines.append("\n## What the data cannot tell apart\n")
         for a in result.ambiguous:
+            if a.taken is not None:
+                readings = "; ".join(f"{' + '.join(r['effects'])}: held-out RMSE {r['heldout_rmse_nm']:.4g} N·m"
+                                     + (" (written)" if r["written"] else "") for r in a.readings)
+                lines.append(f"- Two readings of one part of the loss, {' / '.join(a.effects)} ({readings}). Taken "
+                             f"as **{a.taken}**, {reading_choice(a)}. To tell them apart record {a.needs}.")
+                continue
             lo, hi = a.rms_contribution_nm
             lines.append(
                 f"- {' / '.join(a.effects)}: an effect of RMS {lo:.3g}–{hi:.3g} N·m is there, but these "
@@ -330,18 +353,30 @@ def _effect_lines(result: CalibrationResult) -> list[str]:
     return lines
 
 
+def reading_choice(a) -> str:
+    """Why the reading written was taken (two readings of one part of the loss, :mod:`.forward`)."""
+    if a.assumed:
+        return "as the user assumed (--assume)"
+    best = min(a.readings, key=lambda r: r["heldout_rmse_nm"], default=None)
+    if best is not None and not best["written"]:
+        return (f"the established reading: the data favour {' + '.join(best['effects'])} (held-out RMSE "
+                f"{best['heldout_rmse_nm']:.4g} N·m), but neither reading leaves only the noise, so this recording "
+                "cannot prove which it is")
+    return "the reading with fewer terms where both fit alike"
+
+
 def _not_accepted_lines(result: CalibrationResult) -> list[str]:
-    """The groups not accepted with the upper bound of their contribution, and those not testable."""
-    lines = ["\n## Groups not accepted (upper 95 % bound of their RMS contribution)\n"]
-    for r in result.rejected:
-        lines.append(
-            f"- {r.name}: ≤ {r.upper_rms_nm:.3g} N·m"
-            + (" (ambiguous, see above)" if r.ambiguous else "")
-            + (f" — {r.reason}" if r.reason else "")
-        )
-    for u in result.unavailable:
-        lines.append(
-            f"- {u}: not testable on this data (needs an oil temperature that varies by "
-            f"≥ {MIN_TEMPERATURE_SPAN_C:g} °C)"
-        )
+    """Every candidate's decision: held-out numbers and the reasons, or why the data cannot test it."""
+    lines = ["\n## Every candidate\n",
+             "| candidate | decision | held-out RMSE with / without [N·m] | \\|z\\| | RMS contribution (95 %) [N·m] | "
+             "why |", "|---|---|---|---|---|---|"]
+    for d in result.decisions:
+        decision = ("kept from the file" if d.step == 0 else f"accepted (step {d.step})") if d.accepted else \
+            ("not testable" if d.name in result.unavailable else "not accepted")
+        errors = (f"{d.heldout_rmse_nm:.4g} / {d.heldout_without_nm:.4g}" if np.isfinite(d.heldout_rmse_nm) else "—")
+        z = f"{d.z:.1f}" if np.isfinite(d.z) else "—"
+        lo, hi = d.rms_contribution_ci95_nm
+        rms = f"{lo:.3g}–{hi:.3g}" if np.isfinite(lo) and np.isfinite(hi) else "—"
+        why = "; ".join(d.reasons) or d.note or ""
+        lines.append(f"| {d.name} | {decision} | {errors} | {z} | {rms} | {why.replace('|', '/')} |")
     return lines

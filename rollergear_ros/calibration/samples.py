@@ -18,6 +18,7 @@ from ..sources.channelmap import ChannelMap
 from ..base.errors import BagError, InputFileError
 from ..core.model import LossModel
 from ..core.params import Config, validate
+from ..core.speednoise import reading_noise
 
 
 @dataclass
@@ -40,10 +41,29 @@ class SampleData:
     spin_test: bool = False
     #: the model's parts at each sample (:meth:`~core.model.LossModel.parts`): what a model parameter scales
     parts: dict[str, np.ndarray] = field(default_factory=dict)
+    out_torque: np.ndarray | None = None  #: the measured output torque of each sample (NaN: none)
+    out_speed: np.ndarray | None = None  #: the measured output speed of each sample (NaN: none, the ratio's)
+    speed_ratio: float = 1.0  #: input/output speed ratio where the output speed is not measured
+    speed_noise_text: str = ""  #: the speed noise the estimates were made with, and where it came from
+    #: the recordings' speed noise, where the parameter file's was far off it (:func:`load_samples`)
+    speed_noise_override: float | None = None
 
     @property
     def residual(self) -> np.ndarray:
         return self.measured_loss - self.model_loss
+
+    def select(self, keep: np.ndarray) -> SampleData:
+        """The samples where ``keep`` (a boolean mask) holds."""
+        from dataclasses import replace
+
+        def pick(a):
+            return None if a is None else a[keep]
+
+        return replace(self, t_ns=self.t_ns[keep], bag_id=self.bag_id[keep], torque=self.torque[keep],
+                       speed=self.speed[keep], temperature=self.temperature[keep],
+                       measured_loss=self.measured_loss[keep], model_loss=self.model_loss[keep],
+                       fr_part=self.fr_part[keep], parts={k: v[keep] for k, v in self.parts.items()},
+                       out_torque=pick(self.out_torque), out_speed=pick(self.out_speed))
 
 
 def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = TopicMap(),
@@ -51,19 +71,52 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
                  progress: bool = False) -> SampleData:
     """Replay bags through the bare model (no effects, no adaptation) and keep samples with a measured
     loss: down to 3 × the speed reading's noise from standstill (closer, the direction is not known and
-    the estimator gives no measured loss), or ``min_speed_rad_s``."""
+    the estimator gives no measured loss), or ``min_speed_rad_s``.
+
+    The speed reading's noise is the parameter file's, or learned (``auto``).  A file's value
+    :data:`SPEED_NOISE_FACTOR` times off the noise the recordings' speeds show (their second
+    differences, :func:`~core.speednoise.reading_noise`) is a rig nuisance the file has wrong: the
+    recordings are replayed again at theirs, said in :attr:`SampleData.speed_noise_text`, and
+    :attr:`SampleData.speed_noise_override` carries it into the calibrated file."""
+    data = _load(bags, config, topics, warn, min_speed_rad_s, progress)
+    given = config.estimator.speed_noise_rad_s
+    if isinstance(given, float) and not data.steady_state:
+        seen = reading_noise(data.speed, data.bag_id)
+        if math.isfinite(seen) and seen > 0 and not 1.0 / SPEED_NOISE_FACTOR <= given / seen <= SPEED_NOISE_FACTOR:
+            measured = float(f"{seen:.3g}")
+            again = _load(bags, config.with_values({"estimator.speed_noise_rad_s": measured}), topics, None,
+                          min_speed_rad_s, progress)
+            again.speed_noise_text = (f"{measured:.3g} rad/s, what the recordings' speeds show (their second "
+                                      f"differences): the parameter file's {given:.3g} rad/s is "
+                                      f"{given / seen:.3g} × that; the samples were read again at the recordings' "
+                                      "and the calibrated file says it")
+            again.speed_noise_override = measured
+            return again
+    return data
+
+
+#: a parameter file's speed noise this many times off what the recordings show is replaced
+SPEED_NOISE_FACTOR = 5.0
+
+
+def _load(bags, config, topics, warn, min_speed_rad_s, progress) -> SampleData:
     from ..replay.run import replay
 
     base = bare_config(config)
     batches_of_bags = []
     skipped: dict[str, int] = {}
+    widths, said = [], []
     for bag in bags:
         summary, batches = replay(bag, base, topics, show_progress=progress, warn=warn, collect=True,
                                   parameter_changes=False)  # the bare model throughout
         for k, v in summary.skipped.items():
             skipped[k] = skipped.get(k, 0) + v
         batches_of_bags.append(batches)
-    return samples_from_estimates(batches_of_bags, config, skipped, min_speed_rad_s)
+        widths.append(summary.speed_noise_rad_s)
+        said.append(summary.speed_noise_text)
+    data = samples_from_estimates(batches_of_bags, config, skipped, min_speed_rad_s, max(widths, default=0.0))
+    data.speed_noise_text = "; ".join(dict.fromkeys(said))
+    return data
 
 
 def bare_config(config: Config) -> Config:
@@ -73,29 +126,38 @@ def bare_config(config: Config) -> Config:
 
 
 def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, skipped: dict[str, int] | None = None,
-                           min_speed_rad_s: float = 0.0) -> SampleData:
+                           min_speed_rad_s: float = 0.0, sign_width_rad_s: float | None = None) -> SampleData:
     """The samples with a measured loss of estimates made with :func:`bare_config` (a list of
     :class:`~core.estimator.BatchEstimate` per recording; ``bag_id`` its index): what
-    :func:`load_samples` returns for recordings, and the live tracer for the node's own samples."""
+    :func:`load_samples` returns for recordings, and the live tracer for the node's own samples;
+    ``sign_width_rad_s``: the speed noise the estimates were made with (None: the parameter file's)."""
+    if sign_width_rad_s is None:
+        noise = config.estimator.speed_noise_rad_s
+        sign_width_rad_s = noise if isinstance(noise, float) else 0.0
     model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
     parts = []
     loaded = False  # any output torque other than 0 (else: a spin test)
     for i, batches in enumerate(batches_of_bags):
         for b in batches:
             ok = np.isfinite(b.measured_loss_nm) & (np.abs(b.speed_rad_s) >= min_speed_rad_s)
+            n = int(ok.sum())
             temp = b.temperature_c if b.temperature_c is not None else np.full(len(b.t_ns), np.nan)
-            parts.append((b.t_ns[ok], np.full(int(ok.sum()), i), b.torque_nm[ok], b.speed_rad_s[ok], temp[ok],
-                          b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok])))
+            out_t = b.out_torque_nm[ok] if b.out_torque_nm is not None else np.full(n, np.nan)
+            out_w = b.out_speed_rad_s[ok] if b.out_speed_rad_s is not None else np.full(n, np.nan)
+            parts.append((b.t_ns[ok], np.full(n, i), b.torque_nm[ok], b.speed_rad_s[ok], temp[ok],
+                          b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok]), out_t, out_w))
             if b.out_torque_nm is not None and np.any(b.out_torque_nm[ok] != 0):
                 loaded = True
     if not parts or sum(len(p[0]) for p in parts) == 0:
         raise BagError("no samples with a measured output torque and |speed| >= "
-                       f"{max(min_speed_rad_s, 3 * config.estimator.speed_noise_rad_s):g} rad/s: calibration needs "
+                       f"{max(min_speed_rad_s, 3 * sign_width_rad_s):g} rad/s: calibration needs "
                        "the output torque topic")
-    cols = [np.concatenate([p[j] for p in parts]) for j in range(7)]
+    cols = [np.concatenate([p[j] for p in parts]) for j in range(9)]
     return SampleData(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6],
-                      model.fr_part(cols[2], cols[3]), dict(skipped or {}), parts=model.parts(cols[2], cols[3]),
-                      sign_width_rad_s=config.estimator.speed_noise_rad_s, spin_test=not loaded)
+                      model.fr_part(cols[2], cols[3]), dict(skipped or {}),
+                      parts=model.parts(cols[2], cols[3]) if model.enabled else {},
+                      sign_width_rad_s=sign_width_rad_s, spin_test=not loaded,
+                      out_torque=cols[7], out_speed=cols[8], speed_ratio=config.gearbox.ratio_effective)
 
 
 def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[str], None] | None = None,
@@ -149,7 +211,7 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     return SampleData(t_ns, bag_id, torque, speed, temperature, loss, model.loss_magnitude(torque, speed),
                       model.fr_part(torque, speed), {"implausible": implausible} if implausible else {},
                       steady_state=True, ratio=ratios.pop() if len(ratios) == 1 else None,
-                      parts=model.parts(torque, speed))
+                      parts=model.parts(torque, speed) if model.enabled else {})
 
 
 MAX_BEYOND_SHARE = 0.25  #: a table with more of its rows beyond the plausible range is refused, not cut

@@ -1,8 +1,9 @@
-"""Forward selection of the missing effects on block means (steps 4-5 of :mod:`.calibrate`).
+"""The fits the selection of missing effects decides with, on block means (step 4 of :mod:`.calibrate`).
 
 Weighted least squares with cluster-robust errors (:func:`wls`), one candidate :class:`Term` per
-effect and member of its grid (:func:`members`), and the :class:`Calibrator` that profiles the
-exponents, cross-validates and accepts, rejects or flags as ambiguous one group per step.
+effect and member of its grid (:func:`members`), and the :class:`Calibrator`: a set's fit, its
+held-out predictions, exponents profiled with their ranges, a candidate's screen (is it an
+explanation at all?) and its acceptance test.  The procedure that uses them is :mod:`.forward`.
 No rclpy import.
 """
 
@@ -14,8 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .blocks import Blocks, groups
-from ..core.effects import EFFECTS, separating_data
+from .blocks import Blocks
+from .noise import Repeatability, minimum_effect
+from ..core.effects import EFFECTS
 from ..core.modelparams import MODEL_PARAMETERS
 
 
@@ -49,7 +51,7 @@ class RejectedEffect:
         return out | ({"reason": self.reason} if self.reason else {})
 
 
-@dataclass(frozen=True)
+@dataclass
 class AmbiguousSet:
     """Effects whose columns are the same on this data, and the data that would separate them."""
 
@@ -57,26 +59,15 @@ class AmbiguousSet:
     needs: str
     rms_contribution_nm: list[float]  #: 95 % range of the RMS contribution of the set's best
     assumed: str | None = None  #: the member the user said it is (``calibrate --assume``): accepted and written
+    #: two readings of one part of the loss (:mod:`.forward`): the one written ("a + b")
+    taken: str | None = None
+    #: each reading's effects, held-out RMSE, parameters and whether it is the one written
+    readings: list[dict] = field(default_factory=list)
 
     def to_json(self) -> dict:
-        return {"effects": self.effects, "needs": self.needs, "rms_contribution_nm": self.rms_contribution_nm,
-                "assumed": self.assumed}
-
-
-@dataclass
-class Selection:
-    """What forward selection found (:meth:`Calibrator.run`)."""
-
-    selected: list  #: accepted terms, in the order accepted
-    provisional: list  #: the best term of each ambiguous set: kept in the fit, not reported
-    ranges: dict[str, list[float]]  #: profile-likelihood 95 % range of each term's member
-    ambiguous: list[AmbiguousSet]
-    rejected: list[RejectedEffect]
-    unavailable: list[str]  #: effects the data cannot test
-    second_ranges: dict[str, list[float]] = field(default_factory=dict)  #: the same for a second member (Vogel C)
-    #: candidates set aside at some step because their fit needed a negative friction (the model
-    #: over-predicts somewhere)
-    negative: list[str] = field(default_factory=list)
+        return {"effects": self.effects, "needs": self.needs,
+                "rms_contribution_nm": [v if math.isfinite(v) else None for v in self.rms_contribution_nm],
+                "assumed": self.assumed, "taken": self.taken, "readings": self.readings}
 
 
 @dataclass
@@ -152,36 +143,27 @@ def members(blocks: Blocks, name: str, law: tuple[float, float, float] | None = 
     return [Term(name, blocks.grids[name][i], float(m)) for i, m in enumerate(effect.member_grid)]
 
 
-@dataclass
-class _Forward:
-    """Where a forward selection stands (:meth:`Calibrator.run`)."""
-
-    remaining: list[str]  #: candidates not yet accepted
-    cv_now: float  #: held-out RMSE of what is accepted so far
-    step: int = 0
-    selected: list[Term] = field(default_factory=list)  #: accepted
-    #: the best member of each ambiguous set: kept in the fit, not reported
-    provisional: list[Term] = field(default_factory=list)
-    ambiguous: list[AmbiguousSet] = field(default_factory=list)
-    negative: list[str] = field(default_factory=list)  #: set aside for a clear negative friction
-
-
 class Calibrator:
-    """Forward selection over the physical groups on block means (see the module docstring)."""
+    """The fits on block means that the selection (:mod:`.forward`) decides with: a set of terms'
+    weighted fit, held-out predictions, exponents profiled, a candidate's screen and test."""
 
     def __init__(
-        self, blocks: Blocks, delta_nm: float | None = None, alpha: float = 0.01, min_improvement: float = 0.02
+        self, blocks: Blocks, delta_nm: float | None = None, alpha: float = 0.01, min_improvement: float = 0.02,
+        sensors_nm: float | None = None,
     ) -> None:
         self.b = blocks
         self.alpha = alpha
         self.min_improvement = min_improvement
-        nuis = [blocks.columns["dtdt"], blocks.columns["dwdt"]]
-        # drop nuisance columns with no variation (steady data): they would be singular
-        self.nuisance = [c for c in nuis if np.sqrt(np.average(c * c, weights=blocks.count)) > 1e-9]
+        # the rig's nuisances (a channel's lag, the inertia), without those that do not vary (steady
+        # data: they would be singular)
+        kept = {k: c for k, c in blocks.nuisance.items() if np.sqrt(np.average(c * c, weights=blocks.count)) > 1e-12}
+        self.nuisance_names = list(kept)
+        self.nuisance = list(kept.values())
         rms_meas = float(np.sqrt(np.average(blocks.measured**2, weights=blocks.count)))
-        # a table's rows carry no noise estimate (equal weights): delta from the measured loss alone
-        se_block = 0.0 if blocks.steady_state else float(np.sqrt(np.median(1.0 / blocks.weight)))
-        self.delta = delta_nm if delta_nm is not None else max(0.005, 0.02 * rms_meas, 3 * se_block)
+        noise_se = float(np.sqrt(np.median(1.0 / blocks.weight))) if len(blocks.weight) else math.nan
+        self.minimum = minimum_effect(delta_nm, blocks.repeat or Repeatability(math.nan, 0, 0), sensors_nm, noise_se,
+                                      rms_meas, blocks.steady_state, blocks.block_s)
+        self.delta = self.minimum.delta_nm
         self.rms_measured = rms_meas
         self.log: list[str] = []
         self.stage: Callable[[str], None] = lambda text: None  #: told what the selection is doing
@@ -294,6 +276,12 @@ class Calibrator:
     def cv_rmse(self, terms: Sequence[Term]) -> float:
         e = self.b.y - self.cv_predictions(terms)
         return float(np.sqrt(np.average(e * e, weights=self.b.count)))
+
+    def noise_rms(self) -> float:
+        """The RMS noise of the block means (:func:`.structure.block_noise`)."""
+        from .structure import block_noise
+
+        return block_noise(self.b)
 
     def rms_of(self, column: np.ndarray) -> float:
         return float(np.sqrt(np.average(column * column, weights=self.b.count)))
@@ -459,8 +447,9 @@ class Calibrator:
 
         lo_b, hi_b = self.search_ranges(t.name)[effect.second_member if second else effect.member]
         at = t.second if second else t.member
-        lo = brentq(excess, lo_b, at, xtol=1e-4) if excess(lo_b) > 0 else lo_b
-        hi = brentq(excess, at, hi_b, xtol=1e-4) if excess(hi_b) > 0 else hi_b
+        tol = max(1e-4 * abs(at), 1e-9 * (hi_b - lo_b))  # relative: a presliding angle of 0.01 rad as a B of 1000 K
+        lo = brentq(excess, lo_b, at, xtol=tol) if excess(lo_b) > 0 and excess(at) <= 0 else lo_b
+        hi = brentq(excess, at, hi_b, xtol=tol) if excess(hi_b) > 0 and excess(at) <= 0 else hi_b
         return [float(lo), float(hi)]
 
     def coefficient(self, terms: list[Term], i: int) -> tuple[float, float]:
@@ -481,7 +470,11 @@ class Calibrator:
             who = "" if i == len(terms) - 1 else f" (with {terms[-1].name}, {t.name} becomes so)"
             if t.name in EFFECTS:
                 effect = EFFECTS[t.name]
-                if effect.physical and not effect.scales_fr and c < 0:
+                if effect.signed:
+                    why = self._direction_loss(terms, fit)
+                    if why is not None:
+                        return why + who
+                elif effect.physical and not effect.scales_fr and c < 0:
                     return f"needs a negative friction (fits only with c = {c:.4g}){who}: not a loss the gearbox has"
                 for short, v in ((effect.member, t.member), (effect.second_member, t.second)):
                     if short is None or v is None:
@@ -496,7 +489,22 @@ class Calibrator:
                     return why + who
         return None
 
-    def _clear(self, terms: list[Term], cv_now: float, cv_new: float, z_crit: float) -> bool:
+    def _direction_loss(self, terms: list[Term], fit: Fit) -> str | None:
+        """Why a set with a difference between directions is no explanation: the loss it predicts (the
+        model's and the physical terms') would be negative in some block, beyond δ."""
+        k0 = len(self.nuisance)
+        loss = self.b.measured - self.b.y  # the model's loss, per block
+        for i, t in enumerate(terms):
+            effect = EFFECTS.get(t.name)
+            if effect is not None and effect.physical and not effect.scales_fr:
+                loss = loss + float(fit.coef[k0 + i]) * self.effective_column(t, terms)
+        worst = float(np.min(loss)) if len(loss) else 0.0
+        if worst < -self.delta:
+            return (f"the loss it predicts would be negative in one direction (down to {worst:.4g} N·m): not a loss "
+                    "the gearbox has")
+        return None
+
+    def clear(self, terms: list[Term], cv_now: float, cv_new: float, z_crit: float) -> bool:
         """Whether the newest term of ``terms`` passes the acceptance tests but for its sign."""
         c, se = self.coefficient(terms, len(terms) - 1)
         lower = max(0.0, abs(c) - 1.96 * se) * self.contribution_rms(terms, len(terms) - 1)
@@ -515,139 +523,21 @@ class Calibrator:
             lo, hi = min(lo, ca - 1.96 * sa), max(hi, ca + 1.96 * sa)
         return [float(lo), float(hi)]
 
-    def run(self, assume: Sequence[str] = (), check: Callable[[Term, float], str | None] | None = None) -> Selection:
-        """Forward selection; ``assume``: effects to take when the data cannot tell them from another
-        (what the user knows of the rig, e.g. torque sensors zeroed at standstill: ``drag_constant``);
-        ``check``: a last word on a candidate's value (:meth:`screen`)."""
-        state = _Forward(remaining=[g for g in groups() if g in self.b.testable], cv_now=self.cv_rmse([]))
-        unavailable = [g for g in groups() if g not in state.remaining]
-        while state.remaining and self._step(state, assume, check):
-            pass
-        # the ambiguous sets stay in the final fit (so the accepted coefficients are not biased)
-        final = state.selected + state.provisional
-        self.stage("exponent intervals")
-        ranges = {t.name: self.member_range(final, i) for i, t in enumerate(final) if t.member is not None}
-        second_ranges = {t.name: self.member_range(final, i, second=True) for i, t in enumerate(final)
-                         if t.second is not None}
-        rejected = self._rejected(final, state, unavailable, check)
-        return Selection(state.selected, state.provisional, ranges, state.ambiguous, rejected, unavailable,
-                         second_ranges, state.negative)
-
-    def _step(self, state: _Forward, assume: Sequence[str], check) -> bool:
-        """One step of the forward selection: the best explanation among the remaining candidates is
-        tested and accepted (or kept in the fit as an ambiguous set); False when the selection ends."""
-        state.step += 1
-        step = state.step
-        base = state.selected + state.provisional
-        scored = self._ranked(state, base, check)
-        if not scored:
-            return False
-        cv_new, g, terms = scored[0]
-        new = terms[-1]
-        lower, upper, z, reasons = self._test(terms, g, state, cv_new, check)
-        twin_terms = self._twins(scored, g, new, base, step)
-        twins = list(twin_terms)
-        assumed = next((a for a in [g, *twins] if a in assume), None) if twins else None
-        self.log.append(
-            f"step {step}: best {g}"
-            + (f" ({_member_text(new)})" if new.member is not None else "")
-            + f" (held-out RMSE {cv_new:.4g} vs {state.cv_now:.4g} N·m), |z| = {z:.1f}, RMS contribution "
-            f"[{lower:.4g}, {upper:.4g}] N·m"
-            + (f"; indistinguishable from {', '.join(twins)}" if twins else "")
-            + (
-                f"; not accepted: {'; '.join(reasons)}"
-                if reasons
-                else f"; ambiguous: accepted as {assumed}, as assumed"
-                if assumed
-                else "; ambiguous: kept in the fit, not reported"
-                if twins
-                else "; accepted"
-            )
-        )
-        if reasons:
-            return False
-        if assumed is not None and assumed != g:  # the twin's fit: near the same error, by definition
-            cv_new, terms = twin_terms[assumed]
-        ambiguous = _ambiguous_set(g, twins, [lower, upper], assumed) if twins else None
-        self._accept(state, base, g, terms, ambiguous)
-        state.cv_now = cv_new
-        return True
-
-    def _ranked(self, state: _Forward, base: list, check) -> list:
-        """The remaining candidates' best fits with ``base`` that are explanations, best first --
-        the smaller explanation first among those that fit (nearly) as well as the best: the one with
-        the fewest free parameters, a model parameter before an effect, a plain law before one with
-        an exponent or a memory.  Entries ``(held-out RMSE, candidate, terms)``."""
-        scored = []
-        for g in state.remaining:
-            self.stage(f"step {state.step}: trying {g}")
-            terms = self.best_candidate(g, base)
-            if terms is not None:
-                scored.append((self.cv_rmse(terms), g, terms))
-        if not scored:
-            return []
-        scored.sort(key=lambda x: x[0])
-        scored = self._explanations(scored, state, check)
-        if not scored:
-            return []
-        near = [x for x in scored if x[0] <= scored[0][0] * 1.01 + 1e-12]
-        simplest = min(near, key=lambda x: (complexity(x[1]), x[0]))
-        if simplest is not scored[0]:
-            scored.remove(simplest)
-            scored.insert(0, simplest)
-        return scored
-
-    def _accept(self, state: _Forward, base: list, g: str, terms: list, ambiguous: AmbiguousSet | None) -> None:
-        """Take the step's fit (``terms``: ``base`` re-fitted, then the new term) into the state: the
-        new term selected, or with its twins an ambiguous set (selected when assumed, else kept in the
-        fit provisionally)."""
-        new = terms[-1]
-        # exponents of earlier terms were re-optimised together with the new one; a term that came
-        # with it (the viscosity law's level) is accepted with it
-        n_sel = len(state.selected)
-        companions = terms[len(base):-1]
-        state.selected, state.provisional = terms[:n_sel] + companions, terms[n_sel : len(base)]
-        state.remaining = [r for r in state.remaining if r not in {t.name for t in companions}]
-        if ambiguous is not None:
-            state.ambiguous.append(ambiguous)
-            (state.selected if ambiguous.assumed else state.provisional).append(new)
-            state.remaining = [r for r in state.remaining if r not in ambiguous.effects]
-        else:
-            state.selected.append(new)
-            state.remaining.remove(g)
-
-    def _explanations(self, scored: list, state: _Forward, check) -> list:
-        """The scored candidates that are an explanation: one asking for a negative friction, an
-        exponent at its bound or a parameter out of its range is set aside (said, when it fits better
-        than any explanation; a clear negative friction is noted in ``state.negative``)."""
-        kept = []
-        z_crit = _z_two_sided(self.alpha / len(state.remaining))
-        for entry in scored:
-            why_not = self.screen(entry[2], check)
-            if why_not is None:
-                kept.append(entry)
-                continue
-            if not kept:  # better than any explanation: said
-                self.log.append(f"step {state.step}: {entry[1]} set aside: {why_not}")
-                # a negative friction the data ask for clearly (significant, beyond delta): the model
-                # over-predicts, and the paper's model switched off is worth weighing (calibrate)
-                if "negative friction" in why_not and entry[1] not in state.negative \
-                        and self._clear(entry[2], state.cv_now, entry[0], z_crit):
-                    state.negative.append(entry[1])
-        return kept
-
-    def _test(self, terms: list[Term], g: str, state: _Forward, cv_new: float,
-              check) -> tuple[float, float, float, list[str]]:
-        """The best candidate's test: its RMS contribution's 95 % bounds, its |z|, and the reasons it
-        is not accepted (none: accepted)."""
+    def test(self, terms: list[Term], g: str, cv_now: float, cv_new: float, candidates: int,
+             check=None, full: bool = True) -> tuple[float, float, float, list[str]]:
+        """The acceptance test of the newest term of ``terms`` (``g``): its RMS contribution's 95 %
+        bounds, its |z|, and the reasons it is not accepted (none: accepted) -- significance at α
+        Bonferroni-corrected over ``candidates``, the lower bound above δ, a held-out improvement from
+        ``cv_now`` to ``cv_new`` above :attr:`min_improvement`; with ``full``, a model parameter's
+        interval within its physical range and an exponent's coefficient interval clear of 0."""
         c, se = self.coefficient(terms, len(terms) - 1)
         new = terms[-1]
         rms_col = self.contribution_rms(terms, len(terms) - 1)
         z = abs(c) / se if se > 0 else math.inf
-        z_crit = _z_two_sided(self.alpha / len(state.remaining))
+        z_crit = z_two_sided(self.alpha / max(candidates, 1))
         lower = max(0.0, abs(c) - 1.96 * se) * rms_col
         upper = (abs(c) + 1.96 * se) * rms_col
-        improvement = (state.cv_now - cv_new) / state.cv_now if state.cv_now > 0 else 0.0
+        improvement = (cv_now - cv_new) / cv_now if cv_now > 0 else 0.0
         reasons = []
         if z < z_crit:
             reasons.append(f"not significant (|z| = {z:.1f} < {z_crit:.1f})")
@@ -657,63 +547,20 @@ class Calibrator:
             )
         if improvement <= self.min_improvement:
             reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
-        if not reasons and g in MODEL_PARAMETERS and check is not None:  # its interval within the physical range
+        # a model parameter's interval within the physical range
+        if full and not reasons and g in MODEL_PARAMETERS and check is not None:
             for end in (c - 1.96 * se, c + 1.96 * se):
                 why = check(new, end)
                 if why is not None:
                     reasons.append(f"its 95 % interval reaches the bound of the physical range ({why})")
                     break
-        if not reasons and new.member is not None:  # its interval, over the exponent's range, must not reach 0
+        if full and not reasons and new.member is not None:  # its interval, over the exponent's range, must not reach 0
             ci = self.coefficient_interval(terms, len(terms) - 1, self.member_range(terms, len(terms) - 1))
             if ci[0] <= 0 <= ci[1]:
                 reasons.append(f"its coefficient's 95 % interval [{ci[0]:.3g}, {ci[1]:.3g}] reaches 0")
         return lower, upper, z, reasons
 
-    def _twins(self, scored: list, g: str, new: Term, base: list[Term], step: int) -> dict:
-        """The candidates the data cannot tell from the best one (name -> (held-out RMSE, terms)):
-        none when the best is a parameter of the model (the smaller explanation), and never one that
-        only adds a memory the data do not show."""
-        cv_new = scored[0][0]
-        twin_terms = {
-            h: (cv_h, terms_h)
-            for cv_h, h, terms_h in scored[1:]
-            if cv_h <= cv_new * 1.05 + 1e-12 and self._partial_corr(new, terms_h[-1], base) > 0.995
-        }
-        if g in MODEL_PARAMETERS and twin_terms:  # a parameter of the model is the smaller explanation
-            self.log.append(f"step {step}: {g} fits as well as {', '.join(twin_terms)}: the model's "
-                            "own parameter is taken (no new term)")
-            twin_terms = {}
-        memory = [h for h in twin_terms if _adds_only_memory(h, g)]
-        if memory:  # a memory the data do not show is not claimed: the memoryless law is taken
-            self.log.append(f"step {step}: {g} fits as well as {', '.join(memory)}: no lag after the "
-                            "reversals shows, the term without memory is taken")
-            twin_terms = {h: v for h, v in twin_terms.items() if h not in memory}
-        return twin_terms
-
-    def _rejected(self, final: list[Term], state: _Forward, unavailable: list[str], check) -> list[RejectedEffect]:
-        """Each candidate not accepted, with the upper bound of what it could contribute on top of the
-        final set (or why it is no explanation even now); a law that follows an oil nobody fitted joins
-        ``unavailable``."""
-        rejected = []
-        blocked = {e for a in state.ambiguous for e in a.effects if e != a.assumed}
-        for g in groups():
-            if g in (t.name for t in state.selected) or g in unavailable:
-                continue
-            if g in blocked:
-                rejected.append(RejectedEffect(g, math.nan, math.nan, ambiguous=True))
-                continue
-            terms = self.best_candidate(g, final)
-            if terms is None:
-                if g in EFFECTS and EFFECTS[g].oil_law:  # follows the oil: no law to follow
-                    unavailable.append(g)
-                continue
-            c, se = self.coefficient(terms, len(terms) - 1)
-            rms_col = self.contribution_rms(terms, len(terms) - 1)
-            reason = self.screen(terms, check) or ""  # no explanation even now (a negative friction, a bound)
-            rejected.append(RejectedEffect(g, (abs(c) + 1.96 * se) * rms_col, abs(c) * rms_col, reason=reason))
-        return rejected
-
-    def _partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
+    def partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
         """|correlation| of two columns after removing the nuisance and base columns (weighted)."""
         w = self.b.weight
         x = self.design(base)
@@ -728,47 +575,7 @@ class Calibrator:
         return abs(float(np.sum(w * ra * rb))) / den if den > 0 else 1.0
 
 
-def complexity(name: str) -> int:
-    """How much a candidate explains with: a model parameter 0 (it adds no term), an effect 1 for its
-    coefficient, one more for each profiled member and for a memory."""
-    if name in MODEL_PARAMETERS:
-        return 0
-    e = EFFECTS[name]
-    return 1 + (e.member is not None) + (e.second_member is not None) + (e.state_step is not None)
-
-
-def _adds_only_memory(twin: str, name: str) -> bool:
-    """Whether ``twin`` is an effect with memory and ``name`` one without that it settles to (in steady
-    motion the same column: Dahl and a constant drag)."""
-    if twin in MODEL_PARAMETERS or name in MODEL_PARAMETERS:
-        return False
-    return EFFECTS[twin].state_step is not None and EFFECTS[name].state_step is None \
-        and name in EFFECTS[twin].separated_from
-
-
-def separating(a: str, b: str) -> str | None:
-    """The data that tells two candidates apart (effects: their descriptors; a model parameter: its own)."""
-    for x in (a, b):
-        if x in MODEL_PARAMETERS:
-            return MODEL_PARAMETERS[x].tells_apart
-    return separating_data(a, b)
-
-
-def _ambiguous_set(g: str, twins: list[str], rms_range: list[float], assumed: str | None) -> AmbiguousSet:
-    """``g`` and the candidates the data cannot tell from it, with what would separate them."""
-    group = sorted([g] + twins)
-    needs = "; ".join(sorted({separating(a, b) or "data over a wider range of speed, torque, direction and "
-                              "temperature" for a in group for b in group if a < b}))
-    return AmbiguousSet(group, needs, rms_range, assumed)
-
-
-def _member_text(t: Term) -> str:
-    effect = EFFECTS[t.name]
-    second = f", {effect.second_member} = {t.second:.3g}" if t.second is not None else ""
-    return f"{effect.member} = {t.member:.3g}{second}"
-
-
-def _z_two_sided(alpha: float) -> float:
+def z_two_sided(alpha: float) -> float:
     from scipy.stats import norm
 
     return float(norm.isf(alpha / 2))

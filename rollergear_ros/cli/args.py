@@ -42,3 +42,25 @@ def finite_float(s: str) -> float:
     if not math.isfinite(v):
         raise argparse.ArgumentTypeError(f"{s!r} is not a finite number")
     return v
+
+
+def positive_float(s: str) -> float:
+    """An argument that must be a finite number above 0."""
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{s!r} is not a number") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"{s!r} must be a finite number above 0")
+    return v
+
+
+def seconds(s: str) -> float:
+    """A time in seconds (finite, at least 0)."""
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{s!r} is not a number of seconds") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"{s!r} must be a finite number of seconds, at least 0")
+    return v

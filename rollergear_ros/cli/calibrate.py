@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from .args import config_from_args
+from .args import config_from_args, positive_float, seconds
 from ..core.effects import EFFECTS
 from ..sources.paths import Output, check_outputs
 from ..base.progress import TimedProgress
@@ -92,13 +92,18 @@ def _analyse(args: argparse.Namespace, data, config):
             bar.stage = text
             bar.update(1)
 
-        return calibrate(data, config, CalibrationSettings(args.delta, args.block_s, stage=stage, assume=args.assume))
+        return calibrate(data, config, CalibrationSettings(args.delta, args.block_s, stage=stage, assume=args.assume,
+                                                           segments=args.segments, start_s=args.start,
+                                                           end_s=args.end))
 
 
 def _print_result(result) -> None:
-    """The verdict, what was found and not, and the held-out error before and after."""
+    """The verdict, what was found and not (every candidate, with its reason), the rig's nuisances, the
+    held-out error before and after."""
     eb, ea = result.error_before, result.error_after
     print(f"verdict: {result.verdict}")
+    if result.stretch and result.changes:
+        print(f"fitted: {result.stretch}")
     for e in result.effects:
         params = ", ".join(f"{k}={v:.4g}" for k, v in e.params.items())
         ci = ", ".join(f"{k} in [{lo:.4g}, {hi:.4g}]" for k, (lo, hi) in e.ci95.items())
@@ -111,9 +116,16 @@ def _print_result(result) -> None:
     print(
         f"held-out error ({result.samples:,} samples): RMSE {eb.rmse_nm:.4g} -> {ea.rmse_nm:.4g} N·m, "
         f"MAE {eb.mae_nm:.4g} -> {ea.mae_nm:.4g} N·m, max {eb.max_abs_nm:.4g} -> {ea.max_abs_nm:.4g} N·m, "
-        f"{eb.rel_rmse_pct:.2f} % -> {ea.rel_rmse_pct:.2f} % of the measured loss"
+        f"{eb.rel_rmse_pct:.2f} % -> {ea.rel_rmse_pct:.2f} % of the measured loss (block means); per sample RMSE "
+        f"{result.sample_level['before'].rmse_nm:.4g} -> {result.sample_level['after'].rmse_nm:.4g} N·m"
     )
+    if result.from_file:
+        print(f"before: the parameter file as given (its {', '.join(result.from_file)}, not refitted)")
     print(f"held out: {result.holdout}")
+    if result.minimum:
+        print(f"minimum effect size: {result.minimum.text}")
+    for line in _nuisance_lines(result):
+        print(f"rig: {line}")
     if result.adequacy:
         print(f"adequacy: {result.adequacy.statement}")
     if result.structure and result.verdict != "no_missing_effect":
@@ -122,13 +134,35 @@ def _print_result(result) -> None:
         print(f"note: {note}")
 
 
+def _nuisance_lines(result) -> list[str]:
+    """The speed reading's noise, each channel's lag that matters, the inertia, said."""
+    lines = [f"speed reading's noise: {result.speed_noise}"] if result.speed_noise else []
+    lines += [lag.sentence() for lag in result.lags if lag.applied]
+    if result.inertia is not None and result.inertia["ci95"][0] * result.inertia["ci95"][1] > 0:
+        lines.append(result.inertia["text"])
+    return lines
+
+
 def _print_not_found(result) -> None:
-    """The effects not accepted and why, the sets the data cannot tell apart, the bounds on the rest."""
-    for r in result.rejected:
-        if r.reason:
-            print(f"  {r.name} not accepted: {r.reason}")
+    """Every candidate not accepted and why, the sets the data cannot tell apart, the bounds on the rest."""
+    from ..calibration.report import reading_choice
+
+    for d in result.decisions:
+        if not d.accepted and d.name not in result.unavailable:
+            print(f"  {d.sentence()}")
+    if result.unavailable:
+        print("  not testable here: " + "; ".join(f"{d.name} ({d.reasons[0]})" for d in result.decisions
+                                                 if d.name in result.unavailable and d.reasons))
     for a in result.ambiguous:
-        if a.assumed:
+        if a.taken is not None:
+            errors = "; ".join(f"{' + '.join(r['effects'])} held-out RMSE {r['heldout_rmse_nm']:.4g} N·m"
+                               + (" (written)" if r["written"] else "") for r in a.readings)
+            how = reading_choice(a)
+            other = [e for e in a.effects if e not in a.taken.split(" + ")]
+            print(f"  two readings of one part of the loss: {' / '.join(a.effects)} -- taken as {a.taken}, {how} "
+                  f"({errors}); record {a.needs} to tell them apart"
+                  + ("" if a.assumed else f", or --assume {' or '.join(other)}"))
+        elif a.assumed:
             print(f"  cannot tell apart: {' / '.join(a.effects)} — taken as {a.assumed}, as assumed (record {a.needs} "
                   "to separate them)")
         else:
@@ -141,7 +175,7 @@ def _print_not_found(result) -> None:
 
 def _what_would_settle(result) -> str:
     """What data or assumption would let a calibration that was not written be one."""
-    open_sets = [a for a in result.ambiguous if a.assumed is None]
+    open_sets = [a for a in result.ambiguous if a.assumed is None and a.taken is None]
     if open_sets:
         return "; ".join(f"{' / '.join(a.effects)} cannot be told apart: record {a.needs}, or --assume one of them"
                          for a in open_sets)
@@ -183,13 +217,20 @@ def register_calibrate(sub, with_params) -> None:
     p.add_argument("--json", action="store_true", help="print exactly the interface.md JSON object on stdout")
     p.add_argument(
         "--delta",
-        type=float,
+        type=positive_float,
         default=None,
         metavar="NM",
         help="practical minimum effect size (RMS N·m); default from the data",
     )
-    p.add_argument("--block-s", type=float, default=0.25, help="averaging block length [s]")
+    p.add_argument("--block-s", type=positive_float, default=0.25, help="averaging block length [s]")
     add_assume_option(p)
+    p.add_argument("--segments", choices=("latest", "each", "off"), default="latest",
+                   help="changes inside the recordings: calibrate the latest stretch after the last one (default), "
+                   "also each stretch (each), or all samples at once (off)")
+    p.add_argument("--start", type=seconds, default=None, metavar="S",
+                   help="analyse from S seconds after the first sample (with --end: a window)")
+    p.add_argument("--end", type=seconds, default=None, metavar="S",
+                   help="analyse up to S seconds after the first sample")
     p.add_argument("--oil", type=_datasheet, metavar="NU40,NU100[,RHO15]",
                    help="the oil's data sheet: kinematic viscosities at 40 and 100 degC [mm^2/s] and the density at "
                    "15 degC [kg/m^3, default 880]; the viscosity law (ASTM D341) starts from it and stays near it "

@@ -107,6 +107,25 @@ def load_dependent(x: EffectInputs, c, q):
     return c * power(x.abs_torque, q)
 
 
+def drag_direction(x: EffectInputs, c, p):
+    """Drag that differs by direction: ``ΔT = c·|ω|^p·sgn ω`` (forward c·|ω|^p more, in reverse as much less).
+
+    Beside ``drag_speed`` it makes the speed drag ``(c_speed ± c)·|ω|^p`` per direction (a worn or
+    preloaded screw, a seal whose lip points one way).  A Coulomb friction that differs by direction is
+    ``torque_offset``'s column: its ``b`` reads as forward/reverse Coulomb friction ``c ± b``.
+    """
+    return c * power(x.abs_speed, p) * x.rot_sign
+
+
+def backdrive(x: EffectInputs, c, q):
+    """Back-driving friction: ``ΔT = c·|T|^q`` while the output drives the input (``T·ω < 0``), else 0.
+
+    Friction that appears only when the power flows back (a self-locking tendency of the ball track, a
+    one-way clutch, a worm's back-driving); motoring losses do not carry it.
+    """
+    return c * power(x.abs_torque, q) * ((x.torque * x.rot_sign < 0) * 1.0)
+
+
 def load_speed(x: EffectInputs, c, p):
     """Load-speed friction: ``ΔT = c·|T|·|ω|^p`` (a loss power ∝ transmitted power·|ω|^(p−1): mesh sliding)."""
     return c * x.abs_torque * power(x.abs_speed, p)
@@ -247,6 +266,21 @@ class Effect:
     #: testable only where the data reach this slow: a share of the samples (:data:`MIN_SLOW_SHARE`)
     #: at |ω| at most this [rad/s] (a law of speeds near standstill)
     needs_speeds_below: float | None = None
+    #: testable only where the power flows back (``T·ω < 0``) in a share of the samples
+    #: (:data:`~calibration.blocks.MIN_SLOW_SHARE`)
+    needs_regeneration: bool = False
+    #: testable only where the drive turns both ways (a share of the samples in each direction)
+    needs_both_directions: bool = False
+    #: the coefficient may take either sign (a difference between directions, not a loss of its own):
+    #: no "negative friction" is refused; the loss in each direction must stay a loss instead
+    signed: bool = False
+    #: the other reading of the same part of the loss: these effects together (a sensor error and a
+    #: load friction for a back-driving friction; a torque offset for a drag that differs by direction).
+    #: ``calibrate`` names both when both explain it, takes the one with fewer terms (between equally
+    #: many, the other reading's), and ``--assume`` chooses
+    alternative_to: tuple[str, ...] = ()
+    #: what tells this effect from its ``alternative_to`` reading
+    alternative_needs: str = ""
     #: an effect with memory: ``state_step(z, ω, dt, params) -> z`` advances its state sample by sample,
     #: in time order (the node, replay's batches, a fleet's time slices, calibrate); its term reads
     #: ``x.state[name]``
@@ -404,6 +438,27 @@ for _effect in (
            plotted_against="angle_since_reversal",
            separated_from={"drag_constant": "reversals: the torque's lag after each one (a constant drag flips at "
                                             "once)"}),
+    Effect("drag_direction", drag_direction, True, "add a drag that differs by direction c*|w|^p*sign(w)",
+           "friction that differs by direction: a worn or preloaded screw, a seal lip that points one way",
+           (EffectParameter("c", "c", 0.0, "forward minus mean drag coefficient c (N*m/(rad/s)^p; negative: more "
+                            "drag in reverse)", simulated=-1e-4),
+            EffectParameter("p", "p", 1.0, "speed exponent p of the difference", low=0.0, high=4.0)),
+           coefficient="c", member="p", member_grid=_grid(0.5, 3.0, 0.1), member_bounds=(0.3, 3.5),
+           regressor_scale=lambda params: SPEED_REF_RAD_S ** params["p"], signed=True, needs_both_directions=True,
+           alternative_to=("torque_offset",),
+           alternative_needs="a standstill zero reading of the torque sensor (the zero error flips the loss by the "
+                             "same amount at every speed; a drag that differs by direction grows with speed)",
+           separated_from={"drag_speed": "both directions of rotation"}),
+    Effect("backdrive", backdrive, True, "add a friction c*|T|^q that appears only while the output drives the input",
+           "friction only under back-driving: a self-locking tendency, a one-way clutch, a worm's back-driving",
+           (EffectParameter("c", "c", 0.0, "back-driving friction coefficient c (N*m/(N*m)^q)", simulated=3e-3),
+            EffectParameter("q", "q", 1.0, "back-driving friction exponent q", low=0.0, high=4.0)),
+           coefficient="c", member="q", member_grid=_grid(0.5, 2.5, 0.1), member_bounds=(0.3, 3.0),
+           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="torque", depends_on_load=True,
+           needs_regeneration=True, alternative_to=("torque_gain", "load_dependent"),
+           alternative_needs="a calibration of the torque sensors (a known torque at standstill: a gain error shows "
+                             "in it, a friction does not)",
+           separated_from={"load_dependent": "motoring and regeneration at the same loads"}),
     Effect("load_dependent", load_dependent, True, "add a load friction c*|T|^q", "bearing load friction, sliding",
            (EffectParameter("c", "c", 0.0, "load friction coefficient c (N*m/(N*m)^q)", simulated=2e-3),
             EffectParameter("q", "q", 1.0, "load friction exponent q", low=0.0, high=4.0)),

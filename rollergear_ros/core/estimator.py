@@ -24,6 +24,7 @@ from .model import LossModel, rotation_sign, rotation_sign_scalar
 from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
                       SyncedSample, is_lost, lost_mask, pairing_tolerance_s, samples_to_arrays)
 from .params import Config
+from .speednoise import SpeedNoise
 
 
 @dataclass(slots=True)
@@ -79,6 +80,27 @@ class BatchEstimate:
             pick(self.loss_magnitude_nm), pick(self.out_torque_nm), pick(self.out_speed_rad_s))
 
 
+def concatenate_estimates(parts: Sequence[BatchEstimate]) -> BatchEstimate:
+    """Consecutive batches of estimates as one (the alarms: the last one's list, which holds all)."""
+    def cat(arrays):
+        return None if any(a is None for a in arrays) else np.concatenate(arrays)
+
+    def cat_dict(dicts):
+        keys = dicts[0].keys()
+        return {k: np.concatenate([d[k] for d in dicts]) for k in keys if all(k in d for d in dicts)}
+
+    first = parts[0]
+    return BatchEstimate(
+        *(np.concatenate([getattr(p, f) for p in parts]) for f in ("t_ns", "torque_nm", "speed_rad_s",
+                                                                   "loss_torque_nm", "loss_power_w", "efficiency",
+                                                                   "measured_loss_nm", "residual_nm")),
+        temperature_c=cat([p.temperature_c for p in parts]), breakdown_nm=cat_dict([p.breakdown_nm for p in parts]),
+        effects_nm=cat([p.effects_nm for p in parts]), coefficients=cat_dict([p.coefficients for p in parts]),
+        alarms_t_ns=list(parts[-1].alarms_t_ns), loss_magnitude_nm=cat([p.loss_magnitude_nm for p in parts]),
+        out_torque_nm=cat([p.out_torque_nm for p in parts]), out_speed_rad_s=cat([p.out_speed_rad_s for p in parts]),
+    ) if len(parts) > 1 else first
+
+
 class Estimator:
     """Model + accepted effects + residual + online adaptation, for one :class:`Config`."""
 
@@ -98,8 +120,9 @@ class Estimator:
         #: the loss torque's sign runs through 0 as tanh(ω/width) near standstill, width the speed
         #: reading's noise σ: about the sign such a reading has on average (erf(ω/(σ√2))), so that a
         #: direction the reading cannot tell is no reversal; measured losses start at 3σ
-        self.sign_width_rad_s = est.speed_noise_rad_s
-        self.min_measured_speed_rad_s = 3.0 * est.speed_noise_rad_s
+        self.speed_noise = SpeedNoise(est.speed_noise_rad_s)  # given, or learned from the first samples
+        self.sign_width_rad_s = self.speed_noise.value
+        self.min_measured_speed_rad_s = self.speed_noise.min_measured_rad_s
         if pairing in ARRIVAL_PAIRINGS:
             self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
             self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s, arrival=True,
@@ -145,6 +168,8 @@ class Estimator:
         self._states.update({n: z for n, z in previous._states.items() if n in self._states})  # memory goes on
         self._state_t_ns = previous._state_t_ns
         self._previous_speed = previous._previous_speed
+        self.speed_noise.take_over(previous.speed_noise)
+        self._noise_changed()
         self.counts = self.sync.counts
         self.estimated = previous.estimated
 
@@ -255,6 +280,8 @@ class Estimator:
         if reason:
             self.counts[reason] += 1
             return None
+        if self.speed_noise.schedule and self.speed_noise.reach(s.t_ns):
+            self._noise_changed()
         t = t_meas if self._sensor_offset == 0.0 and self._sensor_gain == 0.0 else self.corrected_torque(t_meas)
         at, aw = abs(t), abs(w)
         sg = rotation_sign_scalar(w, t, self.sign_width_rad_s)
@@ -288,7 +315,19 @@ class Estimator:
         est = Estimate(s.t_ns, t_meas, w, loss * sg, loss * aw, self.model.efficiency_scalar(t, w, loss), meas,
                        residual, s.out_torque_nm, s.out_speed_rad_s, s.temperature_c)
         self.last = est
+        if self.speed_noise.learning and self.speed_noise.add((w,), s.t_ns):
+            self._noise_changed()
         return est
+
+    def follow_speed_noise(self, learned: Estimator) -> None:
+        """Apply the speed noise ``learned`` learned, at its checkpoints' times (a time slice of a
+        recording whose first samples it did not see; :meth:`~.speednoise.SpeedNoise.follow`)."""
+        self.speed_noise.follow(learned.speed_noise.learned)
+
+    def _noise_changed(self) -> None:
+        """The sign's width and the least measured speed after the speed noise was (re)learned."""
+        self.sign_width_rad_s = self.speed_noise.value
+        self.min_measured_speed_rad_s = self.speed_noise.min_measured_rad_s
 
     @property
     def has_memory(self) -> bool:
@@ -351,11 +390,37 @@ class Estimator:
         """
         n = len(t_ns)
         nan = np.full(n, np.nan)
-        t_ns, torque_meas, speed, out_torque, out_speed, temperature = self._plausible(
+        arrays = self._plausible(
             np.asarray(t_ns), np.asarray(torque, float), np.asarray(speed, float),
             nan if out_torque is None else np.asarray(out_torque, float),
             nan if out_speed is None else np.asarray(out_speed, float),
             nan if temperature is None else np.asarray(temperature, float))
+        noise = self.speed_noise
+        if not noise.learning and not noise.schedule:
+            return self._batch(*arrays, breakdown=breakdown)
+        # while the speed noise is learned (or follows another estimator's checkpoints by time): the
+        # samples up to each checkpoint with the σ before it, as the scalar path steps (bit for bit)
+        parts, rest = [], arrays
+        while len(rest[0]) and (noise.learning or noise.schedule):
+            if noise.schedule:
+                if noise.reach(int(rest[0][0])):
+                    self._noise_changed()
+                after = noise.next_change_ns()
+                k = len(rest[0]) if after is None else int(np.searchsorted(rest[0], after, side="right"))
+                k = max(k, 1)
+            else:
+                k = min(noise.until_checkpoint(), len(rest[0]))
+            parts.append(self._batch(*(a[:k] for a in rest), breakdown=breakdown))
+            if noise.learning and noise.add(rest[2][:k].tolist(), int(rest[0][k - 1])):
+                self._noise_changed()
+            rest = tuple(a[k:] for a in rest)
+        if len(rest[0]) or not parts:
+            parts.append(self._batch(*rest, breakdown=breakdown))
+        return parts[0] if len(parts) == 1 else concatenate_estimates(parts)
+
+    def _batch(self, t_ns: np.ndarray, torque_meas: np.ndarray, speed: np.ndarray, out_torque: np.ndarray,
+               out_speed: np.ndarray, temperature: np.ndarray, *, breakdown: bool) -> BatchEstimate:
+        """:meth:`process_batch` of plausible samples at the speed noise of now."""
         torque = self.corrected_torque(torque_meas)
         at, aw = np.abs(torque), np.abs(speed)
         sg = rotation_sign(speed, torque, self.sign_width_rad_s)

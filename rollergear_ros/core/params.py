@@ -16,7 +16,7 @@ metres, angles degrees (``_deg``), viscosities Pa·s.  No rclpy import here.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 from collections.abc import Mapping
@@ -47,9 +47,12 @@ class ParamSpec:
     high_open: bool = False  # True: value must be < high (else <= high)
     choices: tuple[str, ...] = ()
     read_only: bool = False
+    auto: bool = False  #: also ``auto`` (a number learned from the data; :mod:`.speednoise`)
 
     def allowed_text(self) -> str:
         """Human-readable statement of the allowed values."""
+        if self.auto:
+            return replace(self, auto=False).allowed_text() + ", or auto"
         if self.choices:
             return "must be one of " + ", ".join(repr(c) for c in self.choices)
         if self.kind is bool:
@@ -66,6 +69,8 @@ class ParamSpec:
 
     def check(self, value: Any) -> Any:
         """Return ``value`` coerced to the parameter's type, or raise :class:`ParameterError`."""
+        if self.auto and value == "auto":
+            return "auto"
         if self.kind is bool:
             if not isinstance(value, bool):
                 raise ParameterError(self.name, value, self.allowed_text())
@@ -165,10 +170,12 @@ ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
               "efficiency is NaN below this |T|", "N*m", low=0.0, high=1e5),
     ParamSpec("estimator.min_speed_for_efficiency_rad_s", float, 0.5,
               "efficiency is NaN below this |w|", "rad/s", low=0.0, high=1e5),
-    ParamSpec("estimator.speed_noise_rad_s", float, 0.02,
+    ParamSpec("estimator.speed_noise_rad_s", float, "auto",
               "standard deviation of the drive speed reading: the loss torque's sign runs smoothly through 0 as "
               "tanh(w/noise), about the average sign of such a reading; within 3 of it from 0 the direction is not "
-              "known and no loss is measured (calibrate leaves those samples out)", "rad/s", low=0.0, high=100.0),
+              "known and no loss is measured (calibrate leaves those samples out); auto: learned from the second "
+              "differences of the first 1000 samples' speeds (before the first 50, no loss is measured)", "rad/s",
+              low=0.0, high=100.0, auto=True),
     ParamSpec("estimator.sync_tolerance_s", float, 0.0,
               "input messages whose times differ by at most this are one sample (keep below half the sample "
               "period); 0 = automatic: 0.4 x the median period of the motor torque messages (offline measured in "
@@ -261,6 +268,24 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
               "NAME.traced.yaml, else loss_estimator.traced.yaml in the working directory)", read_only=True),
 )
 
+def _s(name: str, unit: str, desc: str, high: float) -> ParamSpec:
+    return ParamSpec("sensors." + name, float, 0.0, desc, unit, low=0.0, high=high)
+
+
+#: the rig's sensors' stated accuracy (0 = not stated): the measured loss's and efficiency's
+#: uncertainty (:mod:`.uncertainty`), and calibrate's practical minimum effect size
+SENSOR_SPECS: tuple[ParamSpec, ...] = (
+    _s("input_torque_full_scale_nm", "N*m", "drive torque sensor: its full scale (nominal torque)", 1e7),
+    _s("input_torque_fs_pct", "%", "drive torque sensor: accuracy limit as % of its full scale (e.g. 0.05 for "
+       "a class 0.05 flange)", 100.0),
+    _s("input_torque_reading_pct", "%", "drive torque sensor: accuracy limit as % of the reading", 100.0),
+    _s("output_torque_full_scale_nm", "N*m", "output torque sensor: its full scale", 1e7),
+    _s("output_torque_fs_pct", "%", "output torque sensor: accuracy limit as % of its full scale", 100.0),
+    _s("output_torque_reading_pct", "%", "output torque sensor: accuracy limit as % of the reading", 100.0),
+    _s("input_speed_resolution_rad_s", "rad/s", "drive speed reading: its resolution (one step)", 1e3),
+    _s("output_speed_resolution_rad_s", "rad/s", "output speed reading: its resolution (one step)", 1e3),
+)
+
 MAP_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("map.speed_min_rpm", float, 0.0, "loss map: first input speed", "rpm", low=0.0, high=1e6),
     ParamSpec("map.speed_max_rpm", float, 0.0, "loss map: last input speed; 0 = gearbox.rated_speed_rpm", "rpm",
@@ -290,7 +315,7 @@ def _spec_tables() -> tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]:
     version = REGISTRY_VERSION[0]
     if version not in _specs_cache:
         _specs_cache.clear()
-        specs = GEARBOX_SPECS + effect_specs() + ESTIMATOR_SPECS + NODE_SPECS + MAP_SPECS
+        specs = GEARBOX_SPECS + effect_specs() + ESTIMATOR_SPECS + SENSOR_SPECS + NODE_SPECS + MAP_SPECS
         _specs_cache[version] = (specs, {spec.name: spec for spec in specs})
     return _specs_cache[version]
 
@@ -370,7 +395,7 @@ class EstimatorParams:
 
     min_torque_for_efficiency_nm: float = 0.2
     min_speed_for_efficiency_rad_s: float = 0.5
-    speed_noise_rad_s: float = 0.02
+    speed_noise_rad_s: float | str = "auto"  #: a number, or ``auto`` (:mod:`.speednoise`)
     sync_tolerance_s: float = 0.0
     staleness_s: float = 0.1
     max_abs_torque_nm: float = 5000.0
@@ -421,6 +446,27 @@ class NodeParams:
 
 
 @dataclass(frozen=True)
+class SensorParams:
+    """The sensors' stated accuracy limits (0: not stated; :mod:`.uncertainty`)."""
+
+    input_torque_full_scale_nm: float = 0.0
+    input_torque_fs_pct: float = 0.0
+    input_torque_reading_pct: float = 0.0
+    output_torque_full_scale_nm: float = 0.0
+    output_torque_fs_pct: float = 0.0
+    output_torque_reading_pct: float = 0.0
+    input_speed_resolution_rad_s: float = 0.0
+    output_speed_resolution_rad_s: float = 0.0
+
+    @property
+    def stated(self) -> bool:
+        """Whether any accuracy is stated."""
+        return any(getattr(self, f) > 0 for f in ("input_torque_fs_pct", "input_torque_reading_pct",
+                                                  "output_torque_fs_pct", "output_torque_reading_pct",
+                                                  "input_speed_resolution_rad_s", "output_speed_resolution_rad_s"))
+
+
+@dataclass(frozen=True)
 class MapParams:
     """Grid of ``rollergear map`` (the command's options override it)."""
 
@@ -444,6 +490,7 @@ class Config:
     gearbox: GearboxParams = field(default_factory=GearboxParams)
     effects: EffectParams = field(default_factory=EffectParams)
     estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    sensors: SensorParams = field(default_factory=SensorParams)
     node: NodeParams = field(default_factory=NodeParams)
     map: MapParams = field(default_factory=MapParams)
 
@@ -469,7 +516,8 @@ class Config:
         return validate(flat)
 
 
-_SECTION_TYPES = {"gearbox": GearboxParams, "estimator": EstimatorParams, "node": NodeParams, "map": MapParams}
+_SECTION_TYPES = {"gearbox": GearboxParams, "estimator": EstimatorParams, "sensors": SensorParams,
+                  "node": NodeParams, "map": MapParams}
 
 
 #: URL schemes rerun's gRPC sink accepts (``node.rerun_connect``)
@@ -572,6 +620,11 @@ def _check_consistency(config: Config) -> None:
                 getattr(g, f"f{j}"),
                 f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove",
             )
+    sensors = config.sensors
+    for side in ("input", "output"):
+        if getattr(sensors, f"{side}_torque_fs_pct") > 0 and not getattr(sensors, f"{side}_torque_full_scale_nm") > 0:
+            raise ParameterError(f"sensors.{side}_torque_full_scale_nm", 0.0,
+                                 f"must be > 0 when sensors.{side}_torque_fs_pct states an accuracy of its full scale")
     if not (config.node.publish_stamped or config.node.publish_float64):
         raise ParameterError("node.publish_float64", False, "and node.publish_stamped are both off: the node would "
                              "publish no estimate (switch one on)")
@@ -662,6 +715,7 @@ __all__ = [
     "GearboxParams",
     "NodeParams",
     "ParamSpec",
+    "SensorParams",
     "ParameterError",
     "parameter_specs",
     "spec_by_name",

@@ -113,6 +113,8 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
     switches = recorded_switches(info) if req.parameter_changes else []
     problems = InputProblems(estimator.counts, plan)
     window = None if req.window_ns is None else _time_window(req.window_ns, estimator)
+    if window is not None and estimator.speed_noise.learning and window.start_ns is not None:
+        _learn_speed_noise(estimator, info, plan, req.batch_size)
     summary = ReplaySummary(
         str(req.bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
     )
@@ -169,6 +171,20 @@ def _warn_unindexed(info: BagInfo, warn: Callable[[str], None]) -> None:
             if info.truncated
             else f"{info.path} has no index; read linearly"
         )
+
+
+def _learn_speed_noise(estimator: Estimator, info: BagInfo, plan, batch_size: int) -> None:
+    """A time slice's estimator takes the speed noise (``auto``) as a replay of the whole recording
+    does: learned from the recording's first samples (through an estimator of their own), applied from
+    each checkpoint's time on -- so that the slices of a recording add up to its replay."""
+    first = Estimator(estimator.config, pairing=estimator.pairing, sample_period_s=estimator.sample_period_s)
+    for batch in input_batches(info, plan, batch_size, lambda text: None, InputProblems(first.counts, plan)):
+        first.push_many(batch.codes, batch.t_ns, batch.values, batch.source_ns)
+        if not first.speed_noise.learning:
+            break
+    else:
+        first.flush()
+    estimator.follow_speed_noise(first)
 
 
 def _time_window(window_ns: tuple[int | None, int | None], estimator: Estimator) -> TimeWindow:
@@ -260,3 +276,5 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
         )
     acc.fill(summary)
     summary.coefficients = estimator.coefficients()
+    summary.speed_noise_rad_s = estimator.speed_noise.value
+    summary.speed_noise_text = estimator.speed_noise.describe()

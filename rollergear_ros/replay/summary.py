@@ -48,6 +48,8 @@ class ReplaySummary:
     summary_png: str | None = None  #: the summary picture, when one was drawn
     #: the recording's run-time parameter changes applied where the node applied them (:mod:`.switches`)
     parameter_changes: list[str] = field(default_factory=list)
+    speed_noise_rad_s: float = 0.0  #: the speed reading's noise the estimator used (at the end)
+    speed_noise_text: str = ""  #: ... and where it came from (the file, or learned)
 
     def text(self) -> str:
         lines = [
@@ -66,6 +68,8 @@ class ReplaySummary:
                 f"pairing: sample period {1e3 * self.sample_period_s:.3g} ms, inputs within "
                 f"{1e3 * self.sync_tolerance_s:.3g} ms form one sample"
             )
+        if self.speed_noise_text:
+            lines.append(f"speed reading's noise: {self.speed_noise_text}")
         skipped = {k: v for k, v in self.skipped.items() if v}
         lines.append("skipped: " + (", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in skipped.items()) or "none"))
         lines.append(

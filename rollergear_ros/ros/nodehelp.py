@@ -50,7 +50,7 @@ def _parameter_lines(width: int) -> list[str]:
             lines.append(f"  {section}:")
         unit = f" [{spec.unit}]" if spec.unit else ""
         default = repr(spec.default) if spec.kind is str else str(spec.default).lower() if spec.kind is bool \
-            else f"{spec.default:g}" if spec.kind is float else str(spec.default)
+            else f"{spec.default:g}" if spec.kind is float and not isinstance(spec.default, str) else str(spec.default)
         ro = "; read-only: at start-up only" if spec.read_only else ""
         lines.append(f"    {spec.name} ({spec.kind.__name__}, default {default}{unit}{ro})")
         text = f"{spec.description}; {spec.allowed_text()}"

@@ -68,7 +68,9 @@ def check_params_files(args: list[str]) -> None:
 def _descriptor(spec) -> ParameterDescriptor:
     d = ParameterDescriptor(description=f"{spec.description} [{spec.unit}]" if spec.unit else spec.description,
                             read_only=spec.read_only, additional_constraints=spec.allowed_text())
-    if spec.kind is float and spec.low is not None and spec.high is not None:
+    if spec.auto:  # a number or the string auto: validated by the spec (core.params)
+        d.dynamic_typing = True
+    elif spec.kind is float and spec.low is not None and spec.high is not None:
         d.floating_point_range = [FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high), step=0.0)]
     elif spec.kind is int and spec.low is not None and spec.high is not None:
         d.integer_range = [IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=1)]

@@ -132,6 +132,16 @@ class _Aligner:
         self.temp_slot: int | None = None
         self.rows_read = 0
         self.clock = time_base(path, cmap, sniff(path, cmap) if is_format(path, "CSV") else None)
+        #: a channel that reads a moment later than the drive torque (the map's lag_s): its samples
+        #: at their row's time minus the lag, and rows held back until the ones it needs are read
+        self.lag_ns = {n: int(round(spec.lag_s * 1e9)) for n, spec in cmap.channels.items() if spec.lag_s}
+        self.lead_ns = max([v for v in self.lag_ns.values() if v > 0], default=0)
+        self.tail: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # a lagged channel's samples the next part needs
+        self.ahead = _Held(values={n: np.zeros(0) for n in self.names},
+                           present={n: np.zeros(0, bool) for n in self.names})
+        if self.lag_ns and notes is not None:
+            notes.append("aligned: " + ", ".join(f"{n} {1e-6 * v:g} ms earlier (the channel map's lag_s)"
+                                                 for n, v in self.lag_ns.items()))
 
     def read(self, table) -> None:
         """Convert one batch's columns to SI, check its time and hold its rows."""
@@ -187,9 +197,17 @@ class _Aligner:
             cut = int(idx[-1]) + 1 if len(idx) else 0
             if len(held.t_ns) - cut > max(MAX_HELD_ROWS, 4 * self.batch_rows):  # a channel gone for good
                 cut = len(held.t_ns)
+        if not final and self.lead_ns and cut:  # the lagging channel's samples for these rows come later
+            limit = int(np.searchsorted(held.t_ns, held.t_ns[-1] - self.lead_ns, side="right"))
+            if limit < cut:  # the last row there with every paired channel
+                complete = np.logical_and.reduce([held.present[n] for n in self.paired]) if self.paired else \
+                    np.ones(len(held.t_ns), bool)
+                idx = np.flatnonzero(complete[:limit])
+                cut = int(idx[-1]) + 1 if len(idx) else 0
         if cut == 0:
             return None
         self.held = held.rows(slice(cut, None))
+        self.ahead = self.held
         return held.rows(slice(None, cut))
 
     def align(self, part: _Held) -> Aligned:
@@ -199,12 +217,25 @@ class _Aligner:
         out = {Channel.MOTOR_TORQUE: part.values[Channel.MOTOR_TORQUE][base]}
         for name in self.paired[1:]:
             has = part.present[name]
-            s_t, s_v = part.t_ns[has], part.values[name][has]
+            lag = self.lag_ns.get(name, 0)
+            s_t, s_v = part.t_ns[has] - lag, part.values[name][has]
             if name not in self.origin and len(s_t):
                 self.origin[name] = int(s_t[0])
-            if not np.array_equal(has, base):
+            if lag or not np.array_equal(has, base):
                 self.resampled.add(name)
-            if name in self.resampled:
+            if lag:  # with the samples of earlier rows that reach into this part (a channel that leads)
+                # and of the rows read after it (one that lags)
+                tail_t, tail_v = self.tail.get(name, (np.zeros(0, np.int64), np.zeros(0)))
+                more = self.ahead.present[name]
+                t_all = np.concatenate([tail_t, s_t, self.ahead.t_ns[more] - lag])
+                v_all = np.concatenate([tail_v, s_v, self.ahead.values[name][more]])
+                out[name] = _interpolate(t_all, v_all, base_t, None, self.origin.get(name))
+                mine_t, mine_v = np.concatenate([tail_t, s_t]), np.concatenate([tail_v, s_v])
+                if len(base_t):  # what the next part may need: from the last sample before its rows on
+                    first = max(int(np.searchsorted(mine_t, base_t[-1], side="right")) - 1, 0)
+                    self.tail[name] = (mine_t[first:], mine_v[first:])
+                continue
+            elif name in self.resampled:
                 out[name] = _interpolate(s_t, s_v, base_t, self.anchor.get(name), self.origin.get(name))
             else:
                 out[name] = s_v
@@ -217,7 +248,8 @@ class _Aligner:
         if Channel.OIL_TEMPERATURE not in self.cmap.channels:
             return None
         has = part.present[Channel.OIL_TEMPERATURE]
-        tt, tv = part.t_ns[has], part.values[Channel.OIL_TEMPERATURE][has]
+        tt = part.t_ns[has] - self.lag_ns.get(Channel.OIL_TEMPERATURE, 0)
+        tv = part.values[Channel.OIL_TEMPERATURE][has]
         if not len(tt):
             return None
         if self.temp_first is None:

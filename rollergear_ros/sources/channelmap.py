@@ -80,6 +80,9 @@ class ChannelSpec:
     unit: str
     scale: float = 1.0
     constant: float | None = None  #: the channel's value in the map's unit (no column)
+    #: how much later than the drive torque this channel reads the same moment [s] (a DAQ's filter, a
+    #: sensor's electronics; ``calibrate`` fits and reports it): its times are moved back by it on reading
+    lag_s: float = 0.0
 
     @property
     def label(self) -> str:
@@ -127,10 +130,10 @@ def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
     if not isinstance(value, dict) or ("column" in value) == ("constant" in value):
         raise InputFileError(f"{path}: {key}: expected {{column: NAME, unit: UNIT}} or "
                              f"{{constant: VALUE, unit: UNIT}}, got {value!r}")
-    unknown = set(value) - {"column", "constant", "unit", "scale"}
+    unknown = set(value) - {"column", "constant", "unit", "scale", "lag_s"}
     if unknown:
         raise InputFileError(f"{path}: {key}: unknown key(s) {', '.join(sorted(unknown))} (column or constant, unit, "
-                             "scale)")
+                             "scale, lag_s)")
     constant = value.get("constant")
     if constant is not None:
         if key == "time" or isinstance(constant, bool) or not isinstance(constant, int | float) \
@@ -146,9 +149,18 @@ def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
     scale = value.get("scale", 1.0)
     if isinstance(scale, bool) or not isinstance(scale, int | float) or not math.isfinite(scale) or scale == 0:
         raise InputFileError(f"{path}: {key}: scale must be a finite non-zero number, got {scale!r}")
+    lag = value.get("lag_s", 0.0)
+    if isinstance(lag, bool) or not isinstance(lag, int | float) or not math.isfinite(lag) or abs(lag) > MAX_LAG_S:
+        raise InputFileError(f"{path}: {key}: lag_s must be a finite number of seconds within ±{MAX_LAG_S:g}, "
+                             f"got {lag!r}")
+    if lag and (key == "time" or constant is not None):
+        raise InputFileError(f"{path}: {key}: lag_s is for a measured channel (not the time, not a constant)")
     if constant is not None:
         return ChannelSpec(key, "", unit, float(scale), float(constant))
-    return ChannelSpec(key, str(value["column"]), unit, float(scale))
+    return ChannelSpec(key, str(value["column"]), unit, float(scale), lag_s=float(lag))
+
+
+MAX_LAG_S = 10.0  #: a channel's ``lag_s`` is at most this (longer is another time base, not a lag)
 
 
 def load_channel_map(path: str | Path) -> ChannelMap:

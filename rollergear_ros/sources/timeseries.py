@@ -81,7 +81,14 @@ def read_series(path: str | Path, cmap: ChannelMap, notes: list[str] | None = No
         if back.size:
             raise InputFileError(f"{path}: {name} ({cmap.channels[name].column}): time runs backwards after "
                                  f"sample {int(back[0])} (time must not decrease)")
-    return _from_zero_when_negative(path, cmap, series, notes)
+    series = _from_zero_when_negative(path, cmap, series, notes)
+    lagging = {name: cmap.channels[name].lag_s for name in series if cmap.channels[name].lag_s}
+    for name, lag in lagging.items():  # a channel that reads a moment later: its times moved back
+        series[name] = Series(series[name].t_ns - int(round(lag * 1e9)), series[name].values)
+    if lagging and notes is not None:
+        notes.append("aligned: " + ", ".join(f"{n} {1e3 * v:g} ms earlier (the channel map's lag_s)"
+                                             for n, v in lagging.items()))
+    return series
 
 
 def _from_zero_when_negative(path: Path, cmap: ChannelMap, series: dict[str, Series],

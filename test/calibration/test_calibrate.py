@@ -227,14 +227,14 @@ def test_calibrated_yaml_is_used_by_replay(tmp_path):
     proc = run_cli("calibrate", str(bag), "--out", str(out_yaml), "--report", str(report))
     assert "verdict: effects_found" in proc.stdout
     text = (report / "report.md").read_text()
-    assert "| before (model) |" in text and "| after (model + accepted effects) |" in text
+    assert "| before: the model of the parameter file |" in text and "| after: what the calibrated file writes |" in text
     for png in ("residual_vs_speed.png", "residual_vs_torque.png", "measured_vs_estimated.png",
                 "residual_over_time.png", "effect_drag_speed.png", "effect_drag_constant.png"):
         assert (report / png).stat().st_size > 5000
         assert f"![{png[:-4]}]({png})" in text
-    # the oil temperature does not vary in this recording: the report calls the check untestable
-    # and draws no plot for it
-    assert "viscosity_temperature: not testable" in text
+    # the oil temperature does not vary in this recording: the report calls the check untestable, with
+    # that reason, and draws no plot for it
+    assert "| viscosity_temperature | not testable |" in text and "the oil temperature varies by" in text
     assert not (report / "residual_vs_temperature.png").exists()
     cal = load_config(out_yaml)
     assert {"drag_speed", "drag_constant"} <= set(cal.effects.enabled())
@@ -305,20 +305,24 @@ def test_calibrate_bad_input(tmp_path):
     assert proc.returncode == 2 and "output torque" in proc.stderr and proc.stdout == ""
 
 
-def test_recordings_of_different_rigs_do_not_crash_and_are_not_written(tmp_path):
-    """Mixed recordings (viscosity effect in one, load friction in the other) give fits out of the
-    physical range (an exponent at its bound, negative frictions): said, never written; verdict
-    inconclusive; the residual's structure says where to look."""
+def test_recordings_of_different_rigs_are_not_fitted_across(tmp_path):
+    """Two recordings of different rigs (the viscosity law in one, a load friction in the other): the
+    change between them is said, and the latest recording alone is calibrated -- what a fit across both
+    would give (negative frictions, exponents at their bounds) is never written."""
     from helpers import BAGS
 
     out = tmp_path / "cal.yaml"
-    proc = run_cli(
-        "calibrate", str(BAGS / "warmup.mcap"), str(BAGS / "drive_cycle_joint_states.mcap"), "--out", str(out)
-    )
-    assert "verdict: inconclusive" in proc.stdout and "stopped at the bound of its search" in proc.stdout
+    bags = (str(BAGS / "warmup.mcap"), str(BAGS / "drive_cycle_joint_states.mcap"))
+    result = json.loads(run_cli("calibrate", *bags, "--out", str(out), "--json").stdout)
+    [change] = result["changes"]
+    assert change["between_recordings"] and change["recording"] == 1, change
+    alone = json.loads(run_cli("calibrate", bags[1], "--json").stdout)
+    assert result["samples"] == alone["samples"]
+    assert [e["name"] for e in result["effects"]] == [e["name"] for e in alone["effects"]] == ["load_dependent"]
+    assert "the start of recording 2" in " ".join(result["notes"])
+    cal = load_config(out)
+    assert cal.effects.enabled() == ("load_dependent",)
+    # all at once, the fits across both are refused with their reasons, not written
+    proc = run_cli("calibrate", *bags, "--segments", "off", "--out", str(tmp_path / "across.yaml"), check=False)
     assert "needs a negative friction" in proc.stdout
     assert "residual left: the residual left depends most on" in proc.stdout
-    cal = load_config(out)  # the written file is valid and adds nothing it could not stand behind
-    assert not any(cal.effects.switches.values())
-
-

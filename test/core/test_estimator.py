@@ -32,19 +32,22 @@ def test_sensor_errors_are_removed_from_the_model_input():
 def test_the_nodes_sample_by_sample_path_equals_replays_arrays_bit_for_bit(name, adapt):
     """What the node publishes (:meth:`Estimator.process` on Python floats) is what replay computes
     for the same samples (:meth:`Estimator.process_batch` on arrays), to the last bit: a drive cycle
-    through standstill (the smooth sign) with the oil warming (the temperature effects), each
-    effect on, adapted online and fixed."""
+    through standstill (the smooth sign, its width the speed noise learned over the first samples)
+    with the oil warming (the temperature effects), each effect on, adapted online and fixed."""
     config = load_config().with_values({"estimator.adapt": adapt})
     if name is not None:  # on at the values simulate gives it
         config = with_effect(config, name, EFFECTS[name].simulated_defaults())
     rig = simulate(config, SimulationOptions("drive_cycle", 100.0, 5))
     columns = (rig.t_ns, rig.torque_meas_nm, rig.speed_rad_s, rig.out_torque_meas_nm, rig.out_speed_meas_rad_s,
                rig.temperature_c)
-    batch = Estimator(config).process_batch(*columns, breakdown=False)
+    replayed = Estimator(config)
+    batch = replayed.process_batch(*columns, breakdown=False)
     node = Estimator(config)
     live = [e for e in (node.process(SyncedSample(*row)) for row in zip(*(np.asarray(c).tolist() for c in columns)))
             if e is not None]
     assert len(live) == len(batch.t_ns) > 1000
-    assert np.any(np.abs(rig.speed_rad_s) < SIGN_BAND * config.estimator.speed_noise_rad_s)  # the tanh band
+    # the speed noise learned (auto) at the same samples, to the same value
+    assert node.speed_noise.value == replayed.speed_noise.value > 0 and node.speed_noise.learned_from == 1000
+    assert np.any(np.abs(rig.speed_rad_s) < SIGN_BAND * node.speed_noise.value)  # the tanh band
     for field in ("loss_torque_nm", "loss_power_w", "efficiency", "measured_loss_nm", "residual_nm"):
         np.testing.assert_array_equal(np.array([getattr(e, field) for e in live]), getattr(batch, field), err_msg=field)

@@ -751,11 +751,12 @@ def test_imports_that_were_tracebacks_are_one_line_and_leave_no_file(tmp_path, m
 
 
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
-@pytest.mark.parametrize("batch_rows", [7, 64, 1000])
-def test_reading_in_batches_gives_the_values_of_reading_the_file_whole(tmp_path, signals, suffix, batch_rows):
+@pytest.mark.parametrize("batch_rows,lag_ms", [(7, 0.0), (64, 0.0), (1000, 0.0), (7, 7.3), (64, 23.5), (1000, -4.2)])
+def test_reading_in_batches_gives_the_values_of_reading_the_file_whole(tmp_path, signals, suffix, batch_rows, lag_ms):
     """CSV and Parquet are imported in bounded batches; a channel with empty cells is interpolated
     across batch boundaries and the temperature thinned over the whole file, exactly as
-    ``align(read_series(...))`` of the whole file does."""
+    ``align(read_series(...))`` of the whole file does -- also with the output torque read ``lag_ms``
+    later than the drive torque (the map's ``lag_s``: its samples belong that much earlier)."""
     import pyarrow as pa
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
@@ -778,7 +779,11 @@ def test_reading_in_batches_gives_the_values_of_reading_the_file_whole(tmp_path,
         pacsv.write_csv(pa.table(cols), src)
     else:
         pq.write_table(pa.table(cols), src)
-    cmap = load_channel_map(write_map(tmp_path / "map.yaml"))
+    path = write_map(tmp_path / "map.yaml")
+    if lag_ms:
+        path.write_text(path.read_text().replace("scale: -1}", f"scale: -1, lag_s: {lag_ms / 1e3}}}"))
+    cmap = load_channel_map(path)
+    assert cmap.channels["output_torque"].lag_s == lag_ms / 1e3
     whole = align(read_series(src, cmap))
     parts = list(aligned_batches(src, cmap, batch_rows=batch_rows))
     assert len(parts) > 1 or batch_rows >= n

@@ -1,0 +1,231 @@
+"""Changes inside the recordings: where the gearbox stopped being the one it was.
+
+A parameter fitted across a change is neither side's (a drag that appears half-way is fitted as half
+a drag, or as a model parameter moved far from both).  After a first analysis, the recordings (in
+time order; a split between two recordings first) are searched for the one split that explains
+their residual best when a flexible
+design -- the accepted terms, every testable candidate at the middle of its exponent's grid, a
+level and a direction-dependent level -- is fitted on each side apart (weighted least squares over
+block means; every split at a block boundary, both sides at least :data:`MIN_STRETCH_S` and
+:data:`MIN_STRETCH_SHARE` of the blocks).  The best split is a change when
+
+* the accepted terms with a level and a direction-dependent level, fitted on each side apart,
+  predict the held-out blocks better than one fit across it (by more than the selection's minimum
+  improvement, folds by dwell as everywhere),
+* what the change changes -- the RMS over the blocks of the difference between the flexible fits on
+  each side and one across -- exceeds δ, and
+* their coefficients differ significantly (a cluster-robust Wald test by dwell at :data:`CHANGE_ALPHA`).
+
+Its time comes with the range of splits whose fit is within the χ² threshold of the best.  The
+latest stretch is then searched again, up to :data:`MAX_CHANGES` changes.  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .selection import Calibrator, Term, members, wls
+from ..core.effects import EFFECTS, viscosity_law
+
+__all__ = ["Split", "find_changes"]
+
+MIN_STRETCH_S = 20.0  #: a stretch between changes is at least this long ...
+MIN_STRETCH_SHARE = 0.1  #: ... and holds at least this share of the blocks searched
+MAX_CHANGES = 4
+CHANGE_ALPHA = 1e-4  #: the Wald test of a change (strict: the split is the best of many)
+
+
+@dataclass(frozen=True)
+class Split:
+    """A change found: the first block after it, and its numbers."""
+
+    block: int
+    t_s: float  #: seconds after the first sample analysed (the recordings one after another)
+    ci95_s: tuple[float, float]
+    rms_change_nm: float
+    heldout_one_nm: float
+    heldout_two_nm: float
+    between_recordings: bool = False  #: at the start of a recording
+
+
+def find_changes(cal: Calibrator, terms: list[Term]) -> list[Split]:
+    """The changes in ``cal``'s blocks (the recordings one after another, in the order given), the
+    latest last."""
+    b = cal.b
+    if b.steady_state or b.t_s is None or len(b.y) < 8 * cal_folds(cal):
+        return []
+    t = _running_time(b)
+    x = _design(cal, terms, flexible=True)
+    small = _design(cal, terms, flexible=False)
+    changes: list[Split] = []
+    lo = 0
+    while len(changes) < MAX_CHANGES:
+        # between two recordings first (one may be another gearbox, or the same one days later), then within
+        split = _best_split(cal, x, small, t, lo, len(b.y), boundaries=True) or \
+            _best_split(cal, x, small, t, lo, len(b.y))
+        if split is None:
+            break
+        changes.append(split)
+        lo = split.block
+    return changes
+
+
+def _running_time(b) -> np.ndarray:
+    """Each block's time [s] on one clock: the recordings one after another in the order given, each
+    from where the one before ended."""
+    t = b.t_s[b.start].astype(float)
+    bag = b.bag_id[b.start]
+    out = np.empty(len(t))
+    offset = 0.0
+    for k in np.unique(bag):  # bag ids are the order given
+        i = np.flatnonzero(bag == k)
+        out[i] = t[i] - t[i[0]] + offset
+        offset = out[i[-1]] + 1.0
+    return out
+
+
+def cal_folds(cal: Calibrator) -> int:
+    return int(cal.b.fold.max()) + 1 if len(cal.b.fold) else 1
+
+
+def _design(cal: Calibrator, terms: list[Term], flexible: bool) -> np.ndarray:
+    """The accepted terms' columns (nuisances first), a level and a direction-dependent level; with
+    ``flexible``, every testable candidate's at the middle of its exponent's grid too -- what the
+    operating point explains, so that a residual that follows it (a warm-up's temperature, a speed the
+    accepted terms miss) is no change in time."""
+    b = cal.b
+    x = cal.design(terms)
+    sign = np.sign(b.speed)
+    extra = [np.ones(len(b.y))]
+    if len(np.unique(sign)) > 1:
+        extra.append(sign)
+    for name in b.testable if flexible else ():
+        cands = members(b, name, cal.oil_law(terms) or _default_law(name))
+        if cands:
+            extra.append(cands[len(cands) // 2].column)
+    full = np.column_stack([x, *extra]) if x.shape[1] else np.column_stack(extra)
+    keep = _independent(full, b.weight)
+    return full[:, keep]
+
+
+def _independent(x: np.ndarray, w: np.ndarray) -> list[int]:
+    """Columns of ``x`` that add something (a pivoted QR of the weighted design)."""
+    from scipy.linalg import qr
+
+    xs = x * np.sqrt(w)[:, None]
+    norms = np.linalg.norm(xs, axis=0)
+    xs = xs / np.where(norms > 0, norms, 1.0)
+    _q, r, piv = qr(xs, mode="economic", pivoting=True)
+    d = np.abs(np.diag(r))
+    rank = int(np.sum(d > 1e-8 * (d[0] if len(d) else 1.0)))
+    return sorted(piv[:rank].tolist())
+
+
+def _default_law(name: str) -> tuple[float, float, float] | None:
+    """An effect that follows the oil, at its registry's Vogel law (for the search's design only)."""
+    e = EFFECTS.get(name)
+    if e is None or not e.oil_law:
+        return None
+    law = viscosity_law().simulated_defaults()
+    return (law["B"], law["C"], law["theta_ref"])
+
+
+def _best_split(cal: Calibrator, x: np.ndarray, small: np.ndarray, t: np.ndarray, lo: int, hi: int,
+                boundaries: bool = False) -> Split | None:
+    """The best split of blocks ``[lo, hi)`` if it is a change (see the module docstring): found and
+    tested with the flexible design ``x``, held out with the ``small`` one (a flexible design fitted
+    on part of a stretch extrapolates to its held-out dwells); ``boundaries``: only between recordings."""
+    b = cal.b
+    y, w = b.y[lo:hi], b.weight[lo:hi]
+    xs = x[lo:hi]
+    n, k = xs.shape
+    tt = t[lo:hi]
+    if n < 4 * k or tt[-1] - tt[0] < 2 * MIN_STRETCH_S:
+        return None
+    a = np.einsum("i,ij,il->ijl", w, xs, xs)
+    v = xs * (w * y)[:, None]
+    s = w * y * y
+    ca, cv, cs = np.cumsum(a, axis=0), np.cumsum(v, axis=0), np.cumsum(s)
+    min_n = max(int(MIN_STRETCH_SHARE * n), 2 * k, 10)
+    cand = np.arange(min_n, n - min_n)  # the first block of the right side
+    cand = cand[(tt[cand] - tt[0] >= MIN_STRETCH_S) & (tt[-1] - tt[cand] >= MIN_STRETCH_S)]
+    bag = b.bag_id[b.start[lo:hi]]
+    between = cand[bag[cand] != bag[cand - 1]]
+    if len(between) and boundaries:  # recordings one after another: a change between them first
+        cand = between
+    if not len(cand):
+        return None
+    left = _sse(ca[cand - 1], cv[cand - 1], cs[cand - 1])
+    right = _sse(ca[-1] - ca[cand - 1], cv[-1] - cv[cand - 1], cs[-1] - cs[cand - 1])
+    total = left + right
+    if not np.any(np.isfinite(total)):
+        return None
+    j = int(np.nanargmin(total))
+    split = int(cand[j])
+    one = _cv_rmse(cal, small[lo:hi], y, w, lo, None)
+    two = _cv_rmse(cal, small[lo:hi], y, w, lo, split)
+    if not (one > 0 and (one - two) / one > cal.min_improvement):
+        return None
+    # what the change changes: the fits on each side against one across, where the data are
+    one_fit = xs @ wls(xs, y, w).coef
+    two_fits = np.concatenate([xs[:split] @ wls(xs[:split], y[:split], w[:split]).coef,
+                               xs[split:] @ wls(xs[split:], y[split:], w[split:]).coef])
+    diff = two_fits - one_fit
+    count = b.count[lo:hi]
+    rms_change = float(np.sqrt(np.average(diff * diff, weights=count)))
+    if rms_change <= cal.delta or not _significant(xs, y, w, b.dwell[lo:hi], split):
+        return None
+    dof = max(n - 2 * k, 1)
+    sigma2 = max(float(total[j]) / dof, 1e-300)
+    near = cand[np.isfinite(total) & (total <= total[j] + 3.84 * sigma2)]
+    ci = (float(tt[near.min()]), float(tt[near.max()]))
+    return Split(lo + split, float(tt[split]), ci, rms_change, one, two, bool(bag[split] != bag[split - 1]))
+
+
+def _sse(a: np.ndarray, v: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Weighted residual sum of squares of each fit from its cross-products (NaN where singular)."""
+    out = np.full(len(s), np.nan)
+    try:
+        beta = np.linalg.solve(a, v[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        beta = np.stack([np.linalg.lstsq(ai, vi, rcond=None)[0] for ai, vi in zip(a, v)])
+    out[:] = s - np.einsum("ij,ij->i", beta, v)
+    return out
+
+
+def _cv_rmse(cal: Calibrator, x: np.ndarray, y: np.ndarray, w: np.ndarray, lo: int, split: int | None) -> float:
+    """Held-out RMSE (folds by dwell) of one fit over the blocks, or of one fit on each side of ``split``."""
+    fold = cal.b.fold[lo:lo + len(y)]
+    count = cal.b.count[lo:lo + len(y)]
+    pred = np.zeros(len(y))
+    sides = [np.arange(len(y))] if split is None else [np.arange(split), np.arange(split, len(y))]
+    for side in sides:
+        for f in np.unique(fold[side]):
+            test = side[fold[side] == f]
+            train = side[fold[side] != f]
+            if len(train) <= x.shape[1]:
+                return math.inf
+            coef = wls(x[train], y[train], w[train]).coef
+            pred[test] = x[test] @ coef
+    e = y - pred
+    return float(np.sqrt(np.average(e * e, weights=count)))
+
+
+def _significant(x: np.ndarray, y: np.ndarray, w: np.ndarray, dwell: np.ndarray, split: int) -> bool:
+    """A cluster-robust Wald test (by dwell) that the right side's coefficients differ from the left's."""
+    from scipy.stats import chi2
+
+    after = (np.arange(len(y)) >= split)[:, None]
+    xi = np.column_stack([x, x * after])
+    fit = wls(xi, y, w, dwell)
+    k = x.shape[1]
+    d = fit.coef[k:]
+    cov = fit.cov[k:, k:]
+    try:
+        stat = float(d @ np.linalg.solve(cov, d))
+    except np.linalg.LinAlgError:
+        stat = float(d @ np.linalg.pinv(cov) @ d)
+    return math.isfinite(stat) and stat > chi2.isf(CHANGE_ALPHA, k)

@@ -1,0 +1,211 @@
+"""Calibrating rigs the way measured data comes: a slow joint, a lagging DAQ channel, a gearbox that
+changes half-way, friction that differs by direction or appears only under back-driving, a good
+parameter file to start from -- each simulated here from its own formulas (:mod:`rigs`), run
+through the command line with the default settings, and the EMPS benchmark: a real drive with a
+published identification, scored by the benchmark's own figure (skipped without ``../shared``)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from helpers import REALDATA, run_cli
+from rigs import Joint, Rig, loaded_rig, params, rig_map, slow_joint
+
+
+def calibrate_json(*args: str, check: bool = True) -> dict:
+    return json.loads(run_cli("calibrate", *args, "--json", check=check).stdout)
+
+
+def effects_of(result: dict) -> dict:
+    return {e["name"]: e for e in result["effects"]}
+
+
+def test_a_slow_joints_coulomb_viscous_and_offset_are_each_found_within_5_percent(tmp_path):
+    """A robot joint's friction test: speeds up to 0.1 rad/s both ways, an encoder speed noise of
+    1e-4 rad/s (learned: no sample is lost to a speed-noise guess), nothing on the output."""
+    joint = Joint(coulomb_nm=0.5, viscous_nm_s=2.0, offset_nm=0.05)
+    csv, cmap = slow_joint(tmp_path, joint)
+    result = calibrate_json(str(csv), "--channels", str(cmap), "--params", str(params(tmp_path / "p.yaml")))
+    found = effects_of(result)
+    assert set(found) == {"drag_constant", "drag_speed", "torque_offset"}, sorted(found)
+    assert found["drag_constant"]["params"]["c"] == pytest.approx(joint.coulomb_nm, rel=0.05)
+    assert found["drag_speed"]["params"]["c"] == pytest.approx(joint.viscous_nm_s, rel=0.05)
+    assert found["drag_speed"]["params"]["p"] == pytest.approx(1.0, rel=0.05)
+    assert found["torque_offset"]["params"]["b"] == pytest.approx(joint.offset_nm, rel=0.05)
+    assert "1e-04" in result["nuisances"]["speed_noise"] or "0.0001" in result["nuisances"]["speed_noise"]
+    assert result["samples"] > 0.99 * 60_000 - 2 * 1000  # only the first 50 and the near-standstill ones left out
+    assert result["delta"]["source"] == "repeatability"
+
+
+def test_a_lagging_output_torque_channel_is_found_aligned_and_the_drag_with_it(tmp_path):
+    """A 100 Hz DAQ whose output-torque channel lags the drive torque by 30 ms: the lag within 3 ms,
+    the drag found; the lag given as the channel map's lag_s aligns the import, and nothing is left."""
+    rig = Rig(drag_nm=0.2, output_lag_s=0.030)
+    csv, cmap, _truth = loaded_rig(tmp_path, rig)
+    p = str(params(tmp_path / "p.yaml"))
+    result = calibrate_json(str(csv), "--channels", str(cmap), "--params", p)
+    [lag] = [x for x in result["nuisances"]["lags"] if x["channel"] == "output_torque"]
+    assert lag["lag_s"] == pytest.approx(0.030, abs=0.003) and lag["applied"], lag
+    found = effects_of(result)
+    assert found["drag_constant"]["params"]["c"] == pytest.approx(0.2, rel=0.05), found
+    aligned_map = rig_map(tmp_path / "aligned.yaml", rig.ratio, lag_s=round(lag["lag_s"], 4))
+    again = calibrate_json(str(csv), "--channels", str(aligned_map), "--params", p)
+    [left] = [x for x in again["nuisances"]["lags"] if x["channel"] == "output_torque"]
+    assert abs(left["lag_s"]) < 0.001 and not left["applied"], left
+    assert effects_of(again)["drag_constant"]["params"]["c"] == pytest.approx(0.2, rel=0.05)
+
+
+def test_a_change_half_way_is_found_and_the_later_stretch_is_calibrated(tmp_path):
+    """A drag that appears 70 s into a 160 s run: the change within 2 s, the stretch after it
+    calibrated alone (its drag, not half of it); ``--segments each`` also calibrates the one before."""
+    rig = Rig(drag_nm=0.15, step_at_s=70.0)
+    csv, cmap, truth = loaded_rig(tmp_path, rig)
+    p = str(params(tmp_path / "p.yaml"))
+    result = calibrate_json(str(csv), "--channels", str(cmap), "--params", p)
+    [change] = result["changes"]
+    assert change["t_s"] == pytest.approx(70.0, abs=2.0), change
+    assert change["ci95_s"][0] <= change["t_s"] <= change["ci95_s"][1]
+    found = effects_of(result)
+    lo, hi = found["drag_constant"]["ci95"]["c"]
+    assert lo <= 0.15 <= hi or found["drag_constant"]["params"]["c"] == pytest.approx(0.15, rel=0.05), found
+    assert result["samples"] < 0.6 * len(truth["t"]) and "latest stretch" in result["stretch"]
+    each = calibrate_json(str(csv), "--channels", str(cmap), "--params", p, "--segments", "each")
+    first, last = each["segments"]
+    assert "drag_constant" not in {e["name"] for e in first["effects"]}  # before the change: no drag
+    assert last["effects"] == each["effects"]
+    whole = calibrate_json(str(csv), "--channels", str(cmap), "--params", p, "--segments", "off")
+    assert whole["changes"] == [] and "every sample" in whole["stretch"]
+
+
+def test_no_change_is_found_in_a_stationary_recording(tmp_path):
+    for seed in range(3):
+        csv, cmap, _ = loaded_rig(tmp_path, Rig(drag_nm=0.15), seed=seed, name=f"rig{seed}")
+        result = calibrate_json(str(csv), "--channels", str(cmap), "--params", str(params(tmp_path / "p.yaml")))
+        assert result["changes"] == [], (seed, result["changes"])
+
+
+def test_viscous_friction_that_differs_by_direction_is_found(tmp_path):
+    """Forward 0.0015, reverse 0.0025 N·m/(rad/s): the mean viscous drag and the difference between the
+    directions (no sensor offset competes: the difference grows with speed)."""
+    rig = Rig(drag_nm=0.1, viscous_nm_s=0.0015, viscous_reverse_nm_s=0.0025)
+    csv, cmap, _ = loaded_rig(tmp_path, rig)
+    result = calibrate_json(str(csv), "--channels", str(cmap), "--params", str(params(tmp_path / "p.yaml")))
+    found = effects_of(result)
+    assert {"drag_direction", "drag_speed", "drag_constant"} <= set(found), sorted(found)
+    assert found["drag_direction"]["params"]["c"] == pytest.approx(-0.0005, rel=0.1)
+    assert found["drag_speed"]["params"]["c"] == pytest.approx(0.002, rel=0.1)
+    assert "torque_offset" not in found
+
+
+def test_friction_only_under_back_driving_is_named_with_its_other_reading(tmp_path):
+    """A loss 0.004·|T| only while the output drives the input: taken as backdrive (one term), the
+    other reading -- a torque-sensor gain plus a load friction in every quadrant -- named beside it
+    with its error and what tells them apart; --assume takes the other."""
+    rig = Rig(drag_nm=0.1, viscous_nm_s=0.0, backdrive_share=0.004)
+    csv, cmap, _ = loaded_rig(tmp_path, rig)
+    p = str(params(tmp_path / "p.yaml"))
+    result = calibrate_json(str(csv), "--channels", str(cmap), "--params", p)
+    found = effects_of(result)
+    assert "backdrive" in found and found["backdrive"]["params"]["c"] == pytest.approx(0.004, rel=0.1), found
+    assert "torque_gain" not in found and "load_dependent" not in found
+    [reading] = [a for a in result["ambiguous"] if "backdrive" in a["effects"]]
+    assert set(reading["effects"]) == {"backdrive", "torque_gain", "load_dependent"}
+    assert reading["taken"] == "backdrive" and "calibration of the torque sensors" in reading["needs"]
+    others = [r for r in reading["readings"] if not r["written"]]
+    assert others and set(others[0]["effects"]) == {"torque_gain", "load_dependent"}
+    assert result["verdict"] == "effects_found"
+    other = calibrate_json(str(csv), "--channels", str(cmap), "--params", p, "--assume", "torque_gain")
+    assert {"torque_gain", "load_dependent"} <= set(effects_of(other)), sorted(effects_of(other))
+
+
+def test_calibrating_from_a_good_file_never_writes_a_worse_one(tmp_path):
+    """From the file that holds what the rig has, the result predicts held-out data at least as well;
+    from a file with a wrong drag, the written file replays the recording with a smaller residual."""
+    rig = Rig(drag_nm=0.15, viscous_nm_s=0.002)
+    csv, cmap, _ = loaded_rig(tmp_path, rig)
+    true_file = params(tmp_path / "true.yaml", "    effects:\n      drag_constant: {enabled: true, c_nm: 0.15}\n"
+                                               "      drag_speed: {enabled: true, c: 0.002, p: 1.0}\n")
+    out = tmp_path / "cal.yaml"
+    proc = run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(true_file), "--out", str(out),
+                   "--json", check=False)
+    result = json.loads(proc.stdout)
+    assert result["from_file"] == ["drag_constant", "drag_speed"]
+    if result["written"]:
+        assert result["error_after"]["rmse_nm"] <= result["error_before"]["rmse_nm"]
+        assert proc.returncode == 0
+    else:
+        assert proc.returncode == 1 and not out.exists()
+    wrong = params(tmp_path / "wrong.yaml", "    effects:\n      drag_constant: {enabled: true, c_nm: 0.3}\n")
+    out2 = tmp_path / "cal2.yaml"
+    fixed = calibrate_json(str(csv), "--channels", str(cmap), "--params", str(wrong), "--out", str(out2))
+    assert fixed["written"] and fixed["error_after"]["rmse_nm"] < fixed["error_before"]["rmse_nm"]
+
+    def replay_rms(param_file) -> float:
+        text = run_cli("replay", str(csv), "--channels", str(cmap), "--params", str(param_file), "--no-png").stdout
+        return float(next(ln for ln in text.splitlines() if ln.startswith("residual")).split("RMS")[1].split()[0])
+
+    assert replay_rms(out2) < replay_rms(wrong)
+
+
+def test_every_candidate_gets_a_decision_with_its_reason(tmp_path):
+    """No candidate is left untested after the first that fails: each has its held-out numbers or the
+    reason the data cannot test it; δ says where it came from."""
+    from rollergear_ros.calibration.blocks import groups
+
+    csv, cmap = slow_joint(tmp_path, Joint())
+    result = calibrate_json(str(csv), "--channels", str(cmap), "--params", str(params(tmp_path / "p.yaml")))
+    decisions = {d["name"]: d for d in result["decisions"]}
+    assert set(decisions) == set(groups())
+    for name, d in decisions.items():
+        assert d["accepted"] or d["reasons"], d
+        if not d["accepted"] and d["heldout_rmse_nm"] is None:  # not testable: the real reason
+            assert not d["reasons"][0].startswith("needs an oil temperature") or "temperature" in name
+    assert "spin test" in decisions["load_dependent"]["reasons"][0]
+    assert result["delta"]["text"].startswith("delta = ")
+
+
+EMPS = REALDATA / "emps"
+
+
+@pytest.mark.skipif(not (EMPS / "scripts" / "score_calibration.py").exists(), reason=f"no EMPS benchmark at {EMPS}")
+def test_the_emps_drive_scores_as_the_published_identification(tmp_path):
+    """The EMPS ball-screw drive (measured; Janot, Gautier, Brunot 2019), calibrated as a spin test
+    from the shared parameter file with the default settings: by the benchmark's own score the file
+    is within 4.3 % direct and 6.3 % cross-test (published 4.08 / 5.98 %), the force offset within
+    10 % of the published −3.165 N, no Stribeck or Dahl claimed; the friction that differs by
+    direction, named as the other reading of the offset and taken with --assume, reaches the
+    published asymmetric model's cross-test level (5.40 %)."""
+    conv = EMPS / "converted"
+    base = ["calibrate", str(conv / "emps_train.csv"), "--channels", str(conv / "map_spin.yaml"),
+            "--params", str(conv / "params.yaml")]
+
+    def score(extra: list[str], tag: str) -> tuple[dict, dict]:
+        out = tmp_path / f"{tag}.yaml"
+        proc = run_cli(*base, *extra, "--out", str(out), "--json")
+        (tmp_path / f"{tag}.json").write_text(proc.stdout)
+        work = tmp_path / tag
+        work.mkdir()
+        scored = subprocess.run([sys.executable, str(EMPS / "scripts" / "score_calibration.py"),
+                                 str(tmp_path / "rg"), str(work), str(out), str(tmp_path / f"{tag}.json")],
+                                capture_output=True, text=True, check=True)
+        return json.loads(proc.stdout), json.loads(scored.stdout)
+
+    (tmp_path / "rg").write_text(f"#!/bin/sh\nexec {sys.executable} -m rollergear_ros \"$@\"\n")
+    (tmp_path / "rg").chmod(0o755)
+    result, figures = score([], "default")
+    found = effects_of(result)
+    assert figures["direct"] <= 4.3 and figures["cross"] <= 6.3, figures
+    assert found["torque_offset"]["params"]["b"] == pytest.approx(-3.165, rel=0.10)
+    assert "stribeck" not in found and "dahl" not in found
+    [reading] = [a for a in result["ambiguous"] if "drag_direction" in a["effects"]]
+    assert reading["taken"] == "torque_offset"
+    better = [r for r in reading["readings"] if "drag_direction" in r["effects"]][0]
+    assert better["heldout_rmse_nm"] < result["error_after"]["rmse_nm"]  # said: the data favour it
+    _direction, figures_dir = score(["--assume", "drag_direction"], "direction")
+    assert figures_dir["cross"] <= 5.4, figures_dir
+    np.testing.assert_array_less([figures_dir["direct"]], [figures["direct"]])

@@ -1,0 +1,135 @@
+"""Rigs simulated for the tests from their own formulas -- not the effect registry's, not the package's
+simulator -- and written as a DAQ would log them: a CSV with a channel map.  What calibrate must find
+is only in these formulas.
+
+* :func:`slow_joint`: a robot joint's friction test -- constant-speed sweeps up to 0.1 rad/s both ways,
+  an encoder whose speed reading has 1e-4 rad/s of noise, a gravity-compensated torque with a zero
+  error, nothing on the output (the drive torque is the friction).
+* :func:`loaded_rig`: a gearbox on a test rig (the paper's model switched off: its loss is the
+  formulas here), drive torque and speed in both directions, motoring and back-driving, output torque
+  measured; options: a lag of the output-torque channel, a step change, friction that differs by
+  direction or appears only while the output drives the input.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+NO_PAPER_MODEL = ("/**/loss_estimator:\n  ros__parameters:\n    estimator: {paper_model: false}\n")
+
+
+def write_csv(path: Path, columns: dict[str, np.ndarray]) -> Path:
+    """The columns as a CSV (the first one the time)."""
+    names = list(columns)
+    data = np.column_stack([columns[n] for n in names])
+    with path.open("w") as fh:
+        fh.write(",".join(names) + "\n")
+        np.savetxt(fh, data, delimiter=",", fmt="%.9g")
+    return path
+
+
+def spin_map(path: Path) -> Path:
+    """A spin test's channel map: drive torque and speed, nothing on the output."""
+    path.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\n"
+                    "motor_speed: {column: w, unit: rad/s}\noutput_torque: {constant: 0, unit: N*m}\n")
+    return path
+
+
+def rig_map(path: Path, ratio: float, lag_s: float | None = None) -> Path:
+    """A loaded rig's channel map (the output speed from the ratio); ``lag_s``: the output torque's."""
+    lag = f", lag_s: {lag_s}" if lag_s is not None else ""
+    path.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
+                    "motor_speed: {column: w_in, unit: rad/s}\n"
+                    f"output_torque: {{column: T_out, unit: N*m{lag}}}\nratio: {ratio}\n")
+    return path
+
+
+def params(path: Path, extra: str = "") -> Path:
+    """A parameter file with the paper's model switched off (a machine it does not describe)."""
+    path.write_text(NO_PAPER_MODEL + extra)
+    return path
+
+
+@dataclass(frozen=True)
+class Joint:
+    coulomb_nm: float = 0.5
+    viscous_nm_s: float = 2.0
+    offset_nm: float = 0.05
+
+
+def slow_joint(tmp: Path, joint: Joint = Joint(), seed: int = 0, rate_hz: float = 500.0) -> tuple[Path, Path]:
+    """Sweeps at ±0.01 … 0.1 rad/s (4 s each, through rest between), the speed reading an encoder's
+    (noise 1e-4 rad/s), the torque ``(Fc + Fv·|ω|)·sgn ω + offset`` with 0.01 N·m noise."""
+    rng = np.random.default_rng(seed)
+    levels = [0.01, 0.02, 0.035, 0.05, 0.07, 0.1]
+    pieces = []
+    for _repeat in range(2):
+        for v in levels:
+            for d in (1.0, -1.0):
+                ramp = np.linspace(0.0, 1.0, int(0.5 * rate_hz), endpoint=False)
+                pieces += [d * v * ramp, np.full(int(4.0 * rate_hz), d * v), d * v * ramp[::-1]]
+    w = np.concatenate(pieces)
+    t = np.arange(len(w)) / rate_hz
+    friction = (joint.coulomb_nm + joint.viscous_nm_s * np.abs(w)) * np.sign(w)
+    torque = friction + joint.offset_nm + rng.normal(0.0, 0.01, len(w))
+    speed = w + rng.normal(0.0, 1e-4, len(w))
+    csv = write_csv(tmp / "joint.csv", {"t": t, "T": torque, "w": speed})
+    return csv, spin_map(tmp / "joint_map.yaml")
+
+
+@dataclass(frozen=True)
+class Rig:
+    """A loaded rig's gearbox: its loss (input-referred, N·m) from formulas of its own."""
+
+    ratio: float = 4.0
+    drag_nm: float = 0.2  #: a constant drag
+    viscous_nm_s: float = 0.002  #: a viscous drag c·|ω|
+    load_share: float = 0.0  #: a load friction k·|T|
+    viscous_reverse_nm_s: float | None = None  #: the viscous drag in reverse (None: as forward)
+    backdrive_share: float = 0.0  #: a friction k·|T| only while the output drives the input
+    step_at_s: float | None = None  #: the drag appears here (None: from the start)
+    output_lag_s: float = 0.0  #: the output torque channel's lag behind the drive torque
+    rate_hz: float = 100.0
+    torque_noise_nm: float = 0.01
+
+
+def rig_profile(rate_hz: float, seed: int, duration_s: float = 160.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dwells of 2 s at speeds ±20 … 200 rad/s and torques −30 … 60 N·m (a quarter back-driving), each
+    dwell reached by a 0.2 s ramp: ``t, ω, T``."""
+    rng = np.random.default_rng(seed)
+    n_dwell = int(duration_s / 2.2)
+    speeds = rng.choice([20.0, 50.0, 100.0, 150.0, 200.0], n_dwell) * rng.choice([1.0, -1.0], n_dwell)
+    torques = rng.uniform(-30.0, 60.0, n_dwell)
+    w_pts, t_pts, time_pts = [], [], []
+    now = 0.0
+    for w, tq in zip(speeds, torques):
+        for dt in (0.2, 2.0):
+            now += dt
+            time_pts.append(now)
+            w_pts.append(w)
+            t_pts.append(tq * np.sign(w))
+    t = np.arange(0.0, now, 1.0 / rate_hz)
+    return t, np.interp(t, time_pts, w_pts), np.interp(t, time_pts, t_pts)
+
+
+def loaded_rig(tmp: Path, rig: Rig = Rig(), seed: int = 0, name: str = "rig") -> tuple[Path, Path, dict]:
+    """The rig's CSV and channel map: ``T_out = (T_in − loss·sgn ω)·ratio`` (a loss opposes the motion),
+    torque noise on both torque channels, the output torque delayed by ``rig.output_lag_s``."""
+    rng = np.random.default_rng(seed)
+    t, w, tq = rig_profile(rig.rate_hz, seed)
+    viscous = np.where(w >= 0, rig.viscous_nm_s, rig.viscous_nm_s if rig.viscous_reverse_nm_s is None
+                       else rig.viscous_reverse_nm_s)
+    back = (tq * w < 0) * rig.backdrive_share * np.abs(tq)
+    drag = np.full(len(t), rig.drag_nm) if rig.step_at_s is None else np.where(t >= rig.step_at_s, rig.drag_nm, 0.0)
+    loss = drag + viscous * np.abs(w) + rig.load_share * np.abs(tq) + back
+    t_out = (tq - loss * np.sign(w)) * rig.ratio
+    if rig.output_lag_s:
+        t_out = np.interp(t - rig.output_lag_s, t, t_out)
+    t_in_meas = tq + rng.normal(0.0, rig.torque_noise_nm, len(t))
+    t_out_meas = t_out + rng.normal(0.0, rig.torque_noise_nm * rig.ratio, len(t))
+    csv = write_csv(tmp / f"{name}.csv", {"t": t, "T_in": t_in_meas, "w_in": w + rng.normal(0.0, 0.02, len(t)),
+                                          "T_out": t_out_meas})
+    return csv, rig_map(tmp / f"{name}_map.yaml", rig.ratio), {"t": t, "w": w, "T": tq, "loss": loss}
