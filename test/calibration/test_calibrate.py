@@ -227,7 +227,8 @@ def test_calibrated_yaml_is_used_by_replay(tmp_path):
     proc = run_cli("calibrate", str(bag), "--out", str(out_yaml), "--report", str(report))
     assert "verdict: effects_found" in proc.stdout
     text = (report / "report.md").read_text()
-    assert "| before: the model of the parameter file |" in text and "| after: what the calibrated file writes |" in text
+    assert "| before: the model of the parameter file |" in text
+    assert "| after: what the calibrated file writes |" in text
     for png in ("residual_vs_speed.png", "residual_vs_torque.png", "measured_vs_estimated.png",
                 "residual_over_time.png", "effect_drag_speed.png", "effect_drag_constant.png"):
         assert (report / png).stat().st_size > 5000
