@@ -15,6 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..core.effects import EFFECTS, EffectInputs
+from ..core.floatops import shared_powers
 from ..core.modelparams import MODEL_PARAMETERS, fitted_parameters
 from ..core.model import rotation_sign
 from .noise import Repeatability, difference_variance, reading_noise, repeatability
@@ -89,9 +90,40 @@ class Blocks:
     _runs: _DirectionRuns | None = field(default=None, repr=False)  # runs of one direction (memory), once
     _speed_order: tuple | None = field(default=None, repr=False)  # samples by |ω| (laws that fade with speed)
     _columns: dict = field(default_factory=dict, repr=False)  # (effect, member, second) -> block means, computed once
+    _thin: tuple | None = field(default=None, repr=False)  # the search's samples (:meth:`search_column`)
 
     def mean(self, values: np.ndarray) -> np.ndarray:
         return np.add.reduceat(np.broadcast_to(values, self.x.abs_speed.shape), self.start) / self.count
+
+    def search_column(self, name: str, member: float | None = None, second: float | None = None,
+                      law: tuple[float, float, float] | None = None) -> np.ndarray:
+        """:meth:`column` as a search for the best exponent evaluates it, member after member: block
+        means over at most :data:`SEARCH_SAMPLES` samples of each block, evenly spread (within a block
+        the operating point barely moves: its mean of a law differs from the whole block's by far less
+        than the noise); the exact column where the law needs all samples (a memory, a law of the
+        slowest samples, the oil's) or a block holds few."""
+        effect = EFFECTS.get(name)
+        if effect is None or effect.scales_fr or effect.relaxes_over is not None or effect.state_step is not None \
+                or effect.vanishes_above is not None or self.x is None:
+            return self.column(name, member, second, law)
+        if self._thin is None:
+            self._thin = _thinned(self)
+        idx, block, count = self._thin
+        if idx is None:  # every block holds few samples already
+            return self.column(name, member, second, law)
+        key = ("search", name, member, second, law)
+        cached = self._columns.get(key)
+        if cached is not None:
+            return cached
+        params = effect.defaults() | (dict(zip(("B", "C", "theta_ref"), law)) if law is not None else {})
+        x = EffectInputs(*(v[idx] if isinstance(v, np.ndarray) and v.shape == self.x.abs_speed.shape else v
+                           for v in self.x[:6]))
+        values = effect.column(x, params, member, second)
+        if effect.needs_temperature:
+            values = np.where(np.isnan(values), 0.0, values)
+        cached = self._columns[key] = np.bincount(block, weights=values, minlength=len(self.count)) / count
+        cached.flags.writeable = False
+        return cached
 
     def column(self, name: str, member: float | None = None, second: float | None = None,
                law: tuple[float, float, float] | None = None) -> np.ndarray:
@@ -367,14 +399,19 @@ def _add_columns(blocks: Blocks, d: SampleData, mean) -> None:
     """Each testable effect's block column (or grid of columns over its member), and the model's
     own parameters' columns: the part each scales, where the model has it (not switched off, not 0
     as the ball friction without a ball force)."""
-    for name in blocks.testable:
-        effect = EFFECTS[name]
-        if effect.oil_law:  # its columns need the oil's law: computed when the selection knows it
-            continue
-        if effect.member is None:
+    laws = [n for n in blocks.testable if not EFFECTS[n].oil_law]  # the oil's: once the selection knows it
+    for name in laws:
+        if EFFECTS[name].member is None:
             blocks.columns[name] = blocks.column(name)
-        else:
-            blocks.grids[name] = np.stack([blocks.column(name, m) for m in effect.member_grid])
+    gridded = [n for n in laws if EFFECTS[n].member is not None]
+    columns: dict[str, dict[float, np.ndarray]] = {n: {} for n in gridded}
+    for m in sorted({m for n in gridded for m in EFFECTS[n].member_grid}):
+        with shared_powers():  # laws of one input at one exponent share its powers
+            for name in gridded:
+                if m in EFFECTS[name].member_grid:
+                    columns[name][m] = blocks.column(name, m)
+    for name in gridded:
+        blocks.grids[name] = np.stack([columns[name][m] for m in EFFECTS[name].member_grid])
     for key in fitted_parameters():
         part = d.parts.get(MODEL_PARAMETERS[key].part)
         if d.spin_test:
@@ -455,6 +492,22 @@ def _cut_transients(d: SampleData, brk: np.ndarray) -> np.ndarray:
     out = brk.copy()
     out[1:] |= piece[1:] != piece[:-1]
     return out
+
+
+#: a search for an exponent evaluates a law on at most this many samples of each block
+SEARCH_SAMPLES = 16
+
+
+def _thinned(b: Blocks) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    """The samples :meth:`Blocks.search_column` evaluates: at most :data:`SEARCH_SAMPLES` of each block,
+    evenly spread; their blocks and counts (``None`` where no block holds more)."""
+    if not np.any(b.count > SEARCH_SAMPLES):
+        return None, None, None
+    take = np.minimum(b.count, SEARCH_SAMPLES)
+    block = np.repeat(np.arange(len(b.count)), take)
+    k = np.arange(len(block)) - np.repeat(np.cumsum(take) - take, take)
+    idx = np.repeat(b.start, take) + (k * np.repeat(b.count, take)) // np.repeat(take, take)
+    return idx, block, take.astype(float)
 
 
 def _full_block(t: np.ndarray, block_s: float) -> float:

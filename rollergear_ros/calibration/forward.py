@@ -236,11 +236,11 @@ class _Procedure:
                 continue
             self.log.append(f"step {state.step}: {entry[1]} set aside: {why_not}")
             state.tested_at[entry[1]] = state.step
-            # a negative friction the data ask for clearly (significant, beyond delta) and better than
-            # any explanation: the model over-predicts, and the paper's model switched off is worth
-            # weighing (calibrate)
+            # a negative friction over the operating range the data ask for clearly (significant, beyond
+            # delta) and better than any explanation: the model over-predicts, and the paper's model
+            # switched off is worth weighing (calibrate)
             if not kept and "negative friction" in why_not and entry[1] not in state.negative \
-                    and cal.clear(entry[2], state.cv_now, entry[0], z_crit):
+                    and _level(entry[1]) and cal.clear(entry[2], state.cv_now, entry[0], z_crit):
                 state.negative.append(entry[1])
         return kept
 
@@ -490,6 +490,13 @@ class _Procedure:
 
 
 # ---------------------------------------------------------------------------- helpers
+def _level(name: str) -> bool:
+    """A candidate that adds a loss over the operating range (not a transient's shape: a memory, a
+    law that fades with speed): a negative one says the model's level is too high."""
+    e = EFFECTS.get(name)
+    return e is not None and e.state_step is None and e.vanishes_above is None
+
+
 def _moved_last(terms: list[Term], i: int) -> list[Term]:
     """``terms`` with the ``i``-th last (the one a test looks at)."""
     return terms[:i] + terms[i + 1:] + [terms[i]]

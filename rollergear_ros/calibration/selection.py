@@ -101,6 +101,29 @@ def wls(x: np.ndarray, y: np.ndarray, w: np.ndarray, groups: np.ndarray | None =
     return Fit(coef, cov, float(np.sum(w * r * r)), pred)
 
 
+#: the normal equations of a fit (columns scaled to unit norm) are solved where their condition is
+#: below this; else the least-squares solver (rank-revealing) is asked
+WELL_CONDITIONED = 1e8
+
+
+def weighted_sse(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> float:
+    """The weighted residual sum of squares of the least-squares fit of ``y`` by the columns of ``x``:
+    by its normal equations (columns scaled to unit weighted norm; a profile evaluates thousands of
+    these) where they are well conditioned, else by the rank-revealing solver; the residual itself is
+    computed, never ``y'Wy − b'X'Wy`` (a near-exact fit would cancel)."""
+    wx = x * w[:, None]
+    gram = x.T @ wx
+    scale = np.sqrt(np.maximum(np.diag(gram), 1e-300))
+    g = gram / np.outer(scale, scale)
+    if np.linalg.cond(g) < WELL_CONDITIONED:
+        coef = np.linalg.solve(g, (wx.T @ y) / scale) / scale
+    else:
+        sw = np.sqrt(w)
+        coef, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=1e-12)
+    r = y - x @ coef
+    return float(np.sum(w * r * r))
+
+
 @dataclass
 class Term:
     """One candidate group at one member (exponent / Vogel B): a column in the design."""
@@ -240,15 +263,13 @@ class Calibrator:
         return Fit(coef, cov, f.wsse, f.pred)
 
     def wsse(self, terms: Sequence[Term]) -> float:
+        """The weighted residual sum of squares of a set's fit (what the exponents' profiles minimise)."""
         held = self.held(terms)
         x = self.design(terms, skip=held)
         y = self.b.y - self._offset(terms, held)
         if x.shape[1] == 0:
             return float(np.sum(self.b.weight * y**2))
-        sw = np.sqrt(self.b.weight)
-        coef, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=1e-12)
-        r = y - x @ coef
-        return float(np.sum(self.b.weight * r * r))
+        return weighted_sse(x, y, self.b.weight)
 
     def cv_predictions(self, terms: Sequence[Term], only_terms: int | None = None) -> np.ndarray:
         """Prediction of every block from a fit that did not see its fold.
@@ -290,9 +311,11 @@ class Calibrator:
         """RMS of term ``i``'s column as the set uses it (per unit coefficient)."""
         return self.rms_of(self.effective_column(terms[i], terms))
 
-    def _with_member(self, term: Term, member: float, second: float | None = None) -> Term:
+    def _with_member(self, term: Term, member: float, second: float | None = None, search: bool = False) -> Term:
+        """``term`` at another member (and second member); ``search``: its column as a search evaluates it."""
         second = term.second if second is None else second
-        return Term(term.name, self.b.column(term.name, member, second, term.law), member, second, term.law)
+        column = (self.b.search_column if search else self.b.column)(term.name, member, second, term.law)
+        return Term(term.name, column, member, second, term.law)
 
     def oil_law(self, terms: Sequence[Term]) -> tuple[float, float, float] | None:
         """The calibrated oil's Vogel law: the set's viscosity_temperature, else the data sheet's."""
@@ -310,10 +333,7 @@ class Calibrator:
         y = self.b.y - self._offset(terms, held)
         if x.shape[1] == 0:
             return float(np.sum(self.b.weight * y**2))
-        sw = np.sqrt(self.b.weight)
-        c, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=1e-12)
-        r = y - x @ c
-        return float(np.sum(self.b.weight * r * r))
+        return weighted_sse(x, y, self.b.weight)
 
     def _score(self, terms: list[Term], i: int) -> Callable[[Term], float]:
         """What term ``i``'s members minimise: the fit's wsse, with the coefficient held where the
@@ -339,10 +359,14 @@ class Calibrator:
         # an optimum beyond the grid would stop one step outside it and pass for an estimate)
         lo = lo_b if j == 0 else max(lo_b, grid[j].member - step)
         hi = hi_b if j == len(grid) - 1 else min(hi_b, grid[j].member + step)
-        res = minimize_scalar(lambda m: score(self._with_member(t, m, second)), bounds=(lo, hi),
-                              method="bounded", options={"xatol": step * 1e-3})
-        if res.fun <= scores[j]:
-            return float(res.fun), self._with_member(t, float(res.x), second)
+        # the search over thinned block means (:meth:`~.blocks.Blocks.search_column`), the best refined
+        # member's exact column against the grid's
+        res = minimize_scalar(lambda m: score(self._with_member(t, m, second, search=True)), bounds=(lo, hi),
+                              method="bounded", options={"xatol": step * 1e-2})
+        found = self._with_member(t, float(res.x), second)
+        exact = score(found)
+        if exact <= scores[j]:
+            return exact, found
         return scores[j], grid[j]
 
     def _best_pair(self, terms: list[Term], i: int) -> Term:

@@ -26,7 +26,7 @@ STRUCTURE_SHARE = 0.1  #: below this share of the variance, an input does not ex
 NOISE_FACTOR = 1.5  #: a residual within this factor of a block mean's noise is noise
 ROTATING_TURNS = 5.0  #: a drive that turns more than this is rotating (orders of a revolution)
 MAX_ORDER = 32  #: orders of a revolution searched
-ANGLE_SAMPLES = 200_000  #: the angle spectrum of at most this many samples (evenly thinned)
+ANGLE_SAMPLES = 50_000  #: the angle spectrum of at most this many samples (evenly thinned)
 
 
 @dataclass(frozen=True)
@@ -250,10 +250,14 @@ def _turns(theta: np.ndarray, bag_id: np.ndarray) -> float:
 
 
 def _best_order(theta: np.ndarray, r: np.ndarray, total: float) -> tuple[int, float, float] | None:
-    """The order of the revolution whose sine and cosine carry most of ``r`` (least squares per order)."""
+    """The order of the revolution whose sine and cosine carry most of ``r`` (least squares per order,
+    the harmonics built by complex powers: one exponential for all orders)."""
+    base = np.exp(1j * np.mod(theta, 2 * np.pi))
+    z = np.ones(len(theta), complex)
     best = None
     for k in range(1, MAX_ORDER + 1):
-        amp, share = _harmonic(k * theta, r, total)
+        z = z * base
+        amp, share = _harmonic_of(z.real, z.imag, r, total)
         if best is None or share > best[2]:
             best = (k, amp, share)
     return best
@@ -271,7 +275,16 @@ def _best_period(pos: np.ndarray, r: np.ndarray, total: float, span: float) -> t
 
 def _harmonic(phase: np.ndarray, r: np.ndarray, total: float) -> tuple[float, float]:
     """Amplitude and variance share of the least-squares sine/cosine pair at ``phase``."""
-    x = np.column_stack([np.cos(phase), np.sin(phase)])
-    coef, *_ = np.linalg.lstsq(x, r, rcond=None)
-    fitted = x @ coef
-    return float(np.hypot(*coef)), float(np.sum(fitted * fitted) / total)
+    return _harmonic_of(np.cos(phase), np.sin(phase), r, total)
+
+
+def _harmonic_of(c: np.ndarray, s: np.ndarray, r: np.ndarray, total: float) -> tuple[float, float]:
+    """The least-squares fit of ``r`` by ``a·c + b·s`` (its 2 × 2 normal equations): amplitude, share."""
+    cc, ss, cs = float(c @ c), float(s @ s), float(c @ s)
+    cr, sr = float(c @ r), float(s @ r)
+    det = cc * ss - cs * cs
+    if det <= 1e-12 * max(cc * ss, 1e-300):
+        return 0.0, 0.0
+    a = (ss * cr - cs * sr) / det
+    b = (cc * sr - cs * cr) / det
+    return float(np.hypot(a, b)), float((a * cr + b * sr) / total)
