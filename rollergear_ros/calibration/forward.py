@@ -138,6 +138,7 @@ class _Procedure:
         for t in initial:
             if t.name not in cal.b.testable:
                 state.notes[t.name] = "in the parameter file, but this data cannot test it: kept as it is"
+        self._file_readings(state, names)
         while state.remaining and self._step(state):
             pass
         self._settle_readings(state)
@@ -340,6 +341,24 @@ class _Procedure:
                                            f"--assume {dropped[0]} takes it)")
             return (cv_other, fitted, taken) if take_other else (cv_new, terms, taken)
         return None
+
+    def _file_readings(self, state: _Forward, names: set[str]) -> None:
+        """A reading the parameter file holds whole (its torque offset) is the one taken: the other one
+        (a drag that differs by direction) is named beside it, not added on top -- unless assumed, or
+        unless the data tell them apart (:meth:`_settle_readings`)."""
+        for e in EFFECTS.values():
+            mine, other = (e.name,), tuple(e.alternative_to)
+            if not other or e.name in names or not set(other) <= names or e.name not in state.remaining:
+                continue
+            if any(n in self.assume for n in (*mine, *other)):
+                continue
+            amb = AmbiguousSet(sorted({*mine, *other}), _reading_needs(mine, other), [math.nan, math.nan],
+                               taken=" + ".join(other))
+            state.ambiguous.append(amb)
+            state.readings.append((other, mine, len(state.ambiguous) - 1))
+            state.remaining = [r for r in state.remaining if r != e.name]
+            state.notes[e.name] = (f"the other reading of the parameter file's {' + '.join(other)} (--assume "
+                                   f"{e.name} takes it)")
 
     def _settle_readings(self, state: _Forward) -> None:
         """Where one of two readings, in the final set, leaves the held-out residual at the noise of a
