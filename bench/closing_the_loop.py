@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "test"))
+sys.path[:0] = [str(Path(__file__).resolve().parent.parent / "test" / d) for d in ("calibration", "")]
 from test_calibrate import CASES, OILS, datasheet_oil, draw_effect  # noqa: E402
 
 from rollergear_ros.calibration.calibrate import calibrate, load_samples  # noqa: E402

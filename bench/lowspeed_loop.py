@@ -19,7 +19,7 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT / "test"))
+sys.path[:0] = [str(ROOT / "test" / "calibration"), str(ROOT / "test")]
 from test_lowspeed import joint_csv, joint_velocity, lugre_friction, spin_test_csv  # noqa: E402
 
 
