@@ -551,13 +551,14 @@ CELL_TEMPERATURE_C = 1.0
 def _cells(d: SampleData, start: np.ndarray, count: np.ndarray) -> np.ndarray:
     """A label per block for its operating-point cell: the recording, the direction, the speed's and
     (unless a spin test, whose drive torque is the loss measured) the torque's magnitude in bins
-    :data:`CELL_RELATIVE` wide, the oil temperature's in :data:`CELL_TEMPERATURE_C`; -1 for a block
-    that does not hold one operating point (its speed spans more than a bin)."""
+    :data:`CELL_RELATIVE` wide, whether the speed rises, falls or holds, the oil temperature's in
+    :data:`CELL_TEMPERATURE_C`; -1 for a block that does not hold one operating point (its speed spans
+    more than a bin)."""
     def mean(x):
         return np.add.reduceat(x, start) / count
 
     w = mean(d.speed)
-    keys = [d.bag_id[start], np.sign(w), _log_bin(np.abs(w))]
+    keys = [d.bag_id[start], np.sign(w), _log_bin(np.abs(w)), _speeding(d, start, count, w)]
     if not d.spin_test:
         keys.append(_log_bin(np.abs(mean(d.torque))))
     theta = mean(np.nan_to_num(d.temperature, nan=-1e6))
@@ -566,6 +567,20 @@ def _cells(d: SampleData, start: np.ndarray, count: np.ndarray) -> np.ndarray:
     steady = span <= 2 * CELL_RELATIVE * np.maximum(np.abs(w), 1e-12) + 6.0 * max(d.sign_width_rad_s, 0.0)
     _u, label = np.unique(np.column_stack(keys), axis=0, return_inverse=True)
     return np.where(steady & (w != 0), label.ravel(), -1)
+
+
+def _speeding(d: SampleData, start: np.ndarray, count: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Per block: +1 speeding up, −1 slowing down, 0 holding (the same speed passed on the way up and
+    on the way down is not the same situation for a friction with memory)."""
+    n = len(d.speed)
+    within = np.arange(n) - np.repeat(start, count)
+    k = np.repeat(np.maximum(count // 3, 1), count)
+    first, last = within < k, within >= np.repeat(count, count) - k
+    thirds = np.maximum(count // 3, 1).astype(float)
+    a = np.abs(d.speed)
+    drift = (np.add.reduceat(np.where(last, a, 0.0), start) - np.add.reduceat(np.where(first, a, 0.0), start)) / thirds
+    tol = CELL_RELATIVE * np.abs(w) + 3.0 * max(d.sign_width_rad_s, 0.0)
+    return np.where(drift > tol, 1.0, np.where(drift < -tol, -1.0, 0.0))
 
 
 def _log_bin(x: np.ndarray) -> np.ndarray:

@@ -87,7 +87,7 @@ def repeatability(measured: np.ndarray, dwell: np.ndarray, count: np.ndarray, fu
     robust mean square that a dwell's one step or a passing spike does not carry.  With fewer than
     :data:`MIN_PAIRS` such pairs, from the blocks that share an operating-point cell (``cells``: a
     label per block, -1 for none; the operating point visited again, as a back-and-forth drive does):
-    the robust spread of their means about the cell's median, each scaled to a whole block."""
+    each visit against the one before it, as a dwell's pairs, each scaled to a whole block."""
     whole = count >= 0.8 * full
     same = (dwell[1:] == dwell[:-1]) & whole[1:] & whole[:-1]
     if same.sum() >= MIN_PAIRS or cells is None:
@@ -98,26 +98,15 @@ def repeatability(measured: np.ndarray, dwell: np.ndarray, count: np.ndarray, fu
         d = d * np.sqrt(n_pair / full)  # var(mean) ∝ 1/n: each pair scaled to whole blocks
         ms = float(np.median(d * d)) / 0.4549
         return Repeatability(math.sqrt(ms / 2.0), int(same.sum()), int(len(np.unique(dwell[1:][same]))))
-    use = cells >= 0
-    _labels, inverse, sizes = np.unique(cells[use], return_inverse=True, return_counts=True)
-    many = sizes[inverse] >= 3
-    if many.sum() < MIN_PAIRS:
-        return Repeatability(math.nan, int(many.sum()), 0)
-    m, n = measured[use][many], count[use][many].astype(float)
-    inv = inverse[many]
-    order = np.argsort(inv, kind="stable")
-    bounds = np.flatnonzero(np.r_[True, np.diff(inv[order]) != 0, True])
-    center = np.empty(len(m))
-    for a, b in zip(bounds[:-1], bounds[1:]):  # each cell's blocks about its own median
-        rows = order[a:b]
-        center[rows] = np.median(m[rows])
-    d = (m - center) * np.sqrt(n / full)
-    # the median absolute deviation of a normal is 0.6745 σ; a cell of k blocks about its own median
-    # loses about one of them
-    sigma = float(np.median(np.abs(d))) / 0.6745
-    k_mean = float(np.mean(sizes[sizes >= 3]))
-    sigma *= math.sqrt(k_mean / max(k_mean - 1.0, 1.0))
-    return Repeatability(sigma, int(many.sum()), int(len(np.unique(inv))), cells=True)
+    # each visit of a cell against the one before it (the blocks in time order): as a dwell's pairs
+    order = np.lexsort((np.arange(len(cells)), cells))
+    c, m, n = cells[order], measured[order], count[order].astype(float)
+    same = (c[1:] == c[:-1]) & (c[1:] >= 0)
+    if same.sum() < MIN_PAIRS:
+        return Repeatability(math.nan, int(same.sum()), 0, cells=True)
+    d = (m[1:] - m[:-1])[same] * np.sqrt((2.0 / (1.0 / n[1:] + 1.0 / n[:-1]))[same] / full)
+    ms = float(np.median(d * d)) / 0.4549
+    return Repeatability(math.sqrt(ms / 2.0), int(same.sum()), int(len(np.unique(c[1:][same]))), cells=True)
 
 
 #: consecutive pairs of whole blocks in dwells needed before the cells are not asked
@@ -152,7 +141,7 @@ def minimum_effect(user_delta_nm: float | None, rep: Repeatability, sensors_nm: 
     k = DELTA_STANDARD_ERRORS
     if math.isfinite(rep.se_block_nm) and rep.se_block_nm > 0:
         base = k * rep.se_block_nm
-        where = (f"{rep.pairs} blocks in {rep.dwells} operating-point cells visited again" if rep.cells else
+        where = (f"{rep.pairs} pairs of visits to {rep.dwells} operating-point cells" if rep.cells else
                  f"{rep.pairs} pairs of consecutive blocks in {rep.dwells} dwells")
         text = (f"{k:g} × the standard error of a {block_s:g} s mean at one operating point ({rep.se_block_nm:.3g} "
                 f"N·m, from {where})")
