@@ -41,6 +41,8 @@ class Topic:
     LOSS_POWER = "loss/power"
     EFFICIENCY = "efficiency"
     RESIDUAL_TORQUE = "residual/torque"
+    EFFICIENCY_MEASURED = "efficiency/measured"  #: energy-weighted over a window, once a second
+    EFFICIENCY_MEASURED_UNCERTAINTY = "efficiency/measured_uncertainty"  #: its standard uncertainty
     LOSS_ESTIMATE = "loss/estimate"  #: one stamped sensor_msgs/JointState per estimate (:mod:`outputs.stamped`)
     LOSS_MAP = "loss/map"  #: the live loss map, std_msgs/Float64MultiArray, transient-local (:mod:`outputs.livemap`)
     LOSS_TRACED = "loss/traced"  #: the latest online trace, diagnostic_msgs/DiagnosticStatus, transient-local

@@ -6,7 +6,7 @@ output, ``rollergear watch`` (the Float64 channels) and ``docs/interface.md`` (a
 each channel has its row there).  A channel's name is also its field of :class:`~recordings.bag.TopicMap`
 (per-sample channels: ``--topic-<name>``) and its key wherever outputs are keyed.
 
-Four kinds of channel:
+Five kinds of channel:
 
 - a **Float64** channel carries one value of each estimate: the attribute :attr:`OutputChannel.value`
   of :class:`~core.estimator.Estimate` (node) and :class:`~core.estimator.BatchEstimate` (replay); the node
@@ -16,6 +16,10 @@ Four kinds of channel:
 - the **map** channel carries the live loss map (:mod:`outputs.livemap`), one message per map rather
   than per estimate, latched (transient-local) for subscribers that join later, when
   ``node.publish_map`` is on.  Only the node publishes it (replay writes maps as ``.vtlm`` files);
+- a **window** channel carries one value of the measured efficiency over the last
+  ``node.efficiency_window_s`` of sample time (:class:`~core.measured.WindowValue`, its attribute
+  :attr:`OutputChannel.value`), once per second of sample time and only where the output torque is
+  measured: the node publishes these when ``node.publish_float64`` is on, replay writes them;
 - the **trace** channel carries each online trace's result (:mod:`ros.tracer`) as one
   ``diagnostic_msgs/msg/DiagnosticStatus``, latched, when ``node.trace`` is on.  Only the node
   publishes it (and records it).
@@ -35,7 +39,7 @@ from dataclasses import dataclass
 from .interface import NAMESPACE, OUTPUT_QUEUE_DEPTH, MessageType, Topic
 
 __all__ = ["OUTPUT_CHANNELS", "OutputChannel", "float64_channels", "map_channels", "register", "sample_channels",
-           "stamped_channels", "trace_channels", "unregister"]
+           "stamped_channels", "trace_channels", "unregister", "window_channels"]
 
 
 @dataclass(frozen=True)
@@ -48,13 +52,15 @@ class OutputChannel:
     unit: str  #: of the value ("1": dimensionless; "" for the stamped message, whose values have their own)
     description: str  #: what it carries (docs)
     #: attribute of :class:`~core.estimator.Estimate` / :class:`~core.estimator.BatchEstimate` a Float64 channel
-    #: carries (None: the stamped channel, which carries :data:`~outputs.stamped.ESTIMATE_FIELDS`)
+    #: carries (None: the stamped channel, which carries :data:`~outputs.stamped.ESTIMATE_FIELDS`); of
+    #: :class:`~core.measured.WindowValue` for a window channel
     value: str | None = None
     #: published only for samples with measured output torque (the value is NaN without one)
     measured_only: bool = False
     reliable: bool = True  #: QoS reliability the node offers it with (keep-last)
     depth: int = OUTPUT_QUEUE_DEPTH  #: QoS history depth
-    #: one message per estimate ("sample"), per loss map ("map") or per online trace ("trace")
+    #: one message per estimate ("sample"), per second of measured efficiency ("window"), per loss map
+    #: ("map") or per online trace ("trace")
     per: str = "sample"
     #: QoS durability: transient-local (the last ``depth`` messages kept for late joiners), else volatile
     transient_local: bool = False
@@ -78,8 +84,11 @@ def register(channel: OutputChannel) -> OutputChannel:
     """Add ``channel`` to :data:`OUTPUT_CHANNELS` (a name already there is refused)."""
     if channel.name in OUTPUT_CHANNELS:
         raise ValueError(f"output channel {channel.name!r} is already registered")
-    if channel.per not in ("sample", "map", "trace"):
-        raise ValueError(f"output channel {channel.name!r}: per is 'sample', 'map' or 'trace', not {channel.per!r}")
+    if channel.per not in ("sample", "window", "map", "trace"):
+        raise ValueError(f"output channel {channel.name!r}: per is 'sample', 'window', 'map' or 'trace', "
+                         f"not {channel.per!r}")
+    if channel.per == "window" and (channel.message_type != MessageType.FLOAT64 or channel.value is None):
+        raise ValueError(f"output channel {channel.name!r}: a window channel carries one Float64 value")
     if channel.stamped and channel.message_type != MessageType.JOINT_STATE:
         raise ValueError(f"output channel {channel.name!r}: without a value it is the stamped JointState channel")
     if channel.per == "map" and channel.message_type != MessageType.FLOAT64_MULTI_ARRAY:
@@ -110,6 +119,11 @@ def stamped_channels() -> tuple[OutputChannel, ...]:
     return tuple(c for c in OUTPUT_CHANNELS.values() if c.stamped)
 
 
+def window_channels() -> tuple[OutputChannel, ...]:
+    """The channels published once per second of measured efficiency, in publishing order."""
+    return tuple(c for c in OUTPUT_CHANNELS.values() if c.per == "window")
+
+
 def map_channels() -> tuple[OutputChannel, ...]:
     """The channel(s) published once per loss map."""
     return tuple(c for c in OUTPUT_CHANNELS.values() if c.per == "map")
@@ -128,6 +142,13 @@ for _channel in (
                   "efficiency"),
     OutputChannel("residual_torque", Topic.RESIDUAL_TORQUE, MessageType.FLOAT64, "N*m",
                   "measured loss - estimated loss (only with measured output)", "residual_nm", measured_only=True),
+    OutputChannel("efficiency_measured", Topic.EFFICIENCY_MEASURED, MessageType.FLOAT64, "1",
+                  "measured efficiency, energy-weighted over the last node.efficiency_window_s of sample time "
+                  "(P_out/P_in motoring, P_in/P_out regenerating), once a second; only with measured output",
+                  "efficiency", per="window"),
+    OutputChannel("efficiency_measured_uncertainty", Topic.EFFICIENCY_MEASURED_UNCERTAINTY, MessageType.FLOAT64,
+                  "1", "its standard uncertainty from the sensors' stated accuracy (sensors.*; GUM first order; "
+                  "0: none stated), once a second with it", "uncertainty", per="window"),
     OutputChannel("loss_estimate", Topic.LOSS_ESTIMATE, MessageType.JOINT_STATE, "",
                   "each estimate as one stamped message (sample time in header.stamp)"),
     OutputChannel("loss_map", Topic.LOSS_MAP, MessageType.FLOAT64_MULTI_ARRAY, "",

@@ -26,6 +26,7 @@ No rclpy import: the worker process never loads ROS.
 
 from __future__ import annotations
 
+import bisect
 import json
 import math
 import multiprocessing
@@ -88,6 +89,14 @@ class TraceBuffer:
         if extra > 0:
             del self.times[:extra]
             del self.values[:extra * (len(SAMPLE_FIELDS) - 1)]
+
+    def since(self, after_ns: int | None) -> dict[str, np.ndarray]:
+        """The buffered samples later than ``after_ns`` (None: all kept), as :meth:`snapshot` gives them."""
+        start = 0 if after_ns is None else bisect.bisect_right(self.times, after_ns)
+        width = len(SAMPLE_FIELDS) - 1
+        times = np.frombuffer(self.times, dtype=np.int64)[start:].copy()
+        values = np.frombuffer(self.values, dtype=np.float64)[start * width:].reshape(len(times), width).copy()
+        return {"t_ns": times} | {f: values[:, k].copy() for k, f in enumerate(SAMPLE_FIELDS[1:])}
 
     def snapshot(self) -> dict[str, np.ndarray]:
         """The last ``capacity`` buffered samples as one array per field, in time order (copies)."""

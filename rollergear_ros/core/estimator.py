@@ -20,6 +20,7 @@ from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, a
                          effect_coefficients, regressor_plan, regressors)
 from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale, reading_errors
 from .equations import efficiency
+from .measured import measured_efficiency
 from .model import LossModel, rotation_sign, rotation_sign_scalar
 from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
                       SyncedSample, is_lost, lost_mask, pairing_tolerance_s, samples_to_arrays)
@@ -42,6 +43,9 @@ class Estimate:
     out_torque_nm: float = math.nan  #: the measured output torque it was paired with (NaN: none)
     out_speed_rad_s: float = math.nan  #: the measured output speed (NaN: none)
     temperature_c: float = math.nan  #: the oil temperature (NaN: none)
+    #: P_out/P_in (motoring) or P_in/P_out (regenerating) as the sensors read them (:mod:`.measured`);
+    #: NaN without measured output or where undefined
+    efficiency_measured: float = math.nan
 
 
 @dataclass
@@ -64,6 +68,11 @@ class BatchEstimate:
     loss_magnitude_nm: np.ndarray | None = None  #: |loss| also at standstill, where the signed loss is 0
     out_torque_nm: np.ndarray | None = None  #: measured output torque (NaN where none)
     out_speed_rad_s: np.ndarray | None = None  #: measured output speed (NaN where none)
+    efficiency_measured: np.ndarray | None = None  #: per sample (:attr:`Estimate.efficiency_measured`)
+    #: the measured efficiency over the window published at the start of each sample's second, and its
+    #: uncertainty (:mod:`.measured`; filled in by replay's outputs, None from the estimator)
+    efficiency_measured_window: np.ndarray | None = None
+    efficiency_measured_uncertainty: np.ndarray | None = None
 
     def select(self, keep: np.ndarray) -> BatchEstimate:
         """The estimates where ``keep`` (a boolean mask) is true."""
@@ -77,7 +86,8 @@ class BatchEstimate:
             self.efficiency[keep], self.measured_loss_nm[keep], self.residual_nm[keep], pick(self.temperature_c),
             {k: v[keep] for k, v in self.breakdown_nm.items()}, pick(self.effects_nm),
             {k: v[keep] for k, v in self.coefficients.items()}, [a for a in self.alarms_t_ns if lo <= a <= hi],
-            pick(self.loss_magnitude_nm), pick(self.out_torque_nm), pick(self.out_speed_rad_s))
+            pick(self.loss_magnitude_nm), pick(self.out_torque_nm), pick(self.out_speed_rad_s),
+            pick(self.efficiency_measured))
 
 
 def concatenate_estimates(parts: Sequence[BatchEstimate]) -> BatchEstimate:
@@ -98,6 +108,7 @@ def concatenate_estimates(parts: Sequence[BatchEstimate]) -> BatchEstimate:
         effects_nm=cat([p.effects_nm for p in parts]), coefficients=cat_dict([p.coefficients for p in parts]),
         alarms_t_ns=list(parts[-1].alarms_t_ns), loss_magnitude_nm=cat([p.loss_magnitude_nm for p in parts]),
         out_torque_nm=cat([p.out_torque_nm for p in parts]), out_speed_rad_s=cat([p.out_speed_rad_s for p in parts]),
+        efficiency_measured=cat([p.efficiency_measured for p in parts]),
     ) if len(parts) > 1 else first
 
 
@@ -233,6 +244,16 @@ class Estimator:
         w_out = speed / self.ratio if math.isnan(out_speed) else out_speed
         return (torque * speed - out_torque * w_out) / abs(speed)
 
+    def _measured_efficiency_scalar(self, torque, speed, out_torque, out_speed) -> float:
+        """Per-sample :func:`.measured.measured_efficiency` (the same arithmetic, one sample)."""
+        if abs(torque) < self.model.min_torque_nm or abs(speed) < self.model.min_speed_rad_s:
+            return math.nan
+        p_in = torque * speed
+        p_out = out_torque * (speed / self.ratio if math.isnan(out_speed) else out_speed)
+        if p_in > 0:
+            return p_out / p_in
+        return p_in / p_out if p_in < 0 and p_out < 0 else math.nan
+
     # ------------------------------------------------------------------ streaming (node)
     def push(self, channel: str, t_ns: int, value: float, source_ns: int | None = None) -> Sequence[Estimate]:
         """Feed one input message (``source_ns``: its publisher's timestamp, by arrival); returns the
@@ -312,8 +333,10 @@ class Estimator:
             self._adapt_scalar(fixed, phi, meas - mag, s.t_ns)
             self.residual_stats.add(residual)
         self.estimated += 1
+        eta_meas = self._measured_efficiency_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s) \
+            if math.isfinite(meas) else math.nan
         est = Estimate(s.t_ns, t_meas, w, loss * sg, loss * aw, self.model.efficiency_scalar(t, w, loss), meas,
-                       residual, s.out_torque_nm, s.out_speed_rad_s, s.temperature_c)
+                       residual, s.out_torque_nm, s.out_speed_rad_s, s.temperature_c, eta_meas)
         self.last = est
         if self.speed_noise.learning and self.speed_noise.add((w,), s.t_ns):
             self._noise_changed()
@@ -439,6 +462,9 @@ class Estimator:
         loss = mag + phys
         residual = meas - (loss + sens)
         eff = efficiency(torque, speed, loss, self.model.min_torque_nm, self.model.min_speed_rad_s)
+        eff_meas = np.where(np.isfinite(meas), measured_efficiency(torque_meas, speed, out_torque, out_speed, self.ratio,
+                                                                   self.model.min_torque_nm,
+                                                                   self.model.min_speed_rad_s), np.nan)
         self.estimated += len(t_ns)
         return BatchEstimate(
             t_ns=t_ns,
@@ -457,6 +483,7 @@ class Estimator:
             loss_magnitude_nm=loss,
             out_torque_nm=out_torque,
             out_speed_rad_s=out_speed,
+            efficiency_measured=eff_meas,
         )
 
     def _model_result(self, torque: np.ndarray, speed: np.ndarray, sg: np.ndarray, temperature: np.ndarray, *,

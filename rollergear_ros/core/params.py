@@ -236,6 +236,10 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("node.learn_input_rate", bool, True,
               "diagnostics: an input is slow below 80 % of the rate its stream started at (a bag played at another "
               "rate is no warning); false: below 80 % of node.expected_rate_hz"),
+    ParamSpec("node.efficiency_window_s", float, 10.0,
+              "the measured efficiency (with measured output torque) is energy-weighted over this much of the latest "
+              "sample time, published once a second with its uncertainty (sensors.*)", "s",
+              low=1.0, high=86400.0, read_only=True),
     ParamSpec("node.min_efficiency_warn", float, 0.9, "WARN when the latest efficiency is below this", "",
               low=0.0, high=1.0),
     ParamSpec("node.hardware_id", str, "rollergear_gearbox", "hardware_id in /diagnostics"),
@@ -424,6 +428,7 @@ class NodeParams:
     publish_float64: bool = True
     expected_rate_hz: float = 1000.0
     learn_input_rate: bool = True
+    efficiency_window_s: float = 10.0
     min_efficiency_warn: float = 0.9
     hardware_id: str = "rollergear_gearbox"
     record_mcap: str = ""

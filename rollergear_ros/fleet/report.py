@@ -194,8 +194,15 @@ def _efficiency_lines(replay_rows: list[dict], out_dir: Path) -> list[str]:
         save_figure(fig, out_dir / "efficiency.png")
     finally:
         plt.close(fig)
+    spread = ""
+    if kind == "measured":
+        u = np.array([_num(r.get("efficiency_measured_uncertainty")) for r in ok
+                      if np.isfinite(_num(r.get("efficiency_measured")))])
+        if np.isfinite(u).any() and np.nanmax(u) > 0:
+            spread = f"; each recording's standard uncertainty from the sensors' accuracy {100 * np.nanmedian(u):.2f} % " \
+                     "(median)"
     return [f"{kind.capitalize()} efficiency over the fleet: {100 * eta.mean():.2f} % (recordings from "
-            f"{100 * eta.min():.2f} to {100 * eta.max():.2f} %).\n\n![efficiency](efficiency.png)\n"]
+            f"{100 * eta.min():.2f} to {100 * eta.max():.2f} %{spread}).\n\n![efficiency](efficiency.png)\n"]
 
 
 def _day(t_ns: int):

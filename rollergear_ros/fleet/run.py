@@ -33,7 +33,8 @@ from ..base.atomic import replacing
 from ..base.errors import RollergearError, UsageError
 from ..sources.formats import is_format, recording_suffixes
 from ..base.interface import Metadata
-from ..core.params import Config, config_to_yaml
+from ..core.measured import EnergyBalance
+from ..core.params import Config, SensorParams, config_to_yaml
 
 __all__ = ["FLEET_TABLE", "CALIBRATE_TABLE", "SLICES_TABLE", "SLICE_MESSAGES", "CalibrationWindow", "FleetRun",
            "FleetTable", "Recording", "combine_slices", "dask_client", "discover", "read_table", "run_calibrate",
@@ -214,10 +215,11 @@ def replay_task(rec: Recording, config: Config, channels: str | None,
         "start_ns": s.start_ns, "end_ns": s.end_ns, "duration_s": s.duration_s, "samples": s.samples,
         "estimated": s.estimated, "skipped": sum(s.skipped.values()), "energy_in_j": s.energy_in_j,
         "energy_lost_j": s.energy_lost_j, "mean_efficiency": s.mean_efficiency, "mean_loss_nm": s.mean_loss_nm,
-        # energy efficiencies: estimated, and measured where output torque was recorded
+        # energy efficiencies: estimated, and measured where output torque was recorded (core.measured)
         "efficiency_energy": _energy_efficiency(s.energy_in_j, s.energy_lost_j),
-        "efficiency_measured": _energy_efficiency(s.energy_in_measured_j, s.energy_lost_measured_j),
+        "efficiency_measured": s.efficiency_measured, "efficiency_measured_uncertainty": s.measured_uncertainty,
         "energy_in_measured_j": s.energy_in_measured_j, "energy_lost_measured_j": s.energy_lost_measured_j,
+        "measured_balance": s.measured.as_list(),
         "efficiency_samples": s.efficiency_samples, "residual_samples": s.residual_samples,
         "residual_mean_nm": s.residual_mean_nm, "residual_rms_nm": s.residual_rms_nm, "alarms": s.alarms,
         "seconds": time.perf_counter() - t0,
@@ -229,9 +231,10 @@ def _energy_efficiency(energy_in_j: float, energy_lost_j: float) -> float:
     return 1.0 - energy_lost_j / energy_in_j if energy_in_j > 0 else math.nan
 
 
-def combine_slices(parts: Sequence[dict]) -> dict:
+def combine_slices(parts: Sequence[dict], sensors: SensorParams | None = None) -> dict:
     """A recording's row from the rows of its time slices (in order): sums, and means weighted by
-    the samples they are over.  One slice is the row itself."""
+    the samples they are over; the measured efficiency and its uncertainty (``sensors``) from the
+    slices' summed energy balances.  One slice is the row itself."""
     if len(parts) == 1:
         return {k: v for k, v in parts[0].items() if k not in ("recording_key", "slice")}
     first = parts[0]
@@ -254,6 +257,8 @@ def combine_slices(parts: Sequence[dict]) -> dict:
     row |= {key: total(key) for key in ("samples", "estimated", "skipped", "energy_in_j", "energy_lost_j",
                                         "energy_in_measured_j", "energy_lost_measured_j", "efficiency_samples",
                                         "residual_samples", "alarms", "seconds")}
+    measured = sum((EnergyBalance.from_list(p["measured_balance"]) for p in parts if p.get("measured_balance")),
+                   EnergyBalance())
     if row["estimated"] == 0:
         return row | {"status": "failed", "reason": "no sample could be estimated"}
     rms = [(p["residual_rms_nm"] ** 2, p["residual_samples"]) for p in parts if p["residual_samples"]]
@@ -263,7 +268,9 @@ def combine_slices(parts: Sequence[dict]) -> dict:
         "mean_efficiency": mean("mean_efficiency", "efficiency_samples"),
         "mean_loss_nm": mean("mean_loss_nm", "estimated"),
         "efficiency_energy": _energy_efficiency(row["energy_in_j"], row["energy_lost_j"]),
-        "efficiency_measured": _energy_efficiency(row["energy_in_measured_j"], row["energy_lost_measured_j"]),
+        "efficiency_measured": measured.efficiency,
+        "efficiency_measured_uncertainty": measured.uncertainty(sensors or SensorParams()),
+        "measured_balance": measured.as_list(),
         "residual_mean_nm": mean("residual_mean_nm", "residual_samples"),
         "residual_rms_nm": math.sqrt(sum(m * n for m, n in rms) / n_res) if n_res else math.nan,
     }
@@ -453,7 +460,7 @@ def _run(run: FleetRun, table: FleetTable, units: list[Unit]) -> tuple[list[dict
         run.note(f"{skipped} of {len(units)} {table.what} already in {table.path}: not done again")
     if not todo:
         return rows, 0
-    progress = _Progress(table, rows, todo, _kept_parts(table, todo, run.note))
+    progress = _Progress(table, rows, todo, _kept_parts(table, todo, run.note), run.config.sensors)
     futures = []
     for key, tasks in todo:
         for part_key, fn, args in tasks:
@@ -508,8 +515,9 @@ class _Progress:
     """The rows of a fleet run as its tasks finish: a unit's row when its last task's is in, the
     counts the progress bar shows, and the tables written as it goes."""
 
-    def __init__(self, table: FleetTable, rows: list[dict], todo: list[Unit], parts: dict[str, dict[str, dict]]):
-        self.table, self.rows, self.parts = table, rows, parts
+    def __init__(self, table: FleetTable, rows: list[dict], todo: list[Unit], parts: dict[str, dict[str, dict]],
+                 sensors: SensorParams | None = None):
+        self.table, self.rows, self.parts, self.sensors = table, rows, parts, sensors
         self.tasks_of = {key: [k for k, _, _ in tasks] for key, tasks in todo}
         self.unit_of: dict = {}  # future key -> (unit key, task key)
         self.failed = self.samples = self.finished = 0
@@ -527,7 +535,8 @@ class _Progress:
             self._complete(key)
 
     def _complete(self, key: str) -> None:
-        row = combine_slices([self.parts[key][k] for k in self.tasks_of[key]]) | {"settings": self.table.settings}
+        row = combine_slices([self.parts[key][k] for k in self.tasks_of[key]], self.sensors) \
+            | {"settings": self.table.settings}
         self.rows.append(row)
         self.failed += row["status"] != "ok"
         self.finished += 1

@@ -56,6 +56,9 @@ COLUMNS: tuple[Column, ...] = (
     Column("efficiency", "1", lambda b: b.efficiency),
     Column("measured_loss", "N*m", lambda b: b.measured_loss_nm),
     Column("residual_torque", "N*m", lambda b: b.residual_nm),
+    Column("efficiency_measured", "1", lambda b: b.efficiency_measured),
+    Column("efficiency_measured_window", "1", lambda b: b.efficiency_measured_window),
+    Column("efficiency_measured_uncertainty", "1", lambda b: b.efficiency_measured_uncertainty),
 )
 #: the time columns: seconds since the first exported row, and the exact log time
 TIME_COLUMN, LOG_TIME_COLUMN = Column("time", "s", lambda b: None), Column("log_time", "ns", lambda b: b.t_ns)

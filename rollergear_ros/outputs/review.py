@@ -30,6 +30,10 @@ LOSS_TORQUE = "/loss/torque/total_nm"
 BREAKDOWN = "/loss/torque/breakdown"  #: + ``/<term>_nm`` and ``/effects_nm``
 LOSS_POWER = "/loss/power/total_w"
 EFFICIENCY = "/efficiency/efficiency_pct"
+EFFICIENCY_MEASURED = "/efficiency/measured_pct"  #: per sample, where the output torque is measured
+EFFICIENCY_WINDOW = "/efficiency/window/measured_pct"  #: energy-weighted over node.efficiency_window_s
+EFFICIENCY_WINDOW_LOW = "/efficiency/window/minus_u_pct"  #: ... less its standard uncertainty
+EFFICIENCY_WINDOW_HIGH = "/efficiency/window/plus_u_pct"  #: ... plus it
 MEASURED_LOSS = "/residual/measured_loss_nm"
 ESTIMATED_LOSS = "/residual/estimated_loss_nm"
 RESIDUAL = "/residual/residual_nm"
@@ -45,7 +49,11 @@ SERIES: dict[str, str] = {
     OIL_TEMPERATURE: "oil temperature [°C]",
     LOSS_TORQUE: "loss torque (signed) [N·m]",
     LOSS_POWER: "loss power [W]",
-    EFFICIENCY: "efficiency [%]",
+    EFFICIENCY: "efficiency, model [%]",
+    EFFICIENCY_MEASURED: "efficiency, measured per sample [%]",
+    EFFICIENCY_WINDOW: "efficiency, measured over the window [%]",
+    EFFICIENCY_WINDOW_LOW: "... − its standard uncertainty [%]",
+    EFFICIENCY_WINDOW_HIGH: "... + its standard uncertainty [%]",
     MEASURED_LOSS: "measured loss [N·m]",
     ESTIMATED_LOSS: "estimated loss [N·m]",
     RESIDUAL: "residual (measured − estimated) [N·m]",
@@ -63,7 +71,7 @@ def blueprint():
                 rrb.TimeSeriesView(origin="/inputs/speed", name="Speed: drive and output [rad/s]"),
                 rrb.TimeSeriesView(origin="/loss/torque", name="Loss torque and its breakdown [N·m]"),
                 rrb.TimeSeriesView(origin="/loss/power", name="Loss power [W]"),
-                rrb.TimeSeriesView(origin="/efficiency", name="Efficiency [%]"),
+                rrb.TimeSeriesView(origin="/efficiency", name="Efficiency: model, measured, window ± u [%]"),
                 rrb.TimeSeriesView(origin="/residual", name="Measured vs estimated loss, residual [N·m]"),
                 rrb.TimeSeriesView(origin="/inputs/temperature", name="Oil temperature [°C]"),
                 rrb.TimeSeriesView(origin=ADAPTATION, name="Adapted effect coefficients"),
@@ -100,8 +108,9 @@ def estimate_series(b, breakdown_terms: Iterable[str] = (), with_effects: bool =
     if res.any():
         groups.append((b.t_ns[res], {MEASURED_LOSS: b.measured_loss_nm[res],
                                      ESTIMATED_LOSS: np.abs(b.loss_torque_nm[res]), RESIDUAL: b.residual_nm[res]}))
+    measured = None if b.efficiency_measured is None else 100.0 * b.efficiency_measured
     for entity, values in ((OIL_TEMPERATURE, b.temperature_c), (OUTPUT_TORQUE, b.out_torque_nm),
-                           (OUTPUT_SPEED, b.out_speed_rad_s)):
+                           (OUTPUT_SPEED, b.out_speed_rad_s), (EFFICIENCY_MEASURED, measured)):
         if values is not None:
             have = np.isfinite(values)
             if have.any():
@@ -183,6 +192,16 @@ class RerunLog:
             alarms = [t for t in b.alarms_t_ns if lo <= t <= hi]
             self.events(alarms, ["residual change alarm: the loss behaves differently from here"] * len(alarms),
                         "WARN")
+
+    def send_windows(self, windows) -> None:
+        """The measured efficiency's windows (:class:`~core.measured.WindowValue`, in time order) with
+        their ± one standard uncertainty, at the second each ends at."""
+        if not windows:
+            return
+        eta = 100.0 * np.array([w.efficiency for w in windows])
+        u = 100.0 * np.array([w.uncertainty for w in windows])
+        self.send(np.array([w.end_ns for w in windows], dtype=np.int64),
+                  {EFFICIENCY_WINDOW: eta, EFFICIENCY_WINDOW_LOW: eta - u, EFFICIENCY_WINDOW_HIGH: eta + u})
 
     def events(self, t_ns: Sequence[int], texts: Sequence[str], level: str = "INFO") -> None:
         """Text events on the timeline (:data:`EVENTS`)."""

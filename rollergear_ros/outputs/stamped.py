@@ -9,8 +9,8 @@ node therefore also publishes each estimate as one ``sensor_msgs/msg/JointState`
   inputs by (the motor torque's publisher timestamp, or its arrival time; ROS time under
   ``use_sim_time``), the same time its recording logs the inputs at;
 * ``name`` -- :data:`ESTIMATE_FIELDS`, always all of them in this order;
-* ``position`` -- the values, in the order of ``name`` (SI units as the names say; efficiency as a
-  fraction, NaN where undefined; residual NaN without a measured output);
+* ``position`` -- the values, in the order of ``name`` (SI units as the names say; efficiencies as
+  fractions, NaN where undefined; residual and measured efficiency NaN without a measured output);
 * ``velocity``, ``effort`` -- empty.
 
 Why ``JointState``: it is the one message of common_interfaces with a header *and* named float64
@@ -19,7 +19,7 @@ describes itself.  ``std_msgs`` has no stamped array; the stamped ``geometry_msg
 (``Vector3Stamped``, ``WrenchStamped``) have fixed x/y/z fields that would misname the quantities
 and hold too few of them.  Custom ``.msg`` packages do not build from the PyPI wheels.
 
-The message is encoded by patching a serialised template (the stamp and 48 bytes of values), so
+The message is encoded by patching a serialised template (the stamp and 8 bytes per value), so
 one estimate costs one ``bytes`` copy and two ``struct.pack_into`` (~1 µs), and the node's
 highest loss-free rate with only this output on passes its rate with the four Float64 topics.
 No rclpy import.
@@ -41,7 +41,7 @@ __all__ = ["ESTIMATE_FIELDS", "EstimateCodec", "codec", "decode_estimates", "est
 
 #: the names in every stamped estimate's ``name``, the order of its ``position``
 ESTIMATE_FIELDS: tuple[str, ...] = ("loss_torque_nm", "loss_power_w", "efficiency", "residual_nm",
-                                    "torque_nm", "speed_rad_s")
+                                    "torque_nm", "speed_rad_s", "efficiency_measured")
 #: the values of :data:`ESTIMATE_FIELDS` from an :class:`~core.estimator.Estimate` or a
 #: :class:`~core.estimator.BatchEstimate` (the names are their attributes)
 estimate_values = operator.attrgetter(*ESTIMATE_FIELDS)

@@ -13,12 +13,13 @@ from ..outputs import stamped
 from ..recordings.bag import BagInfo, BagWriter, TopicMap, offered_qos_yaml
 from ..core.estimator import BatchEstimate, Estimator
 from ..base.interface import MessageType, Metadata
-from ..base.output_channels import float64_channels, sample_channels, stamped_channels
+from ..base.output_channels import float64_channels, stamped_channels, window_channels
+from ..core.measured import WindowValue
 from ..core.params import Config
 from .inputs import InputBatch
 from .summary import Accumulator
 
-__all__ = ["ReplayOutputs", "output_writer", "write_outputs"]
+__all__ = ["ReplayOutputs", "output_writer", "write_outputs", "write_windows"]
 
 
 class ReplayOutputs:
@@ -37,6 +38,8 @@ class ReplayOutputs:
         self.rlog = None  #: a :class:`outputs.review.RerunLog`
         self.tables: list = []  #: the :class:`outputs.exports.Export` tables being written
         self._skip_events = None
+        self._sensors = acc.config.sensors
+        self._window: WindowValue | None = None  # the measured efficiency's window published last
 
     def open(self, out_mcap, rrd, exports, info: BagInfo, config: Config, estimator: Estimator) -> None:
         """Open the outputs asked for (``None`` / empty: not that one)."""
@@ -57,14 +60,40 @@ class ReplayOutputs:
         if b is None:
             return
         self.acc.add(b)
+        windows = self._measured_windows(b)
+        if self.acc.trace is not None:
+            self.acc.trace.add(b)
         if self._sink is not None:
             self._sink.append(b)
         if self.writer:
             write_outputs(self.writer, b, self.topics)
+            write_windows(self.writer, windows, self.topics)
         if self.rlog:
             self.rlog.send_estimates(b)
+            self.rlog.send_windows(windows)
         for table in self.tables:
             table.add(b)
+
+    def _measured_windows(self, b: BatchEstimate) -> list[WindowValue]:
+        """The measured efficiency's windows completed by this batch (as the node publishes them, once
+        per second of sample time), and each sample's window value and uncertainty in ``b``."""
+        tally = self.acc.measured
+        if tally.last_ns is None:
+            return []
+        due = tally.boundaries(None if self._window is None else self._window.end_ns // 1_000_000_000)
+        windows = [tally.window_value(k, self._sensors) for k in due]
+        if due:
+            tally.forget(due[-1])
+        by_second = {w.end_ns // 1_000_000_000: w for w in ([self._window] if self._window else []) + windows}
+        second = np.asarray(b.t_ns, dtype=np.int64) // 1_000_000_000
+        keys, index = np.unique(second, return_inverse=True)
+        nan = WindowValue(0, np.nan, np.nan, 0, tally.window_s)
+        chosen = [by_second.get(int(k), nan) for k in keys]
+        b.efficiency_measured_window = np.array([w.efficiency for w in chosen])[index]
+        b.efficiency_measured_uncertainty = np.array([w.uncertainty for w in chosen])[index]
+        if windows:
+            self._window = windows[-1]
+        return [w for w in windows if np.isfinite(w.efficiency)]
 
     def inputs_done(self, batch: InputBatch, estimator: Estimator, release_lag_ns: int) -> None:
         """After a batch's estimates: its skips as a rerun event, its inputs into the output MCAP,
@@ -102,7 +131,7 @@ def output_writer(path: str | Path, info: BagInfo, config: Config, topics: Topic
     from ..core.params import config_to_yaml
 
     offered = {topics.output(c.name): offered_qos_yaml(reliable=c.reliable, depth=c.depth)
-               for c in sample_channels()}
+               for c in (*float64_channels(), *stamped_channels(), *window_channels())}
     writer = BagWriter(path, offered_qos=offered, background=True)
     source = Path(info.path)
     writer.add_metadata(Metadata.PROVENANCE, {
@@ -113,6 +142,16 @@ def output_writer(path: str | Path, info: BagInfo, config: Config, topics: Topic
         "accepted_effects": ", ".join(config.effects.enabled()) or "none",
         "parameters": config_to_yaml(config), "command": " ".join(sys.argv)})
     return writer
+
+
+def write_windows(writer: BagWriter, windows: list[WindowValue], tm: TopicMap) -> None:
+    """The measured efficiency's windows on the window channels, at the second boundary each ends at."""
+    if not windows:
+        return
+    t_ns = np.array([w.end_ns for w in windows], dtype=np.int64)
+    for channel in window_channels():
+        writer.write_float64_series(tm.output(channel.name), t_ns,
+                                    np.array([getattr(w, channel.value) for w in windows]))
 
 
 def write_outputs(writer: BagWriter, b: BatchEstimate, tm: TopicMap) -> None:

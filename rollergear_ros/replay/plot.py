@@ -1,7 +1,9 @@
 """The replay's summary picture, for people without the viewer: one PNG per replayed recording.
 
 Left, over time: the loss torque (mean per time bin, with the bin's range; where output torque
-was measured, the estimate drawn over the measured loss), the efficiency in %, the residual apart;
+was measured, the estimate drawn over the measured loss), the efficiency in % (the model's over the
+measured per sample, and the measured over ``node.efficiency_window_s`` with ± 2 standard
+uncertainties shaded), the residual apart;
 the residual change detector's alarms marked on every time axis.  Right: the recording's operating
 points over the efficiency map of the model the replay used (the paper's model plus the accepted
 effects, :func:`core.operating_points.evaluate_points`), speed in rpm as ``rollergear map`` draws it.
@@ -44,7 +46,8 @@ class SummaryTrace:
     its length, without knowing it beforehand.
     """
 
-    SERIES = ("loss_nm", "efficiency_pct", "measured_nm", "residual_nm")
+    SERIES = ("loss_nm", "efficiency_pct", "measured_nm", "residual_nm", "measured_efficiency_pct",
+              "window_pct", "window_u_pct")
 
     def __init__(self, samples: int, bins: int = TIME_BINS, max_points: int = MAX_POINTS) -> None:
         self.start_ns: int | None = None
@@ -82,8 +85,14 @@ class SummaryTrace:
             self._coarsen()
         where = np.clip((t - self.start_ns) // self.width_ns, 0, self.capacity - 1)
         values = {"loss_nm": np.abs(b.loss_torque_nm), "efficiency_pct": 100.0 * b.efficiency,
-                  "measured_nm": b.measured_loss_nm, "residual_nm": b.residual_nm}
+                  "measured_nm": b.measured_loss_nm, "residual_nm": b.residual_nm,
+                  "measured_efficiency_pct": b.efficiency_measured, "window_pct": b.efficiency_measured_window,
+                  "window_u_pct": b.efficiency_measured_uncertainty}
         for key, v in values.items():
+            if v is None:
+                continue
+            if key in ("measured_efficiency_pct", "window_pct", "window_u_pct"):
+                v = 100.0 * v
             ok = np.isfinite(v)
             if not ok.any():
                 continue
@@ -198,8 +207,25 @@ def _time_axes(axes: list, trace: SummaryTrace, has_residual: bool) -> None:
     draw(axes[0], "loss_nm", "estimated loss (bin mean, range shaded)", "tab:red", zorder=3.0)
     axes[0].set_ylabel("loss torque [N·m]")
     axes[0].legend(fontsize=8, loc="upper right")
-    draw(axes[1], "efficiency_pct", "efficiency", "tab:blue")
+    if trace.count["measured_efficiency_pct"].any():  # the measured under the model's, as the loss above
+        draw(axes[1], "measured_efficiency_pct", "measured, per sample", "0.45", zorder=2.0)
+    draw(axes[1], "efficiency_pct", "model", "tab:blue", zorder=3.0)
+    if trace.count["window_pct"].any():
+        t_s, eta, _, _ = trace.series("window_pct")
+        _, u, _, _ = trace.series("window_u_pct")
+        axes[1].fill_between(t_s, eta - 2 * u, eta + 2 * u, color="k", alpha=0.25, lw=0, step="mid", zorder=3.6)
+        axes[1].plot(t_s, eta, color="k", lw=1.2, zorder=3.8, gid="window_pct",
+                     label="measured over the window (± 2 u shaded)")
+    if trace.count["measured_efficiency_pct"].any():  # the range the gearbox lives in, not single samples' noise
+        means = [trace.series(k)[1] for k in ("efficiency_pct", "measured_efficiency_pct", "window_pct")]
+        finite = np.concatenate([m[np.isfinite(m)] for m in means])
+        if len(finite):
+            lo, hi = np.percentile(finite, [2, 100])
+            pad = max(0.1, 0.1 * (hi - lo))
+            axes[1].set_ylim(lo - pad, hi + pad)
     axes[1].set_ylabel("efficiency [%]")
+    if trace.count["measured_efficiency_pct"].any():
+        axes[1].legend(fontsize=8, loc="lower right")
     if has_residual:
         draw(axes[2], "residual_nm", "residual", "tab:green")
         axes[2].axhline(0.0, color="k", lw=0.5)

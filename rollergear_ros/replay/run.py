@@ -118,7 +118,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
     summary = ReplaySummary(
         str(req.bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
     )
-    acc = Accumulator()
+    acc = Accumulator(req.config, estimator.sample_period_s)
     if req.summary_png:
         from .plot import SummaryTrace
 

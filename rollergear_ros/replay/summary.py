@@ -9,7 +9,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.estimator import BatchEstimate
+from ..core.measured import EnergyBalance, MeasuredEfficiency
 from ..core.pairing import ARRIVAL_PAIRINGS
+from ..core.params import Config
+
+#: the summary lists the operating-point cells that hold the most supplied energy, at most this many
+SUMMARY_CELLS = 8
+#: a cell with fewer samples (or less than this share of the energy) is not listed
+CELL_MIN_SAMPLES = 100
 
 __all__ = ["Accumulator", "ReplaySummary"]
 
@@ -27,9 +34,15 @@ class ReplaySummary:
     peak_loss_nm: float = math.nan
     energy_lost_j: float = 0.0
     energy_in_j: float = 0.0  #: ∫|T_in·ω_in| dt, the energy through the gearbox
-    #: over the samples with a measured loss: the energy through the gearbox and the measured energy lost
-    energy_in_measured_j: float = 0.0
-    energy_lost_measured_j: float = 0.0
+    #: where the output torque was measured: energy supplied and delivered (:mod:`core.measured`)
+    measured: EnergyBalance = field(default_factory=EnergyBalance)
+    #: ... split by the end power came in at: ``(motoring, regenerating)`` with their uncertainties
+    measured_quadrants: tuple[tuple[EnergyBalance, float], tuple[EnergyBalance, float]] | None = None
+    #: the measured efficiency's standard uncertainty (0: no sensor accuracy stated, NaN: no efficiency)
+    measured_uncertainty: float = math.nan
+    sensors_stated: bool = False  #: whether ``sensors.*`` states an accuracy
+    #: per operating-point cell (the map grid's nearest node): ``(speed rpm, torque N·m, balance, uncertainty)``
+    measured_cells: list[tuple[float, float, EnergyBalance, float]] = field(default_factory=list)
     mean_efficiency: float = math.nan
     residual_rms_nm: float = math.nan
     residual_mean_nm: float = math.nan
@@ -50,6 +63,21 @@ class ReplaySummary:
     parameter_changes: list[str] = field(default_factory=list)
     speed_noise_rad_s: float = 0.0  #: the speed reading's noise the estimator used (at the end)
     speed_noise_text: str = ""  #: ... and where it came from (the file, or learned)
+
+    @property
+    def energy_in_measured_j(self) -> float:
+        """Energy supplied to the gearbox where the output torque was measured."""
+        return self.measured.supplied_j
+
+    @property
+    def energy_lost_measured_j(self) -> float:
+        """... and the measured energy lost there (supplied − delivered)."""
+        return self.measured.lost_j
+
+    @property
+    def efficiency_measured(self) -> float:
+        """The measured efficiency, energy-weighted over the recording (NaN without measured output)."""
+        return self.measured.efficiency
 
     def text(self) -> str:
         lines = [
@@ -74,9 +102,12 @@ class ReplaySummary:
         lines.append("skipped: " + (", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in skipped.items()) or "none"))
         lines.append(
             f"loss torque: mean {self.mean_loss_nm:.4f} N·m, peak {self.peak_loss_nm:.4f} N·m; "
-            f"energy lost {self.energy_lost_j:.1f} J; mean efficiency "
+            f"energy lost {self.energy_lost_j:.1f} J; model efficiency: mean "
             + ("n/a" if math.isnan(self.mean_efficiency) else f"{100 * self.mean_efficiency:.2f} %")
+            + " over the samples"
         )
+        if self.measured.samples:
+            lines.extend(self._measured_lines())
         if self.residual_samples:
             lines.append(
                 f"residual (measured − estimated loss): RMS {self.residual_rms_nm:.4f} N·m over "
@@ -93,17 +124,57 @@ class ReplaySummary:
         return "\n".join(lines)
 
 
-class Accumulator:
-    """Running sums for the summary."""
+    def _measured_lines(self) -> list[str]:
+        """The measured efficiency beside the model's, over the recording and per operating point."""
+        m, stated = self.measured, self.sensors_stated
+        unknown = "" if stated else " (its uncertainty not known: state the sensors' accuracy in sensors.*)"
+        lines = [f"measured efficiency: {_pct(m.efficiency, self.measured_uncertainty, stated)}{unknown}, "
+                 f"energy-weighted: {m.delivered_j:,.0f} J delivered of {m.supplied_j:,.0f} J supplied over "
+                 f"{m.seconds:,.1f} s with measured output; the model's over the same samples "
+                 f"{100 * m.model_efficiency:.2f} %"]
+        if self.measured_quadrants and all(b.supplied_j > 0 for b, _ in self.measured_quadrants):
+            (mot, u_mot), (reg, u_reg) = self.measured_quadrants
+            lines.append(f"  motoring {_pct(mot.efficiency, u_mot, stated)} (model {100 * mot.model_efficiency:.2f} %), "
+                         f"regenerating {_pct(reg.efficiency, u_reg, stated)} (model {100 * reg.model_efficiency:.2f} %)"
+                         f": a torque sensor's gain error moves these two apart and cancels in their sum")
+        cells = [c for c in self.measured_cells if c[2].samples >= CELL_MIN_SAMPLES and c[2].supplied_j > 0]
+        if len(cells) > 1:
+            shown = sorted(cells, key=lambda c: -c[2].supplied_j)[:SUMMARY_CELLS]
+            share = sum(c[2].supplied_j for c in shown) / m.supplied_j if m.supplied_j > 0 else math.nan
+            lines.append(f"  per operating point (input speed, torque; the {len(shown)} of {len(cells)} cells with the "
+                         f"most energy, {100 * share:.0f} % of it): measured | model")
+            lines.extend(f"  {rpm:7.0f} rpm {torque:8.1f} N·m   {_pct(b.efficiency, u, stated)} | "
+                         f"{100 * b.model_efficiency:.2f} %   {b.samples:,} samples"
+                         for rpm, torque, b, u in sorted(shown, key=lambda c: (c[0], c[1])))
+        return lines
 
-    def __init__(self) -> None:
+
+def _pct(eta: float, u: float, stated: bool) -> str:
+    """``98.04 % ± 0.21 %`` (standard uncertainty to two significant digits, two or three decimals;
+    the efficiency to as many), without it when no accuracy is stated."""
+    if not math.isfinite(eta):
+        return "n/a"
+    if not (stated and math.isfinite(u)):
+        return f"{100 * eta:.2f} %"
+    decimals = 2 if u <= 0 else min(max(2, 1 - math.floor(math.log10(100 * u))), 3)
+    return f"{100 * eta:.{decimals}f} % ± {100 * u:.{decimals}f} %"
+
+
+class Accumulator:
+    """Running sums for the summary (``config``: the measured efficiency's ratio, sensors, window and
+    cells; ``sample_period_s``: the estimator's, the measured efficiency's gaps)."""
+
+    def __init__(self, config: Config | None = None, sample_period_s: float | None = None) -> None:
+        config = config or Config()
+        self.config = config
+        self.measured = MeasuredEfficiency(config.gearbox.ratio_effective, sample_period_s or 1e-3,
+                                           config.node.efficiency_window_s, config.map.speed_step_rpm,
+                                           config.map.torque_step_nm)
         self.n = 0
         self.loss_sum = 0.0
         self.peak = 0.0
         self.energy = 0.0
         self.energy_in = 0.0
-        self.energy_in_meas = 0.0
-        self.energy_lost_meas = 0.0
         self.res_sum = 0.0
         self.eta_sum = 0.0
         self.eta_n = 0
@@ -117,12 +188,11 @@ class Accumulator:
     def prime(self, last_t_ns: int) -> None:
         """A sample before a time slice: the slice's first sample integrates from it."""
         self.last_t = last_t_ns
+        self.measured.prime(last_t_ns)
 
     def add(self, b: BatchEstimate) -> None:
         if len(b.t_ns) == 0:
             return
-        if self.trace is not None:
-            self.trace.add(b)
         mag = np.abs(b.loss_torque_nm)
         self.n += len(mag)
         self.loss_sum += float(mag.sum())
@@ -140,11 +210,9 @@ class Accumulator:
         self.energy += float(np.sum(b.loss_power_w * dt) * 1e-9)
         p_in = np.abs(b.torque_nm * b.speed_rad_s)
         self.energy_in += float(np.sum(p_in * dt) * 1e-9)
-        meas = np.isfinite(b.measured_loss_nm)
-        if meas.any():
-            self.energy_in_meas += float(np.sum(p_in[meas] * dt[meas]) * 1e-9)
-            p_lost = b.measured_loss_nm[meas] * np.abs(b.speed_rad_s[meas])
-            self.energy_lost_meas += float(np.sum(p_lost * dt[meas]) * 1e-9)
+        if b.out_torque_nm is not None:  # the samples with a measured loss, as the node's window takes them
+            out = np.where(np.isfinite(b.measured_loss_nm), b.out_torque_nm, np.nan)
+            self.measured.add(t, b.torque_nm, b.speed_rad_s, out, b.out_speed_rad_s, b.loss_power_w)
         self.last_t = int(t[-1])
         eta = b.efficiency[np.isfinite(b.efficiency)]
         self.eta_sum += float(eta.sum())
@@ -161,8 +229,14 @@ class Accumulator:
             summary.peak_loss_nm = self.peak
             summary.energy_lost_j = self.energy
             summary.energy_in_j = self.energy_in
-            summary.energy_in_measured_j = self.energy_in_meas
-            summary.energy_lost_measured_j = self.energy_lost_meas
+            sensors = self.config.sensors
+            summary.measured = self.measured.total
+            summary.measured_uncertainty = self.measured.total.uncertainty(sensors)
+            summary.measured_quadrants = tuple((b, b.uncertainty(sensors))
+                                               for b in (self.measured.motoring, self.measured.regenerating))
+            summary.sensors_stated = sensors.stated
+            summary.measured_cells = [(rpm, torque, b, b.uncertainty(sensors))
+                                      for rpm, torque, b in self.measured.cells()]
             summary.duration_s = ((self.last_t or 0) - (self.first_t or 0)) * 1e-9
             summary.start_ns, summary.end_ns = self.first_t, self.last_t
         if self.eta_n:

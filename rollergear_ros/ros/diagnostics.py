@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass, field
 
 from ..core.estimator import Estimator
+from ..core.measured import WindowValue
 from ..core.pairing import CHANNELS, OUT_TORQUE, SKIP_REASONS, SPEED, TORQUE
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -139,7 +140,7 @@ def _slow_input(channel: str, rate_hz: float, expected_hz: float | None, learned
 
 
 def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, since: SinceLast,
-             load: NodeLoad = NodeLoad()) -> DiagnosticReport:
+             load: NodeLoad = NodeLoad(), measured: WindowValue | None = None) -> DiagnosticReport:
     """Level (worst reason wins), one-line message and the key/value pairs of the status.
 
     Overload: ``load.executor_lag_s`` is how long the executor takes to reach an event queued behind
@@ -174,8 +175,11 @@ def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, 
     values.append(("samples estimated", str(estimator.estimated)))
     _skip_status(estimator, since.skips, reasons, values)
     _estimate_status(estimator, limits.min_efficiency_warn, since.alarms, reasons, values)
+    headline = _measured_status(measured, estimator.config.sensors.stated, values)
     level = max((lv for lv, _ in reasons), default=OK)
     message = "; ".join(m for lv, m in sorted(reasons, key=lambda r: -r[0])) if reasons else "estimating"
+    if headline:
+        message += f"; {headline}"
     return DiagnosticReport(level, message, values)
 
 
@@ -207,6 +211,21 @@ def _input_status(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLim
                 reasons += _slow_input(ch, rates.get(ch, 0.0), expected, limits.learn_rate)
         elif ch == OUT_TORQUE and last is not None and age > stale_after_s:
             reasons.append((WARN, f"measured output stale ({age:.2f} s): no residual"))
+
+
+def _measured_status(measured: WindowValue | None, stated: bool, values: list[tuple[str, str]]) -> str:
+    """The measured efficiency over the latest window (keys always there; a headline when there is one)."""
+    if measured is None:
+        values += [("measured efficiency", "none (no measured output torque)"),
+                   ("measured efficiency uncertainty", "none")]
+        return ""
+    values += [("measured efficiency", _fmt(measured.efficiency, 6)),
+               ("measured efficiency uncertainty", _fmt(measured.uncertainty, 3) if stated else "not stated (sensors.*)"),
+               ("measured efficiency window [s]", _fmt(measured.window_s)),
+               ("measured efficiency samples", str(measured.samples)),
+               ("measured efficiency window end [ns]", str(measured.end_ns))]
+    spread = f" ± {100 * measured.uncertainty:.2f}" if stated else ""
+    return f"measured efficiency {100 * measured.efficiency:.2f}{spread} % over {measured.window_s:g} s"
 
 
 def _skip_status(estimator: Estimator, previous_skips: dict[str, int], reasons: list[tuple[int, str]],

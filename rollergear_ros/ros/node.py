@@ -44,13 +44,15 @@ from ..core.pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_S
 from ..outputs.stamped import EstimateCodec, estimate_values
 from ..base.interface import NAMESPACE, MessageType, Metadata, Topic
 from .nodehelp import help_text, wants_help
-from ..base.output_channels import (OUTPUT_CHANNELS, float64_channels, map_channels, sample_channels, stamped_channels,
-                                    trace_channels)
+from ..base.output_channels import (OUTPUT_CHANNELS, float64_channels, map_channels, stamped_channels, trace_channels,
+                                    window_channels)
 from ..core.params import Config, ParameterError
 from .parameters import (check_new_output, check_params_files, declare_parameters, live_provenance,
                          package_parameter_names, parameter_event, params_files)
 from .qos import INPUT_QOS, output_qos
 from .spin import make_executor, stop_on_signals
+from .efficiencywindow import CHECK_S as EFFICIENCY_CHECK_S
+from .efficiencywindow import LiveEfficiencyWindow
 from .tracer import CHECK_S, LiveTracer
 
 #: message class of each output channel's type (:mod:`base.output_channels`)
@@ -122,10 +124,14 @@ class LossEstimatorNode(Node):
         # the online tracer: its buffer is filled on the input path, its timer starts traces in a worker
         self.params_file_paths = {Path(p).resolve() for p in params_files(sys.argv)}
         self.tracer = LiveTracer(self, self.config, self._trace_publishers)
-        buffer = self.tracer.buffer
-        self._trace_time, self._trace_values = (buffer.add_time, buffer.add_values) if node.trace else (None, None)
+        buffer = self.tracer.buffer  # also the measured efficiency's
+        self._trace_time, self._trace_values = buffer.add_time, buffer.add_values
         if node.trace:
             self.create_timer(CHECK_S, self.tracer.check)
+        self.efficiency_window = LiveEfficiencyWindow(self, {
+            c.name: (_raw_publish(self.output_publishers[c.name]), self.out_topics[c.name])
+            for c in window_channels() if c.name in self.output_publishers})
+        self.create_timer(EFFICIENCY_CHECK_S, self.efficiency_window.update)
         self._subscribe_inputs(topics)
         # /diagnostics from a thread of its own: an executor flooded with input callbacks starves
         # its timers (a 1 s timer stalled ~5 s at 5 kHz), exactly when the report matters
@@ -167,8 +173,8 @@ class LossEstimatorNode(Node):
             self._update_map()  # before the inputs are subscribed: nothing waits for it
         if node.record_mcap:
             # written as the messages come (in arrival order), with the QoS the outputs are offered with
-            offered = {self.out_topics[c.name]: bagmod.offered_qos_yaml(reliable=c.reliable, depth=c.depth)
-                       for c in sample_channels() if c.name in self.out_topics}
+            offered = {self.out_topics[c.name]: bagmod.offered_qos_yaml(c.reliable, c.depth, c.transient_local)
+                       for c in OUTPUT_CHANNELS.values() if c.name in self.out_topics}
             self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024, time_ordered=False,
                                              offered_qos=offered,
                                              replace_atomically=False)  # in place: a kill keeps what came
@@ -472,7 +478,7 @@ class LossEstimatorNode(Node):
     def _publish(self, est: Estimate, send: bool = True) -> None:
         """Publish one estimate (``send=False``: record it only) and buffer it for rerun and, with a
         measured output, for the online tracer."""
-        if self._trace_time is not None and est.measured_loss_nm == est.measured_loss_nm:  # not NaN
+        if est.measured_loss_nm == est.measured_loss_nm:  # not NaN
             self._trace_time(est.t_ns)
             self._trace_values((est.torque_nm, est.speed_rad_s, est.out_torque_nm, est.out_speed_rad_s,
                                 est.temperature_c))
@@ -524,7 +530,8 @@ class LossEstimatorNode(Node):
         self.rerun.send_estimates(BatchEstimate(
             t, torque, speed, loss, column("loss_power_w"), column("efficiency"), column("measured_loss_nm"),
             column("residual_nm"), temperature, breakdown_nm=breakdown, effects_nm=effects, alarms_t_ns=alarms,
-            out_torque_nm=column("out_torque_nm"), out_speed_rad_s=column("out_speed_rad_s")))
+            out_torque_nm=column("out_torque_nm"), out_speed_rad_s=column("out_speed_rad_s"),
+            efficiency_measured=column("efficiency_measured")))
         if skipped:
             self.rerun.events([int(t[-1])], [skipped], "WARN")
 
@@ -559,7 +566,8 @@ class LossEstimatorNode(Node):
                           DiagnosticLimits(node.expected_rate_hz, node.min_efficiency_warn, depth,
                                            node.learn_input_rate),
                           SinceLast(self._skips_reported, self._alarms_reported),
-                          NodeLoad((busy - busy_then) / max(now - then, 1), self.executor_lag_s()))
+                          NodeLoad((busy - busy_then) / max(now - then, 1), self.executor_lag_s()),
+                          self.efficiency_window.latest)
         self._skips_reported = dict(self.estimator.counts)
         self._alarms_reported = self.estimator.detector.alarms
         status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: {STATUS_NAME}",

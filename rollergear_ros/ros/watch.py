@@ -3,7 +3,8 @@
 Stands in for ``ros2 topic echo`` (the ``ros2`` CLI has no PyPI wheels) in the terminal next to a
 node and a player.  Each line gives, over the last period: estimates received per second, the mean
 loss torque [N·m] and loss power [W], the mean efficiency (and its minimum), the mean residual
-[N·m] when measured output torque is present, the mean of any further Float64 output channel
+[N·m] when measured output torque is present, the latest measured efficiency over the node's window
+with its standard uncertainty (``efficiency/measured``), the mean of any further Float64 output channel
 (:mod:`base.output_channels`), and the node's latest ``/diagnostics`` level and message; each online
 trace's result (``loss/traced``, latched: also the last one before the watcher started) on a line of
 its own.  The outputs are taken
@@ -24,20 +25,26 @@ import numpy as np
 
 from ..recordings.bag import decode_float64
 from ..base.interface import NAMESPACE, Topic
-from ..base.output_channels import OUTPUT_CHANNELS, float64_channels, trace_channels
+from ..base.output_channels import OUTPUT_CHANNELS, float64_channels, trace_channels, window_channels
 from ..base.errors import UsageError
 from .diagnostics import LEVEL_NAMES, STATUS_NAME
 from .player import init_for_command_line
 
 #: the channels the line formats in a place of their own; any other is added as ``name mean unit``
-_FORMATTED = ("loss_torque", "loss_power", "efficiency", "residual_torque")
+_FORMATTED = ("loss_torque", "loss_power", "efficiency", "residual_torque", "efficiency_measured",
+              "efficiency_measured_uncertainty")
+
+
+def watched_channels():
+    """The Float64 channels watch subscribes to: per sample and the measured efficiency's windows."""
+    return float64_channels() + window_channels()
 
 
 @dataclass
 class WatchWindow:
     """Serialized Float64 outputs and the latest diagnostics received during one period."""
 
-    payloads: dict[str, list[bytes]] = field(default_factory=lambda: {c.name: [] for c in float64_channels()})
+    payloads: dict[str, list[bytes]] = field(default_factory=lambda: {c.name: [] for c in watched_channels()})
     diagnostic: tuple[int, str] | None = None  #: (level, message) of the node's latest status
     traced: list[str] = field(default_factory=list)  #: online trace results received, not yet printed
 
@@ -76,6 +83,10 @@ class WatchWindow:
             parts.append("η —")
         if len(values["residual_torque"]):
             parts.append(f"residual {_mean(values['residual_torque']):+.4f} N·m")
+        measured, spread = values["efficiency_measured"], values["efficiency_measured_uncertainty"]
+        if len(measured):  # the latest window (one a second)
+            u = f" ± {100 * spread[-1]:.2f}" if len(spread) and spread[-1] > 0 else ""
+            parts.append(f"η measured {100 * measured[-1]:.2f}{u} %")
         parts.extend(f"{name} {_mean(v):.4g} {OUTPUT_CHANNELS[name].unit}" for name, v in values.items()
                      if name not in _FORMATTED and len(v))
         return "  ".join(parts) + status
@@ -100,7 +111,7 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
     window = WatchWindow()
     node = Node("rollergear_watch")
     qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-    for channel in float64_channels():  # the outputs' table (:mod:`base.output_channels`)
+    for channel in watched_channels():  # the outputs' table (:mod:`base.output_channels`)
         node.create_subscription(Float64, channel.absolute_topic(namespace),
                                  lambda raw, c=channel.name: window.add(c, raw), qos, raw=True)
 

@@ -13,7 +13,8 @@ from rollergear_ros.recordings.bag import TopicMap, inspect_bag, read_metadata
 from rollergear_ros.core.estimator import Estimate
 from rollergear_ros.base.interface import MessageType, Topic
 from rollergear_ros.base.output_channels import (OUTPUT_CHANNELS, OutputChannel, float64_channels, map_channels,
-                                                 register, sample_channels, trace_channels, unregister)
+                                                 register, sample_channels, trace_channels, unregister,
+                                                 window_channels)
 from rollergear_ros.replay.run import replay
 from rollergear_ros.ros.watch import WatchWindow
 
@@ -43,18 +44,21 @@ def test_every_output_channel_has_its_row_in_the_interface_document():
 
 def test_every_per_sample_channel_is_a_topic_map_field_and_a_name_is_registered_once():
     topics = TopicMap()
-    node_only = map_channels() + trace_channels()
-    assert {c.name for c in sample_channels()} | {c.name for c in node_only} == set(OUTPUT_CHANNELS)
+    not_moved = map_channels() + trace_channels() + window_channels()
+    assert {c.name for c in sample_channels()} | {c.name for c in not_moved} == set(OUTPUT_CHANNELS)
     for channel in sample_channels():
         assert getattr(topics, channel.name) == topics.output(channel.name) == channel.absolute_topic()
-    for channel in node_only:  # the node's alone: no recording's topic to move
+    for channel in not_moved:  # not per sample: no --topic-<name>, the table's topic
         assert not hasattr(topics, channel.name)
+        assert topics.output(channel.name) == channel.absolute_topic()
     with pytest.raises(ValueError, match="already registered"):
         register(OUTPUT_CHANNELS["loss_torque"])
     with pytest.raises(ValueError, match="stamped"):
         register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "no value and not a JointState"))
     with pytest.raises(ValueError, match="Float64MultiArray"):
         register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "a map as a Float64", per="map"))
+    with pytest.raises(ValueError, match="window channel"):
+        register(OutputChannel("bad", "bad", MessageType.JOINT_STATE, "", "a window without a value", per="window"))
     with pytest.raises(ValueError, match="DiagnosticStatus"):
         register(OutputChannel("bad", "bad", MessageType.FLOAT64, "1", "a trace as a Float64", per="trace"))
     with pytest.raises(ValueError, match="per is"):

@@ -80,6 +80,24 @@ def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     position = np.array([list(m.position) for m in estimates])
     np.testing.assert_array_equal(position[:, 0], loss)
     np.testing.assert_array_equal(position[:, 2], eff)
+    np.testing.assert_array_equal(position[:, 6], np.concatenate([b.efficiency_measured for b in batches]))
+    # the measured efficiency's windows the node published once a second are those replay writes for
+    # the same sample times (the node stops before the last ones are due: a prefix) -- its recording's,
+    # or, for joint states (whose header stamps are their sample times), the bag's
+    window_topic = "/rollergear/efficiency/measured"
+    if np.isfinite(ref_res).any():
+        replayed = tmp_path / "replayed.mcap"
+        replay(bag if "joint_states" in bag.stem else rec, load_config(CONFIG), out_mcap=replayed,
+               show_progress=False)
+        _, published = float_series(live, window_topic)
+        _, written = float_series(read_rosbags(replayed), window_topic)
+        assert 0.8 * len(written) <= len(published) <= len(written), (len(published), len(written))
+        # the same sums, added up in other pieces: equal to rounding
+        np.testing.assert_allclose(published, written[:len(published)], rtol=1e-12, atol=0)
+        _, spread = float_series(live, window_topic + "_uncertainty")
+        assert len(spread) == len(published) and (spread == 0).all()  # no sensor accuracy stated
+    else:
+        assert window_topic not in live
     if T.motor_torque in live:
         sample_times = live[T.motor_torque][0]
     else:  # a JointState carries its sample's time in its header

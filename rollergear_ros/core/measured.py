@@ -1,0 +1,358 @@
+"""The measured efficiency: per sample, energy-weighted over a window or a cell, with its uncertainty.
+
+Where both torques are measured, the gearbox's efficiency is the power it delivers over the power it
+is given.  With ``P_in = T_in·ω_in`` and ``P_out = T_out·ω_out`` (``ω_out = ω_in/ratio`` where the
+output speed is not measured)::
+
+    motoring (P_in > 0):         η = P_out/P_in          (supplied P_in, delivered P_out)
+    regeneration (P_in, P_out < 0): η = P_in/P_out       (supplied −P_out, delivered −P_in)
+
+per sample (NaN where the model's efficiency is undefined too: below ``estimator.min_torque_for_efficiency_nm``
+or ``min_speed_for_efficiency_rad_s``, or power leaving at both ends), and energy-weighted over many
+samples as ``η_E = D/S``, ``D`` the energy delivered and ``S`` the energy supplied (Σ P·dt over both
+quadrants) -- what a rig's efficiency figure is.
+
+Its uncertainty follows the GUM's first-order propagation (GUM 5.1.2, 5.2.2) of the sensors' stated
+accuracy (``sensors.*``, :mod:`.uncertainty`): a torque reading ``T_meas = T·(1 + g) + o`` with the
+gain error ``g`` within ``± b %`` of the reading and the offset ``o`` within ``± a %`` of full scale,
+rectangular (standard uncertainties ``b/100/√3`` and ``a·FS/100/√3``).  Both are *systematic*: one
+value for every sample of a window, so they do not average out; their sensitivities are sums over the
+window::
+
+    ∂η/∂x = (∂D/∂x − η·∂S/∂x)/S,   e.g. ∂S/∂g_in = Σ_motoring P_in·dt,  ∂S/∂o_in = Σ_motoring ω_in·dt
+
+A speed reading's resolution ``q`` is random from sample to sample (``q/√12`` each): its part adds in
+quadrature over the samples.  The four torque errors and the speed readings are independent::
+
+    u²(η) = Σ_k (∂η/∂x_k)²·u²(x_k) + Σ_i (∂η/∂ω_i)²·u²(ω)
+
+Everything is a sum over samples, so a window is the sum of its pieces (:class:`EnergyBalance`
+adds): :class:`MeasuredEfficiency` keeps them per run, per second of sample time (the node's rolling
+window and replay's) and per operating-point cell (replay's summary, measured maps).  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from .params import SensorParams
+
+__all__ = ["EnergyBalance", "MeasuredEfficiency", "WindowValue", "balance_of", "gap_ns", "measured_efficiency",
+           "powers"]
+
+_RECTANGULAR = 1.0 / math.sqrt(3.0)
+_QUANTISED = 1.0 / math.sqrt(12.0)
+#: samples further apart than this many sample periods (and :data:`MIN_GAP_S`) are a gap: nothing is
+#: integrated across it
+GAP_PERIODS = 5.0
+MIN_GAP_S = 0.1
+
+
+def powers(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio: float):
+    """``(P_in, P_out, ω_out)`` [W, W, rad/s]: ``ω_out`` measured, or ``ω_in/ratio`` where NaN."""
+    w_in = np.asarray(speed_rad_s, dtype=float)
+    w_out = np.asarray(out_speed_rad_s, dtype=float)
+    w_out = np.where(np.isnan(w_out), w_in / ratio, w_out)
+    return np.asarray(torque_nm, dtype=float) * w_in, np.asarray(out_torque_nm, dtype=float) * w_out, w_out
+
+
+def _quadrants(p_in, p_out):
+    """Masks of motoring (power in at the input) and regeneration (power in at the output)."""
+    motoring = p_in > 0
+    regenerating = (p_in < 0) & (p_out < 0)
+    return motoring, regenerating
+
+
+def measured_efficiency(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio: float,
+                        min_torque_nm: float = 0.0, min_speed_rad_s: float = 0.0):
+    """Per-sample measured efficiency (module docstring): ``P_out/P_in`` motoring, ``P_in/P_out``
+    regenerating; NaN without a measured output torque, below the thresholds, or where power leaves
+    at both ends.  Not clipped: a reading above 1 is what the sensors said."""
+    p_in, p_out, _ = powers(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio)
+    motoring, regenerating = _quadrants(p_in, p_out)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        eta = np.where(motoring, p_out / p_in, np.where(regenerating, p_in / p_out, np.nan))
+    small = (np.abs(np.asarray(torque_nm, dtype=float)) < min_torque_nm) \
+        | (np.abs(np.asarray(speed_rad_s, dtype=float)) < min_speed_rad_s)
+    return np.where(small | ~np.isfinite(p_out), np.nan, eta)
+
+
+@dataclass
+class EnergyBalance:
+    """Energy supplied to and delivered by the gearbox over some samples, with the sums its
+    uncertainty needs (all additive: ``a + b`` is the balance of both sets of samples).
+
+    Units: energies in J, angles in rad; ``*_speed_*`` sums are of squared torque·time [(N·m·s)²]."""
+
+    supplied_j: float = 0.0
+    delivered_j: float = 0.0
+    samples: int = 0
+    seconds: float = 0.0
+    # sensitivities of supplied (s_) and delivered (d_) energy to each torque sensor's gain (per unit)
+    # and offset (per N·m): Σ P·dt and Σ ω·dt over the quadrant the sensor's side supplies or delivers in
+    s_gain_in: float = 0.0
+    d_gain_in: float = 0.0
+    s_offset_in: float = 0.0
+    d_offset_in: float = 0.0
+    s_gain_out: float = 0.0
+    d_gain_out: float = 0.0
+    s_offset_out: float = 0.0
+    d_offset_out: float = 0.0
+    # random speed readings: Σ a², Σ a·b, Σ b² of ∂D/∂ω_i = a_i, ∂S/∂ω_i = b_i (input speed, the output's
+    # derived from it where not measured) and of the measured output speed
+    in_aa: float = 0.0
+    in_ab: float = 0.0
+    in_bb: float = 0.0
+    out_aa: float = 0.0
+    out_ab: float = 0.0
+    out_bb: float = 0.0
+    #: the model's loss energy over the same samples (Σ loss power·dt), when it was given
+    model_loss_j: float = 0.0
+
+    def __add__(self, other: EnergyBalance) -> EnergyBalance:
+        return EnergyBalance(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
+
+    def __sub__(self, other: EnergyBalance) -> EnergyBalance:
+        return EnergyBalance(*(getattr(self, f.name) - getattr(other, f.name) for f in fields(self)))
+
+    @property
+    def lost_j(self) -> float:
+        """Energy lost in the gearbox (supplied − delivered)."""
+        return self.supplied_j - self.delivered_j
+
+    @property
+    def efficiency(self) -> float:
+        """Energy-weighted efficiency ``D/S`` (NaN when nothing was supplied)."""
+        return self.delivered_j / self.supplied_j if self.supplied_j > 0 else math.nan
+
+    @property
+    def model_efficiency(self) -> float:
+        """The model's over the same samples: ``1 − L_model/S`` (NaN when nothing was supplied)."""
+        return 1.0 - self.model_loss_j / self.supplied_j if self.supplied_j > 0 else math.nan
+
+    def as_list(self) -> list[float]:
+        """The fields in order (a table's cell; :meth:`from_list` reads it back)."""
+        return [float(getattr(self, f.name)) for f in fields(self)]
+
+    @classmethod
+    def from_list(cls, values) -> EnergyBalance:
+        names = [f.name for f in fields(cls)]
+        return cls(**{n: (int(v) if n == "samples" else float(v)) for n, v in zip(names, values)})
+
+    def uncertainty(self, sensors: SensorParams) -> float:
+        """Standard uncertainty of :attr:`efficiency` from the sensors' stated accuracy (module
+        docstring); 0 when none is stated, NaN when the efficiency is."""
+        eta, s = self.efficiency, self.supplied_j
+        if not math.isfinite(eta):
+            return math.nan
+        u_g_in = sensors.input_torque_reading_pct / 100.0 * _RECTANGULAR
+        u_o_in = sensors.input_torque_fs_pct * sensors.input_torque_full_scale_nm / 100.0 * _RECTANGULAR
+        u_g_out = sensors.output_torque_reading_pct / 100.0 * _RECTANGULAR
+        u_o_out = sensors.output_torque_fs_pct * sensors.output_torque_full_scale_nm / 100.0 * _RECTANGULAR
+        u_w_in = sensors.input_speed_resolution_rad_s * _QUANTISED
+        u_w_out = sensors.output_speed_resolution_rad_s * _QUANTISED
+        var = sum(((d - eta * s_) * u) ** 2 for d, s_, u in (
+            (self.d_gain_in, self.s_gain_in, u_g_in), (self.d_offset_in, self.s_offset_in, u_o_in),
+            (self.d_gain_out, self.s_gain_out, u_g_out), (self.d_offset_out, self.s_offset_out, u_o_out)))
+        var += (self.in_aa - 2 * eta * self.in_ab + eta * eta * self.in_bb) * u_w_in ** 2
+        var += (self.out_aa - 2 * eta * self.out_ab + eta * eta * self.out_bb) * u_w_out ** 2
+        return math.sqrt(max(var, 0.0)) / s
+
+
+def gap_ns(period_ns: float) -> float:
+    """The longest step integrated: :data:`GAP_PERIODS` sample periods, at least :data:`MIN_GAP_S`."""
+    return max(GAP_PERIODS * period_ns, MIN_GAP_S * 1e9)
+
+
+def _integration_steps_s(t_ns, previous_ns: int | None = None, period_ns: float | None = None) -> np.ndarray:
+    """Each sample's time step [s] from the one before (``previous_ns`` before the first; without
+    one the first has none), none across a gap (:func:`gap_ns` of ``period_ns``, else of the median step)."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    if len(t) == 0:
+        return np.zeros(0)
+    dt = np.diff(t, prepend=t[0] if previous_ns is None else previous_ns).astype(float)
+    if not period_ns:
+        positive = dt[dt > 0]
+        period_ns = float(np.median(positive)) if len(positive) else 0.0
+    return np.where((dt > 0) & (dt <= gap_ns(period_ns)), dt, 0.0) * 1e-9
+
+
+def _terms(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio: float, dt_s, model_loss_w=None):
+    """Per-sample contributions to each field of :class:`EnergyBalance` (arrays, NaN-free), and
+    the mask of the motoring samples."""
+    t_in = np.asarray(torque_nm, dtype=float)
+    w_in = np.asarray(speed_rad_s, dtype=float)
+    t_out = np.asarray(out_torque_nm, dtype=float)
+    w_out_meas = np.asarray(out_speed_rad_s, dtype=float)
+    derived = np.isnan(w_out_meas)
+    p_in, p_out, w_out = powers(t_in, w_in, t_out, w_out_meas, ratio)
+    ok = np.isfinite(p_in) & np.isfinite(p_out) & np.isfinite(w_out)
+    motoring, regenerating = _quadrants(p_in, p_out)
+    mot = np.where(ok & motoring, dt_s, 0.0)
+    reg = np.where(ok & regenerating, dt_s, 0.0)
+    t_in, w_in, t_out, w_out = (np.where(ok, a, 0.0) for a in (t_in, w_in, t_out, w_out))
+    p_in, p_out = np.where(ok, p_in, 0.0), np.where(ok, p_out, 0.0)
+    # ∂D/∂ω and ∂S/∂ω per sample: motoring D = T_out·ω_out, S = T_in·ω_in; regenerating D = −T_in·ω_in,
+    # S = −T_out·ω_out; a derived output speed ω_in/ratio moves with ω_in
+    gear = np.where(derived, 1.0 / ratio, 0.0)
+    a_in = mot * t_out * gear - reg * t_in
+    b_in = mot * t_in - reg * t_out * gear
+    a_out = np.where(derived, 0.0, mot * t_out)
+    b_out = np.where(derived, 0.0, -reg * t_out)
+    model = np.zeros_like(mot) if model_loss_w is None else \
+        np.nan_to_num(np.abs(np.asarray(model_loss_w, dtype=float))) * (mot + reg)
+    return {
+        "model_loss_j": model,
+        "supplied_j": mot * p_in - reg * p_out, "delivered_j": mot * p_out - reg * p_in,
+        "samples": (mot > 0) | (reg > 0), "seconds": mot + reg,
+        "s_gain_in": mot * p_in, "d_gain_in": -reg * p_in, "s_offset_in": mot * w_in, "d_offset_in": -reg * w_in,
+        "s_gain_out": -reg * p_out, "d_gain_out": mot * p_out, "s_offset_out": -reg * w_out,
+        "d_offset_out": mot * w_out,
+        "in_aa": a_in * a_in, "in_ab": a_in * b_in, "in_bb": b_in * b_in,
+        "out_aa": a_out * a_out, "out_ab": a_out * b_out, "out_bb": b_out * b_out,
+    }, mot > 0
+
+
+def balance_of(t_ns, torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio: float,
+               previous_ns: int | None = None, period_ns: float | None = None) -> EnergyBalance:
+    """The :class:`EnergyBalance` of the samples (times in ns; ``previous_ns``: the sample before
+    the first, which the first integrates from; ``period_ns``: the sample period, else the median step)."""
+    dt = _integration_steps_s(t_ns, previous_ns, period_ns)
+    return _balance(_terms(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio, dt)[0])
+
+
+@dataclass(frozen=True)
+class WindowValue:
+    """The measured efficiency over one window: what the node publishes and replay writes once a second."""
+
+    end_ns: int  #: the window ends here (a whole second of sample time: the samples before it)
+    efficiency: float  #: energy-weighted (NaN: nothing supplied in the window)
+    uncertainty: float  #: its standard uncertainty (0: no accuracy stated in ``sensors.*``)
+    samples: int
+    window_s: float
+
+
+class MeasuredEfficiency:
+    """Running :class:`EnergyBalance` sums over samples that come in time order, in any batches:
+    the whole run (:attr:`total`), one per second of sample time (for the rolling window of the last
+    ``window_s``: :meth:`window`) and, with ``speed_step_rpm`` and ``torque_step_nm``, one per
+    operating-point cell (the nearest node of that grid: :meth:`cells`); :attr:`motoring` and
+    :attr:`regenerating` split the total by the end power came in at.
+
+    A sample more than :func:`gap_ns` after the one before starts a new stretch: nothing is
+    integrated across the gap (a pause of the rig, the next recording)."""
+
+    def __init__(self, ratio: float, period_s: float, window_s: float = 10.0, speed_step_rpm: float | None = None,
+                 torque_step_nm: float | None = None) -> None:
+        """``period_s``: the sample period (the estimator's): steps beyond :func:`gap_ns` of it are gaps."""
+        self.ratio = ratio
+        self._period_ns = float(period_s) * 1e9
+        self.window_s = float(window_s)
+        self.total = EnergyBalance()
+        self.motoring = EnergyBalance()  #: the part of :attr:`total` where power came in at the input
+        self.regenerating = EnergyBalance()  #: ... and where it came in at the output
+        self.last_ns: int | None = None
+        self._seconds: dict[int, EnergyBalance] = {}  # whole second of sample time -> its balance
+        self._first_s: int | None = None
+        self._grid = (speed_step_rpm, torque_step_nm) if speed_step_rpm and torque_step_nm else None
+        self._cells: dict[tuple[int, int], EnergyBalance] = {}
+
+    def add(self, t_ns, torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, model_loss_w=None) -> None:
+        """Samples in time order (arrays alike; a NaN output torque: not measured, left out);
+        ``model_loss_w``: the model's loss power at each, for :attr:`EnergyBalance.model_loss_j`."""
+        if out_torque_nm is None:
+            return
+        t = np.asarray(t_ns, dtype=np.int64)
+        out = np.asarray(out_torque_nm, dtype=float)
+        keep = np.isfinite(out)
+        if not keep.any():
+            return
+        if not keep.all():
+            t, out = t[keep], out[keep]
+            torque_nm, speed_rad_s = np.asarray(torque_nm)[keep], np.asarray(speed_rad_s)[keep]
+            out_speed_rad_s = np.asarray(out_speed_rad_s)[keep]
+            model_loss_w = None if model_loss_w is None else np.asarray(model_loss_w)[keep]
+        dt = _integration_steps_s(t, self.last_ns, self._period_ns)
+        terms, motoring = _terms(torque_nm, speed_rad_s, out, out_speed_rad_s, self.ratio, dt, model_loss_w)
+        total = _balance(terms)
+        self.total = self.total + total
+        motoring_part = _balance({k: v * motoring for k, v in terms.items()})
+        self.motoring = self.motoring + motoring_part
+        self.regenerating = self.regenerating + (total - motoring_part)
+        second = t // 1_000_000_000
+        starts = np.flatnonzero(np.diff(second, prepend=second[0] - 1))
+        for key, piece in zip(second[starts].tolist(), _balances(terms, np.add.reduceat, starts)):
+            self._seconds[key] = self._seconds[key] + piece if key in self._seconds else piece
+        if self._first_s is None:
+            self._first_s = int(second[0])
+        self.last_ns = int(t[-1])
+        if self._grid is not None:
+            rpm = np.asarray(speed_rad_s, dtype=float) * (30.0 / math.pi)
+            i = np.rint(rpm / self._grid[0]).astype(np.int64)
+            j = np.rint(np.asarray(torque_nm, dtype=float) / self._grid[1]).astype(np.int64)
+            keys, index = np.unique(np.stack([i, j]), axis=1, return_inverse=True)
+            pieces = _balances(terms, lambda v, idx: np.bincount(idx, weights=v, minlength=keys.shape[1]),
+                               index.ravel())
+            for key, piece in zip(map(tuple, keys.T.tolist()), pieces):
+                self._cells[key] = self._cells[key] + piece if key in self._cells else piece
+
+    def prime(self, last_ns: int) -> None:
+        """A sample before the first added (a time slice's): the first integrates from it."""
+        self.last_ns = last_ns
+
+    def boundaries(self, since_s: int | None) -> range:
+        """The second boundaries completed after ``since_s`` (None: after the first sample's second)
+        up to the last sample's second: the windows to publish."""
+        if self.last_ns is None or self._first_s is None:
+            return range(0)
+        first = self._first_s if since_s is None else since_s
+        return range(first + 1, self.last_ns // 1_000_000_000 + 1)
+
+    def forget(self, boundary_s: int) -> None:
+        """Drop the seconds no window ending at ``boundary_s`` or later holds (after publishing it)."""
+        first = boundary_s - math.ceil(self.window_s)
+        for key in [k for k in self._seconds if k < first]:
+            del self._seconds[key]
+
+    def window(self, boundary_s: int) -> EnergyBalance:
+        """The balance of the ``window_s`` before the second boundary ``boundary_s`` (whole seconds:
+        a window of 10 s at 20 s holds seconds 10 … 19)."""
+        first = boundary_s - math.ceil(self.window_s)
+        return _sum(b for k, b in self._seconds.items() if first <= k < boundary_s)
+
+    def window_value(self, boundary_s: int, sensors: SensorParams) -> WindowValue:
+        """:meth:`window` as the value published: efficiency, uncertainty, samples."""
+        b = self.window(boundary_s)
+        return WindowValue(boundary_s * 1_000_000_000, b.efficiency, b.uncertainty(sensors), b.samples, self.window_s)
+
+    def cells(self) -> list[tuple[float, float, EnergyBalance]]:
+        """``(input speed [rpm], input torque [N·m], balance)`` of each operating-point cell (the
+        grid's node its samples are nearest to), by speed then torque."""
+        if self._grid is None:
+            return []
+        ds, dt = self._grid
+        return [(i * ds, j * dt, self._cells[(i, j)]) for i, j in sorted(self._cells)]
+
+
+def _balance(terms: dict[str, np.ndarray]) -> EnergyBalance:
+    return EnergyBalance(**{k: (int(np.count_nonzero(v)) if k == "samples" else float(np.sum(v)))
+                            for k, v in terms.items()})
+
+
+def _balances(terms: dict[str, np.ndarray], reduce, index) -> list[EnergyBalance]:
+    """One balance per group: ``reduce(values, index)`` sums each field's per-sample terms by group."""
+    sums = {k: reduce(np.asarray(v, dtype=float), index) for k, v in terms.items()}
+    groups = len(next(iter(sums.values())))
+    return [EnergyBalance(**{k: (int(round(v[g])) if k == "samples" else float(v[g])) for k, v in sums.items()})
+            for g in range(groups)]
+
+
+def _sum(balances: Iterable[EnergyBalance]) -> EnergyBalance:
+    total = EnergyBalance()
+    for b in balances:
+        total = total + b
+    return total
