@@ -64,6 +64,7 @@ class MessageType:
     FLOAT64_MULTI_ARRAY = "std_msgs/msg/Float64MultiArray"
     PARAMETER_EVENT = "rcl_interfaces/msg/ParameterEvent"
     DIAGNOSTIC_STATUS = "diagnostic_msgs/msg/DiagnosticStatus"
+    DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
     CLOCK = "rosgraph_msgs/msg/Clock"
 
 

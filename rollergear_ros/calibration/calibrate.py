@@ -608,17 +608,6 @@ def _members_at_bound(name: str, params: dict[str, float]) -> list[str]:
             if min(abs(params[short] - lo), abs(params[short] - hi)) <= 1e-3 * (hi - lo)]
 
 
-def _at_search_bound(found: FoundEffect) -> str | None:
-    """Why a fit whose exponent or Vogel B/C stopped at the bound of its search is no estimate
-    (the data wants a value the search does not allow: another law, or recordings of different rigs)."""
-    for short, (lo, hi) in EFFECTS[found.name].profiled_ranges().items():
-        v = found.params[short]
-        if min(abs(v - lo), abs(v - hi)) <= 1e-6 * max(abs(lo), abs(hi), 1.0):
-            return (f"fitted value outside the physical range: {short} = {v:.4g} stopped at the bound of "
-                    f"its search [{lo:g}, {hi:g}]")
-    return None
-
-
 def _is_sensor_error(term_name: str) -> bool:
     """A term that is an effect corrupting the torque reading (not a model parameter, not a loss)."""
     effect = EFFECTS.get(term_name)

@@ -49,6 +49,9 @@ __all__ = ["TraceBuffer", "TraceRequest", "TraceResult", "TraceWorker", "change_
 #: the fields of an estimate the buffer keeps, in its tuples' order
 SAMPLE_FIELDS = ("t_ns", "torque_nm", "speed_rad_s", "out_torque_nm", "out_speed_rad_s", "temperature_c")
 MIN_BEFORE_S = 10.0  #: a window before the change point shorter than this is not analysed
+#: inputs silent this long (at least; 20 sample periods where those are longer), or time going back,
+#: are a gap -- a new recording, a pause of the rig: a trace's window starts after the last one
+GAP_S = 2.0
 CHANGE_BLOCK_S = 0.25  #: block length of the change point's search [s]
 
 
@@ -200,6 +203,17 @@ def change_point(t_ns: np.ndarray, residual: np.ndarray, alarm_ns: int, block_s:
     return int(t[starts[k[int(np.argmin(cost))]]])
 
 
+def after_last_gap(t_ns: np.ndarray) -> int:
+    """Index of the first sample after the last gap in ``t_ns`` (:data:`GAP_S`; 0: none)."""
+    if len(t_ns) < 2:
+        return 0
+    steps = np.diff(np.asarray(t_ns, dtype=np.int64))
+    positive = steps[steps > 0]
+    limit = max(GAP_S * 1e9, 20.0 * float(np.median(positive))) if len(positive) else GAP_S * 1e9
+    gaps = np.flatnonzero((steps > limit) | (steps < 0))
+    return int(gaps[-1]) + 1 if len(gaps) else 0
+
+
 def _estimates(config: Config, s: dict[str, np.ndarray], keep: np.ndarray):
     """The estimator with ``config`` over the samples where ``keep``, fresh (one batch)."""
     return Estimator(config).process_batch(s["t_ns"][keep], s["torque_nm"][keep], s["speed_rad_s"][keep],
@@ -228,10 +242,17 @@ def trace(request: TraceRequest) -> TraceResult:
     if request.end_ns is not None:
         keep = s["t_ns"] <= request.end_ns
         s = {k: v[keep] for k, v in s.items()}
+    gap_note = None
+    cut = after_last_gap(s["t_ns"])
+    if cut:  # never a window across a gap in the inputs: the two sides may be other gearboxes, other days
+        pause_s = (int(s["t_ns"][cut]) - int(s["t_ns"][cut - 1])) * 1e-9
+        gap_note = (f"the inputs {'paused for ' + format(pause_s, '.3g') + ' s' if pause_s > 0 else 'went back in time'} "
+                    f"before {int(s['t_ns'][cut])} ns (a new recording, a pause of the rig): the window starts after it")
+        s = {k: v[cut:] for k, v in s.items()}
     t = s["t_ns"]
     window_ns = int(request.window_s * 1e9)
     end = int(t[-1]) if len(t) else 0
-    if request.reason == "alarm" and request.alarm_ns is not None and len(t):
+    if request.reason == "alarm" and request.alarm_ns is not None and len(t) and request.alarm_ns >= t[0]:
         residual = _estimates(config, s, np.ones(len(t), bool)).residual_nm
         since = change_point(t, residual, request.alarm_ns)
     else:
@@ -241,6 +262,8 @@ def trace(request: TraceRequest) -> TraceResult:
     before = (t < since) & (t >= since - window_ns)
     span = (int(t[after][0]), int(t[after][-1])) if after.any() else (since, since)
     result = TraceResult(request.reason, "inconclusive", "", since, span, int(after.sum()), alarm_ns=request.alarm_ns)
+    if gap_note:
+        result.notes.append(gap_note)
     after_s = (span[1] - span[0]) * 1e-9
     if request.reason == "alarm" and after_s < request.min_after_s:
         result.message = (f"inconclusive: needs {request.min_after_s:g} s of samples with measured output after the "
@@ -265,7 +288,7 @@ def _judge(result: TraceResult, config: Config, cal: CalibrationResult, before_c
     new = [e for e in cal.effects if e.name not in enabled and e.name not in there_before]
     result.heldout_rmse_nm = (cal.error_before.rmse_nm, cal.error_after.rmse_nm)
     result.error_now_nm = _rms_residual(config, s, after)
-    result.notes = list(cal.notes)
+    result.notes += list(cal.notes)
     if before_cal is not None:
         result.notes.append(f"before the change: {before_cal.verdict}"
                             + (f" ({', '.join(e.name for e in before_cal.effects)})" if before_cal.effects else ""))
@@ -273,6 +296,10 @@ def _judge(result: TraceResult, config: Config, cal: CalibrationResult, before_c
     if cal.verdict == "inconclusive" or not cal.written:
         sets = "; ".join(f"{' / '.join(a.effects)} cannot be told apart (needs {a.needs})" for a in cal.ambiguous)
         result.message = f"inconclusive: {sets or 'needs a wider range of speed, torque and direction'}"
+        return
+    at_bound = [e for e in new if e.at_bound]
+    if at_bound:  # the data want a law outside the vocabulary: no estimate to propose (as calibrate sets it aside)
+        result.message = "inconclusive: " + "; ".join(e.bound_note() for e in at_bound)
         return
     if not new:
         result.verdict = "nothing_new"

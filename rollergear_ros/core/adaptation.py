@@ -119,7 +119,10 @@ class ChangeDetector:
 
     ``g⁺ ← max(0, g⁺ + x̄ − δ/2)``, ``g⁻ ← max(0, g⁻ − x̄ − δ/2)``; an alarm when either exceeds
     ``h = 4δ``; after an alarm the sums are held at 0 until ``|x̄| < δ/2`` for 3 blocks, so one
-    change gives one alarm while adaptation settles.
+    change gives one alarm while adaptation settles.  While held (:attr:`refractory`) the residual
+    is still beyond its threshold.  An alarm before the residual was ever within ``δ/2`` for 3 blocks
+    is no change: the residual was off from the start (the parameters lack an effect;
+    :attr:`alarm_from_start`).
     """
 
     def __init__(self, block_samples: int, threshold_nm: float) -> None:
@@ -134,6 +137,10 @@ class ChangeDetector:
         self.calm_blocks = 0
         self.last_block_mean = math.nan
         self.alarm_times_ns: list[int] = []
+        #: per alarm: whether the residual had never been calm before it (off from the start, no change)
+        self.alarm_from_start: list[bool] = []
+        self._calm_run = 0  # consecutive calm blocks before the first alarm
+        self.settled = False  #: the residual has been within δ/2 for 3 blocks in a row
 
     def add_many(self, x: np.ndarray, t_ns: np.ndarray) -> None:
         """:meth:`add` for arrays of finite residuals (block sums with numpy, CUSUM per block)."""
@@ -175,12 +182,17 @@ class ChangeDetector:
             self.calm_blocks = self.calm_blocks + 1 if abs(m) < k else 0
             if self.calm_blocks >= 3:
                 self.refractory = False
+                self.settled = True
             return False
+        if not self.settled:
+            self._calm_run = self._calm_run + 1 if abs(m) < k else 0
+            self.settled = self._calm_run >= 3
         self.g_pos = max(0.0, self.g_pos + m - k)
         self.g_neg = max(0.0, self.g_neg - m - k)
         if self.g_pos > 4 * self.delta or self.g_neg > 4 * self.delta:
             self.alarms += 1
             self.alarm_times_ns.append(t_ns)
+            self.alarm_from_start.append(not self.settled)
             self.g_pos = self.g_neg = 0.0
             self.refractory = True
             self.calm_blocks = 0

@@ -16,6 +16,7 @@ metres, angles degrees (``_deg``), viscosities Pa·s.  No rclpy import here.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -243,9 +244,20 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("node.min_efficiency_warn", float, 0.9, "WARN when the latest efficiency is below this", "",
               low=0.0, high=1.0),
     ParamSpec("node.hardware_id", str, "rollergear_gearbox", "hardware_id in /diagnostics"),
-    ParamSpec("node.record_mcap", str, "", "record inputs and outputs to this MCAP file ('' = off)",
+    ParamSpec("node.record_mcap", str, "",
+              "record inputs, outputs, /diagnostics, the loss maps and traces to this MCAP file ('' = off); {start} "
+              "in the name is each file's UTC start time (rig_{start}.mcap), {index} its number; a name that exists is "
+              "refused unless it has a field or the recording is split (then the next free name is taken)",
               read_only=True),
-    ParamSpec("node.rerun_rrd", str, "", "log to this rerun .rrd file ('' = off)", read_only=True),
+    ParamSpec("node.rerun_rrd", str, "", "log to this rerun .rrd file ('' = off; {start}, {index} and splitting as "
+              "node.record_mcap)", read_only=True),
+    ParamSpec("node.record_max_mb", float, 0.0,
+              "split node.record_mcap and node.rerun_rrd into files of about this size (as ros2 bag record "
+              "--max-bag-size; 0 = one file): each file whole, with the provenance and parameters", "MB",
+              low=0.0, high=1e7, read_only=True),
+    ParamSpec("node.record_max_s", float, 0.0,
+              "split them every this many seconds (as --max-bag-duration; 0 = off)", "s",
+              low=0.0, high=1e9, read_only=True),
     ParamSpec("node.rerun_connect", str, "", "stream to a rerun viewer at this gRPC URL ('' = off)",
               read_only=True),
     ParamSpec("node.trace", bool, True,
@@ -433,6 +445,8 @@ class NodeParams:
     hardware_id: str = "rollergear_gearbox"
     record_mcap: str = ""
     rerun_rrd: str = ""
+    record_max_mb: float = 0.0
+    record_max_s: float = 0.0
     rerun_connect: str = ""
     trace: bool = True
     trace_window_s: float = 60.0
@@ -445,8 +459,9 @@ class NodeParams:
         """Where ``propose`` writes the candidate parameter file (``node.traced_params_file``)."""
         if self.traced_params_file:
             return self.traced_params_file
-        if self.record_mcap:
-            return str(Path(self.record_mcap).with_suffix("")) + ".traced.yaml"
+        if self.record_mcap:  # beside the recording, without its name's fields ({start}, {index})
+            plain = re.sub(r"[_-]?\{(start|index)\}", "", self.record_mcap)
+            return str(Path(plain).with_suffix("")) + ".traced.yaml"
         return "loss_estimator.traced.yaml"
 
 

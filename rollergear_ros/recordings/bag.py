@@ -50,6 +50,16 @@ MSG_DEFINITIONS: dict[str, str] = {
         "byte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\nbyte level\nstring name\nstring message\n"
         "string hardware_id\ndiagnostic_msgs/KeyValue[] values\n" + "=" * 80 + "\n"
         "MSG: diagnostic_msgs/KeyValue\nstring key\nstring value\n"),
+    # as rosbags' type store generates them (with their nested types)
+    MessageType.DIAGNOSTIC_ARRAY: (
+        "std_msgs/Header header\ndiagnostic_msgs/DiagnosticStatus[] status\n" + _HEADER_DEF + "=" * 80 + "\n"
+        "MSG: diagnostic_msgs/DiagnosticStatus\nbyte OK=0\nbyte WARN=1\nbyte ERROR=2\nbyte STALE=3\nbyte level\n"
+        "string name\nstring message\nstring hardware_id\ndiagnostic_msgs/KeyValue[] values\n" + "=" * 80 + "\n"
+        "MSG: diagnostic_msgs/KeyValue\nstring key\nstring value\n"),
+    MessageType.FLOAT64_MULTI_ARRAY: (
+        "std_msgs/MultiArrayLayout layout\nfloat64[] data\n" + "=" * 80 + "\n"
+        "MSG: std_msgs/MultiArrayLayout\nstd_msgs/MultiArrayDimension[] dim\nuint32 data_offset\n" + "=" * 80 + "\n"
+        "MSG: std_msgs/MultiArrayDimension\nstring label\nuint32 size\nuint32 stride\n"),
     # as rosbags' type store generates it (rcl_interfaces/msg/ParameterEvent with its nested types)
     MessageType.PARAMETER_EVENT: (
         "builtin_interfaces/Time stamp\n"
@@ -589,6 +599,11 @@ class BagWriter:
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """An MCAP metadata record (string key/values)."""
         self._writer.add_metadata(name, data)
+
+    @property
+    def bytes_written(self) -> int:
+        """About the file's size so far (the open chunk counted uncompressed)."""
+        return self._writer.bytes_written
 
     def close(self, commit: bool = True) -> None:
         """Write what is held, rosbag2's metadata record and the summary; ``commit=False``: the

@@ -336,6 +336,11 @@ class ChunkedMcapWriter:
             self.flush_chunk()
 
     @property
+    def bytes_written(self) -> int:
+        """The file's size so far, with the open chunk (uncompressed) and the chunks being written."""
+        return self._fh.tell() + self._size
+
+    @property
     def channel_counts(self) -> dict[int, int]:
         """Messages written so far, by channel id (the Statistics record's)."""
         return dict(self._counts)

@@ -264,7 +264,9 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
     summary.samples = estimator.motor_messages
     summary.estimated = estimator.estimated
     summary.skipped = dict(estimator.counts)
-    summary.alarms = estimator.detector.alarms
+    detector = estimator.detector
+    summary.alarms = detector.alarms
+    summary.alarm_times_ns, summary.alarm_from_start = list(detector.alarm_times_ns), list(detector.alarm_from_start)
     if window is not None:
         window.finish(summary, estimator, acc)
     unpaired = summary.skipped.get("unpaired", 0)

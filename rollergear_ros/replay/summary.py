@@ -52,6 +52,10 @@ class ReplaySummary:
     start_ns: int | None = None  #: first estimated sample
     end_ns: int | None = None  #: last estimated sample
     alarms: int = 0
+    #: the change detector's alarms (sample times) and whether each came before the residual was ever
+    #: within its threshold (off from the start: the parameters lack an effect, no change)
+    alarm_times_ns: list[int] = field(default_factory=list)
+    alarm_from_start: list[bool] = field(default_factory=list)
     interrupted: bool = False
     sync_tolerance_s: float = math.nan  #: the pairing tolerance used
     sample_period_s: float | None = None  #: the motor torque's median message period in the bag
@@ -111,7 +115,7 @@ class ReplaySummary:
         if self.residual_samples:
             lines.append(
                 f"residual (measured − estimated loss): RMS {self.residual_rms_nm:.4f} N·m over "
-                f"{self.residual_samples:,} samples; change alarms: {self.alarms}"
+                f"{self.residual_samples:,} samples; change alarms: {self.alarms}{self._alarm_times()}"
             )
         if self.parameter_changes:
             lines.append(f"parameter changes the node made, applied where it made them: "
@@ -123,6 +127,18 @@ class ReplaySummary:
         lines.extend(f"warning: {w}" for w in self.warnings)
         return "\n".join(lines)
 
+
+    def _alarm_times(self) -> str:
+        """When the alarms came (seconds into the recording) and what each means."""
+        if not self.alarm_times_ns or self.start_ns is None:
+            return ""
+        said = []
+        for t, from_start in list(zip(self.alarm_times_ns, self.alarm_from_start))[:10]:
+            what = "the residual off from the start: the parameters lack an effect, not a change" if from_start \
+                else "the residual changed"
+            said.append(f"{(t - self.start_ns) * 1e-9:.1f} s ({what})")
+        more = f", … {len(self.alarm_times_ns) - 10} more" if len(self.alarm_times_ns) > 10 else ""
+        return " at " + ", ".join(said) + more
 
     def _measured_lines(self) -> list[str]:
         """The measured efficiency beside the model's, over the recording and per operating point."""

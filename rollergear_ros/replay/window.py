@@ -96,6 +96,10 @@ class TimeWindow:
         end = self._at_end or counts_now
         summary.skipped = {k: end[0][k] - start[0].get(k, 0) for k in end[0]}
         summary.alarms = end[1] - start[1]
+        lo = -(2**63) if self.start_ns is None else self.start_ns
+        hi = 2**63 - 1 if self.end_ns is None else self.end_ns
+        inside = [(t, f) for t, f in zip(summary.alarm_times_ns, summary.alarm_from_start) if lo <= t < hi]
+        summary.alarm_times_ns, summary.alarm_from_start = [t for t, _ in inside], [f for _, f in inside]
         summary.samples = self.samples
         summary.input_messages = self.input_messages
         summary.estimated = acc.n

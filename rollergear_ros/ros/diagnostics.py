@@ -201,11 +201,11 @@ def _input_status(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLim
             learned = monitor.learned_rate_hz(ch)
             if limits.learn_rate:
                 values.append((f"{ch} learned rate [Hz]", "learning" if learned is None else _fmt(learned)))
-            if last is None:
-                level = WARN if since_start < STARTUP_GRACE_S else ERROR
-                reasons.append((level, f"no input on {ch}"))
+            if last is None:  # nothing yet: after the start-up grace the node is idle, not broken
+                level = WARN if since_start < STARTUP_GRACE_S else STALE
+                reasons.append((level, f"no input on {ch} yet: idle"))
             elif age > stale_after_s:
-                reasons.append((ERROR, f"stale input: {ch} silent for {age:.2f} s"))
+                reasons.append((STALE, f"stale input: {ch} silent for {age:.2f} s: idle"))
             else:
                 expected = learned if limits.learn_rate else limits.expected_rate_hz
                 reasons += _slow_input(ch, rates.get(ch, 0.0), expected, limits.learn_rate)
@@ -219,8 +219,8 @@ def _measured_status(measured: WindowValue | None, stated: bool, values: list[tu
         values += [("measured efficiency", "none (no measured output torque)"),
                    ("measured efficiency uncertainty", "none")]
         return ""
-    values += [("measured efficiency", _fmt(measured.efficiency, 6)),
-               ("measured efficiency uncertainty", _fmt(measured.uncertainty, 3) if stated else "not stated (sensors.*)"),
+    values += [("measured efficiency", repr(measured.efficiency)),  # all its digits: a logger's number
+               ("measured efficiency uncertainty", repr(measured.uncertainty) if stated else "not stated (sensors.*)"),
                ("measured efficiency window [s]", _fmt(measured.window_s)),
                ("measured efficiency samples", str(measured.samples)),
                ("measured efficiency window end [ns]", str(measured.end_ns))]
@@ -266,7 +266,30 @@ def _estimate_status(estimator: Estimator, min_efficiency_warn: float, previous_
                    ("residual samples", str(stats.count))]
     for name, c in estimator.coefficients().items():
         values.append((f"adapted {name}", _fmt(c, 5)))
-    alarms = estimator.detector.alarms
-    values.append(("residual change alarms", str(alarms)))
-    if alarms > previous_alarms:
-        reasons.append((WARN, "the residual changed (a new or changed effect): re-run `rollergear calibrate`"))
+    _residual_alarm_status(estimator, previous_alarms, reasons, values)
+
+
+def _residual_alarm_status(estimator: Estimator, previous_alarms: int, reasons: list[tuple[int, str]],
+                           values: list[tuple[str, str]]) -> None:
+    """A WARN for as long as the residual stays beyond its threshold after an alarm (the change
+    detector holds it), saying whether it changed or was off from the start; one for an alarm whose
+    residual returned before this report."""
+    det = estimator.detector
+    values.append(("residual change alarms", str(det.alarms)))
+    beyond = det.refractory and det.alarms > 0
+    values.append(("residual beyond threshold", "yes" if beyond else "no"))
+    if det.alarm_times_ns:
+        values.append(("last residual alarm [ns]", str(det.alarm_times_ns[-1])))
+    if not (beyond or det.alarms > previous_alarms):
+        return
+    limit = f"±{det.delta / 2:.3g} N·m"
+    if not beyond:
+        what = "the residual went beyond its threshold and returned within it since the last report"
+    elif det.alarm_from_start and det.alarm_from_start[-1]:
+        what = (f"the residual has been beyond {limit} since the estimates began (block mean "
+                f"{det.last_block_mean:+.3g} N·m): not a change -- the parameters lack an effect; run "
+                "`rollergear calibrate` (see loss/traced)")
+    else:
+        what = (f"the residual changed (a new or changed effect) and stays beyond {limit} (block mean "
+                f"{det.last_block_mean:+.3g} N·m): see loss/traced, re-run `rollergear calibrate`")
+    reasons.append((WARN, what))

@@ -82,4 +82,5 @@ class LiveEfficiencyWindow:
             raw = _PACK(CDR_LE_HEADER, getattr(value, channel.value))
             publish(raw)
             if recorder is not None:
-                recorder.write_raw(topic, MessageType.FLOAT64, stamp, raw)
+                with self.node._input_lock:  # noqa: SLF001 - the recorder is written under it
+                    recorder.write_raw(topic, MessageType.FLOAT64, stamp, raw)

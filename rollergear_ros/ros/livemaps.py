@@ -29,6 +29,7 @@ class LiveMapPublisher:
         self.source = source
         self.logger = logger
         self.published = 0  #: maps made so far
+        self.last_message: Float64MultiArray | None = None  #: the last map published (the node records it)
         self.oil_temperature_c: float | None = None  #: the last finite oil temperature the node received
         self._coefficients: dict[str, float] | None = None  # of the map last published
 
@@ -56,6 +57,7 @@ class LiveMapPublisher:
                               for label, size, stride in zip(arr.labels, arr.sizes, arr.strides)]
             msg.layout.data_offset = arr.data_offset
             msg.data = arr.data.tolist()
+            self.last_message = msg
             for publisher in self.publishers:
                 publisher.publish(msg)
         map_file = config.node.map_file

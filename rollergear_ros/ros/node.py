@@ -17,6 +17,7 @@ import math
 import struct
 import sys
 import threading
+from collections import deque
 import time
 from operator import attrgetter
 from pathlib import Path
@@ -32,6 +33,7 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64, Float64MultiArray
 
 from ..recordings import bag as bagmod
+from ..recordings.rolling import RollingRecorder, file_name, free_name, is_template, splits
 from .diagnostics import (STATUS_NAME, DiagnosticLimits, InputMonitor, InputsNow, NodeLoad, SinceLast,
                           diagnose)
 from ..core.estimator import Estimate, Estimator
@@ -63,6 +65,7 @@ _MESSAGE_CLASSES = {MessageType.FLOAT64: Float64, MessageType.JOINT_STATE: Joint
 MAP_CHECK_S = 1.0  #: how often the adapted coefficients are compared with those of the last map
 _PACK = struct.Struct("<4sd").pack
 HEARTBEAT_S = 0.1  #: period of the executor heartbeat timer (executor lag in /diagnostics)
+ROLL_CHECK_S = 1.0  #: how often the recordings are looked at (size, age) and /diagnostics written into them
 _CDR = bagmod.CDR_LE_HEADER
 _LOST_RAW = _PACK(_CDR, LOST_VALUE)
 #: a gap in a publisher's sequence numbers longer than this is not filled with placeholders message
@@ -157,27 +160,37 @@ class LossEstimatorNode(Node):
         """Check every output file before any is opened, publish the first loss map, and open the
         MCAP recorder and the rerun log the parameters ask for."""
         node = self.config.node
-        self.recorder: bagmod.BagWriter | None = None
+        self.recorder: RollingRecorder | None = None
+        self.recorder_files: list[Path] = []  #: the MCAP files of the run, in order
         # Float64 inputs are recorded at the very times the estimator paired them by (publisher
         # timestamps, or arrival times), so that replay of the recording pairs them as the node did
         # (``rollergear_recording`` metadata); under sim time the recording keeps one clock: ROS time
         self._record_pairing_time = (node.input_mode == "float64" and not self.get_parameter("use_sim_time").value)
         # every output is checked before any is opened: a refused one leaves no half-written file
+        split = splits(int(node.record_max_mb * 1e6), node.record_max_s)
         for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
             if path:
-                check_new_output(name, path)
+                check_new_output(name, str(_first_file(path, split)))
         check_outputs([], [Output("node.record_mcap", node.record_mcap or None, "mcap"),  # of their kinds, apart
                            Output("node.rerun_rrd", node.rerun_rrd or None, "rrd"),
                            Output("node.map_file", node.map_file or None, "vtlm")])  # rewritten with each map
         if self._map_publishers or node.map_file:
             self._update_map()  # before the inputs are subscribed: nothing waits for it
+        #: what other threads have for the recording (/diagnostics), written by the executor's timer
+        self._to_record: deque[tuple[str, str, int, bytes]] = deque()
         if node.record_mcap:
             # written as the messages come (in arrival order), with the QoS the outputs are offered with
             offered = {self.out_topics[c.name]: bagmod.offered_qos_yaml(c.reliable, c.depth, c.transient_local)
                        for c in OUTPUT_CHANNELS.values() if c.name in self.out_topics}
-            self.recorder = bagmod.BagWriter(node.record_mcap, chunk_size=256 * 1024, time_ordered=False,
-                                             offered_qos=offered,
-                                             replace_atomically=False)  # in place: a kill keeps what came
+
+            def open_file(path: Path) -> bagmod.BagWriter:
+                return bagmod.BagWriter(path, chunk_size=256 * 1024, time_ordered=False, offered_qos=offered,
+                                        replace_atomically=False)  # in place: a kill keeps what came
+
+            latched = tuple(self.out_topics[c.name] for c in (*map_channels(), *trace_channels())
+                            if c.name in self.out_topics)
+            self.recorder = RollingRecorder(node.record_mcap, open_file, time.time_ns, int(node.record_max_mb * 1e6),
+                                            node.record_max_s, latched)
             self.recorder.add_metadata(Metadata.RECORDING, {
                 "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
                 "pairing": self.pairing if self._record_pairing_time else "timestamp",
@@ -186,16 +199,65 @@ class LossEstimatorNode(Node):
                 "sample_period_s": repr(1.0 / node.expected_rate_hz)})
             self.recorder.add_metadata(Metadata.PROVENANCE,
                                        live_provenance(self.get_fully_qualified_name(), self.config, sys.argv))
+            self.recorder_files = self.recorder.files
+            self._record_map()  # the first map, published before the recorder opened
         self.rerun = None
         self._rr_buffer: list[Estimate] = []
+        self.rerun_files: list[Path] = []  #: the .rrd files of the run, in order
         if node.rerun_rrd or node.rerun_connect:
-            from ..outputs.review import RerunLog, SkipEvents
+            from ..outputs.review import SkipEvents
 
-            self.rerun = RerunLog("rollergear_live", node.rerun_rrd or None, node.rerun_connect or None,
-                                  breakdown_terms=self.estimator.model.nonzero_terms(),
-                                  with_effects=bool(self.config.effects.enabled()))
+            self.rerun = self._open_rerun()
             self._rr_skips = SkipEvents()
             self.create_timer(0.5, self._flush_rerun)
+        if self.recorder is not None or self.rerun_files:
+            self.create_timer(ROLL_CHECK_S, self._roll_recordings)
+
+    def _open_rerun(self):
+        """The rerun log: to the next ``.rrd`` file of the run (and/or the viewer)."""
+        from ..outputs.review import RerunLog
+
+        node = self.config.node
+        path = None
+        if node.rerun_rrd:
+            split = splits(int(node.record_max_mb * 1e6), node.record_max_s)
+            path = free_name(file_name(node.rerun_rrd, time.time_ns(), len(self.rerun_files), split))
+            self.rerun_files.append(path)
+            self._rerun_opened_ns = time.time_ns()
+        return RerunLog("rollergear_live", path, node.rerun_connect or None,
+                        breakdown_terms=self.estimator.model.nonzero_terms(),
+                        with_effects=bool(self.config.effects.enabled()))
+
+    def _roll_recordings(self) -> None:
+        """The timer: write what other threads left for the recording, and start the next MCAP and
+        ``.rrd`` file when the current one has reached ``node.record_max_mb`` or ``node.record_max_s``."""
+        node = self.config.node
+        if self.recorder is not None:
+            with self._input_lock:
+                while self._to_record:
+                    self.recorder.write_raw(*self._to_record.popleft())
+                closed = self.recorder.roll_if_due()
+            if closed is not None:
+                self.get_logger().info(f"recording: {closed} complete; now {self.recorder.path}")
+        if self.rerun is not None and self.rerun_files:
+            path = self.rerun_files[-1]
+            size = path.stat().st_size if path.exists() else 0
+            if (node.record_max_mb and size >= node.record_max_mb * 1e6) or \
+                    (node.record_max_s and time.time_ns() - self._rerun_opened_ns >= node.record_max_s * 1e9):
+                self._flush_rerun()
+                old, self.rerun = self.rerun, self._open_rerun()
+                try:
+                    old.close()
+                except Exception as exc:  # noqa: BLE001 - a viewer that went away costs its data, not the node
+                    self.get_logger().warn(f"rerun logging incomplete: {exc}")
+
+    def _record_map(self) -> None:
+        """The live map last published, into the recording (``loss/map``)."""
+        msg = self.live_map.last_message
+        topic = self.out_topics.get(next((c.name for c in map_channels()), ""), "")
+        if self.recorder is not None and msg is not None and topic:
+            with self._input_lock:
+                self.recorder.write_raw(topic, MessageType.FLOAT64_MULTI_ARRAY, time.time_ns(), serialize_message(msg))
 
     def _subscribe_inputs(self, topics: bagmod.TopicMap) -> None:
         """The input subscriptions: the four Float64 channels or the joint states, and the oil temperature."""
@@ -433,8 +495,12 @@ class LossEstimatorNode(Node):
 
     # ------------------------------------------------------------------ outputs
     def _update_map(self) -> None:
-        """The map timer: a new loss map when the adapted coefficients moved (:class:`LiveMapPublisher`)."""
+        """The map timer: a new loss map when the adapted coefficients moved (:class:`LiveMapPublisher`),
+        published and recorded."""
+        made = self.live_map.published
         self.live_map.update(self.config, self.estimator)
+        if self.live_map.published > made and getattr(self, "recorder", None) is not None:
+            self._record_map()
 
     @property
     def maps_published(self) -> int:
@@ -574,11 +640,26 @@ class LossEstimatorNode(Node):
                                   message=report.message, hardware_id=node.hardware_id,
                                   values=[KeyValue(key=k, value=v) for k, v in report.values]
                                   + [KeyValue(key="start-up backlog discarded [messages]",
-                                              value=str(self.backlog_discarded))])
+                                              value=str(self.backlog_discarded))]
+                                  + self._latest_trace_values())
         traced = self.tracer.latest_status
         arr = DiagnosticArray(status=[status] if traced is None else [status, traced])
-        arr.header.stamp = self.get_clock().now().to_msg()
+        stamp = self.get_clock().now()
+        arr.header.stamp = stamp.to_msg()
         self.pub_diag.publish(arr)
+        if self.recorder is not None:  # written by the executor's timer, which holds the input lock
+            self._to_record.append((Topic.DIAGNOSTICS, MessageType.DIAGNOSTIC_ARRAY, stamp.nanoseconds,
+                                    serialize_message(arr)))
+
+    def _latest_trace_values(self) -> list[KeyValue]:
+        """The latest online trace's verdict and sentence, in the node's own status (also whole as
+        the ``loss/traced`` entry beside it)."""
+        latest = self.tracer.latest
+        if latest is None:
+            return [KeyValue(key="latest trace", value="none yet" if self.config.node.trace else "tracing off")]
+        return [KeyValue(key="latest trace", value=latest.message),
+                KeyValue(key="latest trace verdict", value=latest.verdict),
+                KeyValue(key="latest trace window [ns]", value=f"{latest.window_ns[0]}..{latest.window_ns[1]}")]
 
     # ------------------------------------------------------------------ shutdown
     def _stop_diagnostics(self) -> None:
@@ -630,6 +711,8 @@ class LossEstimatorNode(Node):
         self.tracer.close()
         self._finish_pending()
         if self.recorder is not None:
+            while self._to_record:
+                self.recorder.write_raw(*self._to_record.popleft())
             self.recorder.close()
             self.recorder = None
         if self.rerun is not None:
@@ -648,7 +731,7 @@ class LossEstimatorNode(Node):
         est = self.estimator
         skips = ", ".join(f"{reason.replace('_', ' ')} {n}" for reason, n in est.counts.items() if n) or "none"
         node = self.config.node
-        files = [path for path in (node.record_mcap, node.rerun_rrd) if path]
+        files = [str(p) for p in self.recorder_files] + [str(p) for p in self.rerun_files]
         files += [node.map_file] if node.map_file and self.maps_published else []
         files += [self.tracer.proposed] if self.tracer.proposed else []
         return (f"stopped: {est.estimated:,} samples estimated of {est.motor_messages:,} received; skipped: {skips}; "
@@ -656,6 +739,14 @@ class LossEstimatorNode(Node):
                 f"{self.tracer.traced}, taken in {self.tracer.taken_in}); "
                 f"parameter changes: {self.parameter_changes}; "
                 f"loss maps: {self.maps_published}; wrote: {', '.join(files) or 'no file'}")
+
+
+def _first_file(path: str, split: bool) -> Path:
+    """The first file a recording named ``path`` writes, as start-up checks it: with a field in the
+    name or split, the next free name (never an existing file); a plain name as it is (refused when
+    it exists: :func:`~.parameters.check_new_output`)."""
+    first = file_name(path, time.time_ns(), 0, split)
+    return free_name(first) if (is_template(path) or split) else first
 
 
 def main(args: list[str] | None = None) -> int:

@@ -106,12 +106,19 @@ def test_watch_shows_a_toy_channel_after_the_four(toy_channel):
     from rollergear_ros.recordings.bag import encode_float64
 
     window = WatchWindow()
-    assert set(window.payloads) == {c.name for c in float64_channels()} and toy_channel.name in window.payloads
+    assert set(window.payloads) == {c.name for c in float64_channels() + window_channels()}
+    assert toy_channel.name in window.payloads
     for name, values in (("loss_torque", [0.1, 0.3]), ("loss_power", [10.0, 30.0]), ("efficiency", [0.9, 0.9]),
                          ("measured_loss", [0.2, 0.4])):
         for raw in encode_float64(np.asarray(values)):
             window.add(name, raw)
     assert window.line(1.0, "/x").endswith("measured_loss 0.3 N*m")
+    # the measured efficiency's latest window, with its uncertainty, in its own place
+    for name, values in (("loss_torque", [0.1]), ("efficiency_measured", [0.97, 0.9812]),
+                         ("efficiency_measured_uncertainty", [0.002, 0.0021])):
+        for raw in encode_float64(np.asarray(values)):
+            window.add(name, raw)
+    assert "η measured 98.12 ± 0.21 %" in window.line(1.0, "/x")
 
 
 @pytest.mark.ros

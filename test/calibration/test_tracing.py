@@ -211,3 +211,38 @@ def test_a_drag_that_appears_long_before_the_drive_reverses_is_named_once_the_re
     assert last.window_ns[0] > last.since_ns  # slid on past the change point
     low, high = last.effects[0]["ci95"]["c"]
     assert [e["name"] for e in last.effects] == ["drag_constant"] and low <= 0.06 <= high
+
+
+def test_a_trace_never_builds_its_window_across_a_gap_in_the_inputs(config):
+    """Two recordings played one after the other (the rig paused 30 s between them): a gearbox with a
+    drag, then one without.  Traced after the second has run for a while, the window holds the second
+    alone -- the drag of the first is not named -- and the result says why it starts there."""
+    first, _, _ = node_samples(config, [DeclaredEffect("drag_constant", {"c": 0.08})], 1, onset_s=0.0)
+    second, _, _ = node_samples(config, (), 2)
+    shift = int(first["t_ns"][-1]) + int(30e9) - int(second["t_ns"][0])
+    second = up_to(second | {"t_ns": second["t_ns"] + shift}, int(second["t_ns"][0]) + shift + int(40e9))
+    both = {k: np.concatenate([first[k], second[k]]) for k in first}
+    start_of_second = int(second["t_ns"][0])
+    for request in (TraceRequest(both, config.to_flat(), "period", window_s=120.0),
+                    TraceRequest(both, config.to_flat(), "alarm", int(first["t_ns"][-1]) - int(5e9), window_s=120.0,
+                                 min_after_s=20.0)):
+        result = trace(request)
+        assert result.window_ns[0] >= start_of_second and result.since_ns >= start_of_second, result.to_json()
+        assert not result.effects and result.verdict != "traced", result.message
+        assert any("paused for 30 s" in n and "starts after it" in n for n in result.notes), result.notes
+    # the first recording alone, as the buffer held it before the second began: its drag is traced
+    alone = trace(TraceRequest(first, config.to_flat(), "period", window_s=120.0))
+    assert [e["name"] for e in alone.effects] == ["drag_constant"], alone.message
+
+
+def test_the_last_gap_is_where_inputs_paused_or_went_back_in_time():
+    from rollergear_ros.calibration.tracing import after_last_gap
+
+    t = np.arange(0, 10_000_000_000, 5_000_000)  # 200 Hz for 10 s
+    assert after_last_gap(t) == 0
+    paused = np.concatenate([t, t[-1] + int(3e9) + t])
+    assert after_last_gap(paused) == len(t)
+    back = np.concatenate([t, t[:100]])  # the next recording's clock starts earlier
+    assert after_last_gap(back) == len(t)
+    slow = np.arange(0, 600_000_000_000, 1_000_000_000)  # 1 Hz: a 3 s step is 3 periods, no gap
+    assert after_last_gap(np.append(slow, slow[-1] + 3_000_000_000)) == 0

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from rollergear_ros.ros.diagnostics import (ERROR, OK, WARN, DiagnosticLimits, InputMonitor, InputsNow, NodeLoad,
+from rollergear_ros.ros.diagnostics import (OK, STALE, WARN, DiagnosticLimits, InputMonitor, InputsNow, NodeLoad,
                                             SinceLast, diagnose)
 from rollergear_ros.core.estimator import Estimator
 from rollergear_ros.core.pairing import SPEED, TORQUE
@@ -29,13 +29,13 @@ def test_diagnostics_levels():
     assert rep.level == OK and rep.message == "estimating"
     stale = _monitor(now, {TORQUE: now - MS, SPEED: now - 3 * 10**9})
     rep = diagnose(InputsNow(now, stale, rates), est, DiagnosticLimits(1000.0, 0.9), SinceLast(dict(est.counts), 0))
-    assert rep.level == ERROR and "stale input: motor_speed" in rep.message
+    assert rep.level == STALE and "stale input: motor_speed" in rep.message and "idle" in rep.message
     rep = diagnose(InputsNow(now, healthy, {TORQUE: 500.0, SPEED: 500.0}), est, DiagnosticLimits(1000.0, 0.9),
                    SinceLast(dict(est.counts), 0))
     assert rep.level == WARN and "expected 1000 Hz" in rep.message
     missing = _monitor(now, {TORQUE: now - MS})
     rep = diagnose(InputsNow(now, missing, rates), est, DiagnosticLimits(1000.0, 0.9), SinceLast(dict(est.counts), 0))
-    assert rep.level == ERROR and "no input on motor_speed" in rep.message
+    assert rep.level == STALE and "no input on motor_speed" in rep.message
     est.counts["non_finite"] += 3
     rep = diagnose(InputsNow(now, healthy, rates), est, DiagnosticLimits(1000.0, 0.9),
                    SinceLast({**est.counts, "non_finite": 0}, 0))
@@ -118,3 +118,38 @@ def test_a_stream_that_slows_down_is_still_a_warning_and_a_new_stream_is_learned
     assert monitor.learned_rate_hz(TORQUE) is None
     restarted = _feed(monitor, 10.5, 6.0, 200.0, est)
     assert all(r.level == OK for r in restarted) and monitor.learned_rate_hz(TORQUE) == 200.0
+
+
+def _residual_report(est: Estimator, previous_alarms: int = 0):
+    now = 100 * 10**9
+    healthy = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
+    return diagnose(InputsNow(now, healthy, {TORQUE: 1000.0, SPEED: 1000.0}), est, DiagnosticLimits(1000.0, 0.9),
+                    SinceLast(dict(est.counts), previous_alarms))
+
+
+def test_the_residual_warning_holds_while_the_residual_stays_and_says_whether_it_changed():
+    config = load_config().with_values({"estimator.change_block_samples": 10})
+    est = Estimator(config)
+    det = est.detector
+    t = iter(range(10**6))
+    for level, blocks in ((0.0, 5), (0.1, 1)):  # calm, then a loss appears
+        for _ in range(10 * blocks):
+            det.add(level, next(t))
+    assert det.alarms == 1 and det.alarm_from_start == [False]
+    for _ in range(5):  # the loss stays: every report says so, not only the one after the alarm
+        for _ in range(10):
+            det.add(0.1, next(t))
+        rep = _residual_report(est, previous_alarms=1)
+        assert rep.level == WARN and "changed" in rep.message and "stays beyond" in rep.message
+        assert dict(rep.values)["residual beyond threshold"] == "yes"
+    for _ in range(30):  # it returns: three calm blocks, then OK
+        det.add(0.0, next(t))
+    rep = _residual_report(est, previous_alarms=1)
+    assert rep.level == OK and dict(rep.values)["residual beyond threshold"] == "no"
+    # a residual off from the first block on: no change, the parameters lack an effect
+    off = Estimator(config)
+    for _ in range(30):
+        off.detector.add(0.1, next(t))
+    assert off.detector.alarm_from_start == [True]
+    rep = _residual_report(off)
+    assert rep.level == WARN and "since the estimates began" in rep.message and "not a change" in rep.message

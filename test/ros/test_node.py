@@ -193,7 +193,7 @@ def test_diagnostics_report_rates_and_a_stale_input():
     assert float(values["efficiency"]) > 0.9 and float(values["loss torque [N·m]"]) > 0
     assert int(values["samples estimated"]) > 100
     stale = [(lv, msg) for lv, msg, _ in _diag_levels(diags[n_healthy:]) if "stale input: motor_speed" in msg]
-    assert stale and stale[-1][0] == 2, "a stale required input is an ERROR"
+    assert stale and stale[-1][0] == 3, "a stale required input is STALE (idle), not an ERROR"
     assert all(lv < 2 for lv, _, _ in healthy)
 
 

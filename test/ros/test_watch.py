@@ -60,7 +60,7 @@ def test_watch_shows_a_running_nodes_estimates_and_status():
     lines = watcher.lines  # the watcher's lines as it prints them (a line a period, flushed)
 
     def stale_after_the_play() -> bool:  # a line with no estimates and the stale-input status
-        return any("no estimates on /rollergear/loss/torque" in line and "[ERROR] stale input" in line
+        return any("no estimates on /rollergear/loss/torque" in line and "[STALE] stale input" in line
                    for line in list(lines))
 
     try:
@@ -82,7 +82,7 @@ def test_watch_shows_a_running_nodes_estimates_and_status():
     # the bag plays at 1 kHz; a best-effort watcher sees most of it
     assert max(int(m.group(1)) for m in found) > 500, out
     assert "[OK]" in out or "[WARN]" in out, out
-    assert "no estimates on /rollergear/loss/torque" in lines[-1] and "[ERROR] stale input" in lines[-1], out
+    assert "no estimates on /rollergear/loss/torque" in lines[-1] and "[STALE] stale input" in lines[-1], out
 
 
 @pytest.mark.ros

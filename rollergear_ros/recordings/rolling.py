@@ -1,0 +1,133 @@
+"""Live recordings that run for weeks: one file after another, by size or duration, each whole.
+
+As ``ros2 bag record --max-bag-size/--max-bag-duration``: :class:`RollingRecorder` writes the node's
+MCAP through a :class:`~.bag.BagWriter` and, when the file has reached ``max_bytes`` or has been
+open ``max_s`` (looked at by :meth:`RollingRecorder.roll_if_due`, from a timer), opens the next
+one and closes the last -- its summary written, so every file is complete and readable on its own.
+Each file gets the metadata records of the first (the node's provenance with its parameters, how it
+paired its inputs) and, first thing, the last message of each latched topic (the live loss map, the
+latest online trace), so a file taken alone still has them.
+
+File names come from a template (:func:`file_name`): ``{start}`` is the file's start time (UTC,
+``20261127T041503Z``), ``{index}`` its number in the run (0, 1, …); a name without either gets
+``_<index>`` before its suffix when the recording is split (``rig.mcap`` -> ``rig_0.mcap``,
+``rig_1.mcap``, as rosbag2 names its files).  A name that exists is never overwritten: the next free
+one (``…_1.mcap``) is taken (:func:`free_name`), so a restarted node needs no new name by hand.
+No rclpy import.
+"""
+
+from __future__ import annotations
+
+import datetime
+from collections.abc import Callable
+from pathlib import Path
+
+from .bag import BagWriter, encoder_for
+
+__all__ = ["RollingRecorder", "file_name", "free_name", "is_template", "splits"]
+
+FIELDS = ("{start}", "{index}")
+
+
+def is_template(name: str) -> bool:
+    """Whether ``name`` holds a field of :data:`FIELDS`."""
+    return any(f in name for f in FIELDS)
+
+
+def splits(max_bytes: int, max_s: float) -> bool:
+    """Whether a recording with these limits is split (a limit of 0 is none)."""
+    return max_bytes > 0 or max_s > 0
+
+
+def file_name(template: str, start_ns: int, index: int, split: bool) -> Path:
+    """The file a recording named ``template`` writes its ``index``-th file to, started at ``start_ns``."""
+    stamp = datetime.datetime.fromtimestamp(start_ns / 1e9, datetime.UTC).strftime("%Y%m%dT%H%M%SZ")
+    if is_template(template):
+        return Path(template.replace("{start}", stamp).replace("{index}", str(index)))
+    path = Path(template)
+    return path.with_name(f"{path.stem}_{index}{path.suffix}") if split else path
+
+
+def free_name(path: Path) -> Path:
+    """``path``, or the first of ``stem_1.suffix``, ``stem_2.suffix`` … that does not exist."""
+    if not (path.exists() or path.is_symlink()):
+        return path
+    k = 1
+    while True:
+        other = path.with_name(f"{path.stem}_{k}{path.suffix}")
+        if not (other.exists() or other.is_symlink()):
+            return other
+        k += 1
+
+
+class RollingRecorder:
+    """A :class:`~.bag.BagWriter` that rolls over to a new file (see the module docstring).
+
+    ``open_writer(path)`` opens one file's writer; ``now_ns()`` is the clock a file's age is
+    measured by (the node's); ``latched``: topics whose last message each new file starts with."""
+
+    def __init__(self, template: str, open_writer: Callable[[Path], BagWriter], now_ns: Callable[[], int],
+                 max_bytes: int = 0, max_s: float = 0.0, latched: tuple[str, ...] = ()) -> None:
+        self.template = template
+        self._open_writer = open_writer
+        self._now_ns = now_ns
+        self.max_bytes = int(max_bytes)
+        self.max_ns = int(max_s * 1e9)
+        self.latched = set(latched)
+        self._split = splits(self.max_bytes, max_s)
+        self.files: list[Path] = []  #: every file of the run, in order
+        self._metadata: list[tuple[str, dict[str, str]]] = []
+        self._last_latched: dict[str, tuple] = {}
+        self.writer: BagWriter = self._open()
+
+    @property
+    def path(self) -> Path:
+        """The file being written."""
+        return self.writer.path
+
+    def _open(self) -> BagWriter:
+        start = self._now_ns()
+        path = free_name(file_name(self.template, start, len(self.files), self._split))
+        writer = self._open_writer(path)
+        self._opened_ns = start
+        self.files.append(path)
+        for name, data in self._metadata:
+            writer.add_metadata(name, data)
+        for topic, (type_name, data, schema_text) in self._last_latched.items():
+            writer.write_raw(topic, type_name, start, data, schema_text)
+        return writer
+
+    def write_raw(self, topic: str, type_name: str, log_time_ns: int, data: bytes, schema_text: str | None = None,
+                  publish_time_ns: int | None = None) -> None:
+        """:meth:`~.bag.BagWriter.write_raw` into the current file."""
+        self.writer.write_raw(topic, type_name, log_time_ns, data, schema_text, publish_time_ns)
+        if topic in self.latched:
+            self._last_latched[topic] = (type_name, data, schema_text)
+
+    def write_message(self, topic: str, type_name: str, log_time_ns: int, message: dict) -> None:
+        """:meth:`~.bag.BagWriter.write_message` into the current file."""
+        self.write_raw(topic, type_name, log_time_ns, encoder_for(type_name)(message))
+
+    def add_metadata(self, name: str, data: dict[str, str]) -> None:
+        """A metadata record in this file and in every file after it."""
+        self._metadata.append((name, dict(data)))
+        self.writer.add_metadata(name, data)
+
+    def due(self) -> bool:
+        """Whether the current file has reached its size or age."""
+        if self.max_bytes and self.writer.bytes_written >= self.max_bytes:
+            return True
+        return bool(self.max_ns) and self._now_ns() - self._opened_ns >= self.max_ns
+
+    def roll_if_due(self) -> Path | None:
+        """Open the next file and close the current one when it is due; the closed file's path."""
+        if not self.due():
+            return None
+        done = self.writer
+        self.writer = self._open()
+        done.close()
+        return done.path
+
+    def close(self) -> None:
+        """Close the current file (its summary written)."""
+        self.writer.close()
