@@ -27,10 +27,13 @@ No rclpy import: the worker process never loads ROS.
 from __future__ import annotations
 
 import bisect
+import contextlib
 import json
 import math
 import multiprocessing
 import os
+import signal
+import threading
 import time
 from array import array
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -336,13 +339,31 @@ def worker_cpus(node_cpus: set[int], cpu_count: int) -> set[int]:
     return (set(range(cpu_count)) - node_cpus) or node_cpus
 
 
+@contextlib.contextmanager
+def _interrupts_ignored():
+    """SIGINT ignored while the worker process is spawned: it inherits the disposition (Python keeps
+    an ignored SIGINT ignored), so a Ctrl-C to the terminal's process group -- the node's to handle,
+    which stops the worker -- never ends it with a ``KeyboardInterrupt`` traceback on the node's
+    terminal.  Outside the main thread (where a handler cannot be set) the worker sets it itself."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
     """The worker process keeps off the node's input path: on the CPUs the node was not pinned to
     (:func:`worker_cpus`; a spawned process inherits the node's affinity, and a worker on the node's
     only core delays its inputs by milliseconds whatever its priority), and scheduled when nothing else
     wants a core (``SCHED_IDLE``: a waking thread of the node takes the core from it at once), else at
     the lowest nice level.  On a machine whose cores are all busy it runs at the idle weight only
-    (a fraction of a percent of a core): its trace is late, never the node's inputs."""
+    (a fraction of a percent of a core): its trace is late, never the node's inputs.  Ctrl-C is the
+    node's: the worker ignores it (the node stops it)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     if node_cpus and hasattr(os, "sched_setaffinity"):
         try:
             os.sched_setaffinity(0, worker_cpus(set(node_cpus), os.cpu_count() or 1))
@@ -377,9 +398,10 @@ class TraceWorker:
             for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
                 os.environ.setdefault(var, "1")
             node_cpus = tuple(sorted(os.sched_getaffinity(0))) if hasattr(os, "sched_getaffinity") else ()
-            self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_worker_start, initargs=(node_cpus,))
-            self._pool.submit(_ready)
+            with _interrupts_ignored():  # the worker is spawned with Ctrl-C ignored, from its first instruction
+                self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                                 initializer=_worker_start, initargs=(node_cpus,))
+                self._pool.submit(_ready)
 
     def submit(self, request: TraceRequest) -> None:
         self.start()

@@ -25,6 +25,8 @@ from ..ros import player
 from . import replay as replay_cli
 from ..ros import watch
 from .args import config_from_args, default_params_path, finite_float
+from ..outputs.measuredmap import MIN_SAMPLES
+from ..outputs.lossmap import reverse_path
 from ..sources.paths import Output, check_input_file, check_outputs
 
 # ---------------------------------------------------------------------------------- model
@@ -126,7 +128,7 @@ def cmd_map(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     m = config.map
     speeds = grid(*(args.speed_rpm or (m.speed_min_rpm, m.last_speed_rpm(config.gearbox), m.speed_step_rpm)))
-    torques = grid(*(args.torque_nm or (m.torque_min_nm, m.torque_max_nm, m.torque_step_nm)))
+    torques = grid(*(args.torque_nm or m.torques_nm(config.gearbox)))
     out = Path(args.out)
     both = args.both_directions or m.both_directions
     outputs = [Output("--out", out, "vtlm")] + ([Output("its picture", out.with_suffix(".png"), "png")]
@@ -135,6 +137,15 @@ def cmd_map(args: argparse.Namespace) -> int:
         rev = reverse_path(out)
         outputs += [Output("the reverse map", rev, "vtlm")] + ([Output("its picture", rev.with_suffix(".png"), "png")]
                                                                 if not args.no_plot else [])
+    if args.measured and not args.recording:
+        raise UsageError("--measured needs a --recording with measured output torque")
+    if args.min_samples < 1:
+        raise UsageError("--min-samples must be >= 1")
+    measured_paths = {bag: out.with_name(f"{out.stem}_measured_{Path(bag).stem}.vtlm") for bag in args.recording} \
+        if args.measured else {}
+    for path in measured_paths.values():
+        outputs += [Output("a measured map", path, "vtlm"), Output("the reverse measured map", reverse_path(path), "vtlm"),
+                    Output("its table", path.with_suffix(".csv"), "csv")]
     check_outputs([args.params, *args.recording], outputs)
     params_path = Path(args.params) if args.params else default_params_path()
     maps = [(out, build_map(config, speeds, torques, args.oil_temperature_c))]
@@ -158,7 +169,7 @@ def cmd_map(args: argparse.Namespace) -> int:
     for bag in args.recording:
         from ..replay.run import replay
 
-        _summary, batches = replay(bag, config, show_progress=False, collect=True)
+        summary, batches = replay(bag, config, show_progress=False, collect=True)
         torque = np.concatenate([b.torque_nm for b in batches]) if batches else np.zeros(0)
         speed = np.concatenate([b.speed_rad_s for b in batches]) if batches else np.zeros(0)
         warning = coverage_warning(maps[0][1], torque, speed, str(bag))
@@ -166,7 +177,31 @@ def cmd_map(args: argparse.Namespace) -> int:
             print(f"rollergear: warning: {warning}", file=sys.stderr)
         else:
             print(f"{bag}: every sample lies inside the map")
+        if bag in measured_paths:
+            _write_measured(summary, config, bag, measured_paths[bag], args.min_samples)
     return 0
+
+
+def _write_measured(summary, config, bag: str, path: Path, min_samples: int) -> None:
+    """``map --measured``: the recording's measured loss map (:mod:`outputs.measuredmap`)."""
+    from ..outputs.measuredmap import measured_cells, write_measured_map
+
+    if not summary.measured.samples:
+        raise UsageError(f"{bag} has no measured output torque: no measured loss map")
+    cells = measured_cells(summary.measured_cells, config, min_samples)
+    stated = config.sensors.stated
+    comments = [f"# measured loss map of {bag} (rollergear {package_version()}): per operating point the energy lost "
+                "over the input's angle turned, input-referred",
+                f"# cells: the map.* grid's nearest node (speed step {config.map.speed_step_rpm:g} rpm, torque step "
+                f"{config.map.torque_step_nm:g} N*m), each with >= {min_samples} samples",
+                "# standard uncertainties from " + ("the sensors' stated accuracy (sensors.*)" if stated else
+                                                    "no stated accuracy: sensors.* is empty (0 in the CSV)")]
+    files = write_measured_map(cells, path, comments)
+    print(f"measured map of {bag}: {len(cells)} of {len(summary.measured_cells)} operating points with >= "
+          f"{min_samples} samples -> {', '.join(str(f) for f in files)}")
+    if path not in files:
+        print(f"rollergear: warning: {bag}: fewer than 4 forward operating points with a valid measured loss: no "
+              f"{path.name} (VECTO needs 4); the table holds what was measured", file=sys.stderr)
 
 
 # ---------------------------------------------------------------------------------- info
@@ -237,6 +272,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
     p.add_argument("--recording", action="append", default=[], metavar="BAG",
                    help="warn when this recording visited operating points outside the map (repeatable)")
+    p.add_argument("--measured", action="store_true",
+                   help="also write each --recording's measured loss map beside the model's: OUT_measured_BAG.vtlm "
+                        "(+ _reverse.vtlm) and .csv, the operating points with enough samples and their uncertainty")
+    p.add_argument("--min-samples", type=int, default=MIN_SAMPLES, metavar="N",
+                   help=f"--measured: a cell needs this many samples (default {MIN_SAMPLES})")
     p.add_argument("--no-plot", action="store_true", help="no PNG")
     p.set_defaults(func=cmd_map)
 

@@ -112,6 +112,7 @@ class EnergyBalance:
     out_bb: float = 0.0
     #: the model's loss energy over the same samples (Σ loss power·dt), when it was given
     model_loss_j: float = 0.0
+    angle_rad: float = 0.0  #: the input's angle turned over the samples (Σ |ω_in|·dt)
 
     def __add__(self, other: EnergyBalance) -> EnergyBalance:
         return EnergyBalance(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
@@ -146,9 +147,27 @@ class EnergyBalance:
     def uncertainty(self, sensors: SensorParams) -> float:
         """Standard uncertainty of :attr:`efficiency` from the sensors' stated accuracy (module
         docstring); 0 when none is stated, NaN when the efficiency is."""
-        eta, s = self.efficiency, self.supplied_j
-        if not math.isfinite(eta):
-            return math.nan
+        eta = self.efficiency
+        return self._spread(sensors, eta) / self.supplied_j if math.isfinite(eta) else math.nan
+
+    @property
+    def loss_nm(self) -> float:
+        """The measured loss as an input-referred torque: energy lost over the input's angle turned
+        (the energy-weighted mean loss torque; NaN without one)."""
+        return self.lost_j / self.angle_rad if self.angle_rad > 0 else math.nan
+
+    @property
+    def model_loss_nm(self) -> float:
+        """The model's, over the same samples and angle."""
+        return self.model_loss_j / self.angle_rad if self.angle_rad > 0 else math.nan
+
+    def loss_uncertainty_nm(self, sensors: SensorParams) -> float:
+        """Standard uncertainty of :attr:`loss_nm`: ``u(S − D)/Θ`` by the same propagation (the angle
+        Θ's own resolution left out: its part is ``L·q/|ω|``, far below the torque sensors')."""
+        return self._spread(sensors, 1.0) / self.angle_rad if self.angle_rad > 0 else math.nan
+
+    def _spread(self, sensors: SensorParams, eta: float) -> float:
+        """Standard uncertainty of ``D − η·S`` [J] (:meth:`uncertainty` and :meth:`loss_uncertainty_nm`)."""
         u_g_in = sensors.input_torque_reading_pct / 100.0 * _RECTANGULAR
         u_o_in = sensors.input_torque_fs_pct * sensors.input_torque_full_scale_nm / 100.0 * _RECTANGULAR
         u_g_out = sensors.output_torque_reading_pct / 100.0 * _RECTANGULAR
@@ -160,7 +179,7 @@ class EnergyBalance:
             (self.d_gain_out, self.s_gain_out, u_g_out), (self.d_offset_out, self.s_offset_out, u_o_out)))
         var += (self.in_aa - 2 * eta * self.in_ab + eta * eta * self.in_bb) * u_w_in ** 2
         var += (self.out_aa - 2 * eta * self.out_ab + eta * eta * self.out_bb) * u_w_out ** 2
-        return math.sqrt(max(var, 0.0)) / s
+        return math.sqrt(max(var, 0.0))
 
 
 def gap_ns(period_ns: float) -> float:
@@ -206,7 +225,7 @@ def _terms(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio: float,
     model = np.zeros_like(mot) if model_loss_w is None else \
         np.nan_to_num(np.abs(np.asarray(model_loss_w, dtype=float))) * (mot + reg)
     return {
-        "model_loss_j": model,
+        "model_loss_j": model, "angle_rad": np.abs(w_in) * (mot + reg),
         "supplied_j": mot * p_in - reg * p_out, "delivered_j": mot * p_out - reg * p_in,
         "samples": (mot > 0) | (reg > 0), "seconds": mot + reg,
         "s_gain_in": mot * p_in, "d_gain_in": -reg * p_in, "s_offset_in": mot * w_in, "d_offset_in": -reg * w_in,

@@ -147,6 +147,8 @@ GEARBOX_SPECS: tuple[ParamSpec, ...] = (
        low=0.0, high=1e4),
     _g("rated_speed_rpm", 3000.0, "rpm", "rated input speed (the loss map's last speed by default)",
        low=0.0, low_open=True, high=1e6),
+    _g("rated_torque_nm", 100.0, "N*m", "rated input torque (the loss map's torque range by default: ± this)",
+       low=0.0, low_open=True, high=1e7),
     _g("oil_nu40_mm2_s", 0.0, "mm^2/s", "the oil's data-sheet kinematic viscosity at 40 degC (0 = not known): "
        "calibrate's viscosity law starts from it (ASTM D341)", low=0.0, high=1e5),
     _g("oil_nu100_mm2_s", 0.0, "mm^2/s", "the oil's data-sheet kinematic viscosity at 100 degC (0 = not known)",
@@ -307,9 +309,10 @@ MAP_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("map.speed_max_rpm", float, 0.0, "loss map: last input speed; 0 = gearbox.rated_speed_rpm", "rpm",
               low=0.0, high=1e6),
     ParamSpec("map.speed_step_rpm", float, 100.0, "loss map: speed step", "rpm", low=0.0, low_open=True, high=1e6),
-    ParamSpec("map.torque_min_nm", float, -100.0, "loss map: first input torque (negative: regeneration)", "N*m",
-              low=-1e6, high=1e6),
-    ParamSpec("map.torque_max_nm", float, 100.0, "loss map: last input torque", "N*m", low=-1e6, high=1e6),
+    ParamSpec("map.torque_min_nm", float, "auto", "loss map: first input torque (negative: regeneration); auto = "
+              "-gearbox.rated_torque_nm", "N*m", low=-1e7, high=1e7, auto=True),
+    ParamSpec("map.torque_max_nm", float, "auto", "loss map: last input torque; auto = gearbox.rated_torque_nm", "N*m",
+              low=-1e7, high=1e7, auto=True),
     ParamSpec("map.torque_step_nm", float, 5.0, "loss map: torque step", "N*m", low=0.0, low_open=True, high=1e6),
     ParamSpec("map.both_directions", bool, False,
               "loss map: also reverse rotation, written to a second file (<name>_reverse.vtlm)"),
@@ -361,6 +364,7 @@ class GearboxParams:
     ellipse_b: float = 1.1502
     ratio: float = 0.0
     rated_speed_rpm: float = 3000.0
+    rated_torque_nm: float = 100.0
     oil_nu40_mm2_s: float = 0.0
     oil_nu100_mm2_s: float = 0.0
     oil_density15_kg_m3: float = 880.0
@@ -493,14 +497,23 @@ class MapParams:
     speed_min_rpm: float = 0.0
     speed_max_rpm: float = 0.0  #: 0: the gearbox's rated speed
     speed_step_rpm: float = 100.0
-    torque_min_nm: float = -100.0
-    torque_max_nm: float = 100.0
+    torque_min_nm: float | str = "auto"  #: a number, or ``auto``: −gearbox.rated_torque_nm
+    torque_max_nm: float | str = "auto"  #: a number, or ``auto``: gearbox.rated_torque_nm
     torque_step_nm: float = 5.0
     both_directions: bool = False
 
     def last_speed_rpm(self, gearbox: GearboxParams) -> float:
         """The map's last speed: ``speed_max_rpm``, or the rated speed when that is 0."""
         return self.speed_max_rpm if self.speed_max_rpm > 0 else gearbox.rated_speed_rpm
+
+    def torque_range_nm(self, gearbox: GearboxParams) -> tuple[float, float]:
+        """The map's first and last torque: as given, ``auto`` ± the gearbox's rated torque."""
+        return (-gearbox.rated_torque_nm if self.torque_min_nm == "auto" else float(self.torque_min_nm),
+                gearbox.rated_torque_nm if self.torque_max_nm == "auto" else float(self.torque_max_nm))
+
+    def torques_nm(self, gearbox: GearboxParams) -> tuple[float, float, float]:
+        """``(first, last, step)`` of the torque grid."""
+        return (*self.torque_range_nm(gearbox), self.torque_step_nm)
 
 
 @dataclass(frozen=True)
@@ -655,8 +668,10 @@ def _check_consistency(config: Config) -> None:
     if config.map.last_speed_rpm(g) < config.map.speed_min_rpm:
         raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm,
                              "must be >= map.speed_min_rpm (0: gearbox.rated_speed_rpm)")
-    if config.map.torque_max_nm < config.map.torque_min_nm:
-        raise ParameterError("map.torque_max_nm", config.map.torque_max_nm, "must be >= map.torque_min_nm")
+    first, last = config.map.torque_range_nm(g)
+    if last < first:
+        raise ParameterError("map.torque_max_nm", config.map.torque_max_nm,
+                             f"must be >= map.torque_min_nm ({first:g} N*m; auto: ± gearbox.rated_torque_nm)")
     law = viscosity_law()
     if law.name in config.effects.enabled():
         vogel = config.effects.params(law.name)

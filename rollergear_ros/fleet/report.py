@@ -223,7 +223,7 @@ def _write_map(out_dir: Path, gearbox_id: str, calibrated_yaml: str) -> str | No
         config = load_config(params)
         m = config.map
         speeds = grid(m.speed_min_rpm, m.last_speed_rpm(config.gearbox), m.speed_step_rpm)
-        torques = grid(m.torque_min_nm, m.torque_max_nm, m.torque_step_nm)
+        torques = grid(*m.torques_nm(config.gearbox))
         loss_map = build_map(config, speeds, torques)
     except RollergearError:
         return None  # e.g. an accepted viscosity effect: a map needs an oil temperature

@@ -45,7 +45,7 @@ def map_grid(config: Config) -> tuple[np.ndarray, np.ndarray]:
     """Speeds [rpm] and torques [N·m] of the parameter file's map grid (``map.*``)."""
     m = config.map
     return (grid(m.speed_min_rpm, m.last_speed_rpm(config.gearbox), m.speed_step_rpm),
-            grid(m.torque_min_nm, m.torque_max_nm, m.torque_step_nm))
+            grid(*m.torques_nm(config.gearbox)))
 
 
 def adapted_config(config: Config, coefficients: Mapping[str, float]) -> Config:

@@ -33,8 +33,8 @@ from ..core.operating_points import PointLosses, evaluate_points
 from ..core.params import Config
 from ..sources.tables import MIN_ROWS
 
-__all__ = ["VECTO_HEADER", "LossMap", "build_map", "coverage_warning", "grid", "map_comments", "plot_map",
-           "reverse_path", "vtlm_problems", "write_vtlm"]
+__all__ = ["VECTO_HEADER", "LossMap", "build_map", "coverage_warning", "efficiency_levels", "grid", "map_comments",
+           "plot_map", "reverse_path", "vtlm_problems", "write_vtlm"]
 
 VECTO_HEADER = ("Input Speed [rpm]", "Input Torque [Nm]", "Torque Loss [Nm]")
 
@@ -179,6 +179,16 @@ def coverage_warning(loss_map: LossMap, torque_nm: np.ndarray, speed_rad_s: np.n
             f"{speeds.min():g} … {speeds.max():g} rpm, {torques.min():g} … {torques.max():g} N·m)")
 
 
+def efficiency_levels(eta_pct: np.ndarray, bands: int = 12) -> np.ndarray:
+    """Contour levels [%] that resolve the range the gearbox lives in: from its 5th percentile to its
+    highest efficiency in at most ``bands`` round steps (0.01 … 5 %); what lies below shows as one
+    band (``extend="min"``), so a few poor points near zero torque do not flatten 98–100 % into one."""
+    lo, hi = float(np.percentile(eta_pct, 5)), float(np.max(eta_pct))
+    step = next((st for st in (0.01, 0.02, 0.05, 0.1, 0.2, 0.25, 0.5, 1.0, 2.0, 5.0) if (hi - lo) / st <= bands), 10.0)
+    first, last = math.floor(lo / step) * step, math.ceil(hi / step) * step
+    return np.round(np.arange(first, max(last, first + step) + step / 2, step), 4)
+
+
 def plot_map(loss_map: LossMap, png_path: Path, min_torque_nm: float) -> None:
     """Two panels: efficiency contours (round levels; the undefined band |T| < ``min_torque_nm``
     hatched) and the loss torque the map file holds."""
@@ -193,9 +203,7 @@ def plot_map(loss_map: LossMap, png_path: Path, min_torque_nm: float) -> None:
     direction = "reverse rotation" if loss_map.reverse else "forward rotation"
     finite = eta[np.isfinite(eta)]
     if finite.size and len(n) > 1 and len(t) > 1:
-        lo = max(math.floor(float(finite.min())), 80)
-        step = next(st for st in (0.05, 0.1, 0.2, 0.25, 0.5, 1.0, 2.0) if (100 - lo) / st <= 12)
-        levels = np.round(np.arange(math.floor(lo / step) * step, 100.0 + step / 2, step), 3)
+        levels = efficiency_levels(finite)
         cs = ax_eta.contourf(n, t, eta.T, levels=levels, cmap="viridis", extend="min")
         ax_eta.contour(n, t, eta.T, levels=levels, colors="k", linewidths=0.4)
         fig.colorbar(cs, ax=ax_eta, label="efficiency [%]")

@@ -17,6 +17,9 @@ shown is what reached the watcher.
 from __future__ import annotations
 
 import argparse
+import csv
+import json
+import math
 import sys
 import time
 from dataclasses import dataclass, field
@@ -59,36 +62,52 @@ class WatchWindow:
     def add(self, channel: str, raw: bytes) -> None:
         self.payloads[channel].append(raw)
 
-    def line(self, period_s: float, topic_of_loss: str) -> str:
-        """Format the period and start a new one: ``est/s  loss  power  η  residual  [level] message``."""
+    def take(self, period_s: float) -> dict:
+        """The period's figures (and start a new one): what :meth:`line`, ``--csv`` and ``--json`` show.
+
+        Keys: ``estimates_per_s``, ``loss_torque_nm``, ``loss_power_w``, ``efficiency``,
+        ``efficiency_min`` (means over the period), ``residual_nm``, ``efficiency_measured`` and
+        ``efficiency_measured_uncertainty`` (the latest window), ``level`` and ``message`` of the
+        node's status; a further Float64 channel by its name (its mean).  NaN / "" where none came."""
         values = {k: decode_float64(v) for k, v in self.payloads.items()}
         for v in self.payloads.values():
             v.clear()
-        status = ""
-        if self.diagnostic is not None:
-            level, message = self.diagnostic
-            status = f"  [{LEVEL_NAMES.get(level, str(level))}] {message}"
-        n = len(values["loss_torque"])
-        if n == 0:
+        level, message = self.diagnostic if self.diagnostic is not None else (None, "")
+        eff = values["efficiency"]
+        measured, spread = values["efficiency_measured"], values["efficiency_measured_uncertainty"]
+        row = {"estimates_per_s": len(values["loss_torque"]) / period_s,
+               "loss_torque_nm": _mean(values["loss_torque"]), "loss_power_w": _mean(values["loss_power"]),
+               "efficiency": _mean(eff), "efficiency_min": float(np.nanmin(eff)) if np.isfinite(eff).any() else math.nan,
+               "residual_nm": _mean(values["residual_torque"]),
+               "efficiency_measured": float(measured[-1]) if len(measured) else math.nan,
+               "efficiency_measured_uncertainty": float(spread[-1]) if len(spread) else math.nan,
+               "level": "" if level is None else LEVEL_NAMES.get(level, str(level)), "message": message}
+        row |= {name: _mean(v) for name, v in values.items() if name not in _FORMATTED}
+        return row
+
+    def line(self, period_s: float, topic_of_loss: str) -> str:
+        """Format the period and start a new one: ``est/s  loss  power  η  residual  [level] message``."""
+        row = self.take(period_s)
+        status = f"  [{row['level']}] {row['message']}" if row["level"] else ""
+        if row["estimates_per_s"] == 0:
             return f"no estimates on {topic_of_loss} in the last {period_s:.1f} s{status}"
         parts = [
-            f"{n / period_s:7.0f} est/s",
-            f"loss {_mean(values['loss_torque']):.4f} N·m",
-            f"{_mean(values['loss_power']):.2f} W",
+            f"{row['estimates_per_s']:7.0f} est/s",
+            f"loss {row['loss_torque_nm']:.4f} N·m",
+            f"{row['loss_power_w']:.2f} W",
         ]
-        eff = values["efficiency"]
-        if np.isfinite(eff).any():
-            parts.append(f"η {100 * _mean(eff):.2f} % (min {100 * np.nanmin(eff):.2f})")
+        if math.isfinite(row["efficiency"]):
+            parts.append(f"η {100 * row['efficiency']:.2f} % (min {100 * row['efficiency_min']:.2f})")
         else:
             parts.append("η —")
-        if len(values["residual_torque"]):
-            parts.append(f"residual {_mean(values['residual_torque']):+.4f} N·m")
-        measured, spread = values["efficiency_measured"], values["efficiency_measured_uncertainty"]
-        if len(measured):  # the latest window (one a second)
-            u = f" ± {100 * spread[-1]:.2f}" if len(spread) and spread[-1] > 0 else ""
-            parts.append(f"η measured {100 * measured[-1]:.2f}{u} %")
-        parts.extend(f"{name} {_mean(v):.4g} {OUTPUT_CHANNELS[name].unit}" for name, v in values.items()
-                     if name not in _FORMATTED and len(v))
+        if math.isfinite(row["residual_nm"]):
+            parts.append(f"residual {row['residual_nm']:+.4f} N·m")
+        if math.isfinite(row["efficiency_measured"]):  # the latest window (one a second)
+            u = row["efficiency_measured_uncertainty"]
+            spread = f" ± {100 * u:.2f}" if u > 0 else ""
+            parts.append(f"η measured {100 * row['efficiency_measured']:.2f}{spread} %")
+        parts.extend(f"{name} {row[name]:.4g} {OUTPUT_CHANNELS[name].unit}" for name in self.payloads
+                     if name not in _FORMATTED and math.isfinite(row[name]))
         return "  ".join(parts) + status
 
 
@@ -97,8 +116,10 @@ def _mean(v: np.ndarray) -> float:
     return float(finite.mean()) if len(finite) else float("nan")
 
 
-def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out=sys.stdout) -> int:
-    """Print one :meth:`WatchWindow.line` per ``period_s`` until Ctrl-C (or ``count`` lines)."""
+def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out=sys.stdout, fmt: str = "text") -> int:
+    """Print one :meth:`WatchWindow.line` per ``period_s`` until Ctrl-C (or ``count`` lines); ``fmt``
+    ``csv`` (a header, then one row of :meth:`WatchWindow.take` per period, the time first) or ``json``
+    (one object per line) for a logger."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
@@ -138,16 +159,30 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
         f"watching {ns or '/'} (outputs and /diagnostics), a line every {period_s:g} s; Ctrl-C to stop", file=sys.stderr
     )
     lines = 0
+    writer = None
     try:
         start = time.monotonic()
         while count <= 0 or lines < count:
             deadline = start + (lines + 1) * period_s
             while (left := deadline - time.monotonic()) > 0:
                 executor.spin_once(timeout_sec=min(left, 0.1))
-            stamp = time.strftime('%H:%M:%S')
-            for traced in window.take_traced():
-                print(f"{stamp}  {traced}", file=out, flush=True)
-            print(f"{stamp}  {window.line(period_s, topic_of_loss)}", file=out, flush=True)
+            if fmt == "text":
+                stamp = time.strftime('%H:%M:%S')
+                for traced in window.take_traced():
+                    print(f"{stamp}  {traced}", file=out, flush=True)
+                print(f"{stamp}  {window.line(period_s, topic_of_loss)}", file=out, flush=True)
+            else:
+                row = {"time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())} | window.take(period_s)
+                row["traced"] = " | ".join(window.take_traced())
+                if fmt == "json":
+                    print(json.dumps({k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                                      for k, v in row.items()}), file=out, flush=True)
+                else:
+                    if writer is None:
+                        writer = csv.DictWriter(out, fieldnames=list(row), lineterminator="\n")
+                        writer.writeheader()
+                    writer.writerow({k: row.get(k, "") for k in writer.fieldnames})
+                    out.flush()
             lines += 1
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the normal end
         pass
@@ -164,7 +199,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
         raise UsageError("--period must be > 0")
     init_for_command_line()
     try:
-        return watch(args.namespace, args.period, args.count)
+        return watch(args.namespace, args.period, args.count, fmt="json" if args.json else "csv" if args.csv else "text")
     finally:
         rclpy.try_shutdown()
 
@@ -174,6 +209,9 @@ def register_watch(sub, with_params) -> None:  # noqa: ARG001
     p.add_argument("--namespace", default=NAMESPACE, help=f"the node's namespace (default {NAMESPACE})")
     p.add_argument("--period", type=float, default=1.0, metavar="S", help="seconds per line (default 1)")
     p.add_argument("--count", type=int, default=0, metavar="N", help="stop after N lines (default: until Ctrl-C)")
+    fmt = p.add_mutually_exclusive_group()
+    fmt.add_argument("--csv", action="store_true", help="a CSV header, then one row per period (for a logger)")
+    fmt.add_argument("--json", action="store_true", help="one JSON object per period and line (JSON Lines)")
     p.set_defaults(func=cmd_watch)
 
 

@@ -196,3 +196,66 @@ def test_map_of_a_calibrated_parameter_file_equals_replays_estimate_at_the_same_
     estimated = np.concatenate([np.abs(b.loss_torque_nm) for b in batches])
     assert len(estimated) == len(rows) and not any(summary.skipped.values())
     np.testing.assert_allclose(estimated, rows[:, 2], rtol=1e-5, atol=1e-9)  # the map's 6 significant digits
+
+
+def test_the_torque_range_comes_from_the_gearbox_rating(tmp_path):
+    p = tmp_path / "rated.yaml"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    gearbox: {rated_speed_rpm: 1000.0, rated_torque_nm: 40.0}\n"
+                 "    map: {speed_step_rpm: 500.0, torque_step_nm: 20.0}\n")
+    out = tmp_path / "m.vtlm"
+    run_cli("map", "--out", str(out), "--params", str(p), "--no-plot")
+    assert sorted(set(read_map(out)[:, 1])) == [-40, -20, 0, 20, 40]
+
+
+def test_the_measured_map_of_a_rig_run_is_each_cells_energy_lost_over_its_angle(tmp_path):
+    """``map --recording BAG --measured``: per operating point with enough samples, the loss a rig
+    engineer computes from the recording -- Σ(P_in − P_out)·dt over Σ|ω_in|·dt of the samples nearest
+    that node -- in VECTO's format beside the model's map, with its uncertainty in the table."""
+    import csv
+
+    from bagtools import float_series, read_mcap_ros2
+
+    params = tmp_path / "sensors.yaml"
+    params.write_text("/**/loss_estimator:\n  ros__parameters:\n    sensors: {input_torque_full_scale_nm: 200.0, "
+                      "input_torque_reading_pct: 0.05, output_torque_full_scale_nm: 500.0, "
+                      "output_torque_reading_pct: 0.05}\n")
+    bag = BAGS / "rig_map_drag.mcap"
+    out = tmp_path / "lossmap.vtlm"
+    proc = run_cli("map", "--out", str(out), "--params", str(params), "--recording", str(bag), "--measured", "--no-plot")
+    measured = tmp_path / "lossmap_measured_rig_map_drag.vtlm"
+    assert "measured map of" in proc.stdout and out.exists()
+    for path in (measured, tmp_path / "lossmap_measured_rig_map_drag_reverse.vtlm"):
+        assert vecto_rules(path) == [], path
+    rows = list(csv.DictReader((tmp_path / "lossmap_measured_rig_map_drag.csv").open()))
+    assert len(rows) >= 40 and all(int(r["samples"]) >= 100 for r in rows)
+    raw = read_mcap_ros2(bag)
+    _, tq = float_series(raw, "/rollergear/motor/torque")
+    _, w = float_series(raw, "/rollergear/motor/speed")
+    _, tq_out = float_series(raw, "/rollergear/output/torque")
+    _, w_out = float_series(raw, "/rollergear/output/speed")
+    rpm = w * 30 / np.pi
+    forward = read_map(measured)
+    for r in rows[::7]:
+        n, t = float(r["speed_rpm"]), float(r["torque_nm"])
+        mine = (np.rint(rpm / 100) * 100 == n) & (np.rint(tq / 5) * 5 == t)
+        mine[0] = False  # the first sample: no step before it
+        lost = np.sum(tq[mine] * w[mine] - tq_out[mine] * w_out[mine])  # 10 ms each
+        angle = np.sum(np.abs(w[mine]))
+        assert float(r["measured_loss_nm"]) == pytest.approx(lost / angle, rel=1e-7)  # the table: 8 digits
+        assert 0 < float(r["measured_loss_uncertainty_nm"]) < 0.5 * float(r["measured_loss_nm"])
+        assert float(r["measured_loss_nm"]) > float(r["model_loss_nm"])  # the drag the model lacks
+        if n > 0:  # VECTO's row: forward rotation as it is
+            (row,) = forward[(forward[:, 0] == n) & (forward[:, 1] == t)]
+            assert row[2] == pytest.approx(lost / angle, rel=1e-5)
+    proc = run_cli("map", "--out", str(out), "--measured", check=False)
+    assert proc.returncode == 2 and "--measured needs a --recording" in proc.stderr
+    from rollergear_ros.recordings.bag import BagWriter
+
+    drive_only = tmp_path / "drive_only.mcap"  # a drive without an output torque sensor
+    with BagWriter(drive_only) as writer:
+        t = 10**18 + np.arange(500) * 10_000_000
+        writer.write_float64_series("/rollergear/motor/torque", t, np.full(500, 20.0))
+        writer.write_float64_series("/rollergear/motor/speed", t, np.full(500, 100.0))
+    proc = run_cli("map", "--out", str(tmp_path / "x.vtlm"), "--recording", str(drive_only), "--measured",
+                   "--no-plot", check=False)
+    assert proc.returncode == 2 and "no measured output torque: no measured loss map" in proc.stderr

@@ -57,3 +57,35 @@ def test_a_split_recording_is_whole_files_that_together_are_the_unsplit_one(tmp_
     statuses = [s for m in one["/diagnostics"][1] for s in m.status]
     assert any(s.name.endswith("roller gearbox losses") for s in statuses)
     check_node_topics(one)  # what the layouts show of the node's status and traces is in its recording
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_a_signal_to_the_nodes_process_group_prints_no_traceback(sig, tmp_path):
+    """Ctrl-C in a terminal signals the whole process group -- the node and its tracing worker: the
+    node stops cleanly, the worker quietly, nothing prints a traceback."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from helpers import CONFIG, ROOT
+
+    rec = tmp_path / "rec.mcap"
+    proc = subprocess.Popen([sys.executable, "-m", "rollergear_ros.ros.node", "--ros-args", "--params-file", str(CONFIG),
+                             "-p", "node.trace:=true", "-p", f"node.record_mcap:={rec}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, start_new_session=True)
+    try:
+        with ros_context() as probe_node:  # the node is up, its worker process spawned
+            assert wait_for(lambda: probe_node.count_publishers(T.loss_torque) >= 1, 120)
+            workers = lambda: subprocess.run(["pgrep", "-g", str(proc.pid)], capture_output=True,  # noqa: E731
+                                             text=True).stdout.split()
+            assert wait_for(lambda: len(workers()) >= 2, 60), "the tracing worker runs in the node's group"
+        os.killpg(proc.pid, getattr(signal, sig))
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert "Traceback" not in out + err and "KeyboardInterrupt" not in out + err, err
+    assert "stopped:" in err and rec.exists()

@@ -4,6 +4,8 @@ efficiency with the figure a rig engineer computes by hand."""
 
 from __future__ import annotations
 
+import csv
+import io
 import threading
 import time
 
@@ -15,7 +17,7 @@ from rollergear_ros.core.params import load_config
 from rollergear_ros.recordings.bag import TopicMap
 
 from helpers import CONFIG
-from rostools import NodeProcess, ros_context, wait_for
+from rostools import NodeProcess, WatchProcess, ros_context, wait_for
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -92,6 +94,15 @@ def test_the_status_stays_warn_while_the_residual_stays_ok_after_it_returns_and_
                 assert float(values["measured efficiency"]) == pytest.approx(expected, rel=1e-9)
                 assert values["residual beyond threshold"] == "no"
                 assert f"measured efficiency {100 * expected:.2f} %" in message
+                # what a logger takes from watch --csv: the same figure, the status
+                watcher = WatchProcess("--csv", "--period", "0.5")
+                try:
+                    assert wait_for(lambda: any(",OK," in line and line.count(",") > 8 for line in watcher.lines[1:]),
+                                    60), watcher.lines
+                finally:
+                    watcher.stop()
+                row = next(r for r in csv.DictReader(io.StringIO("\n".join(watcher.lines))) if r["level"] == "OK")
+                assert float(row["efficiency_measured"]) == pytest.approx(expected, rel=1e-9)
                 # 2. a loss appears and stays: WARN from the alarm on, in every report while it stays
                 rig.extra_nm = EXTRA_NM
                 seen = len(_reports(msgs))

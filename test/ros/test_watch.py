@@ -93,3 +93,32 @@ def test_watch_count_ends_by_itself_without_a_node():
     assert len(lines) == count and all(
         "no estimates on /rollergear/loss/torque in the last 0.5 s" in ln for ln in lines
     ), proc.stdout
+
+
+def test_a_period_as_the_row_a_logger_takes():
+    w = _window(loss_torque=[0.1, 0.3], loss_power=[10.0, 30.0], efficiency=[0.99, 0.97],
+                efficiency_measured=[0.95, 0.9804], efficiency_measured_uncertainty=[0.002, 0.0021])
+    w.diagnostic = (0, "estimating")
+    row = w.take(0.5)
+    assert row["estimates_per_s"] == 4 and row["loss_torque_nm"] == pytest.approx(0.2)
+    assert row["efficiency_min"] == 0.97 and row["efficiency_measured"] == 0.9804  # the latest window
+    assert row["efficiency_measured_uncertainty"] == 0.0021 and row["level"] == "OK"
+    assert np.isnan(row["residual_nm"])
+
+
+@pytest.mark.ros
+@pytest.mark.parametrize("fmt", ["--csv", "--json"])
+def test_watch_writes_rows_for_a_logger(fmt):
+    import csv
+    import io
+    import json
+
+    proc = run_cli("watch", "--period", "0.5", "--count", "2", fmt, timeout=30)
+    if fmt == "--json":
+        rows = [json.loads(line) for line in proc.stdout.splitlines()]
+        assert all(r["efficiency_measured"] is None for r in rows)  # NaN as null: valid JSON
+    else:
+        rows = list(csv.DictReader(io.StringIO(proc.stdout)))
+    assert len(rows) == 2 and all(float(r["estimates_per_s"]) == 0 and r["time_utc"].endswith("Z") for r in rows)
+    assert {"loss_torque_nm", "efficiency", "efficiency_measured", "efficiency_measured_uncertainty", "level",
+            "message", "traced"} <= set(rows[0])
