@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+import time
 from dataclasses import fields
 from pathlib import Path
 
@@ -42,7 +43,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     opts = SimulationOptions(profile=args.profile, rate_hz=args.rate, seed=args.seed, effects=effects,
                              torque_noise_nm=args.torque_noise, noise_ar1=args.noise_ar1,
                              output_lag_s=args.output_lag, joint_states=args.joint_states,
-                             step_change_at_s=args.step_change_at, oil_nu40_nu100_mm2_s=_oil(args.oil))
+                             step_change_at_s=args.step_change_at, oil_nu40_nu100_mm2_s=_oil(args.oil),
+                             start_ns=_start_ns(args.start) if args.start else time.time_ns() // 10**9 * 10**9)
     with TimedProgress("simulate", unit="sample") as bar:
         bar.stage = "the model along the profile"
         rig = _cut(simulate(config, opts), args.duration)
@@ -108,7 +110,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         summary, _ = replay(bag, config, topics, out_mcap=args.out, rrd=args.rrd,
                             show_progress=None if not args.no_progress else False,
                             warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr), summary_png=png,
-                            exports=exports)
+                            exports=exports, source=None if Path(bag) == Path(args.bag) else args.bag)
     print(summary.text())
     for label, path in (("estimates", args.out), ("rerun recording", args.rrd),
                         ("summary picture", summary.summary_png),
@@ -128,8 +130,21 @@ def summary_png_path(args: argparse.Namespace) -> str | None:
     return str(Path(beside).with_suffix(".png")) if beside else None
 
 
+def _start_ns(text: str) -> int:
+    """``--start``: an ISO 8601 date or time (UTC unless it says otherwise) as ns since the epoch."""
+    import datetime
+
+    try:
+        when = datetime.datetime.fromisoformat(text)
+    except ValueError:
+        raise UsageError(f"--start {text!r}: not an ISO 8601 date or time (e.g. 2026-11-27T08:00:00Z)") from None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=datetime.UTC)
+    return int(round(when.timestamp())) * 10**9
+
+
 def _simulate_fleet(args: argparse.Namespace, config) -> int:
-    from ..fleet.simulated import FleetScenario, simulate_fleet
+    from ..fleet.simulated import DAY_NS, FleetScenario, simulate_fleet
 
     if args.fleet < 1 or args.days < 1:
         raise UsageError("--fleet and --days must be at least 1")
@@ -137,8 +152,10 @@ def _simulate_fleet(args: argparse.Namespace, config) -> int:
     if out.exists() and any(out.iterdir()):
         raise UsageError(f"{out} is not empty: a fleet goes into a new folder")
     with TimedProgress("simulate fleet", args.fleet * args.days, "log") as bar:
-        truth = simulate_fleet(config, out, FleetScenario(args.fleet, args.days, rate_hz=args.rate, seed=args.seed),
-                               progress=bar.update)
+        today = time.time_ns() // DAY_NS * DAY_NS  # the logs are of the days before the run, unless --start
+        first = _start_ns(args.start) // DAY_NS * DAY_NS if args.start else today - args.days * DAY_NS
+        truth = simulate_fleet(config, out, FleetScenario(args.fleet, args.days, rate_hz=args.rate, seed=args.seed,
+                                                          start_ns=first), progress=bar.update)
     print(f"wrote {args.fleet} gearboxes x {args.days} daily logs to {out} (truth: {out / 'fleet_truth.json'}; "
           f"{len(truth['gearboxes'])} drifting)")
     return 0
@@ -157,6 +174,9 @@ def register_simulate(sub, with_params) -> None:
     p.add_argument("--rate", type=float, default=200.0, help="sample rate [Hz] (default 200)")
     p.add_argument("--duration", type=float, help="cut the profile after this many seconds")
     p.add_argument("--seed", type=int, default=0, help="random seed of the sensor noise and the drive cycle")
+    p.add_argument("--start", metavar="ISO8601",
+                   help="when the recording starts (UTC unless given; default: now; with --fleet the first day, "
+                        "default: the --days days before today)")
     p.add_argument(
         "--effect",
         action="append",

@@ -42,15 +42,17 @@ class FleetScenario:
     days: int = 8
     rate_hz: float = 100.0
     seed: int = 0
+    start_ns: int = FLEET_START_NS  #: the first day's midnight (UTC)
 
 
 def simulate_fleet(config: Config, out_dir: Path, scenario: FleetScenario = FleetScenario(), progress=None) -> dict:
     """Write the fleet (see the module docstring); returns the truth written to ``fleet_truth.json``."""
     gearboxes, days, rate_hz, seed = scenario.gearboxes, scenario.days, scenario.rate_hz, scenario.seed
+    start_ns = scenario.start_ns
     rng = np.random.default_rng(seed)
     ids = [f"gb{g:02d}" for g in range(gearboxes)]
     drifting = sorted(rng.choice(gearboxes, size=max(1, gearboxes // 3), replace=False).tolist())
-    truth: dict = {"days": days, "rate_hz": rate_hz, "start_ns": FLEET_START_NS, "gearboxes": {}}
+    truth: dict = {"days": days, "rate_hz": rate_hz, "start_ns": start_ns, "gearboxes": {}}
     for k, g in enumerate(drifting):
         effect = _drift(rng, k)
         truth["gearboxes"][ids[g]] = {"effect": effect.name, "params": effect.params,
@@ -60,7 +62,7 @@ def simulate_fleet(config: Config, out_dir: Path, scenario: FleetScenario = Flee
         for d in range(days):
             effects = [DeclaredEffect(drift["effect"], drift["params"])] if drift and d >= drift["from_day"] else []
             opts = SimulationOptions(profile="bidirectional_map", rate_hz=rate_hz, seed=seed * 10_000 + g * 100 + d,
-                                     effects=effects, start_ns=FLEET_START_NS + d * DAY_NS + g * 3_600 * 10**9)
+                                     effects=effects, start_ns=start_ns + d * DAY_NS + g * 3_600 * 10**9)
             path = out_dir / gid / f"day{d:02d}.mcap"
             path.parent.mkdir(parents=True, exist_ok=True)
             write_rig_bag(simulate(config, opts), opts, path, gearbox_id=gid)

@@ -219,6 +219,14 @@ class InputBatch:
     #: the messages' publish times (the node records its inputs' source timestamps there): in file
     #: order only, where arrival pairing's skew detector measures with them; else None
     source_ns: np.ndarray | None = None
+    #: the recording's messages these came from, where one carries several channels (a JointState:
+    #: torque and speed of two joints); None: one value per message
+    messages: int | None = None
+
+    @property
+    def message_count(self) -> int:
+        """The recording's messages read for this batch (as ``rollergear info`` counts them)."""
+        return len(self.codes) if self.messages is None else self.messages
 
 
 def input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None],
@@ -263,7 +271,7 @@ def _decoded_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
                 if i not in bad:
                     writer.write_raw(tp, info.topics[tp], tt, d, info.schema_texts.get(info.topics[tp]))
 
-        yield InputBatch(codes, t, v, write)
+        yield InputBatch(codes, t, v, write, messages=len(raw.topics) - len(bad))
 
 
 def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems,

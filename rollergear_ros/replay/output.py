@@ -41,9 +41,11 @@ class ReplayOutputs:
         self._sensors = acc.config.sensors
         self._window: WindowValue | None = None  # the measured efficiency's window published last
 
-    def open(self, out_mcap, rrd, exports, info: BagInfo, config: Config, estimator: Estimator) -> None:
-        """Open the outputs asked for (``None`` / empty: not that one)."""
-        self.writer = output_writer(out_mcap, info, config, self.topics) if out_mcap else None
+    def open(self, out_mcap, rrd, exports, info: BagInfo, config: Config, estimator: Estimator,
+             source: str | Path | None = None) -> None:
+        """Open the outputs asked for (``None`` / empty: not that one); ``source``: the user's file when
+        ``info`` is its import's."""
+        self.writer = output_writer(out_mcap, info, config, self.topics, source) if out_mcap else None
         if exports:
             from ..outputs.exports import Export
 
@@ -121,10 +123,12 @@ class ReplayOutputs:
             table.close(commit_file=commit)
 
 
-def output_writer(path: str | Path, info: BagInfo, config: Config, topics: TopicMap) -> BagWriter:
+def output_writer(path: str | Path, info: BagInfo, config: Config, topics: TopicMap,
+                  source_file: str | Path | None = None) -> BagWriter:
     """The estimates' MCAP: in log-time order, the outputs with the QoS the node offers them with,
-    and its provenance (metadata ``rollergear_provenance``: package version, source recording,
-    parameters with the accepted effects, command line)."""
+    and its provenance (metadata ``rollergear_provenance``: package version, source recording -- the
+    user's file, not a temporary import of it (``source_file``) --, parameters with the accepted
+    effects, command line)."""
     import datetime
 
     from ..base.interface import package_version
@@ -133,11 +137,12 @@ def output_writer(path: str | Path, info: BagInfo, config: Config, topics: Topic
     offered = {topics.output(c.name): offered_qos_yaml(reliable=c.reliable, depth=c.depth)
                for c in (*float64_channels(), *stamped_channels(), *window_channels())}
     writer = BagWriter(path, offered_qos=offered, background=True)
-    source = Path(info.path)
+    source = Path(source_file if source_file is not None else info.path)
     writer.add_metadata(Metadata.PROVENANCE, {
         "package": "rollergear_ros", "version": package_version(),
         "created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        "source": str(source.resolve()), "source_bytes": str(info.bytes_total),
+        "source": str(source.resolve()),
+        "source_bytes": str(source.stat().st_size if source_file is not None else info.bytes_total),
         "source_messages": str(info.message_count),
         "accepted_effects": ", ".join(config.effects.enabled()) or "none",
         "parameters": config_to_yaml(config), "command": " ".join(sys.argv)})

@@ -49,6 +49,12 @@ class ReplayRequest:
     summary_png: str | Path | None = None
     exports: Sequence[tuple[str, str | Path]] = ()
     parameter_changes: bool = True
+    source: str | Path | None = None
+
+    @property
+    def label(self) -> str:
+        """The recording as the user named it (an imported file's, not its temporary MCAP's)."""
+        return str(self.source if self.source is not None else self.bag)
 
 
 def replay(
@@ -66,6 +72,7 @@ def replay(
     summary_png: str | Path | None = None,
     exports: Sequence[tuple[str, str | Path]] = (),
     parameter_changes: bool = True,
+    source: str | Path | None = None,
 ) -> tuple[ReplaySummary, list[BatchEstimate]]:
     """Replay ``bag`` through the estimator; returns the summary (and all estimates if ``collect``).
 
@@ -82,11 +89,14 @@ def replay(
     ``parameter_changes``: apply the run-time parameter changes a live recording holds where the node
     applied them (:mod:`.switches`); off for an analysis that wants ``config`` throughout (calibration's
     bare model).
+
+    ``source``: the file the user gave when ``bag`` is its import (a CSV's temporary MCAP): what the
+    summary, the picture and the outputs' provenance name.
     """
     if window_ns is not None and (out_mcap or rrd or summary_png or exports):
         raise UsageError("a time slice of a recording is replayed without outputs")
     request = ReplayRequest(bag, config, topics, out_mcap, rrd, show_progress, batch_size, warn, collect, window_ns,
-                            summary_png, exports, parameter_changes)
+                            summary_png, exports, parameter_changes, source)
     stop = GracefulStop()  # first: from here on a signal leaves complete files
     try:
         return _replay(request, stop)
@@ -116,7 +126,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
     if window is not None and estimator.speed_noise.learning and window.start_ns is not None:
         _learn_speed_noise(estimator, info, plan, req.batch_size)
     summary = ReplaySummary(
-        str(req.bag), sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
+        req.label, sync_tolerance_s=estimator.sync_tolerance_s, sample_period_s=period_s, pairing=pairing
     )
     acc = Accumulator(req.config, estimator.sample_period_s)
     if req.summary_png:
@@ -128,7 +138,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
     completed = False  # an error (not an interrupt) leaves no output in place of an existing one
     try:
         with stop.critical():  # outputs are opened whole
-            outputs.open(req.out_mcap, req.rrd, req.exports, info, req.config, estimator)
+            outputs.open(req.out_mcap, req.rrd, req.exports, info, req.config, estimator, req.source)
         total = sum(info.counts.get(t, 0) for t in plan.all_topics)
         bar = TimedProgress("replay", total, "msg", enabled=req.show_progress).start()
         batches = input_batches(info, plan, req.batch_size, _warn, problems, window.read_range() if window else None)
@@ -145,7 +155,8 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
             if bar:
                 bar.close()
             outputs.close(commit=completed)
-    summary.interrupted |= stop.requested  # a signal near the end is not ignored either
+    if stop.requested and not summary.interrupted:  # the whole recording was read: the outputs are whole
+        _warn("a stop signal came after the whole recording was processed: every output is complete")
     _count(summary, estimator, window, acc, _warn)
     summary.warnings = warnings
     if acc.trace is not None and acc.n:
@@ -153,10 +164,9 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
 
         try:  # a picture of what was processed, also after an interrupt; a second one abandons it
             summary.summary_png = str(plot_summary(acc.trace, req.config, req.summary_png,
-                                                   f"replay of {Path(req.bag).name}"))
+                                                   f"replay of {Path(req.label).name}"))
         except KeyboardInterrupt:
             _warn(f"interrupted: no summary picture {req.summary_png}")
-        summary.interrupted |= stop.requested
     return summary, outputs.collected
 
 
@@ -243,7 +253,7 @@ def _estimate(batches: Iterator[InputBatch], run: _Pass, bar: TimedProgress) -> 
                     outputs.emit(window.keep(estimates, acc))
         else:
             with stop.critical():  # one batch's estimates and inputs, both or neither
-                summary.input_messages += len(batch.codes)
+                summary.input_messages += batch.message_count
                 for estimates in run.push(batch.codes, batch.t_ns, batch.values, batch.source_ns):
                     outputs.emit(estimates)
                 outputs.inputs_done(batch, run.estimator, release_lag_ns)

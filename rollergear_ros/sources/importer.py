@@ -63,7 +63,8 @@ class ImportSummary:
     ratio: float | None = None  #: the channel map's ratio, when the output speed was derived from it
     notes: list[str] = field(default_factory=list)  #: what was done to the time base (said in :meth:`text`)
 
-    def text(self) -> str:
+    def text(self, kept: bool = True) -> str:
+        """One line; ``kept=False``: imported for the command at hand only (its temporary MCAP unnamed)."""
         how = f"; resampled onto the motor torque's time base: {', '.join(self.resampled)}" if self.resampled else ""
         if self.ratio is not None:
             how += f"; output speed = motor speed / {self.ratio:g} (the channel map's ratio)"
@@ -72,8 +73,8 @@ class ImportSummary:
         elif "table" in self.kind:
             how += "; one sample per row, 1 s apart"
         how += "".join(f"; {note}" for note in self.notes)
-        return (f"imported {self.source} ({self.kind}): {self.samples:,} samples, {self.messages:,} messages "
-                f"-> {self.out}{how}")
+        where = f"-> {self.out}" if kept else "(read for this command; `rollergear import` keeps it as MCAP)"
+        return f"imported {self.source} ({self.kind}): {self.samples:,} samples, {self.messages:,} messages {where}{how}"
 
 
 def source_kind(path: str | Path) -> str:
@@ -371,6 +372,6 @@ def as_mcap(sources: Sequence[str | Path], channels: str | Path | None = None,
                 continue
             summary = import_source(src, Path(tmp) / f"{i}_{Path(src).stem}.mcap", channels, topics)
             if note:
-                note(summary.text())
+                note(summary.text(kept=False))
             paths.append(summary.out)
         yield paths
