@@ -91,7 +91,8 @@ def test_the_plotjuggler_layout_plots_series_a_recording_has(recorded):
             assert recorded[topic] == "sensor_msgs/msg/JointState", name
             joint, field = suffix.split("/")
             assert joint in ESTIMATE_FIELDS and field == "position", name
-    covered = {max((t for t in recorded if n.startswith(t + "/")), key=len) for n in curves if not n.startswith(NODE_ONLY)}
+    covered = {max((t for t in recorded if n.startswith(t + "/")), key=len)
+               for n in curves if not n.startswith(NODE_ONLY)}
     assert {t for t in recorded if t.startswith("/rollergear/")} <= covered  # every input and output has a curve
     assert any(n.startswith(NODE_ONLY) for n in curves)
     (selected,) = [e.get("value") for e in root.iter("selected_topics")]

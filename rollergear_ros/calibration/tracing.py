@@ -249,8 +249,9 @@ def trace(request: TraceRequest) -> TraceResult:
     cut = after_last_gap(s["t_ns"])
     if cut:  # never a window across a gap in the inputs: the two sides may be other gearboxes, other days
         pause_s = (int(s["t_ns"][cut]) - int(s["t_ns"][cut - 1])) * 1e-9
-        gap_note = (f"the inputs {'paused for ' + format(pause_s, '.3g') + ' s' if pause_s > 0 else 'went back in time'} "
-                    f"before {int(s['t_ns'][cut])} ns (a new recording, a pause of the rig): the window starts after it")
+        what = f"paused for {pause_s:.3g} s" if pause_s > 0 else "went back in time"
+        gap_note = (f"the inputs {what} before {int(s['t_ns'][cut])} ns (a new recording, a pause of the rig): "
+                    "the window starts after it")
         s = {k: v[cut:] for k, v in s.items()}
     t = s["t_ns"]
     window_ns = int(request.window_s * 1e9)

@@ -114,9 +114,12 @@ def _print_result(result) -> None:
         print(f"  parameter {prm.sentence()}")
     _print_not_found(result)
     print(
-        f"held-out error ({result.samples:,} samples): RMSE of {result.blocks.block_s if result.blocks else 0.25:g} s block means {eb.rmse_nm:.4g} -> "
-        f"{ea.rmse_nm:.4g} N·m, per sample (sensor noise included) {result.sample_level['before'].rmse_nm:.4g} -> "
-        f"{result.sample_level['after'].rmse_nm:.4g} N·m; of the block means: MAE {eb.mae_nm:.4g} -> {ea.mae_nm:.4g} N·m, "
+        f"held-out error ({result.samples:,} samples): RMSE of "
+        f"{result.blocks.block_s if result.blocks else 0.25:g} s block means {eb.rmse_nm:.4g} -> "
+        f"{ea.rmse_nm:.4g} N·m, per sample (sensor noise included) "
+        f"{result.sample_level['before'].rmse_nm:.4g} -> "
+        f"{result.sample_level['after'].rmse_nm:.4g} N·m; "
+        f"of the block means: MAE {eb.mae_nm:.4g} -> {ea.mae_nm:.4g} N·m, "
         f"max {eb.max_abs_nm:.4g} -> {ea.max_abs_nm:.4g} N·m, {eb.rel_rmse_pct:.2f} % -> {ea.rel_rmse_pct:.2f} % "
         "of the measured loss"
     )

@@ -122,8 +122,7 @@ def cmd_figures(args: argparse.Namespace) -> int:
 
 
 def cmd_map(args: argparse.Namespace) -> int:
-    from ..outputs.lossmap import (build_map, coverage_warning, grid, map_comments, plot_map, reverse_path,
-                                   vtlm_problems, write_vtlm)
+    from ..outputs.lossmap import (build_map, coverage_warning, grid, map_comments, plot_map, vtlm_problems, write_vtlm)
 
     config = config_from_args(args)
     m = config.map
@@ -144,7 +143,8 @@ def cmd_map(args: argparse.Namespace) -> int:
     measured_paths = {bag: out.with_name(f"{out.stem}_measured_{Path(bag).stem}.vtlm") for bag in args.recording} \
         if args.measured else {}
     for path in measured_paths.values():
-        outputs += [Output("a measured map", path, "vtlm"), Output("the reverse measured map", reverse_path(path), "vtlm"),
+        outputs += [Output("a measured map", path, "vtlm"),
+                    Output("the reverse measured map", reverse_path(path), "vtlm"),
                     Output("its table", path.with_suffix(".csv"), "csv")]
     check_outputs([args.params, *args.recording], outputs)
     params_path = Path(args.params) if args.params else default_params_path()

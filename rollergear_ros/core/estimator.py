@@ -462,7 +462,8 @@ class Estimator:
         loss = mag + phys
         residual = meas - (loss + sens)
         eff = efficiency(torque, speed, loss, self.model.min_torque_nm, self.model.min_speed_rad_s)
-        eff_meas = np.where(np.isfinite(meas), measured_efficiency(torque_meas, speed, out_torque, out_speed, self.ratio,
+        eff_meas = np.where(np.isfinite(meas),
+                            measured_efficiency(torque_meas, speed, out_torque, out_speed, self.ratio,
                                                                    self.model.min_torque_nm,
                                                                    self.model.min_speed_rad_s), np.nan)
         self.estimated += len(t_ns)

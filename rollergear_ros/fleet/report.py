@@ -199,8 +199,8 @@ def _efficiency_lines(replay_rows: list[dict], out_dir: Path) -> list[str]:
         u = np.array([_num(r.get("efficiency_measured_uncertainty")) for r in ok
                       if np.isfinite(_num(r.get("efficiency_measured")))])
         if np.isfinite(u).any() and np.nanmax(u) > 0:
-            spread = f"; each recording's standard uncertainty from the sensors' accuracy {100 * np.nanmedian(u):.2f} % " \
-                     "(median)"
+            spread = ("; each recording's standard uncertainty from the sensors' accuracy "
+                      f"{100 * np.nanmedian(u):.2f} % (median)")
     return [f"{kind.capitalize()} efficiency over the fleet: {100 * eta.mean():.2f} % (recordings from "
             f"{100 * eta.min():.2f} to {100 * eta.max():.2f} %{spread}).\n\n![efficiency](efficiency.png)\n"]
 

@@ -150,8 +150,10 @@ class ReplaySummary:
                  f"{100 * m.model_efficiency:.2f} %"]
         if self.measured_quadrants and all(b.supplied_j > 0 for b, _ in self.measured_quadrants):
             (mot, u_mot), (reg, u_reg) = self.measured_quadrants
-            lines.append(f"  motoring {_pct(mot.efficiency, u_mot, stated)} (model {100 * mot.model_efficiency:.2f} %), "
-                         f"regenerating {_pct(reg.efficiency, u_reg, stated)} (model {100 * reg.model_efficiency:.2f} %)"
+            lines.append(f"  motoring {_pct(mot.efficiency, u_mot, stated)} "
+                         f"(model {100 * mot.model_efficiency:.2f} %), "
+                         f"regenerating {_pct(reg.efficiency, u_reg, stated)} "
+                         f"(model {100 * reg.model_efficiency:.2f} %)"
                          f": a torque sensor's gain error moves these two apart and cancels in their sum")
         cells = [c for c in self.measured_cells if c[2].samples >= CELL_MIN_SAMPLES and c[2].supplied_j > 0]
         if len(cells) > 1:

@@ -77,7 +77,8 @@ class WatchWindow:
         measured, spread = values["efficiency_measured"], values["efficiency_measured_uncertainty"]
         row = {"estimates_per_s": len(values["loss_torque"]) / period_s,
                "loss_torque_nm": _mean(values["loss_torque"]), "loss_power_w": _mean(values["loss_power"]),
-               "efficiency": _mean(eff), "efficiency_min": float(np.nanmin(eff)) if np.isfinite(eff).any() else math.nan,
+               "efficiency": _mean(eff),
+               "efficiency_min": float(np.nanmin(eff)) if np.isfinite(eff).any() else math.nan,
                "residual_nm": _mean(values["residual_torque"]),
                "efficiency_measured": float(measured[-1]) if len(measured) else math.nan,
                "efficiency_measured_uncertainty": float(spread[-1]) if len(spread) else math.nan,
@@ -199,7 +200,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
         raise UsageError("--period must be > 0")
     init_for_command_line()
     try:
-        return watch(args.namespace, args.period, args.count, fmt="json" if args.json else "csv" if args.csv else "text")
+        fmt = "json" if args.json else "csv" if args.csv else "text"
+        return watch(args.namespace, args.period, args.count, fmt=fmt)
     finally:
         rclpy.try_shutdown()
 

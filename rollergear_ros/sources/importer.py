@@ -74,7 +74,8 @@ class ImportSummary:
             how += "; one sample per row, 1 s apart"
         how += "".join(f"; {note}" for note in self.notes)
         where = f"-> {self.out}" if kept else "(read for this command; `rollergear import` keeps it as MCAP)"
-        return f"imported {self.source} ({self.kind}): {self.samples:,} samples, {self.messages:,} messages {where}{how}"
+        return (f"imported {self.source} ({self.kind}): {self.samples:,} samples, "
+                f"{self.messages:,} messages {where}{how}")
 
 
 def source_kind(path: str | Path) -> str:

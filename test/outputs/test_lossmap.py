@@ -200,7 +200,8 @@ def test_map_of_a_calibrated_parameter_file_equals_replays_estimate_at_the_same_
 
 def test_the_torque_range_comes_from_the_gearbox_rating(tmp_path):
     p = tmp_path / "rated.yaml"
-    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    gearbox: {rated_speed_rpm: 1000.0, rated_torque_nm: 40.0}\n"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n"
+                 "    gearbox: {rated_speed_rpm: 1000.0, rated_torque_nm: 40.0}\n"
                  "    map: {speed_step_rpm: 500.0, torque_step_nm: 20.0}\n")
     out = tmp_path / "m.vtlm"
     run_cli("map", "--out", str(out), "--params", str(p), "--no-plot")
@@ -221,7 +222,8 @@ def test_the_measured_map_of_a_rig_run_is_each_cells_energy_lost_over_its_angle(
                       "output_torque_reading_pct: 0.05}\n")
     bag = BAGS / "rig_map_drag.mcap"
     out = tmp_path / "lossmap.vtlm"
-    proc = run_cli("map", "--out", str(out), "--params", str(params), "--recording", str(bag), "--measured", "--no-plot")
+    proc = run_cli("map", "--out", str(out), "--params", str(params), "--recording", str(bag), "--measured",
+                   "--no-plot")
     measured = tmp_path / "lossmap_measured_rig_map_drag.vtlm"
     assert "measured map of" in proc.stdout and out.exists()
     for path in (measured, tmp_path / "lossmap_measured_rig_map_drag_reverse.vtlm"):

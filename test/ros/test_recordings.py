@@ -71,8 +71,9 @@ def test_a_signal_to_the_nodes_process_group_prints_no_traceback(sig, tmp_path):
     from helpers import CONFIG, ROOT
 
     rec = tmp_path / "rec.mcap"
-    proc = subprocess.Popen([sys.executable, "-m", "rollergear_ros.ros.node", "--ros-args", "--params-file", str(CONFIG),
-                             "-p", "node.trace:=true", "-p", f"node.record_mcap:={rec}"],
+    proc = subprocess.Popen([sys.executable, "-m", "rollergear_ros.ros.node",
+                             "--ros-args", "--params-file", str(CONFIG), "-p", "node.trace:=true",
+                             "-p", f"node.record_mcap:={rec}"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, start_new_session=True)
     try:
         with ros_context() as probe_node:  # the node is up, its worker process spawned
