@@ -94,9 +94,9 @@ def with_effect(config, name: str, params: dict):
 
 
 def partial_files(path: str | Path) -> list[Path]:
-    """The files an atomic writer of ``path`` is writing (``NAME.<random>.partial`` beside it)."""
+    """The files an atomic writer of ``path`` is writing (``.NAME.<random>.partial`` beside it)."""
     p = Path(path)
-    return sorted(p.parent.glob(f"{p.name}.*.partial")) if p.parent.exists() else []
+    return sorted(p.parent.glob(f".{p.name}.*.partial")) if p.parent.exists() else []
 
 
 #: a parameter file with accepted effects of every kind but memory (the operating points' and the map's tests)

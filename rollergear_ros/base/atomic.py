@@ -4,9 +4,10 @@ Every file the package writes for a command goes through :func:`replacing` (or i
 :func:`write_text` and :func:`save_figure`), so a reader never sees half a file, and a failure, a
 full disk or a kill never leaves a truncated file where a good one was: the old file stays until
 the new one is whole.  A write that fails removes its partial file; a process that is killed leaves
-it beside the final name as ``NAME.<random>.partial`` (what it had written is readable there).  An
-``OSError`` from a write that names no file (a full disk: ENOSPC) is raised naming the output.
-No rclpy.
+it beside the final name as the hidden ``.NAME.<random>.partial`` (what it had written is readable
+there; no temporary name looks like an output).  The outputs of one command are put in place
+together (:func:`together`): when one fails, none replaces its file.  An ``OSError`` from a write
+that names no file (a full disk: ENOSPC) is raised naming the output.  No rclpy.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from contextlib import contextmanager
 from pathlib import Path
 
 PARTIAL_SUFFIX = ".partial"
+#: the commits deferred by the innermost :func:`together` block (partial, final path)
+_groups: list[list[tuple[Path, Path]]] = []
 
 
 def final_path(path: str | Path) -> Path:
@@ -31,7 +34,7 @@ def partial_path(path: str | Path) -> Path:
     p = final_path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     while True:
-        candidate = p.with_name(f"{p.name}.{secrets.token_hex(3)}{PARTIAL_SUFFIX}")
+        candidate = p.with_name(f".{p.name}.{secrets.token_hex(3)}{PARTIAL_SUFFIX}")
         try:  # created here, with the permissions a plain open() would give (the umask applies)
             os.close(os.open(candidate, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
             return candidate
@@ -40,13 +43,36 @@ def partial_path(path: str | Path) -> Path:
 
 
 def commit(partial: str | Path, path: str | Path) -> None:
-    """Put a complete partial file in place of ``path`` (flushed to disk first)."""
+    """Put a complete partial file in place of ``path`` (flushed to disk first); inside a
+    :func:`together` block, when the block ends."""
     fd = os.open(partial, os.O_RDONLY)
     try:
         os.fsync(fd)
     finally:
         os.close(fd)
+    if _groups:
+        _groups[-1].append((Path(partial), final_path(path)))
+        return
     os.replace(partial, final_path(path))
+
+
+@contextmanager
+def together() -> Iterator[None]:
+    """The files committed inside the block replace theirs when it ends normally, all of them;
+    when it raises (a failed write of another output, Ctrl-C), none does: their partial files are
+    removed and every existing file is left as it was."""
+    group: list[tuple[Path, Path]] = []
+    _groups.append(group)
+    try:
+        yield
+    except BaseException:
+        _groups.remove(group)
+        for partial, _ in group:
+            discard(partial)
+        raise
+    _groups.remove(group)
+    for partial, path in group:
+        commit(partial, path)  # into an enclosing block, or in place
 
 
 def discard(partial: str | Path) -> None:
@@ -96,4 +122,4 @@ def save_figure(fig, path: str | Path, **kwargs) -> None:
 
 
 __all__ = ["PARTIAL_SUFFIX", "commit", "discard", "final_path", "named", "partial_path", "replacing",
-           "save_figure", "write_text"]
+           "save_figure", "together", "write_text"]

@@ -250,6 +250,10 @@ def _measured_vs_estimated(result: CalibrationResult, out_dir: Path, plots: list
     _save(fig, out_dir / "measured_vs_estimated.png", plots)
 
 
+#: the files :func:`write_report` writes in its folder (glob patterns)
+REPORT_FILES = ("report.md", "result.json", "residual_*.png", "effect_*.png", "measured_vs_estimated.png")
+
+
 def write_report(result: CalibrationResult, data: SampleData, out_dir: Path, sources: Sequence[str]) -> Path:
     """Markdown report with PNG plots: residual before/after over the inputs and over time, each
     accepted effect's curve with its 95 % band, measured against estimated loss."""

@@ -109,6 +109,8 @@ def _load(bags, config, topics, warn, min_speed_rad_s, progress) -> SampleData:
     for bag in bags:
         summary, batches = replay(bag, base, topics, show_progress=progress, warn=warn, collect=True,
                                   parameter_changes=False)  # the bare model throughout
+        if summary.interrupted:  # a calibration of part of the data is no answer to the command given
+            raise KeyboardInterrupt
         for k, v in summary.skipped.items():
             skipped[k] = skipped.get(k, 0) + v
         batches_of_bags.append(batches)

@@ -23,12 +23,12 @@ def _warn(msg: str) -> None:
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from ..base.atomic import write_text
+    from ..base.atomic import together, write_text
     from ..calibration.calibrate import calibrated_yaml
-    from ..calibration.report import write_report
+    from ..calibration.report import REPORT_FILES, write_report
 
     check_outputs([*args.bags, args.params, args.channels],  # now, not after the whole analysis
-                  [Output("--out", args.out, "yaml"), Output("--report", args.report, "folder")])
+                  [Output("--out", args.out, "yaml"), Output("--report", args.report, "folder", REPORT_FILES)])
     config = config_from_args(args)
     if args.oil:  # the oil's data sheet: the viscosity law's start and range
         config = config.with_values(dict(zip(("gearbox.oil_nu40_mm2_s", "gearbox.oil_nu100_mm2_s",
@@ -37,9 +37,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     result = _analyse(args, data, config)
     for line in _error_after_warnings(result, args.assume):
         _warn(line)
-    if args.out and result.written:
-        write_text(args.out, calibrated_yaml(result, args.bags))
-    report = write_report(result, data, Path(args.report), args.bags) if args.report else None
+    with together():  # the parameter file and the report's files are put in place together, or none
+        if args.out and result.written:
+            write_text(args.out, calibrated_yaml(result, args.bags))
+        report = write_report(result, data, Path(args.report), args.bags) if args.report else None
     if args.json:
         sys.stdout.write(json.dumps(result.to_json()) + "\n")
         return 0 if result.written else 1

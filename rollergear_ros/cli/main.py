@@ -16,6 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..base.atomic import together
 from ..base.errors import InputFileError, RollergearError, UsageError
 from ..base.interface import package_version
 from ..ros.nodehelp import contract_line
@@ -114,7 +115,7 @@ def _read_points_csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def cmd_figures(args: argparse.Namespace) -> int:
     from ..calibration.figures import write_figures
 
-    check_outputs([args.params], [Output("--out", args.out, "folder")])
+    check_outputs([args.params], [Output("--out", args.out, "folder", ("fig*.png", "figures.csv"))])
     paths = write_figures(config_from_args(args), Path(args.out))
     for p in paths:
         print(p)
@@ -122,7 +123,7 @@ def cmd_figures(args: argparse.Namespace) -> int:
 
 
 def cmd_map(args: argparse.Namespace) -> int:
-    from ..outputs.lossmap import (build_map, coverage_warning, grid, map_comments, plot_map, vtlm_problems, write_vtlm)
+    from ..outputs.lossmap import grid
 
     config = config_from_args(args)
     m = config.map
@@ -147,6 +148,14 @@ def cmd_map(args: argparse.Namespace) -> int:
                     Output("the reverse measured map", reverse_path(path), "vtlm"),
                     Output("its table", path.with_suffix(".csv"), "csv")]
     check_outputs([args.params, *args.recording], outputs)
+    with together():  # the maps, pictures and tables are put in place together, or none
+        return _write_maps(args, config, speeds, torques, out, both, measured_paths)
+
+
+def _write_maps(args: argparse.Namespace, config, speeds: np.ndarray, torques: np.ndarray, out: Path, both: bool,
+                measured_paths: dict[str, Path]) -> int:
+    from ..outputs.lossmap import build_map, coverage_warning, map_comments, plot_map, vtlm_problems, write_vtlm
+
     params_path = Path(args.params) if args.params else default_params_path()
     maps = [(out, build_map(config, speeds, torques, args.oil_temperature_c))]
     if both:
@@ -170,6 +179,8 @@ def cmd_map(args: argparse.Namespace) -> int:
         from ..replay.run import replay
 
         summary, batches = replay(bag, config, show_progress=False, collect=True)
+        if summary.interrupted:
+            raise KeyboardInterrupt
         torque = np.concatenate([b.torque_nm for b in batches]) if batches else np.zeros(0)
         speed = np.concatenate([b.speed_rad_s for b in batches]) if batches else np.zeros(0)
         warning = coverage_warning(maps[0][1], torque, speed, str(bag))

@@ -17,7 +17,9 @@ gearbox the VECTO loss map of its latest calibration (``DIR/maps/<gearbox>.vtlm`
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import math
+import re
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -209,6 +211,22 @@ def _day(t_ns: int):
     return _dt.datetime.fromtimestamp(t_ns / 1e9, _dt.UTC)
 
 
+#: characters a gearbox id keeps in a file name
+_SAFE_NAME = re.compile(r"[A-Za-z0-9._-]")
+
+
+def safe_file_name(gearbox_id: str) -> str:
+    """A gearbox id as a file name inside the output folder: an id of letters, digits, ``.``, ``_``
+    and ``-`` (not starting with a dot) as it is; any other -- a path (``../x``, ``/etc/x``), a
+    control character, an empty id -- with those characters replaced by ``_`` and ``~`` plus a hash
+    of the whole id appended (``~`` is in no id kept as it is: two ids never map to one name)."""
+    if gearbox_id and len(gearbox_id) <= 100 and not gearbox_id.startswith(".") \
+            and all(_SAFE_NAME.fullmatch(c) for c in gearbox_id):
+        return gearbox_id
+    kept = "".join(c if _SAFE_NAME.fullmatch(c) else "_" for c in gearbox_id[:100]).lstrip(".")
+    return f"{kept}~{hashlib.sha256(gearbox_id.encode('utf-8', 'surrogatepass')).hexdigest()[:12]}"
+
+
 def _write_map(out_dir: Path, gearbox_id: str, calibrated_yaml: str) -> str | None:
     """The VECTO map of a gearbox's latest calibration, for its energy manager."""
     from ..outputs.lossmap import build_map, grid, map_comments, write_vtlm
@@ -229,8 +247,9 @@ def _write_map(out_dir: Path, gearbox_id: str, calibrated_yaml: str) -> str | No
         return None  # e.g. an accepted viscosity effect: a map needs an oil temperature
     finally:
         params.unlink(missing_ok=True)
-    path = out_dir / "maps" / f"{gearbox_id}.vtlm"
+    name = f"{safe_file_name(gearbox_id)}.vtlm"
+    path = out_dir / "maps" / name
     path.parent.mkdir(parents=True, exist_ok=True)
-    comments = map_comments(config, None, None, False) + [f"# gearbox {gearbox_id} (fleet calibration)"]
+    comments = map_comments(config, None, None, False) + [f"# gearbox {gearbox_id!r} (fleet calibration)"]
     write_vtlm(loss_map, path, comments)
-    return f"maps/{gearbox_id}.vtlm"
+    return f"maps/{name}"

@@ -206,6 +206,8 @@ def replay_task(rec: Recording, config: Config, channels: str | None,
     try:
         with _local(rec.path) as local, as_mcap([local], channels) as (bag,):
             s, _ = replay(bag, config, show_progress=False, window_ns=None if window == (None, None) else window)
+        if s.interrupted:  # a row of part of a recording would pass for the whole
+            raise KeyboardInterrupt
     except Exception as exc:  # noqa: BLE001 - one bad recording must not stop the fleet; the row says why
         return _failed(row, exc) | {"seconds": time.perf_counter() - t0}
     if s.estimated == 0 and not part:

@@ -147,10 +147,9 @@ class Export:
                 if self._writer is not None:
                     self._writer.close()
                 if self._mdf is not None:
-                    if commit_file:  # asammdf gives the file its own suffix: moved back to the partial name
-                        saved = Path(self._mdf.save(self._partial, overwrite=True))
-                        if saved != self._partial:
-                            os.replace(saved, self._partial)
+                    if commit_file:  # asammdf wants its own suffix: saved as .NAME.<random>.partial.mf4
+                        saved = Path(self._mdf.save(self._mdf_partial(), overwrite=True))
+                        os.replace(saved, self._partial)
                     self._mdf.close()
             if commit_file:
                 commit(self._partial, self.path)
@@ -158,5 +157,10 @@ class Export:
                 discard(self._partial)
         except BaseException:
             discard(self._partial)
+            if self._mdf is not None:
+                discard(self._mdf_partial())
             raise
+
+    def _mdf_partial(self) -> Path:
+        return self._partial.with_name(self._partial.name + ".mf4")
 

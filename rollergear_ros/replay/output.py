@@ -114,13 +114,19 @@ class ReplayOutputs:
             self.rlog.events([t_ns], [text], "WARN")
 
     def close(self, commit: bool) -> None:
-        """Close every output: in place (``commit``), or an error leaves none in place of an existing one."""
-        if self.writer:
-            self.writer.close(commit=commit)
-        if self.rlog:
-            self.rlog.close(commit=commit)
-        for table in self.tables:
-            table.close(commit_file=commit)
+        """Close every output, each one also when another failed; inside :func:`base.atomic.together`
+        (replay's), in place together (``commit``), or none in place of an existing one."""
+        closers = [*([lambda ok: self.writer.close(commit=ok)] if self.writer else []),
+                   *([lambda ok: self.rlog.close(commit=ok)] if self.rlog else []),
+                   *(lambda ok, t=table: t.close(commit_file=ok) for table in self.tables)]
+        failed: BaseException | None = None
+        for close in closers:
+            try:
+                close(commit and failed is None)
+            except BaseException as exc:  # the rest are closed (and removed) before it is raised
+                failed = failed or exc
+        if failed is not None:
+            raise failed
 
 
 def output_writer(path: str | Path, info: BagInfo, config: Config, topics: TopicMap,

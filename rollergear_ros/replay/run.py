@@ -18,6 +18,7 @@ from pathlib import Path
 from collections.abc import Callable, Iterator, Sequence
 
 from ..recordings.bag import BagInfo, TopicMap, inspect_bag, median_period_s
+from ..base import atomic
 from ..base.errors import UsageError
 from ..core.estimator import BatchEstimate, Estimator
 from ..core.params import Config
@@ -99,7 +100,8 @@ def replay(
                             summary_png, exports, parameter_changes, source)
     stop = GracefulStop()  # first: from here on a signal leaves complete files
     try:
-        return _replay(request, stop)
+        with atomic.together():  # the outputs replace their files together, or none does
+            return _replay(request, stop)
     finally:
         stop.restore()
 

@@ -31,6 +31,7 @@ class LiveMapPublisher:
         self.published = 0  #: maps made so far
         self.last_message: Float64MultiArray | None = None  #: the last map published (the node records it)
         self.oil_temperature_c: float | None = None  #: the last finite oil temperature the node received
+        self.path: Path | None = None  #: the VECTO file rewritten with each map (the node's ``node.map_file``)
         self._coefficients: dict[str, float] | None = None  # of the map last published
 
     def renew(self) -> None:
@@ -60,10 +61,10 @@ class LiveMapPublisher:
             self.last_message = msg
             for publisher in self.publishers:
                 publisher.publish(msg)
-        map_file = config.node.map_file
+        map_file = self.path
         if map_file:
             try:  # the folder may have gone since start-up: a warning, the node and the topic go on
-                write_vtlm(loss_map, Path(map_file),
+                write_vtlm(loss_map, map_file,
                            map_comments(adapted, f"{self.source} (live; adapted coefficients)",
                                         self.oil_temperature_c, reverse=False))
             except OSError as exc:

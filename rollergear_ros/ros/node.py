@@ -123,9 +123,9 @@ class LossEstimatorNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, Topic.DIAGNOSTICS, 10)
         # the live loss map (transient-local: an energy manager that starts later gets the last one)
         self.live_map = LiveMapPublisher(self._map_publishers, self.get_fully_qualified_name(), self.get_logger())
+        self.params_file_paths = {Path(p).resolve() for p in params_files(sys.argv)}
         self._open_recordings()
         # the online tracer: its buffer is filled on the input path, its timer starts traces in a worker
-        self.params_file_paths = {Path(p).resolve() for p in params_files(sys.argv)}
         self.tracer = LiveTracer(self, self.config, self._trace_publishers)
         buffer = self.tracer.buffer  # also the measured efficiency's
         self._trace_time, self._trace_values = buffer.add_time, buffer.add_values
@@ -171,9 +171,15 @@ class LossEstimatorNode(Node):
         for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
             if path:
                 check_new_output(name, str(_first_file(path, split)))
-        check_outputs([], [Output("node.record_mcap", node.record_mcap or None, "mcap"),  # of their kinds, apart
-                           Output("node.rerun_rrd", node.rerun_rrd or None, "rrd"),
-                           Output("node.map_file", node.map_file or None, "vtlm")])  # rewritten with each map
+        # the files rewritten during the run: an existing file is never replaced, the next free name is taken
+        self.live_map.path = self._free_output("node.map_file", node.map_file)
+        self.traced_params_path = self._free_output("node.traced_params_file", node.traced_params_path()) \
+            if node.trace else None
+        check_outputs(sorted(self.params_file_paths),  # of their kinds, apart, none a parameter file
+                      [Output("node.record_mcap", node.record_mcap or None, "mcap"),
+                       Output("node.rerun_rrd", node.rerun_rrd or None, "rrd"),
+                       Output("node.map_file", self.live_map.path, "vtlm"),
+                       Output("node.traced_params_file", self.traced_params_path, "yaml")])
         if self._map_publishers or node.map_file:
             self._update_map()  # before the inputs are subscribed: nothing waits for it
         #: what other threads have for the recording (/diagnostics), written by the executor's timer
@@ -725,14 +731,23 @@ class LossEstimatorNode(Node):
                 self.rerun = None
         self.get_logger().info(self.summary_line())
 
+    def _free_output(self, name: str, path: str) -> Path | None:
+        """The file the node rewrites for ``name`` (None: off): ``path``, or the next free name beside
+        it when a file is there (said in the log)."""
+        if not path:
+            return None
+        free = free_name(Path(path))
+        if free != Path(path):
+            self.get_logger().warn(f"{name}: {path} exists and is left as it is; writing {free}")
+        return free
+
     def summary_line(self) -> str:
         """What the run did, in one line: samples estimated of those received, skips by reason,
         change alarms, parameter changes, loss maps and the files written."""
         est = self.estimator
         skips = ", ".join(f"{reason.replace('_', ' ')} {n}" for reason, n in est.counts.items() if n) or "none"
-        node = self.config.node
         files = [str(p) for p in self.recorder_files] + [str(p) for p in self.rerun_files]
-        files += [node.map_file] if node.map_file and self.maps_published else []
+        files += [str(self.live_map.path)] if self.live_map.path and self.maps_published else []
         files += [self.tracer.proposed] if self.tracer.proposed else []
         return (f"stopped: {est.estimated:,} samples estimated of {est.motor_messages:,} received; skipped: {skips}; "
                 f"change alarms: {est.detector.alarms}; traces: {self.tracer.traces} (effects traced in "

@@ -153,14 +153,14 @@ class LiveTracer:
 
     def _propose(self, done: TraceResult) -> str:
         """Write the candidate parameter file; the sentence that says so (or why not)."""
-        path = self.node.config.node.traced_params_path()
-        if Path(path).resolve() in self.node.params_file_paths:
+        path = self.node.traced_params_path
+        if path is None or Path(path).resolve() in self.node.params_file_paths:
             return f"candidate not written: {path} is a parameter file the node was started with"
         try:
             write_text(path, done.candidate_yaml)
         except OSError as exc:
             return f"candidate not written: {path}: {exc.strerror or exc}"
-        self.proposed = path
+        self.proposed = str(path)
         return f"candidate written: {path}" + ("" if self.node.config.node.accept_traced == "on" else " (not in use)")
 
     def _take_in(self, done: TraceResult) -> str:

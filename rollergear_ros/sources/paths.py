@@ -10,6 +10,7 @@ it.  No rclpy.
 
 from __future__ import annotations
 
+import fnmatch
 import os
 import stat
 import tempfile
@@ -49,6 +50,8 @@ class Output:
     option: str
     path: str | Path | None
     kind: str
+    #: a folder output: the names (glob patterns) of the files it writes in the folder
+    files: tuple[str, ...] = ()
 
     @property
     def is_folder(self) -> bool:
@@ -89,6 +92,7 @@ def check_outputs(inputs: Sequence[str | Path | None], outputs: Sequence[Output]
     exists (or can be made) and takes new files."""
     given = [o for o in outputs if o.path is not None and str(o.path) != ""]
     refuse_overwriting_inputs(inputs, {o.option: o.path for o in given})
+    _refuse_writing_over_inputs_in_folders(inputs, [o for o in given if o.is_folder and o.files])
     for out in given:
         p = Path(out.path)
         special = _special(p)
@@ -116,16 +120,51 @@ def check_outputs(inputs: Sequence[str | Path | None], outputs: Sequence[Output]
         _writable_folder(out.option, out.path, p if out.is_folder else (p.parent if str(p.parent) else Path(".")))
 
 
+#: the most files of a folder input compared with the outputs (a rosbag2 folder holds a few)
+MAX_FOLDER_INPUT_FILES = 100_000
+
+
+def input_files(inputs: Sequence[str | Path | None]) -> list[Path]:
+    """The existing inputs, a folder as itself and every file in it (a rosbag2 folder's storage
+    files -- with a suffix or without, one or a split bag's parts -- and its ``metadata.yaml``)."""
+    files: list[Path] = []
+    for given in inputs:
+        if given is None or str(given) == "" or not Path(given).exists():
+            continue
+        files.append(Path(given))
+        if Path(given).is_dir():
+            for folder, _, names in os.walk(given):
+                files += [Path(folder) / n for n in names]
+                if len(files) > MAX_FOLDER_INPUT_FILES:
+                    raise UsageError(f"{given}: more than {MAX_FOLDER_INPUT_FILES:,} files in the folder; "
+                                     "give the recording's own folder")
+    return files
+
+
 def refuse_overwriting_inputs(inputs: Sequence[str | Path | None], outputs: dict[str, str | Path | None]) -> None:
-    """Refuse, before anything is opened, an output that is the same file as an input (the same
-    path, another path to it, or a hard link): writing it would destroy the recording."""
-    existing = [Path(p) for p in inputs if p is not None and Path(p).exists()]
+    """Refuse, before anything is opened, an output that is the same file as an input or as a file
+    in an input folder (the same path, another path to it, or a hard link): writing it would
+    destroy the recording."""
+    existing = input_files(inputs)
     for option, out in outputs.items():
         if out is None:
             continue
         for source in existing:
             if _same(out, source):
-                raise UsageError(f"{option} {out} is the input {source}: refusing to overwrite it")
+                what = "the input" if source in inputs or str(source) in map(str, inputs) else "a file of the input"
+                raise UsageError(f"{option} {out} is {what} {source}: refusing to overwrite it")
+
+
+def _refuse_writing_over_inputs_in_folders(inputs: Sequence[str | Path | None], folders: Sequence[Output]) -> None:
+    """Refuse a folder output whose files (:attr:`Output.files`) would replace an input in it."""
+    existing = input_files(inputs)
+    for out in folders:
+        for source in existing:
+            if not source.is_file() or not _same(source.parent, out.path):
+                continue
+            if any(fnmatch.fnmatchcase(source.name, pattern) for pattern in out.files):
+                raise UsageError(f"{out.option} {out.path} would replace the input {source} (it writes "
+                                 f"{', '.join(out.files)} there): give another folder")
 
 
 def _writable_folder(option: str, given: str | Path, folder: Path) -> None:
@@ -165,5 +204,5 @@ def check_input_file(option: str, path: str | Path | None) -> None:
         raise UsageError(f"{option} {path} is {'a folder' if p.is_dir() else 'not a regular file'}; give a file")
 
 
-__all__ = ["OUTPUT_KINDS", "Output", "check_input_file", "check_output_file", "known_suffixes",
+__all__ = ["OUTPUT_KINDS", "Output", "check_input_file", "check_output_file", "input_files", "known_suffixes",
            "check_output_folder", "check_outputs", "refuse_overwriting_inputs"]

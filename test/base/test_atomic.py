@@ -78,3 +78,38 @@ def test_a_full_disk_is_one_line_and_leaves_the_previous_output_whole(tmp_path, 
     assert len(errors) == 1 and errors[0].startswith("rollergear: error: ") and str(tmp_path) in errors[0], errors
     assert path.read_bytes() == old
     assert not list(tmp_path.rglob("*.partial"))
+
+
+def test_the_files_of_one_block_are_put_in_place_together_or_none(tmp_path):
+    """:func:`atomic.together`: a failure after one output was complete leaves that one's old file
+    too; when the block ends normally every file is new, and no temporary file stays."""
+    a, b = tmp_path / "a.csv", tmp_path / "b.parquet"
+    a.write_text("old a")
+    b.write_text("old b")
+    with pytest.raises(OSError), atomic.together():
+        atomic.write_text(a, "new a")
+        assert a.read_text() == "old a"  # complete, not yet in place
+        with atomic.replacing(b) as partial:
+            partial.write_text("half")
+            raise OSError(27, "File too large")
+    assert a.read_text() == "old a" and b.read_text() == "old b" and sorted(tmp_path.iterdir()) == [a, b]
+    with atomic.together():
+        atomic.write_text(a, "new a")
+        atomic.write_text(b, "new b")
+    assert a.read_text() == "new a" and b.read_text() == "new b" and sorted(tmp_path.iterdir()) == [a, b]
+
+
+def test_replay_whose_one_output_fails_leaves_every_output_as_it_was_and_no_temporary_file(tmp_path):
+    """``ulimit -f 800`` and five outputs: replay exited 2 and left four ``*.partial`` files; on a
+    full disk an MF4 stayed as ``keep.mf4.<random>.mf4`` after ``keep.parquet`` had been replaced."""
+    names = ["keep.mcap", "keep.rrd", "keep.csv", "keep.parquet", "keep.mf4"]
+    for name in names:
+        (tmp_path / name).write_text(f"the previous {name}")
+    proc = run_cli("replay", BAG, "--out", str(tmp_path / "keep.mcap"), "--rrd", str(tmp_path / "keep.rrd"),
+                   "--csv", str(tmp_path / "keep.csv"), "--parquet", str(tmp_path / "keep.parquet"),
+                   "--mf4", str(tmp_path / "keep.mf4"), "--no-png", check=False, timeout=300,
+                   max_file_bytes=800 * 1024)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-3000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(names)
+    for name in names:
+        assert (tmp_path / name).read_text() == f"the previous {name}", name

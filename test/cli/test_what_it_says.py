@@ -104,3 +104,28 @@ def test_the_maps_colour_bands_resolve_the_range_the_gearbox_lives_in(low, high)
     levels = efficiency_levels(eta)
     assert len(levels) <= 14 and levels[0] <= np.percentile(eta, 5) and levels[-1] >= high
     assert np.diff(levels).max() <= (high - low) / 4  # at least four bands over the range, not one 2 % band
+
+
+@pytest.mark.parametrize("command", ["calibrate", "map"])
+def test_ctrl_c_while_a_command_reads_its_recording_writes_nothing_and_exits_130(monkeypatch, tmp_path, capsys,
+                                                                                command):
+    """calibrate said "interrupted", went on for 9 s with the samples read so far, wrote its file and
+    report and exited 0: an interrupted calibrate (and map, which replays its recording) writes nothing."""
+    from rollergear_ros.cli.main import main
+
+    batches = replay_run.input_batches
+
+    def then_a_signal(*args, **kwargs):
+        for k, batch in enumerate(batches(*args, **kwargs)):
+            if k == 0:  # the replay's handler takes it: a stop request after the first batch
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)
+            yield batch
+
+    monkeypatch.setattr(replay_run, "input_batches", then_a_signal)
+    bag = str(BAGS / "rig_map_drag.mcap")
+    args = {"calibrate": ["calibrate", bag, "--out", str(tmp_path / "c.yaml"), "--report", str(tmp_path / "rep")],
+            "map": ["map", "--out", str(tmp_path / "m.vtlm"), "--recording", bag, "--measured"]}[command]
+    assert main(args) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert [p for p in tmp_path.rglob("*") if p.is_file()] == []

@@ -80,3 +80,36 @@ def test_check_outputs_accepts_distinct_outputs_and_a_suffix_of_no_known_kind(tm
     os.link(tmp_path / "hard", tmp_path / "link")
     with pytest.raises(UsageError, match="are the same path"):  # a hard link is the same file
         check_outputs([], [Output("--out", tmp_path / "hard", "mcap"), Output("--rrd", tmp_path / "link", "rrd")])
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["replay", "{b}", "--out", "{b}/bag_0.mcap"], "--out {b}/bag_0.mcap is a file of the input {b}/bag_0.mcap"),
+    (["replay", "{b}", "--csv", "{b}/bag_1"], "--csv {b}/bag_1 is a file of the input"),
+    (["import", "{b}", "--out", "{b}/bag_0.mcap"], "is a file of the input"),
+    (["calibrate", "{b}", "--out", "{b}/metadata.yaml"], "--out {b}/metadata.yaml is a file of the input"),
+    (["calibrate", "{b}/bag_0.mcap", "--channels", "{d}/rep/report.md", "--report", "{d}/rep"],
+     "--report {d}/rep would replace the input {d}/rep/report.md"),
+    (["calibrate", "{b}/bag_0.mcap", "--params", "{d}/rep/residual_vs_speed.png", "--report", "{d}/rep"],
+     "would replace the input {d}/rep/residual_vs_speed.png"),
+    (["figures", "--params", "{d}/rep/fig06.png", "--out", "{d}/rep"], "would replace the input {d}/rep/fig06.png"),
+])
+def test_an_output_never_replaces_a_file_inside_a_folder_input_or_an_input_inside_an_output_folder(
+        tmp_path, args, message):
+    """A rosbag2 folder's storage files (with or without a suffix, a split bag's parts) and its
+    ``metadata.yaml`` are inputs; the files a report or figures folder gets are outputs: each such
+    pair is refused with one line, and every file is left as it was."""
+    import shutil
+
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    shutil.copy(BAG, bag / "bag_0.mcap")
+    shutil.copy(BAG, bag / "bag_1")
+    (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {}\n")
+    (tmp_path / "rep").mkdir()
+    for name in ("report.md", "residual_vs_speed.png", "fig06.png"):
+        (tmp_path / "rep" / name).write_text("the user's")
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    proc = run_cli(*[a.format(d=tmp_path, b=bag) for a in args], check=False, timeout=300)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.count("\n") == 1 and message.format(d=tmp_path, b=bag) in proc.stderr, proc.stderr
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
