@@ -516,6 +516,30 @@ class MapParams:
         return (*self.torque_range_nm(gearbox), self.torque_step_nm)
 
 
+#: a loss map's largest grid: points per axis and cells (checked before anything is allocated;
+#: VECTO's own maps have tens of points per axis)
+MAX_MAP_AXIS_POINTS = 10_001
+MAX_MAP_CELLS = 1_000_000
+
+
+def grid_points(start: float, stop: float, step: float) -> float:
+    """How many points ``start..stop`` in ``step`` increments has (a float: computed, not allocated)."""
+    return math.floor((stop - start) / step + 1e-9) + 1.0
+
+
+def map_grid_problem(speeds: tuple[float, float, float], torques: tuple[float, float, float]) -> str | None:
+    """Why a loss-map grid (``(first, last, step)`` of speed and of torque) is too large, or None."""
+    n_speed, n_torque = grid_points(*speeds), grid_points(*torques)
+    for name, n, (first, last, step) in (("speed", n_speed, speeds), ("torque", n_torque, torques)):
+        if n > MAX_MAP_AXIS_POINTS:
+            return (f"the {name} grid {first:g}…{last:g} in steps of {step:g} has {n:.3g} points; at most "
+                    f"{MAX_MAP_AXIS_POINTS:,} (a larger step)")
+    if n_speed * n_torque > MAX_MAP_CELLS:
+        return (f"the map has {n_speed:.0f} x {n_torque:.0f} = {n_speed * n_torque:,.0f} cells; at most "
+                f"{MAX_MAP_CELLS:,} (larger steps)")
+    return None
+
+
 @dataclass(frozen=True)
 class Config:
     """The complete, validated parameter set."""
@@ -672,6 +696,11 @@ def _check_consistency(config: Config) -> None:
     if last < first:
         raise ParameterError("map.torque_max_nm", config.map.torque_max_nm,
                              f"must be >= map.torque_min_nm ({first:g} N*m; auto: ± gearbox.rated_torque_nm)")
+    m = config.map
+    problem = map_grid_problem((m.speed_min_rpm, m.last_speed_rpm(g), m.speed_step_rpm), m.torques_nm(g))
+    if problem:
+        key = "map.speed_step_rpm" if "speed grid" in problem else "map.torque_step_nm"
+        raise ParameterError(key, getattr(m, key.split(".")[1]), problem)
     law = viscosity_law()
     if law.name in config.effects.enabled():
         vogel = config.effects.params(law.name)

@@ -213,12 +213,31 @@ def play(bag: Path, options: PlayOptions = PlayOptions()) -> PlayStats:
     return stats
 
 
+def _valid_topic_name(name: str) -> bool:
+    """Whether rcl takes ``name`` as a fully qualified topic name (``/spam/0`` it does not)."""
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+
+    try:
+        return bool(validate_full_topic_name(name))
+    except InvalidTopicNameException:
+        return False
+
+
 def _playable(info, topics: list[str] | None) -> dict:
     """Topic -> message class of the topics to play: those asked for (all: None) whose message type
     this ROS installation has; the others are named in a warning (none left: :class:`UsageError`)."""
     selected = {t: ty for t, ty in info.topics.items() if topics is None or t in topics}
     if not selected:
         raise UsageError(f"nothing to play: the bag has {info.describe_topics()}")
+    invalid = sorted(t for t in selected if not _valid_topic_name(t))
+    if len(invalid) == len(selected):
+        raise UsageError(f"nothing to play: no topic of the bag is a valid ROS 2 topic name "
+                         f"({', '.join(repr(t) for t in invalid[:5])}{' …' if len(invalid) > 5 else ''})")
+    if invalid:
+        print(f"warning: not played (not valid ROS 2 topic names): {', '.join(repr(t) for t in invalid)}",
+              file=sys.stderr)
+        selected = {t: ty for t, ty in selected.items() if t not in invalid}
     classes = {ty: _available_class(ty) for ty in set(selected.values())}
     missing = sorted(t for t, ty in selected.items() if classes[ty] is None)
     if len(missing) == len(selected):

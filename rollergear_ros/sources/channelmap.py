@@ -126,6 +126,14 @@ class ChannelMap:
         return cols
 
 
+def _finite_float(value: int | float) -> bool:
+    """Whether ``value`` is a finite float (an integer of 400 digits is not)."""
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:
+        return False
+
+
 def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
     if not isinstance(value, dict) or ("column" in value) == ("constant" in value):
         raise InputFileError(f"{path}: {key}: expected {{column: NAME, unit: UNIT}} or "
@@ -135,9 +143,9 @@ def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
         raise InputFileError(f"{path}: {key}: unknown key(s) {', '.join(sorted(unknown))} (column or constant, unit, "
                              "scale, lag_s)")
     constant = value.get("constant")
-    if constant is not None:
+    if "constant" in value:
         if key == "time" or isinstance(constant, bool) or not isinstance(constant, int | float) \
-                or not math.isfinite(constant):
+                or not _finite_float(constant):
             raise InputFileError(f"{path}: {key}: constant must be a finite number"
                                  f"{' (time cannot be constant)' if key == 'time' else ''}, got {constant!r}")
     allowed = UNITS[key]
@@ -147,10 +155,10 @@ def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
     if unit not in allowed:
         raise InputFileError(f"{path}: {key}: unknown unit {value['unit']!r} (one of {', '.join(allowed)})")
     scale = value.get("scale", 1.0)
-    if isinstance(scale, bool) or not isinstance(scale, int | float) or not math.isfinite(scale) or scale == 0:
+    if isinstance(scale, bool) or not isinstance(scale, int | float) or not _finite_float(scale) or scale == 0:
         raise InputFileError(f"{path}: {key}: scale must be a finite non-zero number, got {scale!r}")
     lag = value.get("lag_s", 0.0)
-    if isinstance(lag, bool) or not isinstance(lag, int | float) or not math.isfinite(lag) or abs(lag) > MAX_LAG_S:
+    if isinstance(lag, bool) or not isinstance(lag, int | float) or not _finite_float(lag) or abs(lag) > MAX_LAG_S:
         raise InputFileError(f"{path}: {key}: lag_s must be a finite number of seconds within ±{MAX_LAG_S:g}, "
                              f"got {lag!r}")
     if lag and (key == "time" or constant is not None):
@@ -160,6 +168,8 @@ def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
     return ChannelSpec(key, str(value["column"]), unit, float(scale), lag_s=float(lag))
 
 
+#: a gear ratio (input/output speed) a map may state: a gearbox's, not a number's range
+MIN_RATIO, MAX_RATIO = 1e-4, 1e4
 MAX_LAG_S = 10.0  #: a channel's ``lag_s`` is at most this (longer is another time base, not a lag)
 
 
@@ -241,9 +251,9 @@ def _ratio(path: Path, ratio, fmt: str) -> tuple[float | None, str | None]:
         if set(ratio) != {"column"}:
             raise InputFileError(f"{path}: ratio: expected a number > 0 or {{column: NAME}}, got {ratio!r}")
         return None, str(ratio["column"])
-    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float) or not ratio > 0
-                              or not math.isfinite(ratio)):
-        raise InputFileError(f"{path}: ratio must be a finite number > 0"
+    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float)
+                              or not _finite_float(ratio) or not MIN_RATIO <= ratio <= MAX_RATIO):
+        raise InputFileError(f"{path}: ratio must be a number in [{MIN_RATIO:g}, {MAX_RATIO:g}]"
                              f"{' (or {column: NAME} in a steady_state map)' if fmt == 'steady_state' else ''}, "
                              f"got {ratio!r}")
     return ratio, None

@@ -103,15 +103,52 @@ def import_source(src: str | Path, out: str | Path, channels: str | Path | None 
 
 # ------------------------------------------------------------------------------------ rosbag2
 def _rosbag2_paths(src: Path) -> list[Path]:
-    """What rosbags' AnyReader opens: the bag folder, or each file of a split bag without metadata."""
+    """What rosbags' AnyReader opens: the bag folder, or each file of a split bag without metadata;
+    every storage file checked to be a regular file first (a FIFO would block the reader for ever)."""
     if src.name == "metadata.yaml":
-        return [src.parent]
+        src = src.parent
     if src.is_dir() and not (src / "metadata.yaml").exists():
         files = sorted(src.glob("*.mcap")) or sorted(src.glob("*.db3"))
         if not files:
             raise InputFileError(f"{src}: a folder without metadata.yaml and without .mcap/.db3 files")
-        return files
-    return [src]
+    elif src.is_dir():
+        files = _storage_files(src)
+    else:
+        files = [src]
+    for f in files:
+        if not f.is_file():
+            raise InputFileError(f"{f}: a storage file of {src} that is "
+                                 f"{'missing' if not f.exists() else 'not a regular file'}")
+    return files if not (src / "metadata.yaml").exists() else [src]
+
+
+def _zstd_errors() -> tuple[type[BaseException], ...]:
+    """The error classes of the zstd modules rosbags may decompress with (those installed)."""
+    import importlib
+
+    found = []
+    for module in ("backports.zstd", "compression.zstd", "zstandard"):
+        try:
+            found.append(importlib.import_module(module).ZstdError)
+        except (ImportError, AttributeError):
+            continue
+    return tuple(found)
+
+
+def _storage_files(folder: Path) -> list[Path]:
+    """The storage files a rosbag2 folder's ``metadata.yaml`` names (read within bounds: no
+    anchors, no YAML bombs)."""
+    from ..base.safeyaml import YamlProblem, load
+
+    try:
+        meta = load(folder / "metadata.yaml")
+    except YamlProblem as exc:
+        raise InputFileError(f"{folder}: a damaged rosbag2 metadata.yaml ({exc.message})") from None
+    info = meta.get("rosbag2_bagfile_information") if isinstance(meta, dict) else None
+    names = info.get("relative_file_paths") if isinstance(info, dict) else None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise InputFileError(f"{folder / 'metadata.yaml'}: no list of storage files (relative_file_paths)")
+    return [folder / n for n in names]
 
 
 @contextmanager
@@ -140,7 +177,8 @@ def rosbag2_reader(src: str | Path) -> Iterator:
                                  f"{str(exc)[:200]})") from None
         with closing(reader):
             yield reader
-    except (Rosbag2Error, AnyReaderError, FileNotFoundError, ValueError, yaml.YAMLError, *storage_errors) as exc:
+    except (Rosbag2Error, AnyReaderError, FileNotFoundError, ValueError, yaml.YAMLError, *storage_errors,
+            *_zstd_errors()) as exc:  # a "compressed" storage file that is not zstd, too
         reason = " ".join(str(exc).split())
         raise InputFileError(f"{src}: not a rosbag2 bag rosbags can read ({reason})") from None
 

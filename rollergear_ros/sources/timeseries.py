@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -253,7 +254,11 @@ def _times_of_day(path: Path, spec: ChannelSpec, column) -> tuple[np.ndarray, np
             raise InputFileError(f"{path}: time ({spec.column}): data row {row + 1}: {cell!r} is not a clock time "
                                  "HH:MM:SS[.fff] like the rows before it")
         h, mi, sec = m.groups()
-        out[row] = round((int(h) * 3600 + int(mi) * 60 + float(sec.replace(",", "."))) * 1e9)
+        seconds = float(sec.replace(",", "."))
+        if int(h) > 23 or int(mi) > 59 or not seconds < 61:  # 60.x: a leap second
+            raise InputFileError(f"{path}: time ({spec.column}): data row {row + 1}: {cell!r} is not a clock time "
+                                 "(hours 0-23, minutes 0-59, seconds below 61)")
+        out[row] = round((int(h) * 3600 + int(mi) * 60 + seconds) * 1e9)
     return out, present
 
 
@@ -309,6 +314,9 @@ def time_base(path: Path, cmap: ChannelMap, dialect=None) -> TimeBase:
     if day is not None:
         midnight = datetime.datetime.combine(datetime.date.fromisoformat(day), datetime.time(), zone_info(zone))
         origin = int(round(midnight.timestamp())) * 10**9
+        if not -(2**63) < origin < 2**63 - 2 * _DAY_NS:
+            raise InputFileError(f"{path}: the date of its clock times, {day}, is outside the years 1678-2261 that "
+                                 "ROS times (int64 ns since 1970) hold")
     return TimeBase(zone, origin, cmap.timezone is not None, day is not None)
 
 
@@ -318,7 +326,6 @@ def _time_ns(path: Path, spec: ChannelSpec, column, base: TimeBase = TimeBase(),
     Date-times without a zone are in ``base.zone``, clock times on its day; ``notes`` is told what
     was assumed (UTC, 1970-01-01) where the map did not say; ``after_ns``: see :func:`_unwrap_days`."""
     import pyarrow as pa
-    import pyarrow.compute as pc
 
     def note(text: str) -> None:
         if notes is not None and text not in notes:
@@ -334,22 +341,13 @@ def _time_ns(path: Path, spec: ChannelSpec, column, base: TimeBase = TimeBase(),
             values, present = day_ns
             after = None if after_ns is None else after_ns - base.clock_origin_ns
             return base.clock_origin_ns + _unwrap_days(values, present, after)
-        if pa.types.is_string(column.type) or pa.types.is_large_string(column.type):
-            try:
-                column = pc.strptime(column, format="%Y-%m-%dT%H:%M:%S", unit="ns", error_is_null=False)
-            except pa.ArrowInvalid:
-                try:
-                    column = pc.cast(column, pa.timestamp("ns"))
-                except pa.ArrowInvalid:  # with a zone offset (+01:00, Z): the instant it names
-                    column = pc.cast(column, pa.timestamp("ns", "UTC"))
-        if not pa.types.is_timestamp(column.type):
-            raise InputFileError(f"{path}: time ({spec.column}) is not ISO 8601 date-times (type {column.type})")
-        if column.type.tz is None:  # written without a zone: the map's, else UTC (and said)
-            if not base.zone_given:
-                note("date-times without a zone taken as UTC (timezone: in the channel map says otherwise)")
-            column = pc.assume_timezone(pc.cast(column, pa.timestamp("ns")), base.zone, ambiguous="earliest",
-                                        nonexistent="earliest")
-        return pc.cast(pc.cast(column, pa.timestamp("ns", "UTC")), pa.int64()).to_numpy(zero_copy_only=False)
+        try:
+            return _date_times_ns(column, base, note)
+        except (pa.ArrowInvalid, pa.ArrowNotImplementedError, OverflowError, ValueError) as exc:
+            reason = " ".join(str(exc).split())[:160]
+            raise InputFileError(f"{path}: time ({spec.column}) is not ISO 8601 date-times of one kind (all with a "
+                                 f"zone or all without; offsets within ±24 h) in the years 1678-2261 that ROS times "
+                                 f"hold ({reason})") from None
     if not (pa.types.is_floating(column.type) or pa.types.is_integer(column.type)):
         raise InputFileError(f"{path}: time ({spec.column}) is not numbers in {spec.unit} (type {column.type}); "
                              "ISO 8601 date-times need unit: datetime")
@@ -361,6 +359,30 @@ def _time_ns(path: Path, spec: ChannelSpec, column, base: TimeBase = TimeBase(),
         raise InputFileError(f"{path}: time ({spec.column}) is not a finite time at data row "
                              f"{int(np.flatnonzero(bad)[0]) + 1} ({float(values[bad][0])!r} {spec.unit})")
     return np.where(present, t, 0).astype(np.int64)
+
+
+def _date_times_ns(column, base: TimeBase, note: Callable[[str], None]) -> np.ndarray:
+    """ISO 8601 date-time strings (or pyarrow timestamps) as int64 ns since 1970 UTC; those without
+    a zone in ``base.zone``.  pyarrow's errors (a malformed or out-of-range time, mixed zones) pass."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    if pa.types.is_string(column.type) or pa.types.is_large_string(column.type):
+        try:
+            column = pc.strptime(column, format="%Y-%m-%dT%H:%M:%S", unit="ns", error_is_null=False)
+        except pa.ArrowInvalid:
+            try:
+                column = pc.cast(column, pa.timestamp("ns"))
+            except pa.ArrowInvalid:  # with a zone offset (+01:00, Z): the instant it names
+                column = pc.cast(column, pa.timestamp("ns", "UTC"))
+    if not pa.types.is_timestamp(column.type):
+        raise ValueError(f"type {column.type}")
+    if column.type.tz is None:  # written without a zone: the map's, else UTC (and said)
+        if not base.zone_given:
+            note("date-times without a zone taken as UTC (timezone: in the channel map says otherwise)")
+        column = pc.assume_timezone(pc.cast(column, pa.timestamp("ns")), base.zone, ambiguous="earliest",
+                                    nonexistent="earliest")
+    return pc.cast(pc.cast(column, pa.timestamp("ns", "UTC")), pa.int64()).to_numpy(zero_copy_only=False)
 
 
 def _day_of(ns: int) -> str:

@@ -109,7 +109,7 @@ def test_the_maps_colour_bands_resolve_the_range_the_gearbox_lives_in(low, high)
 @pytest.mark.parametrize("command", ["calibrate", "map"])
 def test_ctrl_c_while_a_command_reads_its_recording_writes_nothing_and_exits_130(monkeypatch, tmp_path, capsys,
                                                                                 command):
-    """calibrate said "interrupted", went on for 9 s with the samples read so far, wrote its file and
+    """Calibrate said "interrupted", went on for 9 s with the samples read so far, wrote its file and
     report and exited 0: an interrupted calibrate (and map, which replays its recording) writes nothing."""
     from rollergear_ros.cli.main import main
 

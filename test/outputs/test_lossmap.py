@@ -261,3 +261,25 @@ def test_the_measured_map_of_a_rig_run_is_each_cells_energy_lost_over_its_angle(
     proc = run_cli("map", "--out", str(tmp_path / "x.vtlm"), "--recording", str(drive_only), "--measured",
                    "--no-plot", check=False)
     assert proc.returncode == 2 and "no measured output torque: no measured loss map" in proc.stderr
+
+
+@pytest.mark.parametrize("grid", [["--speed-rpm", "0", "19000", "0.01"], ["--speed-rpm", "0", "1000000", "0.5"],
+                                  ["--speed-rpm", "0", "1000", "1e-6"],
+                                  ["--speed-rpm", "0", "3000", "1", "--torque-nm", "-100", "100", "0.1"]])
+def test_a_grid_too_large_is_refused_before_anything_is_allocated(tmp_path, grid):
+    """``map --speed-rpm 0 19000 0.01`` took 5.7 GB, a step of 1e-6 a memory traceback: one line, exit 2."""
+    proc = run_cli("map", "--out", str(tmp_path / "m.vtlm"), *grid, check=False, timeout=120)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "at most" in proc.stderr, proc.stderr
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_parameter_file_or_a_run_time_change_with_a_grid_too_large_is_refused():
+    from rollergear_ros.core.params import MAX_MAP_AXIS_POINTS, ParameterError, load_config
+
+    config = load_config()
+    with pytest.raises(ParameterError, match="map.speed_step_rpm.*at most"):
+        config.with_values({"map.speed_step_rpm": 0.001})
+    with pytest.raises(ParameterError, match="map.torque_step_nm.*cells; at most"):
+        config.with_values({"map.speed_step_rpm": 1.0, "map.torque_step_nm": 0.1})
+    edge = config.map.last_speed_rpm(config.gearbox) / (MAX_MAP_AXIS_POINTS - 1)
+    assert config.with_values({"map.speed_step_rpm": edge, "map.torque_step_nm": 50.0}).map.speed_step_rpm == edge

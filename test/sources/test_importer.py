@@ -696,7 +696,7 @@ def _damaged_metadata(tmp_path):
 
     shutil.copytree(REALDATA / "rosbag2_test_fixtures/rosbag2_py/test/resources/sqlite3/talker", tmp_path / "bag")
     (tmp_path / "bag" / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: [\n")
-    return tmp_path / "bag", "Could not load YAML"
+    return tmp_path / "bag", "a damaged rosbag2 metadata.yaml (not valid YAML"
 
 
 def _bad_tdms(value):
@@ -727,6 +727,14 @@ def _map_problem(text, message):
     return make
 
 
+def _time_problem(times, extra, message):
+    def make(tmp_path):
+        (tmp_path / "r.csv").write_text("t,T,w\n" + "".join(f"{t},1,10\n" for t in times))
+        (tmp_path / "map.yaml").write_text(BASE_MAP.replace("unit: s}", "unit: datetime}") + extra)
+        return tmp_path / "r.csv", message
+    return make
+
+
 BASE_MAP = "time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\nmotor_speed: {column: w, unit: rad/s}\n"
 
 
@@ -737,7 +745,21 @@ BASE_MAP = "time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\nmo
     _map_problem(BASE_MAP + "motor_speed: {column: w, unit: rpm}\n", "the key 'motor_speed' is given twice"),
     _map_problem(BASE_MAP + "output_torque: {column: T, unit: N*m}\n", "column 'T' is mapped to both motor_torque "
                  "and output_torque"),
-    _map_problem(BASE_MAP + "ratio: .inf\n", "ratio must be a finite number > 0"),
+    _map_problem(BASE_MAP + "ratio: .inf\n", "ratio must be a number in [0.0001, 10000]"),
+    _map_problem(BASE_MAP + "ratio: 1.0e-300\n", "ratio must be a number in [0.0001, 10000]"),
+    _map_problem(BASE_MAP + "output_torque: {constant: null, unit: N*m}\n", "constant must be a finite number"),
+    _map_problem(BASE_MAP + f"output_torque: {{constant: {'9' * 400}, unit: N*m}}\n",
+                 "constant must be a finite number"),
+    _map_problem(BASE_MAP + f"output_torque: {{column: T, unit: N*m, scale: {'9' * 400}}}\n",
+                 "scale must be a finite non-zero number"),
+    *(_time_problem(times, extra, "is not ISO 8601 date-times of one kind") for times, extra in (
+        (["1500-01-01T00:00:00", "1500-01-01T00:00:01"], ""), (["2300-01-01T00:00:00", "2300-01-01T00:00:01"], ""),
+        (["3170843-01-01T00:00:00", "3170843-01-01T00:00:01"], ""),
+        (["2024-13-01T00:00:00", "2024-13-01T00:00:01"], ""),
+        (["2024-01-01T00:00:00", "2024-01-01T00:00:01+01:00"], ""),
+        (["2024-01-01T00:00:00+25:00", "2024-01-01T00:00:01+25:00"], ""))),
+    _time_problem(["23:59:59", "00:00:01"], "date: 9999-12-31\n", "outside the years 1678-2261"),
+    _time_problem(["25:61:61", "25:61:62"], "date: 2024-01-01\n", "'25:61:61' is not a clock time"),
 ])
 def test_imports_that_were_tracebacks_are_one_line_and_leave_no_file(tmp_path, make):
     src, message = make(tmp_path)
