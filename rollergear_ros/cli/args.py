@@ -55,6 +55,14 @@ def positive_float(s: str) -> float:
     return v
 
 
+def block_seconds(s: str) -> float:
+    """A block length in seconds: within 1 ms … 1 h (a block holds samples, a recording holds blocks)."""
+    v = positive_float(s)
+    if not 1e-3 <= v <= 3600.0:
+        raise argparse.ArgumentTypeError(f"{s!r} s is not a block length between 0.001 and 3600 s")
+    return v
+
+
 def seconds(s: str) -> float:
     """A time in seconds (finite, at least 0)."""
     try:

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import sys
 from pathlib import Path
 
-from .args import config_from_args, positive_float, seconds
+from .args import block_seconds, config_from_args, positive_float, seconds
 from ..core.effects import EFFECTS
 from ..sources.paths import Output, check_outputs
 from ..base.progress import TimedProgress
@@ -33,8 +35,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.oil:  # the oil's data sheet: the viscosity law's start and range
         config = config.with_values(dict(zip(("gearbox.oil_nu40_mm2_s", "gearbox.oil_nu100_mm2_s",
                                               "gearbox.oil_density15_kg_m3"), args.oil)))
-    data = _load(args, config)
-    result = _analyse(args, data, config)
+    with _stdout_kept_for_json(args.json):  # what C libraries print (LAPACK's DLASCL) goes to stderr
+        data = _load(args, config)
+        result = _analyse(args, data, config)
     for line in _error_after_warnings(result, args.assume):
         _warn(line)
     with together():  # the parameter file and the report's files are put in place together, or none
@@ -80,8 +83,30 @@ def _load(args: argparse.Namespace, config):
     return data
 
 
+@contextlib.contextmanager
+def _stdout_kept_for_json(json_output: bool):
+    """With ``--json``, file descriptor 1 points at stderr inside the block: stdout carries the one
+    JSON line and nothing a library writes there (LAPACK's messages) can break it."""
+    if not json_output:
+        yield
+        return
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def _analyse(args: argparse.Namespace, data, config):
-    """:func:`~calibration.calibrate.calibrate` with a progress bar of its stages."""
+    """:func:`~calibration.calibrate.calibrate` with a progress bar of its stages; a fit the data
+    cannot carry (a singular system) is one line."""
+    import numpy as np
+
+    from ..base.errors import InputFileError
     from ..calibration.calibrate import CalibrationSettings, calibrate
 
     if not args.json:
@@ -93,9 +118,13 @@ def _analyse(args: argparse.Namespace, data, config):
             bar.stage = text
             bar.update(1)
 
-        return calibrate(data, config, CalibrationSettings(args.delta, args.block_s, stage=stage, assume=args.assume,
-                                                           segments=args.segments, start_s=args.start,
-                                                           end_s=args.end))
+        try:
+            return calibrate(data, config, CalibrationSettings(args.delta, args.block_s, stage=stage,
+                                                               assume=args.assume, segments=args.segments,
+                                                               start_s=args.start, end_s=args.end))
+        except np.linalg.LinAlgError as exc:
+            raise InputFileError(f"{', '.join(args.bags)}: the samples admit no fit ({exc}): too few distinct "
+                                 "operating points (a direction that flips every sample, one speed only)") from None
 
 
 def _print_result(result) -> None:
@@ -227,7 +256,7 @@ def register_calibrate(sub, with_params) -> None:
         metavar="NM",
         help="practical minimum effect size (RMS N·m); default from the data",
     )
-    p.add_argument("--block-s", type=positive_float, default=0.25, help="averaging block length [s]")
+    p.add_argument("--block-s", type=block_seconds, default=0.25, help="averaging block length [s]")
     add_assume_option(p)
     p.add_argument("--segments", choices=("latest", "each", "off"), default="latest",
                    help="changes inside the recordings: calibrate the latest stretch after the last one (default), "

@@ -43,7 +43,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     opts = SimulationOptions(profile=args.profile, rate_hz=args.rate, seed=args.seed, effects=effects,
                              torque_noise_nm=args.torque_noise, noise_ar1=args.noise_ar1,
                              output_lag_s=args.output_lag, joint_states=args.joint_states,
-                             step_change_at_s=args.step_change_at, oil_nu40_nu100_mm2_s=_oil(args.oil),
+                             step_change_at_s=args.step_change_at, oil_nu40_nu100_mm2_s=_oil(args.oil, config),
                              start_ns=_start_ns(args.start) if args.start else time.time_ns() // 10**9 * 10**9)
     with TimedProgress("simulate", unit="sample") as bar:
         bar.stage = "the model along the profile"
@@ -62,8 +62,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _oil(text: str | None) -> tuple[float, float] | None:
-    """``--oil NU40,NU100``: two kinematic viscosities [mm²/s], ν40 > ν100 > 0."""
+def _oil(text: str | None, config) -> tuple[float, float] | None:
+    """``--oil NU40,NU100``: two kinematic viscosities [mm²/s], ν40 > ν100 > 0, in the ranges of
+    ``gearbox.oil_nu40_mm2_s`` and ``gearbox.oil_nu100_mm2_s`` (validated as those)."""
     if text is None:
         return None
     try:
@@ -73,6 +74,7 @@ def _oil(text: str | None) -> tuple[float, float] | None:
             from None
     if not (math.isfinite(nu40) and nu40 > nu100 > 0.0):
         raise UsageError(f"--oil {text}: an oil is thinner when warm: need ν40 > ν100 > 0 mm²/s")
+    config.with_values({"gearbox.oil_nu40_mm2_s": nu40, "gearbox.oil_nu100_mm2_s": nu100})  # ParameterError
     return nu40, nu100
 
 

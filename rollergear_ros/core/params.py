@@ -607,6 +607,10 @@ def rerun_url_problem(url: str) -> str | None:
     return None
 
 
+#: the thinnest data-sheet viscosity taken (mm²/s): Walther's law (ASTM D341) needs ν + 0.7 > 1
+MIN_OIL_NU_MM2_S = 0.5
+
+
 def validate(values: Mapping[str, Any]) -> Config:
     """Check every parameter (range, type, cross-parameter consistency) and build a :class:`Config`.
 
@@ -667,6 +671,9 @@ def _check_consistency(config: Config) -> None:
     if (g.oil_nu40_mm2_s > 0 or g.oil_nu100_mm2_s > 0) and not (g.oil_nu40_mm2_s > g.oil_nu100_mm2_s > 0):
         raise ParameterError("gearbox.oil_nu100_mm2_s", g.oil_nu100_mm2_s, f"an oil is thinner when warm: need "
                              f"oil_nu40_mm2_s ({g.oil_nu40_mm2_s:g}) > oil_nu100_mm2_s > 0, or both 0")
+    if 0 < g.oil_nu100_mm2_s < MIN_OIL_NU_MM2_S:  # ISO VG 2 is the thinnest grade; Walther's law ends below
+        raise ParameterError("gearbox.oil_nu100_mm2_s", g.oil_nu100_mm2_s,
+                             f"a lubricating oil's viscosity is at least {MIN_OIL_NU_MM2_S:g} mm^2/s at 100 degC")
     # the Snare term (eq. 21) needs k_j = Ry/Rx >= 1; checked on the derived geometry
     geo = contact_geometry(g)
     for j, k in ((1, geo.k1), (2, geo.k2)):

@@ -80,7 +80,12 @@ def discover(logs: Sequence[str], group_by: str = "auto", exclude: str | Path | 
     skip = os.path.realpath(exclude) + os.sep if exclude is not None else None
     found: dict[str, Recording] = {}
     for log in logs:
-        fs, root = fsspec.core.url_to_fs(str(log))
+        try:
+            fs, root = fsspec.core.url_to_fs(str(log))
+        except ImportError as exc:  # s3://, gs://, http:// without their fsspec packages
+            raise UsageError(f"{log}: {exc} (pip install it into this environment)") from None
+        except ValueError as exc:
+            raise UsageError(f"{log}: not a path or URL fsspec can open ({exc})") from None
         local = "file" in (fs.protocol if isinstance(fs.protocol, tuple) else (fs.protocol,))
         if GLOB_CHARS & set(root):
             paths = sorted(fs.glob(root))
@@ -385,12 +390,17 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        with Client(scheduler) as client:
+        with _scheduler_client(scheduler) as client:
             yield client
         return
     import dask
 
-    n = workers or os.cpu_count() or 1
+    cores = os.cpu_count() or 1
+    n = workers or cores
+    if n > cores:  # more worker processes than cores only adds memory, open files and start-up time
+        if note:
+            note(f"--workers {n}: this machine has {cores} cores; running {cores} worker processes")
+        n = cores
     # Dask's nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536: glibc then maps and unmaps
     # every allocation above 128 KB instead of reusing it, and replay's numpy batches ran 1.6-1.9x
     # slower in a worker than in a plain process.  None: the workers inherit this process's setting.
@@ -399,6 +409,29 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
                          dashboard_address=":0") as cluster, Client(cluster) as client:
         if note and _has_bokeh():
             note(f"Dask dashboard: {client.dashboard_link}")
+        yield client
+
+
+#: how long ``--scheduler`` is waited for
+SCHEDULER_TIMEOUT_S = 10.0
+
+
+@contextmanager
+def _scheduler_client(scheduler: str) -> Iterator:
+    """A client of the scheduler at ``scheduler`` (``tcp://host:port``, ``tls://…``); a malformed or
+    unreachable address is one :class:`UsageError` line within :data:`SCHEDULER_TIMEOUT_S`."""
+    import re
+
+    from dask.distributed import Client
+
+    if not re.fullmatch(r"(tcp|tls|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?", scheduler):
+        raise UsageError(f"--scheduler {scheduler!r} is not a scheduler address (tcp://HOST:PORT)")
+    try:
+        client = Client(scheduler, timeout=SCHEDULER_TIMEOUT_S)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise UsageError(f"--scheduler {scheduler}: no Dask scheduler answered within {SCHEDULER_TIMEOUT_S:g} s "
+                         f"({type(exc).__name__}: {' '.join(str(exc).split())[:160]})") from None
+    with client:
         yield client
 
 

@@ -84,6 +84,8 @@ class EstimateCodec:
         ``t_ns`` (n,), ``values`` (n, len(ESTIMATE_FIELDS))."""
         t = np.asarray(t_ns, dtype=np.int64)
         n = len(t)
+        if n == 0:
+            return np.empty((0, len(self.template)), dtype=np.uint8)
         rows = np.tile(np.frombuffer(self.template, dtype=np.uint8), (n, 1))
         sec, nanosec = np.divmod(t, 1_000_000_000)
         if n and (sec.min() < _SEC_MIN or sec.max() > _SEC_MAX):

@@ -59,7 +59,7 @@ class ReplayOutputs:
 
     def emit(self, b: BatchEstimate | None) -> None:
         """Hand one batch of estimates to the writers, the summary and the caller."""
-        if b is None:
+        if b is None or not len(b.t_ns):  # every sample of the batch skipped (e.g. implausible)
             return
         self.acc.add(b)
         windows = self._measured_windows(b)

@@ -288,6 +288,10 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
             f"{1e3 * estimator.sync_tolerance_s:.2g} ms: do the input topics share one time base? "
             "Set estimator.sync_tolerance_s (below half the sample period) if they are logged further apart"
         )
+    if summary.samples and not summary.estimated:
+        reasons = ", ".join(f"{k.replace('_', ' ')} {v:,}" for k, v in summary.skipped.items() if v)
+        warn(f"no sample was estimated: every one of the {summary.samples:,} was skipped ({reasons}); "
+             "the outputs hold no estimate (implausible: the estimator.max_abs_* limits)")
     acc.fill(summary)
     summary.coefficients = estimator.coefficients()
     summary.speed_noise_rad_s = estimator.speed_noise.value

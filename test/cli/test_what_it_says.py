@@ -129,3 +129,29 @@ def test_ctrl_c_while_a_command_reads_its_recording_writes_nothing_and_exits_130
     assert main(args) == 130
     assert "interrupted" in capsys.readouterr().err
     assert [p for p in tmp_path.rglob("*") if p.is_file()] == []
+
+
+@pytest.mark.parametrize("trouble", ["lapack_line", "singular"])
+def test_calibrate_json_is_one_json_line_whatever_a_library_prints_or_raises(monkeypatch, capfd, trouble):
+    """LAPACK's "DLASCL" lines on stdout broke ``--json``; a singular system was a LinAlgError traceback."""
+    from rollergear_ros.calibration import calibrate as calibration
+    from rollergear_ros.cli.main import main
+
+    fit = calibration.calibrate
+
+    def troubled(*args, **kwargs):
+        if trouble == "singular":
+            raise np.linalg.LinAlgError("Singular matrix")
+        os.write(1, b" ** On entry to DLASCL parameter number  4 had an illegal value\n")
+        return fit(*args, **kwargs)
+
+    monkeypatch.setattr(calibration, "calibrate", troubled)
+    code = main(["calibrate", str(BAGS / "rig_map_drag.mcap"), "--json"])
+    out, err = capfd.readouterr()
+    if trouble == "singular":
+        assert code == 2 and out == "" and err.count("rollergear: error: ") == 1 and "admit no fit" in err
+        return
+    assert code == 0 and "DLASCL" in err and out.count("\n") == 1
+    import json
+
+    assert json.loads(out)["verdict"] == "effects_found"

@@ -31,3 +31,44 @@ def test_a_gearbox_id_that_is_a_path_writes_its_map_inside_the_output_folder(tmp
     written = [p for p in tmp_path.rglob("*") if p.is_file()]
     assert written == [out / relative] and (out / relative).parent == out / "maps"
     assert repr(gearbox_id) in (out / relative).read_text()
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--scheduler", "not a url"], "is not a scheduler address (tcp://HOST:PORT)"),
+    (["--scheduler", "tcp://127.0.0.1:1"], "no Dask scheduler answered within 10 s"),
+])
+def test_a_scheduler_that_is_no_address_or_does_not_answer_is_one_line(tmp_path, args, message):
+    """A traceback after 30 s before; now one line, within the connection timeout."""
+    from helpers import BAGS, run_cli
+
+    proc = run_cli("fleet", "replay", str(BAGS / "rig_map.mcap"), "--out", str(tmp_path / "out"), *args,
+                   check=False, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("rollergear: error: ")]
+    assert len(errors) == 1 and message in errors[0], proc.stderr
+
+
+@pytest.mark.parametrize("url", ["s3://bucket/logs", "http://127.0.0.1:1/logs"])
+def test_a_url_whose_file_system_package_is_missing_is_one_line(tmp_path, url):
+    import importlib.util
+
+    from helpers import run_cli
+
+    needs = {"s3": "s3fs", "http": "aiohttp"}[url.split(":")[0]]
+    if importlib.util.find_spec(needs) is not None:
+        pytest.skip(f"{needs} is installed here")
+    proc = run_cli("fleet", "replay", url, "--out", str(tmp_path / "out"), check=False, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+    assert url in proc.stderr and "pip install" in proc.stderr
+
+
+def test_more_workers_than_cores_are_capped_and_said():
+    """``--workers 10000``: "Too many open files" tracebacks and no result after 180 s."""
+    import os
+
+    from rollergear_ros.fleet.run import dask_client
+
+    said = []
+    with dask_client(None, 10_000, said.append) as client:
+        assert len(client.scheduler_info()["workers"]) == (os.cpu_count() or 1)
+    assert any(f"--workers 10000: this machine has {os.cpu_count()} cores" in s for s in said)

@@ -874,3 +874,17 @@ def test_a_node_recording_carries_its_inputs_send_times_and_replay_pairs_with_th
     np.testing.assert_array_equal(np.round((torque - 10) * 1000), np.round((speed - 50) * 1000))
     torque, speed = replayed["older"]
     assert np.sum(np.round((torque - 10) * 1000) != np.round((speed - 50) * 1000)) > 100
+
+
+def test_every_sample_implausible_is_a_warning_and_whole_empty_outputs(tmp_path):
+    """``estimator.max_abs_torque_nm`` below every sample: "cannot reshape array" out of the stamped
+    output; now every output is written whole without an estimate, and a warning says why."""
+    params = tmp_path / "tiny.yaml"
+    params.write_text("/**/loss_estimator:\n  ros__parameters:\n    estimator: {max_abs_torque_nm: 0.001}\n")
+    proc = run_cli("replay", str(BAGS / "rig_map_drag.mcap"), "--params", str(params), "--no-png",
+                   "--out", str(tmp_path / "o.mcap"), "--csv", str(tmp_path / "o.csv"),
+                   "--rrd", str(tmp_path / "o.rrd"))
+    assert "no sample was estimated: every one of the 10,080 was skipped (implausible 10,080)" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert (tmp_path / "o.csv").read_text().count("\n") == 1  # the header
+    assert inspect_bag(tmp_path / "o.mcap").counts.get("/rollergear/loss/torque", 0) == 0
