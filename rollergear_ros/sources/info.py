@@ -9,6 +9,8 @@ one by its columns.  No rclpy import.
 
 from __future__ import annotations
 
+import math
+
 import datetime
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -56,7 +58,11 @@ class FileInfo:
         return {**asdict(self), "duration_s": self.duration_s}
 
     def text(self) -> str:
-        """As ``mcap info`` lays it out: one field per line, then one line per stream."""
+        """As ``mcap info`` lays it out: one field per line, then one line per stream; what the file
+        names (topics, types, metadata) with control characters escaped: a file cannot fake lines."""
+        return "\n".join(_printable(line) for line in self._lines())
+
+    def _lines(self) -> list[str]:
         lines = [f"path:      {self.path}", f"format:    {self.format}", f"size:      {_size(self.size_bytes)}"]
         if self.duration_s is not None:
             lines += [f"duration:  {self.duration_s:.3f} s", f"start:     {_when(self.start_ns)}",
@@ -73,7 +79,14 @@ class FileInfo:
                      else f"metadata:  {', '.join(self.metadata) or 'none'}")
         lines.append(f"damaged:   {'; '.join(self.damaged) or 'nothing found'}")
         lines += [f"note:      {n}" for n in self.notes]
-        return "\n".join(lines)
+        return lines
+
+
+def _printable(text: str) -> str:
+    """``text`` with every non-printable character (escape codes, carriage returns) escaped as Python would."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
 
 
 def describe(path: str | Path, channels: str | Path | None = None) -> FileInfo:
@@ -133,7 +146,9 @@ def _rosbag2(path: Path, info: FileInfo) -> None:
         connections = list(reader.connections)
         counts: dict[tuple[str, str], int] = {}
         for c in connections:
-            counts[(c.topic, c.msgtype)] = counts.get((c.topic, c.msgtype), 0) + int(c.msgcount)
+            if int(c.msgcount) < 0:
+                info.damaged.append(f"{c.topic}: a negative message count ({int(c.msgcount)}) in metadata.yaml")
+            counts[(c.topic, c.msgtype)] = counts.get((c.topic, c.msgtype), 0) + max(int(c.msgcount), 0)
         total = sum(counts.values())
         info.start_ns, info.end_ns = (int(reader.start_time), int(reader.end_time)) if total else (None, None)
         info.streams = [StreamInfo(t, ty, n, _rate(n, info.start_ns, info.end_ns))
@@ -229,13 +244,25 @@ def _columns(path: Path, fmt: InputFormat, info: FileInfo) -> None:
             raise InputFileError(f"{path}: not a TDMS file nptdms can read ({type(exc).__name__}: {exc})") from None
         for group in tdms.groups():
             for ch in group.channels():
-                dt = ch.properties.get("wf_increment")
+                dt = _waveform_increment_s(ch.properties.get("wf_increment"))
+                if dt is None and ch.properties.get("wf_increment") is not None:
+                    info.notes.append(f"{group.name}/{ch.name}: wf_increment "
+                                      f"{str(ch.properties.get('wf_increment'))[:40]!r} is no time step in s")
                 info.streams.append(StreamInfo(f"{group.name}/{ch.name}", str(ch.properties.get("unit_string", "")),
                                                len(ch), 1.0 / dt if dt else None))
     else:
         info.notes.append(f"a {fmt.name} file is described with its channel map (--channels MAP.yaml)")
     if fmt.arrow:  # CSV, Parquet: their time is a column the map names
         info.notes.append("give --channels MAP.yaml for each channel's samples, span and rate as import reads them")
+
+
+def _waveform_increment_s(value) -> float | None:
+    """A TDMS waveform's ``wf_increment`` as a finite time step > 0 in s, or None."""
+    try:
+        dt = float(value)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    return dt if math.isfinite(dt) and dt > 0 else None
 
 
 def _size(n: int) -> str:
@@ -251,7 +278,10 @@ def _when(t_ns: int | None) -> str:
         return "-"
     if abs(t_ns) < 10 ** 17:  # under ~3 years: a time from the start of a run, not a date
         return f"{t_ns * 1e-9:.3f} s"
-    return datetime.datetime.fromtimestamp(t_ns / 1e9, datetime.UTC).isoformat(timespec="milliseconds")
+    try:
+        return datetime.datetime.fromtimestamp(t_ns / 1e9, datetime.UTC).isoformat(timespec="milliseconds")
+    except (ValueError, OverflowError, OSError):
+        return f"{t_ns} ns (beyond the years a date holds: a damaged time)"
 
 
 __all__ = ["FileInfo", "StreamInfo", "describe"]

@@ -123,3 +123,35 @@ def test_a_steady_state_table_and_what_is_no_recording(tmp_path):
     (tmp_path / "notes.xlsx").write_bytes(b"PK")
     with pytest.raises(InputFileError, match="not a recording this package reads"):
         describe(tmp_path / "notes.xlsx")
+
+
+def test_what_a_file_names_cannot_fake_lines_on_the_terminal(tmp_path):
+    """Topic names with escape codes and carriage returns were printed as they are."""
+    from rollergear_ros.recordings.bag import BagWriter
+
+    with BagWriter(tmp_path / "fake.mcap") as w:
+        w.write_float64_series("/a\x1b[2J\rdamaged:   nothing found\nfake", np.arange(1, 3, dtype=np.int64), np.ones(2))
+    proc = run_cli("info", str(tmp_path / "fake.mcap"))
+    assert "\x1b" not in proc.stdout and "\r" not in proc.stdout
+    assert "/a\\x1b[2J\\rdamaged:   nothing found\\nfake" in proc.stdout
+    assert [ln for ln in proc.stdout.splitlines() if ln.startswith("damaged:")] == ["damaged:   nothing found"]
+
+
+def test_a_tdms_increment_that_is_no_number_is_a_note(tmp_path):
+    from nptdms import ChannelObject, TdmsWriter
+
+    with TdmsWriter(tmp_path / "r.tdms") as w:
+        w.write_segment([ChannelObject("g", "T", np.ones(10), properties={"wf_increment": "fast"})])
+    info = describe(tmp_path / "r.tdms")
+    assert info.streams[0].rate_hz is None and any("wf_increment 'fast' is no time step" in n for n in info.notes)
+
+
+@pytest.mark.skipif(not REALDATA.exists(), reason="needs ../shared/realdata")
+def test_a_rosbag2_start_time_beyond_any_date_is_said_not_a_traceback(tmp_path):
+    src = REALDATA / "rosbag2_test_fixtures/rosbag2_py/test/resources/sqlite3/talker"
+    shutil.copytree(src, tmp_path / "bag")
+    meta = tmp_path / "bag" / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("nanoseconds_since_epoch: 1585866235112411371",
+                                             "nanoseconds_since_epoch: 100000000000000000000000"))
+    proc = run_cli("info", str(tmp_path / "bag"))
+    assert "beyond the years a date holds" in proc.stdout and "Traceback" not in proc.stderr
