@@ -44,6 +44,17 @@ def finite_float(s: str) -> float:
     return v
 
 
+def oil_temperature_c(s: str) -> float:
+    """An oil temperature in °C within :data:`core.oil.OIL_TEMPERATURE_RANGE_C`."""
+    from ..core.oil import OIL_TEMPERATURE_RANGE_C
+
+    v = finite_float(s)
+    low, high = OIL_TEMPERATURE_RANGE_C
+    if not low <= v <= high:
+        raise argparse.ArgumentTypeError(f"{s!r} degC is no oil temperature (between {low:g} and {high:g} degC)")
+    return v
+
+
 def positive_float(s: str) -> float:
     """An argument that must be a finite number above 0."""
     try:

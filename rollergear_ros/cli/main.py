@@ -25,7 +25,7 @@ from . import fleet as fleet_cli
 from ..ros import player
 from . import replay as replay_cli
 from ..ros import watch
-from .args import config_from_args, default_params_path, finite_float
+from .args import config_from_args, default_params_path, finite_float, oil_temperature_c
 from ..outputs.measuredmap import MIN_SAMPLES
 from ..outputs.lossmap import reverse_path
 from ..sources.paths import Output, check_input_file, check_outputs
@@ -261,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--torque", type=finite_float, nargs="+", metavar="NM", help="drive torques [N·m] (signed)")
     p.add_argument("--speed", type=finite_float, nargs="+", metavar="RAD_S", help="drive speeds [rad/s] (signed)")
     p.add_argument("--csv", metavar="FILE", help="CSV with torque_nm, speed_rad_s columns")
-    p.add_argument("--oil-temperature-c", type=finite_float, metavar="DEGC",
+    p.add_argument("--oil-temperature-c", type=oil_temperature_c, metavar="DEGC",
                    help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(func=cmd_model)
@@ -279,7 +279,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="torque grid, both signs (default: the map section of the parameter file, -100 100 5)")
     p.add_argument("--both-directions", action="store_true",
                    help="also reverse rotation, to a second file NAME_reverse.vtlm (VECTO maps have speeds >= 0)")
-    p.add_argument("--oil-temperature-c", type=finite_float, metavar="DEGC",
+    p.add_argument("--oil-temperature-c", type=oil_temperature_c, metavar="DEGC",
                    help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
     p.add_argument("--recording", action="append", default=[], metavar="BAG",
                    help="warn when this recording visited operating points outside the map (repeatable)")

@@ -101,10 +101,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from ..replay.run import replay
 
     png = summary_png_path(args)
-    exports = [(kind, getattr(args, kind)) for kind in EXPORT_KINDS if getattr(args, kind)]
+    exports = [(kind, getattr(args, kind)) for kind in EXPORT_KINDS if getattr(args, kind) is not None]
     check_outputs([args.bag, args.params, args.channels],
                   [Output("--out", args.out, "mcap"), Output("--rrd", args.rrd, "rrd"),
-                   Output("--png" if args.png else "the summary picture", png, "png"),
+                   Output("--png" if args.png is not None else "the summary picture", png, "png"),
                    *(Output(f"--{kind}", path, kind) for kind, path in exports)])
     config = config_from_args(args)
     topics = topics_from_args(args)
@@ -126,7 +126,7 @@ def summary_png_path(args: argparse.Namespace) -> str | None:
     """``--png``, else beside ``--out`` (or ``--rrd``) with the suffix ``.png``; ``--no-png``: none."""
     if args.no_png:
         return None
-    if args.png:
+    if args.png is not None:
         return args.png
     beside = args.out or args.rrd
     return str(Path(beside).with_suffix(".png")) if beside else None

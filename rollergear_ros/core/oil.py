@@ -14,11 +14,23 @@ import math
 
 import numpy as np
 
-__all__ = ["OIL_EXPANSION_PER_K", "dynamic_viscosity_pa_s", "oil_viscosity_ratio", "vogel_from_datasheet",
-           "vogel_viscosity_ratio", "walther_viscosity_mm2_s"]
+__all__ = ["OIL_EXPANSION_PER_K", "OIL_TEMPERATURE_RANGE_C", "dynamic_viscosity_pa_s", "oil_viscosity_ratio",
+           "plausible_oil_temperature", "vogel_from_datasheet", "vogel_viscosity_ratio", "walther_viscosity_mm2_s"]
 
 #: thermal expansion of a gear oil's density [1/K] (mineral oils: 6–7·10⁻⁴)
 OIL_EXPANSION_PER_K = 6.5e-4
+#: oil temperatures taken as measured (°C); a reading outside is a broken sensor (a Pt100 open
+#: circuit reads ~850 °C, a short −242 °C) or a wrong unit, and counts as no temperature
+OIL_TEMPERATURE_RANGE_C = (-100.0, 400.0)
+
+
+def plausible_oil_temperature(theta_c):
+    """``theta_c`` where it lies in :data:`OIL_TEMPERATURE_RANGE_C`, NaN elsewhere (arrays or floats)."""
+    low, high = OIL_TEMPERATURE_RANGE_C
+    if isinstance(theta_c, float | int):
+        return float(theta_c) if low <= theta_c <= high else math.nan
+    theta = np.asarray(theta_c, dtype=float)
+    return np.where((theta >= low) & (theta <= high), theta, np.nan)
 
 
 def vogel_viscosity_ratio(theta_c, b_k: float, c_k: float, theta_ref_c: float):

@@ -64,6 +64,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..base.interface import Channel
+from .oil import plausible_oil_temperature
 
 # channel names (defined in .interface) bound as module globals once: the hot paths index by them
 TORQUE, SPEED, OUT_TORQUE, OUT_SPEED, OIL_TEMPERATURE = Channel.ALL
@@ -423,7 +424,7 @@ class SampleSynchronizer:
             have = np.ones(n, bool)
         ok = have & (t - temp_t <= self.temperature_hold_ns)
         temp[ok] = temp_v[ok]
-        return temp
+        return plausible_oil_temperature(temp)
 
     def _drain(self) -> list[SyncedSample]:
         out: list[SyncedSample] = []
@@ -594,7 +595,7 @@ class SampleSynchronizer:
             self.counts["output_missing"] += 1
         temp = math.nan
         if self.temperature is not None and t_ns - self.temperature[0] <= self.temperature_hold_ns:
-            temp = self.temperature[1]
+            temp = plausible_oil_temperature(self.temperature[1])
         return SyncedSample(t_ns, vals[TORQUE], vals[SPEED], vals.get(OUT_TORQUE, math.nan),
                             vals.get(OUT_SPEED, math.nan), temp)
 

@@ -163,8 +163,11 @@ def effect_specs() -> tuple[ParamSpec, ...]:
     for e in EFFECTS.values():
         specs.append(ParamSpec(f"effects.{e.name}.enabled", bool, False, e.summary))
         for q in e.parameters:
+            low = q.low
+            if e.physical and not e.signed and not e.scales_fr and q.short == e.coefficient:
+                low = max(low, 0.0)  # a friction's level: negative, the gearbox would be a power source (η > 1)
             specs.append(ParamSpec(f"effects.{e.name}.{q.key}", float, q.default, q.description, q.unit,
-                                   low=q.low, high=q.high, low_open=q.low_open))
+                                   low=low, high=q.high, low_open=q.low_open))
     return tuple(specs)
 
 

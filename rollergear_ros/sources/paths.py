@@ -90,7 +90,10 @@ def check_outputs(inputs: Sequence[str | Path | None], outputs: Sequence[Output]
     of its kind (a file that is not a folder, device, FIFO or socket, with no suffix of another
     kind; a folder that is not a file), none is an input or another output, and each one's folder
     exists (or can be made) and takes new files."""
-    given = [o for o in outputs if o.path is not None and str(o.path) != ""]
+    for out in outputs:
+        if out.path is not None and str(out.path).strip() == "":
+            raise UsageError(f"{out.option} {str(out.path)!r} names no {'folder' if out.is_folder else 'file'}")
+    given = [o for o in outputs if o.path is not None]
     refuse_overwriting_inputs(inputs, {o.option: o.path for o in given})
     _refuse_writing_over_inputs_in_folders(inputs, [o for o in given if o.is_folder and o.files])
     for out in given:
