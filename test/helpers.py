@@ -107,3 +107,17 @@ CALIBRATED = {
     "effects.torque_offset.enabled": True, "effects.torque_offset.offset_nm": 0.3,
     "effects.torque_gain.enabled": True, "effects.torque_gain.gain": 0.02,
 }
+
+
+def damaged_copy(src: Path, out: Path, every: int) -> tuple[Path, int]:
+    """``src`` with one byte of every ``every``-th chunk's compressed data flipped (its CRC kept), and
+    how many chunks it has."""
+    from mcap.reader import make_reader
+
+    with src.open("rb") as fh:
+        chunks = make_reader(fh).get_summary().chunk_indexes
+    raw = bytearray(src.read_bytes())
+    for ci in chunks[::every]:
+        raw[ci.chunk_start_offset + ci.chunk_length // 2] ^= 0x01
+    out.write_bytes(bytes(raw))
+    return out, len(chunks)

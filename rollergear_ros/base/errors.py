@@ -49,4 +49,19 @@ class UsageError(RollergearError):
     """A command-line request that cannot be served (a bad option value, an unknown name)."""
 
 
-__all__ = ["BagError", "InputFileError", "ParameterError", "RollergearError", "UsageError"]
+#: a command whose input lost more than this share of its recording to damage (of its messages or
+#: its bytes) says so in an error line and exits with :data:`DAMAGED_EXIT` -- its outputs hold what
+#: was readable; one that could read nothing at all is a :class:`BagError` (exit 2, no output)
+MAX_LOST_SHARE = 0.01
+DAMAGED_EXIT = 3
+
+
+def lost_share(damaged_bytes: int, total_bytes: int, messages_lost: int, message_count: int) -> float:
+    """The share of a recording that damage cost: the larger of its bytes' and its messages' share."""
+    by_bytes = damaged_bytes / total_bytes if total_bytes > 0 else 0.0
+    by_messages = messages_lost / message_count if message_count > 0 else 0.0
+    return min(1.0, max(by_bytes, by_messages))
+
+
+__all__ = ["BagError", "DAMAGED_EXIT", "InputFileError", "MAX_LOST_SHARE", "ParameterError", "RollergearError",
+           "UsageError", "lost_share"]

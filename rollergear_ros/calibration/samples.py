@@ -45,6 +45,8 @@ class SampleData:
     out_speed: np.ndarray | None = None  #: the measured output speed of each sample (NaN: none, the ratio's)
     speed_ratio: float = 1.0  #: input/output speed ratio where the output speed is not measured
     speed_noise_text: str = ""  #: the speed noise the estimates were made with, and where it came from
+    #: the largest share of a recording lost to damage (:func:`base.errors.lost_share`)
+    lost_share: float = 0.0
     #: the recordings' speed noise, where the parameter file's was far off it (:func:`load_samples`)
     speed_noise_override: float | None = None
 
@@ -105,12 +107,13 @@ def _load(bags, config, topics, warn, min_speed_rad_s, progress) -> SampleData:
     base = bare_config(config)
     batches_of_bags = []
     skipped: dict[str, int] = {}
-    widths, said = [], []
+    widths, said, lost = [], [], [0.0]
     for bag in bags:
         summary, batches = replay(bag, base, topics, show_progress=progress, warn=warn, collect=True,
                                   parameter_changes=False)  # the bare model throughout
         if summary.interrupted:  # a calibration of part of the data is no answer to the command given
             raise KeyboardInterrupt
+        lost.append(summary.lost_share)
         for k, v in summary.skipped.items():
             skipped[k] = skipped.get(k, 0) + v
         batches_of_bags.append(batches)
@@ -118,6 +121,7 @@ def _load(bags, config, topics, warn, min_speed_rad_s, progress) -> SampleData:
         said.append(summary.speed_noise_text)
     data = samples_from_estimates(batches_of_bags, config, skipped, min_speed_rad_s, max(widths, default=0.0))
     data.speed_noise_text = "; ".join(dict.fromkeys(said))
+    data.lost_share = max(lost)
     return data
 
 

@@ -13,7 +13,7 @@ from .args import block_seconds, config_from_args, positive_float, seconds
 from ..core.effects import EFFECTS
 from ..sources.paths import Output, check_outputs
 from ..base.progress import TimedProgress
-from .replay import add_channels_option, add_topic_options, topics_from_args
+from .replay import add_channels_option, add_topic_options, damaged_exit, topics_from_args
 
 
 def _log(msg: str) -> None:
@@ -46,14 +46,16 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         report = write_report(result, data, Path(args.report), args.bags) if args.report else None
     if args.json:
         sys.stdout.write(json.dumps(result.to_json()) + "\n")
-        return 0 if result.written else 1
+        damaged = damaged_exit(", ".join(args.bags), data.lost_share, "calibrated on what was readable")
+        return damaged or (0 if result.written else 1)
     _print_result(result)
     if args.out:
         print(f"calibrated parameters: {args.out}" if result.written else
               f"calibrated parameters: {args.out} not written ({_what_would_settle(result)})")
     if report:
         print(f"report: {report}")
-    return 0 if result.written else 1
+    damaged = damaged_exit(", ".join(args.bags), data.lost_share, "calibrated on what was readable")
+    return damaged or (0 if result.written else 1)
 
 
 def _load(args: argparse.Namespace, config):

@@ -119,7 +119,21 @@ def cmd_replay(args: argparse.Namespace) -> int:
                         *((f"{EXPORT_KINDS[kind]} table", path) for kind, path in exports)):
         if path:
             print(f"{label}: {path}")
-    return 130 if summary.interrupted else 0
+    if summary.interrupted:
+        return 130
+    return damaged_exit(args.bag, summary.lost_share, "the outputs hold what was readable")
+
+
+def damaged_exit(source: str, share: float, what: str) -> int:
+    """0, or -- the input lost more than :data:`~base.errors.MAX_LOST_SHARE` to damage -- an error line
+    and :data:`~base.errors.DAMAGED_EXIT`."""
+    from ..base.errors import DAMAGED_EXIT, MAX_LOST_SHARE
+
+    if share <= MAX_LOST_SHARE:
+        return 0
+    print(f"rollergear: error: {source}: {100 * share:.1f} % of the recording unreadable (more than "
+          f"{100 * MAX_LOST_SHARE:g} %): {what}", file=sys.stderr)
+    return DAMAGED_EXIT
 
 
 def summary_png_path(args: argparse.Namespace) -> str | None:

@@ -164,6 +164,7 @@ class InputProblems:
         self.topic_of = {CHANNELS.index(ch): topic for topic, ch in plan.float64.items()}
         if plan.temperature:
             self.topic_of[CHANNELS.index(OIL_TEMPERATURE)] = plan.temperature[0]
+        self.damaged: list = []  #: the :class:`~recordings.fastmcap.DamagedSpan` the read skipped
         self._last_t = np.full(len(CHANNELS), np.iinfo(np.int64).min, dtype=np.int64)
         self._last_v = np.full(len(CHANNELS), np.nan)
 
@@ -250,6 +251,7 @@ def input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callabl
         else:
             yield from _decoded_batches(info, plan, batch_size, state, problems)
     finally:
+        problems.damaged = list(state.damaged)
         for line in state.damage_report() + problems.warnings():
             warn(f"{info.path}: {line}")
         if state.truncated and not state.damaged:

@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator, Sequence
 
 from ..recordings.bag import BagInfo, TopicMap, inspect_bag, median_period_s
 from ..base import atomic
-from ..base.errors import UsageError
+from ..base.errors import BagError, UsageError, lost_share
 from ..core.estimator import BatchEstimate, Estimator
 from ..core.params import Config
 from ..base.progress import TimedProgress
@@ -157,6 +157,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
             if bar:
                 bar.close()
             outputs.close(commit=completed)
+    _damage(summary, info, problems)
     if stop.requested and not summary.interrupted:  # the whole recording was read: the outputs are whole
         _warn("a stop signal came after the whole recording was processed: every output is complete")
     _count(summary, estimator, window, acc, _warn)
@@ -170,6 +171,19 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
         except KeyboardInterrupt:
             _warn(f"interrupted: no summary picture {req.summary_png}")
     return summary, outputs.collected
+
+
+def _damage(summary: ReplaySummary, info: BagInfo, problems: InputProblems) -> None:
+    """The share of the recording its damaged spans cost (``summary.lost_share``); nothing readable
+    at all is a :class:`BagError` (no output replaces a file)."""
+    if not problems.damaged:
+        return
+    lost = sum(s.messages_lost or 0 for s in problems.damaged)
+    damaged_bytes = sum(s.end_byte - s.start_byte for s in problems.damaged)
+    summary.lost_share = lost_share(damaged_bytes, info.bytes_total, lost, info.message_count)
+    if summary.input_messages == 0 and not summary.interrupted:
+        raise BagError(f"{info.path}: nothing readable: {len(problems.damaged)} damaged span(s), "
+                       f"{damaged_bytes:,} bytes{f', {lost:,} messages' if lost else ''} lost; no output written")
 
 
 def _warn_unindexed(info: BagInfo, warn: Callable[[str], None]) -> None:

@@ -57,6 +57,8 @@ class ReplaySummary:
     alarm_times_ns: list[int] = field(default_factory=list)
     alarm_from_start: list[bool] = field(default_factory=list)
     interrupted: bool = False
+    #: the share of the recording lost to damage (:func:`base.errors.lost_share`; 0: none found)
+    lost_share: float = 0.0
     sync_tolerance_s: float = math.nan  #: the pairing tolerance used
     sample_period_s: float | None = None  #: the motor torque's median message period in the bag
     pairing: str = "timestamp"  #: ``arrival`` for a recording of the node that paired by arrival

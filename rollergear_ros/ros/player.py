@@ -16,12 +16,12 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..recordings.bag import inspect_bag
-from ..base.errors import UsageError
-from ..recordings.fastmcap import ReadState, iter_log_time_order
+from ..base.errors import UsageError, lost_share
+from ..recordings.fastmcap import ReadState, iter_log_time_order, preload_summary
 from ..base.progress import TimedProgress
 
 
@@ -88,6 +88,8 @@ class PlayStats:
     max_late_ms: float = 0.0  #: worst delay of a publish behind its scheduled time
     late_over_5ms: int = 0  #: publishes more than 5 ms behind
     held_back: int = 0  #: publishes that waited for a reliable keep-all subscriber to catch up
+    damaged: list[str] = field(default_factory=list)  #: the damaged spans the read skipped (one line each)
+    lost_share: float = 0.0  #: the share of the recording they cost (:func:`base.errors.lost_share`)
 
     def text(self) -> str:
         held = f"; held back {self.held_back} times by a subscriber that fell behind" if self.held_back else ""
@@ -269,6 +271,7 @@ def _play_once(bag: Path, pubs: dict, rate: float, clock_pub, stats: PlayStats) 
     publish_failed = rclpy_implementation.RCLError
     late_5ms = 5_000_000
     state = ReadState()
+    preload_summary(bag, state)  # channels whose records stood in a damaged chunk
     reader = _Prefetch(bag, state)
     publisher_of: dict[int, object] = {}
     t0_bag = t0_wall = None
@@ -278,7 +281,8 @@ def _play_once(bag: Path, pubs: dict, rate: float, clock_pub, stats: PlayStats) 
             for t_bag, cid, data in zip(log_times.tolist(), channel_ids.tolist(), payloads):
                 pub = publisher_of.get(cid)
                 if pub is None:
-                    pub = publisher_of[cid] = pubs.get(state.channels[cid][0], False)
+                    channel = state.channels.get(cid)  # None: its record was lost with a damaged chunk
+                    pub = publisher_of[cid] = pubs.get(channel[0], False) if channel else False
                 if pub is False:
                     continue  # a topic not selected
                 if t0_bag is None:
@@ -309,6 +313,13 @@ def _play_once(bag: Path, pubs: dict, rate: float, clock_pub, stats: PlayStats) 
                 stats.messages += 1
     finally:
         reader.close()
+        if state.damaged and not stats.damaged:  # said once (a loop reads the file again)
+            stats.damaged = state.damage_report()
+            info = inspect_bag(bag)
+            stats.lost_share = lost_share(sum(s.end_byte - s.start_byte for s in state.damaged), info.bytes_total,
+                                          sum(s.messages_lost or 0 for s in state.damaged), info.message_count)
+            for line in stats.damaged:
+                print(f"warning: {bag}: {line}", file=sys.stderr)
 
 
 def init_for_command_line() -> None:
@@ -346,10 +357,12 @@ def cmd_play(args: argparse.Namespace) -> int:
     with _as_mcap_recording(Path(args.bag), fmt.family) as bag:
         init_for_command_line()
         try:
-            play(bag, options)
+            stats = play(bag, options)
         finally:
             rclpy.try_shutdown()
-    return 0
+    from ..cli.replay import damaged_exit
+
+    return damaged_exit(args.bag, stats.lost_share, f"played what was readable ({stats.messages:,} messages)")
 
 
 @contextmanager

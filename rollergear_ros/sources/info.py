@@ -129,6 +129,20 @@ def _mcap(path: Path, info: FileInfo) -> None:
     if bag.truncated or bag.bytes_readable < bag.bytes_total:
         info.damaged.append(f"bytes {bag.bytes_readable:,}–{bag.bytes_total:,} unreadable"
                             + (f" ({bag.problem})" if bag.problem else ""))
+    # every chunk decompressed and its CRC checked, as replay and play will read them
+    from ..base.errors import lost_share
+    from ..recordings.fastmcap import ReadState, iter_message_arrays, preload_summary
+
+    state = ReadState()
+    preload_summary(path, state)
+    for _ in iter_message_arrays(path, state):
+        pass
+    info.damaged += [line for line in state.damage_report() if line not in info.damaged]
+    if state.damaged:
+        share = lost_share(sum(s.end_byte - s.start_byte for s in state.damaged), bag.bytes_total,
+                           sum(s.messages_lost or 0 for s in state.damaged), bag.message_count)
+        info.damaged.append(f"{100 * share:.1f} % of the recording unreadable")
+    info.notes.append("every chunk was read and its CRC checked")
     try:
         with path.open("rb") as fh:
             info.metadata = sorted({md.name for md in make_reader(fh).iter_metadata()})

@@ -4,11 +4,12 @@ bag with none valid is one line and exit 2 (it was an InvalidTopicNameException 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from rollergear_ros.recordings.bag import BagWriter, inspect_bag
 from rollergear_ros.ros.player import _playable
 
-from helpers import run_cli
+from helpers import BAGS, damaged_copy, run_cli
 
 
 def _bag(path, topics):
@@ -30,3 +31,12 @@ def test_the_valid_topics_are_played_and_the_others_named(tmp_path, capsys):
     bag = _bag(tmp_path / "mixed.mcap", ["/spam/0", "/rollergear/motor/torque"])
     assert list(_playable(inspect_bag(bag), None)) == ["/rollergear/motor/torque"]
     assert "not played (not valid ROS 2 topic names): '/spam/0'" in capsys.readouterr().err
+
+
+@pytest.mark.ros
+def test_play_of_a_damaged_recording_says_what_it_lost_and_exits_3(tmp_path):
+    """It played 24 199 of 40 824 messages of a damaged file without a word."""
+    bag, _ = damaged_copy(BAGS / "rig_map.mcap", tmp_path / "damaged.mcap", 2)
+    proc = run_cli("play", str(bag), "--no-wait", "--rate", "50", check=False, timeout=300)
+    assert proc.returncode == 3 and "Traceback" not in proc.stderr, proc.stderr
+    assert "messages lost" in proc.stderr and "played what was readable" in proc.stderr

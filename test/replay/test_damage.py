@@ -1,0 +1,49 @@
+"""Damage found while reading is reported by every command; a recording of which nothing can be
+read replaces no output (exit 2), one that lost more than 1 % exits 3 with what was readable."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from helpers import BAGS, damaged_copy, run_cli
+
+SRC = BAGS / "rig_map.mcap"
+
+
+def _damaged(tmp_path, every: int):
+    return damaged_copy(SRC, tmp_path / f"damaged_{every}.mcap", every)
+
+
+def test_a_recording_nothing_of_which_is_readable_replaces_no_output(tmp_path):
+    """It was replayed to 0 estimates, exit 0, and replaced an existing CSV with an empty one."""
+    bag, _ = _damaged(tmp_path, 1)
+    keep = tmp_path / "keep.csv"
+    keep.write_text("the previous table")
+    proc = run_cli("replay", str(bag), "--csv", str(keep), "--out", str(tmp_path / "o.mcap"), check=False)
+    assert proc.returncode == 2 and "nothing readable" in proc.stderr.splitlines()[-1], proc.stderr
+    assert keep.read_text() == "the previous table" and not (tmp_path / "o.mcap").exists()
+    info = run_cli("info", str(bag), "--json")
+    damaged = json.loads(info.stdout)["damaged"]
+    assert damaged[-1] == "100.0 % of the recording unreadable" and "zstd decompression failed" in damaged[0]
+
+
+@pytest.mark.parametrize("command", ["replay", "calibrate"])
+def test_a_recording_that_lost_a_chunk_is_said_and_exits_3_with_what_was_readable(tmp_path, command):
+    bag, n_chunks = _damaged(tmp_path, 2)
+    assert n_chunks >= 2
+    out = tmp_path / ("o.mcap" if command == "replay" else "c.yaml")
+    proc = run_cli(command, str(bag), "--out", str(out), check=False, timeout=300)
+    assert proc.returncode == 3 and "Traceback" not in proc.stderr, proc.stderr
+    assert "messages lost" in proc.stderr and "% of the recording unreadable (more than 1 %)" in proc.stderr
+    assert out.exists()
+
+
+def test_info_reads_every_chunk_and_says_what_is_damaged(tmp_path):
+    """Info said "damaged: nothing found" for a file replay could not read: it read only the summary."""
+    bag, _ = _damaged(tmp_path, 2)
+    proc = run_cli("info", str(bag))
+    damaged = [ln for ln in proc.stdout.splitlines() if ln.startswith("damaged:")][0]
+    assert "zstd decompression failed" in damaged and "% of the recording unreadable" in damaged
+    assert "damaged:   nothing found" in run_cli("info", str(SRC)).stdout
