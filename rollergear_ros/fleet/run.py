@@ -101,15 +101,18 @@ def discover(logs: Sequence[str], group_by: str = "auto", exclude: str | Path | 
             url = p if local else fs.unstrip_protocol(p)
             if local and skip and os.path.realpath(p).startswith(skip):
                 continue
+            key = os.path.realpath(p) if local else url  # one file under two names is one recording
+            if key in found:
+                continue
             problem = _unreadable(p) if local else ""
             if problem:
-                found[url] = Recording(url, Path(url).parent.name or "fleet", 0, 0.0, problem=problem)
+                found[key] = Recording(url, Path(url).parent.name or "fleet", 0, 0.0, problem=problem)
                 continue
             info = fs.info(p)
             mtime = info.get("mtime") or info.get("LastModified") or info.get("updated") or 0.0
             mtime = mtime.timestamp() if hasattr(mtime, "timestamp") else float(mtime)
             gid, span = _identity(url, local, group_by)
-            found[url] = Recording(url, gid, int(info.get("size") or 0), mtime, *span)
+            found[key] = Recording(url, gid, int(info.get("size") or 0), mtime, *span)
     if not found:
         raise UsageError(f"no recordings under {', '.join(map(str, logs))} ({', '.join(recording_suffixes())})")
     return sorted(found.values(), key=lambda r: (r.gearbox_id, r.start_ns or 0, r.path))

@@ -14,7 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from ..recordings.bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, cdr_problem, decode_float64,
-                              decoder_for, float64_problem, iter_raw_batches, read_metadata)
+                              decoder_for, encode_float64, float64_problem, iter_raw_batches, read_metadata)
 from ..core.pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from ..base.interface import MessageType, Metadata
 
@@ -396,9 +396,10 @@ def _copy_inputs(writer: BagWriter, writes: list, state, info: BagInfo) -> None:
             type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
             if not type_name:
                 continue
-            writer.write_raw(
-                topic, type_name, int(arrays.log_time[i]), arrays.payload(i), info.schema_texts.get(type_name)
-            )
+            payload = arrays.payload(i)
+            if type_name == MessageType.FLOAT64:  # padded or big-endian: copied as the canonical 12 bytes
+                payload = encode_float64(decode_float64([payload]))[0]  # (every reader decodes those)
+            writer.write_raw(topic, type_name, int(arrays.log_time[i]), payload, info.schema_texts.get(type_name))
 
 
 class _TimeOrder:

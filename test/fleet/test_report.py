@@ -72,3 +72,19 @@ def test_more_workers_than_cores_are_capped_and_said():
     with dask_client(None, 10_000, said.append) as client:
         assert len(client.scheduler_info()["workers"]) == (os.cpu_count() or 1)
     assert any(f"--workers 10000: this machine has {os.cpu_count()} cores" in s for s in said)
+
+
+def test_one_file_under_two_names_is_one_recording(tmp_path, monkeypatch):
+    """``day00.mcap`` and ``./day00.mcap`` (and the folder holding it) were counted twice."""
+    import shutil
+
+    from rollergear_ros.fleet.run import discover
+
+    from helpers import BAGS
+
+    (tmp_path / "logs").mkdir()
+    shutil.copy(BAGS / "rig_map.mcap", tmp_path / "logs" / "day00.mcap")
+    (tmp_path / "logs" / "link.mcap").symlink_to(tmp_path / "logs" / "day00.mcap")
+    monkeypatch.chdir(tmp_path)
+    recs = discover(["logs/day00.mcap", "./logs/day00.mcap", "logs", str(tmp_path / "logs" / "link.mcap")])
+    assert [r.path for r in recs] == ["logs/day00.mcap"]

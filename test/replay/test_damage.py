@@ -47,3 +47,28 @@ def test_info_reads_every_chunk_and_says_what_is_damaged(tmp_path):
     damaged = [ln for ln in proc.stdout.splitlines() if ln.startswith("damaged:")][0]
     assert "zstd decompression failed" in damaged and "% of the recording unreadable" in damaged
     assert "damaged:   nothing found" in run_cli("info", str(SRC)).stdout
+
+
+def test_padded_float64_inputs_are_copied_as_every_reader_reads_them(tmp_path):
+    """20-byte Float64 payloads (CDR padding after the value) were copied as they were into replay's
+    output MCAP, which rosbags then could not read."""
+    import numpy as np
+
+    from rollergear_ros.base.interface import MessageType
+    from rollergear_ros.recordings.bag import BagWriter, TopicMap, encode_float64
+
+    from bagtools import read_mcap_ros2, read_rosbags
+
+    tm, n = TopicMap(), 200
+    t = 1_700_000_000 * 10**9 + np.arange(n, dtype=np.int64) * 10_000_000
+    values = {tm.motor_torque: np.linspace(1, 5, n), tm.motor_speed: np.linspace(10, 50, n)}
+    bag = tmp_path / "padded.mcap"
+    with BagWriter(bag) as w:
+        for k in range(n):
+            for topic, v in values.items():
+                w.write_raw(topic, MessageType.FLOAT64, int(t[k]), encode_float64(v[k:k + 1])[0] + bytes(8))
+    run_cli("replay", str(bag), "--out", str(tmp_path / "o.mcap"), "--no-png")
+    for read in (read_rosbags, read_mcap_ros2):
+        got = read(tmp_path / "o.mcap")
+        for topic, v in values.items():
+            np.testing.assert_array_equal(np.array([m if isinstance(m, float) else m.data for m in got[topic][1]]), v)
