@@ -87,4 +87,4 @@ def test_one_file_under_two_names_is_one_recording(tmp_path, monkeypatch):
     (tmp_path / "logs" / "link.mcap").symlink_to(tmp_path / "logs" / "day00.mcap")
     monkeypatch.chdir(tmp_path)
     recs = discover(["logs/day00.mcap", "./logs/day00.mcap", "logs", str(tmp_path / "logs" / "link.mcap")])
-    assert [r.path for r in recs] == ["logs/day00.mcap"]
+    assert len(recs) == 1 and recs[0].path.endswith("logs/day00.mcap")
