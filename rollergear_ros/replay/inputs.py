@@ -220,14 +220,21 @@ class InputBatch:
     #: the messages' publish times (the node records its inputs' source timestamps there): in file
     #: order only, where arrival pairing's skew detector measures with them; else None
     source_ns: np.ndarray | None = None
-    #: the recording's messages these came from, where one carries several channels (a JointState:
-    #: torque and speed of two joints); None: one value per message
-    messages: int | None = None
+    #: the log times of the recording's messages these came from, where one carries several channels
+    #: (a JointState: torque and speed of two joints); None: one value per message
+    message_t_ns: np.ndarray | None = None
 
     @property
     def message_count(self) -> int:
         """The recording's messages read for this batch (as ``rollergear info`` counts them)."""
-        return len(self.codes) if self.messages is None else self.messages
+        return len(self.codes) if self.message_t_ns is None else len(self.message_t_ns)
+
+    def messages_between(self, lo_ns: int, hi_ns: int, in_range: np.ndarray) -> int:
+        """The messages of this batch with a log time in ``[lo_ns, hi_ns)`` (``in_range``: which of
+        its values lie there, when one value is one message)."""
+        if self.message_t_ns is None:
+            return int(np.count_nonzero(in_range))
+        return int(np.count_nonzero((self.message_t_ns >= lo_ns) & (self.message_t_ns < hi_ns)))
 
 
 def input_batches(info: BagInfo, plan: InputPlan, batch_size: int, warn: Callable[[str], None],
@@ -273,7 +280,8 @@ def _decoded_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
                 if i not in bad:
                     writer.write_raw(tp, info.topics[tp], tt, d, info.schema_texts.get(info.topics[tp]))
 
-        yield InputBatch(codes, t, v, write, messages=len(raw.topics) - len(bad))
+        read = np.array([tt for i, tt in enumerate(raw.log_time_ns) if i not in bad], dtype=np.int64)
+        yield InputBatch(codes, t, v, write, message_t_ns=read)
 
 
 def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems,

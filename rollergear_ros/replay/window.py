@@ -66,7 +66,7 @@ class TimeWindow:
                 continue
             codes = batch.codes[sel]
             if p == 1:
-                self.input_messages += len(codes)
+                self.input_messages += batch.messages_between(lo, hi, sel)
                 self.samples += int(np.count_nonzero(codes == 0))
             if p == 2 and int(t[sel].max()) >= hi + self.lead_ns:
                 self.done = True
