@@ -6,7 +6,26 @@ import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["GracefulStop"]
+__all__ = ["GracefulStop", "children_spared_interrupts"]
+
+
+@contextmanager
+def children_spared_interrupts() -> Iterator[None]:
+    """SIGINT ignored while worker processes are started inside the block: they inherit the
+    disposition (Python keeps an ignored SIGINT ignored), so a Ctrl-C to the terminal's process group
+    -- this process's to handle, which stops them -- never ends them with a traceback of their own.
+    A Ctrl-C while they start is ignored too (a second or two).  Outside the main thread: nothing."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 class GracefulStop:

@@ -27,13 +27,11 @@ No rclpy import: the worker process never loads ROS.
 from __future__ import annotations
 
 import bisect
-import contextlib
 import json
 import math
 import multiprocessing
 import os
 import signal
-import threading
 import time
 from array import array
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -42,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..base.errors import RollergearError
+from ..base.stopping import children_spared_interrupts
 from ..core.estimator import Estimator
 from ..core.params import Config, config_to_yaml, validate
 from .calibrate import CalibrationResult, CalibrationSettings, calibrate
@@ -340,22 +339,6 @@ def worker_cpus(node_cpus: set[int], cpu_count: int) -> set[int]:
     return (set(range(cpu_count)) - node_cpus) or node_cpus
 
 
-@contextlib.contextmanager
-def _interrupts_ignored():
-    """SIGINT ignored while the worker process is spawned: it inherits the disposition (Python keeps
-    an ignored SIGINT ignored), so a Ctrl-C to the terminal's process group -- the node's to handle,
-    which stops the worker -- never ends it with a ``KeyboardInterrupt`` traceback on the node's
-    terminal.  Outside the main thread (where a handler cannot be set) the worker sets it itself."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
     """The worker process keeps off the node's input path: on the CPUs the node was not pinned to
     (:func:`worker_cpus`; a spawned process inherits the node's affinity, and a worker on the node's
@@ -399,7 +382,7 @@ class TraceWorker:
             for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
                 os.environ.setdefault(var, "1")
             node_cpus = tuple(sorted(os.sched_getaffinity(0))) if hasattr(os, "sched_getaffinity") else ()
-            with _interrupts_ignored():  # the worker is spawned with Ctrl-C ignored, from its first instruction
+            with children_spared_interrupts():  # the worker is spawned with Ctrl-C ignored, from its first instruction
                 self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
                                                  initializer=_worker_start, initargs=(node_cpus,))
                 self._pool.submit(_ready)

@@ -24,13 +24,14 @@ import os
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..base.atomic import replacing
 from ..base.errors import RollergearError, UsageError
+from ..base.stopping import children_spared_interrupts
 from ..sources.formats import is_format, recording_suffixes
 from ..base.interface import Metadata
 from ..core.measured import EnergyBalance
@@ -407,11 +408,17 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
     # Dask's nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536: glibc then maps and unmaps
     # every allocation above 128 KB instead of reusing it, and replay's numpy batches ran 1.6-1.9x
     # slower in a worker than in a plain process.  None: the workers inherit this process's setting.
-    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}), \
-            LocalCluster(n_workers=n, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
-                         dashboard_address=":0") as cluster, Client(cluster) as client:
-        if note and _has_bokeh():
-            note(f"Dask dashboard: {client.dashboard_link}")
+    # the workers (and the cluster's loop thread, which restarts them) start with Ctrl-C blocked: the
+    # terminal's SIGINT is this process's to handle; it closes the cluster, which ends them quietly
+    with ExitStack() as stack:
+        stack.enter_context(dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}))
+        with children_spared_interrupts():  # a Ctrl-C meanwhile comes when the cluster is on the stack
+            cluster = stack.enter_context(LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                                       silence_logs=logging.ERROR, dashboard_address=":0"))
+        client = stack.enter_context(Client(cluster))
+        if note:
+            note(f"running on a local Dask cluster of {n} worker process{'es' if n > 1 else ''}"
+                 + (f" (dashboard: {client.dashboard_link})" if _has_bokeh() else ""))
         yield client
 
 

@@ -19,6 +19,9 @@ from ..base import atomic
 TIMELINE = "log_time"
 #: longest a closing recording waits for a streamed viewer to take the data (seconds)
 FLUSH_TIMEOUT_S = 10.0
+#: ... for a viewer only (no file): rerun's gRPC client then waits up to 5 s more on its own to
+#: connect before it drops what it holds, and a node's shutdown stays within 10 s
+CONNECT_FLUSH_TIMEOUT_S = 2.0
 
 #: the entities, one tree per unit (a view each): what a reviewer compares shares an axis
 DRIVE_TORQUE = "/inputs/torque/drive_nm"
@@ -149,6 +152,7 @@ class RerunLog:
         bp = blueprint()
         sinks = []
         self.rrd_path = Path(rrd_path) if rrd_path else None
+        self._flush_timeout_s = CONNECT_FLUSH_TIMEOUT_S if connect_url and not rrd_path else FLUSH_TIMEOUT_S
         self._partial = atomic.partial_path(rrd_path) if rrd_path and replace_atomically else None
         self._pump: _FilePump | None = None
         if rrd_path:
@@ -220,7 +224,7 @@ class RerunLog:
         if self._partial is None:
             try:
                 # bounded: the default waits forever for a viewer that never answers (raises on timeout)
-                self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+                self.rec.flush(timeout_sec=self._flush_timeout_s)
             finally:
                 self.rec.disconnect()
             return

@@ -88,3 +88,32 @@ def test_one_file_under_two_names_is_one_recording(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     recs = discover(["logs/day00.mcap", "./logs/day00.mcap", "logs", str(tmp_path / "logs" / "link.mcap")])
     assert len(recs) == 1 and recs[0].path.endswith("logs/day00.mcap")
+
+
+def test_ctrl_c_to_the_group_of_a_fleet_run_is_quiet(tmp_path):
+    """Ctrl-C in a terminal signals the whole process group: Dask's worker processes printed a
+    KeyboardInterrupt traceback each.  Now they start with it ignored; the command ends them."""
+    import os
+    import shutil
+    import signal
+    import subprocess
+    import sys
+
+    from helpers import BAGS, ROOT
+
+    (tmp_path / "logs").mkdir()
+    for k in range(12):
+        shutil.copy(BAGS / "rig_map_drag.mcap", tmp_path / "logs" / f"day{k:02d}.mcap")
+    proc = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "fleet", "replay", str(tmp_path / "logs"),
+                             "--out", str(tmp_path / "out")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=ROOT, start_new_session=True)
+    said = []
+    for line in proc.stderr:  # the cluster is up (its workers started): from here Ctrl-C is handled
+        said.append(line)
+        if line.startswith("running on a local Dask cluster"):
+            break
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    err = "".join(said) + err
+    assert proc.returncode == 130 and "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert err.rstrip().endswith("rollergear: interrupted")
