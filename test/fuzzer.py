@@ -30,6 +30,16 @@ CASE_TIMEOUT_S = 30  #: a case running longer is a hang (the seeds take millisec
 RSS_BOUND_MB = 1024  #: peak memory may grow at most this much over a whole run
 #: targets that draw from ``Fuzzer.file_rng``
 FILE_TARGETS = ("tdms", "parquet", "rosbag2")
+#: targets that draw from ``Fuzzer.surface_rng``: the output checks of folder inputs, report folders
+#: and the node's files, fleet ids as file names, loss-map grids, rosbag2 storage kinds
+SURFACE_TARGETS = ("outputs", "fleet_id", "map_grid", "rosbag2_kind")
+#: paths an output may be given as (``{bag}``: a rosbag2 folder input, ``{rep}``: a report folder
+#: holding an input); the case asserts no input changed, whatever it decided
+HOSTILE_OUTPUTS = ("{bag}/seed_rosbag2.db3", "{bag}/metadata.yaml", "{bag}", "{bag}/new.mcap", "{bag}/../x.mcap",
+                   "{rep}", "{rep}/report.md", "", " ", "/proc/x.mcap", "/dev/null", "{fifo}", "{d}/a/../b.mcap",
+                   "{d}/o.png", "{d}/o", "{d}/o.mcap")
+HOSTILE_IDS = ("../../ESCAPED", "/etc/passwd", "..", ".", "", ".hidden", "a/b", "a\\b", "x\ny", "\x1b[2J", "gb~1",
+               "gb_07", "ü", "x" * 300, "CON", "a b", "gb07")
 
 HOSTILE_U64 = (2**63, 2**64 - 1, 2**32, 2**31 - 1, 1 << 40, 0)
 HOSTILE_YAML = (
@@ -147,13 +157,16 @@ class Fuzzer:
         # the file formats added later draw from a stream of their own, so the first targets' cases
         # (and the seeds that once found a defect in them) stay what they were
         self.file_rng = np.random.default_rng([seed, 1])
+        self.surface_rng = np.random.default_rng([seed, 2])
+        self.ids: dict[str, str] = {}  # fleet_id: file name -> the id it came from (never two ids)
         self.seed = seed
         self.config = load_config(None)
         self.seeds = _write_seeds(self.workdir)
         self.targets: dict[str, Callable[[int], str]] = {
             "mcap": self._mcap_case, "csv": self._csv_case, "channel_map": self._channel_map_case,
             "params": self._params_case, "tdms": self._tdms_case, "parquet": self._parquet_case,
-            "rosbag2": self._rosbag2_case}
+            "rosbag2": self._rosbag2_case, "outputs": self._outputs_case, "fleet_id": self._fleet_id_case,
+            "map_grid": self._map_grid_case, "rosbag2_kind": self._rosbag2_kind_case}
 
     # ------------------------------------------------------------------ targets
     def _mcap_case(self, k: int) -> str:
@@ -217,6 +230,86 @@ class Fuzzer:
         out = self.workdir / f"case{k}_rosbag2.mcap"
         return _writes_valid_mcap(out, lambda: import_source(bag, out, None))
 
+    def _outputs_case(self, k: int) -> str:
+        """A command's outputs drawn from :data:`HOSTILE_OUTPUTS` against a rosbag2 folder input and a
+        report folder: refused or accepted, never an input changed (the check writes nothing)."""
+        import os
+        import shutil
+
+        from rollergear_ros.calibration.report import REPORT_FILES
+        from rollergear_ros.sources.paths import Output, check_outputs
+
+        d = self.workdir / f"case{k}_outputs"
+        bag, rep, fifo = d / "bag", d / "rep", d / "fifo"
+        shutil.copytree(self.seeds["rosbag2"], bag)
+        rep.mkdir()
+        (rep / "report.md").write_text("an input")
+        os.mkfifo(fifo)
+        before = {p: p.read_bytes() for p in d.rglob("*") if p.is_file()}
+        rng = self.surface_rng
+        kinds = ("mcap", "csv", "yaml", "folder")
+        outputs = [Output(f"--o{j}", HOSTILE_OUTPUTS[rng.integers(len(HOSTILE_OUTPUTS))].format(
+            bag=bag, rep=rep, fifo=fifo, d=d), kinds[rng.integers(len(kinds))], REPORT_FILES)
+            for j in range(int(rng.integers(1, 4)))]
+        try:
+            check_outputs([bag, rep / "report.md"], outputs)
+        finally:
+            assert {p: p.read_bytes() for p in d.rglob("*") if p.is_file()} == before, "an input changed"
+        return "result"
+
+    def _fleet_id_case(self, k: int) -> str:  # noqa: ARG002
+        """A gearbox id from :data:`HOSTILE_IDS`, spliced: its file name stays in the folder and
+        belongs to it alone."""
+        from rollergear_ros.fleet.report import safe_file_name
+
+        rng = self.surface_rng
+        gid = "".join(HOSTILE_IDS[rng.integers(len(HOSTILE_IDS))] for _ in range(int(rng.integers(1, 3))))
+        name = safe_file_name(gid)
+        assert name and "/" not in name and "\\" not in name and name not in (".", "..") and not name.startswith(".")
+        assert name.isprintable() and len(name) <= 120, repr(name)
+        assert self.ids.setdefault(name, gid) == gid, f"{gid!r} and {self.ids[name]!r} share {name!r}"
+        return "result"
+
+    def _map_grid_case(self, k: int) -> str:  # noqa: ARG002
+        """A loss map over a random grid (steps from 1e-9 to 1e6): refused or built, within the time
+        and memory bounds."""
+        from rollergear_ros.outputs.lossmap import build_map, grid
+
+        rng = self.surface_rng
+        speeds = grid(0.0, float(10 ** rng.uniform(0, 7)), float(10 ** rng.uniform(-9, 6)))
+        torques = grid(-float(10 ** rng.uniform(0, 4)), float(10 ** rng.uniform(0, 4)), float(10 ** rng.uniform(-9, 4)))
+        if len(speeds) * len(torques) > 20_000:  # within the cap: built by the map test, not in each case
+            return "result"
+        build_map(self.config, speeds, torques)
+        return "result"
+
+    def _rosbag2_kind_case(self, k: int) -> str:
+        """A rosbag2 folder whose storage file is a FIFO, missing, "zstd-compressed" garbage, or whose
+        metadata.yaml has anchors, imported."""
+        import os
+        import shutil
+
+        from rollergear_ros.sources.importer import import_source
+
+        bag = self.workdir / f"case{k}_kind"
+        shutil.copytree(self.seeds["rosbag2"], bag)
+        meta = bag / "metadata.yaml"
+        kind = int(self.surface_rng.integers(4))
+        if kind == 0:
+            (bag / "seed_rosbag2.db3").unlink()
+            os.mkfifo(bag / "seed_rosbag2.db3")
+        elif kind == 1:
+            (bag / "seed_rosbag2.db3").unlink()
+        elif kind == 2:
+            (bag / "seed_rosbag2.db3.zstd").write_bytes(self.surface_rng.bytes(4096))
+            meta.write_text(meta.read_text().replace("seed_rosbag2.db3", "seed_rosbag2.db3.zstd")
+                            .replace("compression_format: ''", "compression_format: zstd")
+                            .replace("compression_mode: ''", "compression_mode: FILE"))
+        else:
+            meta.write_text(meta.read_text() + "x_anchor: &a [1]\nx_alias: *a\n")
+        out = self.workdir / f"case{k}_kind.mcap"
+        return _writes_valid_mcap(out, lambda: import_source(bag, out, None))
+
     # ------------------------------------------------------------------ running
     def run(self, cases_per_target: int, report: FuzzReport | None = None) -> FuzzReport:
         report = report or FuzzReport()
@@ -225,7 +318,8 @@ class Fuzzer:
         try:
             for k in range(cases_per_target):
                 for name, case in self.targets.items():
-                    rng = self.file_rng if name in FILE_TARGETS else self.rng
+                    rng = (self.file_rng if name in FILE_TARGETS else self.surface_rng if name in SURFACE_TARGETS
+                           else self.rng)
                     state = rng.bit_generator.state  # to reproduce a failure
                     t0 = time.perf_counter()
                     signal.alarm(CASE_TIMEOUT_S)
@@ -312,4 +406,5 @@ def _write_file_seeds(workdir: Path, csv: Path, bag: Path) -> dict[str, Path]:
     return {"parquet": parquet, "tdms": tdms, "tdms_map": tdms_map, "rosbag2": rosbag2}
 
 
-__all__ = ["FuzzReport", "Fuzzer", "mcap_output_problem", "mutate_bytes", "mutate_text"]
+__all__ = ["FILE_TARGETS", "SURFACE_TARGETS", "FuzzReport", "Fuzzer", "mcap_output_problem", "mutate_bytes",
+           "mutate_text"]

@@ -9,19 +9,22 @@ import pytest
 
 from fuzzer import FILE_TARGETS, Fuzzer
 
-CASES_PER_TARGET = 100  # 7 targets: ~8 s here, under a minute on a machine five times slower
+CASES_PER_TARGET = 80  # 11 targets: ~10 s here, under a minute on a machine five times slower
 FIRST_TARGETS = ("mcap", "csv", "channel_map", "params")  # they share one random stream
 
 
 def test_fuzz_the_readers_and_the_parameter_loader(tmp_path):
-    report = Fuzzer(tmp_path, seed=2026).run(CASES_PER_TARGET)
+    fuzzer = Fuzzer(tmp_path, seed=2026)
+    report = fuzzer.run(CASES_PER_TARGET)
     assert not report.failures, report.text()
-    assert report.cases == 7 * CASES_PER_TARGET
+    assert report.cases == len(fuzzer.targets) * CASES_PER_TARGET
     # the cases exercise both ends: damaged inputs that still give a result, and refusals
-    for target in ("mcap", "tdms", "parquet", "rosbag2"):
+    for target in ("mcap", "tdms", "parquet", "rosbag2", "outputs"):
         assert report.outcomes.get(f"{target} result", 0) and report.outcomes.get(f"{target} refused", 0), \
             report.text()
     assert report.outcomes.get("params refused", 0) and report.outcomes.get("csv refused", 0), report.text()
+    assert report.outcomes.get("rosbag2_kind refused", 0) == CASES_PER_TARGET, report.text()
+    assert report.outcomes.get("map_grid refused", 0) and report.outcomes.get("map_grid result", 0), report.text()
 
 
 @pytest.mark.parametrize(("targets", "seed", "cases", "found"), [

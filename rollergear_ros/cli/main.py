@@ -116,7 +116,8 @@ def cmd_figures(args: argparse.Namespace) -> int:
     from ..calibration.figures import write_figures
 
     check_outputs([args.params], [Output("--out", args.out, "folder", ("fig*.png", "figures.csv"))])
-    paths = write_figures(config_from_args(args), Path(args.out))
+    with together():  # the six pictures and their table are put in place together, or none
+        paths = write_figures(config_from_args(args), Path(args.out))
     for p in paths:
         print(p)
     return 0
