@@ -34,7 +34,6 @@ window and replay's) and per operating-point cell (replay's summary, measured ma
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -271,14 +270,29 @@ class MeasuredEfficiency:
         self.ratio = ratio
         self._period_ns = float(period_s) * 1e9
         self.window_s = float(window_s)
-        self.total = EnergyBalance()
-        self.motoring = EnergyBalance()  #: the part of :attr:`total` where power came in at the input
-        self.regenerating = EnergyBalance()  #: ... and where it came in at the output
+        # the sums as rows of the balance's fields (:data:`_FIELDS`), made balances when asked for
+        self._total = np.zeros(len(_FIELDS))
+        self._motoring = np.zeros(len(_FIELDS))
         self.last_ns: int | None = None
-        self._seconds: dict[int, EnergyBalance] = {}  # whole second of sample time -> its balance
+        self._seconds: dict[int, np.ndarray] = {}  # whole second of sample time -> its sums
         self._first_s: int | None = None
         self._grid = (speed_step_rpm, torque_step_nm) if speed_step_rpm and torque_step_nm else None
-        self._cells: dict[tuple[int, int], EnergyBalance] = {}
+        self._cells: dict[tuple[int, int], np.ndarray] = {}
+
+    @property
+    def total(self) -> EnergyBalance:
+        """Every sample added."""
+        return _from_row(self._total)
+
+    @property
+    def motoring(self) -> EnergyBalance:
+        """The part of :attr:`total` where power came in at the input."""
+        return _from_row(self._motoring)
+
+    @property
+    def regenerating(self) -> EnergyBalance:
+        """... and where it came in at the output."""
+        return _from_row(self._total - self._motoring)
 
     def add(self, t_ns, torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, model_loss_w=None) -> None:
         """Samples in time order (arrays alike; a NaN output torque: not measured, left out);
@@ -297,15 +311,16 @@ class MeasuredEfficiency:
             model_loss_w = None if model_loss_w is None else np.asarray(model_loss_w)[keep]
         dt = _integration_steps_s(t, self.last_ns, self._period_ns)
         terms, motoring = _terms(torque_nm, speed_rad_s, out, out_speed_rad_s, self.ratio, dt, model_loss_w)
-        total = _balance(terms)
-        self.total = self.total + total
-        motoring_part = _balance({k: v * motoring for k, v in terms.items()})
-        self.motoring = self.motoring + motoring_part
-        self.regenerating = self.regenerating + (total - motoring_part)
+        rows = _rows(terms, len(t))  # (fields, samples)
+        self._total += rows.sum(axis=1)
+        self._motoring += rows[:, motoring].sum(axis=1)  # (no BLAS: its threads would spin beside the writer)
         second = t // 1_000_000_000
         starts = np.flatnonzero(np.diff(second, prepend=second[0] - 1))
-        for key, piece in zip(second[starts].tolist(), _balances(terms, np.add.reduceat, starts)):
-            self._seconds[key] = self._seconds[key] + piece if key in self._seconds else piece
+        for key, piece in zip(second[starts].tolist(), np.add.reduceat(rows, starts, axis=1).T):
+            if key in self._seconds:
+                self._seconds[key] += piece
+            else:
+                self._seconds[key] = piece.copy()
         if self._first_s is None:
             self._first_s = int(second[0])
         self.last_ns = int(t[-1])
@@ -313,11 +328,17 @@ class MeasuredEfficiency:
             rpm = np.asarray(speed_rad_s, dtype=float) * (30.0 / math.pi)
             i = np.rint(rpm / self._grid[0]).astype(np.int64)
             j = np.rint(np.asarray(torque_nm, dtype=float) / self._grid[1]).astype(np.int64)
-            keys, index = np.unique(np.stack([i, j]), axis=1, return_inverse=True)
-            pieces = _balances(terms, lambda v, idx: np.bincount(idx, weights=v, minlength=keys.shape[1]),
-                               index.ravel())
-            for key, piece in zip(map(tuple, keys.T.tolist()), pieces):
-                self._cells[key] = self._cells[key] + piece if key in self._cells else piece
+            keys, index = np.unique(i * _CELL_SPAN + j, return_inverse=True)  # one integer per cell
+            order = np.argsort(index, kind="stable")
+            bounds = np.flatnonzero(np.diff(index[order], prepend=-1))
+            sums = np.add.reduceat(rows[:, order], bounds, axis=1).T
+            for key, piece in zip(keys.tolist(), sums):
+                cell = (int(np.floor_divide(key + _CELL_SPAN // 2, _CELL_SPAN)),
+                        int((key + _CELL_SPAN // 2) % _CELL_SPAN - _CELL_SPAN // 2))
+                if cell in self._cells:
+                    self._cells[cell] += piece
+                else:
+                    self._cells[cell] = piece.copy()
 
     def prime(self, last_ns: int) -> None:
         """A sample before the first added (a time slice's): the first integrates from it."""
@@ -341,7 +362,8 @@ class MeasuredEfficiency:
         """The balance of the ``window_s`` before the second boundary ``boundary_s`` (whole seconds:
         a window of 10 s at 20 s holds seconds 10 … 19)."""
         first = boundary_s - math.ceil(self.window_s)
-        return _sum(b for k, b in self._seconds.items() if first <= k < boundary_s)
+        return _from_row(sum((row for k, row in self._seconds.items() if first <= k < boundary_s),
+                             np.zeros(len(_FIELDS))))
 
     def window_value(self, boundary_s: int, sensors: SensorParams) -> WindowValue:
         """:meth:`window` as the value published: efficiency, uncertainty, samples."""
@@ -354,24 +376,28 @@ class MeasuredEfficiency:
         if self._grid is None:
             return []
         ds, dt = self._grid
-        return [(i * ds, j * dt, self._cells[(i, j)]) for i, j in sorted(self._cells)]
+        return [(i * ds, j * dt, _from_row(self._cells[(i, j)])) for i, j in sorted(self._cells)]
+
+
+_FIELDS = tuple(f.name for f in fields(EnergyBalance))
+_FIELD_INDEX = {name: k for k, name in enumerate(_FIELDS)}
+#: cell keys (speed node i, torque node j) as one integer ``i·span + j`` (|j| < span/2)
+_CELL_SPAN = 1 << 31
+
+
+def _rows(terms: dict[str, np.ndarray], n: int) -> np.ndarray:
+    """The per-sample terms as rows in :data:`_FIELDS` order (a field without a term: zeros)."""
+    rows = np.zeros((len(_FIELDS), n))
+    for k, v in terms.items():
+        rows[_FIELD_INDEX[k]] = v
+    return rows
+
+
+def _from_row(row: np.ndarray) -> EnergyBalance:
+    """The :class:`EnergyBalance` of summed rows (``samples`` an integer count)."""
+    return EnergyBalance(*(int(round(v)) if name == "samples" else float(v) for name, v in zip(_FIELDS, row)))
 
 
 def _balance(terms: dict[str, np.ndarray]) -> EnergyBalance:
     return EnergyBalance(**{k: (int(np.count_nonzero(v)) if k == "samples" else float(np.sum(v)))
                             for k, v in terms.items()})
-
-
-def _balances(terms: dict[str, np.ndarray], reduce, index) -> list[EnergyBalance]:
-    """One balance per group: ``reduce(values, index)`` sums each field's per-sample terms by group."""
-    sums = {k: reduce(np.asarray(v, dtype=float), index) for k, v in terms.items()}
-    groups = len(next(iter(sums.values())))
-    return [EnergyBalance(**{k: (int(round(v[g])) if k == "samples" else float(v[g])) for k, v in sums.items()})
-            for g in range(groups)]
-
-
-def _sum(balances: Iterable[EnergyBalance]) -> EnergyBalance:
-    total = EnergyBalance()
-    for b in balances:
-        total = total + b
-    return total

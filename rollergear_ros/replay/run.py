@@ -162,10 +162,12 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
         _warn("a stop signal came after the whole recording was processed: every output is complete")
     _count(summary, estimator, window, acc, _warn)
     summary.warnings = warnings
-    if acc.trace is not None and acc.n:
+    if acc.trace is not None and acc.n and stop.requested:  # asked to stop: the files, not a picture
+        _warn(f"interrupted: no summary picture {req.summary_png}")
+    elif acc.trace is not None and acc.n:
         from .plot import plot_summary
 
-        try:  # a picture of what was processed, also after an interrupt; a second one abandons it
+        try:  # a picture of what was processed; an interrupt while it is drawn abandons it
             summary.summary_png = str(plot_summary(acc.trace, req.config, req.summary_png,
                                                    f"replay of {Path(req.label).name}"))
         except KeyboardInterrupt:

@@ -155,3 +155,21 @@ def test_calibrate_json_is_one_json_line_whatever_a_library_prints_or_raises(mon
     import json
 
     assert json.loads(out)["verdict"] == "effects_found"
+
+
+def test_an_interrupted_replay_closes_its_files_and_draws_no_picture(monkeypatch, tmp_path):
+    """Ctrl-C: the outputs are closed whole and replay ends; drawing the picture took another second."""
+    batches = replay_run.input_batches
+
+    def then_a_signal(*args, **kwargs):
+        for k, batch in enumerate(batches(*args, **kwargs)):
+            yield batch
+            if k == 0:  # after the first batch was processed
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)
+
+    monkeypatch.setattr(replay_run, "input_batches", then_a_signal)
+    summary, _ = replay(BAGS / "rig_map.mcap", load_config(), out_mcap=tmp_path / "o.mcap",
+                        summary_png=tmp_path / "o.png", show_progress=False, batch_size=4000)
+    assert summary.interrupted and (tmp_path / "o.mcap").exists() and not (tmp_path / "o.png").exists()
+    assert any(w.startswith("interrupted: no summary picture") for w in summary.warnings)
