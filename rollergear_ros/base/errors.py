@@ -56,6 +56,18 @@ MAX_LOST_SHARE = 0.01
 DAMAGED_EXIT = 3
 
 
+def damaged_exit(source: str, share: float, what: str) -> int:
+    """0, or -- the input lost more than :data:`MAX_LOST_SHARE` to damage -- an error line on stderr
+    (``what``: what the command did with the rest) and :data:`DAMAGED_EXIT`."""
+    import sys
+
+    if share <= MAX_LOST_SHARE:
+        return 0
+    print(f"rollergear: error: {source}: {100 * share:.1f} % of the recording unreadable (more than "
+          f"{100 * MAX_LOST_SHARE:g} %): {what}", file=sys.stderr)
+    return DAMAGED_EXIT
+
+
 def lost_share(damaged_bytes: int, total_bytes: int, messages_lost: int, message_count: int) -> float:
     """The share of a recording that damage cost: the larger of its bytes' and its messages' share."""
     by_bytes = damaged_bytes / total_bytes if total_bytes > 0 else 0.0
@@ -64,4 +76,4 @@ def lost_share(damaged_bytes: int, total_bytes: int, messages_lost: int, message
 
 
 __all__ = ["BagError", "DAMAGED_EXIT", "InputFileError", "MAX_LOST_SHARE", "ParameterError", "RollergearError",
-           "UsageError", "lost_share"]
+           "UsageError", "damaged_exit", "lost_share"]

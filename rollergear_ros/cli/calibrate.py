@@ -13,7 +13,8 @@ from .args import block_seconds, config_from_args, positive_float, seconds
 from ..core.effects import EFFECTS
 from ..sources.paths import Output, check_outputs
 from ..base.progress import TimedProgress
-from .replay import add_channels_option, add_topic_options, damaged_exit, topics_from_args
+from ..base.errors import damaged_exit
+from .replay import add_channels_option, add_topic_options, topics_from_args
 
 
 def _log(msg: str) -> None:

@@ -14,7 +14,7 @@ from .args import config_from_args
 from ..core.effects import viscosity_law
 from ..outputs.exports import EXPORT_KINDS
 from ..sources.paths import Output, check_outputs
-from ..base.errors import UsageError
+from ..base.errors import UsageError, damaged_exit
 from ..base.progress import TimedProgress
 
 
@@ -122,18 +122,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if summary.interrupted:
         return 130
     return damaged_exit(args.bag, summary.lost_share, "the outputs hold what was readable")
-
-
-def damaged_exit(source: str, share: float, what: str) -> int:
-    """0, or -- the input lost more than :data:`~base.errors.MAX_LOST_SHARE` to damage -- an error line
-    and :data:`~base.errors.DAMAGED_EXIT`."""
-    from ..base.errors import DAMAGED_EXIT, MAX_LOST_SHARE
-
-    if share <= MAX_LOST_SHARE:
-        return 0
-    print(f"rollergear: error: {source}: {100 * share:.1f} % of the recording unreadable (more than "
-          f"{100 * MAX_LOST_SHARE:g} %): {what}", file=sys.stderr)
-    return DAMAGED_EXIT
 
 
 def summary_png_path(args: argparse.Namespace) -> str | None:

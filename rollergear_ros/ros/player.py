@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..recordings.bag import inspect_bag
-from ..base.errors import UsageError, lost_share
+from ..base.errors import UsageError, damaged_exit, lost_share
 from ..recordings.fastmcap import ReadState, iter_log_time_order, preload_summary
 from ..base.progress import TimedProgress
 
@@ -360,8 +360,6 @@ def cmd_play(args: argparse.Namespace) -> int:
             stats = play(bag, options)
         finally:
             rclpy.try_shutdown()
-    from ..cli.replay import damaged_exit
-
     return damaged_exit(args.bag, stats.lost_share, f"played what was readable ({stats.messages:,} messages)")
 
 

@@ -106,7 +106,8 @@ def test_ctrl_c_to_the_group_of_a_fleet_run_is_quiet(tmp_path):
         shutil.copy(BAGS / "rig_map_drag.mcap", tmp_path / "logs" / f"day{k:02d}.mcap")
     proc = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "fleet", "replay", str(tmp_path / "logs"),
                              "--out", str(tmp_path / "out")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, cwd=ROOT, start_new_session=True)
+                            text=True, cwd=ROOT, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as a terminal starts it
     said = []
     for line in proc.stderr:  # the cluster is up (its workers started): from here Ctrl-C is handled
         said.append(line)
