@@ -16,7 +16,9 @@ from helpers import CONFIG, ROOT
 
 class NodeProcess:
     """``loss_estimator`` in a subprocess, stopped with SIGINT (or another signal); one a failing
-    test left running is killed after it (``conftest``), so it cannot answer the next test's player."""
+    test left running is killed after it (``conftest``), so it cannot answer the next test's player.
+    Its output is read as it comes (a pipe nobody reads fills after 64 KB of log lines and then
+    blocks the node in its logger: its inputs queue up and are lost)."""
 
     started: list[NodeProcess] = []
 
@@ -26,16 +28,34 @@ class NodeProcess:
             cmd += ["-p", p]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
                                      env=dict(os.environ))
-        self.stdout = self.stderr = ""
+        self._out: list[str] = []
+        self._err: list[str] = []
+        self._readers = [threading.Thread(target=_drain, args=(stream, into), daemon=True)
+                         for stream, into in ((self.proc.stdout, self._out), (self.proc.stderr, self._err))]
+        for reader in self._readers:
+            reader.start()
         NodeProcess.started.append(self)
+
+    @property
+    def stdout(self) -> str:
+        return "".join(self._out)
+
+    @property
+    def stderr(self) -> str:
+        return "".join(self._err)
 
     @classmethod
     def kill_leftovers(cls) -> None:
         for node in cls.started:
             if node.proc.poll() is None:
                 node.proc.kill()
-                node.proc.communicate()
+                node._wait_and_read()
         cls.started.clear()
+
+    def _wait_and_read(self, timeout: float | None = None) -> None:
+        self.proc.wait(timeout=timeout)
+        for reader in self._readers:
+            reader.join(timeout=30)
 
     def stop(self, sig: int = signal.SIGINT, timeout: float = 120.0) -> int:
         """Signal the node and wait until it has exited (closing its files takes seconds on a loaded
@@ -43,12 +63,18 @@ class NodeProcess:
         if self.proc.poll() is None:
             self.proc.send_signal(sig)
         try:
-            self.stdout, self.stderr = self.proc.communicate(timeout=timeout)
+            self._wait_and_read(timeout)
         except subprocess.TimeoutExpired:
             self.proc.kill()
-            self.stdout, self.stderr = self.proc.communicate()
+            self._wait_and_read()
             raise AssertionError(f"node did not stop on {sig}:\n{self.stderr}") from None
         return self.proc.returncode
+
+
+def _drain(stream, into: list[str]) -> None:
+    """Read a process's output as it comes, into ``into``."""
+    for line in stream:
+        into.append(line)
 
 
 class WatchProcess:

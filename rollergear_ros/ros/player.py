@@ -102,26 +102,33 @@ class PlayStats:
 SUBSCRIBER_SETTLE_S = 1.0
 #: by default, how long the player waits for the subscribers already in the ROS graph to match
 GRAPH_WAIT_S = 5.0
+#: ``--min-subscribers``: the longest wait for that many to match each topic
+MIN_MATCHED_WAIT_S = 120.0
 #: at the end: how long reliable subscribers may take to acknowledge the last messages
 FINAL_ACK_TIMEOUT_S = 60.0
 
 
-def wait_for_graph(node, pubs: dict, bound_s: float, every_topic_s: float = 0.0) -> str:
+def wait_for_graph(node, pubs: dict, bound_s: float, every_topic_s: float = 0.0, min_matched: int = 0) -> str:
     """Wait until every subscriber the ROS graph shows on the played topics has matched the
     player's publishers (a node started first then gets the first message), then
     :data:`SUBSCRIBER_SETTLE_S` for the subscribers to match the player in turn; at most
     ``bound_s`` (with ``every_topic_s`` > 0: until every topic has a subscriber, at most that
-    long).  Returns what it found, for the user.
+    long; with ``min_matched`` > 0: until every topic has that many matched subscribers, at most
+    ``max(bound_s, every_topic_s, MIN_MATCHED_WAIT_S)``).  Returns what it found, for the user.
 
     The graph fills as discovery proceeds: a node that is running is in it within about 0.3 s
     (sometimes ~3 s), so an empty graph is waited on for the whole bound.
     """
-    deadline = time.monotonic() + max(bound_s, every_topic_s)
+    bound = max(bound_s, every_topic_s, MIN_MATCHED_WAIT_S if min_matched > 0 else 0.0)
+    deadline = time.monotonic() + bound
     while time.monotonic() < deadline:
         graph = {t: node.count_subscribers(t) for t in pubs}
         matched = {t: p.get_subscription_count() for t, p in pubs.items()}
         all_matched = all(matched[t] >= graph[t] for t in pubs)
-        if every_topic_s > 0:
+        if min_matched > 0:
+            if all(n >= min_matched for n in matched.values()) and all_matched:
+                break
+        elif every_topic_s > 0:
             if all(matched.values()):
                 break
         elif any(graph.values()) and all_matched:
@@ -129,8 +136,8 @@ def wait_for_graph(node, pubs: dict, bound_s: float, every_topic_s: float = 0.0)
         time.sleep(0.02)
     else:
         missing = [t for t, p in pubs.items() if p.get_subscription_count() == 0]
-        return (f"no subscriber matched {', '.join(sorted(missing))} within {max(bound_s, every_topic_s):g} s"
-                if len(missing) < len(pubs) else f"no subscriber within {max(bound_s, every_topic_s):g} s")
+        return (f"no subscriber matched {', '.join(sorted(missing))} within {bound:g} s"
+                if len(missing) < len(pubs) else f"no subscriber within {bound:g} s")
     time.sleep(SUBSCRIBER_SETTLE_S)
     n = sum(p.get_subscription_count() for p in pubs.values())
     return f"{n} subscription(s) matched"
@@ -152,6 +159,7 @@ class PlayOptions:
     wait_for_graph_s: float = GRAPH_WAIT_S  #: bound on the wait for the subscribers already running (0: none)
     show_progress: bool = True  #: a progress bar (on a terminal)
     label: str | None = None  #: what the bag is called in what play prints (None: its path)
+    min_subscribers: int = 0  #: > 0: wait until every topic has this many matched subscribers
 
 
 def play(bag: Path, options: PlayOptions = PlayOptions()) -> PlayStats:
@@ -253,8 +261,8 @@ def _playable(info, topics: list[str] | None) -> dict:
 
 def _wait_to_start(node, pubs: dict, o: PlayOptions) -> None:
     """Wait for the subscribers (:func:`wait_for_graph`) and the start delay, as the options say."""
-    if o.wait_for_subscribers > 0 or o.wait_for_graph_s > 0:
-        found = wait_for_graph(node, pubs, o.wait_for_graph_s, o.wait_for_subscribers)
+    if o.wait_for_subscribers > 0 or o.wait_for_graph_s > 0 or o.min_subscribers > 0:
+        found = wait_for_graph(node, pubs, o.wait_for_graph_s, o.wait_for_subscribers, o.min_subscribers)
         if not o.quiet:
             print(f"play: {found}", file=sys.stderr)
     if o.start_delay > 0:
@@ -353,7 +361,8 @@ def cmd_play(args: argparse.Namespace) -> int:
                          f"{args.bag} --out REC.mcap" + (" --channels MAP.yaml" if fmt.family == "timeseries" else ""))
     options = PlayOptions(args.rate, args.loop, args.clock, args.topics, args.wait_for_subscribers, args.delay,
                           not args.best_effort, wait_for_graph_s=0.0 if args.no_wait else GRAPH_WAIT_S,
-                          show_progress=not args.no_progress, label=args.bag)
+                          show_progress=not args.no_progress, label=args.bag,
+                          min_subscribers=max(args.min_subscribers, 0))
     with _as_mcap_recording(Path(args.bag), fmt.family) as bag:
         init_for_command_line()
         try:
@@ -393,6 +402,9 @@ def register_play(sub, with_params) -> None:  # noqa: ARG001
     p.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="S",
                    help="wait up to S seconds until every topic has a subscriber (for a node started after "
                         "the player), then " f"{SUBSCRIBER_SETTLE_S:g} s for them to discover the player")
+    p.add_argument("--min-subscribers", type=int, default=0, metavar="N",
+                   help=f"wait (at most {MIN_MATCHED_WAIT_S:g} s) until every topic has N matched subscribers "
+                        "(several consumers that must all get the first message)")
     p.add_argument("--no-wait", action="store_true",
                    help=f"start at once; by default the player first waits (at most {GRAPH_WAIT_S:g} s) until the "
                         "subscribers already running have matched, so that they get the first message")

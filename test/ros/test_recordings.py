@@ -32,7 +32,7 @@ def test_a_split_recording_is_whole_files_that_together_are_the_unsplit_one(tmp_
         # every subscriber the graph shows has matched it (its default), so both get the first message
         assert wait_for(lambda: all(probe_node.count_subscribers(t) >= 2 for t in inputs)
                         and probe.subscription.get_publisher_count() >= 2, 120)
-        play(bag, "--rate", "10")
+        play(bag, "--rate", "10", "--min-subscribers", "2")  # the player sees both nodes before it starts
         assert wait_for(lambda: len(probe) >= 2 * n, 600), f"{len(probe)} of {2 * n}"
         assert wait_for(lambda: (tmp_path / "whole.mcap").exists(), 10)
     assert split.stop() == 0 and whole.stop() == 0, split.stderr + whole.stderr
