@@ -14,13 +14,20 @@ from __future__ import annotations
 
 import os
 import secrets
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 PARTIAL_SUFFIX = ".partial"
-#: the commits deferred by the innermost :func:`together` block (partial, final path)
-_groups: list[list[tuple[Path, Path]]] = []
+#: per thread: the commits deferred by its :func:`together` blocks, innermost last (partial, final path)
+_local = threading.local()
+
+
+def _groups() -> list[list[tuple[Path, Path]]]:
+    if not hasattr(_local, "groups"):
+        _local.groups = []
+    return _local.groups
 
 
 def final_path(path: str | Path) -> Path:
@@ -50,8 +57,9 @@ def commit(partial: str | Path, path: str | Path) -> None:
         os.fsync(fd)
     finally:
         os.close(fd)
-    if _groups:
-        _groups[-1].append((Path(partial), final_path(path)))
+    groups = _groups()
+    if groups:
+        groups[-1].append((Path(partial), final_path(path)))
         return
     os.replace(partial, final_path(path))
 
@@ -62,15 +70,15 @@ def together() -> Iterator[None]:
     when it raises (a failed write of another output, Ctrl-C), none does: their partial files are
     removed and every existing file is left as it was."""
     group: list[tuple[Path, Path]] = []
-    _groups.append(group)
+    _groups().append(group)
     try:
         yield
     except BaseException:
-        _groups.remove(group)
+        _groups().remove(group)
         for partial, _ in group:
             discard(partial)
         raise
-    _groups.remove(group)
+    _groups().remove(group)
     for partial, path in group:
         commit(partial, path)  # into an enclosing block, or in place
 
