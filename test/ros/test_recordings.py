@@ -34,6 +34,10 @@ def test_a_split_recording_is_whole_files_that_together_are_the_unsplit_one(tmp_
                         and probe.subscription.get_publisher_count() >= 2, 120)
         play(bag, "--rate", "10", "--min-subscribers", "2")  # the player sees both nodes before it starts
         assert wait_for(lambda: len(probe) >= 2 * n, 600), f"{len(probe)} of {2 * n}"
+        # a trace of the whole node's buffer (every 3 s) recorded before it stops: the layouts' trace
+        # panel has something to show (a slow machine's worker takes longer than the play)
+        assert wait_for(lambda: inspect_bag(tmp_path / "whole.mcap").counts.get("/rollergear/loss/traced", 0) > 0,
+                        600, step=1.0)
         assert wait_for(lambda: (tmp_path / "whole.mcap").exists(), 10)
     assert split.stop() == 0 and whole.stop() == 0, split.stderr + whole.stderr
     files = sorted((tmp_path / "split").glob("rig_*.mcap"))
