@@ -416,10 +416,27 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
             cluster = stack.enter_context(LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
                                                        silence_logs=logging.ERROR, dashboard_address=":0"))
         client = stack.enter_context(Client(cluster))
+        stack.enter_context(_without_gc_diagnosis())
         if note:
             note(f"running on a local Dask cluster of {n} worker process{'es' if n > 1 else ''}"
                  + (f" (dashboard: {client.dashboard_link})" if _has_bokeh() else ""))
         yield client
+
+
+@contextmanager
+def _without_gc_diagnosis() -> Iterator[None]:
+    """Dask's scheduler hooks a diagnosis into every garbage collection of this process; a Ctrl-C
+    that lands in it is printed as "Exception ignored" with a traceback and lost.  Unhooked while the
+    fleet runs, hooked again before the cluster closes (which unhooks it itself)."""
+    import gc
+
+    hooks = [cb for cb in gc.callbacks if type(getattr(cb, "__self__", None)).__name__ == "GCDiagnosis"]
+    for cb in hooks:
+        gc.callbacks.remove(cb)
+    try:
+        yield
+    finally:
+        gc.callbacks.extend(hooks)
 
 
 #: how long ``--scheduler`` is waited for
