@@ -114,10 +114,7 @@ class EnergyBalance:
     angle_rad: float = 0.0  #: the input's angle turned over the samples (Σ |ω_in|·dt)
 
     def __add__(self, other: EnergyBalance) -> EnergyBalance:
-        return EnergyBalance(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
-
-    def __sub__(self, other: EnergyBalance) -> EnergyBalance:
-        return EnergyBalance(*(getattr(self, f.name) - getattr(other, f.name) for f in fields(self)))
+        return EnergyBalance.from_list(np.add(self.as_list(), other.as_list()))
 
     @property
     def lost_j(self) -> float:
@@ -140,8 +137,8 @@ class EnergyBalance:
 
     @classmethod
     def from_list(cls, values) -> EnergyBalance:
-        names = [f.name for f in fields(cls)]
-        return cls(**{n: (int(v) if n == "samples" else float(v)) for n, v in zip(names, values)})
+        """The balance of the fields in order (:meth:`as_list`, or summed rows: ``samples`` an integer count)."""
+        return cls(*(int(round(v)) if f.name == "samples" else float(v) for f, v in zip(fields(cls), values)))
 
     def uncertainty(self, sensors: SensorParams) -> float:
         """Standard uncertainty of :attr:`efficiency` from the sensors' stated accuracy (module
@@ -240,7 +237,8 @@ def balance_of(t_ns, torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, rat
     """The :class:`EnergyBalance` of the samples (times in ns; ``previous_ns``: the sample before
     the first, which the first integrates from; ``period_ns``: the sample period, else the median step)."""
     dt = _integration_steps_s(t_ns, previous_ns, period_ns)
-    return _balance(_terms(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio, dt)[0])
+    return EnergyBalance.from_list(_rows(_terms(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio, dt)[0],
+                                         len(dt)).sum(axis=1))
 
 
 @dataclass(frozen=True)
@@ -282,17 +280,17 @@ class MeasuredEfficiency:
     @property
     def total(self) -> EnergyBalance:
         """Every sample added."""
-        return _from_row(self._total)
+        return EnergyBalance.from_list(self._total)
 
     @property
     def motoring(self) -> EnergyBalance:
         """The part of :attr:`total` where power came in at the input."""
-        return _from_row(self._motoring)
+        return EnergyBalance.from_list(self._motoring)
 
     @property
     def regenerating(self) -> EnergyBalance:
         """... and where it came in at the output."""
-        return _from_row(self._total - self._motoring)
+        return EnergyBalance.from_list(self._total - self._motoring)
 
     def add(self, t_ns, torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, model_loss_w=None) -> None:
         """Samples in time order (arrays alike; a NaN output torque: not measured, left out);
@@ -316,11 +314,7 @@ class MeasuredEfficiency:
         self._motoring += rows[:, motoring].sum(axis=1)  # (no BLAS: its threads would spin beside the writer)
         second = t // 1_000_000_000
         starts = np.flatnonzero(np.diff(second, prepend=second[0] - 1))
-        for key, piece in zip(second[starts].tolist(), np.add.reduceat(rows, starts, axis=1).T):
-            if key in self._seconds:
-                self._seconds[key] += piece
-            else:
-                self._seconds[key] = piece.copy()
+        _accumulate(self._seconds, second[starts].tolist(), np.add.reduceat(rows, starts, axis=1))
         if self._first_s is None:
             self._first_s = int(second[0])
         self.last_ns = int(t[-1])
@@ -328,17 +322,11 @@ class MeasuredEfficiency:
             rpm = np.asarray(speed_rad_s, dtype=float) * (30.0 / math.pi)
             i = np.rint(rpm / self._grid[0]).astype(np.int64)
             j = np.rint(np.asarray(torque_nm, dtype=float) / self._grid[1]).astype(np.int64)
-            keys, index = np.unique(i * _CELL_SPAN + j, return_inverse=True)  # one integer per cell
-            order = np.argsort(index, kind="stable")
-            bounds = np.flatnonzero(np.diff(index[order], prepend=-1))
-            sums = np.add.reduceat(rows[:, order], bounds, axis=1).T
-            for key, piece in zip(keys.tolist(), sums):
-                cell = (int(np.floor_divide(key + _CELL_SPAN // 2, _CELL_SPAN)),
-                        int((key + _CELL_SPAN // 2) % _CELL_SPAN - _CELL_SPAN // 2))
-                if cell in self._cells:
-                    self._cells[cell] += piece
-                else:
-                    self._cells[cell] = piece.copy()
+            order = np.lexsort((j, i))  # the samples by cell
+            i, j = i[order], j[order]
+            starts = np.flatnonzero(np.diff(i, prepend=i[0] - 1) | np.diff(j, prepend=j[0] - 1))
+            _accumulate(self._cells, list(zip(i[starts].tolist(), j[starts].tolist())),
+                        np.add.reduceat(rows[:, order], starts, axis=1))
 
     def prime(self, last_ns: int) -> None:
         """A sample before the first added (a time slice's): the first integrates from it."""
@@ -362,8 +350,8 @@ class MeasuredEfficiency:
         """The balance of the ``window_s`` before the second boundary ``boundary_s`` (whole seconds:
         a window of 10 s at 20 s holds seconds 10 … 19)."""
         first = boundary_s - math.ceil(self.window_s)
-        return _from_row(sum((row for k, row in self._seconds.items() if first <= k < boundary_s),
-                             np.zeros(len(_FIELDS))))
+        return EnergyBalance.from_list(sum((row for k, row in self._seconds.items() if first <= k < boundary_s),
+                                           np.zeros(len(_FIELDS))))
 
     def window_value(self, boundary_s: int, sensors: SensorParams) -> WindowValue:
         """:meth:`window` as the value published: efficiency, uncertainty, samples."""
@@ -376,13 +364,11 @@ class MeasuredEfficiency:
         if self._grid is None:
             return []
         ds, dt = self._grid
-        return [(i * ds, j * dt, _from_row(self._cells[(i, j)])) for i, j in sorted(self._cells)]
+        return [(i * ds, j * dt, EnergyBalance.from_list(self._cells[(i, j)])) for i, j in sorted(self._cells)]
 
 
 _FIELDS = tuple(f.name for f in fields(EnergyBalance))
 _FIELD_INDEX = {name: k for k, name in enumerate(_FIELDS)}
-#: cell keys (speed node i, torque node j) as one integer ``i·span + j`` (|j| < span/2)
-_CELL_SPAN = 1 << 31
 
 
 def _rows(terms: dict[str, np.ndarray], n: int) -> np.ndarray:
@@ -393,11 +379,10 @@ def _rows(terms: dict[str, np.ndarray], n: int) -> np.ndarray:
     return rows
 
 
-def _from_row(row: np.ndarray) -> EnergyBalance:
-    """The :class:`EnergyBalance` of summed rows (``samples`` an integer count)."""
-    return EnergyBalance(*(int(round(v)) if name == "samples" else float(v) for name, v in zip(_FIELDS, row)))
-
-
-def _balance(terms: dict[str, np.ndarray]) -> EnergyBalance:
-    return EnergyBalance(**{k: (int(np.count_nonzero(v)) if k == "samples" else float(np.sum(v)))
-                            for k, v in terms.items()})
+def _accumulate(table: dict, keys: list, sums: np.ndarray) -> None:
+    """Add each column of ``sums`` to ``table[key]`` (a new key gets its own copy)."""
+    for key, piece in zip(keys, sums.T):
+        if key in table:
+            table[key] += piece
+        else:
+            table[key] = piece.copy()
