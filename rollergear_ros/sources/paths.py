@@ -94,8 +94,9 @@ def check_outputs(inputs: Sequence[str | Path | None], outputs: Sequence[Output]
         if out.path is not None and str(out.path).strip() == "":
             raise UsageError(f"{out.option} {str(out.path)!r} names no {'folder' if out.is_folder else 'file'}")
     given = [o for o in outputs if o.path is not None]
-    refuse_overwriting_inputs(inputs, {o.option: o.path for o in given})
-    _refuse_writing_over_inputs_in_folders(inputs, [o for o in given if o.is_folder and o.files])
+    existing = input_files(inputs)  # a folder input walked once, for both checks
+    _refuse_same_files(inputs, existing, {o.option: o.path for o in given})
+    _refuse_writing_over_inputs_in_folders(existing, [o for o in given if o.is_folder and o.files])
     for out in given:
         p = Path(out.path)
         special = _special(p)
@@ -148,19 +149,25 @@ def refuse_overwriting_inputs(inputs: Sequence[str | Path | None], outputs: dict
     """Refuse, before anything is opened, an output that is the same file as an input or as a file
     in an input folder (the same path, another path to it, or a hard link): writing it would
     destroy the recording."""
-    existing = input_files(inputs)
+    _refuse_same_files(inputs, input_files(inputs), outputs)
+
+
+def _refuse_same_files(inputs: Sequence[str | Path | None], existing: Sequence[Path],
+                       outputs: dict[str, str | Path | None]) -> None:
+    """:func:`refuse_overwriting_inputs` with the inputs' files (:func:`input_files`) given."""
+    given = {str(p) for p in inputs if p is not None}
     for option, out in outputs.items():
         if out is None:
             continue
         for source in existing:
             if _same(out, source):
-                what = "the input" if source in inputs or str(source) in map(str, inputs) else "a file of the input"
+                what = "the input" if str(source) in given else "a file of the input"
                 raise UsageError(f"{option} {out} is {what} {source}: refusing to overwrite it")
 
 
-def _refuse_writing_over_inputs_in_folders(inputs: Sequence[str | Path | None], folders: Sequence[Output]) -> None:
-    """Refuse a folder output whose files (:attr:`Output.files`) would replace an input in it."""
-    existing = input_files(inputs)
+def _refuse_writing_over_inputs_in_folders(existing: Sequence[Path], folders: Sequence[Output]) -> None:
+    """Refuse a folder output whose files (:attr:`Output.files`) would replace an input in it
+    (``existing``: the inputs' files, :func:`input_files`)."""
     for out in folders:
         for source in existing:
             if not source.is_file() or not _same(source.parent, out.path):
