@@ -5,6 +5,7 @@ only these -- into one line ``rollergear: error: …`` and exit status 2 (``loss
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 
@@ -68,12 +69,19 @@ def damaged_exit(source: str, share: float, what: str) -> int:
     return DAMAGED_EXIT
 
 
-def lost_share(damaged_bytes: int, total_bytes: int, messages_lost: int, message_count: int) -> float:
-    """The share of a recording that damage cost: the larger of its bytes' and its messages' share."""
+def lost_share(spans: Sequence[Any], total_bytes: int, message_count: int) -> float:
+    """The share of a recording its damaged spans (:class:`~recordings.fastmcap.DamagedSpan`) cost:
+    the larger of its bytes' and its messages' share."""
+    damaged_bytes, messages_lost = damage_totals(spans)
     by_bytes = damaged_bytes / total_bytes if total_bytes > 0 else 0.0
     by_messages = messages_lost / message_count if message_count > 0 else 0.0
     return min(1.0, max(by_bytes, by_messages))
 
 
+def damage_totals(spans: Sequence[Any]) -> tuple[int, int]:
+    """Bytes and messages (those a damaged chunk's index tells) the damaged spans lost."""
+    return sum(s.end_byte - s.start_byte for s in spans), sum(s.messages_lost or 0 for s in spans)
+
+
 __all__ = ["BagError", "DAMAGED_EXIT", "InputFileError", "MAX_LOST_SHARE", "ParameterError", "RollergearError",
-           "UsageError", "damaged_exit", "lost_share"]
+           "UsageError", "damage_totals", "damaged_exit", "lost_share"]

@@ -408,8 +408,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
     # Dask's nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536: glibc then maps and unmaps
     # every allocation above 128 KB instead of reusing it, and replay's numpy batches ran 1.6-1.9x
     # slower in a worker than in a plain process.  None: the workers inherit this process's setting.
-    # the workers (and the cluster's loop thread, which restarts them) start with Ctrl-C blocked: the
-    # terminal's SIGINT is this process's to handle; it closes the cluster, which ends them quietly
+    # the workers start with Ctrl-C ignored: the terminal's SIGINT is this process's to handle; it
+    # closes the cluster, which ends them quietly
     with ExitStack() as stack:
         stack.enter_context(dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}))
         with children_spared_interrupts():  # a Ctrl-C meanwhile comes when the cluster is on the stack

@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterator, Sequence
 
 from ..recordings.bag import BagInfo, TopicMap, inspect_bag, median_period_s
 from ..base import atomic
-from ..base.errors import BagError, UsageError, lost_share
+from ..base.errors import BagError, UsageError, damage_totals, lost_share
 from ..core.estimator import BatchEstimate, Estimator
 from ..core.params import Config
 from ..base.progress import TimedProgress
@@ -180,9 +180,8 @@ def _damage(summary: ReplaySummary, info: BagInfo, problems: InputProblems) -> N
     at all is a :class:`BagError` (no output replaces a file)."""
     if not problems.damaged:
         return
-    lost = sum(s.messages_lost or 0 for s in problems.damaged)
-    damaged_bytes = sum(s.end_byte - s.start_byte for s in problems.damaged)
-    summary.lost_share = lost_share(damaged_bytes, info.bytes_total, lost, info.message_count)
+    damaged_bytes, lost = damage_totals(problems.damaged)
+    summary.lost_share = lost_share(problems.damaged, info.bytes_total, info.message_count)
     if summary.input_messages == 0 and not summary.interrupted:
         raise BagError(f"{info.path}: nothing readable: {len(problems.damaged)} damaged span(s), "
                        f"{damaged_bytes:,} bytes{f', {lost:,} messages' if lost else ''} lost; no output written")

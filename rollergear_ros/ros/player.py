@@ -324,8 +324,7 @@ def _play_once(bag: Path, pubs: dict, rate: float, clock_pub, stats: PlayStats) 
         if state.damaged and not stats.damaged:  # said once (a loop reads the file again)
             stats.damaged = state.damage_report()
             info = inspect_bag(bag)
-            stats.lost_share = lost_share(sum(s.end_byte - s.start_byte for s in state.damaged), info.bytes_total,
-                                          sum(s.messages_lost or 0 for s in state.damaged), info.message_count)
+            stats.lost_share = lost_share(state.damaged, info.bytes_total, info.message_count)
             for line in stats.damaged:
                 print(f"warning: {bag}: {line}", file=sys.stderr)
 

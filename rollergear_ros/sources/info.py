@@ -139,8 +139,7 @@ def _mcap(path: Path, info: FileInfo) -> None:
         pass
     info.damaged += [line for line in state.damage_report() if line not in info.damaged]
     if state.damaged:
-        share = lost_share(sum(s.end_byte - s.start_byte for s in state.damaged), bag.bytes_total,
-                           sum(s.messages_lost or 0 for s in state.damaged), bag.message_count)
+        share = lost_share(state.damaged, bag.bytes_total, bag.message_count)
         info.damaged.append(f"{100 * share:.1f} % of the recording unreadable")
     info.notes.append("every chunk was read and its CRC checked")
     try:
