@@ -24,7 +24,7 @@ from pathlib import Path
 
 from .bag import BagWriter, encoder_for
 
-__all__ = ["RollingRecorder", "file_name", "free_name", "is_template", "splits"]
+__all__ = ["RollingRecorder", "file_name", "free_name", "is_template", "next_file", "roll_due", "splits"]
 
 FIELDS = ("{start}", "{index}")
 
@@ -60,6 +60,16 @@ def free_name(path: Path) -> Path:
         k += 1
 
 
+def next_file(template: str, start_ns: int, index: int, split: bool) -> Path:
+    """The free file the ``index``-th file of a recording named ``template`` is written to."""
+    return free_name(file_name(template, start_ns, index, split))
+
+
+def roll_due(size_bytes: int, age_ns: int, max_bytes: int, max_ns: int) -> bool:
+    """Whether a file of this size and age has reached a limit (0: none)."""
+    return bool(max_bytes and size_bytes >= max_bytes) or bool(max_ns and age_ns >= max_ns)
+
+
 class RollingRecorder:
     """A :class:`~.bag.BagWriter` that rolls over to a new file (see the module docstring).
 
@@ -87,7 +97,7 @@ class RollingRecorder:
 
     def _open(self) -> BagWriter:
         start = self._now_ns()
-        path = free_name(file_name(self.template, start, len(self.files), self._split))
+        path = next_file(self.template, start, len(self.files), self._split)
         writer = self._open_writer(path)
         self._opened_ns = start
         self.files.append(path)
@@ -115,9 +125,7 @@ class RollingRecorder:
 
     def due(self) -> bool:
         """Whether the current file has reached its size or age."""
-        if self.max_bytes and self.writer.bytes_written >= self.max_bytes:
-            return True
-        return bool(self.max_ns) and self._now_ns() - self._opened_ns >= self.max_ns
+        return roll_due(self.writer.bytes_written, self._now_ns() - self._opened_ns, self.max_bytes, self.max_ns)
 
     def roll_if_due(self) -> Path | None:
         """Open the next file and close the current one when it is due; the closed file's path."""

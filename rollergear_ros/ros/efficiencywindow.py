@@ -12,6 +12,7 @@ replay of the node's recording writes the values the node published.
 
 from __future__ import annotations
 
+import math
 import struct
 
 from ..base.interface import MessageType
@@ -58,7 +59,7 @@ class LiveEfficiencyWindow:
         due = self.tally.boundaries(self._boundary_s)
         sensors = node.config.sensors
         windows = [self.tally.window_value(k, sensors) for k in due[-60:]]  # a stalled timer: the last minute
-        windows = [w for w in windows if w.efficiency == w.efficiency]  # NaN: nothing supplied in the window
+        windows = [w for w in windows if math.isfinite(w.efficiency)]  # NaN: nothing supplied in the window
         for value in windows:
             self._publish(value)
         if windows and node.rerun is not None:

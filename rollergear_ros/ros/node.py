@@ -33,7 +33,7 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64, Float64MultiArray
 
 from ..recordings import bag as bagmod
-from ..recordings.rolling import RollingRecorder, file_name, free_name, is_template, splits
+from ..recordings.rolling import RollingRecorder, free_name, is_template, next_file, roll_due, splits
 from .diagnostics import (STATUS_NAME, DiagnosticLimits, InputMonitor, InputsNow, NodeLoad, SinceLast,
                           diagnose)
 from ..core.estimator import Estimate, Estimator
@@ -227,7 +227,7 @@ class LossEstimatorNode(Node):
         path = None
         if node.rerun_rrd:
             split = splits(int(node.record_max_mb * 1e6), node.record_max_s)
-            path = free_name(file_name(node.rerun_rrd, time.time_ns(), len(self.rerun_files), split))
+            path = next_file(node.rerun_rrd, time.time_ns(), len(self.rerun_files), split)
             self.rerun_files.append(path)
             self._rerun_opened_ns = time.time_ns()
         return RerunLog("rollergear_live", path, node.rerun_connect or None,
@@ -248,8 +248,8 @@ class LossEstimatorNode(Node):
         if self.rerun is not None and self.rerun_files:
             path = self.rerun_files[-1]
             size = path.stat().st_size if path.exists() else 0
-            if (node.record_max_mb and size >= node.record_max_mb * 1e6) or \
-                    (node.record_max_s and time.time_ns() - self._rerun_opened_ns >= node.record_max_s * 1e9):
+            if roll_due(size, time.time_ns() - self._rerun_opened_ns, int(node.record_max_mb * 1e6),
+                        int(node.record_max_s * 1e9)):
                 self._flush_rerun()
                 old, self.rerun = self.rerun, self._open_rerun()
                 try:
@@ -760,8 +760,9 @@ def _first_file(path: str, split: bool) -> Path:
     """The first file a recording named ``path`` writes, as start-up checks it: with a field in the
     name or split, the next free name (never an existing file); a plain name as it is (refused when
     it exists: :func:`~.parameters.check_new_output`)."""
-    first = file_name(path, time.time_ns(), 0, split)
-    return free_name(first) if (is_template(path) or split) else first
+    if is_template(path) or split:
+        return next_file(path, time.time_ns(), 0, split)
+    return Path(path)
 
 
 def main(args: list[str] | None = None) -> int:
