@@ -126,8 +126,11 @@ class ChannelMap:
         return cols
 
 
-def _finite_float(value: int | float) -> bool:
-    """Whether ``value`` is a finite float (an integer of 400 digits is not)."""
+def _finite_number(value: Any) -> bool:
+    """Whether ``value`` is a finite number as a float (not a bool, a string or None; an integer of 400
+    digits is not)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
     try:
         return math.isfinite(float(value))
     except OverflowError:
@@ -144,8 +147,7 @@ def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
                              "scale, lag_s)")
     constant = value.get("constant")
     if "constant" in value:
-        if key == "time" or isinstance(constant, bool) or not isinstance(constant, int | float) \
-                or not _finite_float(constant):
+        if key == "time" or not _finite_number(constant):
             raise InputFileError(f"{path}: {key}: constant must be a finite number"
                                  f"{' (time cannot be constant)' if key == 'time' else ''}, got {constant!r}")
     allowed = UNITS[key]
@@ -155,10 +157,10 @@ def _spec(path: Path, key: str, value: Any) -> ChannelSpec:
     if unit not in allowed:
         raise InputFileError(f"{path}: {key}: unknown unit {value['unit']!r} (one of {', '.join(allowed)})")
     scale = value.get("scale", 1.0)
-    if isinstance(scale, bool) or not isinstance(scale, int | float) or not _finite_float(scale) or scale == 0:
+    if not _finite_number(scale) or scale == 0:
         raise InputFileError(f"{path}: {key}: scale must be a finite non-zero number, got {scale!r}")
     lag = value.get("lag_s", 0.0)
-    if isinstance(lag, bool) or not isinstance(lag, int | float) or not _finite_float(lag) or abs(lag) > MAX_LAG_S:
+    if not _finite_number(lag) or abs(lag) > MAX_LAG_S:
         raise InputFileError(f"{path}: {key}: lag_s must be a finite number of seconds within ±{MAX_LAG_S:g}, "
                              f"got {lag!r}")
     if lag and (key == "time" or constant is not None):
@@ -251,8 +253,7 @@ def _ratio(path: Path, ratio, fmt: str) -> tuple[float | None, str | None]:
         if set(ratio) != {"column"}:
             raise InputFileError(f"{path}: ratio: expected a number > 0 or {{column: NAME}}, got {ratio!r}")
         return None, str(ratio["column"])
-    if ratio is not None and (isinstance(ratio, bool) or not isinstance(ratio, int | float)
-                              or not _finite_float(ratio) or not MIN_RATIO <= ratio <= MAX_RATIO):
+    if ratio is not None and not (_finite_number(ratio) and MIN_RATIO <= ratio <= MAX_RATIO):
         raise InputFileError(f"{path}: ratio must be a number in [{MIN_RATIO:g}, {MAX_RATIO:g}]"
                              f"{' (or {column: NAME} in a steady_state map)' if fmt == 'steady_state' else ''}, "
                              f"got {ratio!r}")

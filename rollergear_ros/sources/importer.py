@@ -107,19 +107,19 @@ def _rosbag2_paths(src: Path) -> list[Path]:
     every storage file checked to be a regular file first (a FIFO would block the reader for ever)."""
     if src.name == "metadata.yaml":
         src = src.parent
-    if src.is_dir() and not (src / "metadata.yaml").exists():
-        files = sorted(src.glob("*.mcap")) or sorted(src.glob("*.db3"))
+    if not src.is_dir():
+        files = opened = [src]
+    elif (src / "metadata.yaml").exists():
+        files, opened = _storage_files(src), [src]
+    else:
+        files = opened = sorted(src.glob("*.mcap")) or sorted(src.glob("*.db3"))
         if not files:
             raise InputFileError(f"{src}: a folder without metadata.yaml and without .mcap/.db3 files")
-    elif src.is_dir():
-        files = _storage_files(src)
-    else:
-        files = [src]
     for f in files:
         if not f.is_file():
             raise InputFileError(f"{f}: a storage file of {src} that is "
                                  f"{'missing' if not f.exists() else 'not a regular file'}")
-    return files if not (src / "metadata.yaml").exists() else [src]
+    return opened
 
 
 def _zstd_errors() -> tuple[type[BaseException], ...]:
