@@ -530,17 +530,21 @@ def grid_points(start: float, stop: float, step: float) -> float:
     return math.floor((stop - start) / step + 1e-9) + 1.0
 
 
-def map_grid_problem(speeds: tuple[float, float, float], torques: tuple[float, float, float]) -> str | None:
-    """Why a loss-map grid (``(first, last, step)`` of speed and of torque) is too large, or None."""
-    n_speed, n_torque = grid_points(*speeds), grid_points(*torques)
-    for name, n, (first, last, step) in (("speed", n_speed, speeds), ("torque", n_torque, torques)):
-        if n > MAX_MAP_AXIS_POINTS:
-            return (f"the {name} grid {first:g}…{last:g} in steps of {step:g} has {n:.3g} points; at most "
-                    f"{MAX_MAP_AXIS_POINTS:,} (a larger step)")
-    if n_speed * n_torque > MAX_MAP_CELLS:
-        return (f"the map has {n_speed:.0f} x {n_torque:.0f} = {n_speed * n_torque:,.0f} cells; at most "
-                f"{MAX_MAP_CELLS:,} (larger steps)")
-    return None
+def grid_axis_problem(first: float, last: float, step: float, name: str = "") -> str | None:
+    """Why a loss-map axis ``first..last`` in ``step`` increments has too many points, or None."""
+    n = grid_points(first, last, step)
+    if n <= MAX_MAP_AXIS_POINTS:
+        return None
+    return (f"the {name + ' ' if name else ''}grid {first:g}…{last:g} in steps of {step:g} has {n:.3g} points; "
+            f"at most {MAX_MAP_AXIS_POINTS:,} (a larger step)")
+
+
+def grid_cells_problem(n_speeds: float, n_torques: float) -> str | None:
+    """Why a loss map of this many speeds and torques has too many cells, or None."""
+    if n_speeds * n_torques <= MAX_MAP_CELLS:
+        return None
+    return (f"the map has {n_speeds:.0f} x {n_torques:.0f} = {n_speeds * n_torques:,.0f} cells; at most "
+            f"{MAX_MAP_CELLS:,} (larger steps)")
 
 
 @dataclass(frozen=True)
@@ -707,10 +711,14 @@ def _check_consistency(config: Config) -> None:
         raise ParameterError("map.torque_max_nm", config.map.torque_max_nm,
                              f"must be >= map.torque_min_nm ({first:g} N*m; auto: ± gearbox.rated_torque_nm)")
     m = config.map
-    problem = map_grid_problem((m.speed_min_rpm, m.last_speed_rpm(g), m.speed_step_rpm), m.torques_nm(g))
+    speeds, torques = (m.speed_min_rpm, m.last_speed_rpm(g), m.speed_step_rpm), m.torques_nm(g)
+    for key, axis, name in (("map.speed_step_rpm", speeds, "speed"), ("map.torque_step_nm", torques, "torque")):
+        problem = grid_axis_problem(*axis, name)
+        if problem:
+            raise ParameterError(key, axis[2], problem)
+    problem = grid_cells_problem(grid_points(*speeds), grid_points(*torques))
     if problem:
-        key = "map.speed_step_rpm" if "speed grid" in problem else "map.torque_step_nm"
-        raise ParameterError(key, getattr(m, key.split(".")[1]), problem)
+        raise ParameterError("map.torque_step_nm", m.torque_step_nm, problem)
     law = viscosity_law()
     if law.name in config.effects.enabled():
         vogel = config.effects.params(law.name)

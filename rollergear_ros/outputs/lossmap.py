@@ -30,7 +30,7 @@ from ..base.atomic import save_figure, write_text
 from ..base.errors import UsageError
 from ..base.interface import RPM_PER_RAD_S, package_version
 from ..core.operating_points import PointLosses, evaluate_points
-from ..core.params import MAX_MAP_AXIS_POINTS, MAX_MAP_CELLS, Config, grid_points
+from ..core.params import Config, grid_axis_problem, grid_cells_problem, grid_points
 from ..sources.tables import MIN_ROWS
 
 __all__ = ["VECTO_HEADER", "LossMap", "build_map", "coverage_warning", "efficiency_levels", "grid", "map_comments",
@@ -61,11 +61,10 @@ def grid(start: float, stop: float, step: float) -> np.ndarray:
     """Inclusive ``start..stop`` in ``step`` increments (rounded to kill float drift)."""
     if step <= 0 or not all(map(math.isfinite, (start, stop, step))) or stop < start:
         raise UsageError(f"bad grid {start}:{stop}:{step} (need finite start <= stop and step > 0)")
-    n = grid_points(start, stop, step)
-    if n > MAX_MAP_AXIS_POINTS:
-        raise UsageError(f"the grid {start:g}…{stop:g} in steps of {step:g} has {n:.3g} points; at most "
-                         f"{MAX_MAP_AXIS_POINTS:,} (a larger step)")
-    n = int(n)
+    problem = grid_axis_problem(start, stop, step)
+    if problem:
+        raise UsageError(problem)
+    n = int(grid_points(start, stop, step))
     return np.round(start + step * np.arange(n), 9)
 
 
@@ -79,9 +78,9 @@ def build_map(config: Config, speeds_rpm: Sequence[float], torques_nm: Sequence[
     """
     speeds = np.asarray(speeds_rpm, float)
     torques = np.asarray(torques_nm, float)
-    if len(speeds) * len(torques) > MAX_MAP_CELLS:
-        raise UsageError(f"the map has {len(speeds)} x {len(torques)} = {len(speeds) * len(torques):,} cells; at most "
-                         f"{MAX_MAP_CELLS:,} (larger steps)")
+    problem = grid_cells_problem(len(speeds), len(torques))
+    if problem:
+        raise UsageError(problem)
     if (speeds < 0).any():
         raise UsageError("VECTO loss maps have input speeds >= 0: give the speed grid from 0 up "
                          "(--both-directions writes reverse rotation to a second file)")
