@@ -100,8 +100,8 @@ class TraceBuffer:
         start = 0 if after_ns is None else bisect.bisect_right(self.times, after_ns)
         width = len(SAMPLE_FIELDS) - 1
         times = np.frombuffer(self.times, dtype=np.int64)[start:].copy()
-        values = np.frombuffer(self.values, dtype=np.float64)[start * width:].reshape(len(times), width).copy()
-        return {"t_ns": times} | {f: values[:, k].copy() for k, f in enumerate(SAMPLE_FIELDS[1:])}
+        values = np.frombuffer(self.values, dtype=np.float64)[start * width:].reshape(len(times), width)
+        return {"t_ns": times} | {f: values[:, k].copy() for k, f in enumerate(SAMPLE_FIELDS[1:])}  # copies
 
     def snapshot(self) -> dict[str, np.ndarray]:
         """The last ``capacity`` buffered samples as one array per field, in time order (copies)."""
