@@ -27,6 +27,7 @@ from . import replay as replay_cli
 from ..ros import watch
 from .args import config_from_args, default_params_path, finite_float, oil_temperature_c
 from ..outputs.measuredmap import MIN_SAMPLES
+from ..outputs.oiltable import MAX_MAP_TEMPERATURES
 from ..outputs.lossmap import reverse_path
 from ..sources.paths import Output, check_input_file, check_outputs
 
@@ -132,12 +133,18 @@ def cmd_map(args: argparse.Namespace) -> int:
     torques = grid(*(args.torque_nm or m.torques_nm(config.gearbox)))
     out = Path(args.out)
     both = args.both_directions or m.both_directions
-    outputs = [Output("--out", out, "vtlm")] + ([Output("its picture", out.with_suffix(".png"), "png")]
-                                                 if not args.no_plot else [])
-    if both:
-        rev = reverse_path(out)
-        outputs += [Output("the reverse map", rev, "vtlm")] + ([Output("its picture", rev.with_suffix(".png"), "png")]
-                                                                if not args.no_plot else [])
+    temperatures = _map_temperatures(args.oil_temperature_c)
+    forward = {t: map_path(out, t, len(temperatures) > 1) for t in temperatures}
+    table = Path(args.table) if args.table else (out.with_suffix(".csv") if len(temperatures) > 1 else None)
+    if table is not None and table.suffix.lower() not in (".csv", ".parquet"):
+        raise UsageError(f"--table {table}: a .csv or .parquet file")
+    outputs = []
+    for path in forward.values():
+        for p in [path, *([reverse_path(path)] if both else [])]:
+            outputs += [Output("--out", p, "vtlm")] + ([Output("its picture", p.with_suffix(".png"), "png")]
+                                                       if not args.no_plot else [])
+    if table is not None:
+        outputs.append(Output("--table", table, table.suffix.lower().lstrip(".")))
     if args.measured and not args.recording:
         raise UsageError("--measured needs a --recording with measured output torque")
     if args.min_samples < 1:
@@ -150,32 +157,63 @@ def cmd_map(args: argparse.Namespace) -> int:
                     Output("its table", path.with_suffix(".csv"), "csv")]
     check_outputs([args.params, *args.recording], outputs)
     with together():  # the maps, pictures and tables are put in place together, or none
-        return _write_maps(args, config, speeds, torques, out, both, measured_paths)
+        return _write_maps(args, config, speeds, torques, forward, both, table, measured_paths)
 
 
-def _write_maps(args: argparse.Namespace, config, speeds: np.ndarray, torques: np.ndarray, out: Path, both: bool,
+def _map_temperatures(given: list[float] | None) -> list[float | None]:
+    """``--oil-temperature-c``'s temperatures (none given: one map, at no stated temperature)."""
+    if not given:
+        return [None]
+    if len(set(given)) < len(given):
+        raise UsageError(f"--oil-temperature-c: a temperature given twice ({' '.join(f'{t:g}' for t in given)})")
+    if len(given) > MAX_MAP_TEMPERATURES:
+        raise UsageError(f"--oil-temperature-c: at most {MAX_MAP_TEMPERATURES} temperatures (got {len(given)})")
+    return list(given)
+
+
+def map_path(out: Path, temperature_c: float | None, several: bool) -> Path:
+    """The map file of one oil temperature: ``--out`` itself, or with several temperatures
+    ``lossmap.vtlm`` -> ``lossmap_60C.vtlm`` (``lossmap_-10C.vtlm``, ``lossmap_22.5C.vtlm``)."""
+    return out.with_name(f"{out.stem}_{temperature_c:g}C{out.suffix}") if several else out
+
+
+def _write_maps(args: argparse.Namespace, config, speeds: np.ndarray, torques: np.ndarray,
+                forward: dict[float | None, Path], both: bool, table: Path | None,
                 measured_paths: dict[str, Path]) -> int:
     from ..outputs.lossmap import build_map, coverage_warning, map_comments, plot_map, vtlm_problems, write_vtlm
+    from ..outputs.oiltable import oil_dependence_warning
 
     params_path = Path(args.params) if args.params else default_params_path()
-    maps = [(out, build_map(config, speeds, torques, args.oil_temperature_c))]
-    if both:
-        maps.append((reverse_path(out), build_map(config, speeds, torques, args.oil_temperature_c, reverse=True)))
-    for path, loss_map in maps:
+    maps = []  # (temperature, path, map)
+    for temperature, out in forward.items():
+        maps.append((temperature, out, build_map(config, speeds, torques, temperature)))
+        if both:
+            maps.append((temperature, reverse_path(out), build_map(config, speeds, torques, temperature, reverse=True)))
+    for temperature, path, loss_map in maps:
         problems = vtlm_problems(loss_map)
         if problems:
             raise UsageError(f"{path} would not be a valid VECTO loss map: {'; '.join(problems)}")
-        write_vtlm(loss_map, path, map_comments(config, params_path, args.oil_temperature_c, loss_map.reverse))
+        write_vtlm(loss_map, path, map_comments(config, params_path, temperature, loss_map.reverse))
         png = None if args.no_plot else path.with_suffix(".png")
         if png is not None:
             plot_map(loss_map, png, config.estimator.min_torque_for_efficiency_nm)
         eta = loss_map.efficiency
         print(f"wrote {path} ({len(speeds)} speeds 0…{speeds.max():g} rpm x {len(torques)} torques"
-              f"{', reverse rotation' if loss_map.reverse else ''})" + (f" and {png}" if png else ""))
+              f"{', reverse rotation' if loss_map.reverse else ''}"
+              f"{'' if temperature is None else f', oil {temperature:g} °C'})" + (f" and {png}" if png else ""))
         if np.isfinite(eta).any():
             model_share = 100.0 * float(np.sum(loss_map.model_nm)) / max(float(np.sum(loss_map.loss_nm)), 1e-300)
             print(f"  efficiency {100 * np.nanmin(eta):.2f} … {100 * np.nanmax(eta):.2f} %, "
                   f"max loss {loss_map.loss_nm.max():.4f} N·m; the paper's model: {model_share:.0f} % of the loss")
+    if table is not None:
+        from ..outputs.oiltable import write_long_table
+
+        rows = write_long_table([(math.nan if t is None else t, m) for t, _, m in maps], table)
+        print(f"wrote {table} ({rows} rows: speed x torque x oil temperature -> loss)")
+    warning = oil_dependence_warning(config, [t for t in forward if t is not None])
+    if warning:
+        print(f"rollergear: warning: {warning}", file=sys.stderr)
+    first_map = maps[0][2]
     for bag in args.recording:
         from ..replay.run import replay
 
@@ -184,7 +222,7 @@ def _write_maps(args: argparse.Namespace, config, speeds: np.ndarray, torques: n
             raise KeyboardInterrupt
         torque = np.concatenate([b.torque_nm for b in batches]) if batches else np.zeros(0)
         speed = np.concatenate([b.speed_rad_s for b in batches]) if batches else np.zeros(0)
-        warning = coverage_warning(maps[0][1], torque, speed, str(bag))
+        warning = coverage_warning(first_map, torque, speed, str(bag))
         if warning:
             print(f"rollergear: warning: {warning}", file=sys.stderr)
         else:
@@ -280,8 +318,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="torque grid, both signs (default: the map section of the parameter file, -100 100 5)")
     p.add_argument("--both-directions", action="store_true",
                    help="also reverse rotation, to a second file NAME_reverse.vtlm (VECTO maps have speeds >= 0)")
-    p.add_argument("--oil-temperature-c", type=oil_temperature_c, metavar="DEGC",
-                   help="oil temperature, for an accepted effect that needs it (viscosity_temperature)")
+    p.add_argument("--oil-temperature-c", type=oil_temperature_c, nargs="+", metavar="DEGC",
+                   help="oil temperature(s), for an accepted effect that needs it (viscosity_temperature); several: "
+                        "a map per temperature, OUT_<T>C.vtlm, and the long table (--table)")
+    p.add_argument("--table", metavar="CSV|PARQUET",
+                   help="the maps as one long table, speed x torque x oil temperature -> loss (default with several "
+                        "temperatures: OUT with .csv)")
     p.add_argument("--recording", action="append", default=[], metavar="BAG",
                    help="warn when this recording visited operating points outside the map (repeatable)")
     p.add_argument("--measured", action="store_true",

@@ -234,6 +234,10 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
               read_only=True),
     ParamSpec("node.map_file", str, "", "also rewrite this VECTO .vtlm file (atomically) with each map ('' = off)",
               read_only=True),
+    ParamSpec("node.map_oil_step_c", float, 5.0,
+              "a model that follows the oil (an accepted effect needs its temperature): a new loss map when the oil "
+              "temperature has moved this far from the last map's (0 = only when a coefficient moves)", "degC",
+              low=0.0, high=500.0),
     ParamSpec("node.publish_float64", bool, True,
               "publish the four std_msgs/Float64 outputs (loss/torque, loss/power, efficiency, residual/torque) for "
               "plotting tools; off: one publication per sample", read_only=True),
@@ -444,6 +448,7 @@ class NodeParams:
     publish_stamped: bool = True
     publish_map: bool = True
     map_file: str = ""
+    map_oil_step_c: float = 5.0
     publish_float64: bool = True
     expected_rate_hz: float = 1000.0
     learn_input_rate: bool = True

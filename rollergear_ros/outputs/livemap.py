@@ -1,20 +1,25 @@
 """The live loss map: the calibrated model with the online-adapted coefficients, for energy managers.
 
 The node publishes it on ``loss/map`` (``std_msgs/msg/Float64MultiArray``; reliable,
-transient-local, depth 1: a late subscriber gets the last one) when it starts and whenever an
-adapted coefficient has moved beyond its 95 % interval since the map last published; and
-optionally rewrites a VECTO ``.vtlm`` file atomically (``node.map_file``).  The grid is the
-parameter file's ``map.*`` (as ``rollergear map``), forward rotation.
+transient-local, depth 1: a late subscriber gets the last one) when it starts, whenever an
+adapted coefficient has moved beyond its 95 % interval since the map last published and, for a
+model that follows the oil, whenever the oil temperature has moved ``node.map_oil_step_c`` from
+the map's; and optionally rewrites a VECTO ``.vtlm`` file atomically (``node.map_file``).  The
+grid is the parameter file's ``map.*`` (as ``rollergear map``), forward rotation.
 
-Layout of the message (:func:`to_multiarray`, read back by :func:`from_multiarray`)::
+Layout of the message (:func:`to_multiarray`, read back by :func:`from_multiarray`): a map over
+speed × torque × oil temperature with one temperature, the one it was evaluated at::
 
     layout.dim[0] = {label: "speed_rpm", size: Ns, stride: Ns*Nt}
     layout.dim[1] = {label: "torque_nm", size: Nt, stride: Nt}
-    layout.data_offset = Ns + Nt
-    data[0 : Ns]              input speeds [rpm], ascending
-    data[Ns : Ns + Nt]        input torques [N·m], ascending (negative: overrun)
-    data[Ns + Nt + i*Nt + j]  torque loss [N·m] (input-referred magnitude, as in a .vtlm)
-                              at speed i, torque j
+    layout.dim[2] = {label: "oil_temperature_c", size: 1, stride: 1}
+    layout.data_offset = Ns + Nt + 1
+    data[0 : Ns]                  input speeds [rpm], ascending
+    data[Ns : Ns + Nt]            input torques [N·m], ascending (negative: overrun)
+    data[Ns + Nt]                 the oil temperature [°C] the map was evaluated at; NaN: the
+                                  model does not follow the oil (the map holds at any temperature)
+    data[Ns + Nt + 1 + i*Nt + j]  torque loss [N·m] (input-referred magnitude, as in a .vtlm)
+                                  at speed i, torque j
 
 No rclpy import (the node fills the message from :func:`to_multiarray`'s plain values).
 """
@@ -32,11 +37,12 @@ from .lossmap import LossMap, build_map, grid
 from ..core.operating_points import temperature_effects
 from ..core.params import Config, validate
 
-__all__ = ["MapArray", "adapted_config", "coefficients_moved", "from_multiarray", "live_map", "map_grid",
-           "to_multiarray"]
+__all__ = ["MapArray", "ReceivedMap", "adapted_config", "coefficients_moved", "from_multiarray", "live_map",
+           "map_grid", "oil_moved", "to_multiarray"]
 
 SPEED_LABEL = "speed_rpm"
 TORQUE_LABEL = "torque_nm"
+TEMPERATURE_LABEL = "oil_temperature_c"
 #: two-sided 95 % quantile of the normal distribution
 Z95 = 1.959963984540054
 
@@ -61,11 +67,13 @@ def live_map(config: Config, coefficients: Mapping[str, float],
              oil_temperature_c: float | None) -> tuple[Config, LossMap]:
     """The parameters with the adapted ``coefficients``, and their map.  An accepted effect that
     needs the oil temperature is evaluated at ``oil_temperature_c`` (the last one measured), else
-    at its reference temperature (where it changes nothing)."""
+    at its reference temperature (where it changes nothing); a model that follows no oil is
+    evaluated at none (the map's ``temperature_c`` is None)."""
     adapted = adapted_config(config, coefficients)
-    temperature = oil_temperature_c
-    if temperature is None and temperature_effects(adapted):
-        temperature = adapted.effects.params(temperature_effects(adapted)[0]).get("theta_ref", 40.0)
+    temperature = None
+    if temperature_effects(adapted):
+        temperature = oil_temperature_c if oil_temperature_c is not None else \
+            adapted.effects.params(temperature_effects(adapted)[0]).get("theta_ref", 40.0)
     speeds, torques = map_grid(adapted)
     return adapted, build_map(adapted, speeds, torques, temperature)
 
@@ -82,6 +90,15 @@ def coefficients_moved(published: Mapping[str, float], current: Mapping[str, flo
     return moved
 
 
+def oil_moved(config: Config, map_temperature_c: float | None, oil_temperature_c: float | None) -> bool:
+    """Whether a model that follows the oil needs a new map: the oil has moved at least
+    ``node.map_oil_step_c`` (> 0) from the temperature the last map was evaluated at."""
+    step = config.node.map_oil_step_c
+    if step <= 0 or oil_temperature_c is None or not temperature_effects(config):
+        return False
+    return map_temperature_c is None or abs(oil_temperature_c - map_temperature_c) >= step
+
+
 @dataclass(frozen=True)
 class MapArray:
     """The plain values of a ``Float64MultiArray`` (see the module docstring)."""
@@ -96,17 +113,30 @@ class MapArray:
 def to_multiarray(loss_map: LossMap) -> MapArray:
     """The map in the message's layout."""
     ns, nt = len(loss_map.speeds_rpm), len(loss_map.torques_nm)
-    data = np.concatenate([loss_map.speeds_rpm, loss_map.torques_nm, loss_map.loss_nm.ravel()]).astype(float)
-    return MapArray((SPEED_LABEL, TORQUE_LABEL), (ns, nt), (ns * nt, nt), ns + nt, data)
+    temperature = math.nan if loss_map.temperature_c is None else float(loss_map.temperature_c)
+    data = np.concatenate([loss_map.speeds_rpm, loss_map.torques_nm, [temperature],
+                           loss_map.loss_nm.ravel()]).astype(float)
+    return MapArray((SPEED_LABEL, TORQUE_LABEL, TEMPERATURE_LABEL), (ns, nt, 1), (ns * nt, nt, 1), ns + nt + 1, data)
 
 
-def from_multiarray(labels, sizes, data_offset: int, data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(speeds_rpm, torques_nm, loss_nm[speed, torque])`` from a received message's fields."""
-    if tuple(labels) != (SPEED_LABEL, TORQUE_LABEL):
+@dataclass(frozen=True)
+class ReceivedMap:
+    """A loss map read back from a message (:func:`from_multiarray`)."""
+
+    speeds_rpm: np.ndarray
+    torques_nm: np.ndarray
+    oil_temperature_c: float  #: NaN: the model follows no oil
+    loss_nm: np.ndarray  #: ``[speed, torque]``
+
+
+def from_multiarray(labels, sizes, data_offset: int, data) -> ReceivedMap:
+    """The map of a received message's fields (the module docstring's layout)."""
+    if tuple(labels) != (SPEED_LABEL, TORQUE_LABEL, TEMPERATURE_LABEL):
         raise ValueError(f"not a loss map: dimensions {list(labels)}")
-    ns, nt = (int(s) for s in sizes)
+    ns, nt, nk = (int(s) for s in sizes)
     values = np.asarray(data, dtype=float)
-    if data_offset != ns + nt or len(values) != ns + nt + ns * nt:
-        raise ValueError(f"a loss map of {ns} x {nt} needs {ns + nt + ns * nt} values after an offset of "
-                         f"{ns + nt}, got {len(values)} (offset {data_offset})")
-    return values[:ns], values[ns:ns + nt], values[ns + nt:].reshape(ns, nt)
+    head = ns + nt + nk
+    if nk != 1 or data_offset != head or len(values) != head + ns * nt:
+        raise ValueError(f"a loss map of {ns} x {nt} x 1 needs {head + ns * nt} values after an offset of "
+                         f"{head}, got {len(values)} (offset {data_offset}, {nk} temperatures)")
+    return ReceivedMap(values[:ns], values[ns:ns + nt], float(values[ns + nt]), values[head:].reshape(ns, nt))

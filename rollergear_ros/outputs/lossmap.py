@@ -50,6 +50,7 @@ class LossMap:
     model_nm: np.ndarray  #: the paper's model alone
     reverse: bool = False  #: the rows describe reverse rotation
     points: PointLosses | None = None
+    temperature_c: float | None = None  #: the oil temperature it was evaluated at (None: none given)
 
     def rows(self) -> np.ndarray:
         """``(speed_rpm, torque_nm, loss_nm)`` per grid point, speed-major."""
@@ -98,7 +99,7 @@ def build_map(config: Config, speeds_rpm: Sequence[float], torques_nm: Sequence[
                          f"|w| <= {est.max_abs_speed_rad_s:g} rad/s): estimator.max_abs_*")
     shape = s.shape
     return LossMap(speeds, torques, points.loss_magnitude_nm.reshape(shape), points.efficiency.reshape(shape),
-                   points.model_nm.reshape(shape), reverse, points)
+                   points.model_nm.reshape(shape), reverse, points, temperature_c)
 
 
 def reverse_path(path: Path) -> Path:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import signal
 import time
 
@@ -1112,9 +1113,10 @@ def test_the_live_loss_map_reaches_a_late_subscriber_and_follows_the_adaptation(
         qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         probe_node.create_subscription(Float64MultiArray, f"{NAMESPACE}/{Topic.LOSS_MAP}", maps.append, qos)
         assert wait_for(lambda: len(maps) >= 1, 60), "no map for a late subscriber"
-        speeds, torques, first = from_multiarray([d.label for d in maps[0].layout.dim],
-                                                 [d.size for d in maps[0].layout.dim], maps[0].layout.data_offset,
-                                                 maps[0].data)
+        head = from_multiarray([d.label for d in maps[0].layout.dim], [d.size for d in maps[0].layout.dim],
+                               maps[0].layout.data_offset, maps[0].data)
+        speeds, torques, first = head.speeds_rpm, head.torques_nm, head.loss_nm
+        assert math.isnan(head.oil_temperature_c)  # a speed drag follows no oil: the map holds at any
         grid_speeds, grid_torques = map_grid(config)
         np.testing.assert_array_equal(speeds, grid_speeds)
         np.testing.assert_array_equal(torques, grid_torques)
@@ -1123,7 +1125,7 @@ def test_the_live_loss_map_reaches_a_late_subscriber_and_follows_the_adaptation(
         assert wait_for(lambda: len(maps) >= 2, 60), "the adaptation moved no map"
         assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
         received = [from_multiarray([d.label for d in m.layout.dim], [d.size for d in m.layout.dim],
-                                    m.layout.data_offset, m.data)[2] for m in list(maps)]
+                                    m.layout.data_offset, m.data).loss_nm for m in list(maps)]
     assert received[-1][-1].mean() > first[-1].mean() * 1.2  # at the highest speed: the larger drag
     text = map_file.read_text()
     c = float(re.search(r"accepted effects: drag_speed c=([0-9.e+-]+)", text).group(1))
