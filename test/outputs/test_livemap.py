@@ -81,8 +81,9 @@ def test_the_node_s_map_publisher_republishes_when_the_oil_moved_its_step():
     for oil in (None, 41.0, 44.0, 46.0, 49.0, 51.0, 30.0):
         publisher.oil_temperature_c = oil
         publisher.update(config, estimator)
-        temperatures.append(from_multiarray([d.label for d in sent[-1].layout.dim], [d.size for d in sent[-1].layout.dim],
-                                            sent[-1].layout.data_offset, sent[-1].data).oil_temperature_c)
+        last = sent[-1]
+        temperatures.append(from_multiarray([d.label for d in last.layout.dim], [d.size for d in last.layout.dim],
+                                            last.layout.data_offset, last.data).oil_temperature_c)
     assert publisher.published == len(sent) == 4  # at start (40: the reference), 46, 51 (46 + 5), 30
     assert temperatures == [40.0, 40.0, 40.0, 46.0, 46.0, 51.0, 30.0]
 
