@@ -31,6 +31,7 @@ OUTPUT_KINDS: dict[str, tuple[str, tuple[str, ...]]] = {
     "csv": ("a CSV table", (".csv",)),
     "parquet": ("a Parquet table", (".parquet",)),
     "mf4": ("an MDF4 file", (".mf4", ".mdf")),
+    "fmu": ("an FMI unit", (".fmu",)),
     "folder": ("a folder", ()),
 }
 #: suffixes that name a kind of file besides the outputs and the input formats (:mod:`.formats`)

@@ -1,0 +1,87 @@
+"""``rollergear export --fmu``: the calibrated gearbox as an FMI 2.0 co-simulation unit.
+
+The unit is made with ``pythonfmu`` and carries the model as a table (:mod:`outputs.fmutable`)
+with the code that interpolates it (:mod:`outputs.fmu_gearbox`, standard library only), so it runs
+where this package is not installed.  What the host needs: a 64-bit Linux or Windows FMI 2.0
+importer and a Python 3 with its shared library (``pythonfmu``'s binary starts the interpreter; the
+unit embeds ``pythonfmu``'s own module).  The model description carries the provenance: package
+version, parameter file, calibration, accepted effects, the parameters as YAML, the table's grid
+and its interpolation error.  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..base.atomic import replacing
+from ..base.errors import UsageError
+from ..base.interface import package_version
+from ..core.effects import EFFECTS
+from ..core.params import Config, config_to_yaml
+from .fmutable import LossTable, loss_table
+
+__all__ = ["SLAVE_MODULE", "build_fmu"]
+
+#: the unit's module (and its model identifier's class, ``RollergearGearbox``)
+SLAVE_MODULE = "rollergear_gearbox"
+
+
+def _provenance(config: Config, params_path: Path | None, table: LossTable) -> dict:
+    """The description and the provenance strings the unit's model description carries."""
+    lines = (Path(params_path).read_text(encoding="utf-8").splitlines()[:3]
+             if params_path is not None and Path(params_path).exists() else [])
+    calibration = " / ".join(ln[1:].strip() for ln in lines
+                             if ln.startswith("# Written by `rollergear calibrate`") or ln.startswith("# verdict:"))
+    physical = {n: p for n, p in config.effects.active().items() if EFFECTS[n].physical}
+    effects = "; ".join(f"{n} " + " ".join(f"{k}={v:.6g}" for k, v in p.items()) for n, p in physical.items()) \
+        or "none (the paper's model only)"
+    grid = (f"{len(table.speeds_rad_s)} speeds {table.speeds_rad_s[0]:g} … {table.speeds_rad_s[-1]:g} rad/s x "
+            f"{len(table.torques_nm)} torques {table.torques_nm[0]:g} … {table.torques_nm[-1]:g} N*m x "
+            + (f"{len(table.temperatures_c)} oil temperatures {table.temperatures_c[0]:g} … "
+               f"{table.temperatures_c[-1]:g} degC" if table.follows_oil else "any oil temperature (none followed)"))
+    error = (f"interpolation error <= {table.interpolation_error_nm:.3g} N*m, "
+             f"<= {100 * table.interpolation_error_relative:.2g} % where the efficiency is defined")
+    description = (f"Roller gearing gearbox losses (rollergear_ros {package_version()}): parameters "
+                   f"{params_path or 'built-in defaults'}; accepted effects: {effects}; a table of {grid}; {error}")
+    return {"description": description, "package_version": package_version(), "strings": {
+        "rollergear_version": package_version(),
+        "rollergear_parameters_file": str(Path(params_path).resolve()) if params_path else "built-in defaults",
+        "rollergear_calibration": calibration or "none",
+        "rollergear_accepted_effects": effects,
+        "rollergear_parameters_yaml": config_to_yaml(config),
+        "rollergear_table": grid,
+        "rollergear_created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}}
+
+
+def build_fmu(config: Config, out: str | Path, params_path: str | Path | None = None,
+              oil_grid_c: tuple[float, float, float] | None = None) -> LossTable:
+    """Write the unit to ``out`` (replaced atomically) and return the table it carries."""
+    try:
+        from pythonfmu.builder import FmuBuilder
+    except ImportError:  # pragma: no cover - a requirement of the package
+        raise UsageError("export --fmu needs pythonfmu (pip install pythonfmu)") from None
+    table = loss_table(config, oil_grid_c)
+    table.provenance = _provenance(config, Path(params_path) if params_path else None, table)
+    reference = next((config.effects.params(n).get("theta_ref", 40.0) for n in config.effects.enabled()
+                      if EFFECTS[n].needs_temperature), 40.0)
+    with tempfile.TemporaryDirectory(prefix="rollergear_fmu_") as tmp:
+        work = Path(tmp)
+        script = work / f"{SLAVE_MODULE}.py"
+        shutil.copyfile(Path(__file__).with_name("fmu_gearbox.py"), script)
+        meta = table.as_json()
+        del meta["loss_nm"]  # the values go to the binary file, C order [speed][torque][temperature]
+        meta["reference_temperature_c"] = float(reference)
+        (work / "rollergear_table.json").write_text(json.dumps(meta), encoding="utf-8")
+        (work / "rollergear_loss.f64").write_bytes(np.ascontiguousarray(table.loss_nm, dtype="<f8").tobytes())
+        built = FmuBuilder.build_FMU(script, dest=work / "unit" / "gearbox.fmu",
+                                     project_files=[work / "rollergear_table.json", work / "rollergear_loss.f64"],
+                                     needsExecutionTool="true", canHandleVariableCommunicationStepSize="true")
+        with replacing(out) as partial:
+            shutil.copyfile(built, partial)
+    return table

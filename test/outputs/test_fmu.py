@@ -1,0 +1,133 @@
+"""``rollergear export --fmu``: the calibrated gearbox as an FMI 2.0 unit, run by ``fmpy``.
+
+The unit is run by fmpy (the FMI reference simulator in Python) in a process where this package
+cannot be imported, and compared with ``rollergear model`` at points between the table's nodes.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import yaml
+
+from helpers import run_cli
+
+WARMING = ("/**/loss_estimator:\n  ros__parameters:\n    effects:\n      viscosity_temperature: "
+           "{enabled: true, B_k: 1100.0, C_k: 95.0, theta_ref_c: 40.0, scale: 1.0}\n"
+           "      drag_speed: {enabled: true, c: 2.0e-4, p: 1.4}\n"
+           "      torque_offset: {enabled: true, offset_nm: 0.3}\n")
+TORQUES = [-73.3, -12.1, -0.7, 0.33, 4.4, 57.9]
+SPEEDS = [-250.3, -7.7, 0.9, 33.3, 201.7]
+
+#: runs in a fresh interpreter: fmpy steps the unit at every (temperature, torque, speed) of argv's JSON;
+#: this package is made unimportable first, so the unit must carry what it needs
+RUN_UNIT = textwrap.dedent("""
+    import json, sys
+    sys.modules["rollergear_ros"] = None
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    path, points = sys.argv[1], json.loads(sys.argv[2])
+    md = read_model_description(path)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    unit = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
+                     instanceName="gearbox")
+    unit.instantiate(); unit.setupExperiment(startTime=0.0); unit.enterInitializationMode(); unit.exitInitializationMode()
+    rows = []
+    for i, (theta, torque, speed) in enumerate(points):
+        unit.setReal([vr["oil_temperature_c"], vr["drive_torque_nm"], vr["drive_speed_rad_s"]], [theta, torque, speed])
+        unit.doStep(currentCommunicationPoint=0.01 * i, communicationStepSize=0.01)
+        rows.append(unit.getReal([vr["loss_torque_nm"], vr["loss_power_w"], vr["efficiency"]])
+                    + [bool(unit.getBoolean([vr["inside_table"]])[0])])
+    fixed = unit.getReal([vr["interpolation_error_nm"], vr["interpolation_error_relative"]])
+    strings = {n: unit.getString([vr[n]])[0].decode() for n in vr if n.startswith("rollergear_")}
+    unit.terminate(); unit.freeInstance()
+    print(json.dumps({"rows": rows, "error": fixed, "strings": strings, "description": md.description,
+                      "inputs": sorted(v.name for v in md.modelVariables if v.causality == "input"),
+                      "outputs": sorted(v.name for v in md.modelVariables if v.causality == "output")}))
+""")
+
+
+def run_unit(path, points) -> dict:
+    proc = subprocess.run([sys.executable, "-c", RUN_UNIT, str(path), json.dumps(points)], capture_output=True,
+                          text=True, timeout=300, check=False)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout)
+
+
+def model_points(params, temperature_c) -> list[dict]:
+    proc = run_cli("model", "--params", str(params), "--oil-temperature-c", f"{temperature_c:g}", "--json",
+                   "--torque", *map(str, TORQUES), "--speed", *map(str, SPEEDS))
+    return json.loads(proc.stdout)["points"]
+
+
+@pytest.fixture(scope="module")
+def warming_unit(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("fmu")
+    params = folder / "cal.yaml"
+    params.write_text(WARMING)
+    out = folder / "gearbox.fmu"
+    proc = run_cli("export", "--fmu", str(out), "--params", str(params))
+    return params, out, proc
+
+
+@pytest.mark.parametrize("temperature_c", [-13.0, 7.3, 41.0, 96.6])
+def test_the_unit_run_by_fmpy_equals_model_within_its_stated_interpolation_error(warming_unit, temperature_c):
+    params, unit, _ = warming_unit
+    expected = model_points(params, temperature_c)
+    ran = run_unit(unit, [[temperature_c, p["torque_nm"], p["speed_rad_s"]] for p in expected])
+    error_nm, error_rel = ran["error"]
+    assert 0 < error_nm < 0.1 and 0 < error_rel < 0.05  # what the table states (and that it is small)
+    for p, (loss, power, eta, inside) in zip(expected, ran["rows"]):
+        exact = abs(p["loss_torque_nm"])
+        assert inside
+        assert abs(loss - exact) <= error_nm, (p, loss)
+        assert power == pytest.approx(loss * abs(p["speed_rad_s"]), rel=1e-12)
+        if p["efficiency"] is None:
+            assert np.isnan(eta), (p, eta)
+        else:  # where eta is defined the relative error of the loss holds too
+            assert abs(loss - exact) <= error_rel * exact + 1e-12, (p, loss)
+            assert eta == pytest.approx(p["efficiency"], abs=error_rel * (1 - p["efficiency"]) + 1e-12)
+
+
+def test_the_unit_follows_the_oil_temperature_and_says_where_it_came_from(warming_unit):
+    params, unit, proc = warming_unit
+    ran = run_unit(unit, [[theta, 50.0, 200.0] for theta in (-10.0, 20.0, 40.0, 90.0)] + [[40.0, 50.0, 900.0]])
+    losses = [row[0] for row in ran["rows"]]
+    assert losses[0] > 2 * losses[1] > 2 * losses[3] and losses[1] > losses[2] > losses[3]  # cold oil costs most
+    assert ran["rows"][-1][3] is False  # 900 rad/s lies beyond the table: said, at its edge
+    assert ran["inputs"] == ["drive_speed_rad_s", "drive_torque_nm", "oil_temperature_c"]
+    assert ran["outputs"] == ["efficiency", "inside_table", "loss_power_w", "loss_torque_nm"]
+    strings = ran["strings"]
+    assert strings["rollergear_parameters_file"] == str(params.resolve())
+    assert "viscosity_temperature B=1100" in strings["rollergear_accepted_effects"]
+    assert "torque_offset" not in strings["rollergear_accepted_effects"]  # a rig's sensor error, not applied
+    written = yaml.safe_load(strings["rollergear_parameters_yaml"])["/**/loss_estimator"]["ros__parameters"]
+    assert written["effects"]["drag_speed"]["c"] == 2.0e-4
+    assert "interpolation error <=" in ran["description"] and "oil temperatures -20 … 140 degC" in ran["description"]
+    assert f"wrote {unit}" in proc.stdout and "interpolation error <=" in proc.stdout
+
+
+def test_a_model_that_follows_no_oil_ignores_the_temperature_input(tmp_path):
+    out = tmp_path / "plain.fmu"
+    run_cli("export", "--fmu", str(out))
+    node_speed = 1000 * np.pi / 30  # 1000 rpm and 20 N·m: a node of the table (the map.* grid)
+    rows = run_unit(out, [[theta, 20.0, node_speed] for theta in (-50.0, 40.0, 300.0)])["rows"]
+    assert rows[0] == rows[1] == rows[2] and rows[0][3] is True
+    model = json.loads(run_cli("model", "--torque", "20", "--speed", repr(node_speed), "--json").stdout)["points"][0]
+    assert rows[0][0] == pytest.approx(abs(model["loss_torque_nm"]), rel=1e-9)
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (("--fmu", "g.csv"), "an FMU file ends in .fmu"),
+    (("--fmu", "g.fmu", "--oil-temperature-c", "80", "20", "5"), "--oil-temperature-c START STOP STEP"),
+    (("--fmu", "g.fmu", "--params", "missing.yaml"), "does not exist"),
+])
+def test_bad_export_options_are_one_line_and_nothing_is_written(tmp_path, args, message):
+    proc = run_cli("export", *args, check=False, cwd=tmp_path)
+    assert proc.returncode == 2 and message in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+    assert list(tmp_path.iterdir()) == []
