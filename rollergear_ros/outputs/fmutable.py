@@ -31,10 +31,10 @@ __all__ = ["DEFAULT_OIL_GRID_C", "LossTable", "interpolate", "loss_table"]
 #: oil temperatures of a table whose model follows the oil: start, stop, step [°C]
 DEFAULT_OIL_GRID_C = (-20.0, 140.0, 5.0)
 #: nodes added near standstill and zero torque, where the loss bends most (``U^0.66``, the sign smoothing)
-NEAR_ZERO_RAD_S = np.array([0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0,
-                            7.5])
-NEAR_ZERO_NM = np.array([0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0,
-                         4.0, 5.0, 6.0, 7.5, 10.0, 12.5, 15.0])
+NEAR_ZERO_RAD_S = np.array([0.02, 0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0,
+                            6.0, 7.5])
+NEAR_ZERO_NM = np.array([0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.6, 0.75, 1.0, 1.25, 1.5, 2.0, 2.5,
+                         3.0, 4.0, 5.0, 6.0, 7.5, 10.0, 12.5, 15.0])
 #: an oil temperature interval is halved while linear interpolation misses its middle by more than this
 TEMPERATURE_TOLERANCE = 0.002
 #: ... down to this step [°C]

@@ -36,7 +36,8 @@ RUN_UNIT = textwrap.dedent("""
     vr = {v.name: v.valueReference for v in md.modelVariables}
     unit = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
                      instanceName="gearbox")
-    unit.instantiate(); unit.setupExperiment(startTime=0.0); unit.enterInitializationMode(); unit.exitInitializationMode()
+    unit.instantiate(); unit.setupExperiment(startTime=0.0)
+    unit.enterInitializationMode(); unit.exitInitializationMode()
     rows = []
     for i, (theta, torque, speed) in enumerate(points):
         unit.setReal([vr["oil_temperature_c"], vr["drive_torque_nm"], vr["drive_speed_rad_s"]], [theta, torque, speed])
