@@ -45,6 +45,7 @@ from .nuisance import apply_lags, lag_channel, median_period_s, worth_applying, 
 from .outcome import CalibrationResult, Change, FoundEffect, FoundParameter, segment_summary
 from .samples import SampleData, load_samples
 from .segments import find_changes
+from .jointfit import fitted_covariance
 from .selection import Calibrator, ErrorStats, Term, error_stats, members
 from .structure import adequacy, angle_spectrum, residual_structure
 from ..base.errors import BagError, UsageError
@@ -320,6 +321,8 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
         "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a))),
     }
     new_config = _calibrated_config(config, effects, parameters, kept=_untested_file_effects(config, cal))
+    covariance = fitted_covariance(cal, final, len(selected), config)
+    new_config = new_config.with_values({"calibration.covariance": covariance.to_text() if covariance else ""})
     if data.ratio is not None:  # the table's own ratio: what a map of the file states
         new_config = new_config.with_values({"gearbox.ratio": data.ratio})
     if data.speed_noise_override is not None:  # the recordings' speed noise, not the file's far-off one

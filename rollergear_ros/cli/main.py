@@ -21,7 +21,7 @@ from ..base.errors import InputFileError, RollergearError, UsageError
 from ..base.interface import package_version
 from ..ros.nodehelp import contract_line
 from . import calibrate as calibrate_cli
-from . import export as export_cli
+from . import energy as energy_cli
 from . import fleet as fleet_cli
 from ..ros import player
 from . import replay as replay_cli
@@ -268,7 +268,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 #: the subcommands living in modules of their own: each module's ``REGISTER`` (functions that add
 #: their subparser); ``model``, ``figures`` and ``map`` are built here
 SUBCOMMAND_REGISTERS = (*replay_cli.REGISTER, *calibrate_cli.REGISTER, *fleet_cli.REGISTER, *player.REGISTER,
-                        *watch.REGISTER, *export_cli.REGISTER)
+                        *watch.REGISTER, *energy_cli.REGISTER)
 
 #: one example per subcommand, shown at the end of its --help
 EXAMPLES = {
@@ -284,6 +284,7 @@ EXAMPLES = {
     "watch": "rollergear watch --period 1",
     "info": "rollergear info rig.mcap",
     "export": "rollergear export --fmu gearbox.fmu --params calibrated.yaml",
+    "predict": "rollergear predict plan.mcap --params calibrated.yaml --csv plan_losses.csv",
 }
 CONTRACT = contract_line()
 

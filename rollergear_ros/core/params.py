@@ -325,6 +325,12 @@ MAP_SPECS: tuple[ParamSpec, ...] = (
               "loss map: also reverse rotation, written to a second file (<name>_reverse.vtlm)"),
 )
 
+CALIBRATION_SPECS: tuple[ParamSpec, ...] = (
+    ParamSpec("calibration.covariance", str, "",
+              "written by calibrate: the covariance of what it fitted, in this file's keys (JSON: keys, matrix; "
+              "core/covariance.py); predict propagates it ('' = none)", read_only=True),
+)
+
 _specs_cache: dict[int, tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]] = {}
 
 
@@ -341,7 +347,8 @@ def _spec_tables() -> tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]:
     version = REGISTRY_VERSION[0]
     if version not in _specs_cache:
         _specs_cache.clear()
-        specs = GEARBOX_SPECS + effect_specs() + ESTIMATOR_SPECS + SENSOR_SPECS + NODE_SPECS + MAP_SPECS
+        specs = (GEARBOX_SPECS + effect_specs() + ESTIMATOR_SPECS + SENSOR_SPECS + NODE_SPECS + MAP_SPECS
+                 + CALIBRATION_SPECS)
         _specs_cache[version] = (specs, {spec.name: spec for spec in specs})
     return _specs_cache[version]
 
@@ -524,6 +531,13 @@ class MapParams:
         return (*self.torque_range_nm(gearbox), self.torque_step_nm)
 
 
+@dataclass(frozen=True)
+class CalibrationParams:
+    """What ``calibrate`` records about its fit beside the parameters it wrote."""
+
+    covariance: str = ""  #: :class:`core.covariance.ParameterCovariance` as JSON text ('' = none)
+
+
 #: a loss map's largest grid: points per axis and cells (checked before anything is allocated;
 #: VECTO's own maps have tens of points per axis)
 MAX_MAP_AXIS_POINTS = 10_001
@@ -562,6 +576,7 @@ class Config:
     sensors: SensorParams = field(default_factory=SensorParams)
     node: NodeParams = field(default_factory=NodeParams)
     map: MapParams = field(default_factory=MapParams)
+    calibration: CalibrationParams = field(default_factory=CalibrationParams)
 
     def to_flat(self) -> dict[str, Any]:
         """Dotted-name dictionary of every parameter (the inverse of :func:`validate`)."""
@@ -586,7 +601,7 @@ class Config:
 
 
 _SECTION_TYPES = {"gearbox": GearboxParams, "estimator": EstimatorParams, "sensors": SensorParams,
-                  "node": NodeParams, "map": MapParams}
+                  "node": NodeParams, "map": MapParams, "calibration": CalibrationParams}
 
 
 #: URL schemes rerun's gRPC sink accepts (``node.rerun_connect``)
@@ -670,6 +685,14 @@ def validate(values: Mapping[str, Any]) -> Config:
 
 
 def _check_consistency(config: Config) -> None:
+    if config.calibration.covariance:
+        from .covariance import covariance_problem
+
+        numeric = [s.name for s in parameter_specs() if s.kind is float]
+        problem = covariance_problem(config.calibration.covariance, numeric)
+        if problem:
+            text = config.calibration.covariance
+            raise ParameterError("calibration.covariance", text if len(text) <= 60 else text[:57] + "...", problem)
     g = config.gearbox
     if g.z > g.Z:
         raise ParameterError("gearbox.z", g.z, f"connected balls z must be <= Z = {g.Z}")

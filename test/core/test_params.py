@@ -107,7 +107,7 @@ def test_dataclass_defaults_equal_the_spec_defaults():
     ("    gearbox: {dw: 0.006}\n", "did you mean 'gearbox.dw_m'?"),
     ("    node: {staleness_s: 0.2}\n", "did you mean 'estimator.staleness_s'?"),
     ("    gearbox: {zzzq: 1}\n", "the keys of 'gearbox' are gearbox.E_eq_pa"),
-    ("    nodes: {x: 1}\n", "the sections are effects, estimator, gearbox, map, node"),
+    ("    nodes: {x: 1}\n", "the sections are calibration, effects, estimator, gearbox, map, node"),
 ])
 def test_a_typo_gets_a_suggestion_not_every_key(tmp_path, text, message):
     from rollergear_ros.base.errors import ParameterError

@@ -1,0 +1,119 @@
+"""For energy managers: ``export --fmu`` (the calibrated gearbox as a model they can run) and
+``predict`` (what a planned drive will cost, with its band)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..base.atomic import together
+from ..base.errors import UsageError
+from ..sources.paths import Output, check_outputs
+from .args import config_from_args, default_params_path, finite_float
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from ..outputs.fmu import build_fmu
+
+    config = config_from_args(args)
+    out = Path(args.fmu)
+    if out.suffix.lower() != ".fmu":
+        raise UsageError(f"--fmu {out}: an FMU file ends in .fmu")
+    oil = args.oil_temperature_c
+    if oil is not None and not (oil[0] < oil[1] and oil[2] > 0 and -100 <= oil[0] and oil[1] <= 400
+                                and (oil[1] - oil[0]) / oil[2] <= 1000):
+        raise UsageError("--oil-temperature-c START STOP STEP: -100 <= START < STOP <= 400 degC, STEP > 0, "
+                         "at most 1000 steps")
+    check_outputs([args.params], [Output("--fmu", out, "fmu")])
+    print(f"tabulating the model of {args.params or default_params_path()} …", flush=True)
+    with together():
+        table = build_fmu(config, out, args.params or default_params_path(), tuple(oil) if oil else None)
+    print(f"wrote {out}: {table.provenance['strings']['rollergear_table']}; interpolation error <= "
+          f"{table.interpolation_error_nm:.3g} N·m, <= {100 * table.interpolation_error_relative:.2g} % where the "
+          "efficiency is defined")
+    return 0
+
+
+def register_export(sub, with_params) -> None:
+    p = with_params(sub.add_parser(
+        "export", help="the calibrated gearbox as an FMI 2.0 co-simulation unit (--fmu)",
+        description="An FMI 2.0 co-simulation unit (pythonfmu) of the parameter file's model (the paper's model "
+        "and the accepted physical effects; the rig's torque-sensor errors not applied, as in map): inputs drive "
+        "torque, drive speed, oil temperature; outputs loss torque, loss power, efficiency. It carries the model as "
+        "a table with its interpolation error stated and runs without this package (the host needs a Python 3 "
+        "shared library)."))
+    p.add_argument("--fmu", required=True, metavar="FILE.fmu", help="the unit to write")
+    p.add_argument("--oil-temperature-c", type=finite_float, nargs=3, metavar=("START", "STOP", "STEP"),
+                   help="a model that follows the oil: the table's temperatures before refinement "
+                        "(default -20 140 5 degC; halved where the oil's viscosity changes fast)")
+    p.set_defaults(func=cmd_export)
+
+
+def cmd_predict(args: argparse.Namespace) -> int:
+    from ..replay.predict import predict
+    from .replay import topics_from_args
+
+    exports = [(kind, getattr(args, kind)) for kind in ("csv", "parquet") if getattr(args, kind) is not None]
+    check_outputs([args.profile, args.params, args.channels], [Output(f"--{k}", p, k) for k, p in exports])
+    config = config_from_args(args)
+    result = predict(args.profile, config, channels=args.channels, topics=topics_from_args(args),
+                     collect=bool(exports), show_progress=None if not args.json else False,
+                     warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr))
+    if result.samples == 0:
+        raise UsageError(f"{args.profile}: no sample to predict (no paired torque and speed)")
+    with together():
+        for kind, path in exports:
+            _write_samples(result, kind, Path(path))
+    if args.json:
+        print(json.dumps(result.to_json()))
+    else:
+        print(result.text())
+        for _, path in exports:
+            print(f"per sample: {path}")
+    return 0
+
+
+def _write_samples(result, kind: str, path: Path) -> None:
+    """Each sample's loss power and its 95 % band as CSV or Parquet (atomically)."""
+    import numpy as np
+
+    from ..base.atomic import replacing
+
+    half = 1.959963984540054 * result.loss_power_sd_w
+    columns = {"time_s": (result.t_ns - result.t_ns[0]) * 1e-9 if len(result.t_ns) else result.t_ns * 1.0,
+               "loss_power_w": result.loss_power_w, "loss_power_low95_w": result.loss_power_w - half,
+               "loss_power_high95_w": result.loss_power_w + half}
+    with replacing(path) as partial:
+        if kind == "parquet":
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+
+            pq.write_table(pa.table({"log_time_ns": result.t_ns, **columns}), partial)
+        else:
+            table = np.column_stack(list(columns.values()))
+            header = ",".join(columns)
+            np.savetxt(partial, table, delimiter=",", header=header, comments="", fmt="%.9g")
+
+
+def register_predict(sub, with_params) -> None:
+    from .replay import add_topic_options
+
+    p = with_params(sub.add_parser(
+        "predict", help="what a planned drive will cost: loss energy and power with their 95 %% band",
+        description="The loss power and energy of a profile (planned torque, speed, optionally oil temperature: "
+        "an MCAP, or a CSV/Parquet/MF4/TDMS with --channels as for import) under the parameter file's model, "
+        "and their 95 % band: the first-order propagation of the calibration's parameter covariance "
+        "(calibration.covariance, written by calibrate). The rig's torque-sensor errors are not applied and "
+        "nothing adapts."))
+    p.add_argument("profile", metavar="PROFILE", help="MCAP, or a table with --channels")
+    p.add_argument("--channels", metavar="MAP.yaml", help="the channel map of a CSV/Parquet/MF4/TDMS profile")
+    p.add_argument("--csv", metavar="FILE", help="each sample's loss power and its 95 %% band as CSV")
+    p.add_argument("--parquet", metavar="FILE", help="... as Parquet (with the log time in ns)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of the text")
+    add_topic_options(p)
+    p.set_defaults(func=cmd_predict)
+
+
+REGISTER = [register_export, register_predict]

@@ -1,0 +1,166 @@
+"""What a planned drive will cost: loss power and energy over a profile, with their 95 % band.
+
+The loss is the estimator's -- the paper's model with the accepted physical effects -- at the
+profile's true torque (the rig's torque-sensor errors are not applied, as in ``map``) and without
+online adaptation (a plan has no measured output).  The band propagates the calibration's parameter
+covariance (``calibration.covariance``, :mod:`.covariance`) to first order (the delta method): for
+each covaried parameter ``θ_k`` the change of every sample's loss power per unit of it,
+``J_ik = ∂P_i/∂θ_k`` (numerically: the estimator at ``θ_k + h``), then
+
+* a sample's loss power: ``var P_i = J_i·C·J_iᵀ``;
+* the energy ``E = Σ P_i·Δt_i``: ``g = Jᵀ·Δt``, ``var E = gᵀ·C·g``;
+
+each band ``± 1.96 σ``.  ``Δt_i`` is replay's rule: the time since the previous sample, nothing
+across a gap longer than five typical periods (so ``predict`` of a recording equals ``replay``'s
+energy of it).  No rclpy import.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .covariance import ParameterCovariance
+from .effects import EFFECTS
+from .estimator import BatchEstimate, Estimator
+from .params import Config, EffectParams
+
+__all__ = ["METHOD", "Prediction", "PredictionSums", "prediction_config"]
+
+#: how the band is propagated (said with every prediction)
+METHOD = "first-order propagation (delta method) of the calibration's parameter covariance"
+Z95 = 1.959963984540054
+#: a parameter's step for its derivative, relative to its size (the loss is linear in a coefficient)
+STEP = 1e-6
+
+
+def prediction_config(config: Config) -> Config:
+    """``config`` as a prediction evaluates it: the rig's sensor errors off, no online adaptation."""
+    switches = {n: on and EFFECTS[n].physical for n, on in config.effects.switches.items()}
+    return replace(config, effects=EffectParams(switches, config.effects.values),
+                   estimator=replace(config.estimator, adapt=False))
+
+
+@dataclass
+class Prediction:
+    """Loss energy and power over a profile, with their 95 % bands (:data:`METHOD`)."""
+
+    samples: int
+    duration_s: float
+    energy_lost_j: float
+    energy_lost_sd_j: float  #: the standard deviation the covariance propagates to
+    energy_in_j: float  #: ∫|T·ω| dt
+    peak_loss_power_w: float
+    parameters: tuple[str, ...]  #: the covaried parameters (empty: the file holds no covariance)
+    method: str = METHOD
+    #: per sample, with ``collect``: times, loss power and its standard deviation
+    t_ns: np.ndarray | None = field(default=None, repr=False)
+    loss_power_w: np.ndarray | None = field(default=None, repr=False)
+    loss_power_sd_w: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def energy_band_j(self) -> tuple[float, float]:
+        """The energy's 95 % band."""
+        half = Z95 * self.energy_lost_sd_j
+        return self.energy_lost_j - half, self.energy_lost_j + half
+
+    @property
+    def mean_loss_power_w(self) -> float:
+        return self.energy_lost_j / self.duration_s if self.duration_s > 0 else math.nan
+
+    def to_json(self) -> dict:
+        lo, hi = self.energy_band_j
+        return {"samples": self.samples, "duration_s": self.duration_s, "energy_lost_j": self.energy_lost_j,
+                "energy_lost_band95_j": [lo, hi], "energy_lost_sd_j": self.energy_lost_sd_j,
+                "energy_in_j": self.energy_in_j, "mean_loss_power_w": self.mean_loss_power_w,
+                "peak_loss_power_w": self.peak_loss_power_w, "parameters": list(self.parameters),
+                "method": self.method}
+
+    def text(self) -> str:
+        lo, hi = self.energy_band_j
+        wh = 1 / 3600.0
+        lines = [f"{self.samples:,} samples over {self.duration_s:.1f} s",
+                 f"energy lost {self.energy_lost_j:,.1f} J ({self.energy_lost_j * wh:.4g} Wh), 95 % band "
+                 f"{lo:,.1f} … {hi:,.1f} J; energy through the gearbox {self.energy_in_j:,.0f} J",
+                 f"loss power: mean {self.mean_loss_power_w:.4g} W, peak {self.peak_loss_power_w:.4g} W"]
+        if self.parameters:
+            lines.append(f"band: {self.method} over {', '.join(self.parameters)}")
+        else:
+            lines.append("band: none -- the parameter file holds no calibration.covariance (write it with "
+                         "rollergear calibrate): the loss as if its parameters were exact")
+        return "\n".join(lines)
+
+
+class PredictionSums:
+    """The running sums of a prediction, fed batch by batch with the base estimates (``add``)."""
+
+    def __init__(self, config: Config, collect: bool = False) -> None:
+        self.config = prediction_config(config)
+        self.covariance = ParameterCovariance.from_text(config.calibration.covariance)
+        self._perturbed: list[tuple[float, Estimator]] = []
+        for key in self.covariance.keys if self.covariance else ():
+            value = float(self.config.value(key))
+            step = STEP * max(abs(value), 1e-9)
+            try:
+                moved = self.config.with_values({key: value + step})
+            except Exception:  # at the top of its range: step down
+                step = -step
+                moved = self.config.with_values({key: value + step})
+            self._perturbed.append((step, Estimator(moved)))
+        k = len(self._perturbed)
+        self.gradient = np.zeros(k)  #: d E / d θ
+        self.energy = self.energy_in = self.peak = 0.0
+        self.samples = 0
+        self.first_t: int | None = None
+        self.last_t: int | None = None
+        self._dt_ns = 0.0
+        self._collect = collect
+        self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def base_estimator(self, **kwargs) -> Estimator:
+        """An estimator of the prediction's model (for the caller's pairing and base estimates)."""
+        return Estimator(self.config, **kwargs)
+
+    def add(self, b: BatchEstimate | None) -> None:
+        """The base estimates of one batch of samples, in time order."""
+        if b is None or not len(b.t_ns):
+            return
+        t = np.asarray(b.t_ns, dtype=np.int64)
+        if self.first_t is None:
+            self.first_t = int(t[0])
+        prev = self.last_t if self.last_t is not None else int(t[0])
+        dt = np.diff(np.concatenate([[prev], t])).astype(float)
+        typical = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
+        if typical > 0:
+            self._dt_ns = typical
+        dt = np.where((dt > 0) & (dt <= 5 * max(self._dt_ns, 1.0)), dt, 0.0) * 1e-9
+        power = np.asarray(b.loss_power_w, dtype=float)
+        self.energy += float(np.sum(power * dt))
+        self.energy_in += float(np.sum(np.abs(b.torque_nm * b.speed_rad_s) * dt))
+        self.peak = max(self.peak, float(np.max(power)))
+        self.samples += len(t)
+        self.last_t = int(t[-1])
+        jac = np.empty((len(t), len(self._perturbed)))
+        for j, (step, estimator) in enumerate(self._perturbed):
+            moved = estimator.process_batch(t, b.torque_nm, b.speed_rad_s, temperature=b.temperature_c,
+                                            breakdown=False)
+            jac[:, j] = (moved.loss_power_w - power) / step
+        self.gradient += jac.T @ dt
+        if self._collect:
+            cov = self.covariance.matrix if self.covariance else np.zeros((0, 0))
+            sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", jac, cov, jac), 0.0))
+            self._parts.append((t, power, sd))
+
+    def finish(self) -> Prediction:
+        """The prediction of everything added."""
+        var = float(self.gradient @ self.covariance.matrix @ self.gradient) if self.covariance else 0.0
+        duration = ((self.last_t or 0) - (self.first_t or 0)) * 1e-9
+        out = Prediction(self.samples, duration, self.energy, math.sqrt(max(var, 0.0)), self.energy_in, self.peak,
+                         self.covariance.keys if self.covariance else ())
+        if self._collect:
+            cat = [np.concatenate(p) if p else np.zeros(0) for p in zip(*self._parts)] if self._parts else \
+                [np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)]
+            out.t_ns, out.loss_power_w, out.loss_power_sd_w = cat
+        return out

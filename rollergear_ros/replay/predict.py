@@ -1,0 +1,98 @@
+"""``predict``: what a planned drive will cost, from a recording, a table or arrays in memory.
+
+A profile is what ``replay`` reads (an MCAP, or a CSV/Parquet/MF4/TDMS through a channel map as for
+``import``: planned torque, speed, optionally oil temperature) or, for a planner in Python, a
+mapping of arrays.  Its samples are paired as ``replay`` pairs them and go through
+:class:`core.prediction.PredictionSums` (the loss and its 95 % band).  No rclpy import::
+
+    from rollergear_ros import predict
+
+    p = predict("plan.parquet", "calibrated.yaml", channels="plan.yaml")
+    p = predict({"t_s": t, "torque_nm": torque, "speed_rad_s": speed, "oil_temperature_c": oil},
+                "calibrated.yaml")
+    p.energy_lost_j, p.energy_band_j
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..base.errors import UsageError
+from ..base.progress import TimedProgress
+from ..core.params import Config, load_config
+from ..core.prediction import Prediction, PredictionSums
+from ..recordings.bag import TopicMap, inspect_bag, median_period_s
+from .inputs import InputProblems, input_batches, plan_inputs, recorded_pairing
+
+__all__ = ["ARRAY_KEYS", "predict"]
+
+#: a profile given as arrays: these keys (``oil_temperature_c`` may be left out)
+ARRAY_KEYS = ("t_s", "torque_nm", "speed_rad_s", "oil_temperature_c")
+BATCH = 100_000
+
+
+def predict(profile: str | Path | Mapping[str, np.ndarray], params: str | Path | Config | None = None, *,
+            channels: str | Path | None = None, topics: TopicMap = TopicMap(), collect: bool = False,
+            show_progress: bool | None = False, warn: Callable[[str], None] | None = None) -> Prediction:
+    """The loss energy and power of ``profile`` with their 95 % band (:mod:`core.prediction`).
+
+    ``params``: a parameter file (a calibrated one carries its covariance), a :class:`Config`, or
+    None for the package's defaults.  ``channels``: the channel map of a non-ROS table.
+    ``collect``: keep each sample's loss power and its standard deviation in the result.
+    """
+    from ..sources.importer import as_mcap
+
+    config = params if isinstance(params, Config) else load_config(params)
+    sums = PredictionSums(config, collect)
+    if isinstance(profile, Mapping):
+        _add_arrays(sums, profile)
+        return sums.finish()
+    with as_mcap([profile], channels, topics, note=warn) as (bag,):
+        _add_recording(sums, Path(bag), topics, show_progress, warn or (lambda text: None))
+    return sums.finish()
+
+
+def _add_arrays(sums: PredictionSums, profile: Mapping[str, np.ndarray]) -> None:
+    """A profile of arrays in memory: times [s], torque [N·m], speed [rad/s], oil temperature [°C]."""
+    missing = [k for k in ARRAY_KEYS[:3] if k not in profile]
+    unknown = sorted(set(profile) - set(ARRAY_KEYS))
+    if missing or unknown:
+        raise UsageError(f"a profile of arrays has the keys {', '.join(ARRAY_KEYS)} (oil_temperature_c optional)"
+                         + (f"; missing {', '.join(missing)}" if missing else "")
+                         + (f"; unknown {', '.join(unknown)}" if unknown else ""))
+    arrays = {k: np.asarray(profile[k], dtype=float).ravel() for k in profile}
+    n = len(arrays["t_s"])
+    if any(len(a) != n for a in arrays.values()):
+        raise UsageError("a profile's arrays have one length: " + ", ".join(f"{k} {len(a)}" for k, a in arrays.items()))
+    t = arrays["t_s"]
+    if not np.isfinite(t).all() or (np.diff(t) < 0).any():
+        raise UsageError("a profile's t_s are finite and do not go back")
+    t_ns = np.round(t * 1e9).astype(np.int64)
+    theta = arrays.get("oil_temperature_c")
+    estimator = sums.base_estimator()
+    for k in range(0, n, BATCH):
+        part = slice(k, k + BATCH)
+        sums.add(estimator.process_batch(t_ns[part], arrays["torque_nm"][part], arrays["speed_rad_s"][part],
+                                         temperature=None if theta is None else theta[part]))
+
+
+def _add_recording(sums: PredictionSums, bag: Path, topics: TopicMap, show_progress: bool | None,
+                   warn: Callable[[str], None]) -> None:
+    """A recording's samples, paired and estimated as ``replay`` does, batch by batch."""
+    info = inspect_bag(bag)
+    plan = plan_inputs(info, topics)
+    period_s = median_period_s(info.path, plan.joint_states or topics.motor_torque)
+    pairing, period_s, file_order = recorded_pairing(info.path, plan, period_s)
+    plan = replace(plan, file_order=file_order)
+    estimator = sums.base_estimator(pairing=pairing, sample_period_s=period_s)
+    problems = InputProblems(estimator.counts, plan)
+    total = sum(info.counts.get(t, 0) for t in plan.all_topics)
+    with TimedProgress("predict", total, "msg", enabled=show_progress) as bar:
+        for batch in input_batches(info, plan, BATCH, warn, problems):
+            sums.add(estimator.push_many(batch.codes, batch.t_ns, batch.values, batch.source_ns))
+            bar.update(len(batch.codes))
+        sums.add(estimator.flush())
