@@ -73,7 +73,12 @@ def fitted_covariance(cal: Calibrator, final: list[Term], selected: int, config:
     jac = np.zeros((len(keys), len(quantities)))
     for r, (q, d) in enumerate(rows):
         jac[r, q] = d
-    return ParameterCovariance(tuple(keys), jac @ cov @ jac.T)
+    matrix = jac @ cov @ jac.T
+    written = ParameterCovariance(tuple(keys), (matrix + matrix.T) / 2)  # symmetric to the last digit
+    try:  # what the parameter file will accept (a degenerate fit writes none rather than an invalid file)
+        return ParameterCovariance.from_text(written.to_text())
+    except ValueError:
+        return None
 
 
 def _keys(accepted: Sequence[Term], quantities: list[tuple[str, int, str]], coef: np.ndarray,

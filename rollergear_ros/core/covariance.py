@@ -25,7 +25,8 @@ __all__ = ["MAX_COVARIANCE_KEYS", "ParameterCovariance", "covariance_problem"]
 
 #: the most parameters one covariance holds
 MAX_COVARIANCE_KEYS = 64
-#: |C_ij − C_ji| and a negative eigenvalue are tolerated up to this share of the largest variance
+#: |C_ij − C_ji| is tolerated up to this share of sqrt(C_ii·C_jj), a negative eigenvalue up to this
+#: share of the largest variance (rounding)
 SYMMETRY_TOLERANCE = 1e-9
 
 
@@ -65,7 +66,8 @@ class ParameterCovariance:
             raise ValueError('"matrix" holds finite numbers only')
         matrix = np.array(rows, dtype=float)
         scale = max(float(np.max(np.abs(np.diag(matrix)))), 1e-300)
-        if np.max(np.abs(matrix - matrix.T)) > SYMMETRY_TOLERANCE * scale:
+        pair_scale = np.sqrt(np.outer(np.abs(np.diag(matrix)), np.abs(np.diag(matrix)))) + 1e-300
+        if (np.abs(matrix - matrix.T) > SYMMETRY_TOLERANCE * pair_scale).any():
             raise ValueError('"matrix" is not symmetric')
         lowest = np.linalg.eigvalsh((matrix + matrix.T) / 2).min()
         if (np.diag(matrix) < 0).any() or lowest < -SYMMETRY_TOLERANCE * scale:
