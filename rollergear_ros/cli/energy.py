@@ -15,6 +15,7 @@ from .args import config_from_args, default_params_path, finite_float
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from ..core.oil import OIL_TEMPERATURE_RANGE_C
     from ..outputs.fmu import build_fmu
 
     config = config_from_args(args)
@@ -22,9 +23,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     if out.suffix.lower() != ".fmu":
         raise UsageError(f"--fmu {out}: an FMU file ends in .fmu")
     oil = args.oil_temperature_c
-    if oil is not None and not (oil[0] < oil[1] and oil[2] > 0 and -100 <= oil[0] and oil[1] <= 400
-                                and (oil[1] - oil[0]) / oil[2] <= 1000):
-        raise UsageError("--oil-temperature-c START STOP STEP: -100 <= START < STOP <= 400 degC, STEP > 0, "
+    low, high = OIL_TEMPERATURE_RANGE_C
+    if oil is not None and not (low <= oil[0] < oil[1] <= high and oil[2] > 0 and (oil[1] - oil[0]) / oil[2] <= 1000):
+        raise UsageError(f"--oil-temperature-c START STOP STEP: {low:g} <= START < STOP <= {high:g} degC, STEP > 0, "
                          "at most 1000 steps")
     check_outputs([args.params], [Output("--fmu", out, "fmu")])
     print(f"tabulating the model of {args.params or default_params_path()} …", flush=True)

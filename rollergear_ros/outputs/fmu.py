@@ -75,7 +75,6 @@ def build_fmu(config: Config, out: str | Path, params_path: str | Path | None = 
         script = work / f"{SLAVE_MODULE}.py"
         shutil.copyfile(Path(__file__).with_name("fmu_gearbox.py"), script)
         meta = table.as_json()
-        del meta["loss_nm"]  # the values go to the binary file, C order [speed][torque][temperature]
         meta["reference_temperature_c"] = float(reference)
         (work / "rollergear_table.json").write_text(json.dumps(meta), encoding="utf-8")
         (work / "rollergear_loss.f64").write_bytes(np.ascontiguousarray(table.loss_nm, dtype="<f8").tobytes())

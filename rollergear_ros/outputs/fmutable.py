@@ -61,15 +61,17 @@ class LossTable:
     provenance: dict[str, str] = field(default_factory=dict)
 
     def as_json(self) -> dict:
-        """What the FMU's resource file holds (plain lists, ``loss_nm`` flattened speed-major)."""
+        """What the FMU's JSON resource holds: everything but the loss values (those go to a binary
+        file of little-endian doubles, C order ``[speed][torque][temperature]``)."""
         return {"speeds_rad_s": self.speeds_rad_s.tolist(), "torques_nm": self.torques_nm.tolist(),
-                "temperatures_c": self.temperatures_c.tolist(), "loss_nm": self.loss_nm.ravel().tolist(),
+                "temperatures_c": self.temperatures_c.tolist(),
                 "min_torque_nm": self.min_torque_nm, "min_speed_rad_s": self.min_speed_rad_s,
                 "follows_oil": self.follows_oil, "interpolation_error_nm": self.interpolation_error_nm,
                 "interpolation_error_relative": self.interpolation_error_relative, "provenance": self.provenance}
 
 
 def _axis(start: float, stop: float, step: float) -> np.ndarray:
+    """``start … stop`` inclusive in ``step`` increments."""
     return np.round(start + step * np.arange(int(round((stop - start) / step)) + 1), 9)
 
 

@@ -1052,10 +1052,10 @@ def test_an_integer_for_a_float_parameter_is_accepted(tmp_path):
     params = tmp_path / "p.yaml"
     params.write_text("loss_estimator:\n  ros__parameters:\n    node: {expected_rate_hz: 500}\n")
     node = NodeProcess("estimator.max_abs_torque_nm:=1000", params_file=params)
-    for line in node.proc.stderr:  # a condition, not a duration: the node's start-up line
-        if "estimating from" in line or "error" in line:
-            break
-    assert node.stop() == 0 and "estimating from" in line, line + node.stderr
+    # a condition, not a duration: the node's start-up line (its output is read by NodeProcess's threads)
+    assert wait_for(lambda: "estimating from" in node.stderr or "error" in node.stderr or node.proc.poll() is not None,
+                    120), node.stderr
+    assert node.stop() == 0 and "estimating from" in node.stderr, node.stderr
 
 
 @pytest.mark.parametrize("case", ["existing_recording", "existing_rrd", "unwritable_rrd"])
@@ -1135,6 +1135,49 @@ def test_the_live_loss_map_reaches_a_late_subscriber_and_follows_the_adaptation(
     np.testing.assert_allclose(rows[:, 2], build_map(adapted, speeds, torques).loss_nm.ravel(), rtol=1e-5)
     # the file holds a map the node published (the last one written; written after publishing)
     assert any(np.allclose(rows[:, 2], loss.ravel(), rtol=1e-5) for loss in received[1:])
+
+
+def test_a_node_whose_model_follows_the_oil_republishes_its_map_as_the_oil_warms(tmp_path):
+    """The warm-up recording (oil 20 -> 85 °C) into a node with a viscosity law, adaptation off (no
+    coefficient moves) and ``node.map_oil_step_c:=10``: a map at start (the law's reference
+    temperature, no oil measured yet), then one whenever the oil has moved 10 °C from the last map's;
+    each carries its temperature and is ``rollergear map`` at it."""
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import Float64MultiArray
+
+    from rollergear_ros.base.interface import NAMESPACE, Topic
+    from rollergear_ros.outputs.livemap import from_multiarray
+    from rollergear_ros.outputs.lossmap import build_map
+
+    params = tmp_path / "warm.yaml"
+    params.write_text("/**/loss_estimator:\n  ros__parameters:\n    estimator: {adapt: false}\n    effects:\n"
+                      "      viscosity_temperature: {enabled: true, B_k: 700.0, C_k: 95.0, theta_ref_c: 40.0}\n")
+    config = load_config(params)
+    node = NodeProcess(LOSSLESS, "node.map_oil_step_c:=10.0", params_file=params)
+    maps = []
+    with ros_context() as probe_node:
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        probe_node.create_subscription(Float64MultiArray, f"{NAMESPACE}/{Topic.LOSS_MAP}", maps.append, qos)
+        assert wait_for(lambda: probe_node.count_subscribers(T.motor_torque) > 0 and len(maps) >= 1, 60), \
+            "the node did not start or published no map"
+        play(BAGS / "warmup.mcap", "--rate", "10", "--wait-for-subscribers", "20")
+
+        def temperature(m) -> float:
+            return from_multiarray([d.label for d in m.layout.dim], [d.size for d in m.layout.dim],
+                                   m.layout.data_offset, m.data).oil_temperature_c
+
+        # whatever the map timer saw on the way, a map within 10 °C of the oil's last reading comes
+        last_oil = read_mcap_ros2(BAGS / "warmup.mcap")[T.oil_temperature][1][-1].temperature
+        assert wait_for(lambda: abs(temperature(maps[-1]) - last_oil) < 10.0, 60), [temperature(m) for m in maps]
+        assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
+    received = [from_multiarray([d.label for d in m.layout.dim], [d.size for d in m.layout.dim],
+                                m.layout.data_offset, m.data) for m in list(maps)]
+    temperatures = [r.oil_temperature_c for r in received]
+    assert temperatures[0] == 40.0, temperatures  # at start: the law's reference (it changes nothing there)
+    assert all(abs(b - a) >= 10.0 for a, b in zip(temperatures, temperatures[1:])), temperatures
+    for r in received[1:]:
+        np.testing.assert_allclose(r.loss_nm, build_map(config, r.speeds_rpm, r.torques_nm,
+                                                        r.oil_temperature_c).loss_nm, rtol=1e-12)
 
 
 #: onset of the undeclared effect in the traced recordings [s], and what each effect is
