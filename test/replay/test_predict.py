@@ -109,3 +109,25 @@ def test_the_band_covers_the_known_gearbox_in_at_least_90_of_100_calibrations(tm
         rig.unlink()
     assert covered >= 90, f"the 95 % band held the truth in {covered} of 100"
     assert np.median(half_widths) < 0.005  # and says something: ± 0.5 % of the energy at most, typically
+
+
+def test_a_planned_drive_as_a_csv_with_its_channel_map_is_the_same_plan_as_its_arrays(tmp_path):
+    """A planner's table (time in ms, speed in rpm, the oil in °C) through the channel map, as ``import``
+    reads it: the same samples, the same energy and band as the arrays it was written from."""
+    params = tmp_path / "cal.yaml"
+    params.write_text(CALIBRATED)
+    arrays = _plan_arrays()
+    with (tmp_path / "plan.csv").open("w") as fh:
+        fh.write("t_ms,T_in,n_in,T_oil\n")
+        for t, torque, speed, oil in zip(*(arrays[k].tolist() for k in ("t_s", "torque_nm", "speed_rad_s",
+                                                                         "oil_temperature_c"))):
+            fh.write(f"{1000 * t!r},{torque!r},{speed * 30 / np.pi!r},{oil!r}\n")
+    (tmp_path / "plan.yaml").write_text("time: {column: t_ms, unit: ms}\nmotor_torque: {column: T_in, unit: N*m}\n"
+                                        "motor_speed: {column: n_in, unit: rpm}\n"
+                                        "oil_temperature: {column: T_oil, unit: degC}\n")
+    got = json.loads(run_cli("predict", str(tmp_path / "plan.csv"), "--channels", str(tmp_path / "plan.yaml"),
+                             "--params", str(params), "--json").stdout)
+    expected = predict(arrays, params)
+    assert got["samples"] == expected.samples == len(arrays["t_s"])
+    assert got["energy_lost_j"] == pytest.approx(expected.energy_lost_j, rel=1e-9)
+    assert got["energy_lost_sd_j"] == pytest.approx(expected.energy_lost_sd_j, rel=1e-6)
