@@ -328,7 +328,7 @@ MAP_SPECS: tuple[ParamSpec, ...] = (
 CALIBRATION_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("calibration.covariance", str, "",
               "written by calibrate: the covariance of what it fitted, in this file's keys (JSON: keys, matrix; "
-              "core/covariance.py); predict propagates it ('' = none)", read_only=True),
+              "core/covariance.py); predict propagates it ('' = none); a traced candidate taken in brings its own"),
 )
 
 _specs_cache: dict[int, tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]] = {}
