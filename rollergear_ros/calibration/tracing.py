@@ -346,8 +346,10 @@ def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
     wants a core (``SCHED_IDLE``: a waking thread of the node takes the core from it at once), else at
     the lowest nice level.  On a machine whose cores are all busy it runs at the idle weight only
     (a fraction of a percent of a core): its trace is late, never the node's inputs.  Ctrl-C is the
-    node's: the worker ignores it (the node stops it)."""
+    node's: the worker ignores it (the node stops it).  A node that dies without stopping it (killed,
+    crashed) takes it along: the worker watches its parent (:func:`_exit_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _exit_with_parent(os.getppid())
     if node_cpus and hasattr(os, "sched_setaffinity"):
         try:
             os.sched_setaffinity(0, worker_cpus(set(node_cpus), os.cpu_count() or 1))
@@ -360,6 +362,25 @@ def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
             os.nice(19)
         except OSError:
             pass
+
+
+#: how often the worker looks whether the node that started it is still there [s]
+PARENT_CHECK_S = 0.5
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """Exit this process as soon as ``parent_pid`` is no longer its parent (the parent died and the
+    process was handed to another): a thread that looks every :data:`PARENT_CHECK_S`.  A trace under
+    way would otherwise run to its end, minutes at the idle priority on a busy machine, with the
+    resource tracker the worker holds open beside it."""
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_CHECK_S)
+        os._exit(0)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 class TraceWorker:

@@ -185,6 +185,55 @@ def test_a_real_worker_of_a_pinned_node_runs_on_the_other_cores_at_idle_priority
     assert policy == os.SCHED_IDLE
 
 
+#: a "node" that starts the tracer's worker, keeps it busy with a long task, says the worker's and the
+#: resource tracker's process ids and waits to be killed
+_BUSY_NODE = """
+import time
+from multiprocessing import resource_tracker
+from rollergear_ros.calibration.tracing import TraceWorker
+worker = TraceWorker()
+worker.start()
+busy = worker._pool.submit(time.sleep, 600)
+print(*[p.pid for p in worker._pool._processes.values()], resource_tracker._resource_tracker._pid, flush=True)
+time.sleep(600)
+"""
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` is a process that has not ended (a zombie has ended)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads /proc")
+def test_a_node_killed_mid_trace_takes_its_worker_and_the_resource_tracker_along():
+    """A node killed (SIGKILL: no shutdown) while its worker traces: the worker used to run its trace
+    to the end (minutes at the idle priority on a busy machine), the resource tracker beside it."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    node = subprocess.Popen([sys.executable, "-c", _BUSY_NODE], stdout=subprocess.PIPE, text=True)
+    try:
+        worker_pid, tracker_pid = map(int, node.stdout.readline().split())
+        time.sleep(1.0)  # the worker is in its task (a second of it), the tracker running
+        assert _alive(worker_pid) and _alive(tracker_pid)
+        node.send_signal(signal.SIGKILL)
+        node.wait(timeout=60)
+        deadline = time.monotonic() + 60  # a condition: both gone (within a second here)
+        while (_alive(worker_pid) or _alive(tracker_pid)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(worker_pid), "the worker outlived the node"
+        assert not _alive(tracker_pid), "the resource tracker outlived the node"
+    finally:
+        if node.poll() is None:
+            node.kill()
+
+
 @pytest.mark.parametrize("onset_s", [12.0, 30.0])
 def test_a_drag_that_appears_long_before_the_drive_reverses_is_named_once_the_reversal_is_in_the_window(
         config, onset_s):
