@@ -22,10 +22,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..base.errors import ParameterError
 from .covariance import ParameterCovariance
-from .effects import EFFECTS
 from .estimator import BatchEstimate, Estimator
-from .params import Config, EffectParams
+from .operating_points import map_config
+from .params import Config
 
 __all__ = ["METHOD", "Prediction", "PredictionSums", "prediction_config"]
 
@@ -37,10 +38,8 @@ STEP = 1e-6
 
 
 def prediction_config(config: Config) -> Config:
-    """``config`` as a prediction evaluates it: the rig's sensor errors off, no online adaptation."""
-    switches = {n: on and EFFECTS[n].physical for n, on in config.effects.switches.items()}
-    return replace(config, effects=EffectParams(switches, config.effects.values),
-                   estimator=replace(config.estimator, adapt=False))
+    """``config`` as a prediction evaluates it: the rig's sensor errors off (as a map), no online adaptation."""
+    return replace(map_config(config), estimator=replace(config.estimator, adapt=False))
 
 
 @dataclass
@@ -105,7 +104,7 @@ class PredictionSums:
             step = STEP * max(abs(value), 1e-9)
             try:
                 moved = self.config.with_values({key: value + step})
-            except Exception:  # at the top of its range: step down
+            except ParameterError:  # at the top of its range: step down
                 step = -step
                 moved = self.config.with_values({key: value + step})
             self._perturbed.append((step, Estimator(moved)))
