@@ -183,6 +183,19 @@ def gap_ns(period_ns: float) -> float:
     return max(GAP_PERIODS * period_ns, MIN_GAP_S * 1e9)
 
 
+def energy_steps_s(t_ns: np.ndarray, previous_ns: int | None, period_ns: float) -> tuple[np.ndarray, float]:
+    """Each sample's time step [s] over which replay's summary and ``predict`` integrate the loss
+    power: from the sample before (``previous_ns`` before the first; without one the first has
+    none), nothing across a gap longer than five sample periods (missing data).  ``period_ns``:
+    the period seen so far, renewed from the median step of these samples; returns it too."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    dt = np.diff(np.concatenate([[t[0] if previous_ns is None else previous_ns], t])).astype(float)
+    positive = dt[dt > 0]
+    if len(positive):
+        period_ns = float(np.median(positive))
+    return np.where((dt > 0) & (dt <= 5 * max(period_ns, 1.0)), dt, 0.0) * 1e-9, period_ns
+
+
 def _integration_steps_s(t_ns, previous_ns: int | None = None, period_ns: float | None = None) -> np.ndarray:
     """Each sample's time step [s] from the one before (``previous_ns`` before the first; without
     one the first has none), none across a gap (:func:`gap_ns` of ``period_ns``, else of the median step)."""

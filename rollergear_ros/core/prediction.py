@@ -25,6 +25,7 @@ import numpy as np
 from ..base.errors import ParameterError
 from .covariance import ParameterCovariance
 from .estimator import BatchEstimate, Estimator
+from .measured import energy_steps_s
 from .operating_points import map_config
 from .params import Config
 
@@ -129,12 +130,7 @@ class PredictionSums:
         t = np.asarray(b.t_ns, dtype=np.int64)
         if self.first_t is None:
             self.first_t = int(t[0])
-        prev = self.last_t if self.last_t is not None else int(t[0])
-        dt = np.diff(np.concatenate([[prev], t])).astype(float)
-        typical = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
-        if typical > 0:
-            self._dt_ns = typical
-        dt = np.where((dt > 0) & (dt <= 5 * max(self._dt_ns, 1.0)), dt, 0.0) * 1e-9
+        dt, self._dt_ns = energy_steps_s(t, self.last_t, self._dt_ns)
         power = np.asarray(b.loss_power_w, dtype=float)
         self.energy += float(np.sum(power * dt))
         self.energy_in += float(np.sum(np.abs(b.torque_nm * b.speed_rad_s) * dt))

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..core.estimator import BatchEstimate
-from ..core.measured import EnergyBalance, MeasuredEfficiency
+from ..core.measured import EnergyBalance, MeasuredEfficiency, energy_steps_s
 from ..core.pairing import ARRIVAL_PAIRINGS
 from ..core.params import Config
 
@@ -220,16 +220,9 @@ class Accumulator:
         t = np.asarray(b.t_ns, dtype=np.int64)
         if self.first_t is None:
             self.first_t = int(t[0])
-        prev = self.last_t if self.last_t is not None else int(t[0])
-        dt = np.diff(np.concatenate([[prev], t])).astype(float)
-        typical = float(np.median(dt[dt > 0])) if np.any(dt > 0) else 0.0
-        if typical > 0:
-            self.dt_ns = typical
-        # integrate P·dt; gaps longer than 5 sample periods (missing data) are not integrated
-        dt = np.where((dt > 0) & (dt <= 5 * max(self.dt_ns, 1.0)), dt, 0.0)
-        self.energy += float(np.sum(b.loss_power_w * dt) * 1e-9)
-        p_in = np.abs(b.torque_nm * b.speed_rad_s)
-        self.energy_in += float(np.sum(p_in * dt) * 1e-9)
+        dt_s, self.dt_ns = energy_steps_s(t, self.last_t, self.dt_ns)  # P·dt, not across gaps
+        self.energy += float(np.sum(b.loss_power_w * dt_s))
+        self.energy_in += float(np.sum(np.abs(b.torque_nm * b.speed_rad_s) * dt_s))
         if b.out_torque_nm is not None:  # the samples with a measured loss, as the node's window takes them
             out = np.where(np.isfinite(b.measured_loss_nm), b.out_torque_nm, np.nan)
             self.measured.add(t, b.torque_nm, b.speed_rad_s, out, b.out_speed_rad_s, b.loss_power_w)
