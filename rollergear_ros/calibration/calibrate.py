@@ -46,7 +46,7 @@ from .outcome import CalibrationResult, Change, FoundEffect, FoundParameter, seg
 from .samples import SampleData, load_samples
 from .segments import find_changes
 from .jointfit import fitted_covariance
-from .selection import Calibrator, ErrorStats, Term, error_stats, members
+from .selection import Calibrator, ErrorStats, Fit, Term, error_stats, members
 from .structure import adequacy, angle_spectrum, residual_structure
 from ..base.errors import BagError, UsageError
 from ..core.effects import EFFECTS, reading_errors, viscosity_law
@@ -299,7 +299,7 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
         selected = final[: len(selected)]
     how.stage("held-out errors and intervals")
     blocks = cal.b
-    full = cal.fit(final)
+    full, selected, final = _in_range(cal, selected, final, _value_check(config, ranges), out)
     effects, parameters = _found(cal, out, full, final, selected, config)
     # held out: exactly what the file writes -- the accepted terms, fitted with the rest of the set
     # (nuisance columns, ambiguous sets kept in the fit) on the other folds
@@ -531,6 +531,28 @@ def _found(cal: Calibrator, out, full, final: list[Term], selected: list[Term],
                                    [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms],
                                    _members_at_bound(term.name, params)))
     return effects, parameters
+
+
+def _in_range(cal: Calibrator, selected: list[Term], final: list[Term], check: Callable[[Term, float], str | None],
+              out) -> tuple[Fit, list[Term], list[Term]]:
+    """The fit of the whole set, without the accepted terms whose value leaves its range in it: a term
+    checked when it was accepted can turn negative once fitted with all the others (the ambiguous
+    sets' members, the refit at the corrected torque).  Each one dropped is logged, and a negative
+    friction noted in ``out.negative`` (the analysis then weighs the paper's model switched off)."""
+    full = cal.fit(final)
+    while True:
+        k0 = len(cal.nuisance)
+        reasons = [(i, check(t, float(full.coef[k0 + i]))) for i, t in enumerate(selected)]
+        bad = next(((i, why) for i, why in reasons if why), None)
+        if bad is None:
+            return full, selected, final
+        i, why = bad
+        name = selected[i].name
+        cal.log.append(f"{name}: not accepted: fitted with the whole set, {why}")
+        if float(full.coef[k0 + i]) < 0 and name in EFFECTS and name not in out.negative:
+            out.negative.append(name)
+        selected, final = selected[:i] + selected[i + 1:], final[:i] + final[i + 1:]
+        full = cal.fit(final)
 
 
 def _interval_over_ranges(cal: Calibrator, out, final: list[Term], i: int, lo: float, hi: float) -> tuple[float, float]:

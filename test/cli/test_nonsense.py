@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from rollergear_ros.core.oil import plausible_oil_temperature
+from rollergear_ros.core.params import load_config
 from rollergear_ros.core.pairing import SampleSynchronizer
 
 from helpers import BAGS, run_cli
@@ -72,3 +73,51 @@ def test_an_oil_temperature_reading_outside_the_plausible_range_is_no_temperatur
         arrays = batch.push_many(np.array([code[n] for n in names]), np.array(times, dtype=np.int64),
                                  np.array([value] + [1.0, 10.0] * 3))
         np.testing.assert_equal(arrays[5], np.full(len(arrays[0]), expected))
+
+
+@pytest.mark.parametrize("bag", ["rig_map", "warmup", "drive_cycle_joint_states"])
+def test_a_steep_stribeck_in_range_never_makes_an_efficiency_above_one(tmp_path, bag):
+    """``stribeck`` with ``delta: 5`` was reported at 182 %: with its friction level in range (≥ 0) the
+    estimates of the bundled recordings, adapted online, stay at or below 100 % (the CSV's column)."""
+    import csv
+
+    params = _params(tmp_path, "stribeck: {enabled: true, c_nm: 0.5, delta: 5.0}")
+    out = tmp_path / "e.csv"
+    run_cli("replay", str(BAGS / f"{bag}.mcap"), "--params", params, "--csv", str(out), "--no-png")
+    rows = list(csv.DictReader(out.open()))
+    column = next(c for c in rows[0] if c.startswith("efficiency "))
+    eta = np.array([float(r[column]) for r in rows if r[column] not in ("", "nan")])
+    assert len(eta) > 0.5 * len(rows) and eta.max() <= 1.0
+
+
+def test_a_recording_whose_direction_flips_every_sample_is_calibrated_and_reported(tmp_path):
+    """Reported as a LinAlgError traceback in the report: speed and torque change sign at every
+    sample (a CSV through a channel map), calibrate --report ends with its report, exit 0.  Its loss
+    (0.02 + 0.001·|T| + 1e-4·|ω| N·m) is less than the paper's model: a term accepted when it was
+    tested once turned negative fitted with the whole set (a parameter-file error, exit 2); it is now
+    dropped, and the file written holds the three laws with the paper's model off."""
+    n = 6_000
+    rng = np.random.default_rng(0)
+    sign = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
+    speed, torque = sign * rng.uniform(50, 250, n), sign * rng.uniform(5, 80, n)
+    ratio = 1.36842
+    loss = 0.02 + 0.001 * np.abs(torque) + 1e-4 * np.abs(speed)
+    table = np.column_stack([np.arange(n) * 0.01, torque, speed, (torque - np.sign(speed) * loss) * ratio,
+                             speed / ratio])
+    np.savetxt(tmp_path / "flip.csv", table, delimiter=",", header="t,T_in,w_in,T_out,w_out", comments="",
+               fmt="%.17g")
+    (tmp_path / "map.yaml").write_text(
+        "time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
+        "motor_speed: {column: w_in, unit: rad/s}\noutput_torque: {column: T_out, unit: N*m}\n"
+        "output_speed: {column: w_out, unit: rad/s}\n")
+    proc = run_cli("calibrate", str(tmp_path / "flip.csv"), "--channels", str(tmp_path / "map.yaml"),
+                   "--report", str(tmp_path / "rep"), "--out", str(tmp_path / "cal.yaml"), check=False)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr, proc.stderr
+    assert (tmp_path / "rep" / "report.md").stat().st_size > 1000
+    written = load_config(tmp_path / "cal.yaml")
+    assert not written.estimator.paper_model
+    truth = {"drag_constant": {"c": 0.02}, "drag_speed": {"c": 1e-4, "p": 1.0}, "load_dependent": {"c": 1e-3, "q": 1.0}}
+    active = written.effects.active()
+    assert set(active) == set(truth)
+    for name, params in truth.items():
+        assert active[name] == pytest.approx(params, rel=1e-3), name
