@@ -7,7 +7,8 @@ drag), then times, best of --repeat runs of --steps steps each:
   2. fmpy's own cost of a call into the unit (getReal of one output), the floor any unit pays;
   3. the package's estimator at one operating point per call (what a planner calling the model
      sample by sample would pay without the unit).
-Usage: python bench/bench_fmu.py [--steps 20000] [--repeat 3]
+Usage: python bench/bench_fmu.py [--steps 20000] [--repeat 3] [--no-oil]
+  --no-oil   the package's default parameters (a model that follows no oil: a table of one temperature)
 """
 
 from __future__ import annotations
@@ -28,11 +29,12 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--steps", type=int, default=20_000)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-oil", action="store_true", help="the default parameters: no oil law, a quick build")
     args = ap.parse_args()
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    config = validate(load_config().to_flat() | {
+    config = load_config() if args.no_oil else validate(load_config().to_flat() | {
         "effects.viscosity_temperature.enabled": True, "effects.viscosity_temperature.B_k": 1100.0,
         "effects.drag_speed.enabled": True, "effects.drag_speed.c": 2e-4})
     rng = np.random.default_rng(1)

@@ -18,13 +18,16 @@ SMALL = [
     ("bench_model.py", ["--samples", "100000"]),
     ("bench_node.py", ["--estimator-only", "--memory", "--repeat", "1"]),
     ("bench_trace.py", ["--rate", "200", "--repeat", "1"]),
+    ("bench_fmu.py", ["--steps", "200", "--repeat", "1", "--no-oil"]),
+    ("bench_predict.py", ["--minutes", "0.1", "--repeat", "1"]),
 ]
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("script", "args"), SMALL)
 def test_a_bench_script_runs_to_its_end(script, args, tmp_path):
-    args = args + ([] if script in ("bench_model.py", "bench_node.py", "bench_trace.py") else ["--keep", str(tmp_path)])
+    args = args + ([] if script in ("bench_model.py", "bench_node.py", "bench_trace.py", "bench_fmu.py")
+                   else ["--keep", str(tmp_path)])
     proc = subprocess.run([sys.executable, str(ROOT / "bench" / script), *args], capture_output=True, text=True,
                           cwd=ROOT / "bench", timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
