@@ -30,14 +30,6 @@ __all__ = ["fitted_covariance"]
 MEMBER_STEP = 1e-5
 
 
-def _prediction(cal: Calibrator, terms: Sequence[Term], coef: np.ndarray) -> np.ndarray:
-    """What the set predicts with the terms' coefficients ``coef`` (the nuisance columns left out)."""
-    out = np.zeros(len(cal.b.y))
-    for c, t in zip(coef, terms):
-        out = out + c * cal.effective_column(t, terms)
-    return out
-
-
 def fitted_covariance(cal: Calibrator, final: list[Term], selected: int, config: Config) -> ParameterCovariance | None:
     """The joint covariance of the first ``selected`` terms of ``final`` (the accepted ones) in the
     keys of ``config``'s file (module docstring); None when nothing was fitted."""
@@ -53,7 +45,7 @@ def fitted_covariance(cal: Calibrator, final: list[Term], selected: int, config:
     # the quantities of the joint fit: x's columns, then each profiled member
     quantities: list[tuple[str, int, str]] = [("nuisance", j, "") for j in range(k0)]
     quantities += [("coefficient", i, "") for i in free]
-    base = _prediction(cal, final, coef)
+    base = cal._offset(final, dict(enumerate(coef)))  # what the terms predict (the nuisance left out)
     extra = []
     for i, t in enumerate(final):
         for which, value in (("member", t.member), ("second", t.second)):
@@ -63,7 +55,7 @@ def fitted_covariance(cal: Calibrator, final: list[Term], selected: int, config:
             moved = list(final)
             moved[i] = cal._with_member(t, value + step if which == "member" else t.member,
                                         value + step if which == "second" else None)
-            extra.append((_prediction(cal, moved, coef) - base) / step)
+            extra.append((cal._offset(moved, dict(enumerate(coef))) - base) / step)
             quantities.append((which, i, ""))
     design = np.column_stack([x, *extra]) if extra else x
     cov = wls(design, y, cal.b.weight, cal.b.dwell).cov

@@ -81,8 +81,9 @@ def _write_samples(result, kind: str, path: Path) -> None:
     import numpy as np
 
     from ..base.atomic import replacing
+    from ..core.prediction import Z95
 
-    half = 1.959963984540054 * result.loss_power_sd_w
+    half = Z95 * result.loss_power_sd_w
     columns = {"time_s": (result.t_ns - result.t_ns[0]) * 1e-9 if len(result.t_ns) else result.t_ns * 1.0,
                "loss_power_w": result.loss_power_w, "loss_power_low95_w": result.loss_power_w - half,
                "loss_power_high95_w": result.loss_power_w + half}

@@ -188,25 +188,35 @@ def energy_steps_s(t_ns: np.ndarray, previous_ns: int | None, period_ns: float) 
     power: from the sample before (``previous_ns`` before the first; without one the first has
     none), nothing across a gap longer than five sample periods (missing data).  ``period_ns``:
     the period seen so far, renewed from the median step of these samples; returns it too."""
-    t = np.asarray(t_ns, dtype=np.int64)
-    dt = np.diff(np.concatenate([[t[0] if previous_ns is None else previous_ns], t])).astype(float)
-    positive = dt[dt > 0]
-    if len(positive):
-        period_ns = float(np.median(positive))
-    return np.where((dt > 0) & (dt <= 5 * max(period_ns, 1.0)), dt, 0.0) * 1e-9, period_ns
+    dt = _steps_ns(t_ns, previous_ns)
+    period_ns = _median_step_ns(dt, period_ns)
+    return _within(dt, 5 * max(period_ns, 1.0)), period_ns
 
 
 def _integration_steps_s(t_ns, previous_ns: int | None = None, period_ns: float | None = None) -> np.ndarray:
     """Each sample's time step [s] from the one before (``previous_ns`` before the first; without
     one the first has none), none across a gap (:func:`gap_ns` of ``period_ns``, else of the median step)."""
+    dt = _steps_ns(t_ns, previous_ns)
+    return _within(dt, gap_ns(period_ns or _median_step_ns(dt, 0.0)))
+
+
+def _steps_ns(t_ns, previous_ns: int | None) -> np.ndarray:
+    """Each sample's step [ns] from the one before (``previous_ns`` before the first, else 0)."""
     t = np.asarray(t_ns, dtype=np.int64)
     if len(t) == 0:
         return np.zeros(0)
-    dt = np.diff(t, prepend=t[0] if previous_ns is None else previous_ns).astype(float)
-    if not period_ns:
-        positive = dt[dt > 0]
-        period_ns = float(np.median(positive)) if len(positive) else 0.0
-    return np.where((dt > 0) & (dt <= gap_ns(period_ns)), dt, 0.0) * 1e-9
+    return np.diff(t, prepend=t[0] if previous_ns is None else previous_ns).astype(float)
+
+
+def _median_step_ns(dt: np.ndarray, otherwise: float) -> float:
+    """The median of the positive steps, ``otherwise`` when there is none."""
+    positive = dt[dt > 0]
+    return float(np.median(positive)) if len(positive) else otherwise
+
+
+def _within(dt: np.ndarray, longest_ns: float) -> np.ndarray:
+    """The steps in seconds, 0 where a step is none or longer than ``longest_ns`` (a gap)."""
+    return np.where((dt > 0) & (dt <= longest_ns), dt, 0.0) * 1e-9
 
 
 def _terms(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio: float, dt_s, model_loss_w=None):

@@ -28,7 +28,7 @@ from ..base.errors import UsageError
 from .estimator import Estimator
 from .params import Config, EffectParams
 
-__all__ = ["PointLosses", "evaluate_points", "map_config", "only", "temperature_effects"]
+__all__ = ["PointLosses", "evaluate_points", "map_config", "only", "reference_temperature_c", "temperature_effects"]
 
 
 @dataclass
@@ -57,6 +57,13 @@ def map_config(config: Config) -> Config:
 def temperature_effects(config: Config) -> list[str]:
     """Accepted physical effects that need the oil temperature."""
     return [n for n in config.effects.enabled() if EFFECTS[n].physical and EFFECTS[n].needs_temperature]
+
+
+def reference_temperature_c(config: Config) -> float | None:
+    """The reference temperature of the accepted effect that needs the oil's (where it changes
+    nothing), None when no accepted effect needs one."""
+    needing = temperature_effects(config)
+    return float(config.effects.params(needing[0]).get("theta_ref", 40.0)) if needing else None
 
 
 def evaluate_points(config: Config, torque_nm, speed_rad_s, temperature_c: float | None = None) -> PointLosses:

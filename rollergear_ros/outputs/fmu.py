@@ -22,9 +22,10 @@ import numpy as np
 from ..base.atomic import replacing
 from ..base.errors import UsageError
 from ..base.interface import package_version
-from ..core.effects import EFFECTS
+from ..core.operating_points import reference_temperature_c
 from ..core.params import Config, config_to_yaml
 from .fmutable import LossTable, loss_table
+from .lossmap import accepted_effects_text, calibration_lines
 
 __all__ = ["SLAVE_MODULE", "build_fmu"]
 
@@ -34,13 +35,8 @@ SLAVE_MODULE = "rollergear_gearbox"
 
 def _provenance(config: Config, params_path: Path | None, table: LossTable) -> dict:
     """The description and the provenance strings the unit's model description carries."""
-    lines = (Path(params_path).read_text(encoding="utf-8").splitlines()[:3]
-             if params_path is not None and Path(params_path).exists() else [])
-    calibration = " / ".join(ln[1:].strip() for ln in lines
-                             if ln.startswith("# Written by `rollergear calibrate`") or ln.startswith("# verdict:"))
-    physical = {n: p for n, p in config.effects.active().items() if EFFECTS[n].physical}
-    effects = "; ".join(f"{n} " + " ".join(f"{k}={v:.6g}" for k, v in p.items()) for n, p in physical.items()) \
-        or "none (the paper's model only)"
+    calibration = " / ".join(calibration_lines(params_path))
+    effects = accepted_effects_text(config) or "none (the paper's model only)"
     grid = (f"{len(table.speeds_rad_s)} speeds {table.speeds_rad_s[0]:g} … {table.speeds_rad_s[-1]:g} rad/s x "
             f"{len(table.torques_nm)} torques {table.torques_nm[0]:g} … {table.torques_nm[-1]:g} N*m x "
             + (f"{len(table.temperatures_c)} oil temperatures {table.temperatures_c[0]:g} … "
@@ -68,14 +64,13 @@ def build_fmu(config: Config, out: str | Path, params_path: str | Path | None = 
         raise UsageError("export --fmu needs pythonfmu (pip install pythonfmu)") from None
     table = loss_table(config, oil_grid_c)
     table.provenance = _provenance(config, Path(params_path) if params_path else None, table)
-    reference = next((config.effects.params(n).get("theta_ref", 40.0) for n in config.effects.enabled()
-                      if EFFECTS[n].needs_temperature), 40.0)
+    reference = reference_temperature_c(config)
     with tempfile.TemporaryDirectory(prefix="rollergear_fmu_") as tmp:
         work = Path(tmp)
         script = work / f"{SLAVE_MODULE}.py"
         shutil.copyfile(Path(__file__).with_name("fmu_gearbox.py"), script)
         meta = table.as_json()
-        meta["reference_temperature_c"] = float(reference)
+        meta["reference_temperature_c"] = 40.0 if reference is None else reference  # the input's start value
         (work / "rollergear_table.json").write_text(json.dumps(meta), encoding="utf-8")
         (work / "rollergear_loss.f64").write_bytes(np.ascontiguousarray(table.loss_nm, dtype="<f8").tobytes())
         built = FmuBuilder.build_FMU(script, dest=work / "unit" / "gearbox.fmu",

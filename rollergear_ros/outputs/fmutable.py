@@ -23,8 +23,9 @@ import numpy as np
 
 from ..base.errors import UsageError
 from ..base.interface import RPM_PER_RAD_S
-from ..core.operating_points import evaluate_points, temperature_effects
+from ..core.operating_points import temperature_effects
 from ..core.params import Config, grid_cells_problem
+from .lossmap import plausible_points
 
 __all__ = ["DEFAULT_OIL_GRID_C", "LossTable", "interpolate", "loss_table"]
 
@@ -135,13 +136,8 @@ def _temperature_planes(config: Config, speed: np.ndarray, torque: np.ndarray, s
 
 def _model(config: Config, speed: np.ndarray, torque: np.ndarray, temperature_c: float | None) -> np.ndarray:
     """The model's loss magnitude at the points (arrays of one shape)."""
-    points = evaluate_points(config, torque.ravel(), speed.ravel(), temperature_c)
-    loss = points.loss_magnitude_nm.reshape(speed.shape)
-    if np.isnan(loss).any():
-        est = config.estimator
-        raise UsageError(f"the table leaves the estimator's plausible range (|T| <= {est.max_abs_torque_nm:g} N·m, "
-                         f"|w| <= {est.max_abs_speed_rad_s:g} rad/s): estimator.max_abs_*")
-    return loss
+    return plausible_points(config, torque.ravel(), speed.ravel(), temperature_c, "table").loss_magnitude_nm.reshape(
+        speed.shape)
 
 
 def interpolate(table: LossTable, speed_rad_s, torque_nm, temperature_c) -> np.ndarray:

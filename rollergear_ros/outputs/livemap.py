@@ -34,7 +34,7 @@ import numpy as np
 
 from ..core.effects import EFFECTS
 from .lossmap import LossMap, build_map, grid
-from ..core.operating_points import temperature_effects
+from ..core.operating_points import reference_temperature_c, temperature_effects
 from ..core.params import Config, validate
 
 __all__ = ["MapArray", "ReceivedMap", "adapted_config", "coefficients_moved", "from_multiarray", "live_map",
@@ -43,8 +43,6 @@ __all__ = ["MapArray", "ReceivedMap", "adapted_config", "coefficients_moved", "f
 SPEED_LABEL = "speed_rpm"
 TORQUE_LABEL = "torque_nm"
 TEMPERATURE_LABEL = "oil_temperature_c"
-#: two-sided 95 % quantile of the normal distribution
-Z95 = 1.959963984540054
 
 
 def map_grid(config: Config) -> tuple[np.ndarray, np.ndarray]:
@@ -72,8 +70,7 @@ def live_map(config: Config, coefficients: Mapping[str, float],
     adapted = adapted_config(config, coefficients)
     temperature = None
     if temperature_effects(adapted):
-        temperature = oil_temperature_c if oil_temperature_c is not None else \
-            adapted.effects.params(temperature_effects(adapted)[0]).get("theta_ref", 40.0)
+        temperature = oil_temperature_c if oil_temperature_c is not None else reference_temperature_c(adapted)
     speeds, torques = map_grid(adapted)
     return adapted, build_map(adapted, speeds, torques, temperature)
 

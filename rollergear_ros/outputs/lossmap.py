@@ -92,14 +92,37 @@ def build_map(config: Config, speeds_rpm: Sequence[float], torques_nm: Sequence[
                          f"the torque grid is {torques.min():g} … {torques.max():g} N·m")
     s, t = np.meshgrid(speeds, torques, indexing="ij")
     sign = -1.0 if reverse else 1.0
-    points = evaluate_points(config, sign * t.ravel(), sign * s.ravel() / RPM_PER_RAD_S, temperature_c)
-    if np.isnan(points.loss_magnitude_nm).any():
-        est = config.estimator
-        raise UsageError(f"the grid leaves the estimator's plausible range (|T| <= {est.max_abs_torque_nm:g} N·m, "
-                         f"|w| <= {est.max_abs_speed_rad_s:g} rad/s): estimator.max_abs_*")
+    points = plausible_points(config, sign * t.ravel(), sign * s.ravel() / RPM_PER_RAD_S, temperature_c, "grid")
     shape = s.shape
     return LossMap(speeds, torques, points.loss_magnitude_nm.reshape(shape), points.efficiency.reshape(shape),
                    points.model_nm.reshape(shape), reverse, points, temperature_c)
+
+
+def plausible_points(config: Config, torque_nm, speed_rad_s, temperature_c: float | None, what: str) -> PointLosses:
+    """:func:`~core.operating_points.evaluate_points`, refusing points the estimator skips as
+    implausible (``what`` -- the grid, the table -- names them in the error)."""
+    points = evaluate_points(config, torque_nm, speed_rad_s, temperature_c)
+    if np.isnan(points.loss_magnitude_nm).any():
+        est = config.estimator
+        raise UsageError(f"the {what} leaves the estimator's plausible range (|T| <= {est.max_abs_torque_nm:g} N·m, "
+                         f"|w| <= {est.max_abs_speed_rad_s:g} rad/s): estimator.max_abs_*")
+    return points
+
+
+def calibration_lines(params_path: str | Path | None) -> list[str]:
+    """What calibrate wrote at the head of a parameter file (``Written by …``, ``verdict: …``; empty: none)."""
+    if params_path is None or not Path(params_path).exists():
+        return []
+    return [ln[1:].strip() for ln in Path(params_path).read_text(encoding="utf-8").splitlines()[:3]
+            if ln.startswith("# Written by `rollergear calibrate`") or ln.startswith("# verdict:")]
+
+
+def accepted_effects_text(config: Config) -> str | None:
+    """The accepted physical effects with their parameters (``drag_speed c=0.0003 p=1.4; …``), None: none."""
+    from ..core.effects import EFFECTS
+
+    physical = {n: p for n, p in config.effects.active().items() if EFFECTS[n].physical}
+    return "; ".join(f"{n} " + " ".join(f"{k}={v:.6g}" for k, v in p.items()) for n, p in physical.items()) or None
 
 
 def reverse_path(path: Path) -> Path:
@@ -114,18 +137,9 @@ def map_comments(config: Config, params_path: Path | None, temperature_c: float 
     lines = [f"rollergear_ros {package_version()}: roller gearing gearbox loss map (input-referred torque loss)",
              f"ratio (input/output speed) {config.gearbox.ratio_effective:.6g}",
              f"parameters: {params_path if params_path else 'built-in defaults'}"]
-    if params_path is not None and Path(params_path).exists():
-        head = [ln[1:].strip() for ln in Path(params_path).read_text(encoding="utf-8").splitlines()[:3]
-                if ln.startswith("# Written by `rollergear calibrate`") or ln.startswith("# verdict:")]
-        lines += [f"calibration: {h}" for h in head]
-    active = config.effects.active()
-    physical = {n: p for n, p in active.items() if EFFECTS[n].physical}
-    if physical:
-        desc = "; ".join(f"{n} " + " ".join(f"{k}={v:.6g}" for k, v in p.items()) for n, p in physical.items())
-        lines.append(f"accepted effects: {desc}")
-    else:
-        lines.append("accepted effects: none (the paper's model only)")
-    sensor = [n for n in active if not EFFECTS[n].physical]
+    lines += [f"calibration: {h}" for h in calibration_lines(params_path)]
+    lines.append("accepted effects: " + (accepted_effects_text(config) or "none (the paper's model only)"))
+    sensor = [n for n in config.effects.active() if not EFFECTS[n].physical]
     if sensor:
         lines.append(f"not applied (torque-sensor errors of the rig): {' '.join(sensor)}")
     if temperature_c is not None:

@@ -6,7 +6,7 @@ on the way (damaged spans, malformed, duplicated and out-of-order messages).  No
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from collections.abc import Callable
@@ -14,7 +14,8 @@ from collections.abc import Callable
 import numpy as np
 
 from ..recordings.bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, cdr_problem, decode_float64,
-                              decoder_for, encode_float64, float64_problem, iter_raw_batches, read_metadata)
+                              decoder_for, encode_float64, float64_problem, iter_raw_batches, median_period_s,
+                              read_metadata)
 from ..core.pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from ..base.interface import MessageType, Metadata
 
@@ -443,6 +444,15 @@ class _TimeOrder:
                 self.carry = InputBatch(codes[cut:], t[cut:], v[cut:], batch.write_inputs)
                 codes, t, v = codes[:cut], t[:cut], v[:cut]
         return InputBatch(codes, t, v, batch.write_inputs)
+
+
+def paired_plan(info: BagInfo, topics: TopicMap) -> tuple[InputPlan, str, float | None]:
+    """The inputs' plan (:func:`plan_inputs`) in the order to take them, how to pair them and the
+    sample period (:func:`recorded_pairing`): what replay and predict start from."""
+    plan = plan_inputs(info, topics)
+    period_s = median_period_s(info.path, plan.joint_states or topics.motor_torque)
+    pairing, period_s, file_order = recorded_pairing(info.path, plan, period_s)
+    return replace(plan, file_order=file_order), pairing, period_s
 
 
 def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tuple[str, float | None, bool]:

@@ -16,7 +16,6 @@ mapping of arrays.  Its samples are paired as ``replay`` pairs them and go throu
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -25,8 +24,8 @@ from ..base.errors import UsageError
 from ..base.progress import TimedProgress
 from ..core.params import Config, load_config
 from ..core.prediction import Prediction, PredictionSums
-from ..recordings.bag import TopicMap, inspect_bag, median_period_s
-from .inputs import InputProblems, input_batches, plan_inputs, recorded_pairing
+from ..recordings.bag import TopicMap, inspect_bag
+from .inputs import InputProblems, input_batches, paired_plan
 
 __all__ = ["ARRAY_KEYS", "predict"]
 
@@ -84,10 +83,7 @@ def _add_recording(sums: PredictionSums, bag: Path, topics: TopicMap, show_progr
                    warn: Callable[[str], None]) -> None:
     """A recording's samples, paired and estimated as ``replay`` does, batch by batch."""
     info = inspect_bag(bag)
-    plan = plan_inputs(info, topics)
-    period_s = median_period_s(info.path, plan.joint_states or topics.motor_torque)
-    pairing, period_s, file_order = recorded_pairing(info.path, plan, period_s)
-    plan = replace(plan, file_order=file_order)
+    plan, pairing, period_s = paired_plan(info, topics)
     estimator = sums.base_estimator(pairing=pairing, sample_period_s=period_s)
     problems = InputProblems(estimator.counts, plan)
     total = sum(info.counts.get(t, 0) for t in plan.all_topics)

@@ -13,17 +13,17 @@ the summary), :mod:`base.stopping` (signals between batches); this module runs t
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Callable, Iterator, Sequence
 
-from ..recordings.bag import BagInfo, TopicMap, inspect_bag, median_period_s
+from ..recordings.bag import BagInfo, TopicMap, inspect_bag
 from ..base import atomic
 from ..base.errors import BagError, UsageError, damage_totals, lost_share
 from ..core.estimator import BatchEstimate, Estimator
 from ..core.params import Config
 from ..base.progress import TimedProgress
-from .inputs import InputBatch, InputProblems, input_batches, plan_inputs, recorded_pairing
+from .inputs import InputBatch, InputProblems, input_batches, paired_plan
 from .output import ReplayOutputs
 from .switches import ParameterSwitch, apply_switch, recorded_switches, split_at
 from .summary import Accumulator, ReplaySummary
@@ -116,10 +116,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
 
     info = inspect_bag(req.bag)
     _warn_unindexed(info, _warn)
-    plan = plan_inputs(info, req.topics)
-    period_s = median_period_s(info.path, plan.joint_states or req.topics.motor_torque)
-    pairing, period_s, file_order = recorded_pairing(info.path, plan, period_s)
-    plan = replace(plan, file_order=file_order)
+    plan, pairing, period_s = paired_plan(info, req.topics)
     estimator = Estimator(req.config, pairing=pairing, sample_period_s=period_s)
     # the node's run-time parameter changes, where it applied them
     switches = recorded_switches(info) if req.parameter_changes else []
