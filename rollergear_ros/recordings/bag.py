@@ -11,7 +11,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from functools import lru_cache
 from typing import Any
 from collections.abc import Iterator
@@ -514,6 +514,9 @@ def iter_raw_batches(info: BagInfo, topics: set[str] | None, batch_size: int = 5
 
 
 # ------------------------------------------------------------------------------------ writing
+_MAX_JOBS = 2  #: a background writer's jobs in flight before the caller waits for the oldest
+
+
 class BagWriter:
     """Writes a ROS 2 MCAP bag (``ros2`` profile, ``ros2msg`` schemas, ``cdr`` messages).
 
@@ -526,7 +529,9 @@ class BagWriter:
     messages come passes False.  ``offered_qos``: topic -> the QoS profiles its publisher offers
     (:func:`offered_qos_yaml`), stored as rosbag2 does.  :meth:`close` adds rosbag2's own metadata
     record (``rosbag2``: ``serialized_metadata``), so ``ros2 bag info`` shows topics, counts and QoS.
-    ``background``: full chunks are compressed and written by a second thread (bulk writers).
+    ``background``: full chunks are compressed and written by a second thread, and a time-ordered
+    writer lays out its records in a third (bulk writers: the caller goes on while what it handed
+    over is written; an error there is raised by a later call or :meth:`close`).
     ``replace_atomically`` (default): written beside ``path`` and renamed onto it when closed
     without an error (:mod:`~base.atomic`); a live recorder passes False.
     """
@@ -546,6 +551,43 @@ class BagWriter:
         self._types: dict[str, str] = {}
         self._offered_qos = dict(offered_qos or {})
         self.closed = False
+        # background + time_ordered: what touches the file (channels, held messages, metadata) runs
+        # on one builder thread, in the order called; calls until the next release go as one job
+        self._builder = None
+        self._ops: list[Callable[[], None]] = []
+        self._jobs: list = []
+        self._failed = False
+        self._error: BaseException | None = None  # the builder's first error
+        if background and time_ordered:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._builder = ThreadPoolExecutor(1, thread_name_prefix="mcap-layout")
+
+    def _apply(self, op: Callable[[], None]) -> None:
+        """Run ``op`` (which touches the file) now, or with the builder thread's next job."""
+        if self._builder is None:
+            op()
+        else:
+            self._ops.append(op)
+
+    def _submit(self, wait_beyond: int = _MAX_JOBS) -> None:
+        """Hand the calls made since the last job to the builder thread; raise the error of a job that
+        failed; wait while more than ``wait_beyond`` jobs are in flight (memory stays bounded)."""
+        if self._ops:
+            ops, self._ops = self._ops, []
+            self._jobs.append(self._builder.submit(self._run, ops))
+        while self._jobs and (len(self._jobs) > wait_beyond or self._jobs[0].done()):
+            self._jobs.pop(0).result()
+
+    def _run(self, ops: list[Callable[[], None]]) -> None:
+        if self._failed:  # the file's state after a failed job is no base for the next
+            return
+        try:
+            for op in ops:
+                op()
+        except BaseException as exc:
+            self._failed, self._error = True, exc
+            raise
 
     def channel(self, topic: str, type_name: str, schema_text: str | None = None) -> int:
         """Register (once) a topic of a ROS 2 type; returns its channel id."""
@@ -562,43 +604,57 @@ class BagWriter:
 
     def release(self, up_to_ns: int) -> None:
         """``time_ordered``: write the held messages whose log time is at most ``up_to_ns``."""
-        if self._held is not None:
-            self._held.release(up_to_ns)
+        if self._held is None:
+            return
+        self._apply(lambda: self._held.release(up_to_ns))
+        if self._builder is not None:
+            self._submit()
 
     def write_raw(
         self, topic: str, type_name: str, log_time_ns: int, data: bytes, schema_text: str | None = None,
         publish_time_ns: int | None = None,
     ) -> None:
         """One serialized message (``publish_time_ns``: when its publisher sent it; None: its log time)."""
-        self._sink.add_message(self.channel(topic, type_name, schema_text), int(log_time_ns), data, publish_time_ns)
+        log_time_ns = int(log_time_ns)
+        self._apply(lambda: self._sink.add_message(self.channel(topic, type_name, schema_text), log_time_ns, data,
+                                                   publish_time_ns))
 
     def write_message(self, topic: str, type_name: str, log_time_ns: int, message: dict) -> None:
         """Encode a message dict with the type's CDR encoder and write it."""
         self.write_raw(topic, type_name, log_time_ns, encoder_for(type_name)(message))
 
     def write_fixed(
-        self, topic: str, type_name: str, t_ns: np.ndarray, payloads: np.ndarray, schema_text: str | None = None
+        self, topic: str, type_name: str, t_ns: np.ndarray, payloads: np.ndarray | Callable[[], np.ndarray],
+        schema_text: str | None = None,
     ) -> None:
-        """Many messages of one topic whose serialized payloads are the rows of ``payloads``."""
-        self._sink.add_messages(
-            self.channel(topic, type_name, schema_text), np.asarray(t_ns, dtype=np.int64), payloads
-        )
+        """Many messages of one topic whose serialized payloads are the rows of ``payloads`` -- or of
+        what ``payloads()`` returns, called where the records are laid out (a background writer's
+        builder thread: the caller does not wait for the encoding)."""
+        t_ns = np.asarray(t_ns, dtype=np.int64)
+        self._apply(lambda: self._sink.add_messages(self.channel(topic, type_name, schema_text), t_ns,
+                                                    payloads() if callable(payloads) else payloads))
 
     def write_fixed_mixed(
         self, topics: list[tuple[str, str, str | None]], which: np.ndarray, t_ns: np.ndarray, payloads: np.ndarray
     ) -> None:
         """Messages of several topics in their given (time) order: row i belongs to ``topics[which[i]]``
         (``(topic, type, schema text)``); all payloads have the same length."""
-        ids = np.array([self.channel(tp, ty, tx) for tp, ty, tx in topics], dtype=np.int64)
-        self._sink.add_messages(ids[np.asarray(which)], np.asarray(t_ns, dtype=np.int64), payloads)
+        which, t_ns = np.asarray(which), np.asarray(t_ns, dtype=np.int64)
+
+        def add() -> None:
+            ids = np.array([self.channel(tp, ty, tx) for tp, ty, tx in topics], dtype=np.int64)
+            self._sink.add_messages(ids[which], t_ns, payloads)
+
+        self._apply(add)
 
     def write_float64_series(self, topic: str, t_ns: np.ndarray, values: np.ndarray) -> None:
         """A whole series of Float64 messages (vectorised encoding)."""
-        self.write_fixed(topic, MessageType.FLOAT64, t_ns, float64_payloads(values))
+        self.write_fixed(topic, MessageType.FLOAT64, t_ns, lambda: float64_payloads(values))
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         """An MCAP metadata record (string key/values)."""
-        self._writer.add_metadata(name, data)
+        data = dict(data)
+        self._apply(lambda: self._writer.add_metadata(name, data))
 
     @property
     def bytes_written(self) -> int:
@@ -613,11 +669,18 @@ class BagWriter:
         self.closed = True
         ok = False
         try:
+            if self._builder is not None:
+                self._submit(wait_beyond=0)  # every job done, its error raised
+                if self._error is not None:  # raised by an earlier call: the file is not finished
+                    raise self._error
             if self._held is not None:
                 self._held.release()
             self._writer.add_metadata(ROSBAG2_METADATA, {"serialized_metadata": self._rosbag2_metadata()})
             ok = True
         finally:
+            if self._builder is not None:
+                self._failed = True  # a job still queued (after an error) does nothing
+                self._builder.shutdown(wait=True)
             self._writer.close(commit=commit and ok)
 
     def _rosbag2_metadata(self) -> str:

@@ -30,6 +30,16 @@ _MSG_FIXED = 2 + 4 + 8 + 8  # channel id, sequence, log time, publish time
 _MSG_HEAD = struct.Struct("<BQHIqq")
 
 
+def byte_rows(buf: np.ndarray, width: int, writeable: bool = False) -> np.ndarray:
+    """Every ``width`` bytes of ``buf`` from each offset, as the rows of a view (no copy):
+    ``byte_rows(buf, w)[offsets]`` gathers the w bytes at each offset in one numpy call, without the
+    offset × width index array a fancy index would build (``writeable``: assign to them likewise)."""
+    from numpy.lib.stride_tricks import as_strided
+
+    return as_strided(buf, shape=(max(0, len(buf) - width + 1), width), strides=(buf.strides[0], buf.strides[0]),
+                      writeable=writeable)
+
+
 @dataclass
 class MessageArrays:
     """Messages of one chunk, in file order: payload ``i`` is ``buf[offset[i]:offset[i]+length[i]]``."""
@@ -54,7 +64,7 @@ class MessageArrays:
         off = self.offset[rows]
         if not (np.all(self.length[rows] >= 12) and np.all(self.buf[off + 1] == 1) and not self.buf[off].any()):
             raise ValueError("not little-endian Float64 CDR payloads")
-        return self.buf[off[:, None] + np.arange(4, 12)].copy().view("<f8").ravel()
+        return byte_rows(self.buf, 8)[off + 4].view("<f8").ravel()
 
 
 #: bounds on what a record may declare, so that a damaged or hostile length costs neither memory nor time
@@ -142,11 +152,16 @@ def _channel(body: bytes, state: ReadState) -> None:
 
 
 def parse_records(data: bytes, state: ReadState) -> MessageArrays:
-    """Parse a chunk's records; schema and channel records update ``state``."""
+    """Parse a chunk's records; schema and channel records update ``state``.
+
+    Message records come in runs of one length (a recorder's Float64 topics, broken by the odd
+    message of another type): each run is found with a few vectorised checks of its records' heads,
+    and the fields of every message of the chunk are gathered at once at the end."""
     buf = np.frombuffer(data, dtype=np.uint8)
     n = len(data)
     pos = 0
-    chans, times, sent, offs, lens = [], [], [], [], []
+    runs: list[tuple[int, int, int]] = []  # (first record's position, records, record length)
+    step = 64  # the window of the first check: the last run's length (runs repeat)
     while pos + 9 <= n:
         op = data[pos]
         ln = int.from_bytes(data[pos + 1:pos + 9], "little")
@@ -156,22 +171,18 @@ def parse_records(data: bytes, state: ReadState) -> MessageArrays:
         if op == OP_MESSAGE:
             avail = (n - pos) // rec
             head = buf[pos:pos + 9]
-            m, step = 1, 64
+            m, window = 1, step
             while m < avail:  # a run of records with the same opcode and length, checked in growing windows
-                k = min(step, avail - m)
+                k = min(window, avail - m)
                 rows = buf[pos + m * rec:pos + (m + k) * rec].reshape(k, rec)
                 bad = np.flatnonzero(~(rows[:, :9] == head).all(axis=1))
                 if len(bad):
                     m += int(bad[0])
                     break
                 m += k
-                step *= 2
-            rows = buf[pos:pos + m * rec].reshape(m, rec)
-            chans.append(rows[:, 9:11].copy().view("<u2").ravel())
-            times.append(rows[:, 15:23].copy().view("<i8").ravel())
-            sent.append(rows[:, 23:31].copy().view("<i8").ravel())
-            offs.append(pos + 9 + _MSG_FIXED + rec * np.arange(m, dtype=np.int64))
-            lens.append(np.full(m, ln - _MSG_FIXED, dtype=np.int64))
+                window *= 2
+            runs.append((pos, m, rec))
+            step = max(64, m)
             pos += m * rec
             continue
         if op == OP_SCHEMA:
@@ -179,11 +190,17 @@ def parse_records(data: bytes, state: ReadState) -> MessageArrays:
         elif op == OP_CHANNEL:
             _channel(data[pos + 9:pos + rec], state)
         pos += rec
-    if not chans:
+    if not runs:
         e = np.empty(0, dtype=np.int64)
         return MessageArrays(np.empty(0, dtype=np.uint16), e, e, e, buf, e)
-    arrays = MessageArrays(np.concatenate(chans), np.concatenate(times), np.concatenate(offs), np.concatenate(lens),
-                           buf, np.concatenate(sent))
+    run_pos, run_m, run_rec = (np.array(column, dtype=np.int64) for column in zip(*runs))
+    first = np.cumsum(run_m) - run_m
+    starts = np.repeat(run_pos, run_m) + (np.arange(int(run_m.sum()), dtype=np.int64)
+                                          - np.repeat(first, run_m)) * np.repeat(run_rec, run_m)
+    arrays = MessageArrays(byte_rows(buf, 2)[starts + 9].view("<u2").ravel(),
+                           byte_rows(buf, 8)[starts + 15].view("<i8").ravel(),
+                           starts + 9 + _MSG_FIXED, np.repeat(run_rec - 9 - _MSG_FIXED, run_m),
+                           buf, byte_rows(buf, 8)[starts + 23].view("<i8").ravel())
     bad = arrays.log_time < 0  # unsigned log times beyond 2⁶³ − 1: no ROS time, and no int64 to compute with
     if bad.any():
         state.bad_log_times += int(bad.sum())

@@ -16,8 +16,11 @@ from mcap.well_known import Profile
 from mcap.writer import MCAP0_MAGIC as MAGIC
 
 from ..base import atomic
-from .fastmcap import _MSG_FIXED, _MSG_HEAD, OP_MESSAGE
+from .fastmcap import _MSG_FIXED, _MSG_HEAD, OP_MESSAGE, byte_rows
 
+#: records laid out per numpy pass (a few chunks: whole arrays amortise numpy's per-call cost, and a
+#: whole recording added at once still costs no more than this beside it)
+_PIECE_BYTES = 8 * 1024 * 1024
 _MAX_PENDING = 4  #: chunks waiting for the background thread before the caller waits too
 #: zstd level of the chunks: on streams of Float64 messages 3x faster to compress than level 3 and no larger
 ZSTD_LEVEL = 1
@@ -94,7 +97,7 @@ def interleave(group: np.ndarray, rows: dict[int, np.ndarray], offsets: np.ndarr
         where = np.flatnonzero((group == g) & ~done)
         if len(where):
             width = rows[g].shape[1]
-            out[offsets[where, None] + np.arange(width)] = rows[g][rank[where]]
+            byte_rows(out, width, writeable=True)[offsets[where]] = rows[g][rank[where]]
     return out
 
 
@@ -127,6 +130,18 @@ def _periodic_stretches(group: np.ndarray, period_hint: list[int] | None = None,
         if k >= min_repeats:
             out.append((s, s + k * best, best))
     return out
+
+
+def _by_channel_index(index: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
+    """A chunk's ``(channel id, log times, offsets)`` from its appended parts, one per channel by id,
+    each in the order written."""
+    if not index:  # a chunk of schema and channel records only
+        return
+    ids = np.concatenate([i for i, _, _ in index]) if len(index) > 1 else np.asarray(index[0][0])
+    times = np.concatenate([t for _, t, _ in index]) if len(index) > 1 else index[0][1]
+    offs = np.concatenate([o for _, _, o in index]) if len(index) > 1 else index[0][2]
+    for cid, where in by_channel(ids):
+        yield (cid, times, offs) if where is None else (cid, times[where], offs[where])
 
 
 class ChunkedMcapWriter:
@@ -172,12 +187,11 @@ class ChunkedMcapWriter:
         self._chunk_indexes: list = []
         self._metadata_indexes: list = []
         self._chunk = bytearray()  # record bytes of the open chunk
-        self._index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}  # channel -> [(log times, offsets)]
-        self._single: dict[int, tuple[list[int], list[int]]] = {}  # the same for messages added one by one
+        self._index: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # the open chunk's (channel ids, log times, offsets)
+        self._single: list[tuple[int, int, int]] = []  # the same for messages added one by one
         self._size = 0
         self._start = self._end = None
-        self._counts: dict[int, int] = {}
-        self._seq: dict[int, int] = {}
+        self._seq: dict[int, int] = {}  # messages written so far, by channel id (the last sequence number)
         self._period_hint = [0]  # the pattern of payload widths last seen by add_mixed (see interleave)
         self._message_count = 0
         self._t_min: int | None = None
@@ -204,7 +218,6 @@ class ChunkedMcapWriter:
         self._channels[cid] = Channel(id=cid, topic=topic, message_encoding=message_encoding, schema_id=schema_id,
                                       metadata=dict(metadata or {}))
         self._write_record(self._channels[cid])
-        self._counts[cid] = 0
         self._seq[cid] = 0
         return cid
 
@@ -232,19 +245,20 @@ class ChunkedMcapWriter:
         log_time = np.asarray(log_time, dtype=np.int64)
         ids = np.broadcast_to(np.asarray(channel_id, dtype=np.int64), (n,))
         rec = 9 + _MSG_FIXED + payload.shape[1]
-        start = 0
-        while start < n:
-            stop = min(n, start + max(1, -(-(self.chunk_size - self._size) // rec)))
-            self._add_rows(ids[start:stop], log_time[start:stop], payload[start:stop])
-            start = stop
+        step = max(1, _PIECE_BYTES // rec)
+        for start in range(0, n, step):
+            sl = slice(start, min(n, start + step))
+            k = sl.stop - sl.start
+            rows = message_rows(ids[sl], log_time[sl], payload[sl], self._sequence(by_channel(ids[sl]), k))
+            self._append_records(ids[sl], log_time[sl], rows.reshape(-1), rec * np.arange(1, k + 1, dtype=np.int64))
 
     def add_mixed(self, channel_id: np.ndarray, log_time: np.ndarray, group: np.ndarray, row: np.ndarray,
                   payloads: list[np.ndarray]) -> None:
         """Add ``n`` messages of several payload widths, in this order: message ``i`` is row
         ``row[i]`` of ``payloads[group[i]]`` (each an m × L uint8 array), on channel
         ``channel_id[i]`` at ``log_time[i]``.  The records are laid out with numpy whatever the
-        interleaving (a time-ordered output alternates widths sample by sample); chunks close at
-        ``chunk_size`` as in :meth:`add_messages`."""
+        interleaving (a time-ordered output alternates widths sample by sample), a few MB at a
+        time; chunks close at ``chunk_size`` as in :meth:`add_messages`."""
         n = len(log_time)
         if n == 0:
             return
@@ -257,18 +271,18 @@ class ChunkedMcapWriter:
         start = 0
         while start < n:
             base = int(ends[start - 1]) if start else 0
-            room = max(1, self.chunk_size - self._size)
-            stop = min(n, int(ends.searchsorted(np.int64(base + room))) + 1)  # an int64 key: no cast of ends
+            stop = min(n, max(start + 1, int(ends.searchsorted(np.int64(base + _PIECE_BYTES), side="right"))))
             sl = slice(start, stop)
-            offsets = ends[sl] - rec_of_group[group[sl]] - base
-            parts = by_channel(ids[sl])
-            seq = self._sequence(parts, stop - start)
+            g_sl, ids_sl, t_sl = group[sl], ids[sl], log_time[sl]
+            seq = self._sequence(by_channel(ids_sl), stop - start)
+            piece_ends = ends[sl] - base
             rows = {}
-            for g in np.unique(group[sl]).tolist():
-                where = np.flatnonzero(group[sl] == g)
-                rows[g] = message_rows(ids[sl][where], log_time[sl][where], payloads[g][row[sl][where]], seq[where])
-            records = interleave(group[sl], rows, offsets, int(ends[stop - 1]) - base, self._period_hint)
-            self._append(parts, log_time[sl], records, offsets)
+            for g in range(len(payloads)):
+                where = np.flatnonzero(g_sl == g)
+                if len(where):
+                    rows[g] = message_rows(ids_sl[where], t_sl[where], payloads[g][row[sl][where]], seq[where])
+            records = interleave(g_sl, rows, piece_ends - rec_of_group[g_sl], int(piece_ends[-1]), self._period_hint)
+            self._append_records(ids_sl, t_sl, records, piece_ends)
             start = stop
 
     def _sequence(self, parts: list[tuple[int, np.ndarray | None]], n: int) -> np.ndarray:
@@ -281,48 +295,43 @@ class ChunkedMcapWriter:
             self._seq[cid] += k
         return seq
 
-    def _add_rows(self, ids: np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> None:
-        parts = by_channel(ids)
-        rows = message_rows(ids, log_time, payload, self._sequence(parts, len(ids)))
-        self._append(parts, log_time, rows.reshape(-1), rows.shape[1] * np.arange(len(ids), dtype=np.int64))
-
-    def _append(self, parts: list[tuple[int, np.ndarray | None]], log_time: np.ndarray, records: np.ndarray,
-                offsets: np.ndarray) -> None:
-        """Append message records (bytes, ``offsets`` of each record in them) on the channels of
-        ``parts`` (:func:`by_channel`) to the open chunk and index them by channel."""
-        n = len(log_time)
-        offsets = self._size + offsets
-        for cid, where in parts:
-            if where is None:
-                self._counts[cid] += n
-                self._index.setdefault(cid, []).append((log_time, offsets))
-            else:
-                self._counts[cid] += len(where)
-                self._index.setdefault(cid, []).append((log_time[where], offsets[where]))
-        self._chunk += records.data
-        self._size += records.size
-        self._message_count += n
-        lo, hi = int(np.min(log_time)), int(np.max(log_time))
-        self._start = lo if self._start is None else min(self._start, lo)
-        self._end = hi if self._end is None else max(self._end, hi)
-        self._t_min = lo if self._t_min is None else min(self._t_min, lo)
-        self._t_max = hi if self._t_max is None else max(self._t_max, hi)
-        if self._size >= self.chunk_size:
-            self.flush_chunk()
+    def _append_records(self, ids: np.ndarray, log_time: np.ndarray, records: np.ndarray, ends: np.ndarray) -> None:
+        """Append message records (the bytes ``records``; record ``i`` ends at ``ends[i]``) to the
+        open chunk, closing it whenever it reaches ``chunk_size``; each chunk is indexed by channel
+        when it is written."""
+        n = len(ends)
+        start, base = 0, 0
+        while start < n:
+            room = max(1, self.chunk_size - self._size)
+            stop = min(n, int(ends.searchsorted(np.int64(base + room))) + 1)  # the record that fills the chunk
+            top = int(ends[stop - 1])
+            sl = slice(start, stop)
+            starts = np.empty(stop - start, dtype=np.int64)
+            starts[0] = base
+            starts[1:] = ends[start:stop - 1]
+            self._index.append((ids[sl], log_time[sl], starts + (self._size - base)))
+            self._chunk += records[base:top].data
+            self._size += top - base
+            self._message_count += stop - start
+            lo, hi = int(log_time[sl].min()), int(log_time[sl].max())
+            self._start = lo if self._start is None else min(self._start, lo)
+            self._end = hi if self._end is None else max(self._end, hi)
+            self._t_min = lo if self._t_min is None else min(self._t_min, lo)
+            self._t_max = hi if self._t_max is None else max(self._t_max, hi)
+            if self._size >= self.chunk_size:
+                self.flush_chunk()
+            start, base = stop, top
 
     def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int | None = None) -> None:
         """Add one message (plain Python: ~1 µs, for recorders that get messages one by one);
         ``publish_time``: when its publisher sent it (None: ``log_time``)."""
-        seq = self._seq[channel_id] = self._seq[channel_id] + 1
+        seq = self._seq[channel_id] = self._seq[channel_id] + 1  # also its count
         rec = _MSG_HEAD.pack(OP_MESSAGE, _MSG_FIXED + len(data), channel_id, seq & 0xFFFFFFFF, log_time,
                              log_time if publish_time is None else publish_time)
-        times, offs = self._single.setdefault(channel_id, ([], []))
-        times.append(log_time)
-        offs.append(self._size)
+        self._single.append((channel_id, log_time, self._size))
         self._chunk += rec
         self._chunk += data
         self._size += len(rec) + len(data)
-        self._counts[channel_id] += 1
         self._message_count += 1
         if self._start is None or log_time < self._start:
             self._start = log_time
@@ -343,7 +352,7 @@ class ChunkedMcapWriter:
     @property
     def channel_counts(self) -> dict[int, int]:
         """Messages written so far, by channel id (the Statistics record's)."""
-        return dict(self._counts)
+        return dict(self._seq)
 
     @property
     def log_time_range(self) -> tuple[int, int] | None:
@@ -368,11 +377,11 @@ class ChunkedMcapWriter:
         ``background=True``: the next chunk is built while this one is compressed and written)."""
         if not self._chunk:
             return
-        for cid, (times, offs) in self._single.items():
-            self._index.setdefault(cid, []).append((np.array(times, dtype=np.int64), np.array(offs, dtype=np.int64)))
+        if self._single:
+            self._index.append(tuple(np.array(column, dtype=np.int64) for column in zip(*self._single)))
         job = (self._chunk, self._index, self._start if self._start is not None else 0,
                self._end if self._end is not None else 0)
-        self._chunk, self._index, self._single, self._size = bytearray(), {}, {}, 0
+        self._chunk, self._index, self._single, self._size = bytearray(), [], [], 0
         self._start = self._end = None
         if self._pool is None:
             self._emit(*job)
@@ -386,13 +395,13 @@ class ChunkedMcapWriter:
         while self._pending:
             self._pending.pop(0).result()
 
-    def _emit(self, data: bytearray, index: dict, start: int, end: int) -> None:
+    def _emit(self, data: bytearray, index: list, start: int, end: int) -> None:
         """Compress one chunk and write it and its message indexes (the only writer of the file while
         chunks are pending); a write that fails is an OSError naming the file."""
         with atomic.named(self.path):
             self._emit_chunk(data, index, start, end)
 
-    def _emit_chunk(self, data: bytearray, index: dict, start: int, end: int) -> None:
+    def _emit_chunk(self, data: bytearray, index: list, start: int, end: int) -> None:
         from mcap.data_stream import RecordBuilder
         from mcap.records import Chunk, ChunkIndex
 
@@ -405,10 +414,7 @@ class ChunkedMcapWriter:
         self._fh.write(chunk_blob)
         index_offsets: dict[int, int] = {}
         index_start = self._fh.tell()
-        for cid in sorted(index):
-            parts = index[cid]
-            times = np.concatenate([t for t, _ in parts]) if len(parts) > 1 else parts[0][0]
-            offs = np.concatenate([o for _, o in parts]) if len(parts) > 1 else parts[0][1]
+        for cid, times, offs in _by_channel_index(index):
             entries = np.empty((len(times), 2), dtype="<u8")
             if len(times) > 1 and np.any(times[1:] < times[:-1]):  # the index is by log time
                 order = np.argsort(times, kind="stable")
@@ -487,7 +493,7 @@ class ChunkedMcapWriter:
         statistics = Statistics(
             attachment_count=0,
             channel_count=len(self._channels),
-            channel_message_counts=dict(self._counts),
+            channel_message_counts=dict(self._seq),
             chunk_count=len(self._chunk_indexes),
             message_count=self._message_count,
             message_end_time=self._t_max or 0,

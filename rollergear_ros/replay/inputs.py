@@ -16,6 +16,7 @@ import numpy as np
 from ..recordings.bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, cdr_problem, decode_float64,
                               decoder_for, encode_float64, float64_problem, iter_raw_batches, median_period_s,
                               read_metadata)
+from ..recordings.fastmcap import byte_rows
 from ..core.pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from ..base.interface import MessageType, Metadata
 
@@ -398,7 +399,7 @@ def _copy_inputs(writer: BagWriter, writes: list, state, info: BagInfo) -> None:
             typed = np.array([bool(m[1]) for m in meta])  # a type lost with a damaged chunk: not copied
             which = np.searchsorted(np.array(cids), arrays.channel[fixed])
             fixed, which = fixed[typed[which]], (np.cumsum(typed) - 1)[which[typed[which]]]
-            payload = arrays.buf[arrays.offset[fixed][:, None] + np.arange(12)]
+            payload = byte_rows(arrays.buf, 12)[arrays.offset[fixed]]
             writer.write_fixed_mixed([m for m in meta if m[1]], which, arrays.log_time[fixed], payload)
         for i in keep[lens != 12].tolist():
             topic, sid, _ = state.channels[int(arrays.channel[i])]

@@ -4,6 +4,7 @@ No rclpy import."""
 
 from __future__ import annotations
 
+import functools
 import sys
 from pathlib import Path
 
@@ -176,6 +177,7 @@ def write_outputs(writer: BagWriter, b: BatchEstimate, tm: TopicMap) -> None:
             t_ns, values = t_ns[measured], values[measured]
         writer.write_float64_series(tm.output(channel.name), t_ns, values)
     if stamped_channels():
-        payloads = stamped.codec().payloads(b.t_ns, np.column_stack(stamped.estimate_values(b)))
+        values = np.column_stack(stamped.estimate_values(b))
+        payloads = functools.cache(lambda: stamped.codec().payloads(b.t_ns, values))  # encoded once, by the writer
         for channel in stamped_channels():
             writer.write_fixed(tm.output(channel.name), MessageType.JOINT_STATE, b.t_ns, payloads)

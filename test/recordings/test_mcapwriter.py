@@ -73,3 +73,50 @@ def test_interleave_equals_a_byte_by_byte_layout(seed):
         expected += rows[g][used[g]].tobytes()
         used[g] += 1
     assert interleave(group, rows, offsets, int(lens.sum())).tobytes() == bytes(expected)
+
+
+def write_bag(path, background: bool, fail_at: int | None = None) -> None:
+    """A time-ordered bag of two payload widths over many releases, as replay writes its output
+    (``fail_at``: the release whose payloads cannot be made)."""
+    from rollergear_ros.recordings.bag import BagWriter
+
+    rng = np.random.default_rng(1)
+    with BagWriter(path, chunk_size=16 * 1024, background=background) as bw:
+        for k in range(12):
+            t = 10**9 + k * 10**8 + np.arange(1000, dtype=np.int64) * 100_000
+            bw.write_float64_series("/a", t + 7, rng.normal(size=1000))
+            wide = np.zeros((1000, 44), dtype=np.uint8)  # std_msgs/String of 35 letters (CDR)
+            wide[:, 1], wide[:, 4] = 1, 36
+            wide[:, 8:43] = rng.integers(ord("a"), ord("z") + 1, (1000, 35), dtype=np.uint8)
+
+            def payloads(wide=wide, k=k):
+                if k == fail_at:
+                    raise ValueError("no payloads for this batch")
+                return wide
+
+            bw.write_fixed("/b", "std_msgs/msg/String", t, payloads, schema_text="string data")
+            bw.write_raw("/c", "std_msgs/msg/Float64", int(t[500]), bytes(12), publish_time_ns=1)
+            bw.release(int(t[-1]) - 10**7)
+
+
+def test_a_bag_laid_out_in_the_background_is_the_same_file(tmp_path):
+    """The builder thread of a background writer (channels, held messages and their layout, one job
+    per release) writes the same messages in the same order as the caller's thread does."""
+    write_bag(tmp_path / "fg.mcap", background=False)
+    write_bag(tmp_path / "bg.mcap", background=True)
+    fg, bg = read_mcap_ros2(tmp_path / "fg.mcap"), read_mcap_ros2(tmp_path / "bg.mcap")
+    assert set(fg) == set(bg) == {"/a", "/b", "/c"}
+    for topic in fg:
+        assert np.array_equal(fg[topic][0], bg[topic][0])
+        assert [m.data for m in fg[topic][1]] == [m.data for m in bg[topic][1]]
+    assert len(bg["/a"][0]) == 12_000 and len(bg["/b"][0]) == 12_000 and len(bg["/c"][0]) == 12
+    assert [m.data for m in read_rosbags(tmp_path / "bg.mcap")["/b"][1]] == [m.data for m in bg["/b"][1]]
+
+
+def test_an_error_of_the_builder_thread_reaches_the_caller_and_no_file_is_put_in_place(tmp_path):
+    out = tmp_path / "out.mcap"
+    out.write_bytes(b"the old file")
+    with pytest.raises(ValueError, match="no payloads"):
+        write_bag(out, background=True, fail_at=5)
+    assert out.read_bytes() == b"the old file"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.mcap"]  # no partial file left
