@@ -18,7 +18,8 @@ settings.load_profile("deterministic")
 # a domain no other session on this machine holds -- also none of this run's other pytest-xdist
 # workers, which inherit the controller's environment (the claimer's pid says whose the id is);
 # an id the user set is kept (scripts/test then runs the DDS tests one at a time)
-if "ROS_DOMAIN_ID" not in os.environ or os.environ.get("ROLLERGEAR_TEST_DOMAIN_PID", str(os.getpid())) != str(os.getpid()):
+_CLAIMER = os.environ.get("ROLLERGEAR_TEST_DOMAIN_PID", str(os.getpid()))
+if "ROS_DOMAIN_ID" not in os.environ or _CLAIMER != str(os.getpid()):
     os.environ["ROS_DOMAIN_ID"] = str(claim_domain())
     os.environ["ROLLERGEAR_TEST_DOMAIN_PID"] = str(os.getpid())
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

@@ -187,7 +187,8 @@ class ChunkedMcapWriter:
         self._chunk_indexes: list = []
         self._metadata_indexes: list = []
         self._chunk = bytearray()  # record bytes of the open chunk
-        self._index: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # the open chunk's (channel ids, log times, offsets)
+        # the open chunk's messages: (channel ids, log times, offsets) per part appended
+        self._index: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._single: list[tuple[int, int, int]] = []  # the same for messages added one by one
         self._size = 0
         self._start = self._end = None
