@@ -16,8 +16,13 @@ tracing back to back (``node.trace_period_s:=1``: the worker process is busy thr
 node copies its buffer for each trace): the cost of tracing to the input path.
 With ``--estimator-only`` no DDS: the estimator each loss_estimator runs, fed the driver's messages
 in-process (what the node adds to rclpy's per-message cost), in µs per sample.
+With ``--cpu-at RATE`` no ramp: each system under test takes ``RATE`` samples/s for ``--seconds``,
+``--repeat`` times interleaved, and its CPU time per sample is compared.  On its own core (``--pin``) a
+node's highest loss-free rate is what its CPU time per sample allows, and CPU time is what a busy
+machine disturbs least, so this resolves differences of a few percent that the ramp (±30 % between
+runs here) cannot: the ratio printed is the rate it implies, ``CPU per sample of the baseline / of this``.
 Usage: python bench/bench_node.py [--seconds 5] [--repeat 3] [--pin] [--no-outputs] [--stamped] [--memory]
-                                  [--tracing] [--estimator-only]
+                                  [--tracing] [--estimator-only] [--cpu-at RATE]
 """
 
 from __future__ import annotations
@@ -75,6 +80,17 @@ def estimator_cost_us(kind: str, samples: int = 60_000, with_outputs: bool = Tru
             push(OUT_TORQUE, t + 2, 13.0 + k % 50)
             push(OUT_SPEED, t + 3, 73.0)
     return (time.perf_counter() - t0) / samples * 1e6
+
+
+def mean_interval(ratios: list[float]) -> str:
+    """The runs' mean ratio and its 95 % interval (Student's t over the runs), as text."""
+    from scipy import stats
+
+    r = np.asarray(ratios, dtype=float)
+    if len(r) < 2:
+        return ""
+    half = stats.t.ppf(0.975, len(r) - 1) * r.std(ddof=1) / np.sqrt(len(r))
+    return f"; mean {r.mean():.3f}, 95 % interval {r.mean() - half:.3f}-{r.mean() + half:.3f}"
 
 
 def start_sut(kind: str, executor: str, cpu: int | None = None, stamped: bool = False,
@@ -217,6 +233,8 @@ def main() -> None:
                     help="loss_estimator tracing back to back (node.trace_period_s:=1) against it without tracing")
     ap.add_argument("--estimator-only", action="store_true",
                     help="no DDS: the estimator of each loss_estimator in-process, µs per sample")
+    ap.add_argument("--cpu-at", type=float, metavar="RATE",
+                    help="no ramp: CPU time per sample of each system at RATE samples/s (the rate it implies)")
     args = ap.parse_args()
     if args.estimator_only:
         kinds = ("loss_estimator", *EFFECT_ON) if args.memory else ("loss_estimator",)
@@ -273,7 +291,7 @@ def main() -> None:
     kinds = (("loss_estimator", *EFFECT_ON) if args.memory else tuple(TRACING) if args.tracing
              else ("echo", "loss_estimator"))
     if args.against is not None:
-        kinds += ("baseline",)
+        kinds = ("loss_estimator", "baseline") if args.cpu_at else (*kinds, "baseline")
     best_of: dict[str, list[float]] = {k: [] for k in kinds}
     p99_of: dict[str, list[float]] = {k: [] for k in kinds}
     for rep in range(args.repeat):
@@ -286,6 +304,15 @@ def main() -> None:
                 time.sleep(0.05)
             time.sleep(1.0)
             run(driver, sut, 200, 1.0, with_outputs)  # warm-up
+            if args.cpu_at:
+                r = run(driver, sut, args.cpu_at, args.seconds, with_outputs)
+                sut.send_signal(signal.SIGINT)
+                sut.wait(timeout=20)
+                cpu_us = r["cpu_pct"] / 100.0 / args.cpu_at * 1e6  # CPU seconds per second over samples per second
+                best_of[kind].append(cpu_us)
+                print(f"run {rep + 1} {kind:28s} {args.cpu_at:.0f} samples/s: dropped {r['dropped']}/{r['sent']}, "
+                      f"CPU {cpu_us:.1f} µs per sample", flush=True)
+                continue
             r1k = run(driver, sut, 1000, args.seconds, with_outputs)
             best, driver_bound = max_loss_free_rate(driver, sut, with_outputs, ceiling=args.ceiling, step=args.step)
             sut.send_signal(signal.SIGINT)
@@ -312,6 +339,17 @@ def main() -> None:
     print(f"executor: {args.executor}{'; driver on CPU 0, SUT on CPU 1' if args.pin else ''}"
           f"{'; loss_estimator publishes only the stamped estimate' if args.stamped else ''}; inputs per sample: "
           f"{channels} topics")
+    if args.cpu_at:  # the rate a CPU time per sample implies: baseline's over this one's
+        if args.against is not None:
+            pairs = [("baseline", "loss_estimator", 0.95)]
+        for base, sut, target in pairs:
+            ratios = [b / c for c, b in zip(best_of[sut], best_of[base])]
+            print(f"{sut} CPU per sample: {', '.join(f'{c:.1f}' for c in best_of[sut])} µs; {base}: "
+                  f"{', '.join(f'{c:.1f}' for c in best_of[base])} µs -> the rate they imply, {sut} / {base} per "
+                  f"run: {', '.join(f'{r:.3f}' for r in ratios)}; median {float(np.median(ratios)):.3f}"
+                  + (f" (target >= {target})" if target else "") + mean_interval(ratios))
+        rclpy.shutdown()
+        return
     for base, sut, target in pairs:
         ratios = [lo / e if e else float("nan") for lo, e in zip(best_of[sut], best_of[base])]
         print(f"{sut} max rate / {base} max rate per run: {', '.join(f'{r:.2f}' for r in ratios)}; "

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from ..base.atomic import together
-from ..base.errors import UsageError
+from ..base.errors import UsageError, damaged_exit
 from ..sources.paths import Output, check_outputs
 from .args import config_from_args, default_params_path, finite_float
 
@@ -61,7 +61,8 @@ def cmd_predict(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     result = predict(args.profile, config, channels=args.channels, topics=topics_from_args(args),
                      collect=bool(exports), show_progress=None if not args.json else False,
-                     warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr))
+                     warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr),
+                     note=lambda m: print(m, file=sys.stderr))
     if result.samples == 0:
         raise UsageError(f"{args.profile}: no sample to predict (no paired torque and speed)")
     with together():
@@ -73,7 +74,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
         print(result.text())
         for _, path in exports:
             print(f"per sample: {path}")
-    return 0
+    return damaged_exit(args.profile, result.lost_share, "predicted from what was readable")
 
 
 def _write_samples(result, kind: str, path: Path) -> None:

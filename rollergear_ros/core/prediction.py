@@ -55,6 +55,8 @@ class Prediction:
     peak_loss_power_w: float
     parameters: tuple[str, ...]  #: the covaried parameters (empty: the file holds no covariance)
     method: str = METHOD
+    #: the share of the recording lost to damage (:func:`base.errors.lost_share`; 0: none found)
+    lost_share: float = 0.0
     #: per sample, with ``collect``: times, loss power and its standard deviation
     t_ns: np.ndarray | None = field(default=None, repr=False)
     loss_power_w: np.ndarray | None = field(default=None, repr=False)
@@ -76,7 +78,7 @@ class Prediction:
                 "energy_lost_band95_j": [lo, hi], "energy_lost_sd_j": self.energy_lost_sd_j,
                 "energy_in_j": self.energy_in_j, "mean_loss_power_w": self.mean_loss_power_w,
                 "peak_loss_power_w": self.peak_loss_power_w, "parameters": list(self.parameters),
-                "method": self.method}
+                "method": self.method, "lost_share": self.lost_share}
 
     def text(self) -> str:
         lo, hi = self.energy_band_j
@@ -85,6 +87,8 @@ class Prediction:
                  f"energy lost {self.energy_lost_j:,.1f} J ({self.energy_lost_j * wh:.4g} Wh), 95 % band "
                  f"{lo:,.1f} … {hi:,.1f} J; energy through the gearbox {self.energy_in_j:,.0f} J",
                  f"loss power: mean {self.mean_loss_power_w:.4g} W, peak {self.peak_loss_power_w:.4g} W"]
+        if self.lost_share:
+            lines.append(f"predicted from what was readable: {100 * self.lost_share:.1f} % of the recording is damaged")
         if self.parameters:
             lines.append(f"band: {self.method} over {', '.join(self.parameters)}")
         else:

@@ -72,8 +72,12 @@ class LossTable:
 
 
 def _axis(start: float, stop: float, step: float) -> np.ndarray:
-    """``start … stop`` inclusive in ``step`` increments."""
-    return np.round(start + step * np.arange(int(round((stop - start) / step)) + 1), 9)
+    """``start … stop`` in ``step`` increments, ``stop`` included also where the range is no multiple
+    of the step (the table covers what was asked for, and not beyond it)."""
+    from .lossmap import grid
+
+    points = grid(start, stop, step)
+    return points if points[-1] >= stop - 1e-9 * max(1.0, abs(stop)) else np.append(points, stop)
 
 
 def loss_table(config: Config, oil_grid_c: tuple[float, float, float] | None = None) -> LossTable:

@@ -17,6 +17,7 @@ from ..recordings.bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, 
                               decoder_for, encode_float64, float64_problem, iter_raw_batches, median_period_s,
                               read_metadata)
 from ..recordings.fastmcap import byte_rows
+from ..base.errors import damage_totals, lost_share
 from ..core.pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from ..base.interface import MessageType, Metadata
 
@@ -475,3 +476,15 @@ def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tup
         if math.isfinite(node_period_s) and node_period_s > 0:
             return recording["pairing"], node_period_s, True
     return "timestamp", period_s, False
+
+
+def damaged_share(info: BagInfo, problems: InputProblems, nothing_read: bool) -> float:
+    """The share of the recording its damaged spans cost (:func:`base.errors.lost_share`; 0: none
+    found); damage that left nothing readable (``nothing_read``) is a :class:`BagError`."""
+    if not problems.damaged:
+        return 0.0
+    if nothing_read:
+        damaged_bytes, lost = damage_totals(problems.damaged)
+        raise BagError(f"{info.path}: nothing readable: {len(problems.damaged)} damaged span(s), "
+                       f"{damaged_bytes:,} bytes{f', {lost:,} messages' if lost else ''} lost; no output written")
+    return lost_share(problems.damaged, info.bytes_total, info.message_count)

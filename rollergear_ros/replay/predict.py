@@ -25,7 +25,7 @@ from ..base.progress import TimedProgress
 from ..core.params import Config, load_config
 from ..core.prediction import Prediction, PredictionSums
 from ..recordings.bag import TopicMap, inspect_bag
-from .inputs import InputProblems, input_batches, paired_plan
+from .inputs import InputProblems, damaged_share, input_batches, paired_plan
 
 __all__ = ["ARRAY_KEYS", "predict"]
 
@@ -36,12 +36,15 @@ BATCH = 100_000
 
 def predict(profile: str | Path | Mapping[str, np.ndarray], params: str | Path | Config | None = None, *,
             channels: str | Path | None = None, topics: TopicMap = TopicMap(), collect: bool = False,
-            show_progress: bool | None = False, warn: Callable[[str], None] | None = None) -> Prediction:
+            show_progress: bool | None = False, warn: Callable[[str], None] | None = None,
+            note: Callable[[str], None] | None = None) -> Prediction:
     """The loss energy and power of ``profile`` with their 95 % band (:mod:`core.prediction`).
 
     ``params``: a parameter file (a calibrated one carries its covariance), a :class:`Config`, or
     None for the package's defaults.  ``channels``: the channel map of a non-ROS table.
     ``collect``: keep each sample's loss power and its standard deviation in the result.
+    ``warn`` is told what went wrong while reading (damage, dropped samples), ``note`` what a table's
+    import made of it.
     """
     from ..sources.importer import as_mcap
 
@@ -50,9 +53,11 @@ def predict(profile: str | Path | Mapping[str, np.ndarray], params: str | Path |
     if isinstance(profile, Mapping):
         _add_arrays(sums, profile)
         return sums.finish()
-    with as_mcap([profile], channels, topics, note=warn) as (bag,):
-        _add_recording(sums, Path(bag), topics, show_progress, warn or (lambda text: None))
-    return sums.finish()
+    with as_mcap([profile], channels, topics, note=note) as (bag,):
+        lost = _add_recording(sums, Path(bag), topics, show_progress, warn or (lambda text: None))
+    result = sums.finish()
+    result.lost_share = lost
+    return result
 
 
 def _add_arrays(sums: PredictionSums, profile: Mapping[str, np.ndarray]) -> None:
@@ -80,15 +85,19 @@ def _add_arrays(sums: PredictionSums, profile: Mapping[str, np.ndarray]) -> None
 
 
 def _add_recording(sums: PredictionSums, bag: Path, topics: TopicMap, show_progress: bool | None,
-                   warn: Callable[[str], None]) -> None:
-    """A recording's samples, paired and estimated as ``replay`` does, batch by batch."""
+                   warn: Callable[[str], None]) -> float:
+    """A recording's samples, paired and estimated as ``replay`` does, batch by batch; returns the
+    share of it lost to damage, as replay states it (nothing readable: a :class:`BagError`)."""
     info = inspect_bag(bag)
     plan, pairing, period_s = paired_plan(info, topics)
     estimator = sums.base_estimator(pairing=pairing, sample_period_s=period_s)
     problems = InputProblems(estimator.counts, plan)
     total = sum(info.counts.get(t, 0) for t in plan.all_topics)
+    read = 0
     with TimedProgress("predict", total, "msg", enabled=show_progress) as bar:
         for batch in input_batches(info, plan, BATCH, warn, problems):
+            read += batch.message_count
             sums.add(estimator.push_many(batch.codes, batch.t_ns, batch.values, batch.source_ns))
             bar.update(len(batch.codes))
         sums.add(estimator.flush())
+    return damaged_share(info, problems, nothing_read=read == 0)

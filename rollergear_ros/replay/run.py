@@ -19,11 +19,11 @@ from collections.abc import Callable, Iterator, Sequence
 
 from ..recordings.bag import BagInfo, TopicMap, inspect_bag
 from ..base import atomic
-from ..base.errors import BagError, UsageError, damage_totals, lost_share
+from ..base.errors import UsageError
 from ..core.estimator import BatchEstimate, Estimator
 from ..core.params import Config
 from ..base.progress import TimedProgress
-from .inputs import InputBatch, InputProblems, input_batches, paired_plan
+from .inputs import InputBatch, InputProblems, damaged_share, input_batches, paired_plan
 from .output import ReplayOutputs
 from .switches import ParameterSwitch, apply_switch, recorded_switches, split_at
 from .summary import Accumulator, ReplaySummary
@@ -175,13 +175,8 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
 def _damage(summary: ReplaySummary, info: BagInfo, problems: InputProblems) -> None:
     """The share of the recording its damaged spans cost (``summary.lost_share``); nothing readable
     at all is a :class:`BagError` (no output replaces a file)."""
-    if not problems.damaged:
-        return
-    damaged_bytes, lost = damage_totals(problems.damaged)
-    summary.lost_share = lost_share(problems.damaged, info.bytes_total, info.message_count)
-    if summary.input_messages == 0 and not summary.interrupted:
-        raise BagError(f"{info.path}: nothing readable: {len(problems.damaged)} damaged span(s), "
-                       f"{damaged_bytes:,} bytes{f', {lost:,} messages' if lost else ''} lost; no output written")
+    summary.lost_share = damaged_share(info, problems, nothing_read=summary.input_messages == 0
+                                       and not summary.interrupted)
 
 
 def _warn_unindexed(info: BagInfo, warn: Callable[[str], None]) -> None:

@@ -132,3 +132,12 @@ def test_bad_export_options_are_one_line_and_nothing_is_written(tmp_path, args, 
     proc = run_cli("export", *args, check=False, cwd=tmp_path)
     assert proc.returncode == 2 and message in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_oil_axis_covers_the_range_asked_for_and_not_beyond():
+    """A range that is no multiple of its step ended one step beyond it (-20 … 141 for 7 °C steps)."""
+    from rollergear_ros.outputs.fmutable import _axis
+
+    assert _axis(-20, 140, 5)[[0, -1]].tolist() == [-20, 140] and len(_axis(-20, 140, 5)) == 33
+    odd = _axis(-20, 140, 7)
+    assert odd[0] == -20 and odd[-1] == 140 and odd[-2] == 134 and np.all(np.diff(odd) > 0)

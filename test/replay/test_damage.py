@@ -40,6 +40,21 @@ def test_a_recording_that_lost_a_chunk_is_said_and_exits_3_with_what_was_readabl
     assert out.exists()
 
 
+def test_predict_of_a_damaged_recording_says_it_and_exits_3_with_what_was_readable(tmp_path):
+    """`predict` gave its figures of half a recording with exit 0 and no word of the damage."""
+    bag, _ = _damaged(tmp_path, 2)
+    proc = run_cli("predict", str(bag), "--json", check=False, timeout=300)
+    assert proc.returncode == 3 and "Traceback" not in proc.stderr, proc.stderr
+    assert "% of the recording unreadable (more than 1 %): predicted from what was readable" in proc.stderr
+    result = json.loads(proc.stdout)
+    whole = json.loads(run_cli("predict", str(SRC), "--json").stdout)
+    assert 0.01 < result["lost_share"] < 1 and whole["lost_share"] == 0
+    assert 0 < result["samples"] < whole["samples"]
+    nothing, _ = _damaged(tmp_path, 1)
+    proc = run_cli("predict", str(nothing), check=False)
+    assert proc.returncode == 2 and "nothing readable" in proc.stderr.splitlines()[-1], proc.stderr
+
+
 def test_info_reads_every_chunk_and_says_what_is_damaged(tmp_path):
     """Info said "damaged: nothing found" for a file replay could not read: it read only the summary."""
     bag, _ = _damaged(tmp_path, 2)

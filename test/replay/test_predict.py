@@ -125,8 +125,11 @@ def test_a_planned_drive_as_a_csv_with_its_channel_map_is_the_same_plan_as_its_a
     (tmp_path / "plan.yaml").write_text("time: {column: t_ms, unit: ms}\nmotor_torque: {column: T_in, unit: N*m}\n"
                                         "motor_speed: {column: n_in, unit: rpm}\n"
                                         "oil_temperature: {column: T_oil, unit: degC}\n")
-    got = json.loads(run_cli("predict", str(tmp_path / "plan.csv"), "--channels", str(tmp_path / "plan.yaml"),
-                             "--params", str(params), "--json").stdout)
+    proc = run_cli("predict", str(tmp_path / "plan.csv"), "--channels", str(tmp_path / "plan.yaml"),
+                   "--params", str(params), "--json")
+    got = json.loads(proc.stdout)
+    # what the import made of the table is said as replay says it, not as a warning
+    assert proc.stderr.startswith(f"imported {tmp_path / 'plan.csv'} (") and "warning" not in proc.stderr
     expected = predict(arrays, params)
     assert got["samples"] == expected.samples == len(arrays["t_s"])
     assert got["energy_lost_j"] == pytest.approx(expected.energy_lost_j, rel=1e-9)
