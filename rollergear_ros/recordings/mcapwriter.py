@@ -137,9 +137,7 @@ def _by_channel_index(index: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
     each in the order written."""
     if not index:  # a chunk of schema and channel records only
         return
-    ids = np.concatenate([i for i, _, _ in index]) if len(index) > 1 else np.asarray(index[0][0])
-    times = np.concatenate([t for _, t, _ in index]) if len(index) > 1 else index[0][1]
-    offs = np.concatenate([o for _, _, o in index]) if len(index) > 1 else index[0][2]
+    ids, times, offs = (np.concatenate(column) for column in zip(*index))
     for cid, where in by_channel(ids):
         yield (cid, times, offs) if where is None else (cid, times[where], offs[where])
 

@@ -154,7 +154,9 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
             if bar:
                 bar.close()
             outputs.close(commit=completed)
-    _damage(summary, info, problems)
+    # the share of the recording its damage cost; nothing readable at all: no output replaces a file
+    summary.lost_share = damaged_share(info, problems, nothing_read=summary.input_messages == 0
+                                       and not summary.interrupted)
     if stop.requested and not summary.interrupted:  # the whole recording was read: the outputs are whole
         _warn("a stop signal came after the whole recording was processed: every output is complete")
     _count(summary, estimator, window, acc, _warn)
@@ -170,13 +172,6 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
         except KeyboardInterrupt:
             _warn(f"interrupted: no summary picture {req.summary_png}")
     return summary, outputs.collected
-
-
-def _damage(summary: ReplaySummary, info: BagInfo, problems: InputProblems) -> None:
-    """The share of the recording its damaged spans cost (``summary.lost_share``); nothing readable
-    at all is a :class:`BagError` (no output replaces a file)."""
-    summary.lost_share = damaged_share(info, problems, nothing_read=summary.input_messages == 0
-                                       and not summary.interrupted)
 
 
 def _warn_unindexed(info: BagInfo, warn: Callable[[str], None]) -> None:
