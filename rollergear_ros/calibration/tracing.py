@@ -46,7 +46,8 @@ from ..core.params import Config, config_to_yaml, validate
 from .calibrate import CalibrationResult, CalibrationSettings, calibrate
 from .samples import bare_config, samples_from_estimates
 
-__all__ = ["TraceBuffer", "TraceRequest", "TraceResult", "TraceWorker", "change_point", "trace"]
+__all__ = ["IDLE_PRIORITY_S", "TraceBuffer", "TraceRequest", "TraceResult", "TraceWorker", "change_point",
+           "set_priority", "trace"]
 
 #: the fields of an estimate the buffer keeps, in its tuples' order
 SAMPLE_FIELDS = ("t_ns", "torque_nm", "speed_rad_s", "out_torque_nm", "out_speed_rad_s", "temperature_c")
@@ -328,9 +329,9 @@ def _timed(result: TraceResult, start: float) -> TraceResult:
     return result
 
 
-def _ready() -> bool:
-    """The worker's first task: nothing (unpickling it imported this module and what it imports)."""
-    return True
+def _ready() -> int:
+    """The worker's first task: its process id (unpickling it imported this module and what it imports)."""
+    return os.getpid()
 
 
 def worker_cpus(node_cpus: set[int], cpu_count: int) -> set[int]:
@@ -344,8 +345,9 @@ def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
     (:func:`worker_cpus`; a spawned process inherits the node's affinity, and a worker on the node's
     only core delays its inputs by milliseconds whatever its priority), and scheduled when nothing else
     wants a core (``SCHED_IDLE``: a waking thread of the node takes the core from it at once), else at
-    the lowest nice level.  On a machine whose cores are all busy it runs at the idle weight only
-    (a fraction of a percent of a core): its trace is late, never the node's inputs.  Ctrl-C is the
+    the lowest nice level.  On a machine whose cores are all busy the idle class gets next to nothing
+    (a trace waited there for minutes, still importing): a trace under way for longer than
+    :data:`IDLE_PRIORITY_S` goes on at the lowest nice level (:meth:`TraceWorker.hurry_if_late`).  Ctrl-C is the
     node's: the worker ignores it (the node stops it).  A node that dies without stopping it (killed,
     crashed) takes it along: the worker watches its parent (:func:`_exit_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -355,13 +357,32 @@ def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
             os.sched_setaffinity(0, worker_cpus(set(node_cpus), os.cpu_count() or 1))
         except OSError:  # a CPU outside this process's cpuset: stay where the node is
             pass
+    set_priority(0, hurried=False)
+
+
+#: a trace under way for longer than this [s] leaves the idle class for the lowest nice level: on a
+#: machine whose cores are all busy, a share of ~1.5 % of a core beside each busy nice-0 process (the
+#: node itself competes with those at the full weight), so the trace is late by minutes, not forever
+IDLE_PRIORITY_S = 30.0
+
+
+def set_priority(pid: int, hurried: bool) -> bool:
+    """Schedule process ``pid`` (0: this one) in the idle class (``SCHED_IDLE``: only on a core
+    nothing else wants), or ``hurried``: as a normal process at the lowest nice level (19).  Where the
+    idle class is not available, nice 19 either way.  False when the system refused."""
     try:
-        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        if hurried:
+            os.setpriority(os.PRIO_PROCESS, pid, 19)
+            os.sched_setscheduler(pid, os.SCHED_OTHER, os.sched_param(0))
+        else:
+            os.sched_setscheduler(pid, os.SCHED_IDLE, os.sched_param(0))
+        return True
     except (AttributeError, OSError):
         try:
-            os.nice(19)
-        except OSError:
-            pass
+            os.setpriority(os.PRIO_PROCESS, pid, 19)
+            return True
+        except (AttributeError, OSError):
+            return False
 
 
 #: how often the worker looks whether the node that started it is still there [s]
@@ -389,11 +410,34 @@ class TraceWorker:
 
     def __init__(self) -> None:
         self._pool: ProcessPoolExecutor | None = None
+        self._pid: Future | None = None  #: the worker's process id, once it has started
         self.future: Future | None = None
+        self._submitted_at: float | None = None  #: time.monotonic() of the request under way
+        self.hurried = False  #: the request under way runs at nice 19, not in the idle class
 
     @property
     def busy(self) -> bool:
         return self.future is not None and not self.future.done()
+
+    @property
+    def pid(self) -> int | None:
+        """The worker's process id (None before it has started)."""
+        started = self._pid is not None and self._pid.done() and self._pid.exception() is None
+        return self._pid.result() if started else None
+
+    def running_s(self) -> float | None:
+        """Seconds since the request not yet taken out by :meth:`result` was submitted (None: none)."""
+        return None if self.future is None or self._submitted_at is None else time.monotonic() - self._submitted_at
+
+    def hurry_if_late(self, after_s: float = IDLE_PRIORITY_S) -> bool:
+        """Once a request has been under way for ``after_s``, move the worker from the idle class to
+        the lowest nice level (:func:`set_priority`) until its result is taken out; True when it
+        was moved now (for the node to say so)."""
+        running = self.running_s()
+        if self.hurried or running is None or running < after_s or self.pid is None:
+            return False
+        self.hurried = set_priority(self.pid, hurried=True)
+        return self.hurried
 
     def start(self) -> None:
         """Start the process now and let it import what a trace needs: the first trace then costs
@@ -406,17 +450,22 @@ class TraceWorker:
             with children_spared_interrupts():  # the worker is spawned with Ctrl-C ignored, from its first instruction
                 self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
                                                  initializer=_worker_start, initargs=(node_cpus,))
-                self._pool.submit(_ready)
+                self._pid = self._pool.submit(_ready)
 
     def submit(self, request: TraceRequest) -> None:
         self.start()
         self.future = self._pool.submit(trace, request)
+        self._submitted_at = time.monotonic()
 
     def result(self) -> TraceResult | Exception | None:
-        """The finished trace (its exception if it failed), once; None while none is done."""
+        """The finished trace (its exception if it failed), once; None while none is done.  A
+        worker that was hurried goes back to the idle class."""
         if self.future is None or not self.future.done():
             return None
-        future, self.future = self.future, None
+        future, self.future, self._submitted_at = self.future, None, None
+        if self.hurried and self.pid is not None:
+            set_priority(self.pid, hurried=False)
+        self.hurried = False
         exc = future.exception()
         return exc if exc is not None else future.result()
 
@@ -433,5 +482,6 @@ class TraceWorker:
         # interpreter exits races the exit hook's wake-up ("Bad file descriptor" on the node's stderr)
         if manager is not None:
             manager.join(timeout=30)
-        self._pool = self.future = None
+        self._pool = self.future = self._pid = self._submitted_at = None
+        self.hurried = False
 

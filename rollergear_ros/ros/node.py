@@ -661,11 +661,17 @@ class LossEstimatorNode(Node):
         """The latest online trace's verdict and sentence, in the node's own status (also whole as
         the ``loss/traced`` entry beside it)."""
         latest = self.tracer.latest
+        running = self.tracer.worker.running_s()
+        priority = "at the lowest nice level" if self.tracer.worker.hurried else "at the idle priority"
+        under_way = [] if running is None else [
+            KeyValue(key="trace under way [s]", value=f"{running:.0f} ({priority})")]
         if latest is None:
-            return [KeyValue(key="latest trace", value="none yet" if self.config.node.trace else "tracing off")]
+            return [KeyValue(key="latest trace", value="none yet" if self.config.node.trace else "tracing off")] \
+                + under_way
         return [KeyValue(key="latest trace", value=latest.message),
                 KeyValue(key="latest trace verdict", value=latest.verdict),
-                KeyValue(key="latest trace window [ns]", value=f"{latest.window_ns[0]}..{latest.window_ns[1]}")]
+                KeyValue(key="latest trace window [ns]", value=f"{latest.window_ns[0]}..{latest.window_ns[1]}")] \
+            + under_way
 
     # ------------------------------------------------------------------ shutdown
     def _stop_diagnostics(self) -> None:

@@ -23,7 +23,7 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..base.atomic import write_text
 from ..base.interface import MessageType
-from ..calibration.tracing import TraceBuffer, TraceRequest, TraceResult, TraceWorker
+from ..calibration.tracing import IDLE_PRIORITY_S, TraceBuffer, TraceRequest, TraceResult, TraceWorker
 from ..core.params import Config
 
 __all__ = ["LiveTracer", "status_of"]
@@ -85,6 +85,10 @@ class LiveTracer:
         done = self.worker.result()
         if done is not None:
             self._deliver(done)
+        elif self.worker.hurry_if_late():
+            self.node.get_logger().info(
+                f"online trace under way for {IDLE_PRIORITY_S:g} s at the idle priority (the cores are busy): "
+                "it goes on at the lowest nice level")
         config = self.node.config
         detector = self.node.estimator.detector
         if detector is not self._detector:  # a parameter change made a new estimator: its alarms count anew

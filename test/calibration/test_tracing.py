@@ -185,6 +185,34 @@ def test_a_real_worker_of_a_pinned_node_runs_on_the_other_cores_at_idle_priority
     assert policy == os.SCHED_IDLE
 
 
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="needs the idle scheduling class")
+def test_a_trace_under_way_too_long_goes_on_at_the_lowest_nice_level_and_the_worker_returns_to_idle(config):
+    """On a machine whose cores are all busy the idle class gets next to nothing (a trace sat for
+    minutes importing scipy beside three busy processes): once a request has been under way for the
+    bound, the worker is a normal process at nice 19 until its result is taken out."""
+    samples, alarms, start = node_samples(config, [DeclaredEffect("drag_constant", {"c": 0.06})], 1)
+    request = TraceRequest(up_to(samples, start + int((ONSET_S + 60.0) * 1e9)), config.to_flat(), "alarm", alarms[0])
+    worker = TraceWorker()
+    try:
+        worker.start()
+        worker._pid.result(timeout=600)  # started: a condition; 600 s only tells a hang
+        pid = worker.pid
+        assert worker.running_s() is None and not worker.hurry_if_late(0.0)  # nothing under way
+        worker.submit(request)
+        assert worker.running_s() >= 0.0 and not worker.hurry_if_late(1e9)  # not late yet
+        assert os.sched_getscheduler(pid) == os.SCHED_IDLE
+        assert worker.hurry_if_late(0.0) and worker.hurried and not worker.hurry_if_late(0.0)  # moved once
+        hurried = os.sched_getscheduler(pid), os.getpriority(os.PRIO_PROCESS, pid)
+        worker.future.result(timeout=600)
+        done = worker.result()
+        after = os.sched_getscheduler(pid)
+    finally:
+        worker.close()
+    assert hurried == (os.SCHED_OTHER, 19)
+    assert after == os.SCHED_IDLE and not worker.hurried and worker.running_s() is None
+    assert done.verdict == "traced"
+
+
 #: a "node" that starts the tracer's worker, keeps it busy with a long task, says the worker's and the
 #: resource tracker's process ids and waits to be killed
 _BUSY_NODE = """
