@@ -1,5 +1,6 @@
 """The output-channel table: every channel documented, and a toy channel added by one entry reaches
-replay's MCAP (both readers), ``watch`` and the live node's publishers and recording."""
+replay's MCAP (both readers) and ``watch`` (the live node's publishers and recording:
+test/ros/test_node_outputs.py)."""
 
 from __future__ import annotations
 
@@ -10,29 +11,14 @@ import pytest
 import yaml
 
 from rollergear_ros.recordings.bag import TopicMap, inspect_bag, read_metadata
-from rollergear_ros.core.estimator import Estimate
 from rollergear_ros.base.interface import MessageType, Topic
 from rollergear_ros.base.output_channels import (OUTPUT_CHANNELS, OutputChannel, float64_channels, map_channels,
-                                                 register, sample_channels, trace_channels, unregister,
-                                                 window_channels)
+                                                 register, sample_channels, trace_channels, window_channels)
 from rollergear_ros.replay.run import replay
 from rollergear_ros.ros.watch import WatchWindow
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
 from helpers import BAGS, ROOT
-from rostools import FloatProbe, ros_context, wait_for
-
-TOY = OutputChannel("measured_loss", "loss/measured", MessageType.FLOAT64, "N*m",
-                    "the measured loss (a toy channel for the table's test)", "measured_loss_nm", measured_only=True)
-
-
-@pytest.fixture
-def toy_channel():
-    register(TOY)
-    try:
-        yield TOY
-    finally:
-        unregister(TOY.name)
 
 
 def test_every_output_channel_has_its_row_in_the_interface_document():
@@ -119,35 +105,3 @@ def test_watch_shows_a_toy_channel_after_the_four(toy_channel):
         for raw in encode_float64(np.asarray(values)):
             window.add(name, raw)
     assert "η measured 98.12 ± 0.21 %" in window.line(1.0, "/x")
-
-
-@pytest.mark.ros
-@pytest.mark.slow
-def test_the_node_publishes_and_records_a_toy_channel(toy_channel, tmp_path):
-    """A node made with the toy channel registered offers it, publishes it for an estimate with
-    measured output (not for one without) and records it."""
-    from rclpy.parameter import Parameter
-
-    from rollergear_ros.ros.node import LossEstimatorNode
-
-    rec = tmp_path / "live.mcap"
-    with ros_context() as probe_node:
-        node = LossEstimatorNode(context=probe_node.context,
-                                 parameter_overrides=[Parameter("node.record_mcap", value=str(rec))])
-        try:
-            topic = node.out_topics[toy_channel.name]
-            assert topic == "/rollergear/loss/measured"
-            probe = FloatProbe(probe_node, topic)
-            probe.wait_matched()
-            unmeasured = Estimate(1_000, 10.0, 50.0, 0.1, 5.0, 0.99, float("nan"), float("nan"))
-            measured = Estimate(2_000, 10.0, 50.0, 0.1, 5.0, 0.99, 0.123, 0.023)
-            node._publish(unmeasured)  # noqa: SLF001 - what the input path does with an estimate
-            node._publish(measured)  # noqa: SLF001
-            assert wait_for(lambda: len(probe) >= 1, 60)
-            np.testing.assert_array_equal(probe.values(), [0.123])
-            node.close()
-        finally:
-            node.destroy_node()
-    for got in (read_mcap_ros2(rec), read_rosbags(rec)):
-        np.testing.assert_array_equal(float_series(got, topic)[1], [0.123])
-        np.testing.assert_array_equal(float_series(got, "/rollergear/loss/torque")[1], [0.1, 0.1])

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 
 from rollergear_ros.base.errors import RollergearError
+from rollergear_ros.core.estimator import Estimate
 
-from rostools import ros_context
+from bagtools import float_series, read_mcap_ros2, read_rosbags
+from rostools import FloatProbe, ros_context, wait_for
 
 pytestmark = [pytest.mark.ros]
 
@@ -63,3 +66,34 @@ def test_a_fifo_as_the_map_file_is_never_opened(tmp_path):
             assert node.live_map.path == tmp_path / "live_1.vtlm" and node.live_map.path.is_file()
         finally:
             node.destroy_node()
+
+
+@pytest.mark.slow
+def test_the_node_publishes_and_records_a_toy_channel(toy_channel, tmp_path):
+    """A node made with the toy channel registered offers it, publishes it for an estimate with
+    measured output (not for one without) and records it."""
+    from rclpy.parameter import Parameter
+
+    from rollergear_ros.ros.node import LossEstimatorNode
+
+    rec = tmp_path / "live.mcap"
+    with ros_context() as probe_node:
+        node = LossEstimatorNode(context=probe_node.context,
+                                 parameter_overrides=[Parameter("node.record_mcap", value=str(rec))])
+        try:
+            topic = node.out_topics[toy_channel.name]
+            assert topic == "/rollergear/loss/measured"
+            probe = FloatProbe(probe_node, topic)
+            probe.wait_matched()
+            unmeasured = Estimate(1_000, 10.0, 50.0, 0.1, 5.0, 0.99, float("nan"), float("nan"))
+            measured = Estimate(2_000, 10.0, 50.0, 0.1, 5.0, 0.99, 0.123, 0.023)
+            node._publish(unmeasured)  # noqa: SLF001 - what the input path does with an estimate
+            node._publish(measured)  # noqa: SLF001
+            assert wait_for(lambda: len(probe) >= 1, 60)
+            np.testing.assert_array_equal(probe.values(), [0.123])
+            node.close()
+        finally:
+            node.destroy_node()
+    for got in (read_mcap_ros2(rec), read_rosbags(rec)):
+        np.testing.assert_array_equal(float_series(got, topic)[1], [0.123])
+        np.testing.assert_array_equal(float_series(got, "/rollergear/loss/torque")[1], [0.1, 0.1])
