@@ -340,14 +340,15 @@ def worker_cpus(node_cpus: set[int], cpu_count: int) -> set[int]:
     return (set(range(cpu_count)) - node_cpus) or node_cpus
 
 
-def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
+def _worker_start(node_cpus: tuple[int, ...] = (), idle: bool = True) -> None:
     """The worker process keeps off the node's input path: on the CPUs the node was not pinned to
     (:func:`worker_cpus`; a spawned process inherits the node's affinity, and a worker on the node's
     only core delays its inputs by milliseconds whatever its priority), and scheduled when nothing else
     wants a core (``SCHED_IDLE``: a waking thread of the node takes the core from it at once), else at
     the lowest nice level.  On a machine whose cores are all busy the idle class gets next to nothing
     (a trace waited there for minutes, still importing): a trace under way for longer than
-    :data:`IDLE_PRIORITY_S` goes on at the lowest nice level (:meth:`TraceWorker.hurry_if_late`).  Ctrl-C is the
+    :data:`IDLE_PRIORITY_S` goes on at the lowest nice level (:meth:`TraceWorker.hurry_if_late`; ``idle``
+    False: a worker started there).  Ctrl-C is the
     node's: the worker ignores it (the node stops it).  A node that dies without stopping it (killed,
     crashed) takes it along: the worker watches its parent (:func:`_exit_with_parent`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -357,7 +358,8 @@ def _worker_start(node_cpus: tuple[int, ...] = ()) -> None:
             os.sched_setaffinity(0, worker_cpus(set(node_cpus), os.cpu_count() or 1))
         except OSError:  # a CPU outside this process's cpuset: stay where the node is
             pass
-    set_priority(0, hurried=False)
+    if not (idle and set_priority(0, hurried=False)):
+        set_priority(0, hurried=True)
 
 
 #: a trace under way for longer than this [s] leaves the idle class for the lowest nice level: on a
@@ -368,21 +370,19 @@ IDLE_PRIORITY_S = 30.0
 
 def set_priority(pid: int, hurried: bool) -> bool:
     """Schedule process ``pid`` (0: this one) in the idle class (``SCHED_IDLE``: only on a core
-    nothing else wants), or ``hurried``: as a normal process at the lowest nice level (19).  Where the
-    idle class is not available, nice 19 either way.  False when the system refused."""
+    nothing else wants), or ``hurried``: as a normal process at the lowest nice level (19).  False
+    when the system refused or has no idle class: a process may leave the idle class only with
+    ``CAP_SYS_NICE`` or an ``RLIMIT_NICE`` of at least 1 (``ulimit -e``; 0 for most users)."""
     try:
         if hurried:
             os.setpriority(os.PRIO_PROCESS, pid, 19)
-            os.sched_setscheduler(pid, os.SCHED_OTHER, os.sched_param(0))
+            if getattr(os, "SCHED_IDLE", None) is not None and os.sched_getscheduler(pid) == os.SCHED_IDLE:
+                os.sched_setscheduler(pid, os.SCHED_OTHER, os.sched_param(0))
         else:
             os.sched_setscheduler(pid, os.SCHED_IDLE, os.sched_param(0))
         return True
     except (AttributeError, OSError):
-        try:
-            os.setpriority(os.PRIO_PROCESS, pid, 19)
-            return True
-        except (AttributeError, OSError):
-            return False
+        return False
 
 
 #: how often the worker looks whether the node that started it is still there [s]
@@ -412,6 +412,7 @@ class TraceWorker:
         self._pool: ProcessPoolExecutor | None = None
         self._pid: Future | None = None  #: the worker's process id, once it has started
         self.future: Future | None = None
+        self._request: TraceRequest | None = None  #: the request under way
         self._submitted_at: float | None = None  #: time.monotonic() of the request under way
         self.hurried = False  #: the request under way runs at nice 19, not in the idle class
 
@@ -431,17 +432,26 @@ class TraceWorker:
 
     def hurry_if_late(self, after_s: float = IDLE_PRIORITY_S) -> bool:
         """Once a request has been under way for ``after_s``, move the worker from the idle class to
-        the lowest nice level (:func:`set_priority`) until its result is taken out; True when it
-        was moved now (for the node to say so)."""
+        the lowest nice level (:func:`set_priority`) until its result is taken out -- where the
+        system does not let a process leave the idle class, replace the worker by one started at
+        that level and submit the request to it again (the trace starts over); True when it was
+        moved now (for the node to say so)."""
         running = self.running_s()
         if self.hurried or running is None or running < after_s or self.pid is None:
             return False
-        self.hurried = set_priority(self.pid, hurried=True)
-        return self.hurried
+        if not set_priority(self.pid, hurried=True):
+            request, submitted_at = self._request, self._submitted_at
+            self.close()
+            self.start(idle=False)
+            self.submit(request)
+            self._submitted_at = submitted_at
+        self.hurried = True
+        return True
 
-    def start(self) -> None:
+    def start(self, idle: bool = True) -> None:
         """Start the process now and let it import what a trace needs: the first trace then costs
-        the caller no process start (tens of milliseconds of the interpreter, imports included)."""
+        the caller no process start (tens of milliseconds of the interpreter, imports included);
+        ``idle`` False: at the lowest nice level from the start (:func:`_worker_start`)."""
         if self._pool is None:
             # one BLAS thread: the worker must leave the other core to the node
             for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -449,20 +459,20 @@ class TraceWorker:
             node_cpus = tuple(sorted(os.sched_getaffinity(0))) if hasattr(os, "sched_getaffinity") else ()
             with children_spared_interrupts():  # the worker is spawned with Ctrl-C ignored, from its first instruction
                 self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                                 initializer=_worker_start, initargs=(node_cpus,))
+                                                 initializer=_worker_start, initargs=(node_cpus, idle))
                 self._pid = self._pool.submit(_ready)
 
     def submit(self, request: TraceRequest) -> None:
         self.start()
         self.future = self._pool.submit(trace, request)
-        self._submitted_at = time.monotonic()
+        self._request, self._submitted_at = request, time.monotonic()
 
     def result(self) -> TraceResult | Exception | None:
         """The finished trace (its exception if it failed), once; None while none is done.  A
         worker that was hurried goes back to the idle class."""
         if self.future is None or not self.future.done():
             return None
-        future, self.future, self._submitted_at = self.future, None, None
+        future, self.future, self._request, self._submitted_at = self.future, None, None, None
         if self.hurried and self.pid is not None:
             set_priority(self.pid, hurried=False)
         self.hurried = False
@@ -482,6 +492,6 @@ class TraceWorker:
         # interpreter exits races the exit hook's wake-up ("Bad file descriptor" on the node's stderr)
         if manager is not None:
             manager.join(timeout=30)
-        self._pool = self.future = self._pid = self._submitted_at = None
+        self._pool = self.future = self._pid = self._request = self._submitted_at = None
         self.hurried = False
 

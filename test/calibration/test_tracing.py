@@ -213,6 +213,68 @@ def test_a_trace_under_way_too_long_goes_on_at_the_lowest_nice_level_and_the_wor
     assert done.verdict == "traced"
 
 
+#: a node's tracer where the system does not let a process leave the idle class: hurries a request
+#: under way and says what became of it (the worker's process ids, the new one's scheduling, the result)
+_UNPRIVILEGED_HURRY = """
+import json, os, pickle, sys
+from rollergear_ros.calibration.tracing import TraceWorker, set_priority
+with open(sys.argv[1], "rb") as fh:
+    request = pickle.load(fh)
+worker = TraceWorker()
+worker.start()
+worker._pid.result(timeout=600)
+first = worker.pid
+refused = not set_priority(first, hurried=True)
+worker.submit(request)
+hurried_now = worker.hurry_if_late(0.0)
+worker._pid.result(timeout=600)
+second = worker.pid
+during = [os.sched_getscheduler(second) == os.SCHED_OTHER, os.getpriority(os.PRIO_PROCESS, second)]
+worker.future.result(timeout=600)
+done = worker.result()
+after_idle = os.sched_getscheduler(second) == os.SCHED_IDLE
+worker.close()
+print(json.dumps({"refused": refused, "hurried_now": hurried_now, "replaced": second != first, "during": during,
+                  "after_idle": after_idle, "verdict": done.verdict, "message": done.message}))
+"""
+
+
+def _without_cap_sys_nice() -> list[str] | None:
+    """A command prefix under which this system refuses to let a process leave the idle class: root
+    without CAP_SYS_NICE (setpriv), or nothing for a user whose RLIMIT_NICE is 0; None: neither."""
+    import resource
+    import shutil
+
+    if os.geteuid() == 0:
+        setpriv = shutil.which("setpriv")
+        return [setpriv, "--bounding-set=-sys_nice", "--inh-caps=-sys_nice"] if setpriv else None
+    return [] if resource.getrlimit(resource.RLIMIT_NICE)[0] == 0 else None
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE") or _without_cap_sys_nice() is None,
+                    reason="needs the idle class and a way to run without CAP_SYS_NICE")
+def test_where_the_idle_class_cannot_be_left_the_late_trace_starts_over_in_a_worker_at_nice_19(config, tmp_path):
+    """Most users may not leave the idle class (RLIMIT_NICE 0): the worker that was late is replaced
+    by one started at nice 19, the request runs again there and gives the result the trace gives."""
+    import json
+    import pickle
+    import subprocess
+    import sys
+
+    samples, alarms, start = node_samples(config, [DeclaredEffect("drag_constant", {"c": 0.06})], 1)
+    request = TraceRequest(up_to(samples, start + int((ONSET_S + 60.0) * 1e9)), config.to_flat(), "alarm", alarms[0])
+    with (tmp_path / "request.pickle").open("wb") as fh:
+        pickle.dump(request, fh)
+    proc = subprocess.run([*_without_cap_sys_nice(), sys.executable, "-c", _UNPRIVILEGED_HURRY,
+                           str(tmp_path / "request.pickle")], capture_output=True, text=True, timeout=1200)
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert got["refused"], "the premise: this process may not leave the idle class"
+    assert got["hurried_now"] and got["replaced"] and got["during"] == [True, 19] and got["after_idle"]
+    here = trace(request)
+    assert got["verdict"] == here.verdict == "traced" and got["message"] == here.message
+
+
 #: a "node" that starts the tracer's worker, keeps it busy with a long task, says the worker's and the
 #: resource tracker's process ids and waits to be killed
 _BUSY_NODE = """
