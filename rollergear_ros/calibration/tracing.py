@@ -430,23 +430,24 @@ class TraceWorker:
         """Seconds since the request not yet taken out by :meth:`result` was submitted (None: none)."""
         return None if self.future is None or self._submitted_at is None else time.monotonic() - self._submitted_at
 
-    def hurry_if_late(self, after_s: float = IDLE_PRIORITY_S) -> bool:
+    def hurry_if_late(self, after_s: float = IDLE_PRIORITY_S) -> str | None:
         """Once a request has been under way for ``after_s``, move the worker from the idle class to
         the lowest nice level (:func:`set_priority`) until its result is taken out -- where the
         system does not let a process leave the idle class, replace the worker by one started at
-        that level and submit the request to it again (the trace starts over); True when it was
-        moved now (for the node to say so)."""
+        that level and submit the request to it again (the trace starts over).  What was done, when
+        it was done now (for the node to say), else None."""
         running = self.running_s()
         if self.hurried or running is None or running < after_s or self.pid is None:
-            return False
-        if not set_priority(self.pid, hurried=True):
-            request, submitted_at = self._request, self._submitted_at
-            self.close()
-            self.start(idle=False)
-            self.submit(request)
-            self._submitted_at = submitted_at
+            return None
         self.hurried = True
-        return True
+        if set_priority(self.pid, hurried=True):
+            return "it goes on at the lowest nice level"
+        request, submitted_at = self._request, self._submitted_at
+        self.close()
+        self.start(idle=False)
+        self.submit(request)
+        self._submitted_at, self.hurried = submitted_at, True
+        return "begun again in a worker at the lowest nice level (this system lets no process leave the idle class)"
 
     def start(self, idle: bool = True) -> None:
         """Start the process now and let it import what a trace needs: the first trace then costs

@@ -85,10 +85,9 @@ class LiveTracer:
         done = self.worker.result()
         if done is not None:
             self._deliver(done)
-        elif self.worker.hurry_if_late():
-            self.node.get_logger().info(
-                f"online trace under way for {IDLE_PRIORITY_S:g} s at the idle priority (the cores are busy): "
-                "it goes on at the lowest nice level")
+        elif (hurried := self.worker.hurry_if_late()) is not None:
+            self.node.get_logger().info(f"online trace under way for {IDLE_PRIORITY_S:g} s at the idle priority "
+                                        f"(the cores are busy): {hurried}")
         config = self.node.config
         detector = self.node.estimator.detector
         if detector is not self._detector:  # a parameter change made a new estimator: its alarms count anew
