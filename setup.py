@@ -2,7 +2,7 @@
 
 from glob import glob
 
-from setuptools import find_packages, setup
+from setuptools import Extension, find_packages, setup
 
 package_name = "rollergear_ros"
 
@@ -18,8 +18,12 @@ setup(
         ("share/" + package_name + "/docs", glob("docs/*.md")),
         ("share/" + package_name + "/layouts", glob("layouts/*.json") + glob("layouts/*.xml")),
     ],
+    # the MCAP record layout in C; optional: without a compiler the package installs and lays the
+    # records out with numpy (the same bytes, slower)
+    ext_modules=[Extension("rollergear_ros.recordings._records", ["rollergear_ros/recordings/_records.c"],
+                           optional=True)],
     install_requires=["setuptools"],
-    zip_safe=True,
+    zip_safe=False,
     maintainer="rollergear_ros maintainers",
     maintainer_email="rollergear@example.com",
     description="Roller gearing gearbox loss estimation: model, replay, calibration, ROS 2 node.",

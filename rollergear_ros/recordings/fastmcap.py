@@ -1,8 +1,8 @@
 """Fast MCAP reading: whole chunks parsed with numpy instead of one Python object per message.
 
-The ``mcap`` reader builds a record object per message (~5 µs each).  Recorders write long runs of
-equal-sized records (a Float64 message record is always 43 bytes), so a chunk is parsed run by
-run: the run's rows are checked in one numpy comparison and the channel ids, log times and payload
+The ``mcap`` reader builds a record object per message (~5 µs each).  Here a chunk's message
+records are found in one pass of C (or, in a build without a compiler, run by run with numpy:
+recorders write long runs of equal-sized records), and the channel ids, log times and payload
 offsets come out as arrays.  Reads linearly (no index needed), so a truncated recording yields
 every complete chunk before the damage.  No rclpy.
 """
@@ -21,6 +21,11 @@ from mcap.opcode import Opcode
 from mcap.writer import MCAP0_MAGIC as MAGIC
 
 from ..base.errors import BagError
+
+try:  # the chunk's records found in C (built by setup.py where a compiler is found)
+    from ._records import scan as _native_scan
+except ImportError:  # pragma: no cover - a build without a compiler: numpy finds them
+    _native_scan = None
 
 # record opcodes as plain ints (compared per record in the numpy fast path)
 OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX, OP_DATA_END, OP_FOOTER = (
@@ -151,13 +156,54 @@ def _channel(body: bytes, state: ReadState) -> None:
     state.channels[cid] = (topic, sid, enc)
 
 
-def parse_records(data: bytes, state: ReadState) -> MessageArrays:
+def parse_records(data: bytes, state: ReadState, native: bool | None = None) -> MessageArrays:
     """Parse a chunk's records; schema and channel records update ``state``.
 
-    Message records come in runs of one length (a recorder's Float64 topics, broken by the odd
-    message of another type): each run is found with a few vectorised checks of its records' heads,
-    and the fields of every message of the chunk are gathered at once at the end."""
+    The records are found by a C function where the package was built with one (``_records.c``),
+    else with numpy (``native``: force one or the other; the same result either way); the fields of
+    every message of the chunk are then gathered at once."""
     buf = np.frombuffer(data, dtype=np.uint8)
+    if native is None:
+        native = _native_scan is not None
+    starts, rec = (_native_message_starts if native else _numpy_message_starts)(data, buf, state)
+    if not len(starts):
+        e = np.empty(0, dtype=np.int64)
+        return MessageArrays(np.empty(0, dtype=np.uint16), e, e, e, buf, e)
+    arrays = MessageArrays(byte_rows(buf, 2)[starts + 9].view("<u2").ravel(),
+                           byte_rows(buf, 8)[starts + 15].view("<i8").ravel(),
+                           starts + 9 + _MSG_FIXED, rec - 9 - _MSG_FIXED,
+                           buf, byte_rows(buf, 8)[starts + 23].view("<i8").ravel())
+    bad = arrays.log_time < 0  # unsigned log times beyond 2⁶³ − 1: no ROS time, and no int64 to compute with
+    if bad.any():
+        state.bad_log_times += int(bad.sum())
+        keep = ~bad
+        arrays = MessageArrays(arrays.channel[keep], arrays.log_time[keep], arrays.offset[keep],
+                               arrays.length[keep], buf, arrays.publish_time[keep])
+    return arrays
+
+
+def _other_record(op: int, body: bytes, state: ReadState) -> None:
+    """A chunk's record other than a message: schemas and channels update ``state``."""
+    if op == OP_SCHEMA:
+        _schema(body, state)
+    elif op == OP_CHANNEL:
+        _channel(body, state)
+
+
+def _native_message_starts(data: bytes, buf: np.ndarray, state: ReadState) -> tuple[np.ndarray, np.ndarray]:
+    """(start, record length) of each message record of a chunk, found by the C scan."""
+    starts = np.empty(len(data) // (9 + _MSG_FIXED) + 1, dtype=np.int64)
+    count, others = _native_scan(buf, starts)
+    for op, pos, length in others:
+        _other_record(op, data[pos + 9:pos + 9 + length], state)
+    starts = starts[:count]
+    return starts, 9 + byte_rows(buf, 8)[starts + 1].view("<i8").ravel()
+
+
+def _numpy_message_starts(data: bytes, buf: np.ndarray, state: ReadState) -> tuple[np.ndarray, np.ndarray]:
+    """(start, record length) of each message record of a chunk, found with numpy: message records
+    come in runs of one length (a recorder's Float64 topics, broken by the odd message of another
+    type), each run found with a few vectorised checks of its records' heads."""
     n = len(data)
     pos = 0
     runs: list[tuple[int, int, int]] = []  # (first record's position, records, record length)
@@ -185,29 +231,16 @@ def parse_records(data: bytes, state: ReadState) -> MessageArrays:
             step = max(64, m)
             pos += m * rec
             continue
-        if op == OP_SCHEMA:
-            _schema(data[pos + 9:pos + rec], state)
-        elif op == OP_CHANNEL:
-            _channel(data[pos + 9:pos + rec], state)
+        _other_record(op, data[pos + 9:pos + rec], state)
         pos += rec
     if not runs:
         e = np.empty(0, dtype=np.int64)
-        return MessageArrays(np.empty(0, dtype=np.uint16), e, e, e, buf, e)
+        return e, e
     run_pos, run_m, run_rec = (np.array(column, dtype=np.int64) for column in zip(*runs))
     first = np.cumsum(run_m) - run_m
     starts = np.repeat(run_pos, run_m) + (np.arange(int(run_m.sum()), dtype=np.int64)
                                           - np.repeat(first, run_m)) * np.repeat(run_rec, run_m)
-    arrays = MessageArrays(byte_rows(buf, 2)[starts + 9].view("<u2").ravel(),
-                           byte_rows(buf, 8)[starts + 15].view("<i8").ravel(),
-                           starts + 9 + _MSG_FIXED, np.repeat(run_rec - 9 - _MSG_FIXED, run_m),
-                           buf, byte_rows(buf, 8)[starts + 23].view("<i8").ravel())
-    bad = arrays.log_time < 0  # unsigned log times beyond 2⁶³ − 1: no ROS time, and no int64 to compute with
-    if bad.any():
-        state.bad_log_times += int(bad.sum())
-        keep = ~bad
-        arrays = MessageArrays(arrays.channel[keep], arrays.log_time[keep], arrays.offset[keep],
-                               arrays.length[keep], buf, arrays.publish_time[keep])
-    return arrays
+    return starts, np.repeat(run_rec, run_m)
 
 
 def _decompress(compression: str, data: bytes, size: int) -> bytes:

@@ -1,11 +1,15 @@
 """Writing ROS 2 MCAP files from whole numpy arrays of equal-sized messages (no rclpy).
 
 One message record per row of a uint8 array, a chunk compressed at a time; the file structure is
-the ``mcap`` library writer's (tested against ``mcap`` and ``rosbags``).
+the ``mcap`` library writer's (tested against ``mcap`` and ``rosbags``).  The records are laid out
+by a C function where the package was built with one (``_records.c``), else with numpy; the two
+give the same bytes (tested).
 """
 
 from __future__ import annotations
 
+import functools
+import os
 import struct
 import zlib
 from pathlib import Path
@@ -18,12 +22,20 @@ from mcap.writer import MCAP0_MAGIC as MAGIC
 from ..base import atomic
 from .fastmcap import _MSG_FIXED, _MSG_HEAD, OP_MESSAGE, byte_rows
 
+try:  # the record layout in C (built by setup.py where a compiler is found)
+    from ._records import records as _native_records
+except ImportError:  # pragma: no cover - a build without a compiler: numpy lays out the records
+    _native_records = None
+
 #: records laid out per numpy pass (a few chunks: whole arrays amortise numpy's per-call cost, and a
 #: whole recording added at once still costs no more than this beside it)
 _PIECE_BYTES = 8 * 1024 * 1024
-_MAX_PENDING = 4  #: chunks waiting for the background thread before the caller waits too
-#: zstd level of the chunks: on streams of Float64 messages 3x faster to compress than level 3 and no larger
-ZSTD_LEVEL = 1
+_MAX_PENDING = 16  #: chunks waiting for the background thread before the caller waits too
+#: zstd level of the chunks: on a replay's output (Float64 streams, stamped estimates, copied inputs)
+#: a sixth faster to compress than level 1 for a file 0.6 % larger
+ZSTD_LEVEL = -1
+#: a background writer's file is synced to disk every this many bytes, while the caller goes on
+_SYNC_BYTES = 32 * 1024 * 1024
 
 
 def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray,
@@ -43,6 +55,43 @@ def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarr
     rows[:, 23:31] = lt
     rows[:, 31:] = payload
     return rows
+
+
+def lay_out_records(starts: np.ndarray, size: int, channel_id: np.ndarray, log_time: np.ndarray,
+                    group: np.ndarray, row: np.ndarray, payloads: list[np.ndarray], counters: np.ndarray,
+                    period_hint: list[int] | None = None, native: bool | None = None) -> np.ndarray:
+    """The bytes (``size`` of them) of ``n`` message records: record ``i`` starts at ``starts[i]``,
+    is on channel ``channel_id[i]`` at ``log_time[i]`` (also its publish time) and carries row
+    ``row[i]`` of ``payloads[group[i]]`` (each an m × L uint8 array).  Sequence numbers count on from
+    ``counters`` (int64, indexed by channel id; updated in place), each channel by itself.
+
+    ``native``: the C function (True), numpy (False), or C where built (None); same bytes either way.
+    ``period_hint``: for the numpy path, as in :func:`interleave`.
+    """
+    as_int64 = functools.partial(np.ascontiguousarray, dtype=np.int64)
+    starts, channel_id, log_time, group, row = map(as_int64, (starts, channel_id, log_time, group, row))
+    payloads = [np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
+    if native is None:
+        native = _native_records is not None
+    out = np.empty(size, dtype=np.uint8)
+    if native:
+        _native_records(out, starts, channel_id, log_time, group, row, payloads, counters)
+        return out
+    seq = np.empty(len(starts), dtype=np.int64)
+    for cid, where in (by_channel(channel_id) if len(starts) else []):
+        k = len(starts) if where is None else len(where)
+        seq[slice(None) if where is None else where] = np.arange(counters[cid] + 1, counters[cid] + k + 1)
+        counters[cid] += k
+    rows = {}
+    for g in range(len(payloads)):
+        where = np.flatnonzero(group == g)
+        if len(where):
+            rows[g] = message_rows(channel_id[where], log_time[where], payloads[g][row[where]], seq[where])
+    if len(rows) == 1 and len(starts) and (np.diff(starts) == rows[int(group[0])].shape[1]).all():
+        out[starts[0]:starts[0] + rows[int(group[0])].nbytes] = rows[int(group[0])].reshape(-1)
+        return out
+    out[:] = interleave(group, rows, starts, size, period_hint)
+    return out
 
 
 def by_channel(ids: np.ndarray) -> list[tuple[int, np.ndarray | None]]:
@@ -132,14 +181,27 @@ def _periodic_stretches(group: np.ndarray, period_hint: list[int] | None = None,
     return out
 
 
-def _by_channel_index(index: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
-    """A chunk's ``(channel id, log times, offsets)`` from its appended parts, one per channel by id,
-    each in the order written."""
+def _message_indexes(index: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
+    """A chunk's message index entries from its appended parts ``(channel ids, log times, offsets)``:
+    ``(channel id, entries)`` per channel by id, ``entries`` the n × 2 little-endian uint64 (log
+    time, offset) of the record format, by log time (the order written among equal times)."""
     if not index:  # a chunk of schema and channel records only
         return
     ids, times, offs = (np.concatenate(column) for column in zip(*index))
-    for cid, where in by_channel(ids):
-        yield (cid, times, offs) if where is None else (cid, times[where], offs[where])
+    order = np.argsort(ids.astype(np.uint16), kind="stable")  # channel ids are 16-bit: a radix sort
+    ids = ids[order]
+    entries = np.empty((len(ids), 2), dtype="<u8")
+    entries[:, 0] = times[order]
+    entries[:, 1] = offs[order]
+    cuts = np.flatnonzero(ids[1:] != ids[:-1]) + 1
+    starts, stops = [0, *cuts.tolist()], [*cuts.tolist(), len(ids)]
+    t = entries[:, 0].view("<i8")
+    backwards = set(np.searchsorted(cuts, np.flatnonzero(t[1:] < t[:-1]), side="right").tolist())
+    for k, (a, b) in enumerate(zip(starts, stops)):
+        part = entries[a:b]
+        if k in backwards and (np.diff(t[a:b]) < 0).any():  # not across a cut between channels
+            part = part[np.argsort(t[a:b], kind="stable")]
+        yield int(ids[a]), part
 
 
 class ChunkedMcapWriter:
@@ -153,7 +215,7 @@ class ChunkedMcapWriter:
     chunk's (of its uncompressed records) and the summary's; the data-section CRC is 0 ("not
     computed", as the spec allows and ``mcap``'s default ``enable_data_crcs=False`` does), since
     every chunk is covered already.  The reader here verifies the chunk CRCs it finds.  Chunks are
-    zstd level 1: on streams of Float64 messages 3x faster to compress than level 3 and no larger.
+    zstd at :data:`ZSTD_LEVEL`.
     """
 
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, background: bool = False,
@@ -179,6 +241,7 @@ class ChunkedMcapWriter:
 
             self._pool = ThreadPoolExecutor(1, thread_name_prefix="mcap-chunks")
         self._pending: list = []
+        self._synced = 0  # bytes of the file on disk (a background writer syncs every _SYNC_BYTES)
         self.chunk_size = chunk_size
         self._schemas: dict[int, object] = {}
         self._channels: dict[int, object] = {}
@@ -241,23 +304,16 @@ class ChunkedMcapWriter:
         n = len(log_time)
         if n == 0:
             return
-        log_time = np.asarray(log_time, dtype=np.int64)
-        ids = np.broadcast_to(np.asarray(channel_id, dtype=np.int64), (n,))
-        rec = 9 + _MSG_FIXED + payload.shape[1]
-        step = max(1, _PIECE_BYTES // rec)
-        for start in range(0, n, step):
-            sl = slice(start, min(n, start + step))
-            k = sl.stop - sl.start
-            rows = message_rows(ids[sl], log_time[sl], payload[sl], self._sequence(by_channel(ids[sl]), k))
-            self._append_records(ids[sl], log_time[sl], rows.reshape(-1), rec * np.arange(1, k + 1, dtype=np.int64))
+        self.add_mixed(np.broadcast_to(np.asarray(channel_id, dtype=np.int64), (n,)), log_time,
+                       np.zeros(n, dtype=np.int64), np.arange(n, dtype=np.int64), [payload])
 
     def add_mixed(self, channel_id: np.ndarray, log_time: np.ndarray, group: np.ndarray, row: np.ndarray,
                   payloads: list[np.ndarray]) -> None:
         """Add ``n`` messages of several payload widths, in this order: message ``i`` is row
         ``row[i]`` of ``payloads[group[i]]`` (each an m × L uint8 array), on channel
-        ``channel_id[i]`` at ``log_time[i]``.  The records are laid out with numpy whatever the
+        ``channel_id[i]`` at ``log_time[i]``.  The records are laid out in one pass whatever the
         interleaving (a time-ordered output alternates widths sample by sample), a few MB at a
-        time; chunks close at ``chunk_size`` as in :meth:`add_messages`."""
+        time (:func:`lay_out_records`); chunks close at ``chunk_size`` as in :meth:`add_messages`."""
         n = len(log_time)
         if n == 0:
             return
@@ -273,26 +329,14 @@ class ChunkedMcapWriter:
             stop = min(n, max(start + 1, int(ends.searchsorted(np.int64(base + _PIECE_BYTES), side="right"))))
             sl = slice(start, stop)
             g_sl, ids_sl, t_sl = group[sl], ids[sl], log_time[sl]
-            seq = self._sequence(by_channel(ids_sl), stop - start)
             piece_ends = ends[sl] - base
-            rows = {}
-            for g in range(len(payloads)):
-                where = np.flatnonzero(g_sl == g)
-                if len(where):
-                    rows[g] = message_rows(ids_sl[where], t_sl[where], payloads[g][row[sl][where]], seq[where])
-            records = interleave(g_sl, rows, piece_ends - rec_of_group[g_sl], int(piece_ends[-1]), self._period_hint)
+            counters = np.zeros(max(self._seq) + 1, dtype=np.int64)
+            counters[list(self._seq)] = list(self._seq.values())
+            records = lay_out_records(piece_ends - rec_of_group[g_sl], int(piece_ends[-1]), ids_sl, t_sl, g_sl,
+                                      row[sl], payloads, counters, self._period_hint)
+            self._seq.update(zip(self._seq, counters[list(self._seq)].tolist()))
             self._append_records(ids_sl, t_sl, records, piece_ends)
             start = stop
-
-    def _sequence(self, parts: list[tuple[int, np.ndarray | None]], n: int) -> np.ndarray:
-        """Sequence numbers for ``n`` messages on the channels of ``parts`` (:func:`by_channel`):
-        each channel counts on by itself."""
-        seq = np.empty(n, dtype=np.int64)
-        for cid, where in parts:
-            k = n if where is None else len(where)
-            seq[slice(None) if where is None else where] = np.arange(self._seq[cid] + 1, self._seq[cid] + k + 1)
-            self._seq[cid] += k
-        return seq
 
     def _append_records(self, ids: np.ndarray, log_time: np.ndarray, records: np.ndarray, ends: np.ndarray) -> None:
         """Append message records (the bytes ``records``; record ``i`` ends at ``ends[i]``) to the
@@ -309,7 +353,10 @@ class ChunkedMcapWriter:
             starts[0] = base
             starts[1:] = ends[start:stop - 1]
             self._index.append((ids[sl], log_time[sl], starts + (self._size - base)))
-            self._chunk += records[base:top].data
+            if self._size == 0 and top - base >= self.chunk_size:  # a whole chunk: the records are its bytes
+                self._chunk = records[base:top]  # (flushed below, before anything else is appended)
+            else:
+                self._chunk += records[base:top].data
             self._size += top - base
             self._message_count += stop - start
             lo, hi = int(log_time[sl].min()), int(log_time[sl].max())
@@ -374,7 +421,7 @@ class ChunkedMcapWriter:
     def flush_chunk(self) -> None:
         """Compress and write the open chunk with its message indexes (in the background with
         ``background=True``: the next chunk is built while this one is compressed and written)."""
-        if not self._chunk:
+        if not self._size:
             return
         if self._single:
             self._index.append(tuple(np.array(column, dtype=np.int64) for column in zip(*self._single)))
@@ -394,39 +441,36 @@ class ChunkedMcapWriter:
         while self._pending:
             self._pending.pop(0).result()
 
-    def _emit(self, data: bytearray, index: list, start: int, end: int) -> None:
+    def _emit(self, data: bytearray | np.ndarray, index: list, start: int, end: int) -> None:
         """Compress one chunk and write it and its message indexes (the only writer of the file while
         chunks are pending); a write that fails is an OSError naming the file."""
         with atomic.named(self.path):
             self._emit_chunk(data, index, start, end)
+            if self._pool is not None and self._fh.tell() - self._synced >= _SYNC_BYTES:
+                self._fh.flush()  # on disk as it goes: close's fsync has only the last few MB to wait for
+                os.fdatasync(self._fh.fileno())
+                self._synced = self._fh.tell()
 
-    def _emit_chunk(self, data: bytearray, index: list, start: int, end: int) -> None:
-        from mcap.data_stream import RecordBuilder
-        from mcap.records import Chunk, ChunkIndex
+    def _emit_chunk(self, data: bytearray | np.ndarray, index: list, start: int, end: int) -> None:
+        """The chunk record (fields as ``mcap.records.Chunk`` writes them) and one message index record
+        per channel, each written as its head and its body, without joining them first."""
+        from mcap.records import ChunkIndex
 
         compressed = self._zstd.compress(data)
-        rb = RecordBuilder()
-        Chunk(compression="zstd", data=compressed, message_start_time=start, message_end_time=end,
-              uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data)).write(rb)
-        chunk_blob = rb.end()
+        fields = struct.pack("<QQQII4sQ", start, end, len(data), zlib.crc32(data), 4, b"zstd", len(compressed))
         chunk_offset = self._fh.tell()
-        self._fh.write(chunk_blob)
+        self._fh.write(struct.pack("<BQ", Opcode.CHUNK, len(fields) + len(compressed)) + fields)
+        self._fh.write(compressed)
+        chunk_length = self._fh.tell() - chunk_offset
         index_offsets: dict[int, int] = {}
-        index_start = self._fh.tell()
-        for cid, times, offs in _by_channel_index(index):
-            entries = np.empty((len(times), 2), dtype="<u8")
-            if len(times) > 1 and np.any(times[1:] < times[:-1]):  # the index is by log time
-                order = np.argsort(times, kind="stable")
-                times, offs = times[order], offs[order]
-            entries[:, 0] = times
-            entries[:, 1] = offs
-            body = struct.pack("<HI", cid, entries.nbytes) + entries.tobytes()
+        for cid, entries in _message_indexes(index):
             index_offsets[cid] = self._fh.tell()
-            self._fh.write(struct.pack("<BQ", Opcode.MESSAGE_INDEX, len(body)) + body)
+            self._fh.write(struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 6 + entries.nbytes, cid, entries.nbytes))
+            self._fh.write(entries)
         self._chunk_indexes.append(ChunkIndex(
             message_start_time=start, message_end_time=end, chunk_start_offset=chunk_offset,
-            chunk_length=len(chunk_blob), message_index_offsets=index_offsets,
-            message_index_length=self._fh.tell() - index_start, compression="zstd",
+            chunk_length=chunk_length, message_index_offsets=index_offsets,
+            message_index_length=self._fh.tell() - chunk_offset - chunk_length, compression="zstd",
             compressed_size=len(compressed), uncompressed_size=len(data)))
 
     def close(self, commit: bool = True) -> None:
@@ -474,8 +518,6 @@ class ChunkedMcapWriter:
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
             self._fh.flush()
-            import os
-
             os.fsync(self._fh.fileno())
             self._fh.close()
 

@@ -386,31 +386,35 @@ def _assemble(parts: list, decode: _PartDecoder, state, info: BagInfo) -> InputB
 
 
 def _copy_inputs(writer: BagWriter, writes: list, state, info: BagInfo) -> None:
-    """Copy the input messages in file order; equal-sized payloads go in with one numpy call."""
+    """Copy the input messages in file order; the payloads of one length go in with one numpy call
+    (a Float64 payload that is not the canonical 12 bytes, one by one as those)."""
     for arrays, keep in writes:
         lens = arrays.length[keep]
-        fixed = keep[lens == 12]  # Float64 (and any other 12-byte payloads)
-        cids = sorted(set(arrays.channel[fixed].tolist()))
-        if len(fixed):
+        canonical = lens == 12  # Float64 (and any other 12-byte payloads): all but a few
+        for length in [12, *np.unique(lens[~canonical]).tolist()]:
+            sel = keep[canonical if length == 12 else lens == length]
+            if not len(sel):
+                continue
+            cids = np.flatnonzero(np.bincount(arrays.channel[sel])).tolist()
             meta = []
             for cid in cids:
                 topic, sid, _ = state.channels[cid]
                 type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
                 meta.append((topic, type_name, info.schema_texts.get(type_name)))
-            typed = np.array([bool(m[1]) for m in meta])  # a type lost with a damaged chunk: not copied
-            which = np.searchsorted(np.array(cids), arrays.channel[fixed])
-            fixed, which = fixed[typed[which]], (np.cumsum(typed) - 1)[which[typed[which]]]
-            payload = byte_rows(arrays.buf, 12)[arrays.offset[fixed]]
-            writer.write_fixed_mixed([m for m in meta if m[1]], which, arrays.log_time[fixed], payload)
-        for i in keep[lens != 12].tolist():
-            topic, sid, _ = state.channels[int(arrays.channel[i])]
-            type_name = state.schemas[sid][0] if sid in state.schemas else info.topics.get(topic, "")
-            if not type_name:
-                continue
-            payload = arrays.payload(i)
-            if type_name == MessageType.FLOAT64:  # padded or big-endian: copied as the canonical 12 bytes
-                payload = encode_float64(decode_float64([payload]))[0]  # (every reader decodes those)
-            writer.write_raw(topic, type_name, int(arrays.log_time[i]), payload, info.schema_texts.get(type_name))
+            which = np.searchsorted(np.array(cids), arrays.channel[sel])
+            # a type lost with a damaged chunk: not copied; padded or big-endian Float64: re-encoded
+            as_is = np.array([bool(m[1]) and (length == 12 or m[1] != MessageType.FLOAT64) for m in meta])
+            fixed, fixed_which = sel[as_is[which]], (np.cumsum(as_is) - 1)[which[as_is[which]]]
+            if len(fixed):
+                payload = byte_rows(arrays.buf, length)[arrays.offset[fixed]] if length else \
+                    np.empty((len(fixed), 0), dtype=np.uint8)
+                writer.write_fixed_mixed([m for m, ok in zip(meta, as_is.tolist()) if ok], fixed_which,
+                                         arrays.log_time[fixed], payload)
+            for i in sel[~as_is[which]].tolist():
+                topic, type_name, text = meta[cids.index(int(arrays.channel[i]))]
+                if type_name:  # copied as the canonical 12 bytes (every reader decodes those)
+                    payload = encode_float64(decode_float64([arrays.payload(i)]))[0]
+                    writer.write_raw(topic, type_name, int(arrays.log_time[i]), payload, text)
 
 
 class _TimeOrder:

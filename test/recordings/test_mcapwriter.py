@@ -120,3 +120,40 @@ def test_an_error_of_the_builder_thread_reaches_the_caller_and_no_file_is_put_in
         write_bag(out, background=True, fail_at=5)
     assert out.read_bytes() == b"the old file"
     assert [p.name for p in tmp_path.iterdir()] == ["out.mcap"]  # no partial file left
+
+
+def test_message_indexes_point_at_every_record_by_log_time(tmp_path):
+    """Each chunk's message index (what rosbags counts a chunk's messages by, and seeking readers
+    jump with) lists every message of its channel once, by log time, at the offset of its record
+    -- also where a recorder wrote a channel's messages out of log-time order."""
+    from mcap.records import Chunk, MessageIndex
+    from mcap.stream_reader import StreamReader
+
+    from rollergear_ros.recordings.fastmcap import ReadState, _decompress, parse_records
+
+    rng = np.random.default_rng(4)
+    w = ChunkedMcapWriter(tmp_path / "i.mcap", chunk_size=16 * 1024)
+    sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+    ids = [w.register_channel(f"/{k}", "cdr", sid) for k in range(3)]
+    n = 6000
+    t = 10**9 + np.arange(n, dtype=np.int64) * 1000
+    w.add_messages(np.array(ids)[rng.integers(0, 3, n)], t, rng.integers(0, 256, (n, 12), dtype=np.uint8))
+    for k in range(2000):  # one by one, up to 5 µs late: log times go back within a channel
+        w.add_message(ids[k % 3], int(t[-1]) + 1000 * k - int(rng.integers(0, 5000)), bytes(20))
+    w.close()
+    chunk, indexed, seen, k = None, {}, 0, -1
+    with open(tmp_path / "i.mcap", "rb") as fh:
+        for record in StreamReader(fh, emit_chunks=True).records:
+            if isinstance(record, Chunk):
+                chunk = parse_records(_decompress(record.compression, record.data, record.uncompressed_size),
+                                      ReadState())
+                at = {int(o) - 31: i for i, o in enumerate(chunk.offset)}  # record start -> message
+                seen, k = seen + len(chunk), k + 1
+            elif isinstance(record, MessageIndex):
+                times = [time for time, _ in record.records]
+                assert times == sorted(times)
+                for time, offset in record.records:
+                    i = at[offset]
+                    assert chunk.channel[i] == record.channel_id and chunk.log_time[i] == time
+                    indexed[(k, i)] = indexed.get((k, i), 0) + 1
+    assert seen == n + 2000 and len(indexed) == seen and set(indexed.values()) == {1}

@@ -1,0 +1,212 @@
+/* MCAP records in one pass: laid out for the writer (the native path of
+ * mcapwriter.lay_out_records) and found in a chunk for the reader (of fastmcap.parse_records).
+ *
+ * records(out, starts, channel, log_time, group, row, payloads, counters) writes record i at
+ * out[starts[i]:]: opcode 0x05, record length (uint64), channel id (uint16), sequence (uint32),
+ * log time and publish time (both log_time[i], uint64), then row row[i] of payloads[group[i]]
+ * (a C-contiguous 2-D uint8 array: one payload per row).  The sequence number of a record is
+ * ++counters[channel[i]] (an int64 array indexed by channel id, updated in place), so each channel
+ * counts on by itself.  All integers are little-endian, as MCAP wants.  Every index is checked
+ * before a byte is written; a bad one raises ValueError and leaves out and counters untouched.
+ * The copy runs without the interpreter lock.
+ *
+ * scan(data, starts) walks the records of a decompressed chunk: the start of every message record
+ * goes into starts (int64, at least len(data) // 31 + 1 long: a message record has 31 bytes or more)
+ * and every other record comes back as (opcode, start, length of its content).  Returns
+ * (message count, others); a record that runs past the end of data raises ValueError.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+#include <stdint.h>
+#include <string.h>
+
+#define OP_MESSAGE 0x05
+#define HEAD_BYTES 31   /* opcode 1 + length 8 + channel 2 + sequence 4 + log time 8 + publish time 8 */
+#define FIXED_BYTES 22  /* the record's length counts everything after the opcode and length */
+#define MAX_GROUPS 64
+
+static void put_le(uint8_t *p, uint64_t v, int n) {
+    for (int k = 0; k < n; k++) {
+        p[k] = (uint8_t)(v >> (8 * k));
+    }
+}
+
+/* a C-contiguous 1-D buffer of n int64, or NULL with an exception set */
+static int get_int64(PyObject *obj, Py_buffer *view, Py_ssize_t n, const char *name, int writable) {
+    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0)) < 0) {
+        return -1;
+    }
+    if (view->itemsize != 8 || view->len % 8 != 0 || (n >= 0 && view->len / 8 != n)) {
+        PyErr_Format(PyExc_ValueError, "%s: expected %zd int64 values", name, n);
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *records(PyObject *self, PyObject *args) {
+    (void)self;
+    PyObject *out_o, *starts_o, *channel_o, *time_o, *group_o, *row_o, *payloads_o, *counters_o;
+    if (!PyArg_ParseTuple(args, "OOOOOOOO:records", &out_o, &starts_o, &channel_o, &time_o, &group_o,
+                          &row_o, &payloads_o, &counters_o)) {
+        return NULL;
+    }
+    PyObject *seq = PySequence_Fast(payloads_o, "payloads: expected a sequence of 2-D uint8 arrays");
+    if (seq == NULL) {
+        return NULL;
+    }
+    Py_ssize_t n_groups = PySequence_Fast_GET_SIZE(seq);
+    if (n_groups > MAX_GROUPS) {
+        Py_DECREF(seq);
+        return PyErr_Format(PyExc_ValueError, "payloads: at most %d groups", MAX_GROUPS);
+    }
+    Py_buffer out = {0}, starts = {0}, channel = {0}, ltime = {0}, group = {0}, row = {0}, counters = {0};
+    Py_buffer payload[MAX_GROUPS];
+    Py_ssize_t got_payloads = 0;
+    PyObject *result = NULL;
+    Py_ssize_t n = -1;
+    if (PyObject_GetBuffer(out_o, &out, PyBUF_C_CONTIGUOUS | PyBUF_WRITABLE) < 0) goto done_out;
+    if (get_int64(starts_o, &starts, -1, "starts", 0) < 0) goto done_starts;
+    n = starts.len / 8;
+    if (get_int64(channel_o, &channel, n, "channel", 0) < 0) goto done_channel;
+    if (get_int64(time_o, &ltime, n, "log_time", 0) < 0) goto done_time;
+    if (get_int64(group_o, &group, n, "group", 0) < 0) goto done_group;
+    if (get_int64(row_o, &row, n, "row", 0) < 0) goto done_row;
+    if (get_int64(counters_o, &counters, -1, "counters", 1) < 0) goto done_counters;
+    for (; got_payloads < n_groups; got_payloads++) {
+        Py_buffer *v = &payload[got_payloads];
+        if (PyObject_GetBuffer(PySequence_Fast_GET_ITEM(seq, got_payloads), v,
+                               PyBUF_C_CONTIGUOUS | PyBUF_ND) < 0) goto done_payloads;
+        if (v->ndim != 2 || v->itemsize != 1) {
+            PyBuffer_Release(v);
+            PyErr_Format(PyExc_ValueError, "payloads[%zd]: expected a 2-D uint8 array", got_payloads);
+            goto done_payloads;
+        }
+    }
+    {
+        const int64_t *st = starts.buf, *ch = channel.buf, *lt = ltime.buf, *gr = group.buf, *rw = row.buf;
+        int64_t *count = counters.buf;
+        const Py_ssize_t n_channels = counters.len / 8;
+        uint8_t *dst = out.buf;
+        /* every index checked first: a bad call writes nothing */
+        for (Py_ssize_t i = 0; i < n; i++) {
+            if (gr[i] < 0 || gr[i] >= n_groups) {
+                PyErr_Format(PyExc_ValueError, "group[%zd] = %lld: no such payload array", i, (long long)gr[i]);
+                goto done_payloads;
+            }
+            const Py_buffer *v = &payload[gr[i]];
+            if (rw[i] < 0 || rw[i] >= v->shape[0]) {
+                PyErr_Format(PyExc_ValueError, "row[%zd] = %lld: beyond its payload array", i, (long long)rw[i]);
+                goto done_payloads;
+            }
+            if (ch[i] < 0 || ch[i] >= n_channels || ch[i] > 0xFFFF) {
+                PyErr_Format(PyExc_ValueError, "channel[%zd] = %lld: no counter", i, (long long)ch[i]);
+                goto done_payloads;
+            }
+            if (st[i] < 0 || st[i] > out.len - HEAD_BYTES - v->shape[1]) {
+                PyErr_Format(PyExc_ValueError, "starts[%zd] = %lld: the record ends beyond out", i, (long long)st[i]);
+                goto done_payloads;
+            }
+        }
+        Py_BEGIN_ALLOW_THREADS
+        for (Py_ssize_t i = 0; i < n; i++) {
+            const Py_buffer *v = &payload[gr[i]];
+            const Py_ssize_t width = v->shape[1];
+            uint8_t *p = dst + st[i];
+            const int64_t sequence = ++count[ch[i]];
+            p[0] = OP_MESSAGE;
+            put_le(p + 1, (uint64_t)(FIXED_BYTES + width), 8);
+            put_le(p + 9, (uint64_t)ch[i], 2);
+            put_le(p + 11, (uint64_t)sequence & 0xFFFFFFFFu, 4);
+            put_le(p + 15, (uint64_t)lt[i], 8);
+            put_le(p + 23, (uint64_t)lt[i], 8);
+            memcpy(p + HEAD_BYTES, (const uint8_t *)v->buf + rw[i] * width, (size_t)width);
+        }
+        Py_END_ALLOW_THREADS
+    }
+    result = Py_None;
+    Py_INCREF(result);
+done_payloads:
+    for (Py_ssize_t k = 0; k < got_payloads; k++) PyBuffer_Release(&payload[k]);
+    PyBuffer_Release(&counters);
+done_counters:
+    PyBuffer_Release(&row);
+done_row:
+    PyBuffer_Release(&group);
+done_group:
+    PyBuffer_Release(&ltime);
+done_time:
+    PyBuffer_Release(&channel);
+done_channel:
+    PyBuffer_Release(&starts);
+done_starts:
+    PyBuffer_Release(&out);
+done_out:
+    Py_DECREF(seq);
+    return result;
+}
+
+static PyObject *scan(PyObject *self, PyObject *args) {
+    PyObject *data_o, *starts_o;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "OO:scan", &data_o, &starts_o)) {
+        return NULL;
+    }
+    Py_buffer data = {0}, starts = {0};
+    PyObject *others = NULL, *result = NULL;
+    if (PyObject_GetBuffer(data_o, &data, PyBUF_C_CONTIGUOUS) < 0) return NULL;
+    if (get_int64(starts_o, &starts, -1, "starts", 1) < 0) goto done_data;
+    if (starts.len / 8 < data.len / HEAD_BYTES + 1) {
+        PyErr_SetString(PyExc_ValueError, "starts: shorter than len(data) // 31 + 1");
+        goto done_starts;
+    }
+    others = PyList_New(0);
+    if (others == NULL) goto done_starts;
+    const uint8_t *buf = data.buf;
+    const uint64_t n = (uint64_t)data.len;
+    int64_t *st = starts.buf;
+    Py_ssize_t count = 0;
+    uint64_t pos = 0;
+    while (pos + 9 <= n) {
+        uint64_t length = 0;
+        for (int k = 7; k >= 0; k--) length = (length << 8) | buf[pos + 1 + k];
+        if (length > n - pos - 9) {
+            PyErr_SetString(PyExc_ValueError, "record runs past the end of its chunk");
+            goto done_others;
+        }
+        if (buf[pos] == OP_MESSAGE) {
+            st[count++] = (int64_t)pos;
+        } else {
+            PyObject *item = Py_BuildValue("(iKK)", (int)buf[pos], (unsigned long long)pos,
+                                           (unsigned long long)length);
+            if (item == NULL || PyList_Append(others, item) < 0) {
+                Py_XDECREF(item);
+                goto done_others;
+            }
+            Py_DECREF(item);
+        }
+        pos += 9 + length;
+    }
+    result = Py_BuildValue("(nO)", count, others);
+done_others:
+    Py_DECREF(others);
+done_starts:
+    PyBuffer_Release(&starts);
+done_data:
+    PyBuffer_Release(&data);
+    return result;
+}
+
+static PyMethodDef methods[] = {
+    {"records", records, METH_VARARGS,
+     "records(out, starts, channel, log_time, group, row, payloads, counters): lay out MCAP message records."},
+    {"scan", scan, METH_VARARGS, "scan(data, starts) -> (message count, [(opcode, start, length)]): a chunk's records."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {
+    PyModuleDef_HEAD_INIT, "_records", "MCAP records laid out and found in one pass.", -1, methods,
+    NULL, NULL, NULL, NULL,
+};
+
+PyMODINIT_FUNC PyInit__records(void) { return PyModule_Create(&module); }
