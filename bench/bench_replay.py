@@ -11,7 +11,9 @@ messages for an hour) unless --bag is given, then times:
 With ``--memory``: replay (no output file) with the ``dahl`` effect on (a state stepped every sample)
 against the same replay with a memoryless ``drag_constant``, adaptation off and on, interleaved,
 the best of two each (#29: >= 0.7x).
-Usage: python bench/bench_replay.py [--minutes 60] [--rate 1000] [--keep DIR] [--memory]
+With ``--without-c``: everything as a build without a C compiler runs it (numpy lays out and finds
+the MCAP records instead of ``recordings/_records.c``).
+Usage: python bench/bench_replay.py [--minutes 60] [--rate 1000] [--keep DIR] [--memory] [--without-c]
 """
 
 from __future__ import annotations
@@ -80,7 +82,13 @@ def main() -> None:
     ap.add_argument("--bag", type=Path, help="use this recording instead of generating one")
     ap.add_argument("--keep", type=Path, help="directory for the generated files (default: a temp dir)")
     ap.add_argument("--memory", action="store_true", help="only: replay with the dahl effect against drag_constant")
+    ap.add_argument("--without-c", action="store_true",
+                    help="as a build without a C compiler: numpy lays out and finds the records")
     args = ap.parse_args()
+    if args.without_c:
+        from rollergear_ros.recordings import fastmcap, mcapwriter
+
+        fastmcap._native_scan = mcapwriter._native_records = None
     work = args.keep or Path(tempfile.mkdtemp(prefix="rollergear_bench_"))
     work.mkdir(parents=True, exist_ok=True)
     config = load_config()

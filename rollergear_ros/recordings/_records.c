@@ -13,7 +13,8 @@
  * scan(data, starts) walks the records of a decompressed chunk: the start of every message record
  * goes into starts (int64, at least len(data) // 31 + 1 long: a message record has 31 bytes or more)
  * and every other record comes back as (opcode, start, length of its content).  Returns
- * (message count, others); a record that runs past the end of data raises ValueError.
+ * (message count, others); a record that runs past the end of data, or a message record shorter
+ * than a message's fields, raises ValueError.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -175,6 +176,10 @@ static PyObject *scan(PyObject *self, PyObject *args) {
             goto done_others;
         }
         if (buf[pos] == OP_MESSAGE) {
+            if (length < FIXED_BYTES) {
+                PyErr_SetString(PyExc_ValueError, "message record shorter than a message's fields");
+                goto done_others;
+            }
             st[count++] = (int64_t)pos;
         } else {
             PyObject *item = Py_BuildValue("(iKK)", (int)buf[pos], (unsigned long long)pos,

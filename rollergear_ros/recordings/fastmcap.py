@@ -215,6 +215,8 @@ def _numpy_message_starts(data: bytes, buf: np.ndarray, state: ReadState) -> tup
         if pos + rec > n:
             raise ValueError("record runs past the end of its chunk")
         if op == OP_MESSAGE:
+            if ln < _MSG_FIXED:
+                raise ValueError("message record shorter than a message's fields")
             avail = (n - pos) // rec
             head = buf[pos:pos + 9]
             m, window = 1, step

@@ -27,8 +27,8 @@ try:  # the record layout in C (built by setup.py where a compiler is found)
 except ImportError:  # pragma: no cover - a build without a compiler: numpy lays out the records
     _native_records = None
 
-#: records laid out per numpy pass (a few chunks: whole arrays amortise numpy's per-call cost, and a
-#: whole recording added at once still costs no more than this beside it)
+#: records laid out per pass (a few chunks: whole arrays amortise the per-call cost, and a whole
+#: recording added at once still costs no more than this beside it)
 _PIECE_BYTES = 8 * 1024 * 1024
 _MAX_PENDING = 16  #: chunks waiting for the background thread before the caller waits too
 #: zstd level of the chunks: on a replay's output (Float64 streams, stamped estimates, copied inputs)

@@ -126,6 +126,9 @@ def test_both_scans_find_the_same_messages_schemas_and_channels(tmp_path):
         assert np.array_equal(np.concatenate([getattr(a, field) for a in c_arrays]),
                               np.concatenate([getattr(a, field) for a in np_arrays])), field
     assert sum(len(a) for a in c_arrays) == 6000
-    for way in (True, False):  # a chunk cut inside a record: the same refusal
+    short = struct.pack("<BQ", 5, 5) + bytes(5)  # a message record too short for a message's fields
+    for way in (True, False):  # a chunk cut inside a record, or a damaged record: the same refusal
         with pytest.raises(ValueError, match="past the end of its chunk"):
             parse_records(chunks[0][:-5], ReadState(), native=way)
+        with pytest.raises(ValueError, match="shorter than a message's fields"):
+            parse_records(chunks[0] + short, ReadState(), native=way)
