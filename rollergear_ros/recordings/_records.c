@@ -24,7 +24,6 @@
 #define OP_MESSAGE 0x05
 #define HEAD_BYTES 31   /* opcode 1 + length 8 + channel 2 + sequence 4 + log time 8 + publish time 8 */
 #define FIXED_BYTES 22  /* the record's length counts everything after the opcode and length */
-#define MAX_GROUPS 64
 
 static void put_le(uint8_t *p, uint64_t v, int n) {
     for (int k = 0; k < n; k++) {
@@ -57,12 +56,13 @@ static PyObject *records(PyObject *self, PyObject *args) {
         return NULL;
     }
     Py_ssize_t n_groups = PySequence_Fast_GET_SIZE(seq);
-    if (n_groups > MAX_GROUPS) {
+    /* one group per payload width: a handful for replay, as many as an imported bag's widths */
+    Py_buffer *payload = PyMem_Calloc(n_groups > 0 ? (size_t)n_groups : 1, sizeof(Py_buffer));
+    if (payload == NULL) {
         Py_DECREF(seq);
-        return PyErr_Format(PyExc_ValueError, "payloads: at most %d groups", MAX_GROUPS);
+        return PyErr_NoMemory();
     }
     Py_buffer out = {0}, starts = {0}, channel = {0}, ltime = {0}, group = {0}, row = {0}, counters = {0};
-    Py_buffer payload[MAX_GROUPS];
     Py_ssize_t got_payloads = 0;
     PyObject *result = NULL;
     Py_ssize_t n = -1;
@@ -143,6 +143,7 @@ done_channel:
 done_starts:
     PyBuffer_Release(&out);
 done_out:
+    PyMem_Free(payload);
     Py_DECREF(seq);
     return result;
 }

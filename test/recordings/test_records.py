@@ -59,6 +59,23 @@ def test_both_layouts_give_the_records_packed_one_by_one(seed, way):
     np.testing.assert_array_equal(counted - counters, np.bincount(channel, minlength=5))
 
 
+@pytest.mark.parametrize("way", [pytest.param(True, marks=native, id="C"), pytest.param(False, id="numpy")])
+def test_one_group_per_payload_width_however_many(way):
+    """An imported bag's messages may come in a hundred widths (strings, arrays): one group each."""
+    rng = np.random.default_rng(9)
+    payloads = [rng.integers(0, 256, size=(3, w), dtype=np.uint8) for w in range(150)]
+    group = rng.permutation(np.repeat(np.arange(150), 2))
+    row = rng.integers(0, 3, size=len(group))
+    channel = rng.integers(1, 3, size=len(group))
+    log_time = np.arange(len(group), dtype=np.int64)
+    counters = np.zeros(3, dtype=np.int64)
+    widths = 31 + group
+    starts = np.cumsum(widths) - widths
+    expected = _reference(group, row, channel, log_time, payloads, counters)
+    out = lay_out_records(starts, int(widths.sum()), channel, log_time, group, row, payloads, counters, native=way)
+    assert out.tobytes() == expected
+
+
 @native
 @pytest.mark.parametrize("bad", ["group", "row", "channel", "start", "short"])
 def test_the_c_layout_refuses_a_bad_index_and_writes_nothing(bad):
