@@ -150,6 +150,9 @@ def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, 
     (by arrival, the node counts what was lost, from the publishers' sequence numbers: ``lost in
     delivery``).  ``None``: a reliable keep-all input (the publisher waits instead).
 
+    Stale: an input silent for longer than ``estimator.staleness_s`` (at least ten expected periods)
+    plus the executor lag -- an overloaded or starved node is behind, its rig not idle.
+
     Input rates: with ``limits.learn_rate`` an input is slow below :data:`SLOW_RATE_SHARE` of the
     rate its stream started at (:meth:`InputMonitor.learned_rate_hz`; nothing is said while it is
     learned), so a bag played at another rate is not a warning for ever; otherwise below that share
@@ -160,8 +163,10 @@ def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, 
     stale_after_s = max(est.staleness_s, 10.0 / expected_rate_hz)
     reasons: list[tuple[int, str]] = []
     values: list[tuple[str, str]] = []
-    _input_status(inputs, estimator, limits, stale_after_s, reasons, values)
     busy_fraction, executor_lag_s, queue_depth = load.busy_fraction, load.executor_lag_s, limits.queue_depth
+    # an input is stale when its silence is more than the node's own lag explains: messages waiting in
+    # a queue the node has not reached (or a node the machine has not run) are no idle rig
+    _input_status(inputs, estimator, limits, stale_after_s + executor_lag_s, reasons, values)
     values.append(("input callbacks busy [%]", _fmt(100 * busy_fraction, 3)))
     values.append(("executor lag [s]", _fmt(executor_lag_s, 3)))
     limit_s = OVERLOAD_QUEUE_SHARE * (queue_depth / expected_rate_hz if queue_depth else RELIABLE_LAG_S)

@@ -64,6 +64,25 @@ def test_an_executor_behind_its_input_queue_is_an_overload_warning():
     assert report(0.45, None).level == OK and "publishers are slowed" in report(0.55, None).message
 
 
+def test_silence_the_node_s_own_lag_explains_is_no_stale_input():
+    """A node 0.6 s behind its queues (or not run by a busy machine for that long) last took a message
+    0.5 s ago: overloaded (WARN), not STALE "idle"; silent for longer than its lag explains: STALE."""
+    est = Estimator(load_config(None))
+    now = 100 * 10**9
+    rates = {TORQUE: 1000.0, SPEED: 1000.0}
+
+    def report(silent_s: float, lag_s: float):
+        monitor = _monitor(now, {TORQUE: now - int(silent_s * 1e9), SPEED: now - MS})
+        return diagnose(InputsNow(now, monitor, rates), est, DiagnosticLimits(1000.0, 0.9, queue_depth=1000),
+                        SinceLast(dict(est.counts), 0), NodeLoad(busy_fraction=1.0, executor_lag_s=lag_s))
+
+    rep = report(0.5, 0.6)
+    assert rep.level == WARN and "overloaded" in rep.message and "stale" not in rep.message
+    rep = report(0.8, 0.6)
+    assert rep.level == STALE and "stale input: motor_torque silent for 0.80 s" in rep.message
+    assert report(0.5, 0.0).level == STALE  # no lag: silence is silence
+
+
 def test_received_and_not_estimated_per_input():
     est = Estimator(load_config(None))
     now = 100 * 10**9
