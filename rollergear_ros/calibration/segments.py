@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .selection import Calibrator, Term, members, wls
+from .selection import Calibrator, Term, members, orthonormal_basis, wls
 from ..core.effects import EFFECTS, viscosity_law
 
 __all__ = ["Split", "find_changes"]
@@ -58,8 +58,10 @@ def find_changes(cal: Calibrator, terms: list[Term]) -> list[Split]:
     if b.steady_state or b.t_s is None or len(b.y) < 8 * cal_folds(cal):
         return []
     t = _running_time(b)
-    x = _design(cal, terms, flexible=True)
-    small = _design(cal, terms, flexible=False)
+    # each design as an orthonormal basis of its columns: the same fits, tests and splits, computed at
+    # the basis's condition (1), not the design's (~1e9 with a drag per rad/s beside a level)
+    x = orthonormal_basis(_design(cal, terms, flexible=True), b.weight)
+    small = orthonormal_basis(_design(cal, terms, flexible=False), b.weight)
     changes: list[Split] = []
     lo = 0
     while len(changes) < MAX_CHANGES:
@@ -163,7 +165,8 @@ def _best_split(cal: Calibrator, x: np.ndarray, small: np.ndarray, t: np.ndarray
     total = left + right
     if not np.any(np.isfinite(total)):
         return None
-    j = int(np.nanargmin(total))
+    best = float(np.nanmin(total))
+    j = int(np.flatnonzero(total <= best + TIE * abs(best))[0])
     split = int(cand[j])
     one = _cv_rmse(cal, small[lo:hi], y, w, lo, None)
     two = _cv_rmse(cal, small[lo:hi], y, w, lo, split)
@@ -185,15 +188,19 @@ def _best_split(cal: Calibrator, x: np.ndarray, small: np.ndarray, t: np.ndarray
     return Split(lo + split, float(tt[split]), ci, rms_change, one, two, bool(bag[split] != bag[split - 1]))
 
 
+#: the split search's normal equations (over an orthonormal basis: the whole stretch's is the identity)
+#: get this ridge, so that a direction one side barely holds is not fitted from rounding noise
+RIDGE = 1e-9
+#: splits whose residual sums of squares lie within this share of the best are a tie, taken at the
+#: earliest: which of them the CPU's rounding ranks first decides nothing
+TIE = 1e-7
+
+
 def _sse(a: np.ndarray, v: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Weighted residual sum of squares of each fit from its cross-products (NaN where singular)."""
-    out = np.full(len(s), np.nan)
-    try:
-        beta = np.linalg.solve(a, v[..., None])[..., 0]
-    except np.linalg.LinAlgError:
-        beta = np.stack([np.linalg.lstsq(ai, vi, rcond=None)[0] for ai, vi in zip(a, v)])
-    out[:] = s - np.einsum("ij,ij->i", beta, v)
-    return out
+    """Weighted residual sum of squares of each fit from its cross-products (with :data:`RIDGE`)."""
+    k = a.shape[-1]
+    beta = np.linalg.solve(a + RIDGE * np.eye(k), v[..., None])[..., 0]
+    return s - np.einsum("ij,ij->i", beta, v)
 
 
 def _cv_rmse(cal: Calibrator, x: np.ndarray, y: np.ndarray, w: np.ndarray, lo: int, split: int | None) -> float:
@@ -214,18 +221,33 @@ def _cv_rmse(cal: Calibrator, x: np.ndarray, y: np.ndarray, w: np.ndarray, lo: i
     return float(np.sqrt(np.average(e * e, weights=count)))
 
 
+#: a direction of the design counts on a side holding at least this share of its weight (with the
+#: basis orthonormal over the stretch, the shares of the two sides add up to 1)
+TESTABLE_SHARE = 1e-6
+
+
 def _significant(x: np.ndarray, y: np.ndarray, w: np.ndarray, dwell: np.ndarray, split: int) -> bool:
-    """A cluster-robust Wald test (by dwell) that the right side's coefficients differ from the left's."""
+    """A cluster-robust Wald test (by dwell) that the right side's coefficients differ from the left's,
+    over the directions of ``x`` both sides hold (at least :data:`TESTABLE_SHARE` of its weight each):
+    a direction one side barely holds has no coefficient there to compare (its difference would be
+    rounding noise divided by next to nothing)."""
     from scipy.stats import chi2
 
-    after = (np.arange(len(y)) >= split)[:, None]
-    xi = np.column_stack([x, x * after])
-    fit = wls(xi, y, w, dwell)
-    k = x.shape[1]
+    q = orthonormal_basis(x, w)
+    before = np.arange(len(y)) < split
+    qb = q[before] * np.sqrt(w[before])[:, None]
+    share, vectors = np.linalg.eigh(qb.T @ qb)  # each direction's share of the weight left of the split
+    both = (share >= TESTABLE_SHARE) & (share <= 1.0 - TESTABLE_SHARE)
+    if not both.any():
+        return False
+    rotated = q @ vectors
+    tested = rotated[:, both] * (~before)[:, None]
+    fit = wls(np.column_stack([rotated, tested]), y, w, dwell)
+    k = rotated.shape[1]
     d = fit.coef[k:]
     cov = fit.cov[k:, k:]
     try:
         stat = float(d @ np.linalg.solve(cov, d))
     except np.linalg.LinAlgError:
         stat = float(d @ np.linalg.pinv(cov) @ d)
-    return math.isfinite(stat) and stat > chi2.isf(CHANGE_ALPHA, k)
+    return math.isfinite(stat) and stat > chi2.isf(CHANGE_ALPHA, int(both.sum()))

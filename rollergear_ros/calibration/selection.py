@@ -78,20 +78,49 @@ class Fit:
     pred: np.ndarray
 
 
+#: singular values of a design (columns scaled to unit weighted norm) below this share of the largest
+#: are no direction of it (the rank every fit and covariance uses)
+RANK_RCOND = 1e-12
+
+
+def _scaled_svd(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(u, s, vt, scale)`` of the weighted design ``√w·x`` with its columns scaled to unit norm, the
+    directions below :data:`RANK_RCOND` dropped.  Scaling first and never forming ``xᵀWx`` keeps a
+    design of columns of very different size (a drag per rad/s beside a level in N·m) at its own
+    condition, not its square: what a covariance or a test derived from it says does not hinge on
+    the last bits the CPU's BLAS kernel computes."""
+    xs = x * np.sqrt(w)[:, None]
+    scale = np.linalg.norm(xs, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    u, s, vt = np.linalg.svd(xs / scale, full_matrices=False)
+    keep = s > RANK_RCOND * (s[0] if len(s) else 1.0)
+    return u[:, keep], s[keep], vt[keep], scale
+
+
+def orthonormal_basis(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Columns spanning what ``x``'s span (weighted-orthonormal: ``Qᵀ·W·Q = I``).  A fit's prediction,
+    residual and a Wald test of its coefficients do not change when its design is replaced by this
+    basis; their numerics then no longer depend on the design's condition."""
+    _u, s, vt, scale = _scaled_svd(x, w)
+    return x @ ((vt.T / s) / scale[:, None])
+
+
 def wls(x: np.ndarray, y: np.ndarray, w: np.ndarray, groups: np.ndarray | None = None) -> Fit:
-    """Weighted least squares with a cluster-robust (by ``groups``) sandwich covariance."""
-    sw = np.sqrt(w)
-    xs = x * sw[:, None]
-    ys = y * sw
-    coef, *_ = np.linalg.lstsq(xs, ys, rcond=1e-12)
+    """Weighted least squares with a cluster-robust (by ``groups``) sandwich covariance (by the SVD
+    of the scaled design: :func:`_scaled_svd`)."""
+    u, s, vt, scale = _scaled_svd(x, w)
+    ys = y * np.sqrt(w)
+    inv = 1.0 / s
+    coef = (vt.T @ (inv * (u.T @ ys))) / scale
     pred = x @ coef
     r = y - pred
-    bread = np.linalg.pinv(xs.T @ xs)
+    root = (vt.T * inv) / scale[:, None]  # bread = root·rootᵀ = (xᵀWx)⁺
+    bread = root @ root.T
     if groups is not None and len(np.unique(groups)) > x.shape[1] + 1:
         score = x * (w * r)[:, None]
-        ug, inv = np.unique(groups, return_inverse=True)
+        ug, inv_g = np.unique(groups, return_inverse=True)
         sums = np.zeros((len(ug), x.shape[1]))
-        np.add.at(sums, inv, score)
+        np.add.at(sums, inv_g, score)
         g = len(ug)
         meat = sums.T @ sums * (g / (g - 1))
         cov = bread @ meat @ bread

@@ -1,0 +1,73 @@
+"""The same recording gives the same decisions on any CPU: changes, segments, accepted effects and the
+verdict do not hinge on the BLAS kernel (``OPENBLAS_CORETYPE``), its threads or a last-bit change of
+the inputs.
+
+The case is the one that flipped: the warm-up and the drive cycle, two rigs one after another.  Its
+change-point test had a design of condition ~1e9 whose ``xᵀx`` lost every digit, and three kernels gave
+three answers (a change inside the warm-up, none, the one between the recordings)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from helpers import BAGS
+
+#: one calibration, its decisions printed as JSON (run in a fresh process: a kernel is chosen at load)
+WORKER = r"""
+import json, sys
+import numpy as np
+from rollergear_ros.calibration.calibrate import calibrate
+from rollergear_ros.calibration.samples import load_samples
+from rollergear_ros.core.params import load_config
+
+bags, ulp = sys.argv[1:3], sys.argv[3] == "ulp"
+config = load_config(None)
+data = load_samples(bags, config)
+if ulp:  # every other sample's torque and measured loss one ulp up
+    for name in ("torque", "measured_loss"):
+        a = getattr(data, name).copy()
+        a[::2] = np.nextafter(a[::2], np.inf)
+        setattr(data, name, a)
+r = calibrate(data, config).to_json()
+print(json.dumps({
+    "changes": [(c["t_s"], c["between_recordings"]) for c in r["changes"]],
+    "effects": [e["name"] for e in r["effects"]],
+    "accepted": sorted(d["name"] for d in r["decisions"] if d["accepted"]),
+    "verdict": r["verdict"], "written": r["written"],
+}))
+"""
+
+
+def _kernels() -> list[str]:
+    """The OpenBLAS kernels this CPU can run: SkylakeX only where it has AVX-512."""
+    flags = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    return ["Prescott", "Sandybridge", "Haswell"] + (["SkylakeX"] if " avx512f" in flags else [])
+
+
+def _decisions(kernel: str, threads: int, ulp: bool) -> dict:
+    env = {**os.environ, "OPENBLAS_CORETYPE": kernel, "OPENBLAS_NUM_THREADS": str(threads)}
+    bags = [str(BAGS / "warmup.mcap"), str(BAGS / "drive_cycle_joint_states.mcap")]
+    proc = subprocess.run([sys.executable, "-c", WORKER, *bags, "ulp" if ulp else "exact"], env=env,
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_decisions_do_not_depend_on_the_cpu_kernel_threads_or_one_ulp():
+    kernels = _kernels()
+    cases = [(k, 1, False) for k in kernels] + [(kernels[-1], 2, False), ("Prescott", 2, True)]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(lambda case: _decisions(*case), cases))
+    first = results[0]
+    for case, result in zip(cases, results):
+        assert result["changes"] == first["changes"], (case, result, first)
+        assert result == first, (case, result, first)
+    # and the decision itself is the right one: the change between the two rigs, the latest calibrated
+    [(t_s, between)] = first["changes"]
+    assert between and 240 < t_s < 242, first
+    assert first["effects"] == ["load_dependent"], first
