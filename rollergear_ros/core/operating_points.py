@@ -8,6 +8,10 @@ differ on purpose from evaluating a *recording*:
 * the torque of an operating point is the gearbox's true input torque, so the accepted
   torque-sensor errors (``physical = False`` in the registry) are not applied: they describe the
   rig's sensors, not the gearbox the map is for;
+* nothing is learned from the points: with ``estimator.speed_noise_rad_s: auto`` the loss's sign is
+  the plain sign of each point's speed (a list of points is no speed reading whose noise could be
+  learned; learning it from a grid smoothed the sign of its slow points), with a number the file's
+  smooth sign as replay applies it -- each point's loss is the same alone or in any list;
 * an effect that needs the oil temperature (``needs_temperature``) is evaluated at the
   temperature given; without one :func:`evaluate_points` refuses rather than silently using
   the reference viscosity.
@@ -27,8 +31,9 @@ from .effects import EFFECTS
 from ..base.errors import UsageError
 from .estimator import Estimator
 from .params import Config, EffectParams
+from .speednoise import AUTO
 
-__all__ = ["PointLosses", "evaluate_points", "map_config", "only", "reference_temperature_c", "temperature_effects"]
+__all__ = ["PointLosses", "evaluate_points", "map_config", "only", "points_config", "reference_temperature_c", "temperature_effects"]
 
 
 @dataclass
@@ -54,6 +59,15 @@ def map_config(config: Config) -> Config:
     return replace(config, effects=EffectParams(switches, config.effects.values))
 
 
+def points_config(config: Config) -> Config:
+    """``config`` as operating points are evaluated: :func:`map_config`, and a speed noise that is the
+    file's number, never learned from the points (``auto``: the plain sign)."""
+    cfg = map_config(config)
+    if cfg.estimator.speed_noise_rad_s == AUTO:
+        cfg = replace(cfg, estimator=replace(cfg.estimator, speed_noise_rad_s=0.0))
+    return cfg
+
+
 def temperature_effects(config: Config) -> list[str]:
     """Accepted physical effects that need the oil temperature."""
     return [n for n in config.effects.enabled() if EFFECTS[n].physical and EFFECTS[n].needs_temperature]
@@ -77,7 +91,7 @@ def evaluate_points(config: Config, torque_nm, speed_rad_s, temperature_c: float
     speed = np.atleast_1d(np.asarray(speed_rad_s, float))
     if torque.shape != speed.shape:
         raise ValueError("torque and speed must have the same length")
-    cfg = map_config(config)
+    cfg = points_config(config)
     needing = temperature_effects(cfg)
     if needing and temperature_c is None:
         raise UsageError(f"the accepted effect {', '.join(needing)} needs the oil temperature: "

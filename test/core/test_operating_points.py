@@ -71,3 +71,23 @@ def test_implausible_points_are_flagged_not_dropped():
     res = evaluate_points(config, [10.0, 1e6, 20.0], [100.0, 100.0, 100.0])
     assert np.isfinite(res.loss_torque_nm[[0, 2]]).all() and np.isnan(res.loss_torque_nm[1])
     assert res.skipped == {"implausible": 1}
+
+
+@pytest.mark.parametrize("speed_noise", ["auto", 0.5])
+def test_a_point_has_the_same_loss_alone_and_in_any_list(calibrated, speed_noise):
+    """Nothing is learned from a list of points: a 20 x 20 grid (slow points among fast ones) gives each
+    point's loss exactly as that point alone does; with a speed noise in the file, the file's smooth
+    sign (tanh(ω/σ) near standstill) as replay applies it."""
+    config = calibrated.with_values({"estimator.speed_noise_rad_s": speed_noise})
+    rng = np.random.default_rng(7)
+    tt, ww = np.meshgrid(np.linspace(-90.0, 90.0, 20), np.concatenate([rng.uniform(-2.0, 2.0, 10),
+                                                                          rng.uniform(-300.0, 300.0, 10)]),
+                         indexing="ij")
+    torque, speed = tt.ravel(), ww.ravel()
+    grid = evaluate_points(config, torque, speed, 60.0)
+    alone = np.array([evaluate_points(config, [t], [w], 60.0).loss_torque_nm[0] for t, w in zip(torque, speed)])
+    np.testing.assert_array_equal(grid.loss_torque_nm, alone)
+    slow = np.abs(speed) < 1.0
+    sign = np.sign(speed) if speed_noise == "auto" else np.tanh(speed / speed_noise)
+    # the sign of the loss: the plain sign without a noise to smooth it, the file's tanh with one
+    np.testing.assert_allclose((grid.loss_torque_nm / grid.loss_magnitude_nm)[slow], sign[slow], rtol=1e-12)
