@@ -62,7 +62,7 @@ def cmd_predict(args: argparse.Namespace) -> int:
     result = predict(args.profile, config, channels=args.channels, topics=topics_from_args(args),
                      collect=bool(exports), show_progress=None if not args.json else False,
                      warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr),
-                     note=lambda m: print(m, file=sys.stderr))
+                     note=lambda m: print(m, file=sys.stderr), adapt=not args.no_adapt)
     if result.samples == 0:
         raise UsageError(f"{args.profile}: no sample to predict (no paired torque and speed)")
     with together():
@@ -108,13 +108,16 @@ def register_predict(sub, with_params) -> None:
         description="The loss power and energy of a profile (planned torque, speed, optionally oil temperature: "
         "an MCAP, or a CSV/Parquet/MF4/TDMS with --channels as for import) under the parameter file's model, "
         "and their 95 % band: the first-order propagation of the calibration's parameter covariance "
-        "(calibration.covariance, written by calibrate). The rig's torque-sensor errors are not applied and "
-        "nothing adapts."))
+        "(calibration.covariance, written by calibrate). The rig's torque-sensor errors are not applied; a profile "
+        "with measured output torque (a recorded drive) adapts as replay does where the file says estimator.adapt: "
+        "true, so predict of a recorded drive is its replay."))
     p.add_argument("profile", metavar="PROFILE", help="MCAP, or a table with --channels")
     p.add_argument("--channels", metavar="MAP.yaml", help="the channel map of a CSV/Parquet/MF4/TDMS profile")
     p.add_argument("--csv", metavar="FILE", help="each sample's loss power and its 95 %% band as CSV")
     p.add_argument("--parquet", metavar="FILE", help="... as Parquet (with the log time in ns)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the text")
+    p.add_argument("--no-adapt", action="store_true",
+                   help="the file's coefficients as written even where the profile has measured output torque")
     add_topic_options(p)
     p.set_defaults(func=cmd_predict)
 

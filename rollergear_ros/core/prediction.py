@@ -1,8 +1,11 @@
 """What a planned drive will cost: loss power and energy over a profile, with their 95 % band.
 
 The loss is the estimator's -- the paper's model with the accepted physical effects -- at the
-profile's true torque (the rig's torque-sensor errors are not applied, as in ``map``) and without
-online adaptation (a plan has no measured output).  The band propagates the calibration's parameter
+profile's true torque (the rig's torque-sensor errors are not applied, as in ``map``).  A profile
+with measured output torque (a recorded drive) is adapted online as ``replay`` adapts it when the
+file says ``estimator.adapt: true`` (so ``predict`` of a recorded drive is its ``replay``); a plan
+has no measured output and nothing adapts; ``adapt=False`` holds the file's coefficients as written.
+Each prediction says which.  The band propagates the calibration's parameter
 covariance (``calibration.covariance``, :mod:`.covariance`) to first order (the delta method): for
 each covaried parameter ``θ_k`` the change of every sample's loss power per unit of it,
 ``J_ik = ∂P_i/∂θ_k`` (numerically: the estimator at ``θ_k + h``), then
@@ -38,9 +41,10 @@ Z95 = 1.959963984540054
 STEP = 1e-6
 
 
-def prediction_config(config: Config) -> Config:
-    """``config`` as a prediction evaluates it: the rig's sensor errors off (as a map), no online adaptation."""
-    return replace(map_config(config), estimator=replace(config.estimator, adapt=False))
+def prediction_config(config: Config, adapt: bool = True) -> Config:
+    """``config`` as a prediction evaluates it: the rig's sensor errors off (as a map); online adaptation
+    as the file says (``adapt``) or off."""
+    return replace(map_config(config), estimator=replace(config.estimator, adapt=config.estimator.adapt and adapt))
 
 
 @dataclass
@@ -57,6 +61,8 @@ class Prediction:
     method: str = METHOD
     #: the share of the recording lost to damage (:func:`base.errors.lost_share`; 0: none found)
     lost_share: float = 0.0
+    #: samples whose estimate adapted the file's coefficients to a measured output torque (as replay)
+    adapted_samples: int = 0
     #: per sample, with ``collect``: times, loss power and its standard deviation
     t_ns: np.ndarray | None = field(default=None, repr=False)
     loss_power_w: np.ndarray | None = field(default=None, repr=False)
@@ -78,7 +84,7 @@ class Prediction:
                 "energy_lost_band95_j": [lo, hi], "energy_lost_sd_j": self.energy_lost_sd_j,
                 "energy_in_j": self.energy_in_j, "mean_loss_power_w": self.mean_loss_power_w,
                 "peak_loss_power_w": self.peak_loss_power_w, "parameters": list(self.parameters),
-                "method": self.method, "lost_share": self.lost_share}
+                "method": self.method, "lost_share": self.lost_share, "adapted_samples": self.adapted_samples}
 
     def text(self) -> str:
         lo, hi = self.energy_band_j
@@ -87,6 +93,9 @@ class Prediction:
                  f"energy lost {self.energy_lost_j:,.1f} J ({self.energy_lost_j * wh:.4g} Wh), 95 % band "
                  f"{lo:,.1f} … {hi:,.1f} J; energy through the gearbox {self.energy_in_j:,.0f} J",
                  f"loss power: mean {self.mean_loss_power_w:.4g} W, peak {self.peak_loss_power_w:.4g} W"]
+        if self.adapted_samples:
+            lines.append(f"adapted online to the profile's measured output torque at {self.adapted_samples:,} samples, "
+                         "as replay adapts (estimator.adapt: true; --no-adapt: the file's coefficients as written)")
         if self.lost_share:
             lines.append(f"predicted from what was readable: {100 * self.lost_share:.1f} % of the recording is damaged")
         if self.parameters:
@@ -100,18 +109,22 @@ class Prediction:
 class PredictionSums:
     """The running sums of a prediction, fed batch by batch with the base estimates (``add``)."""
 
-    def __init__(self, config: Config, collect: bool = False) -> None:
-        self.config = prediction_config(config)
+    def __init__(self, config: Config, collect: bool = False, adapt: bool = True) -> None:
+        self.config = prediction_config(config, adapt)
+        fixed = prediction_config(config, False)  # the file's coefficients as written
+        #: where the estimates adapt, the base of the band's derivatives (they are the written file's)
+        self._written = Estimator(fixed) if self.config.estimator.adapt else None
+        self.adapted_samples = 0
         self.covariance = ParameterCovariance.from_text(config.calibration.covariance)
         self._perturbed: list[tuple[float, Estimator]] = []
         for key in self.covariance.keys if self.covariance else ():
-            value = float(self.config.value(key))
+            value = float(fixed.value(key))
             step = STEP * max(abs(value), 1e-9)
             try:
-                moved = self.config.with_values({key: value + step})
+                moved = fixed.with_values({key: value + step})
             except ParameterError:  # at the top of its range: step down
                 step = -step
-                moved = self.config.with_values({key: value + step})
+                moved = fixed.with_values({key: value + step})
             self._perturbed.append((step, Estimator(moved)))
         k = len(self._perturbed)
         self.gradient = np.zeros(k)  #: d E / d θ
@@ -141,11 +154,15 @@ class PredictionSums:
         self.peak = max(self.peak, float(np.max(power)))
         self.samples += len(t)
         self.last_t = int(t[-1])
+        if self._written is not None and b.out_torque_nm is not None:
+            self.adapted_samples += int(np.count_nonzero(np.isfinite(b.out_torque_nm)))
         jac = np.empty((len(t), len(self._perturbed)))
+        written = power if self._written is None or not self._perturbed else self._written.process_batch(
+            t, b.torque_nm, b.speed_rad_s, temperature=b.temperature_c, breakdown=False).loss_power_w
         for j, (step, estimator) in enumerate(self._perturbed):
             moved = estimator.process_batch(t, b.torque_nm, b.speed_rad_s, temperature=b.temperature_c,
                                             breakdown=False)
-            jac[:, j] = (moved.loss_power_w - power) / step
+            jac[:, j] = (moved.loss_power_w - written) / step
         self.gradient += jac.T @ dt
         if self._collect:
             cov = self.covariance.matrix if self.covariance else np.zeros((0, 0))
@@ -157,7 +174,7 @@ class PredictionSums:
         var = float(self.gradient @ self.covariance.matrix @ self.gradient) if self.covariance else 0.0
         duration = ((self.last_t or 0) - (self.first_t or 0)) * 1e-9
         out = Prediction(self.samples, duration, self.energy, math.sqrt(max(var, 0.0)), self.energy_in, self.peak,
-                         self.covariance.keys if self.covariance else ())
+                         self.covariance.keys if self.covariance else (), adapted_samples=self.adapted_samples)
         if self._collect:
             cat = [np.concatenate(p) if p else np.zeros(0) for p in zip(*self._parts)] if self._parts else \
                 [np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)]

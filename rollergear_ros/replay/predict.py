@@ -37,19 +37,20 @@ BATCH = 100_000
 def predict(profile: str | Path | Mapping[str, np.ndarray], params: str | Path | Config | None = None, *,
             channels: str | Path | None = None, topics: TopicMap = TopicMap(), collect: bool = False,
             show_progress: bool | None = False, warn: Callable[[str], None] | None = None,
-            note: Callable[[str], None] | None = None) -> Prediction:
+            note: Callable[[str], None] | None = None, adapt: bool = True) -> Prediction:
     """The loss energy and power of ``profile`` with their 95 % band (:mod:`core.prediction`).
 
     ``params``: a parameter file (a calibrated one carries its covariance), a :class:`Config`, or
     None for the package's defaults.  ``channels``: the channel map of a non-ROS table.
     ``collect``: keep each sample's loss power and its standard deviation in the result.
     ``warn`` is told what went wrong while reading (damage, dropped samples), ``note`` what a table's
-    import made of it.
+    import made of it.  ``adapt``: a profile with measured output torque adapts the file's coefficients
+    as ``replay`` does where the file says ``estimator.adapt: true`` (False: the coefficients as written).
     """
     from ..sources.importer import as_mcap
 
     config = params if isinstance(params, Config) else load_config(params)
-    sums = PredictionSums(config, collect)
+    sums = PredictionSums(config, collect, adapt)
     if isinstance(profile, Mapping):
         _add_arrays(sums, profile)
         return sums.finish()

@@ -71,6 +71,32 @@ def test_predict_of_a_recorded_drive_equals_replays_energy_and_its_band_is_the_c
                for r in rows)
 
 
+def test_predict_of_a_recorded_drive_adapts_as_replay_does_where_the_file_says_so(tmp_path):
+    """A calibrated file says ``estimator.adapt: true``; a recorded drive has measured output torque and a
+    drag 30 % above the file's: replay adapts the drag's coefficient, and so does predict -- the same
+    energy to 1e-12, said; ``--no-adapt`` is the file as written, replay's with adaptation off."""
+    params = tmp_path / "cal.yaml"
+    params.write_text(CALIBRATED.replace("adapt: false", "adapt: true"))
+    config = load_config(params)
+    assert config.estimator.adapt
+    opts = SimulationOptions(profile="drive_cycle", rate_hz=200.0, seed=5,
+                             effects=[DeclaredEffect.parse("drag_speed:c=3.9e-4,p=1.4")])
+    drive = tmp_path / "drive.mcap"
+    write_rig_bag(simulate(load_config(), opts), opts, drive)
+    adapted, _ = replay(drive, config)
+    written, _ = replay(drive, config.with_values({"estimator.adapt": False}))
+    assert abs(adapted.energy_lost_j - written.energy_lost_j) > 1e-4 * written.energy_lost_j  # adapting matters
+    got = json.loads(run_cli("predict", str(drive), "--params", str(params), "--json").stdout)
+    assert got["energy_lost_j"] == pytest.approx(adapted.energy_lost_j, rel=1e-12)
+    assert got["adapted_samples"] > 0.9 * got["samples"]
+    assert "adapted online" in run_cli("predict", str(drive), "--params", str(params)).stdout
+    fixed = json.loads(run_cli("predict", str(drive), "--params", str(params), "--json", "--no-adapt").stdout)
+    assert fixed["energy_lost_j"] == pytest.approx(written.energy_lost_j, rel=1e-12)
+    assert fixed["adapted_samples"] == 0
+    # the band is the written file's: the same with and without adapting (its derivatives at the file's values)
+    assert got["energy_lost_sd_j"] == pytest.approx(fixed["energy_lost_sd_j"], rel=1e-9)
+
+
 def test_the_python_api_takes_arrays_and_a_file_without_covariance_says_it_has_no_band(tmp_path):
     arrays = _plan_arrays()
     plain = predict(arrays)  # the package's defaults: no calibration, no band
