@@ -33,7 +33,8 @@ from .estimator import Estimator
 from .params import Config, EffectParams
 from .speednoise import AUTO
 
-__all__ = ["PointLosses", "evaluate_points", "map_config", "only", "points_config", "reference_temperature_c", "temperature_effects"]
+__all__ = ["PointLosses", "evaluate_points", "map_config", "only", "points_config", "reference_temperature_c",
+           "temperature_effects"]
 
 
 @dataclass
