@@ -5,13 +5,14 @@ with the code that interpolates it (:mod:`outputs.fmu_gearbox`, standard library
 where this package is not installed.  What the host needs: a 64-bit Linux or Windows FMI 2.0
 importer and a Python 3 with its shared library (``pythonfmu``'s binary starts the interpreter; the
 unit embeds ``pythonfmu``'s own module).  The model description carries the provenance: package
-version, parameter file, calibration, accepted effects, the parameters as YAML, the table's grid
+version, parameter file (its name and SHA-256), calibration, accepted effects, the parameters as YAML, the table's grid
 and its interpolation error.  No rclpy import.
 """
 
 from __future__ import annotations
 
 import datetime
+import hashlib
 import json
 import shutil
 import tempfile
@@ -33,6 +34,15 @@ __all__ = ["SLAVE_MODULE", "build_fmu"]
 SLAVE_MODULE = "rollergear_gearbox"
 
 
+def parameters_file_text(params_path: Path | None) -> str:
+    """The parameter file as a unit names it: its file name and SHA-256 (a path of the machine that made
+    the unit means nothing where it runs)."""
+    if params_path is None:
+        return "built-in defaults"
+    digest = hashlib.sha256(Path(params_path).read_bytes()).hexdigest()
+    return f"{Path(params_path).name} (sha256 {digest})"
+
+
 def _provenance(config: Config, params_path: Path | None, table: LossTable) -> dict:
     """The description and the provenance strings the unit's model description carries."""
     calibration = " / ".join(calibration_lines(params_path))
@@ -43,11 +53,12 @@ def _provenance(config: Config, params_path: Path | None, table: LossTable) -> d
                f"{table.temperatures_c[-1]:g} degC" if table.follows_oil else "any oil temperature (none followed)"))
     error = (f"interpolation error <= {table.interpolation_error_nm:.3g} N*m, "
              f"<= {100 * table.interpolation_error_relative:.2g} % where the efficiency is defined")
+    parameters = parameters_file_text(params_path)
     description = (f"Roller gearing gearbox losses (rollergear_ros {package_version()}): parameters "
-                   f"{params_path or 'built-in defaults'}; accepted effects: {effects}; a table of {grid}; {error}")
+                   f"{parameters}; accepted effects: {effects}; a table of {grid}; {error}")
     return {"description": description, "package_version": package_version(), "strings": {
         "rollergear_version": package_version(),
-        "rollergear_parameters_file": str(Path(params_path).resolve()) if params_path else "built-in defaults",
+        "rollergear_parameters_file": parameters,
         "rollergear_calibration": calibration or "none",
         "rollergear_accepted_effects": effects,
         "rollergear_parameters_yaml": config_to_yaml(config),

@@ -6,6 +6,7 @@ cannot be imported, and compared with ``rollergear model`` at points between the
 
 from __future__ import annotations
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -100,11 +101,14 @@ def test_the_unit_follows_the_oil_temperature_and_says_where_it_came_from(warmin
     ran = run_unit(unit, [[theta, 50.0, 200.0] for theta in (-10.0, 20.0, 40.0, 90.0)] + [[40.0, 50.0, 900.0]])
     losses = [row[0] for row in ran["rows"]]
     assert losses[0] > 2 * losses[1] > 2 * losses[3] and losses[1] > losses[2] > losses[3]  # cold oil costs most
-    assert ran["rows"][-1][3] is False  # 900 rad/s lies beyond the table: said, at its edge
+    beyond = ran["rows"][-1]  # 900 rad/s lies beyond the table: said, and nothing made up there
+    assert beyond[3] is False and all(np.isnan(v) for v in beyond[:3])
     assert ran["inputs"] == ["drive_speed_rad_s", "drive_torque_nm", "oil_temperature_c"]
     assert ran["outputs"] == ["efficiency", "inside_table", "loss_power_w", "loss_torque_nm"]
     strings = ran["strings"]
-    assert strings["rollergear_parameters_file"] == str(params.resolve())
+    digest = hashlib.sha256(params.read_bytes()).hexdigest()
+    assert strings["rollergear_parameters_file"] == f"cal.yaml (sha256 {digest})"
+    assert str(params.parent) not in json.dumps(ran)  # no path of the machine that made it
     assert "viscosity_temperature B=1100" in strings["rollergear_accepted_effects"]
     assert "torque_offset" not in strings["rollergear_accepted_effects"]  # a rig's sensor error, not applied
     written = yaml.safe_load(strings["rollergear_parameters_yaml"])["/**/loss_estimator"]["ros__parameters"]
@@ -141,3 +145,79 @@ def test_the_oil_axis_covers_the_range_asked_for_and_not_beyond():
     assert _axis(-20, 140, 5)[[0, -1]].tolist() == [-20, 140] and len(_axis(-20, 140, 5)) == 33
     odd = _axis(-20, 140, 7)
     assert odd[0] == -20 and odd[-1] == 140 and odd[-2] == 134 and np.all(np.diff(odd) > 0)
+
+
+#: 1000 instantiate / step / free cycles with hostile inputs, in a process that cannot import this package
+RUN_HOSTILE = textwrap.dedent("""
+    import json, math, sys
+    sys.modules["rollergear_ros"] = None
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    path, cycles = sys.argv[1], int(sys.argv[2])
+    md = read_model_description(path)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    folder = extract(path)
+    hostile = [math.nan, math.inf, -math.inf, 1e308, -1e308, 5e-324, -0.0, 1e6, -1e6]
+    fine = [12.5, 80.0, 40.0]
+    wrong = []
+    for c in range(cycles):
+        unit = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier,
+                         instanceName=f"g{c}")
+        unit.instantiate(); unit.setupExperiment(startTime=0.0)
+        unit.enterInitializationMode(); unit.exitInitializationMode()
+        for step in range(3):
+            inputs = list(fine)
+            inputs[(c + step) % 3] = hostile[(c * 3 + step) % len(hostile)]
+            unit.setReal([vr["drive_torque_nm"], vr["drive_speed_rad_s"], vr["oil_temperature_c"]], inputs)
+            unit.doStep(currentCommunicationPoint=0.01 * step, communicationStepSize=0.01)  # raises on a bad status
+            out = unit.getReal([vr["loss_torque_nm"], vr["loss_power_w"], vr["efficiency"]])
+            inside = bool(unit.getBoolean([vr["inside_table"]])[0])
+            table_has_it = all(math.isfinite(v) for v in inputs[:2]) and abs(inputs[0]) <= 100 and abs(inputs[1]) <= 400
+            if inside != table_has_it or (not inside and not all(math.isnan(v) for v in out)) \
+                    or (inside and not math.isfinite(out[0])):
+                wrong.append([inputs, out, inside])
+        unit.terminate(); unit.freeInstance()
+    print(json.dumps({"cycles": cycles, "wrong": wrong[:5]}))
+""")
+
+
+def test_fmpy_validates_the_unit_units_and_structure(tmp_path):
+    """The model description is what FMI 2.0 asks: fmpy's validation finds no problem, every Real has a
+    unit defined in SI base units."""
+    out = tmp_path / "g.fmu"
+    run_cli("export", "--fmu", str(out))
+    check = textwrap.dedent("""
+        import json, sys
+        sys.modules["rollergear_ros"] = None
+        from fmpy import read_model_description
+        from fmpy.validation import validate_fmu
+        md = read_model_description(sys.argv[1])
+        print(json.dumps({"problems": validate_fmu(sys.argv[1]),
+                          "units": {u.name: [u.baseUnit.kg, u.baseUnit.m, u.baseUnit.s, u.baseUnit.K, u.baseUnit.rad,
+                                             u.baseUnit.offset] for u in md.unitDefinitions},
+                          "of": {v.name: v.unit for v in md.modelVariables if v.type == "Real"}}))
+    """)
+    proc = subprocess.run([sys.executable, "-c", check, str(out)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout)
+    assert got["problems"] == []
+    assert got["of"] == {"drive_torque_nm": "N.m", "drive_speed_rad_s": "rad/s", "oil_temperature_c": "degC",
+                         "loss_torque_nm": "N.m", "loss_power_w": "W", "efficiency": "1",
+                         "interpolation_error_nm": "N.m", "interpolation_error_relative": "1"}
+    assert got["units"]["N.m"][:3] == [1, 2, -2] and got["units"]["W"][:3] == [1, 2, -3]
+    assert got["units"]["degC"][3] == 1 and got["units"]["degC"][5] == 273.15
+    cli = subprocess.run([sys.executable, "-m", "fmpy", "validate", str(out)], capture_output=True,
+                         text=True, timeout=300)
+    assert cli.returncode == 0 and "No problems found" in cli.stdout, cli.stdout + cli.stderr
+
+
+def test_hostile_inputs_give_nan_and_never_an_error_or_a_crash(tmp_path):
+    """NaN, infinite and out-of-range inputs: NaN outputs with inside_table false, never an error status
+    through pythonfmu; 1000 instantiate / step / free cycles of them and the host lives on."""
+    out = tmp_path / "g.fmu"
+    run_cli("export", "--fmu", str(out))
+    proc = subprocess.run([sys.executable, "-c", RUN_HOSTILE, str(out), "1000"], capture_output=True, text=True,
+                          timeout=900)
+    assert proc.returncode == 0, (proc.returncode, proc.stderr[-2000:])
+    got = json.loads(proc.stdout)
+    assert got == {"cycles": 1000, "wrong": []}
