@@ -106,7 +106,7 @@ class RollergearGearbox(Fmi2Slave):
         self._evaluate()
 
     def to_xml(self, model_options=None):
-        """pythonfmu's model description with the units (:data:`UNITS`) and the initial unknowns."""
+        """The model description pythonfmu writes, with the units (:data:`UNITS`) and the initial unknowns."""
         root = super().to_xml(model_options or {})
         units = Element("UnitDefinitions")
         for name, base in UNIT_DEFINITIONS.items():
