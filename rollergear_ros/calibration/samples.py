@@ -22,6 +22,19 @@ from ..core.speednoise import reading_noise
 
 
 @dataclass
+class RecordedInputs:
+    """One recording's paired samples as replay estimated them, every one in time order: what a
+    parameter file is replayed on to say what it does (:func:`file_residual`)."""
+
+    t_ns: np.ndarray
+    torque_nm: np.ndarray
+    speed_rad_s: np.ndarray
+    out_torque_nm: np.ndarray
+    out_speed_rad_s: np.ndarray
+    temperature_c: np.ndarray
+
+
+@dataclass
 class SampleData:
     """Per-sample inputs and measured loss of one or more bags (valid samples only)."""
 
@@ -49,6 +62,10 @@ class SampleData:
     lost_share: float = 0.0
     #: the recordings' speed noise, where the parameter file's was far off it (:func:`load_samples`)
     speed_noise_override: float | None = None
+    #: each recording's paired samples (None: rows of tables), and each analysed sample's index in its
+    #: recording's: where a parameter file is replayed on them
+    recordings: list[RecordedInputs] | None = None
+    source_index: np.ndarray | None = None
 
     @property
     def residual(self) -> np.ndarray:
@@ -65,7 +82,8 @@ class SampleData:
                        speed=self.speed[keep], temperature=self.temperature[keep],
                        measured_loss=self.measured_loss[keep], model_loss=self.model_loss[keep],
                        fr_part=self.fr_part[keep], parts={k: v[keep] for k, v in self.parts.items()},
-                       out_torque=pick(self.out_torque), out_speed=pick(self.out_speed))
+                       out_torque=pick(self.out_torque), out_speed=pick(self.out_speed),
+                       source_index=pick(self.source_index))
 
 
 def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = TopicMap(),
@@ -142,18 +160,27 @@ def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, 
         sign_width_rad_s = noise if isinstance(noise, float) else 0.0
     model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
     parts = []
+    recordings, index = [], []
     loaded = False  # any output torque other than 0 (else: a spin test)
     for i, batches in enumerate(batches_of_bags):
+        offset = 0
+        inputs: list[tuple[np.ndarray, ...]] = []
         for b in batches:
+            m = len(b.t_ns)
             ok = np.isfinite(b.measured_loss_nm) & (np.abs(b.speed_rad_s) >= min_speed_rad_s)
             n = int(ok.sum())
-            temp = b.temperature_c if b.temperature_c is not None else np.full(len(b.t_ns), np.nan)
-            out_t = b.out_torque_nm[ok] if b.out_torque_nm is not None else np.full(n, np.nan)
-            out_w = b.out_speed_rad_s[ok] if b.out_speed_rad_s is not None else np.full(n, np.nan)
+            temp = b.temperature_c if b.temperature_c is not None else np.full(m, np.nan)
+            out_t_all = b.out_torque_nm if b.out_torque_nm is not None else np.full(m, np.nan)
+            out_w_all = b.out_speed_rad_s if b.out_speed_rad_s is not None else np.full(m, np.nan)
+            inputs.append((b.t_ns, b.torque_nm, b.speed_rad_s, out_t_all, out_w_all, temp))
             parts.append((b.t_ns[ok], np.full(n, i), b.torque_nm[ok], b.speed_rad_s[ok], temp[ok],
-                          b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok]), out_t, out_w))
+                          b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok]), out_t_all[ok], out_w_all[ok]))
+            index.append(offset + np.flatnonzero(ok))
+            offset += m
             if b.out_torque_nm is not None and np.any(b.out_torque_nm[ok] != 0):
                 loaded = True
+        recordings.append(RecordedInputs(*(np.concatenate([part[j] for part in inputs]) if inputs else
+                                           np.zeros(0) for j in range(6))))
     if not parts or sum(len(p[0]) for p in parts) == 0:
         raise BagError("no samples with a measured output torque and |speed| >= "
                        f"{max(min_speed_rad_s, 3 * sign_width_rad_s):g} rad/s: calibration needs "
@@ -163,7 +190,41 @@ def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, 
                       model.fr_part(cols[2], cols[3]), dict(skipped or {}),
                       parts=model.parts(cols[2], cols[3]) if model.enabled else {},
                       sign_width_rad_s=sign_width_rad_s, spin_test=not loaded,
-                      out_torque=cols[7], out_speed=cols[8], speed_ratio=config.gearbox.ratio_effective)
+                      out_torque=cols[7], out_speed=cols[8], speed_ratio=config.gearbox.ratio_effective,
+                      recordings=recordings, source_index=np.concatenate(index))
+
+
+def file_residual(data: SampleData, config: Config) -> np.ndarray:
+    """What the parameter file ``config`` leaves of each analysed sample's measured loss (NaN where it
+    measures none): the one forward path -- each recording replayed through the
+    :class:`~core.estimator.Estimator` of the file as written (its effects, sensor errors, speed noise
+    and online adaptation), from its first sample, exactly as ``replay`` estimates it; rows of tables
+    each on their own (nothing adapts between operating points)."""
+    from dataclasses import replace
+
+    from ..core.estimator import Estimator
+
+    if data.recordings is None or data.source_index is None:
+        rows = replace(config, estimator=replace(config.estimator, adapt=False))
+        est = Estimator(rows).process_batch(np.arange(len(data.t_ns), dtype=np.int64), data.torque, data.speed,
+                                            data.out_torque, data.out_speed, data.temperature, breakdown=False)
+        out = np.full(len(data.t_ns), np.nan)
+        out[est.t_ns.astype(np.intp)] = est.residual_nm
+        return out
+    out = np.full(len(data.t_ns), np.nan)
+    for i, rec in enumerate(data.recordings):
+        mine = np.flatnonzero(data.bag_id == i)
+        if not len(mine):
+            continue
+        est = Estimator(config).process_batch(rec.t_ns, rec.torque_nm, rec.speed_rad_s, rec.out_torque_nm,
+                                              rec.out_speed_rad_s, rec.temperature_c, breakdown=False)
+        if len(est.t_ns) == len(rec.t_ns):  # replay kept only samples the estimator takes
+            residual = est.residual_nm
+        else:
+            residual = np.full(len(rec.t_ns), np.nan)
+            residual[np.searchsorted(rec.t_ns, est.t_ns)] = est.residual_nm
+        out[mine] = residual[data.source_index[mine]]
+    return out
 
 
 def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[str], None] | None = None,

@@ -1,14 +1,17 @@
 """What a planned drive will cost: loss power and energy over a profile, with their 95 % band.
 
-The loss is the estimator's -- the paper's model with the accepted physical effects -- at the
-profile's true torque (the rig's torque-sensor errors are not applied, as in ``map``).  A profile
-with measured output torque (a recorded drive) is adapted online as ``replay`` adapts it when the
-file says ``estimator.adapt: true`` (so ``predict`` of a recorded drive is its ``replay``); a plan
-has no measured output and nothing adapts; ``adapt=False`` holds the file's coefficients as written.
-Each prediction says which.  The band propagates the calibration's parameter
+The loss is the estimator's -- the paper's model with the accepted effects, the one forward path.
+A **plan** (no measured output torque: planned torque and speed) is evaluated at its true torque:
+the rig's torque-sensor errors are not applied, as in ``map``, and nothing adapts.  A **recorded
+drive** (a profile with measured output torque) is evaluated exactly as ``replay`` evaluates it:
+its torques are the rig's readings, corrected by the file's sensor errors, and the file's
+coefficients adapt online where it says ``estimator.adapt: true`` (``adapt=False``: held as
+written) -- so ``predict`` of a recorded drive is its ``replay``.  Each prediction says which.
+
+The band propagates the calibration's parameter
 covariance (``calibration.covariance``, :mod:`.covariance`) to first order (the delta method): for
 each covaried parameter ``θ_k`` the change of every sample's loss power per unit of it,
-``J_ik = ∂P_i/∂θ_k`` (numerically: the estimator at ``θ_k + h``), then
+``J_ik = ∂P_i/∂θ_k`` (numerically: the estimator of the written file at ``θ_k + h``), then
 
 * a sample's loss power: ``var P_i = J_i·C·J_iᵀ``;
 * the energy ``E = Σ P_i·Δt_i``: ``g = Jᵀ·Δt``, ``var E = gᵀ·C·g``;
@@ -41,10 +44,13 @@ Z95 = 1.959963984540054
 STEP = 1e-6
 
 
-def prediction_config(config: Config, adapt: bool = True) -> Config:
-    """``config`` as a prediction evaluates it: the rig's sensor errors off (as a map); online adaptation
-    as the file says (``adapt``) or off."""
-    return replace(map_config(config), estimator=replace(config.estimator, adapt=config.estimator.adapt and adapt))
+def prediction_config(config: Config, adapt: bool = True, recorded: bool = False) -> Config:
+    """``config`` as a prediction evaluates it: a recorded drive as replay does (the sensor errors
+    applied, online adaptation as the file says, or off with ``adapt`` false); a plan as a map (the
+    sensor errors off, nothing adapts)."""
+    if not recorded:
+        return replace(map_config(config), estimator=replace(config.estimator, adapt=False))
+    return replace(config, estimator=replace(config.estimator, adapt=config.estimator.adapt and adapt))
 
 
 @dataclass
@@ -63,6 +69,8 @@ class Prediction:
     lost_share: float = 0.0
     #: samples whose estimate adapted the file's coefficients to a measured output torque (as replay)
     adapted_samples: int = 0
+    #: a recorded drive (measured output torque: evaluated as replay does) rather than a plan
+    recorded: bool = False
     #: per sample, with ``collect``: times, loss power and its standard deviation
     t_ns: np.ndarray | None = field(default=None, repr=False)
     loss_power_w: np.ndarray | None = field(default=None, repr=False)
@@ -84,7 +92,8 @@ class Prediction:
                 "energy_lost_band95_j": [lo, hi], "energy_lost_sd_j": self.energy_lost_sd_j,
                 "energy_in_j": self.energy_in_j, "mean_loss_power_w": self.mean_loss_power_w,
                 "peak_loss_power_w": self.peak_loss_power_w, "parameters": list(self.parameters),
-                "method": self.method, "lost_share": self.lost_share, "adapted_samples": self.adapted_samples}
+                "method": self.method, "lost_share": self.lost_share, "adapted_samples": self.adapted_samples,
+                "recorded": self.recorded}
 
     def text(self) -> str:
         lo, hi = self.energy_band_j
@@ -93,9 +102,14 @@ class Prediction:
                  f"energy lost {self.energy_lost_j:,.1f} J ({self.energy_lost_j * wh:.4g} Wh), 95 % band "
                  f"{lo:,.1f} … {hi:,.1f} J; energy through the gearbox {self.energy_in_j:,.0f} J",
                  f"loss power: mean {self.mean_loss_power_w:.4g} W, peak {self.peak_loss_power_w:.4g} W"]
-        if self.adapted_samples:
-            lines.append(f"adapted online to the profile's measured output torque at {self.adapted_samples:,} samples, "
-                         "as replay adapts (estimator.adapt: true; --no-adapt: the file's coefficients as written)")
+        if self.recorded:
+            lines.append("a recorded drive (measured output torque): evaluated as replay evaluates it, its torques "
+                         "corrected by the file's sensor errors"
+                         + (f", the file's coefficients adapted online at {self.adapted_samples:,} samples "
+                            "(estimator.adapt: true; --no-adapt: as written)" if self.adapted_samples else
+                            ", the file's coefficients as written"))
+        else:
+            lines.append("a plan: its torques are the true ones (no sensor errors applied), nothing adapts")
         if self.lost_share:
             lines.append(f"predicted from what was readable: {100 * self.lost_share:.1f} % of the recording is damaged")
         if self.parameters:
@@ -109,9 +123,10 @@ class Prediction:
 class PredictionSums:
     """The running sums of a prediction, fed batch by batch with the base estimates (``add``)."""
 
-    def __init__(self, config: Config, collect: bool = False, adapt: bool = True) -> None:
-        self.config = prediction_config(config, adapt)
-        fixed = prediction_config(config, False)  # the file's coefficients as written
+    def __init__(self, config: Config, collect: bool = False, adapt: bool = True, recorded: bool = False) -> None:
+        self.recorded = recorded
+        self.config = prediction_config(config, adapt, recorded)
+        fixed = prediction_config(config, False, recorded)  # the file's coefficients as written
         #: where the estimates adapt, the base of the band's derivatives (they are the written file's)
         self._written = Estimator(fixed) if self.config.estimator.adapt else None
         self.adapted_samples = 0
@@ -174,7 +189,8 @@ class PredictionSums:
         var = float(self.gradient @ self.covariance.matrix @ self.gradient) if self.covariance else 0.0
         duration = ((self.last_t or 0) - (self.first_t or 0)) * 1e-9
         out = Prediction(self.samples, duration, self.energy, math.sqrt(max(var, 0.0)), self.energy_in, self.peak,
-                         self.covariance.keys if self.covariance else (), adapted_samples=self.adapted_samples)
+                         self.covariance.keys if self.covariance else (), adapted_samples=self.adapted_samples,
+                         recorded=self.recorded)
         if self._collect:
             cat = [np.concatenate(p) if p else np.zeros(0) for p in zip(*self._parts)] if self._parts else \
                 [np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)]

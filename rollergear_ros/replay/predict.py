@@ -1,8 +1,9 @@
 """``predict``: what a planned drive will cost, from a recording, a table or arrays in memory.
 
 A profile is what ``replay`` reads (an MCAP, or a CSV/Parquet/MF4/TDMS through a channel map as for
-``import``: planned torque, speed, optionally oil temperature) or, for a planner in Python, a
-mapping of arrays.  Its samples are paired as ``replay`` pairs them and go through
+``import``: planned torque, speed, optionally oil temperature; with measured output torque, a
+recorded drive, evaluated as ``replay`` evaluates it) or, for a planner in Python, a mapping of
+arrays (a plan).  Its samples are paired as ``replay`` pairs them and go through
 :class:`core.prediction.PredictionSums` (the loss and its 95 % band).  No rclpy import::
 
     from rollergear_ros import predict
@@ -24,6 +25,7 @@ from ..base.errors import UsageError
 from ..base.progress import TimedProgress
 from ..core.params import Config, load_config
 from ..core.prediction import Prediction, PredictionSums
+from ..base.interface import Channel
 from ..recordings.bag import TopicMap, inspect_bag
 from .inputs import InputProblems, damaged_share, input_batches, paired_plan
 
@@ -50,12 +52,13 @@ def predict(profile: str | Path | Mapping[str, np.ndarray], params: str | Path |
     from ..sources.importer import as_mcap
 
     config = params if isinstance(params, Config) else load_config(params)
-    sums = PredictionSums(config, collect, adapt)
     if isinstance(profile, Mapping):
+        sums = PredictionSums(config, collect, adapt)
         _add_arrays(sums, profile)
         return sums.finish()
     with as_mcap([profile], channels, topics, note=note) as (bag,):
-        lost = _add_recording(sums, Path(bag), topics, show_progress, warn or (lambda text: None))
+        sums, lost = _add_recording(config, collect, adapt, Path(bag), topics, show_progress,
+                                    warn or (lambda text: None))
     result = sums.finish()
     result.lost_share = lost
     return result
@@ -85,12 +88,16 @@ def _add_arrays(sums: PredictionSums, profile: Mapping[str, np.ndarray]) -> None
                                          temperature=None if theta is None else theta[part]))
 
 
-def _add_recording(sums: PredictionSums, bag: Path, topics: TopicMap, show_progress: bool | None,
-                   warn: Callable[[str], None]) -> float:
-    """A recording's samples, paired and estimated as ``replay`` does, batch by batch; returns the
-    share of it lost to damage, as replay states it (nothing readable: a :class:`BagError`)."""
+def _add_recording(config: Config, collect: bool, adapt: bool, bag: Path, topics: TopicMap,
+                   show_progress: bool | None, warn: Callable[[str], None]) -> tuple[PredictionSums, float]:
+    """A recording's samples, paired and estimated as ``replay`` does, batch by batch: its sums, and
+    the share of it lost to damage, as replay states it (nothing readable: a :class:`BagError`).
+    A recording with measured output torque (an output torque topic, or joint states, which a rig or
+    robot records) is a recorded drive, evaluated as replay does; one without, a plan."""
     info = inspect_bag(bag)
     plan, pairing, period_s = paired_plan(info, topics)
+    recorded = plan.mode == "joint_state" or Channel.OUTPUT_TORQUE in plan.float64.values()
+    sums = PredictionSums(config, collect, adapt, recorded)
     estimator = sums.base_estimator(pairing=pairing, sample_period_s=period_s)
     problems = InputProblems(estimator.counts, plan)
     total = sum(info.counts.get(t, 0) for t in plan.all_topics)
@@ -101,4 +108,4 @@ def _add_recording(sums: PredictionSums, bag: Path, topics: TopicMap, show_progr
             sums.add(estimator.push_many(batch.codes, batch.t_ns, batch.values, batch.source_ns))
             bar.update(len(batch.codes))
         sums.add(estimator.flush())
-    return damaged_share(info, problems, nothing_read=read == 0)
+    return sums, damaged_share(info, problems, nothing_read=read == 0)
