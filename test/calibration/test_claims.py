@@ -1,0 +1,122 @@
+"""The claim is the file: every number about a parameter file comes from one forward path.
+
+Walking the effect registry -- every effect alone and every pair, sensor errors beside loads
+included, random parameters inside their ranges -- what calibrate says a file leaves of each sample
+(:func:`~rollergear_ros.calibration.samples.file_residual`) equals ``replay``'s residual of the
+recording with that file, ``predict``'s loss power equals ``replay``'s, and ``model`` at a sample's
+true torque equals ``replay``'s loss there, each to 1e-9.  And end to end: the error ``calibrate``
+claims after is what its written file, replayed, leaves.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+
+from rollergear_ros import predict
+from rollergear_ros.calibration.samples import file_residual, load_samples
+from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
+from rollergear_ros.core.effects import EFFECTS, corrected_torque, reading_errors
+from rollergear_ros.core.operating_points import evaluate_points
+from rollergear_ros.core.params import load_config
+from rollergear_ros.replay.run import replay
+
+from helpers import BAGS, run_cli
+
+NAMES = list(EFFECTS)
+CASES = [(n,) for n in NAMES] + list(itertools.combinations(NAMES, 2))
+
+
+@pytest.fixture(scope="module")
+def drive(tmp_path_factory):
+    """A warm-up drive (oil 25 -> 70 degC, both directions, loads) with a drag and a load friction, and its
+    samples as calibrate reads them."""
+    path = tmp_path_factory.mktemp("claims") / "drive.mcap"
+    opts = SimulationOptions(profile="warmup", rate_hz=25.0, seed=11,
+                             effects=[DeclaredEffect.parse("drag_speed:c=3e-4,p=1.4"),
+                                      DeclaredEffect.parse("load_dependent:c=0.002,q=1.1")])
+    write_rig_bag(simulate(load_config(), opts), opts, path)
+    return path, load_samples([path], load_config())
+
+
+def _random_file(names: tuple[str, ...], seed: int):
+    """The default file with ``names`` enabled at random values: the coefficient 0.5-1.5x the simulator's
+    typical one, a profiled exponent anywhere in its search range."""
+    rng = np.random.default_rng(seed)
+    values = {}
+    for name in names:
+        effect = EFFECTS[name]
+        values[f"effects.{name}.enabled"] = True
+        ranges = effect.profiled_ranges()
+        for p in effect.parameters:
+            value = p.default if p.simulated is None else p.simulated
+            if p.short == effect.coefficient:
+                value = value * rng.uniform(0.5, 1.5) if value else rng.uniform(0.01, 0.05)
+            elif p.short in ranges:
+                lo, hi = ranges[p.short]
+                value = rng.uniform(lo, hi)
+            values[f"effects.{name}.{p.key}"] = float(value)
+    return load_config().with_values(values)
+
+
+def _by_time(batches, field: str, t_ns: np.ndarray) -> np.ndarray:
+    t = np.concatenate([b.t_ns for b in batches])
+    v = np.concatenate([getattr(b, field) for b in batches])
+    i = np.searchsorted(t, t_ns)
+    assert np.array_equal(t[i], t_ns)
+    return v[i]
+
+
+@pytest.mark.parametrize("names", CASES, ids=["+".join(c) for c in CASES])
+def test_calibrate_replay_predict_and_model_give_one_answer(drive, names):
+    path, data = drive
+    config = _random_file(names, seed=len(names) * 100 + NAMES.index(names[0]) * 10 + NAMES.index(names[-1]))
+    _summary, batches = replay(path, config, collect=True, show_progress=False)
+    # what calibrate says the file leaves of each sample is replay's residual
+    claimed = file_residual(data, config)
+    replayed = _by_time(batches, "residual_nm", data.t_ns)
+    np.testing.assert_array_equal(np.isnan(claimed), np.isnan(replayed))
+    np.testing.assert_allclose(claimed, replayed, rtol=0, atol=1e-9, equal_nan=True)
+    # predict of the recorded drive is its replay, sample by sample
+    got = predict(path, config, collect=True)
+    assert got.recorded
+    t_all = np.concatenate([b.t_ns for b in batches])
+    np.testing.assert_array_equal(got.t_ns, t_all)
+    np.testing.assert_allclose(got.loss_power_w, np.concatenate([b.loss_power_w for b in batches]), rtol=1e-12,
+                               atol=1e-9)
+    # model at a sample's true torque (the reading corrected by the file's sensor errors) is replay's loss
+    # there -- for effects without a memory, with the file's coefficients as written and a given speed noise
+    if any(EFFECTS[n].state_step is not None for n in names):
+        return
+    fixed = config.with_values({"estimator.adapt": False, "estimator.speed_noise_rad_s": data.sign_width_rad_s})
+    _s, still = replay(path, fixed, collect=True, show_progress=False)
+    pick = np.linspace(0, len(data.t_ns) - 1, 25).astype(int)
+    offset, gain = reading_errors(fixed.effects.active())
+    for i in pick:
+        t_ns = data.t_ns[i:i + 1]
+        loss = _by_time(still, "loss_torque_nm", t_ns)[0]
+        true_torque = corrected_torque(data.torque[i], offset, gain)
+        theta = float(data.temperature[i]) if np.isfinite(data.temperature[i]) else None
+        point = evaluate_points(fixed, [true_torque], [data.speed[i]], theta)
+        assert point.loss_torque_nm[0] == pytest.approx(loss, rel=1e-9, abs=1e-12), (names, i)
+
+
+def test_the_error_calibrate_claims_after_is_what_its_written_file_leaves(tmp_path):
+    """End to end on the bundled drag recording: calibrate writes a file; replayed on the recording, it
+    leaves of the samples calibrate analysed exactly the per-sample error calibrate claimed."""
+    bag = BAGS / "rig_map_drag.mcap"
+    out = tmp_path / "cal.yaml"
+    result = json.loads(run_cli("calibrate", str(bag), "--out", str(out), "--json").stdout)
+    assert result["written"]
+    written = load_config(out)
+    data = load_samples([bag], load_config())
+    _summary, batches = replay(bag, written, collect=True, show_progress=False)
+    r = _by_time(batches, "residual_nm", data.t_ns)
+    r = r[np.isfinite(r)]
+    claimed = result["sample_level_errors"]["after"]["rmse_nm"]
+    assert float(np.sqrt(np.mean(r * r))) == pytest.approx(claimed, rel=1e-9)
+    # and the error after over block means is never below what the written file leaves of them
+    assert result["error_after"]["rmse_nm"] <= result["sample_level_errors"]["after"]["rmse_nm"]
