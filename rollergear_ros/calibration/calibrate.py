@@ -44,6 +44,7 @@ from .noise import sensor_delta
 from .nuisance import apply_lags, lag_channel, median_period_s, worth_applying, ChannelLag
 from .outcome import CalibrationResult, Change, FoundEffect, FoundParameter, segment_summary
 from .samples import SampleData, file_residual, load_samples
+from ..core.modelform import ModelForm
 from .segments import find_changes
 from .jointfit import fitted_covariance
 from .selection import Calibrator, ErrorStats, Fit, Term, error_stats, members
@@ -192,11 +193,12 @@ def _analyse(data: SampleData, config: Config, how: _Analysis) -> CalibrationRes
         data = apply_lags(original, lags, model)
         result = _calibrate_once(data, config, how, applied=lags)
     if lags:
-        result.notes.insert(0, "the analysis ran on the samples aligned by the lags found ("
+        result.notes.insert(0, "the selection ran on the samples aligned by the lags found ("
                             + ", ".join(f"{c} {1e3 * v:.3g} ms" for c, v in lags.items())
                             + f"; before aligning, held-out RMSE {first.error_before.rmse_nm:.4g} -> "
-                            f"{first.error_after.rmse_nm:.4g} N·m): its errors are of the aligned samples; put lag_s "
-                            "in the channel map to align them in replay")
+                            f"{first.error_after.rmse_nm:.4g} N·m); a parameter file carries no lag: the errors "
+                            "before and after are of the recordings as they are, replayed with each file; put "
+                            "lag_s in a channel map to align them on import")
     if result.negative and config.estimator.paper_model:
         result = _without_paper_model(data, config, how, result)
     result.speed_noise = data.speed_noise_text
@@ -323,6 +325,8 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
     new_config = _calibrated_config(config, effects, parameters, kept=_untested_file_effects(config, cal))
     covariance = fitted_covariance(cal, final, len(selected), config)
     new_config = new_config.with_values({"calibration.covariance": covariance.to_text() if covariance else ""})
+    new_config = new_config.with_values(
+        {"calibration.model_form": _model_form(cal, out, full, final, selected, data, verdict).to_text()})
     if data.ratio is not None:  # the table's own ratio: what a map of the file states
         new_config = new_config.with_values({"gearbox.ratio": data.ratio})
     if data.speed_noise_override is not None:  # the recordings' speed noise, not the file's far-off one
@@ -413,6 +417,22 @@ def _file_prediction(data: SampleData, config: Config, blocks: Blocks, start: li
         corrected = model.loss_magnitude((data.torque - offset) / (1.0 + gain), data.speed)
         pred = pred + blocks.mean(corrected - data.model_loss)
     return pred
+
+
+def _model_form(cal: Calibrator, out, full, final: list[Term], selected: list[Term], data: SampleData,
+                verdict: str) -> ModelForm:
+    """What the written file leaves unresolved (the terms kept in the fit and not written, at their
+    fitted values; the ambiguous sets in words) and the largest speed and torque analysed."""
+    k0 = len(cal.nuisance)
+    alternatives = []
+    for i, term in enumerate(final[len(selected):], start=len(selected)):
+        if term.name in EFFECTS:
+            alternatives.append((term.name, term.params(float(full.coef[k0 + i]))))
+    unresolved = "; ".join(f"{' or '.join(a.effects)} (the data cannot tell them apart: needs {a.needs})"
+                           for a in out.ambiguous if a.assumed is None and a.taken is None)
+    speed, torque = np.abs(data.speed), np.abs(data.torque)
+    return ModelForm(verdict, tuple(alternatives), unresolved,
+                     float(speed.max()) if len(speed) else math.inf, float(torque.max()) if len(torque) else math.inf)
 
 
 def _file_errors(data: SampleData, blocks: Blocks, config: Config) -> tuple[ErrorStats, ErrorStats, np.ndarray]:

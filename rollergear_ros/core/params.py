@@ -329,6 +329,10 @@ CALIBRATION_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("calibration.covariance", str, "",
               "written by calibrate: the covariance of what it fitted, in this file's keys (JSON: keys, matrix; "
               "core/covariance.py); predict propagates it ('' = none); a traced candidate taken in brings its own"),
+    ParamSpec("calibration.model_form", str, "",
+              "written by calibrate: what it left unresolved and the range it saw (JSON: verdict, alternatives, "
+              "unresolved, seen; core/modelform.py); predict's band spans the alternatives, counts the effects "
+              "beyond what was seen as unknown, or is refused ('' = none)"),
 )
 
 _specs_cache: dict[int, tuple[tuple[ParamSpec, ...], dict[str, ParamSpec]]] = {}
@@ -536,6 +540,7 @@ class CalibrationParams:
     """What ``calibrate`` records about its fit beside the parameters it wrote."""
 
     covariance: str = ""  #: :class:`core.covariance.ParameterCovariance` as JSON text ('' = none)
+    model_form: str = ""  #: :class:`core.modelform.ModelForm` as JSON text ('' = none)
 
 
 #: a loss map's largest grid: points per axis and cells (checked before anything is allocated;
@@ -693,6 +698,14 @@ def _check_consistency(config: Config) -> None:
         if problem:
             text = config.calibration.covariance
             raise ParameterError("calibration.covariance", text if len(text) <= 60 else text[:57] + "...", problem)
+    if config.calibration.model_form:
+        from .effects import EFFECTS
+        from .modelform import model_form_problem
+
+        problem = model_form_problem(config.calibration.model_form, EFFECTS)
+        if problem:
+            text = config.calibration.model_form
+            raise ParameterError("calibration.model_form", text if len(text) <= 60 else text[:57] + "...", problem)
     g = config.gearbox
     if g.z > g.Z:
         raise ParameterError("gearbox.z", g.z, f"connected balls z must be <= Z = {g.Z}")

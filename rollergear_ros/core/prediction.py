@@ -31,8 +31,10 @@ import numpy as np
 from ..base.errors import ParameterError
 from .covariance import ParameterCovariance
 from .estimator import BatchEstimate, Estimator
+from .effects import EFFECTS
 from .measured import energy_steps_s
-from .operating_points import map_config
+from .modelform import ModelForm
+from .operating_points import map_config, only
 from .params import Config
 
 __all__ = ["METHOD", "Prediction", "PredictionSums", "prediction_config"]
@@ -71,36 +73,55 @@ class Prediction:
     adapted_samples: int = 0
     #: a recorded drive (measured output torque: evaluated as replay does) rather than a plan
     recorded: bool = False
+    #: how far the energy moves with the calibration's unresolved alternatives (down, up; 0: none)
+    model_form_j: tuple[float, float] = (0.0, 0.0)
+    alternatives: dict[str, float] = field(default_factory=dict)  #: alternative -> its energy shift [J]
+    beyond_samples: int = 0  #: samples beyond what the calibration saw or the rating
+    beyond_effects_j: float = 0.0  #: the accepted effects' energy there (counted as unknown)
+    limits: tuple[float, float] = (math.inf, math.inf)  #: |ω| [rad/s] and |T| [N·m] seen and rated
+    band_refused: str = ""  #: why there is no band ('': there is one)
+    notes: list[str] = field(default_factory=list)
     #: per sample, with ``collect``: times, loss power and its standard deviation
     t_ns: np.ndarray | None = field(default=None, repr=False)
     loss_power_w: np.ndarray | None = field(default=None, repr=False)
     loss_power_sd_w: np.ndarray | None = field(default=None, repr=False)
+    #: per sample, with ``collect``: how far the unresolved alternatives move the loss power (down, up)
+    loss_power_form_low_w: np.ndarray | None = field(default=None, repr=False)
+    loss_power_form_high_w: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def energy_band_j(self) -> tuple[float, float]:
-        """The energy's 95 % band."""
+        """The energy's 95 % band: the covariance's (and the extrapolated effects') spread around the
+        written file's and every unresolved alternative's energy; NaN where it is refused."""
+        if self.band_refused:
+            return math.nan, math.nan
         half = Z95 * self.energy_lost_sd_j
-        return self.energy_lost_j - half, self.energy_lost_j + half
+        return self.energy_lost_j + self.model_form_j[0] - half, self.energy_lost_j + self.model_form_j[1] + half
 
     @property
     def mean_loss_power_w(self) -> float:
         return self.energy_lost_j / self.duration_s if self.duration_s > 0 else math.nan
 
     def to_json(self) -> dict:
-        lo, hi = self.energy_band_j
+        lo, hi = (_finite(v) for v in self.energy_band_j)
         return {"samples": self.samples, "duration_s": self.duration_s, "energy_lost_j": self.energy_lost_j,
                 "energy_lost_band95_j": [lo, hi], "energy_lost_sd_j": self.energy_lost_sd_j,
-                "energy_in_j": self.energy_in_j, "mean_loss_power_w": self.mean_loss_power_w,
+                "energy_in_j": self.energy_in_j, "mean_loss_power_w": _finite(self.mean_loss_power_w),
                 "peak_loss_power_w": self.peak_loss_power_w, "parameters": list(self.parameters),
                 "method": self.method, "lost_share": self.lost_share, "adapted_samples": self.adapted_samples,
-                "recorded": self.recorded}
+                "recorded": self.recorded, "alternatives_j": self.alternatives,
+                "beyond_calibration": {"samples": self.beyond_samples, "effects_energy_j": self.beyond_effects_j,
+                                       "speed_limit_rad_s": _finite(self.limits[0]),
+                                       "torque_limit_nm": _finite(self.limits[1])},
+                "band_refused": self.band_refused or None, "notes": self.notes}
 
     def text(self) -> str:
         lo, hi = self.energy_band_j
         wh = 1 / 3600.0
         lines = [f"{self.samples:,} samples over {self.duration_s:.1f} s",
-                 f"energy lost {self.energy_lost_j:,.1f} J ({self.energy_lost_j * wh:.4g} Wh), 95 % band "
-                 f"{lo:,.1f} … {hi:,.1f} J; energy through the gearbox {self.energy_in_j:,.0f} J",
+                 f"energy lost {self.energy_lost_j:,.1f} J ({self.energy_lost_j * wh:.4g} Wh), "
+                 + (f"95 % band {lo:,.1f} … {hi:,.1f} J" if math.isfinite(lo) else "no band (below)")
+                 + f"; energy through the gearbox {self.energy_in_j:,.0f} J",
                  f"loss power: mean {self.mean_loss_power_w:.4g} W, peak {self.peak_loss_power_w:.4g} W"]
         if self.recorded:
             lines.append("a recorded drive (measured output torque): evaluated as replay evaluates it, its torques "
@@ -112,12 +133,27 @@ class Prediction:
             lines.append("a plan: its torques are the true ones (no sensor errors applied), nothing adapts")
         if self.lost_share:
             lines.append(f"predicted from what was readable: {100 * self.lost_share:.1f} % of the recording is damaged")
-        if self.parameters:
+        if self.band_refused:
+            lines.append(f"band: refused -- {self.band_refused}")
+        elif self.parameters:
             lines.append(f"band: {self.method} over {', '.join(self.parameters)}")
         else:
             lines.append("band: none -- the parameter file holds no calibration.covariance (write it with "
                          "rollergear calibrate): the loss as if its parameters were exact")
+        if self.alternatives and not self.band_refused:
+            lines.append("band spans what the calibration could not tell apart: "
+                         + ", ".join(f"with {n} {v:+,.1f} J" for n, v in self.alternatives.items()))
+        if self.beyond_samples:
+            speed, torque = self.limits
+            lines.append(f"{self.beyond_samples:,} samples lie beyond what the calibration saw or the rating "
+                         f"(|ω| > {speed:.4g} rad/s or |T| > {torque:.4g} N·m): the accepted effects' "
+                         f"{self.beyond_effects_j:,.1f} J there are extrapolated, counted in the band as unknown")
+        lines.extend(self.notes)
         return "\n".join(lines)
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
 
 
 class PredictionSums:
@@ -141,6 +177,7 @@ class PredictionSums:
                 step = -step
                 moved = fixed.with_values({key: value + step})
             self._perturbed.append((step, Estimator(moved)))
+        self._model_form(config, fixed)
         k = len(self._perturbed)
         self.gradient = np.zeros(k)  #: d E / d θ
         self.energy = self.energy_in = self.peak = 0.0
@@ -149,7 +186,32 @@ class PredictionSums:
         self.last_t: int | None = None
         self._dt_ns = 0.0
         self._collect = collect
-        self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._parts: list[tuple[np.ndarray, ...]] = []
+
+    def _model_form(self, config: Config, fixed: Config) -> None:
+        """The calibration's unresolved alternatives (an estimator each, the written file with it added),
+        the range it saw and the rating (beyond either, the accepted effects are extrapolated: the paper's
+        model alone tells their share)."""
+        self.form = ModelForm.from_text(config.calibration.model_form)
+        self._alternatives: list[tuple[str, Estimator]] = []
+        self.alternative_notes: list[str] = []
+        for name, params in self.form.alternatives if self.form else ():
+            effect = EFFECTS[name]
+            values = {f"effects.{name}.enabled": True} | {
+                f"effects.{name}.{p.key}": params[p.short] for p in effect.parameters if p.short in params}
+            try:
+                self._alternatives.append((name, Estimator(fixed.with_values(values))))
+            except ParameterError as exc:
+                self.alternative_notes.append(f"{name} not spanned: {exc}")
+        self.alternative_shift_j = np.zeros(len(self._alternatives))  #: E(with it) − E(written)
+        g = fixed.gearbox
+        self.speed_limit = min(self.form.seen_speed_rad_s if self.form else math.inf,
+                               g.rated_speed_rpm * math.pi / 30.0 if g.rated_speed_rpm > 0 else math.inf)
+        self.torque_limit = min(self.form.seen_torque_nm if self.form else math.inf,
+                                g.rated_torque_nm if g.rated_torque_nm > 0 else math.inf)
+        self._paper_only = Estimator(only(fixed, ())) if fixed.effects.enabled() else None
+        self.beyond_samples = 0
+        self.beyond_effects_j = 0.0  #: the accepted effects' energy beyond what was seen or rated
 
     def base_estimator(self, **kwargs) -> Estimator:
         """An estimator of the prediction's model (for the caller's pairing and base estimates)."""
@@ -171,28 +233,53 @@ class PredictionSums:
         self.last_t = int(t[-1])
         if self._written is not None and b.out_torque_nm is not None:
             self.adapted_samples += int(np.count_nonzero(np.isfinite(b.out_torque_nm)))
+        def evaluate(estimator: Estimator) -> np.ndarray:
+            return estimator.process_batch(t, b.torque_nm, b.speed_rad_s, temperature=b.temperature_c,
+                                           breakdown=False).loss_power_w
+
+        written = power if self._written is None else evaluate(self._written)
         jac = np.empty((len(t), len(self._perturbed)))
-        written = power if self._written is None or not self._perturbed else self._written.process_batch(
-            t, b.torque_nm, b.speed_rad_s, temperature=b.temperature_c, breakdown=False).loss_power_w
         for j, (step, estimator) in enumerate(self._perturbed):
-            moved = estimator.process_batch(t, b.torque_nm, b.speed_rad_s, temperature=b.temperature_c,
-                                            breakdown=False)
-            jac[:, j] = (moved.loss_power_w - written) / step
+            jac[:, j] = (evaluate(estimator) - written) / step
         self.gradient += jac.T @ dt
+        shifts = np.zeros((len(t), len(self._alternatives)))
+        for j, (_name, estimator) in enumerate(self._alternatives):
+            shifts[:, j] = evaluate(estimator) - written
+        self.alternative_shift_j += shifts.T @ dt
+        beyond = (np.abs(b.speed_rad_s) > self.speed_limit) | (np.abs(b.torque_nm) > self.torque_limit)
+        effects_w = np.zeros(len(t))
+        if self._paper_only is not None and beyond.any():
+            effects_w = np.where(beyond, np.abs(written - evaluate(self._paper_only)), 0.0)
+            self.beyond_samples += int(beyond.sum())
+            self.beyond_effects_j += float(np.sum(effects_w * dt))
         if self._collect:
             cov = self.covariance.matrix if self.covariance else np.zeros((0, 0))
-            sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", jac, cov, jac), 0.0))
-            self._parts.append((t, power, sd))
+            sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", jac, cov, jac), 0.0) + effects_w * effects_w)
+            low = np.minimum(shifts.min(axis=1), 0.0) if shifts.shape[1] else np.zeros(len(t))
+            high = np.maximum(shifts.max(axis=1), 0.0) if shifts.shape[1] else np.zeros(len(t))
+            self._parts.append((t, power, sd, low, high))
 
     def finish(self) -> Prediction:
         """The prediction of everything added."""
         var = float(self.gradient @ self.covariance.matrix @ self.gradient) if self.covariance else 0.0
+        var += self.beyond_effects_j ** 2  # the effects' share beyond what was seen: as large as it is, or none
         duration = ((self.last_t or 0) - (self.first_t or 0)) * 1e-9
+        shifts = self.alternative_shift_j
         out = Prediction(self.samples, duration, self.energy, math.sqrt(max(var, 0.0)), self.energy_in, self.peak,
                          self.covariance.keys if self.covariance else (), adapted_samples=self.adapted_samples,
                          recorded=self.recorded)
+        out.model_form_j = (min(0.0, float(shifts.min())) if len(shifts) else 0.0,
+                            max(0.0, float(shifts.max())) if len(shifts) else 0.0)
+        out.alternatives = {name: float(v) for (name, _e), v in zip(self._alternatives, shifts)}
+        out.beyond_samples, out.beyond_effects_j = self.beyond_samples, self.beyond_effects_j
+        out.limits = (self.speed_limit, self.torque_limit)
+        form = self.form
+        if form and form.unresolved and not self._alternatives:
+            out.band_refused = (f"the calibration left {form.unresolved} unresolved, with no alternative written to "
+                                "span: a band of the written parameters alone would claim more than is known")
+        out.notes = list(self.alternative_notes)
         if self._collect:
             cat = [np.concatenate(p) if p else np.zeros(0) for p in zip(*self._parts)] if self._parts else \
-                [np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)]
-            out.t_ns, out.loss_power_w, out.loss_power_sd_w = cat
+                [np.zeros(0, dtype=np.int64), *(np.zeros(0) for _ in range(4))]
+            out.t_ns, out.loss_power_w, out.loss_power_sd_w, out.loss_power_form_low_w, out.loss_power_form_high_w = cat
         return out
