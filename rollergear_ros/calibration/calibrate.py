@@ -44,6 +44,7 @@ from .noise import sensor_delta
 from .nuisance import apply_lags, lag_channel, median_period_s, worth_applying, ChannelLag
 from .outcome import CalibrationResult, Change, FoundEffect, FoundParameter, segment_summary
 from .samples import SampleData, file_residual, load_samples
+from ..core.lagalign import LAG_CHANNELS
 from ..core.modelform import ModelForm
 from .segments import find_changes
 from .jointfit import fitted_covariance
@@ -193,12 +194,12 @@ def _analyse(data: SampleData, config: Config, how: _Analysis) -> CalibrationRes
         data = apply_lags(original, lags, model)
         result = _calibrate_once(data, config, how, applied=lags)
     if lags:
-        result.notes.insert(0, "the selection ran on the samples aligned by the lags found ("
+        result.notes.insert(0, "the samples were aligned by the lags found ("
                             + ", ".join(f"{c} {1e3 * v:.3g} ms" for c, v in lags.items())
                             + f"; before aligning, held-out RMSE {first.error_before.rmse_nm:.4g} -> "
-                            f"{first.error_after.rmse_nm:.4g} N·m); a parameter file carries no lag: the errors "
-                            "before and after are of the recordings as they are, replayed with each file; put "
-                            "lag_s in a channel map to align them on import")
+                            f"{first.error_after.rmse_nm:.4g} N·m); the written file carries them ("
+                            + ", ".join(f"estimator.{c}_lag_s: {v:.4g}" for c, v in lags.items())
+                            + "): replay and the node align the channels as the selection did")
     if result.negative and config.estimator.paper_model:
         result = _without_paper_model(data, config, how, result)
     result.speed_noise = data.speed_noise_text
@@ -323,6 +324,8 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
         "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a))),
     }
     new_config = _calibrated_config(config, effects, parameters, kept=_untested_file_effects(config, cal))
+    # the lags the samples were aligned by: the written file aligns them as the selection did
+    new_config = new_config.with_values({f"estimator.{c}_lag_s": (applied or {}).get(c, 0.0) for c in LAG_CHANNELS})
     covariance = fitted_covariance(cal, final, len(selected), config)
     new_config = new_config.with_values({"calibration.covariance": covariance.to_text() if covariance else ""})
     new_config = new_config.with_values(
@@ -455,10 +458,11 @@ def _as_given(found: FoundEffect, config: Config) -> FoundEffect:
 
 
 def _changed(config: Config, new: Config) -> bool:
-    """Whether the calibrated file differs from the one given in an effect or a model parameter
-    calibrate fits (not in what it only states: a table's ratio, the recordings' speed noise)."""
+    """Whether the calibrated file differs from the one given in an effect, a model parameter or a
+    channel lag calibrate fits (not in what it only states: a table's ratio, the recordings' speed noise)."""
     a, b = config.to_flat(), new.to_flat()
-    keys = [k for k in a if k.startswith("effects.")] + [p.key for p in MODEL_PARAMETERS.values()]
+    keys = [k for k in a if k.startswith("effects.")] + [p.key for p in MODEL_PARAMETERS.values()] \
+        + [f"estimator.{c}_lag_s" for c in LAG_CHANNELS]
     return any(a[k] != b[k] for k in keys)
 
 

@@ -144,9 +144,12 @@ def _load(bags, config, topics, warn, min_speed_rad_s, progress) -> SampleData:
 
 
 def bare_config(config: Config) -> Config:
-    """``config`` without its effects and adaptation: the model whose residual calibration analyses."""
+    """``config`` without its effects, adaptation and channel lags: the model whose residual calibration
+    analyses, of the samples as recorded (a lag is found in them and written, not assumed)."""
+    from ..core.lagalign import LAG_CHANNELS
+
     return validate({k: v for k, v in config.to_flat().items() if not k.startswith("effects.")}
-                    | {"estimator.adapt": False})
+                    | {"estimator.adapt": False} | {f"estimator.{c}_lag_s": 0.0 for c in LAG_CHANNELS})
 
 
 def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, skipped: dict[str, int] | None = None,
@@ -197,8 +200,8 @@ def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, 
 def file_residual(data: SampleData, config: Config) -> np.ndarray:
     """What the parameter file ``config`` leaves of each analysed sample's measured loss (NaN where it
     measures none): the one forward path -- each recording replayed through the
-    :class:`~core.estimator.Estimator` of the file as written (its effects, sensor errors, speed noise
-    and online adaptation), from its first sample, exactly as ``replay`` estimates it; rows of tables
+    :class:`~core.estimator.Estimator` of the file as written (its channel lags, effects, sensor errors,
+    speed noise and online adaptation), from its first sample, exactly as ``replay`` estimates it; rows of tables
     each on their own (nothing adapts between operating points)."""
     from dataclasses import replace
 
@@ -216,8 +219,10 @@ def file_residual(data: SampleData, config: Config) -> np.ndarray:
         mine = np.flatnonzero(data.bag_id == i)
         if not len(mine):
             continue
-        est = Estimator(config).process_batch(rec.t_ns, rec.torque_nm, rec.speed_rad_s, rec.out_torque_nm,
-                                              rec.out_speed_rad_s, rec.temperature_c, breakdown=False)
+        est = Estimator(config).estimate_paired(rec.t_ns, rec.torque_nm, rec.speed_rad_s, rec.out_torque_nm,
+                                                rec.out_speed_rad_s, rec.temperature_c)
+        if est is None:
+            continue
         if len(est.t_ns) == len(rec.t_ns):  # replay kept only samples the estimator takes
             residual = est.residual_nm
         else:

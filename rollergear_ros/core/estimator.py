@@ -20,6 +20,7 @@ from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, a
                          effect_coefficients, regressor_plan, regressors)
 from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale, reading_errors
 from .equations import efficiency
+from .lagalign import LAG_CHANNELS, LagAligner
 from .measured import measured_efficiency
 from .model import LossModel, rotation_sign, rotation_sign_scalar
 from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
@@ -112,6 +113,12 @@ def concatenate_estimates(parts: Sequence[BatchEstimate]) -> BatchEstimate:
     ) if len(parts) > 1 else first
 
 
+def _synced(paired: tuple[np.ndarray, ...]) -> list[SyncedSample]:
+    """Paired arrays as samples (the node's one-by-one path)."""
+    t, *values = paired
+    return [SyncedSample(int(t[i]), *(float(v[i]) for v in values)) for i in range(len(t))]
+
+
 class Estimator:
     """Model + accepted effects + residual + online adaptation, for one :class:`Config`."""
 
@@ -143,6 +150,9 @@ class Estimator:
         else:
             raise ValueError(f"pairing must be 'timestamp' or one of {', '.join(ARRIVAL_PAIRINGS)}, not {pairing!r}")
         self.counts = self.sync.counts  # skip reasons (shared with the synchroniser)
+        #: a channel that reads late, aligned between the pairing and the estimate (None: none lags)
+        lags = {c: getattr(est, f"{c}_lag_s") for c in LAG_CHANNELS}
+        self.aligner = LagAligner(lags, est.staleness_s) if any(lags.values()) else None
         self.adaptive = adaptive_effects(config) if est.adapt else ()
         coef = effect_coefficients(config)
         self._regressor_plan = regressor_plan(self.adaptive, config)
@@ -176,6 +186,8 @@ class Estimator:
         queued messages, skip counters and sample count, under this estimator's pairing limits."""
         self.sync = previous.sync
         self.sync.set_limits(self.sync_tolerance_s, self.config.estimator.staleness_s)
+        if previous.aligner is not None and self.aligner is not None and previous.aligner.lags_ns == self.aligner.lags_ns:
+            self.aligner = previous.aligner  # the samples it holds go on
         self._states.update({n: z for n, z in previous._states.items() if n in self._states})  # memory goes on
         self._state_t_ns = previous._state_t_ns
         self._previous_speed = previous._previous_speed
@@ -259,6 +271,8 @@ class Estimator:
         """Feed one input message (``source_ns``: its publisher's timestamp, by arrival); returns the
         estimates it completes."""
         samples = self.sync.push(channel, t_ns, value, source_ns)
+        if samples and self.aligner is not None:
+            samples = _synced(self.aligner.push(samples_to_arrays(samples)))
         if not samples:
             return ()
         out = []
@@ -271,7 +285,10 @@ class Estimator:
     def finish(self) -> list[Estimate]:
         """At the end of a live run: estimate, one by one, what can still be paired -- the samples held
         for a measured output -- exactly as :meth:`flush` does at the end of a recording."""
-        return [e for e in map(self.process, self.sync.flush()) if e is not None]
+        samples = self.sync.flush()
+        if self.aligner is not None:
+            samples = _synced(self._aligned(samples_to_arrays(samples), final=True))
+        return [e for e in map(self.process, samples) if e is not None]
 
     # ------------------------------------------------------------------ batches (replay)
     def push_many(self, codes: np.ndarray, t_ns: np.ndarray, values: np.ndarray,
@@ -279,11 +296,27 @@ class Estimator:
         """Feed a batch of messages in arrival (file) order (``codes`` index :data:`~.pairing.CHANNELS`;
         ``source_ns``: the publishers' timestamps, by arrival); returns the estimates of the samples
         they complete (None when they complete none)."""
-        return self._estimate(self.sync.push_many(codes, t_ns, values, source_ns))
+        return self._estimate(self._aligned(self.sync.push_many(codes, t_ns, values, source_ns)))
 
     def flush(self) -> BatchEstimate | None:
         """At the end of a log: estimate what can still be paired (the rest counts as unpaired)."""
-        return self._estimate(samples_to_arrays(self.sync.flush()))
+        return self._estimate(self._aligned(samples_to_arrays(self.sync.flush()), final=True))
+
+    def estimate_paired(self, t_ns: np.ndarray, torque: np.ndarray, speed: np.ndarray, out_torque: np.ndarray,
+                        out_speed: np.ndarray, temperature: np.ndarray) -> BatchEstimate | None:
+        """The paired samples of a whole recording (in time order, as replay paired them) through the
+        lag alignment and the estimate: what replay estimates of them."""
+        return self._estimate(self._aligned((t_ns, torque, speed, out_torque, out_speed, temperature), final=True))
+
+    def _aligned(self, paired: tuple[np.ndarray, ...], final: bool = False) -> tuple[np.ndarray, ...]:
+        """Paired samples through the lag alignment (:mod:`.lagalign`; as they are where nothing lags)."""
+        if self.aligner is None:
+            return paired
+        out = self.aligner.push(paired)
+        if final:
+            rest = self.aligner.flush()
+            out = tuple(np.concatenate([a, b]) for a, b in zip(out, rest))
+        return out
 
     def _estimate(self, paired: tuple[np.ndarray, ...]) -> BatchEstimate | None:
         t, tq, w, tq_out, w_out, theta = paired

@@ -186,6 +186,12 @@ ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
               "input messages whose times differ by at most this are one sample (keep below half the sample "
               "period); 0 = automatic: 0.4 x the median period of the motor torque messages (offline measured in "
               "the bag, live 1/node.expected_rate_hz)", "s", low=0.0, high=10.0),
+    *(ParamSpec(f"estimator.{channel}_lag_s", float, 0.0,
+                f"how much later the {channel.replace('_', ' ')} reading comes than the drive torque's (a DAQ on "
+                "its own clock, a sensor's filter): each sample takes its value at t + lag, interpolated between "
+                "the paired samples around (the estimate waits that long); calibrate writes the lag it found "
+                "and aligned", "s", low=-1.0, high=1.0)
+      for channel in ("motor_speed", "output_torque", "output_speed")),
     ParamSpec("estimator.staleness_s", float, 0.1,
               "an input silent for longer than this is stale: motor samples no longer wait for it, diagnostics warn",
               "s", low=0.0, low_open=True, high=3600.0),
@@ -435,6 +441,9 @@ class EstimatorParams:
     min_speed_for_efficiency_rad_s: float = 0.5
     speed_noise_rad_s: float | str = "auto"  #: a number, or ``auto`` (:mod:`.speednoise`)
     sync_tolerance_s: float = 0.0
+    motor_speed_lag_s: float = 0.0
+    output_torque_lag_s: float = 0.0
+    output_speed_lag_s: float = 0.0
     staleness_s: float = 0.1
     max_abs_torque_nm: float = 5000.0
     max_abs_speed_rad_s: float = 2000.0
