@@ -308,21 +308,18 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
     # (nuisance columns, ambiguous sets kept in the fit) on the other folds
     pred_after = cal.cv_predictions(final, only_terms=len(selected))
     idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
-    if before is None:  # the parameter file as given: its model and its accepted effects, nothing fitted
-        file_pred = _file_prediction(data, config, blocks0, start)
-        err_b = blocks0.y - file_pred
-        s_b = data.residual - file_pred[idx_block]
-        error_before = error_stats(err_b, blocks.measured, blocks.count)
+    if before is None:  # the parameter file as given, replayed through the one forward path
+        error_before, sample_before, s_b = _file_errors(data, blocks0, config)
+        err_b = blocks0.mean(s_b)  # the residual it leaves, as block means
     else:
         s_b, error_before = before.before_residual, before.error_before
+        sample_before = before.sample_level["before"]
+        err_b = blocks0.mean(s_b)
     err_a = blocks.y - pred_after
     error_after = error_stats(err_a, blocks.measured, blocks.count)
     verdict = _verdict(out, selected, cal.delta)
     s_a = data_c.residual - pred_after[idx_block]
-    sample_level = {
-        "before": error_stats(s_b, data.measured_loss, np.ones(len(s_b))),
-        "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a))),
-    }
+    sample_level = {"before": sample_before, "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a)))}
     new_config = _calibrated_config(config, effects, parameters, kept=_untested_file_effects(config, cal))
     # the lags the samples were aligned by: the written file aligns them as the selection did
     new_config = new_config.with_values({f"estimator.{c}_lag_s": (applied or {}).get(c, 0.0) for c in LAG_CHANNELS})
@@ -350,8 +347,6 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
     # the claim is the file: what the given and the written file leave of these samples, each replayed
     # through the one forward path (the estimator as replay runs it); the held-out error claimed is
     # never below what the written file leaves of the very samples it was fitted to
-    if before is None:
-        error_before, sample_level["before"], s_b = _file_errors(data, blocks0, config)
     written_blocks, written_samples, s_a = _file_errors(data, blocks0, new_config)
     sample_level["after"] = written_samples
     if written_blocks.rmse_nm > error_after.rmse_nm:
@@ -402,24 +397,6 @@ def _file_terms(cal: Calibrator, config: Config) -> list[Term]:
 def _untested_file_effects(config: Config, cal: Calibrator) -> list[str]:
     """The parameter file's accepted effects this data cannot test: written as they are."""
     return [n for n in config.effects.enabled() if n not in cal.b.testable]
-
-
-def _file_prediction(data: SampleData, config: Config, blocks: Blocks, start: list[Term]) -> np.ndarray:
-    """Per block: what the parameter file as given adds to the bare model's prediction of the
-    measured loss -- its accepted effects at its own coefficients (columns as the selection fits
-    them), with its torque-sensor errors also in the model's input (the estimator's correction)."""
-    pred = np.zeros(len(blocks.y))
-    active = config.effects.active()
-    for t in start:
-        effect = EFFECTS[t.name]
-        column = blocks.column(t.name, t.member, t.second, t.law)
-        pred = pred + active[t.name][effect.coefficient] * column
-    offset, gain = reading_errors({n: p for n, p in active.items() if n in {t.name for t in start}})
-    if offset or gain:  # the model at the corrected torque, as the estimator evaluates it
-        model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
-        corrected = model.loss_magnitude((data.torque - offset) / (1.0 + gain), data.speed)
-        pred = pred + blocks.mean(corrected - data.model_loss)
-    return pred
 
 
 def _model_form(cal: Calibrator, out, full, final: list[Term], selected: list[Term], data: SampleData,

@@ -202,17 +202,21 @@ def file_residual(data: SampleData, config: Config) -> np.ndarray:
     measures none): the one forward path -- each recording replayed through the
     :class:`~core.estimator.Estimator` of the file as written (its channel lags, effects, sensor errors,
     speed noise and online adaptation), from its first sample, exactly as ``replay`` estimates it; rows of tables
-    each on their own (nothing adapts between operating points)."""
+    each on their own, as operating points (nothing adapts between them, nothing is learned from them),
+    against the table's own measured loss."""
     from dataclasses import replace
 
     from ..core.estimator import Estimator
 
-    if data.recordings is None or data.source_index is None:
-        rows = replace(config, estimator=replace(config.estimator, adapt=False))
+    if data.recordings is None or data.source_index is None:  # rows: the table's own measured loss
+        noise = config.estimator.speed_noise_rad_s  # operating points: nothing learned from a list of them
+        rows = replace(config, estimator=replace(config.estimator, adapt=False,
+                                                 speed_noise_rad_s=noise if isinstance(noise, float) else 0.0))
         est = Estimator(rows).process_batch(np.arange(len(data.t_ns), dtype=np.int64), data.torque, data.speed,
-                                            data.out_torque, data.out_speed, data.temperature, breakdown=False)
+                                            temperature=data.temperature, breakdown=False)
         out = np.full(len(data.t_ns), np.nan)
-        out[est.t_ns.astype(np.intp)] = est.residual_nm
+        kept = est.t_ns.astype(np.intp)
+        out[kept] = data.measured_loss[kept] - (est.loss_magnitude_nm + est.sensor_nm)
         return out
     out = np.full(len(data.t_ns), np.nan)
     for i, rec in enumerate(data.recordings):

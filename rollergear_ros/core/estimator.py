@@ -70,6 +70,8 @@ class BatchEstimate:
     out_torque_nm: np.ndarray | None = None  #: measured output torque (NaN where none)
     out_speed_rad_s: np.ndarray | None = None  #: measured output speed (NaN where none)
     efficiency_measured: np.ndarray | None = None  #: per sample (:attr:`Estimate.efficiency_measured`)
+    #: the accepted sensor errors' part of the measured loss (the residual is measured − loss − this)
+    sensor_nm: np.ndarray | None = None
     #: the measured efficiency over the window published at the start of each sample's second, and its
     #: uncertainty (:mod:`.measured`; filled in by replay's outputs, None from the estimator)
     efficiency_measured_window: np.ndarray | None = None
@@ -88,7 +90,7 @@ class BatchEstimate:
             {k: v[keep] for k, v in self.breakdown_nm.items()}, pick(self.effects_nm),
             {k: v[keep] for k, v in self.coefficients.items()}, [a for a in self.alarms_t_ns if lo <= a <= hi],
             pick(self.loss_magnitude_nm), pick(self.out_torque_nm), pick(self.out_speed_rad_s),
-            pick(self.efficiency_measured))
+            pick(self.efficiency_measured), sensor_nm=pick(self.sensor_nm))
 
 
 def concatenate_estimates(parts: Sequence[BatchEstimate]) -> BatchEstimate:
@@ -109,7 +111,7 @@ def concatenate_estimates(parts: Sequence[BatchEstimate]) -> BatchEstimate:
         effects_nm=cat([p.effects_nm for p in parts]), coefficients=cat_dict([p.coefficients for p in parts]),
         alarms_t_ns=list(parts[-1].alarms_t_ns), loss_magnitude_nm=cat([p.loss_magnitude_nm for p in parts]),
         out_torque_nm=cat([p.out_torque_nm for p in parts]), out_speed_rad_s=cat([p.out_speed_rad_s for p in parts]),
-        efficiency_measured=cat([p.efficiency_measured for p in parts]),
+        efficiency_measured=cat([p.efficiency_measured for p in parts]), sensor_nm=cat([p.sensor_nm for p in parts]),
     ) if len(parts) > 1 else first
 
 
@@ -186,7 +188,8 @@ class Estimator:
         queued messages, skip counters and sample count, under this estimator's pairing limits."""
         self.sync = previous.sync
         self.sync.set_limits(self.sync_tolerance_s, self.config.estimator.staleness_s)
-        if previous.aligner is not None and self.aligner is not None and previous.aligner.lags_ns == self.aligner.lags_ns:
+        if previous.aligner is not None and self.aligner is not None \
+                and previous.aligner.lags_ns == self.aligner.lags_ns:
             self.aligner = previous.aligner  # the samples it holds go on
         self._states.update({n: z for n, z in previous._states.items() if n in self._states})  # memory goes on
         self._state_t_ns = previous._state_t_ns
@@ -518,6 +521,7 @@ class Estimator:
             out_torque_nm=out_torque,
             out_speed_rad_s=out_speed,
             efficiency_measured=eff_meas,
+            sensor_nm=sens,
         )
 
     def _model_result(self, torque: np.ndarray, speed: np.ndarray, sg: np.ndarray, temperature: np.ndarray, *,
