@@ -137,6 +137,7 @@ def calibrate(data: SampleData, config: Config,
     when = ", ".join(c.when() for c in changes)
     final.stretch = (f"the latest stretch, {len(latest.t_ns):,} samples after the change at {changes[-1].when()}"
                      + (f" ({window})" if window else ""))
+    final.config = _describing(final.config, final.stretch)
     final.notes.insert(0, f"the gearbox changed inside the recordings at {when} (one fit across "
                           f"{'them' if len(changes) > 1 else 'it'}: held-out RMSE {changes[-1].heldout_one_nm:.4g} "
                           f"N·m, a fit on each side {changes[-1].heldout_two_nm:.4g}); the latest stretch is "
@@ -397,6 +398,14 @@ def _file_terms(cal: Calibrator, config: Config) -> list[Term]:
 def _untested_file_effects(config: Config, cal: Calibrator) -> list[str]:
     """The parameter file's accepted effects this data cannot test: written as they are."""
     return [n for n in config.effects.enabled() if n not in cal.b.testable]
+
+
+def _describing(config: Config, stretch: str) -> Config:
+    """``config`` saying in its model form which stretch of the recordings it describes."""
+    form = ModelForm.from_text(config.calibration.model_form)
+    if form is None:
+        return config
+    return config.with_values({"calibration.model_form": replace(form, segment=stretch).to_text()})
 
 
 def _model_form(cal: Calibrator, out, full, final: list[Term], selected: list[Term], data: SampleData,

@@ -7,7 +7,8 @@ is the right one.  ``calibrate`` writes beside it, as one JSON text::
       model_form: '{"verdict": "inconclusive",
                     "alternatives": [{"name": "drag_constant", "params": {"c": 0.0398}}],
                     "unresolved": "dahl or drag_constant: ...",
-                    "seen": {"speed_rad_s": 314.2, "torque_nm": 95.0}}'
+                    "seen": {"speed_rad_s": 314.2, "torque_nm": 95.0},
+                    "segment": "the latest stretch, 9,800 samples after the change at 240.8 s"}'
 
 * ``alternatives``: effects the fit kept and the file does not hold (the best of a set the data could
   not tell apart): a prediction is also made with each added, and the band spans them;
@@ -15,7 +16,9 @@ is the right one.  ``calibrate`` writes beside it, as one JSON text::
   refuses the band with it;
 * ``seen``: the largest drive speed and torque the calibration analysed: beyond them (or beyond the
   gearbox's rating) the accepted effects are extrapolated, and the band counts their share as
-  unknown.
+  unknown;
+* ``segment``: the part of the recordings the file describes where the gearbox changed inside them
+  (``""``: every sample), said with every prediction.
 
 ``""``: none (a file calibrate did not write).  No rclpy import.
 """
@@ -41,6 +44,7 @@ class ModelForm:
     unresolved: str = ""
     seen_speed_rad_s: float = math.inf  #: the largest |ω| analysed (inf: not said)
     seen_torque_nm: float = math.inf  #: the largest |T| analysed
+    segment: str = ""  #: the stretch of the recordings the file describes ('': all of them)
     notes: list[str] = field(default_factory=list, compare=False)
 
     def to_text(self) -> str:
@@ -48,7 +52,8 @@ class ModelForm:
                 if math.isfinite(v)}
         return json.dumps({"verdict": self.verdict,
                            "alternatives": [{"name": n, "params": p} for n, p in self.alternatives],
-                           "unresolved": self.unresolved, "seen": seen}, separators=(",", ":"))
+                           "unresolved": self.unresolved, "seen": seen}
+                          | ({"segment": self.segment} if self.segment else {}), separators=(",", ":"))
 
     @classmethod
     def from_text(cls, text: str) -> ModelForm | None:
@@ -59,11 +64,11 @@ class ModelForm:
             data = json.loads(text)
         except (ValueError, RecursionError) as exc:
             raise ValueError(f"not JSON ({exc})") from None
-        if not isinstance(data, dict) or not set(data) <= {"verdict", "alternatives", "unresolved", "seen"}:
-            raise ValueError('a JSON object of "verdict", "alternatives", "unresolved", "seen"')
-        verdict, unresolved = data.get("verdict", ""), data.get("unresolved", "")
-        if not isinstance(verdict, str) or not isinstance(unresolved, str):
-            raise ValueError('"verdict" and "unresolved" are text')
+        if not isinstance(data, dict) or not set(data) <= {"verdict", "alternatives", "unresolved", "seen", "segment"}:
+            raise ValueError('a JSON object of "verdict", "alternatives", "unresolved", "seen", "segment"')
+        verdict, unresolved, segment = data.get("verdict", ""), data.get("unresolved", ""), data.get("segment", "")
+        if not all(isinstance(v, str) for v in (verdict, unresolved, segment)):
+            raise ValueError('"verdict", "unresolved" and "segment" are text')
         alternatives = data.get("alternatives", [])
         if not isinstance(alternatives, list) or len(alternatives) > MAX_ALTERNATIVES:
             raise ValueError(f'"alternatives" is a list of at most {MAX_ALTERNATIVES}')
@@ -79,7 +84,7 @@ class ModelForm:
                 or not all(_number(v) and v > 0 for v in seen.values()):
             raise ValueError('"seen" is {"speed_rad_s": number > 0, "torque_nm": number > 0}')
         return cls(verdict, tuple(alts), unresolved, float(seen.get("speed_rad_s", math.inf)),
-                   float(seen.get("torque_nm", math.inf)))
+                   float(seen.get("torque_nm", math.inf)), segment)
 
 
 def _number(v) -> bool:

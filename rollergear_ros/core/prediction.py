@@ -278,6 +278,9 @@ class PredictionSums:
             out.band_refused = (f"the calibration left {form.unresolved} unresolved, with no alternative written to "
                                 "span: a band of the written parameters alone would claim more than is known")
         out.notes = list(self.alternative_notes)
+        if form and form.segment:
+            out.notes.append(f"the parameter file describes the gearbox of {form.segment} (it changed inside the "
+                             "recordings calibrated on)")
         if self._collect:
             cat = [np.concatenate(p) if p else np.zeros(0) for p in zip(*self._parts)] if self._parts else \
                 [np.zeros(0, dtype=np.int64), *(np.zeros(0) for _ in range(4))]

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from rollergear_ros.calibration.calibrate import calibrate, load_samples
+from rollergear_ros.core.modelform import ModelForm
 from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
@@ -323,6 +324,9 @@ def test_recordings_of_different_rigs_are_not_fitted_across(tmp_path):
     assert "the start of recording 2" in " ".join(result["notes"])
     cal = load_config(out)
     assert cal.effects.enabled() == ("load_dependent",)
+    # the file says which stretch it describes, and a prediction with it says so
+    assert "the start of recording 2" in ModelForm.from_text(cal.calibration.model_form).segment
+    assert "describes the gearbox of the latest stretch" in run_cli("predict", bags[1], "--params", str(out)).stdout
     # all at once, the fits across both are refused with their reasons, not written
     proc = run_cli("calibrate", *bags, "--segments", "off", "--out", str(tmp_path / "across.yaml"), check=False)
     assert "needs a negative friction" in proc.stdout
