@@ -40,6 +40,12 @@ class LagAligner:
     def active(self) -> bool:
         return bool(self.lags_ns)
 
+    def describe(self) -> str:
+        """``output_torque 29.8 ms late: read at t + lag``."""
+        names = {column: name for name, column in LAG_CHANNELS.items()}
+        return "; ".join(f"{names[c]} {abs(v) * 1e-6:.3g} ms {'late' if v > 0 else 'early'}"
+                         for c, v in self.lags_ns.items()) + ": each sample takes its value at t + lag"
+
     def push(self, paired: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
         """Paired arrays in (time order); out, the aligned samples whose lagging values are known now."""
         t = np.asarray(paired[0], dtype=np.int64)

@@ -298,3 +298,5 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
     summary.coefficients = estimator.coefficients()
     summary.speed_noise_rad_s = estimator.speed_noise.value
     summary.speed_noise_text = estimator.speed_noise.describe()
+    if estimator.aligner is not None:
+        summary.lags_text = estimator.aligner.describe()

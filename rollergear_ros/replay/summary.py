@@ -69,6 +69,7 @@ class ReplaySummary:
     parameter_changes: list[str] = field(default_factory=list)
     speed_noise_rad_s: float = 0.0  #: the speed reading's noise the estimator used (at the end)
     speed_noise_text: str = ""  #: ... and where it came from (the file, or learned)
+    lags_text: str = ""  #: the channel lags the file's estimator aligned ('': none)
 
     @property
     def energy_in_measured_j(self) -> float:
@@ -104,6 +105,8 @@ class ReplaySummary:
             )
         if self.speed_noise_text:
             lines.append(f"speed reading's noise: {self.speed_noise_text}")
+        if self.lags_text:
+            lines.append(f"channel lags (the parameter file's): {self.lags_text}")
         skipped = {k: v for k, v in self.skipped.items() if v}
         lines.append("skipped: " + (", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in skipped.items()) or "none"))
         lines.append(

@@ -133,3 +133,5 @@ def test_the_error_calibrate_claims_after_is_what_its_written_file_leaves(tmp_pa
         assert written.estimator.output_torque_lag_s == pytest.approx(0.03, abs=0.002)
         assert any("the written file carries them" in n for n in result["notes"]), result["notes"]
         assert claimed < 0.05  # the lag's 0.26 N·m gone (the noise floor: 0.03)
+        said = run_cli("replay", str(bag), "--params", str(out)).stdout
+        assert "channel lags (the parameter file's): output_torque 29.8 ms late" in said
