@@ -308,8 +308,9 @@ class Estimator:
     def estimate_paired(self, t_ns: np.ndarray, torque: np.ndarray, speed: np.ndarray, out_torque: np.ndarray,
                         out_speed: np.ndarray, temperature: np.ndarray) -> BatchEstimate | None:
         """The paired samples of a whole recording (in time order, as replay paired them) through the
-        lag alignment and the estimate: what replay estimates of them."""
-        return self._estimate(self._aligned((t_ns, torque, speed, out_torque, out_speed, temperature), final=True))
+        lag alignment and the estimate: what replay estimates of them (without the paper's breakdown)."""
+        return self._estimate(self._aligned((t_ns, torque, speed, out_torque, out_speed, temperature), final=True),
+                              breakdown=False)
 
     def _aligned(self, paired: tuple[np.ndarray, ...], final: bool = False) -> tuple[np.ndarray, ...]:
         """Paired samples through the lag alignment (:mod:`.lagalign`; as they are where nothing lags)."""
@@ -321,9 +322,9 @@ class Estimator:
             out = tuple(np.concatenate([a, b]) for a, b in zip(out, rest))
         return out
 
-    def _estimate(self, paired: tuple[np.ndarray, ...]) -> BatchEstimate | None:
+    def _estimate(self, paired: tuple[np.ndarray, ...], breakdown: bool = True) -> BatchEstimate | None:
         t, tq, w, tq_out, w_out, theta = paired
-        return self.process_batch(t, tq, w, tq_out, w_out, theta) if len(t) else None
+        return self.process_batch(t, tq, w, tq_out, w_out, theta, breakdown=breakdown) if len(t) else None
 
     @property
     def motor_messages(self) -> int:
