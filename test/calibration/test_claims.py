@@ -113,12 +113,25 @@ def _lagged_drive(folder):
     return path
 
 
-@pytest.mark.parametrize("recording", ["rig_map_drag", "lagged"])
+def _offset_under_load(folder):
+    """A lossy drive (a load friction half the drive torque) whose torque sensor reads 0.05 N·m high: the
+    load friction sees the corrected torque |T - b| in the estimator (calibrate claimed 2.26 N·m per
+    sample of the file that leaves 0.03)."""
+    path = folder / "offset.mcap"
+    opts = SimulationOptions(profile="bidirectional_map", rate_hz=100.0, seed=3,
+                             effects=[DeclaredEffect.parse("load_dependent:c=0.5,q=1.0"),
+                                      DeclaredEffect.parse("torque_offset:b=0.05")])
+    write_rig_bag(simulate(load_config(), opts), opts, path)
+    return path
+
+
+@pytest.mark.parametrize("recording", ["rig_map_drag", "lagged", "offset_under_load"])
 def test_the_error_calibrate_claims_after_is_what_its_written_file_leaves(tmp_path, recording):
     """End to end: calibrate writes a file; replayed on the recording, it leaves of the samples calibrate
     analysed exactly the per-sample error calibrate claimed -- also where the selection ran on samples
     aligned by a lag (the file carries it, replay aligns the channel as the selection did)."""
-    bag = BAGS / "rig_map_drag.mcap" if recording == "rig_map_drag" else _lagged_drive(tmp_path)
+    bag = {"rig_map_drag": lambda: BAGS / "rig_map_drag.mcap", "lagged": lambda: _lagged_drive(tmp_path),
+           "offset_under_load": lambda: _offset_under_load(tmp_path)}[recording]()
     out = tmp_path / "cal.yaml"
     result = json.loads(run_cli("calibrate", str(bag), "--out", str(out), "--json").stdout)
     assert result["written"]
