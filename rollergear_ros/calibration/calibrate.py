@@ -309,8 +309,12 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
     # (nuisance columns, ambiguous sets kept in the fit) on the other folds
     pred_after = cal.cv_predictions(final, only_terms=len(selected))
     idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
-    if before is None:  # the parameter file as given, replayed through the one forward path
-        error_before, sample_before, s_b = _file_errors(data, blocks0, config)
+    # the parameter file as given (at the recordings' speed noise where its own was far off: a rig
+    # nuisance corrected either way, said), replayed through the one forward path
+    given = config if data.speed_noise_override is None else config.with_values(
+        {"estimator.speed_noise_rad_s": data.speed_noise_override})
+    if before is None:
+        error_before, sample_before, s_b = _file_errors(data, blocks0, given)
         err_b = blocks0.mean(s_b)  # the residual it leaves, as block means
     else:
         s_b, error_before = before.before_residual, before.error_before
@@ -340,8 +344,7 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
                      f"as well as a refit of them (RMSE {error_before.rmse_nm:.4g} against {error_after.rmse_nm:.4g} "
                      "N·m): written as given")
         effects = [_as_given(e, config) for e in effects]
-        new_config = config if data.speed_noise_override is None else config.with_values(
-            {"estimator.speed_noise_rad_s": data.speed_noise_override})
+        new_config = given
         error_after, s_a, pred_after = error_before, s_b, blocks0.y - err_b
         sample_level["after"] = sample_level["before"]
         err_a = err_b
