@@ -86,6 +86,10 @@ def cmd_model(args: argparse.Namespace) -> int:
     if res.effects_nm:
         print(f"accepted effects of the parameter file: {', '.join(res.effects_nm)} "
               "(model [%]: the paper's model's share of the loss)")
+    noise = config.estimator.speed_noise_rad_s
+    print("the loss's sign near standstill: " + (
+        f"tanh(ω/{noise:g} rad/s), the file's speed noise" if isinstance(noise, float) and noise > 0 else
+        "the plain sign of each point's speed (estimator.speed_noise_rad_s: auto is not learned from points)"))
     return 0
 
 

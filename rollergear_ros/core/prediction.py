@@ -178,6 +178,8 @@ class PredictionSums:
                 moved = fixed.with_values({key: value + step})
             self._perturbed.append((step, Estimator(moved)))
         self._model_form(config, fixed)
+        aligner = Estimator(self.config).aligner if recorded else None
+        self._lags = aligner.describe() if aligner is not None else ""  #: a plan is not read late
         k = len(self._perturbed)
         self.gradient = np.zeros(k)  #: d E / d θ
         self.energy = self.energy_in = self.peak = 0.0
@@ -278,6 +280,8 @@ class PredictionSums:
             out.band_refused = (f"the calibration left {form.unresolved} unresolved, with no alternative written to "
                                 "span: a band of the written parameters alone would claim more than is known")
         out.notes = list(self.alternative_notes)
+        if self._lags:
+            out.notes.append(f"channel lags (the parameter file's): {self._lags}")
         if form and form.segment:
             out.notes.append(f"the parameter file describes the gearbox of {form.segment} (it changed inside the "
                              "recordings calibrated on)")

@@ -300,3 +300,13 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
     summary.speed_noise_text = estimator.speed_noise.describe()
     if estimator.aligner is not None:
         summary.lags_text = estimator.aligner.describe()
+    summary.describes = _describes(estimator.config)
+
+
+def _describes(config: Config) -> str:
+    """The stretch of the recordings the parameter file describes, where its calibration found the
+    gearbox changed inside them ('': all of them, or not calibrated)."""
+    from ..core.modelform import ModelForm
+
+    form = ModelForm.from_text(config.calibration.model_form)
+    return form.segment if form else ""

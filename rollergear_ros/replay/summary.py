@@ -70,6 +70,7 @@ class ReplaySummary:
     speed_noise_rad_s: float = 0.0  #: the speed reading's noise the estimator used (at the end)
     speed_noise_text: str = ""  #: ... and where it came from (the file, or learned)
     lags_text: str = ""  #: the channel lags the file's estimator aligned ('': none)
+    describes: str = ""  #: the stretch of its calibration's recordings the parameter file describes
 
     @property
     def energy_in_measured_j(self) -> float:
@@ -107,6 +108,9 @@ class ReplaySummary:
             lines.append(f"speed reading's noise: {self.speed_noise_text}")
         if self.lags_text:
             lines.append(f"channel lags (the parameter file's): {self.lags_text}")
+        if self.describes:
+            lines.append(f"the parameter file describes the gearbox of {self.describes} (it changed inside the "
+                         "recordings calibrated on)")
         skipped = {k: v for k, v in self.skipped.items() if v}
         lines.append("skipped: " + (", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in skipped.items()) or "none"))
         lines.append(

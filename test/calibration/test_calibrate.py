@@ -327,6 +327,7 @@ def test_recordings_of_different_rigs_are_not_fitted_across(tmp_path):
     # the file says which stretch it describes, and a prediction with it says so
     assert "the start of recording 2" in ModelForm.from_text(cal.calibration.model_form).segment
     assert "describes the gearbox of the latest stretch" in run_cli("predict", bags[1], "--params", str(out)).stdout
+    assert "describes the gearbox of the latest stretch" in run_cli("replay", bags[1], "--params", str(out)).stdout
     # all at once, the fits across both are refused with their reasons, not written
     proc = run_cli("calibrate", *bags, "--segments", "off", "--out", str(tmp_path / "across.yaml"), check=False)
     assert "needs a negative friction" in proc.stdout

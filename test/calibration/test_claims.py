@@ -148,3 +148,5 @@ def test_the_error_calibrate_claims_after_is_what_its_written_file_leaves(tmp_pa
         assert claimed < 0.05  # the lag's 0.26 N·m gone (the noise floor: 0.03)
         said = run_cli("replay", str(bag), "--params", str(out)).stdout
         assert "channel lags (the parameter file's): output_torque 29.8 ms late" in said
+        assert "channel lags (the parameter file's): output_torque 29.8 ms late" in run_cli(
+            "predict", str(bag), "--params", str(out)).stdout

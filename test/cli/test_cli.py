@@ -292,3 +292,15 @@ def test_fleet_limits_are_one_line(tmp_path, action, args, message):
     proc = run_cli("fleet", action, str(BAGS / "rig_map.mcap"), "--out", str(tmp_path / "o"), *args,
                    check=False, timeout=120)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and message in proc.stderr, proc.stderr
+
+
+def test_model_over_a_grid_is_model_point_by_point_and_says_its_sign_rule():
+    """The grid that went wrong (from ~50 points on, the speed noise was learned from the list and the
+    sign of the slow points smoothed): each row is the point alone, and the text says the sign's rule."""
+    torques, speeds = ["-90", "-60", "-30", "-10", "10", "30", "60", "90"], ["-300", "-200", "-100", "-10", "10",
+                                                                            "100", "200", "300"]
+    grid = json.loads(run_cli("model", "--torque", *torques, "--speed", *speeds, "--json").stdout)["points"]
+    alone = json.loads(run_cli("model", "--torque", "90", "--speed", "-10", "--json").stdout)["points"][0]
+    [row] = [p for p in grid if p["torque_nm"] == 90 and p["speed_rad_s"] == -10]
+    assert row["loss_torque_nm"] == alone["loss_torque_nm"] < -0.2
+    assert "the plain sign of each point's speed" in run_cli("model", "--torque", "10", "--speed", "5").stdout
