@@ -213,3 +213,13 @@ def test_beyond_what_the_calibration_saw_the_band_widens_and_says_so_and_an_unre
     params.write_text(CALIBRATED + "      model_form: '{not json'\n")
     bad = run_cli("predict", *plan, "--params", str(params), check=False)
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "calibration.model_form" in bad.stderr
+
+
+def test_predict_json_is_json_for_a_one_sample_profile_and_a_duplicated_time(tmp_path):
+    """No bare NaN in the JSON (a one-sample profile has no duration, so no mean loss power: null)."""
+    one = predict({"t_s": np.array([0.0]), "torque_nm": np.array([20.0]), "speed_rad_s": np.array([100.0])})
+    twice = predict({"t_s": np.array([1.0, 1.0]), "torque_nm": np.array([20.0, 20.0]),
+                     "speed_rad_s": np.array([100.0, 100.0])})
+    for p in (one, twice):
+        text = json.dumps(p.to_json(), allow_nan=False)
+        assert json.loads(text)["mean_loss_power_w"] is None
