@@ -710,8 +710,8 @@ def _refit_sensor_errors(cal: Calibrator, data: SampleData, final: list[Term], c
 def _calibrated_config(config: Config, effects: list[FoundEffect], parameters: list[FoundParameter],
                        kept: Sequence[str] = ()) -> Config:
     """``config`` with exactly the accepted effects enabled, at their fitted parameters (and the file's
-    ``kept`` ones as they are: this data could not test them), and the model's parameters calibrate
-    changed."""
+    ``kept`` ones as they are: this data could not test them), the model's parameters calibrate
+    changed, and its coefficients held (``estimator.adapt: false``)."""
     flat = {k: v for k, v in config.to_flat().items()}
     for name in EFFECTS:
         if name not in kept:
@@ -722,6 +722,10 @@ def _calibrated_config(config: Config, effects: list[FoundEffect], parameters: l
             flat[f"effects.{e.name}.{q.key}"] = e.params[q.short]
     for p in parameters:
         flat[p.name] = p.fitted
+    # the coefficients as calibrated, held: what the claims are of (online adaptation tracks each
+    # sample's noise -- on 1 h at 1 kHz its block means were 10x the held-out error); a node that
+    # should follow them sets estimator.adapt: true
+    flat["estimator.adapt"] = False
     return validate(flat)
 
 

@@ -37,7 +37,8 @@ def test_model_table_and_csv_input(tmp_path):
     f.write_text("torque_nm,speed_rad_s\n10,104.72\n-10,104.72\n0,0\n")
     out = run_cli("model", "--csv", str(f)).stdout
     lines = [ln for ln in out.splitlines() if ln.strip() and not ln.startswith("-")]
-    assert len(lines) == 4 and "0.06783" in out and "n/a" in out
+    assert len(lines) == 5 and "0.06783" in out and "n/a" in out  # the header, 3 points, the sign's rule
+    assert lines[-1].startswith("the loss's sign near standstill")
 
 
 @pytest.mark.parametrize("args, message", [
