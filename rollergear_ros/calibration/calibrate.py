@@ -430,7 +430,7 @@ def _model_form(cal: Calibrator, out, full, final: list[Term], selected: list[Te
 def _file_errors(data: SampleData, blocks: Blocks, config: Config) -> tuple[ErrorStats, ErrorStats, np.ndarray]:
     """What the parameter file ``config`` leaves of ``data``'s measured loss, replayed through the one
     forward path (:func:`~.samples.file_residual`): its errors over ``blocks``' means and over the
-    samples, and the residual of each sample (NaN where the file measures none)."""
+    samples (those it measures a loss of), and the residual of each sample (0 where it measures none)."""
     r = file_residual(data, config)
     ok = np.isfinite(r)
     sample = error_stats(r[ok], data.measured_loss[ok], np.ones(int(ok.sum())))
@@ -722,9 +722,8 @@ def _calibrated_config(config: Config, effects: list[FoundEffect], parameters: l
             flat[f"effects.{e.name}.{q.key}"] = e.params[q.short]
     for p in parameters:
         flat[p.name] = p.fitted
-    # the coefficients as calibrated, held: what the claims are of (online adaptation tracks each
-    # sample's noise -- on 1 h at 1 kHz its block means were 10x the held-out error); a node that
-    # should follow them sets estimator.adapt: true
+    # the coefficients as calibrated, held: what the claims are of (online adaptation follows each
+    # sample's noise); a node that should track them sets estimator.adapt: true
     flat["estimator.adapt"] = False
     return validate(flat)
 
