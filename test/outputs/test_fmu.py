@@ -28,7 +28,7 @@ SPEEDS = [-250.3, -7.7, 0.9, 33.3, 201.7]
 #: runs in a fresh interpreter: fmpy steps the unit at every (temperature, torque, speed) of argv's JSON;
 #: this package is made unimportable first, so the unit must carry what it needs
 RUN_UNIT = textwrap.dedent("""
-    import json, sys
+    import json, os, sys
     sys.modules["rollergear_ros"] = None
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
@@ -51,6 +51,8 @@ RUN_UNIT = textwrap.dedent("""
     print(json.dumps({"rows": rows, "error": fixed, "strings": strings, "description": md.description,
                       "inputs": sorted(v.name for v in md.modelVariables if v.causality == "input"),
                       "outputs": sorted(v.name for v in md.modelVariables if v.causality == "output")}))
+    sys.stdout.flush()
+    os._exit(0)  # past freeInstance: pythonfmu's embedded interpreter tearing down with the host aborted once
 """)
 
 
@@ -149,7 +151,7 @@ def test_the_oil_axis_covers_the_range_asked_for_and_not_beyond():
 
 #: 1000 instantiate / step / free cycles with hostile inputs, in a process that cannot import this package
 RUN_HOSTILE = textwrap.dedent("""
-    import json, math, sys
+    import json, math, os, sys
     sys.modules["rollergear_ros"] = None
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
@@ -178,6 +180,8 @@ RUN_HOSTILE = textwrap.dedent("""
                 wrong.append([inputs, out, inside])
         unit.terminate(); unit.freeInstance()
     print(json.dumps({"cycles": cycles, "wrong": wrong[:5]}))
+    sys.stdout.flush()
+    os._exit(0)  # past the last freeInstance: as in RUN_UNIT
 """)
 
 
