@@ -30,6 +30,17 @@ MAX_COVARIANCE_KEYS = 64
 SYMMETRY_TOLERANCE = 1e-9
 
 
+def json_parameter(text: str):
+    """A JSON text a string parameter holds (``calibration.*``): its value, None for ``""``; ValueError
+    says why it is not JSON."""
+    if not text.strip():
+        return None
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise ValueError(f"not JSON ({exc})") from None
+
+
 @dataclass(frozen=True)
 class ParameterCovariance:
     """Parameter-file keys and their covariance matrix (in the keys' own units)."""
@@ -45,12 +56,9 @@ class ParameterCovariance:
     @classmethod
     def from_text(cls, text: str) -> ParameterCovariance | None:
         """The covariance of a ``calibration.covariance`` text (``""``: None); ValueError says why not."""
-        if not text.strip():
+        data = json_parameter(text)
+        if data is None:
             return None
-        try:
-            data = json.loads(text)
-        except (ValueError, RecursionError) as exc:
-            raise ValueError(f"not JSON ({exc})") from None
         if not isinstance(data, dict) or set(data) != {"keys", "matrix"}:
             raise ValueError('a JSON object with "keys" and "matrix" and nothing else')
         keys, rows = data["keys"], data["matrix"]

@@ -29,6 +29,8 @@ import json
 import math
 from dataclasses import dataclass, field
 
+from .covariance import json_parameter
+
 __all__ = ["ModelForm", "model_form_problem"]
 
 #: the most alternatives one file names
@@ -58,12 +60,9 @@ class ModelForm:
     @classmethod
     def from_text(cls, text: str) -> ModelForm | None:
         """The model form of a ``calibration.model_form`` text (``""``: None); ValueError says why not."""
-        if not text.strip():
+        data = json_parameter(text)
+        if data is None:
             return None
-        try:
-            data = json.loads(text)
-        except (ValueError, RecursionError) as exc:
-            raise ValueError(f"not JSON ({exc})") from None
         if not isinstance(data, dict) or not set(data) <= {"verdict", "alternatives", "unresolved", "seen", "segment"}:
             raise ValueError('a JSON object of "verdict", "alternatives", "unresolved", "seen", "segment"')
         verdict, unresolved, segment = data.get("verdict", ""), data.get("unresolved", ""), data.get("segment", "")
