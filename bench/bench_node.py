@@ -22,7 +22,7 @@ node's highest loss-free rate is what its CPU time per sample allows, and CPU ti
 machine disturbs least, so this resolves differences of a few percent that the ramp (±30 % between
 runs here) cannot: the ratio printed is the rate it implies, ``CPU per sample of the baseline / of this``.
 Usage: python bench/bench_node.py [--seconds 5] [--repeat 3] [--pin] [--no-outputs] [--stamped] [--memory]
-                                  [--tracing] [--estimator-only] [--cpu-at RATE]
+                                  [--tracing] [--estimator-only [--multirate]] [--cpu-at RATE]
 """
 
 from __future__ import annotations
@@ -59,9 +59,11 @@ EFFECT_ON = {
 }
 
 
-def estimator_cost_us(kind: str, samples: int = 60_000, with_outputs: bool = True) -> float:
+def estimator_cost_us(kind: str, samples: int = 60_000, with_outputs: bool = True, speed_every: int = 1) -> float:
     """µs per sample of the estimator ``kind``'s node runs (arrival pairing, as the events executor),
-    fed the driver's four messages per sample in-process: pairing, model, effects, adaptation."""
+    fed the driver's four messages per sample in-process: pairing, model, effects, adaptation;
+    ``speed_every``: the speed only with every n-th sample (a channel at a tenth of the torque's
+    rate: resampled onto its stamps, :mod:`core.resample`)."""
     from rollergear_ros.core.estimator import Estimator
     from rollergear_ros.core.pairing import OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
     from rollergear_ros.core.params import load_config
@@ -75,7 +77,8 @@ def estimator_cost_us(kind: str, samples: int = 60_000, with_outputs: bool = Tru
     for k in range(samples):
         t += 100_000
         push(TORQUE, t, 10.0 + k % 50)
-        push(SPEED, t + 1, 100.0)
+        if k % speed_every == 0:
+            push(SPEED, t + 1, 100.0 + k % 7)
         if with_outputs:
             push(OUT_TORQUE, t + 2, 13.0 + k % 50)
             push(OUT_SPEED, t + 3, 73.0)
@@ -233,9 +236,22 @@ def main() -> None:
                     help="loss_estimator tracing back to back (node.trace_period_s:=1) against it without tracing")
     ap.add_argument("--estimator-only", action="store_true",
                     help="no DDS: the estimator of each loss_estimator in-process, µs per sample")
+    ap.add_argument("--multirate", action="store_true",
+                    help="with --estimator-only: the speed at a tenth of the torque's rate against paired channels")
     ap.add_argument("--cpu-at", type=float, metavar="RATE",
                     help="no ramp: CPU time per sample of each system at RATE samples/s (the rate it implies)")
     args = ap.parse_args()
+    if args.estimator_only and args.multirate:
+        costs = {1: [], 10: []}
+        for _ in range(args.repeat):
+            for every in costs:
+                costs[every].append(estimator_cost_us("loss_estimator", with_outputs=not args.no_outputs,
+                                                      speed_every=every))
+        paired, multi = np.median(costs[1]), np.median(costs[10])
+        print(f"paired channels:          {', '.join(f'{c:.1f}' for c in costs[1])} µs per sample")
+        print(f"speed at 1/10 the rate:   {', '.join(f'{c:.1f}' for c in costs[10])} µs per sample")
+        print(f"rate with the speed resampled / paired: {paired / multi:.3f}x (target >= 0.95)")
+        return
     if args.estimator_only:
         kinds = ("loss_estimator", *EFFECT_ON) if args.memory else ("loss_estimator",)
         costs = {k: [] for k in kinds}

@@ -5,6 +5,12 @@ is only in these formulas.
 * :func:`slow_joint`: a robot joint's friction test -- constant-speed sweeps up to 0.1 rad/s both ways,
   an encoder whose speed reading has 1e-4 rad/s of noise, a gravity-compensated torque with a zero
   error, nothing on the output (the drive torque is the friction).
+* :func:`worm_drive`: a self-locking worm drive (efficiency 0.4) lifting and lowering one payload at
+  steady speeds both ways, its friction a wavy function of speed no law of the vocabulary has; the
+  payload given as a constant output torque, or left out (a spin test).
+* :func:`warm_up`: the paper's gearbox warming up (oil 25 -> 75 °C) in an oil that is not the parameter
+  file's (40 % more viscous at 40 °C, another Vogel shape), with a speed drag: the model evaluated at the
+  oil's own viscosity sample by sample (Vogel's law written here).
 * :func:`loaded_rig`: a gearbox on a test rig (the paper's model switched off: its loss is the
   formulas here), drive torque and speed in both directions, motoring and back-driving, output torque
   measured; options: a lag of the output-torque channel, a step change, friction that differs by
@@ -133,3 +139,83 @@ def loaded_rig(tmp: Path, rig: Rig = Rig(), seed: int = 0, name: str = "rig") ->
     csv = write_csv(tmp / f"{name}.csv", {"t": t, "T_in": t_in_meas, "w_in": w + rng.normal(0.0, 0.02, len(t)),
                                           "T_out": t_out_meas})
     return csv, rig_map(tmp / f"{name}_map.yaml", rig.ratio), {"t": t, "w": w, "T": tq, "loss": loss}
+
+
+def worm_drive(tmp: Path, payload_nm: float | None, rpms=(1, 2, 3, 4, 6, 8, 10, 15, 20, 30, 40, 50, 60, 70, 80, 100,
+                                                          120, 140, 160, 180, 200),
+               seed: int = 0, name: str = "worm", ratio: float = 60.0, load_nm: float = 0.6) -> tuple[Path, Path]:
+    """Steady runs of 4 s at ``rpms`` both ways (0.3 s ramps, 100 Hz): the motor lifts the payload with
+    ``T_L/(r·η)`` and drives it down with ``T_L·(2 − 1/η)/r`` (η = 0.4), plus a friction
+    ``0.04 + 0.03·sin(|ω|/3) + 0.002·|ω|`` N·m; the motor torque read with 2e-4 N·m of noise (a current),
+    the speed with 0.002 rad/s.  ``payload_nm``: the output torque the channel map gives (None: a spin
+    test, 0 on the output)."""
+    rng = np.random.default_rng(seed)
+    pieces = []
+    for rpm in rpms:
+        for d in (1.0, -1.0):
+            w = d * rpm * 2 * np.pi / 60
+            ramp = np.linspace(0.0, 1.0, 30, endpoint=False)
+            pieces += [w * ramp, np.full(400, w), w * ramp[::-1]]
+    w = np.concatenate(pieces)
+    t = np.arange(len(w)) / 100.0
+    eta = 0.4
+    gravity = np.where(w >= 0, load_nm / ratio / eta, load_nm / ratio * (2 - 1 / eta))
+    friction = 0.04 + 0.03 * np.sin(np.abs(w) / 3.0) + 0.002 * np.abs(w)
+    torque = gravity + friction * np.tanh(w / 0.01) + rng.normal(0.0, 2e-4, len(w))
+    csv = write_csv(tmp / f"{name}.csv", {"t": t, "T": torque, "w": w + rng.normal(0.0, 0.002, len(w))})
+    cmap = tmp / f"{name}_map.yaml"
+    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\n"
+                    "motor_speed: {column: w, unit: rad/s}\n"
+                    f"output_torque: {{constant: {0.0 if payload_nm is None else payload_nm}, unit: N*m}}\n"
+                    f"ratio: {ratio}\n")
+    return csv, cmap
+
+
+#: the warm-up's oil (a PAO gear oil's Vogel law from its data sheet) and the one the file states (a
+#: mineral ISO VG 220's), each ``(η at 40 °C [Pa·s], B [K], C [K])``
+WARM_UP_OIL = (0.14, 1362.4, 124.8)
+FILE_OIL = (0.1, 1246.5, 105.9)
+
+
+def warm_up(tmp: Path, seed: int, name: str = "warm", duration_s: float = 600.0) -> tuple[Path, Path]:
+    """The paper's gearbox (``config/gearbox.yaml``) on the rig profile at 100 Hz while the oil warms
+    from 25 to 75 °C (time constant 200 s): its loss the model's at the oil's viscosity
+    ``η(θ) = η40·exp(B/(θ + C) − B/(40 + C))`` (:data:`WARM_UP_OIL`) plus a drag ``5e-5·|ω|^1.4``."""
+    from rollergear_ros.core.model import LossModel
+    from rollergear_ros.core.params import load_config
+
+    rng = np.random.default_rng(seed)
+    t, w, tq = rig_profile(100.0, seed, duration_s)
+    theta = 75.0 - 50.0 * np.exp(-t / 200.0)
+    gearbox = load_config().gearbox
+    eta40, b, c = WARM_UP_OIL
+    loss = np.empty(len(t))
+    rounded = np.round(theta, 2)
+    for th in np.unique(rounded):
+        k = rounded == th
+        oil = gearbox.__class__(**{**gearbox.__dict__, "eta0_pa_s": float(eta40 * np.exp(b / (th + c) - b / (40 + c)))})
+        loss[k] = LossModel(oil).loss_magnitude(tq[k], w[k])
+    loss += 5e-5 * np.abs(w) ** 1.4
+    ratio = gearbox.ratio_effective
+    t_out = (tq - loss * np.sign(w)) * ratio
+    csv = write_csv(tmp / f"{name}.csv", {"t": t, "T_in": tq + rng.normal(0.0, 0.01, len(t)),
+                                          "w_in": w + rng.normal(0.0, 0.02, len(t)),
+                                          "T_out": t_out + rng.normal(0.0, 0.01 * ratio, len(t)),
+                                          "oil": theta + rng.normal(0.0, 0.05, len(t))})
+    cmap = tmp / f"{name}_map.yaml"
+    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
+                    "motor_speed: {column: w_in, unit: rad/s}\noutput_torque: {column: T_out, unit: N*m}\n"
+                    f"oil_temperature: {{column: oil, unit: degC}}\nratio: {ratio}\n")
+    return csv, cmap
+
+
+def oil_params(path: Path, oil: tuple[float, float, float], drag: tuple[float, float] | None = None) -> Path:
+    """A parameter file stating an oil ``(η40, B, C)`` (η0 and the viscosity law) and a speed drag ``(c, p)``."""
+    eta40, b, c = oil
+    text = ("/**/loss_estimator:\n  ros__parameters:\n"
+            f"    gearbox: {{eta0_pa_s: {eta40}}}\n    effects:\n"
+            f"      viscosity_temperature: {{enabled: true, B_k: {b}, C_k: {c}, theta_ref_c: 40.0, scale: 1.0}}\n")
+    if drag is not None:
+        text += f"      drag_speed: {{enabled: true, c: {drag[0]}, p: {drag[1]}}}\n"
+    path.write_text(text)
+    return path

@@ -9,6 +9,7 @@ parser (rcl) rejects them too, so a file the CLI accepted would not start the no
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -83,13 +84,28 @@ def check_structure(text: str, path: str | Path) -> None:
             open_.append([{}, True] if isinstance(event, yaml.MappingStartEvent) else None)
 
 
+class _Loader(yaml.SafeLoader):
+    """PyYAML's safe loader reading ``1e-6`` and ``1e6`` as numbers, as ROS 2's parameter parser
+    does (YAML 1.1 wants a dot in a float: ``1.0e-6``; rcl, and YAML 1.2, do not)."""
+
+
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float",
+                              re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+                              list("-+0123456789."))
+
+
+def loads(text: str) -> Any:
+    """A YAML document's text as :func:`load` reads it (numbers as ROS 2 reads them)."""
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader with one more number form
+
+
 def load(path: str | Path) -> Any:
     """The YAML document in ``path``, within the bounds above; :class:`YamlProblem` otherwise
     (also for YAML syntax errors, with line and column)."""
     text = read_text(path)
     try:
         check_structure(text, path)
-        return yaml.safe_load(text)
+        return loads(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None) or getattr(exc, "context_mark", None)
         problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
@@ -98,4 +114,4 @@ def load(path: str | Path) -> Any:
                           + (f" ({' '.join(str(context).split())})" if context else "")) from None
 
 
-__all__ = ["MAX_BYTES", "MAX_DEPTH", "YamlProblem", "check_structure", "load", "read_text"]
+__all__ = ["MAX_BYTES", "MAX_DEPTH", "YamlProblem", "check_structure", "load", "loads", "read_text"]

@@ -27,6 +27,8 @@ MIN_TEMPERATURE_SPAN_C = 3.0
 #: an effect of speeds near standstill (:attr:`~core.effects.Effect.needs_speeds_below`) is testable when
 #: at least this share of the samples run that slow
 MIN_SLOW_SHARE = 0.01
+#: one load: the output torque's 5-95 % spread within this share of its median magnitude
+ONE_LOAD_SPREAD = 0.1
 
 
 def _reverses(speed: np.ndarray, bag_id: np.ndarray, clear_rad_s: float) -> bool:
@@ -361,7 +363,7 @@ def testability(d: SampleData) -> dict[str, str]:
     """Each effect of the registry -> why this data cannot show it ("" where it can): one that needs a
     varying oil temperature, speeds near standstill, regeneration or both directions of rotation
     where the data have them; sensor errors not in a table (its rows are losses, not readings);
-    load-dependent ones not in a spin test; effects with memory only where the speed reverses."""
+    load-dependent ones not in a spin test nor under one load (:func:`_one_load`); effects with memory only where the speed reverses."""
     theta = d.temperature
     have_theta = np.isfinite(theta)
     span = float(np.nanmax(theta) - np.nanmin(theta)) if have_theta.any() else 0.0
@@ -370,6 +372,7 @@ def testability(d: SampleData) -> dict[str, str]:
     reverses = not d.steady_state and _reverses(d.speed, d.bag_id, 3.0 * d.sign_width_rad_s)
     regenerating = float(np.mean(d.torque * d.speed < 0)) if len(d.speed) else 0.0
     directions = min(float(np.mean(d.speed > 0)), float(np.mean(d.speed < 0))) if len(d.speed) else 0.0
+    one_load = "" if d.spin_test else _one_load(d.out_torque)
     why = {}
     for n, e in EFFECTS.items():
         reason = ""
@@ -385,6 +388,8 @@ def testability(d: SampleData) -> dict[str, str]:
                       f"{100 * MIN_SLOW_SHARE:g} % of them)")
         elif d.spin_test and e.depends_on_load:
             reason = "a spin test (nothing on the output): the drive torque is the loss, no load to depend on"
+        elif one_load and e.depends_on_load:
+            reason = one_load
         elif e.needs_regeneration and regenerating < MIN_SLOW_SHARE:
             reason = f"no regeneration (the output driving the input) in {100 * MIN_SLOW_SHARE:g} % of the samples"
         elif e.needs_both_directions and directions < MIN_SLOW_SHARE:
@@ -393,6 +398,23 @@ def testability(d: SampleData) -> dict[str, str]:
             reason = "no reversal of the drive within a recording (beyond the speed reading's noise)"
         why[n] = reason
     return why
+
+
+def _one_load(out_torque: np.ndarray | None) -> str:
+    """Why the data hold one load only ('' where the output torque varies): then a law in the load
+    cannot be told from a constant drag, and one in the drive torque -- the load plus the very loss
+    measured -- reproduces the torque balance whatever the friction (an identity, not a loss)."""
+    if out_torque is None or not len(out_torque):
+        return ""
+    load = np.abs(out_torque[np.isfinite(out_torque)])
+    if len(load) < 0.9 * len(out_torque) or not len(load):
+        return ""
+    median = float(np.median(load))
+    low, high = np.percentile(load, [5.0, 95.0])
+    if median <= 0 or high - low > ONE_LOAD_SPREAD * median:
+        return ""
+    return (f"one load (the output torque stays at {median:.4g} N·m, 90 % of the samples within "
+            f"{high - low:.2g} N·m): a load-dependent law cannot be told from a constant drag")
 
 
 def _add_columns(blocks: Blocks, d: SampleData, mean) -> None:

@@ -30,7 +30,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from .blocks import groups
-from .selection import AmbiguousSet, Calibrator, RejectedEffect, Term, z_two_sided
+from .selection import AmbiguousSet, Calibrator, RejectedEffect, Term, members, z_two_sided
 from .structure import NOISE_FACTOR
 from ..core.effects import EFFECTS, separating_data
 from ..core.modelparams import MODEL_PARAMETERS
@@ -135,6 +135,7 @@ class _Procedure:
             state.accepted_at.update(dict.fromkeys(names, 0))
             self.log.append(f"start: the parameter file's {', '.join(sorted(names))} (held-out RMSE "
                             f"{state.cv_now:.4g} N·m, refitted)")
+            self._whole_oil_law(state, from_file)
         for t in initial:
             if t.name not in cal.b.testable:
                 state.notes[t.name] = "in the parameter file, but this data cannot test it: kept as it is"
@@ -153,6 +154,28 @@ class _Procedure:
         untestable = {g: why for g, why in cal.b.untestable.items()}
         return Selection(state.selected, state.provisional, ranges, state.ambiguous, rejected, unavailable,
                          second_ranges, state.negative, decisions, untestable)
+
+    def _whole_oil_law(self, state: _Forward, from_file: list[Term]) -> None:
+        """The parameter file's viscosity law refitted whole: its shape (Vogel B and C) together with
+        its level (η at θ_ref, the rolling part's parameter) where the data can test that -- a law
+        refitted at the file's η(θ_ref) bends its shape to make up another oil's level.  Taken when it
+        clearly predicts better, as :meth:`~.selection.Calibrator.best_candidate` pairs them."""
+        cal = self.cal
+        if not any(t.name in EFFECTS and EFFECTS[t.name].scales_fr for t in from_file):
+            return
+        level = next((k for k, p in MODEL_PARAMETERS.items() if p.part == "fr" and p.same_part_as is None), None)
+        if level is None or level not in state.remaining or not members(cal.b, level, None):
+            return
+        whole = cal.optimise(from_file + members(cal.b, level))
+        cv_whole = cal.cv_rmse(whole)
+        if cal.screen(whole, self.check) is not None or cv_whole >= (1.0 - cal.min_improvement) * state.cv_now:
+            return
+        self.log.append(f"start: the file's viscosity law refitted whole, with its level {level} (held-out RMSE "
+                        f"{state.cv_now:.4g} -> {cv_whole:.4g} N·m)")
+        state.selected, state.cv_now = whole, cv_whole
+        state.accepted_at[level] = 0
+        state.notes[level] = "the level of the parameter file's viscosity law, refitted with it"
+        state.remaining = [r for r in state.remaining if r != level]
 
     def _step(self, state: _Forward) -> bool:
         """One step: the remaining candidates tested best first, the first that passes accepted (or

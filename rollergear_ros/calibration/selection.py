@@ -600,6 +600,10 @@ class Calibrator:
             )
         if improvement <= self.min_improvement:
             reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
+        noise = self.noise_rms()
+        if math.isfinite(noise) and cv_new < IDENTITY_SHARE * noise:
+            reasons.append(f"an identity, not a loss: the set leaves {cv_new:.2g} N·m held out, far below the "
+                           f"data's own noise ({noise:.2g} N·m) -- its regressor carries the measured loss itself")
         # a model parameter's interval within the physical range
         if full and not reasons and g in MODEL_PARAMETERS and check is not None:
             for end in (c - 1.96 * se, c + 1.96 * se):
@@ -626,6 +630,11 @@ class Calibrator:
         ra, rb = resid(a.column), resid(b.column)
         den = math.sqrt(float(np.sum(w * ra * ra)) * float(np.sum(w * rb * rb)))
         return abs(float(np.sum(w * ra * rb))) / den if den > 0 else 1.0
+
+
+#: a set whose held-out error is below this share of the block means' noise explains the noise too: its
+#: regressors carry the measured loss (a torque balance reproduced), it describes no loss
+IDENTITY_SHARE = 0.1
 
 
 def z_two_sided(alpha: float) -> float:

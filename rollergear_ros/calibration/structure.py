@@ -3,7 +3,8 @@
 * :func:`adequacy` -- the shares of the predicted loss (the paper's model and each accepted effect;
   they add up to 100 %) and how much of the measured loss the file predicts on average.
 * :func:`residual_structure` -- the share of the held-out residual's variance that each input carries
-  (its mean per bin of speed, torque, oil temperature, time; per direction and power flow) and what is
+  (its mean per bin of speed, torque, oil temperature, time, acceleration and the angle turned since the
+  last reversal; per direction and power flow) and what is
   periodic in the shaft angle: orders of the input and output revolutions for a rotating drive, the
   position for one that travels less than :data:`ROTATING_TURNS` turns (a screw, a joint).  "No
   structure" is said only where no input carries :data:`STRUCTURE_SHARE` of the variance *and* the
@@ -88,7 +89,8 @@ def adequacy(model_mean_nm: float, measured_mean_nm: float, effects_mean_nm: dic
 def residual_structure(blocks, residual: np.ndarray, angle: dict | None = None, spin_test: bool = False) -> dict:
     """How much of the unexplained (held-out) residual each input explains: the weighted share of its
     variance carried by its mean over :data:`RESIDUAL_BINS` quantile bins of speed, torque, oil
-    temperature and time, per direction and power flow; with ``angle`` (:func:`angle_spectrum` of the
+    temperature, time, acceleration and the angle since the last reversal (:func:`_motion_axes`), per
+    direction and power flow; with ``angle`` (:func:`angle_spectrum` of the
     samples' residual), what is periodic in the shaft angle or follows the position."""
     w = blocks.count.astype(float)
     r = residual - np.average(residual, weights=w)
@@ -99,6 +101,7 @@ def residual_structure(blocks, residual: np.ndarray, angle: dict | None = None, 
         inputs["torque"] = np.abs(blocks.torque)
     if t is not None:
         inputs["time"] = t + 1e6 * blocks.bag_id[blocks.start]  # recordings one after another
+        inputs.update(_motion_axes(blocks))
     shares: dict[str, float] = {}
     for name, x in inputs.items():
         ok = np.isfinite(x)
@@ -160,6 +163,30 @@ def block_noise(blocks) -> float:
     else:
         var = 1.0 / blocks.weight
     return float(np.sqrt(np.average(var, weights=blocks.count)))
+
+
+def _motion_axes(blocks) -> dict[str, np.ndarray]:
+    """Per block: ``acceleration``, |Δω/Δt| from its first to its last sample (rad/s²; the speed
+    reading's noise averages out over a block where a per-sample derivative would multiply it), and
+    ``since reversal``, the mean angle turned since the drive last turned round (rad; NaN before a
+    recording's first reversal): what a loss that follows acceleration, or a memory, leaves."""
+    if blocks.sample_speed is None or blocks.t_s is None or not len(blocks.start):
+        return {}
+    first = blocks.start
+    last = first + blocks.count - 1
+    dt = blocks.t_s[last] - blocks.t_s[first]
+    same = blocks.bag_id[last] == blocks.bag_id[first]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        accel = np.where(same & (dt > 0), np.abs(blocks.sample_speed[last] - blocks.sample_speed[first]) / dt,
+                         np.nan)
+    axes = {"acceleration": accel}
+    since = blocks.angle_since_reversal(3.0 * blocks.sign_width_rad_s)
+    if np.isfinite(since).any():
+        sums = np.add.reduceat(np.where(np.isfinite(since), since, 0.0), first)
+        known = np.add.reduceat(np.isfinite(since).astype(float), first)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            axes["since reversal"] = np.where(known == blocks.count, sums / np.maximum(known, 1), np.nan)
+    return axes
 
 
 def _explained(label: np.ndarray, r: np.ndarray, w: np.ndarray, total: float) -> float:

@@ -23,9 +23,10 @@ from .equations import efficiency
 from .lagalign import LAG_CHANNELS, LagAligner
 from .measured import measured_efficiency
 from .model import LossModel, rotation_sign, rotation_sign_scalar
-from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
+from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, CHANNELS, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
                       SyncedSample, is_lost, lost_mask, pairing_tolerance_s, samples_to_arrays)
 from .params import Config
+from .resample import Message, RateResampler, is_stale, stale_mask
 from .speednoise import SpeedNoise
 
 
@@ -152,6 +153,10 @@ class Estimator:
         else:
             raise ValueError(f"pairing must be 'timestamp' or one of {', '.join(ARRIVAL_PAIRINGS)}, not {pairing!r}")
         self.counts = self.sync.counts  # skip reasons (shared with the synchroniser)
+        #: channels at another rate than the motor torque, resampled onto its stamps before the pairing
+        # (the pairing tolerance of stamps, by arrival too: whether a channel is in step is told the same way)
+        self.resampler = RateResampler(est.resample_max_age_s,
+                                       int(round(pairing_tolerance_s(est.sync_tolerance_s, sample_period_s) * 1e9)))
         #: a channel that reads late, aligned between the pairing and the estimate (None: none lags)
         lags = {c: getattr(est, f"{c}_lag_s") for c in LAG_CHANNELS}
         self.aligner = LagAligner(lags, est.staleness_s) if any(lags.values()) else None
@@ -188,6 +193,8 @@ class Estimator:
         queued messages, skip counters and sample count, under this estimator's pairing limits."""
         self.sync = previous.sync
         self.sync.set_limits(self.sync_tolerance_s, self.config.estimator.staleness_s)
+        self.resampler = previous.resampler  # what it holds and has told goes on, under the new age limit
+        self.resampler.max_age_ns = int(round(self.config.estimator.resample_max_age_s * 1e9))
         if previous.aligner is not None and self.aligner is not None \
                 and previous.aligner.lags_ns == self.aligner.lags_ns:
             self.aligner = previous.aligner  # the samples it holds go on
@@ -221,7 +228,9 @@ class Estimator:
     def screen(self, torque: float, speed: float) -> str | None:
         """Reason a motor sample cannot be estimated, or None."""
         if not (math.isfinite(torque) and math.isfinite(speed)):
-            return "lost" if is_lost(torque) or is_lost(speed) else "non_finite"
+            if is_lost(torque) or is_lost(speed):
+                return "lost"
+            return "stale" if is_stale(speed) else "non_finite"
         est = self.config.estimator
         if abs(torque) > est.max_abs_torque_nm or abs(speed) > est.max_abs_speed_rad_s:
             return "implausible"
@@ -273,7 +282,10 @@ class Estimator:
     def push(self, channel: str, t_ns: int, value: float, source_ns: int | None = None) -> Sequence[Estimate]:
         """Feed one input message (``source_ns``: its publisher's timestamp, by arrival); returns the
         estimates it completes."""
-        samples = self.sync.push(channel, t_ns, value, source_ns)
+        if self.resampler.passthrough and (channel == TORQUE or self.resampler.mode.get(channel, "") is not None):
+            samples = self.sync.push(channel, t_ns, value, source_ns)
+        else:
+            samples = self._push_resampled(self.resampler.push(Message(channel, t_ns, value, source_ns)))
         if samples and self.aligner is not None:
             samples = _synced(self.aligner.push(samples_to_arrays(samples)))
         if not samples:
@@ -288,7 +300,8 @@ class Estimator:
     def finish(self) -> list[Estimate]:
         """At the end of a live run: estimate, one by one, what can still be paired -- the samples held
         for a measured output -- exactly as :meth:`flush` does at the end of a recording."""
-        samples = self.sync.flush()
+        samples = self._push_resampled(self.resampler.flush())
+        samples.extend(self.sync.flush())
         if self.aligner is not None:
             samples = _synced(self._aligned(samples_to_arrays(samples), final=True))
         return [e for e in map(self.process, samples) if e is not None]
@@ -299,11 +312,42 @@ class Estimator:
         """Feed a batch of messages in arrival (file) order (``codes`` index :data:`~.pairing.CHANNELS`;
         ``source_ns``: the publishers' timestamps, by arrival); returns the estimates of the samples
         they complete (None when they complete none)."""
+        if self.resampler.needs(codes):
+            codes, t_ns, values, source_ns = self._resample_many(codes, t_ns, values, source_ns)
+            if not len(codes):
+                return None
         return self._estimate(self._aligned(self.sync.push_many(codes, t_ns, values, source_ns)))
 
     def flush(self) -> BatchEstimate | None:
         """At the end of a log: estimate what can still be paired (the rest counts as unpaired)."""
-        return self._estimate(self._aligned(samples_to_arrays(self.sync.flush()), final=True))
+        samples = self._push_resampled(self.resampler.flush())
+        samples.extend(self.sync.flush())
+        return self._estimate(self._aligned(samples_to_arrays(samples), final=True))
+
+    def _push_resampled(self, messages: list[Message]) -> list[SyncedSample]:
+        """The resampler's messages through the pairing, one by one."""
+        out: list[SyncedSample] = []
+        push = self.sync.push
+        for m in messages:
+            out.extend(push(*m))
+        return out
+
+    def _resample_many(self, codes, t_ns, values, source_ns):
+        """A batch of messages through the resampler (message by message, as the node pushes them):
+        the messages for the pairing as arrays."""
+        push = self.resampler.push
+        sources = source_ns.tolist() if source_ns is not None else [None] * len(codes)
+        out: list[Message] = []
+        for c, t, v, s in zip(codes.tolist(), t_ns.tolist(), values.tolist(), sources):
+            out.extend(push(Message(CHANNELS[c], t, v, s)))
+        index = {c: k for k, c in enumerate(CHANNELS)}
+        codes = np.fromiter((index[m.channel] for m in out), dtype=codes.dtype, count=len(out))
+        t_ns = np.fromiter((m.t_ns for m in out), dtype=np.int64, count=len(out))
+        values = np.fromiter((m.value for m in out), dtype=float, count=len(out))
+        if source_ns is not None:
+            source_ns = np.fromiter((m.t_ns if m.source_ns is None else m.source_ns for m in out),
+                                    dtype=np.int64, count=len(out))
+        return codes, t_ns, values, source_ns
 
     def estimate_paired(self, t_ns: np.ndarray, torque: np.ndarray, speed: np.ndarray, out_torque: np.ndarray,
                         out_speed: np.ndarray, temperature: np.ndarray) -> BatchEstimate | None:
@@ -562,8 +606,10 @@ class Estimator:
             plausible = (np.abs(torque) <= est.max_abs_torque_nm) & (np.abs(speed) <= est.max_abs_speed_rad_s)
         if not finite.all():
             lost = lost_mask(torque) | lost_mask(speed)
+            stale = stale_mask(speed) & ~lost
             self.counts["lost"] += int(np.count_nonzero(lost))
-            self.counts["non_finite"] += int(np.count_nonzero(~finite & ~lost))
+            self.counts["stale"] += int(np.count_nonzero(stale))
+            self.counts["non_finite"] += int(np.count_nonzero(~finite & ~lost & ~stale))
         self.counts["implausible"] += int(np.count_nonzero(finite & ~plausible))
         keep = finite & plausible
         return tuple(a[keep] for a in (t_ns, torque, speed, *others))

@@ -192,6 +192,12 @@ ESTIMATOR_SPECS: tuple[ParamSpec, ...] = (
                 "the paired samples around (the estimate waits that long); calibrate writes the lag it found "
                 "and aligned", "s", low=-1.0, high=1.0)
       for channel in ("motor_speed", "output_torque", "output_speed")),
+    ParamSpec("estimator.resample_max_age_s", float, 0.05,
+              "a channel logged at another rate than the drive torque (a speed at 100 Hz beside a torque at 1 kHz, "
+              "told from its first messages) is interpolated onto the torque's stamps, linear between its messages "
+              "within this of a stamp, else its last one within this is held, else the sample has none (a speed: "
+              "skipped as stale; an output: no residual); 0 = every channel is paired message by message",
+              "s", low=0.0, high=10.0),
     ParamSpec("estimator.staleness_s", float, 0.1,
               "an input silent for longer than this is stale: motor samples no longer wait for it, diagnostics warn",
               "s", low=0.0, low_open=True, high=3600.0),
@@ -444,6 +450,7 @@ class EstimatorParams:
     motor_speed_lag_s: float = 0.0
     output_torque_lag_s: float = 0.0
     output_speed_lag_s: float = 0.0
+    resample_max_age_s: float = 0.05
     staleness_s: float = 0.1
     max_abs_torque_nm: float = 5000.0
     max_abs_speed_rad_s: float = 2000.0

@@ -298,6 +298,8 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
     summary.coefficients = estimator.coefficients()
     summary.speed_noise_rad_s = estimator.speed_noise.value
     summary.speed_noise_text = estimator.speed_noise.describe()
+    summary.resampled_text = estimator.resampler.describe() or ""
+    summary.resampled = {c: dict(made) for c, made in estimator.resampler.made.items()}
     if estimator.aligner is not None:
         summary.lags_text = estimator.aligner.describe()
     summary.describes = _describes(estimator.config)

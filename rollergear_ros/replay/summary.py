@@ -70,6 +70,10 @@ class ReplaySummary:
     speed_noise_rad_s: float = 0.0  #: the speed reading's noise the estimator used (at the end)
     speed_noise_text: str = ""  #: ... and where it came from (the file, or learned)
     lags_text: str = ""  #: the channel lags the file's estimator aligned ('': none)
+    #: the channels at another rate, resampled onto the drive torque's stamps ('': none)
+    resampled_text: str = ""
+    #: per resampled channel: its samples by how they were made (exact, interpolated, held, none)
+    resampled: dict[str, dict[str, int]] = field(default_factory=dict)
     describes: str = ""  #: the stretch of its calibration's recordings the parameter file describes
 
     @property
@@ -108,6 +112,8 @@ class ReplaySummary:
             lines.append(f"speed reading's noise: {self.speed_noise_text}")
         if self.lags_text:
             lines.append(f"channel lags (the parameter file's): {self.lags_text}")
+        if self.resampled_text:
+            lines.append(self.resampled_text)
         if self.describes:
             lines.append(f"the parameter file describes the gearbox of {self.describes} (it changed inside the "
                          "recordings calibrated on)")

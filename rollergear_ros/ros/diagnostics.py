@@ -140,8 +140,12 @@ def _slow_input(channel: str, rate_hz: float, expected_hz: float | None, learned
 
 
 def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, since: SinceLast,
-             load: NodeLoad = NodeLoad(), measured: WindowValue | None = None) -> DiagnosticReport:
+             load: NodeLoad = NodeLoad(), measured: WindowValue | None = None,
+             trace_hint: str = "") -> DiagnosticReport:
     """Level (worst reason wins), one-line message and the key/value pairs of the status.
+
+    ``trace_hint``: where the online trace of a residual alarm is (``see loss/traced`` once a trace
+    exists or is under way, when it will start, or '' with tracing off), said beside the alarm.
 
     Overload: ``load.executor_lag_s`` is how long the executor takes to reach an event queued behind
     the inputs (``load.busy_fraction`` the share of time spent in input callbacks).  A best-effort
@@ -179,7 +183,7 @@ def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, 
     values.append(("stale after [s]", _fmt(stale_after_s, 3)))
     values.append(("samples estimated", str(estimator.estimated)))
     _skip_status(estimator, since.skips, reasons, values)
-    _estimate_status(estimator, limits.min_efficiency_warn, since.alarms, reasons, values)
+    _estimate_status(estimator, limits.min_efficiency_warn, since.alarms, reasons, values, trace_hint)
     headline = _measured_status(measured, estimator.config.sensors.stated, values)
     level = max((lv for lv, _ in reasons), default=OK)
     message = "; ".join(m for lv, m in sorted(reasons, key=lambda r: -r[0])) if reasons else "estimating"
@@ -249,10 +253,20 @@ def _skip_status(estimator: Estimator, previous_skips: dict[str, int], reasons: 
                                   "best-effort input queue behind)"))
         elif new and r == "unpaired":
             reasons.append((WARN, f"{new} input messages without partner (dropped or late)"))
+        elif new and r == "stale":
+            reasons.append((WARN, f"{new} samples skipped: the motor speed (another rate than the torque's) "
+                                  "had no value within estimator.resample_max_age_s"))
+    resampler = estimator.resampler
+    for channel in resampler.resampled:  # channels at another rate: how their values were made
+        made = resampler.made[channel]
+        total = sum(made.values())
+        values.append((f"{channel} resampled", f"{total} samples: {made['interpolated']} interpolated, "
+                                               f"{made['held']} held, {made['none']} without a value"))
+        values.append((f"{channel} held share", _fmt(made["held"] / total if total else 0.0)))
 
 
 def _estimate_status(estimator: Estimator, min_efficiency_warn: float, previous_alarms: int,
-                     reasons: list[tuple[int, str]], values: list[tuple[str, str]]) -> None:
+                     reasons: list[tuple[int, str]], values: list[tuple[str, str]], trace_hint: str = "") -> None:
     """The latest estimate, the residual's statistics, the adapted coefficients and the change
     alarms; a low efficiency, a torque near its limit or a new alarm is a WARN."""
     est = estimator.config.estimator
@@ -271,11 +285,11 @@ def _estimate_status(estimator: Estimator, min_efficiency_warn: float, previous_
                    ("residual samples", str(stats.count))]
     for name, c in estimator.coefficients().items():
         values.append((f"adapted {name}", _fmt(c, 5)))
-    _residual_alarm_status(estimator, previous_alarms, reasons, values)
+    _residual_alarm_status(estimator, previous_alarms, reasons, values, trace_hint)
 
 
 def _residual_alarm_status(estimator: Estimator, previous_alarms: int, reasons: list[tuple[int, str]],
-                           values: list[tuple[str, str]]) -> None:
+                           values: list[tuple[str, str]], trace_hint: str = "") -> None:
     """A WARN for as long as the residual stays beyond its threshold after an alarm (the change
     detector holds it), saying whether it changed or was off from the start; one for an alarm whose
     residual returned before this report."""
@@ -293,8 +307,9 @@ def _residual_alarm_status(estimator: Estimator, previous_alarms: int, reasons: 
     elif det.alarm_from_start and det.alarm_from_start[-1]:
         what = (f"the residual has been beyond {limit} since the estimates began (block mean "
                 f"{det.last_block_mean:+.3g} N·m): not a change -- the parameters lack an effect; run "
-                "`rollergear calibrate` (see loss/traced)")
+                "`rollergear calibrate`" + (f" ({trace_hint})" if trace_hint else ""))
     else:
         what = (f"the residual changed (a new or changed effect) and stays beyond {limit} (block mean "
-                f"{det.last_block_mean:+.3g} N·m): see loss/traced, re-run `rollergear calibrate`")
+                f"{det.last_block_mean:+.3g} N·m): " + (f"{trace_hint}, " if trace_hint else "")
+                + "re-run `rollergear calibrate`")
     reasons.append((WARN, what))

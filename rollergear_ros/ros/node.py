@@ -639,7 +639,7 @@ class LossEstimatorNode(Node):
                                            node.learn_input_rate),
                           SinceLast(self._skips_reported, self._alarms_reported),
                           NodeLoad((busy - busy_then) / max(now - then, 1), self.executor_lag_s()),
-                          self.efficiency_window.latest)
+                          self.efficiency_window.latest, self.tracer.hint())
         self._skips_reported = dict(self.estimator.counts)
         self._alarms_reported = self.estimator.detector.alarms
         status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: {STATUS_NAME}",

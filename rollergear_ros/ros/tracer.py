@@ -110,6 +110,19 @@ class LiveTracer:
             self._next_period = time.monotonic() + params.trace_period_s
             self._start("period", None, None)
 
+    def hint(self) -> str:
+        """Where the trace of the residual's alarm is, for the status: ``see loss/traced`` once a trace
+        exists or is under way; when one will start; '' with tracing off."""
+        if not self.node.config.node.trace:
+            return ""
+        if self.latest is not None or self.worker.busy:
+            return "see loss/traced" if self.latest is not None else "a trace is under way: see loss/traced"
+        last_ns = self.buffer.last_ns()
+        if self._pending is not None and last_ns is not None:
+            wait_s = max(self._pending[1] - last_ns, 0) * 1e-9
+            return f"traced on loss/traced once {wait_s:.0f} s more samples have come"
+        return "traced on loss/traced once samples have come after the alarm"
+
     def _start(self, reason: str, alarm_ns: int | None, end_ns: int | None) -> None:
         with self.node._input_lock:  # a memory copy: milliseconds
             samples = self.buffer.snapshot()

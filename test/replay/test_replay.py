@@ -592,10 +592,14 @@ def test_topics_logged_apart_are_paired_by_the_automatic_tolerance(tmp_path, con
     got_w = np.concatenate([b.speed_rad_s for b in batches])
     np.testing.assert_array_equal(got_t, torque)
     np.testing.assert_array_equal(got_w, speed)  # each torque with its own speed
-    # an explicit tolerance is used as given: 0.4 ms loses most samples, and says why
+    # an explicit tolerance is used as given: at 0.4 ms the speed is out of step with the torque, and
+    # resampled onto its stamps (every sample estimated, and said); paired only, most samples are lost, and said why
     tight, _ = replay(bag, config.with_values({"estimator.sync_tolerance_s": 0.0004}), show_progress=False)
-    assert tight.skipped["unpaired"] > 500
-    assert any("pairing tolerance" in w and "sync_tolerance_s" in w for w in tight.warnings)
+    assert tight.estimated == len(torque) - 1 and "motor_speed (1x the torque's rate)" in tight.resampled_text
+    paired_only, _ = replay(bag, config.with_values({"estimator.sync_tolerance_s": 0.0004,
+                                                     "estimator.resample_max_age_s": 0.0}), show_progress=False)
+    assert paired_only.skipped["unpaired"] > 500
+    assert any("pairing tolerance" in w and "sync_tolerance_s" in w for w in paired_only.warnings)
 
 
 def test_truncated_bag_processes_what_is_readable(tmp_path, config):

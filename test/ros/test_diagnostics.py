@@ -172,3 +172,23 @@ def test_the_residual_warning_holds_while_the_residual_stays_and_says_whether_it
     assert off.detector.alarm_from_start == [True]
     rep = _residual_report(off)
     assert rep.level == WARN and "since the estimates began" in rep.message and "not a change" in rep.message
+
+
+def test_the_alarm_points_to_loss_traced_only_where_a_trace_exists_or_will_come():
+    """The status says where the trace of its alarm is: nothing with tracing off, when it will start
+    while samples after the alarm are still to come, ``see loss/traced`` once there is one."""
+    config = load_config().with_values({"estimator.change_block_samples": 10})
+    est = Estimator(config)
+    for k in range(30):
+        est.detector.add(0.1, k)
+
+    def message(hint: str) -> str:
+        now = 100 * 10**9
+        healthy = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
+        return diagnose(InputsNow(now, healthy, {TORQUE: 1000.0, SPEED: 1000.0}), est, DiagnosticLimits(1000.0, 0.9),
+                        SinceLast(dict(est.counts), 0), trace_hint=hint).message
+
+    assert "loss/traced" not in message("")
+    assert "(traced on loss/traced once 12 s more samples have come)" in message(
+        "traced on loss/traced once 12 s more samples have come")
+    assert "(see loss/traced)" in message("see loss/traced")
