@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..base.atomic import together
-from ..base.errors import InputFileError, RollergearError, UsageError
+from ..base.errors import InputFileError, RollergearError, UsageError, damaged_exit
 from ..base.interface import package_version
 from ..ros.nodehelp import contract_line
 from . import calibrate as calibrate_cli
@@ -219,10 +219,12 @@ def _write_maps(args: argparse.Namespace, config, speeds: np.ndarray, torques: n
     if warning:
         print(f"rollergear: warning: {warning}", file=sys.stderr)
     first_map = maps[0][2]
+    status = 0
     for bag in args.recording:
         from ..replay.run import replay
 
-        summary, batches = replay(bag, config, show_progress=False, collect=True)
+        summary, batches = replay(bag, config, show_progress=False, collect=True,
+                                  warn=lambda m: print(f"rollergear: warning: {m}", file=sys.stderr))
         if summary.interrupted:
             raise KeyboardInterrupt
         torque = np.concatenate([b.torque_nm for b in batches]) if batches else np.zeros(0)
@@ -234,7 +236,10 @@ def _write_maps(args: argparse.Namespace, config, speeds: np.ndarray, torques: n
             print(f"{bag}: every sample lies inside the map")
         if bag in measured_paths:
             _write_measured(summary, config, bag, measured_paths[bag], args.min_samples)
-    return 0
+        # a damaged recording: said, and exit 3 where it lost more than 1 % (as replay)
+        status = max(status, damaged_exit(str(bag), summary.lost_share, "the coverage and the measured map hold "
+                                                                       "what was readable"))
+    return status
 
 
 def _write_measured(summary, config, bag: str, path: Path, min_samples: int) -> None:

@@ -41,6 +41,16 @@ def json_parameter(text: str):
         raise ValueError(f"not JSON ({exc})") from None
 
 
+def finite_number(v) -> bool:
+    """Whether a JSON value is a finite number a float holds (an integer of 400 digits is not)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
+
+
 @dataclass(frozen=True)
 class ParameterCovariance:
     """Parameter-file keys and their covariance matrix (in the keys' own units)."""
@@ -69,8 +79,7 @@ class ParameterCovariance:
         n = len(keys)
         if not isinstance(rows, list) or len(rows) != n or not all(isinstance(r, list) and len(r) == n for r in rows):
             raise ValueError(f'"matrix" is {n} rows of {n} numbers, one per key')
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                   for r in rows for v in r):
+        if not all(finite_number(v) for r in rows for v in r):
             raise ValueError('"matrix" holds finite numbers only')
         matrix = np.array(rows, dtype=float)
         scale = max(float(np.max(np.abs(np.diag(matrix)))), 1e-300)

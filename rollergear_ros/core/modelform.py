@@ -29,7 +29,7 @@ import json
 import math
 from dataclasses import dataclass, field
 
-from .covariance import json_parameter
+from .covariance import finite_number, json_parameter
 
 __all__ = ["ModelForm", "model_form_problem"]
 
@@ -75,19 +75,17 @@ class ModelForm:
         for a in alternatives:
             if not (isinstance(a, dict) and set(a) == {"name", "params"} and isinstance(a["name"], str)
                     and isinstance(a["params"], dict)
-                    and all(isinstance(k, str) and _number(v) for k, v in a["params"].items())):
+                    and all(isinstance(k, str) and finite_number(v) for k, v in a["params"].items())):
                 raise ValueError('each alternative is {"name": effect, "params": {short name: number}}')
             alts.append((a["name"], {k: float(v) for k, v in a["params"].items()}))
         seen = data.get("seen", {})
         if not isinstance(seen, dict) or not set(seen) <= {"speed_rad_s", "torque_nm"} \
-                or not all(_number(v) and v > 0 for v in seen.values()):
+                or not all(finite_number(v) and v > 0 for v in seen.values()):
             raise ValueError('"seen" is {"speed_rad_s": number > 0, "torque_nm": number > 0}')
         return cls(verdict, tuple(alts), unresolved, float(seen.get("speed_rad_s", math.inf)),
                    float(seen.get("torque_nm", math.inf)), segment)
 
 
-def _number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def model_form_problem(text: str, effects: dict) -> str | None:

@@ -533,17 +533,19 @@ class BagWriter:
     writer lays out its records in a third (bulk writers: the caller goes on while what it handed
     over is written; an error there is raised by a later call or :meth:`close`).
     ``replace_atomically`` (default): written beside ``path`` and renamed onto it when closed
-    without an error (:mod:`~base.atomic`); a live recorder passes False.
+    without an error (:mod:`~base.atomic`); a live recorder passes False and ``durable=True``: a
+    hidden file until :meth:`publish`, whole up to its last chunk whenever it is killed
+    (:class:`~.mcapwriter.ChunkedMcapWriter`).
     """
 
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, time_ordered: bool = True,
                  offered_qos: Mapping[str, str] | None = None, background: bool = False,
-                 replace_atomically: bool = True) -> None:
+                 replace_atomically: bool = True, durable: bool = False) -> None:
         from .mcapwriter import ChunkedMcapWriter, TimeOrderBuffer
 
         self.path = Path(path)
         self._writer = ChunkedMcapWriter(self.path, chunk_size=chunk_size, background=background,
-                                         replace_atomically=replace_atomically)
+                                         replace_atomically=replace_atomically, durable=durable)
         self._held = TimeOrderBuffer(self._writer) if time_ordered else None
         self._sink = self._held if time_ordered else self._writer
         self._schema_ids: dict[str, int] = {}
@@ -660,6 +662,11 @@ class BagWriter:
     def bytes_written(self) -> int:
         """About the file's size so far (the open chunk counted uncompressed)."""
         return self._writer.bytes_written
+
+    def publish(self, path: str | Path | None = None) -> Path:
+        """A durable recording takes its name (:meth:`~.mcapwriter.ChunkedMcapWriter.publish`)."""
+        self.path = self._writer.publish(path)
+        return self.path
 
     def close(self, commit: bool = True) -> None:
         """Write what is held, rosbag2's metadata record and the summary; ``commit=False``: the

@@ -416,11 +416,32 @@ class _LinearRead:
         self.fh, self.file_size, self.state = fh, file_size, state
         self.pos: int | None = 8
         self.after_damage: DamagedSpan | None = None  # message-index records right after it count its losses
+        #: the chunk just read, its message-index records still to come: [start, end, messages read,
+        #: first and last log time read, messages its index lists]
+        self.after_chunk: list | None = None
+
+    def _check_chunk(self) -> None:
+        """The chunk just read against its message index: messages the index lists that the chunk's
+        records did not hold (an empty record, a record whose length swallows the rest) are lost,
+        a damaged span of their own (the chunk's CRC may be 0, "not computed", or hold the damage)."""
+        chunk, self.after_chunk = self.after_chunk, None
+        if chunk is None or chunk[5] <= chunk[2]:
+            return
+        start, end, read, first_ns, last_ns, listed = chunk
+        span = _damaged(self.state, start, end, f"the chunk holds {read:,} readable messages, its message index lists "
+                        f"{listed:,}", self.fh, end - start - 9)
+        span.messages_lost = listed - read
+        if span.start_ns is None:
+            span.start_ns, span.end_ns = first_ns, last_ns
 
     def next_record(self) -> MessageArrays | None:
         """Read the record at ``pos`` and move past it: its messages (a chunk, a run of loose
         messages), or None (another record, a damaged one skipped, the end)."""
         fh, state, pos, file_size = self.fh, self.state, self.pos, self.file_size
+        if self.after_chunk is not None:
+            head = _peek(fh, pos, file_size)
+            if head is None or head[0] != OP_MESSAGE_INDEX:
+                self._check_chunk()
         if pos + 9 > file_size:
             state.truncated = True
             state.problem = "file ends without a data-end record"
@@ -445,6 +466,15 @@ class _LinearRead:
                     return None
                 fh.seek(pos + 9)
                 arrays = parse_records(chunk_records(fh.read(ln)), state)
+                times = arrays.log_time
+                self.after_chunk = [pos, end, len(arrays), int(times.min()) if len(times) else None,
+                                    int(times.max()) if len(times) else None, 0]
+            elif op == OP_MESSAGE_INDEX and self.after_chunk is not None:
+                count = _message_index_count(fh.read(ln))
+                if count is not None:
+                    self.after_chunk[5] += count
+                state.bytes_read = self.pos = end
+                return None
             elif op in (OP_MESSAGE, OP_SCHEMA, OP_CHANNEL):
                 run = _loose_records(fh, pos, file_size)
                 arrays = parse_records(run, state)
@@ -484,6 +514,14 @@ class _LinearRead:
             state.truncated = True
             state.problem = f"{reason} (byte {pos:,}); nothing readable after it"
         self.pos = nxt
+
+
+def _peek(fh, pos: int, file_size: int) -> bytes | None:
+    """The opcode byte of the record at ``pos`` (None at the end of the file)."""
+    if pos is None or pos >= file_size:
+        return None
+    fh.seek(pos)
+    return fh.read(1) or None
 
 
 def _outside(head: bytes, record_length: int, log_time_range: tuple[int, int]) -> bool:

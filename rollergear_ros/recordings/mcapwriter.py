@@ -219,18 +219,28 @@ class ChunkedMcapWriter:
     """
 
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, background: bool = False,
-                 replace_atomically: bool = False) -> None:
+                 replace_atomically: bool = False, durable: bool = False) -> None:
         """``replace_atomically``: written beside ``path`` and renamed onto it by :meth:`close`
-        (:mod:`~base.atomic`), so an existing file stays whole until the new one is; a
-        live recorder, whose file must hold what came if the process is killed, writes in place."""
+        (:mod:`~base.atomic`), so an existing file stays whole until the new one is.  ``durable``: a
+        live recording, which a kill may end at any moment -- written under a hidden name until
+        :meth:`publish` gives it its own (its header and what was added before on disk), and after
+        its header, each metadata record and each chunk the file ends with a provisional summary
+        and footer (:meth:`_provisional_tail`), overwritten in the same write by what comes next: a
+        killed recording is whole up to its last chunk for any MCAP reader."""
         import zstandard
         from mcap.data_stream import RecordBuilder
         from mcap.records import Header
 
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        if durable and (background or replace_atomically):
+            raise ValueError("a durable (live) recording is written in the foreground, in place")
         self._partial = atomic.partial_path(self.path) if replace_atomically else None
-        self._fh = (self._partial or self.path).open("wb")
+        self.durable = durable
+        #: a durable recording's name until it is published (None: it has its name)
+        self._hidden = atomic.partial_path(self.path) if durable else None
+        self._fh = (self._partial or self._hidden or self.path).open("wb")
+        self._data_end = 0  # a durable recording: where its data section ends (its provisional tail starts)
         self._zstd = zstandard.ZstdCompressor(level=ZSTD_LEVEL)
         # background: one thread compresses and writes finished chunks (zstd, crc32 and file writes
         # release the GIL) while the caller builds the next; for bulk writers (import), not the
@@ -259,10 +269,9 @@ class ChunkedMcapWriter:
         self._t_min: int | None = None
         self._t_max: int | None = None
         self.closed = False
-        self._fh.write(MAGIC)
         rb = RecordBuilder()
         Header(profile=Profile.ROS2, library="rollergear_ros").write(rb)
-        self._fh.write(rb.end())
+        self._append([MAGIC, rb.end()])
 
     # -------------------------------------------------------------- registration
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
@@ -393,7 +402,75 @@ class ChunkedMcapWriter:
     @property
     def bytes_written(self) -> int:
         """The file's size so far, with the open chunk (uncompressed) and the chunks being written."""
-        return self._fh.tell() + self._size
+        return self._position() + self._size
+
+    def _position(self) -> int:
+        """Where the next record goes: the end of the data section written so far."""
+        return self._data_end if self.durable else self._fh.tell()
+
+    def _append(self, parts: list) -> None:
+        """Write records at the end of the data section; a durable recording's with its provisional
+        tail after them, in one write (what a kill leaves is the file before it or after it)."""
+        if not self.durable:
+            for part in parts:
+                self._fh.write(part)
+            return
+        body = sum(memoryview(p).nbytes for p in parts)
+        tail = self._provisional_tail(self._data_end + body)
+        self._fh.seek(self._data_end)
+        self._fh.write(b"".join([*parts, tail]))
+        self._fh.truncate()
+        self._fh.flush()
+        self._data_end += body
+
+    def _provisional_tail(self, data_end: int) -> bytes:
+        """A data-end record, a summary of what is on disk (schemas, channels, statistics, metadata
+        indexes -- no chunk indexes: a reader then reads the chunks front to back), its footer and the
+        closing magic, for a data section that ends at ``data_end``."""
+        return self._tail(data_end, chunk_indexes=False)
+
+    def _tail(self, data_end: int, chunk_indexes: bool = True) -> bytes:
+        """The data-end record, the summary section, the footer and the closing magic after a data
+        section that ends at byte ``data_end`` (:meth:`_summary`)."""
+        from mcap.data_stream import RecordBuilder
+        from mcap.records import DataEnd, Footer
+
+        rb = RecordBuilder()
+        DataEnd(data_section_crc=0).write(rb)
+        head = rb.end()
+        summary_start = data_end + len(head)
+        summary, summary_offset_start = self._summary(summary_start, chunk_indexes)
+        # the summary CRC covers the summary section and the footer's fields before it (MCAP spec)
+        footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
+        summary_crc = zlib.crc32(footer_head, zlib.crc32(summary))
+        fb = RecordBuilder()
+        Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
+               summary_crc=summary_crc).write(fb)
+        return head + summary + fb.end() + MAGIC
+
+    def publish(self, path: str | Path | None = None) -> Path:
+        """A durable recording takes its name (``path``, else the one it was opened for) once what was
+        added so far is on disk: never a file by that name without its header and metadata.  A name
+        that exists meanwhile raises ``FileExistsError`` (nothing is overwritten); returns the name."""
+        if self._hidden is None:
+            return self.path
+        target = Path(path) if path is not None else self.path
+        with atomic.named(target):
+            self.flush_chunk()
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+            try:
+                os.link(self._hidden, target)  # fails where the name exists: never overwrites
+            except FileExistsError:
+                raise
+            except OSError:  # a file system without hard links: the name checked, then renamed
+                if target.exists() or target.is_symlink():
+                    raise FileExistsError(17, "File exists", str(target)) from None
+                os.replace(self._hidden, target)
+            else:
+                os.unlink(self._hidden)
+        self.path, self._hidden = target, None
+        return target
 
     @property
     def channel_counts(self) -> dict[int, int]:
@@ -414,9 +491,8 @@ class ChunkedMcapWriter:
         rb = RecordBuilder()
         Metadata(name=name, metadata=dict(data)).write(rb)
         blob = rb.end()
-        offset = self._fh.tell()
-        self._fh.write(blob)
-        self._metadata_indexes.append(MetadataIndex(offset=offset, length=len(blob), name=name))
+        self._metadata_indexes.append(MetadataIndex(offset=self._position(), length=len(blob), name=name))
+        self._append([blob])
 
     def flush_chunk(self) -> None:
         """Compress and write the open chunk with its message indexes (in the background with
@@ -458,19 +534,20 @@ class ChunkedMcapWriter:
 
         compressed = self._zstd.compress(data)
         fields = struct.pack("<QQQII4sQ", start, end, len(data), zlib.crc32(data), 4, b"zstd", len(compressed))
-        chunk_offset = self._fh.tell()
-        self._fh.write(struct.pack("<BQ", Opcode.CHUNK, len(fields) + len(compressed)) + fields)
-        self._fh.write(compressed)
-        chunk_length = self._fh.tell() - chunk_offset
+        chunk_offset = at = self._position()
+        parts = [struct.pack("<BQ", Opcode.CHUNK, len(fields) + len(compressed)) + fields, compressed]
+        at += len(parts[0]) + len(compressed)
+        chunk_length = at - chunk_offset
         index_offsets: dict[int, int] = {}
         for cid, entries in _message_indexes(index):
-            index_offsets[cid] = self._fh.tell()
-            self._fh.write(struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 6 + entries.nbytes, cid, entries.nbytes))
-            self._fh.write(entries)
+            index_offsets[cid] = at
+            parts += [struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 6 + entries.nbytes, cid, entries.nbytes), entries]
+            at += len(parts[-2]) + entries.nbytes
+        self._append(parts)
         self._chunk_indexes.append(ChunkIndex(
             message_start_time=start, message_end_time=end, chunk_start_offset=chunk_offset,
             chunk_length=chunk_length, message_index_offsets=index_offsets,
-            message_index_length=self._fh.tell() - chunk_offset - chunk_length, compression="zstd",
+            message_index_length=at - chunk_offset - chunk_length, compression="zstd",
             compressed_size=len(compressed), uncompressed_size=len(data)))
 
     def close(self, commit: bool = True) -> None:
@@ -494,35 +571,23 @@ class ChunkedMcapWriter:
                 atomic.discard(self._partial)
 
     def _close(self) -> None:
-        from mcap.data_stream import RecordBuilder
-        from mcap.records import DataEnd, Footer
-
         try:
             self.flush_chunk()
             self._drain()  # on an error, the pool's shutdown below still waits for the other chunks
-            rb = RecordBuilder()
-            DataEnd(data_section_crc=0).write(rb)
-            self._fh.write(rb.end())
-            summary_start = self._fh.tell()
-            summary, summary_offset_start = self._summary(summary_start)
-            self._fh.write(summary)
-            # the summary CRC covers the summary section and the footer's fields before it (MCAP spec)
-            footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
-            summary_crc = zlib.crc32(footer_head, zlib.crc32(summary))
-            fb = RecordBuilder()
-            Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
-                   summary_crc=summary_crc).write(fb)
-            self._fh.write(fb.end())
-            self._fh.write(MAGIC)
+            end = self._position()
+            self._fh.seek(end)  # a durable recording: its full tail over the provisional one, in one write
+            self._fh.write(self._tail(end))
+            self._fh.truncate()
         finally:
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
             self._fh.flush()
             os.fsync(self._fh.fileno())
             self._fh.close()
+        if self._hidden is not None:  # closed before it was published: it takes its name now
+            self.publish()
 
-
-    def _summary(self, summary_start: int) -> tuple[bytes, int]:
+    def _summary(self, summary_start: int, chunk_indexes: bool = True) -> tuple[bytes, int]:
         """The summary section (schemas, channels, statistics, chunk and metadata indexes, and the
         summary offsets of each group) for a summary that starts at byte ``summary_start``;
         returns it and where its summary offsets start."""
@@ -546,7 +611,7 @@ class ChunkedMcapWriter:
             (Opcode.SCHEMA, list(self._schemas.values())),
             (Opcode.CHANNEL, list(self._channels.values())),
             (Opcode.STATISTICS, [statistics]),
-            (Opcode.CHUNK_INDEX, self._chunk_indexes),
+            (Opcode.CHUNK_INDEX, self._chunk_indexes if chunk_indexes else []),
             (Opcode.METADATA_INDEX, self._metadata_indexes),
         )
         for opcode, records in groups:

@@ -6,7 +6,9 @@ open ``max_s`` (looked at by :meth:`RollingRecorder.roll_if_due`, from a timer),
 one and closes the last -- its summary written, so every file is complete and readable on its own.
 Each file gets the metadata records of the first (the node's provenance with its parameters, how it
 paired its inputs) and, first thing, the last message of each latched topic (the live loss map, the
-latest online trace), so a file taken alone still has them.
+latest online trace), so a file taken alone still has them.  A file is written under a hidden name
+until those are on disk, then takes its own (``BagWriter.publish``); from then on a kill leaves it
+whole up to its last chunk (a durable writer: :class:`~.mcapwriter.ChunkedMcapWriter`).
 
 File names come from a template (:func:`file_name`): ``{start}`` is the file's start time (UTC,
 ``20261127T041503Z``), ``{index}`` its number in the run (0, 1, …); a name without either gets
@@ -77,7 +79,10 @@ class RollingRecorder:
     measured by (the node's); ``latched``: topics whose last message each new file starts with."""
 
     def __init__(self, template: str, open_writer: Callable[[Path], BagWriter], now_ns: Callable[[], int],
-                 max_bytes: int = 0, max_s: float = 0.0, latched: tuple[str, ...] = ()) -> None:
+                 max_bytes: int = 0, max_s: float = 0.0, latched: tuple[str, ...] = (),
+                 metadata: tuple[tuple[str, dict[str, str]], ...] = ()) -> None:
+        """``metadata``: records every file holds from its start (the node's provenance), on disk
+        before the file has its name."""
         self.template = template
         self._open_writer = open_writer
         self._now_ns = now_ns
@@ -86,7 +91,7 @@ class RollingRecorder:
         self.latched = set(latched)
         self._split = splits(self.max_bytes, max_s)
         self.files: list[Path] = []  #: every file of the run, in order
-        self._metadata: list[tuple[str, dict[str, str]]] = []
+        self._metadata: list[tuple[str, dict[str, str]]] = [(name, dict(data)) for name, data in metadata]
         self._last_latched: dict[str, tuple] = {}
         self.writer: BagWriter = self._open()
 
@@ -100,11 +105,17 @@ class RollingRecorder:
         path = next_file(self.template, start, len(self.files), self._split)
         writer = self._open_writer(path)
         self._opened_ns = start
-        self.files.append(path)
         for name, data in self._metadata:
             writer.add_metadata(name, data)
         for topic, (type_name, data, schema_text) in self._last_latched.items():
             writer.write_raw(topic, type_name, start, data, schema_text)
+        while True:  # named once its header, metadata and latched messages are on disk
+            try:
+                path = writer.publish(path)
+                break
+            except FileExistsError:  # taken meanwhile (another recorder): the next free name
+                path = free_name(path)
+        self.files.append(path)
         return writer
 
     def write_raw(self, topic: str, type_name: str, log_time_ns: int, data: bytes, schema_text: str | None = None,

@@ -191,20 +191,20 @@ class LossEstimatorNode(Node):
 
             def open_file(path: Path) -> bagmod.BagWriter:
                 return bagmod.BagWriter(path, chunk_size=256 * 1024, time_ordered=False, offered_qos=offered,
-                                        replace_atomically=False)  # in place: a kill keeps what came
+                                        replace_atomically=False, durable=True)  # in place: a kill keeps what came
 
             latched = tuple(self.out_topics[c.name] for c in (*map_channels(), *trace_channels())
                             if c.name in self.out_topics)
-            self.recorder = RollingRecorder(node.record_mcap, open_file, time.time_ns, int(node.record_max_mb * 1e6),
-                                            node.record_max_s, latched)
-            self.recorder.add_metadata(Metadata.RECORDING, {
+            recording = {
                 "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
                 "pairing": self.pairing if self._record_pairing_time else "timestamp",
                 "input_log_time": ("arrival" if self.pairing in ARRIVAL_PAIRINGS else "source_timestamp")
                 if self._record_pairing_time else "receive",
-                "sample_period_s": repr(1.0 / node.expected_rate_hz)})
-            self.recorder.add_metadata(Metadata.PROVENANCE,
-                                       live_provenance(self.get_fully_qualified_name(), self.config, sys.argv))
+                "sample_period_s": repr(1.0 / node.expected_rate_hz)}
+            provenance = live_provenance(self.get_fully_qualified_name(), self.config, sys.argv)
+            self.recorder = RollingRecorder(node.record_mcap, open_file, time.time_ns, int(node.record_max_mb * 1e6),
+                                            node.record_max_s, latched,
+                                            ((Metadata.RECORDING, recording), (Metadata.PROVENANCE, provenance)))
             self.recorder_files = self.recorder.files
             self._record_map()  # the first map, published before the recorder opened
         self.rerun = None

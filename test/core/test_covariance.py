@@ -28,6 +28,7 @@ def test_the_text_round_trips_to_the_last_digit():
     ('{"keys": ["effects.drag_speed.c", "effects.drag_speed.c"], "matrix": [[1, 0], [0, 1]]}', "each once"),
     ('{"keys": ["effects.drag_speed.c"], "matrix": [[1, 2]]}', "1 rows of 1 numbers"),
     ('{"keys": ["effects.drag_speed.c"], "matrix": [[NaN]]}', "finite numbers"),
+    ('{"keys": ["effects.drag_speed.c"], "matrix": [[' + "9" * 400 + ']]}', "finite numbers"),  # no float holds it
     ('{"keys": ["effects.drag_speed.c", "effects.drag_speed.p"], "matrix": [[1, 0.5], [0.2, 1]]}', "not symmetric"),
     ('{"keys": ["effects.drag_speed.c", "effects.drag_speed.p"], "matrix": [[1, 2], [2, 1]]}', "not a covariance"),
     ('{"keys": ["node.record_mcap"], "matrix": [[1]]}', "no numeric parameter"),

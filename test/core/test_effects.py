@@ -306,3 +306,26 @@ def test_toy_effects_with_memory_and_on_the_fr_part_are_one_entry_each(toy_memor
     m = LossModel(thin.gearbox)
     np.testing.assert_allclose(loss, m.loss_magnitude(torque[:5], speed[:5]) - 0.1 * m.fr_part(torque[:5], speed[:5]),
                                rtol=1e-12)
+
+
+def test_the_viscosity_laws_search_holds_every_gear_oil_of_the_data_sheets():
+    """Vogel B and C of each gear oil in ``realdata/lubricant_viscosity`` (from ν40, ν100 and ρ15 by
+    ASTM D341) inside the search's grids and bounds, clear of the bounds: a refit can reach each."""
+    import csv
+
+    from helpers import REALDATA
+    from rollergear_ros.core.oil import vogel_from_datasheet
+
+    table = REALDATA / "lubricant_viscosity" / "gear_oil_viscosity_datasheet_values.csv"
+    if not table.exists():
+        pytest.skip("../shared/realdata is not here")
+    effect = EFFECTS["viscosity_temperature"]
+    (lo_b, hi_b), (lo_c, hi_c) = effect.member_bounds, effect.second_bounds
+    with table.open() as fh:
+        oils = list(csv.DictReader(fh))
+    assert len(oils) >= 10
+    for oil in oils:
+        b, c, _eta = vogel_from_datasheet(float(oil["nu40_mm2_s"]), float(oil["nu100_mm2_s"]),
+                                          1000.0 * float(oil["density15_kg_per_dm3"]))
+        assert min(effect.member_grid) < b < max(effect.member_grid) and 2 * lo_b < b < hi_b / 2, (oil["product"], b)
+        assert min(effect.second_grid) < c < max(effect.second_grid) and 2 * lo_c < c < hi_c / 2, (oil["product"], c)

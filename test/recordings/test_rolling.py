@@ -5,6 +5,10 @@ existing file overwritten."""
 from __future__ import annotations
 
 import datetime
+import signal
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -48,7 +52,7 @@ def _stream(writer, clock: Clock, seconds: int, roll=None) -> list[tuple[str, in
 
 
 def _open(path):
-    return BagWriter(path, chunk_size=4096, time_ordered=False, replace_atomically=False)
+    return BagWriter(path, chunk_size=4096, time_ordered=False, replace_atomically=False, durable=True)
 
 
 @pytest.mark.parametrize("limit", ["duration", "size"])
@@ -106,3 +110,72 @@ def test_names_come_from_the_template_and_an_existing_file_is_never_overwritten(
     rolling.close()
     assert old.read_bytes() == b"yesterday's recording"
     assert rolling.files == [tmp_path / f"rig_{stamp}_1.mcap"] and free_name(old) == tmp_path / f"rig_{stamp}_2.mcap"
+
+
+#: a recorder as the node runs it (durable files, rolled by a timer), killed by SIGKILL at the
+#: ``kill_at``-th write of a file's records (1: a file opened, its header not written; 2: its header
+#: written, its first metadata not; ...) or just after a file was linked to its name ("link")
+KILLED_RECORDER = r"""
+import os, signal, sys
+import numpy as np
+from rollergear_ros.base.interface import MessageType
+from rollergear_ros.recordings import mcapwriter
+from rollergear_ros.recordings.bag import BagWriter, encode_float64
+from rollergear_ros.recordings.rolling import RollingRecorder
+
+template, kill_at, max_s, max_bytes = sys.argv[1], sys.argv[2], float(sys.argv[3]), int(sys.argv[4])
+writes = 0
+append = mcapwriter.ChunkedMcapWriter._append
+def killing(self, parts):
+    global writes
+    writes += 1
+    if str(writes) == kill_at:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return append(self, parts)
+mcapwriter.ChunkedMcapWriter._append = killing
+if kill_at == "link":
+    unlink = os.unlink
+    def killed_unlink(path, *a, **k):
+        if str(path).endswith(".partial"):
+            os.kill(os.getpid(), signal.SIGKILL)
+        return unlink(path, *a, **k)
+    os.unlink = killed_unlink
+clock = [1_790_000_000 * 10**9]
+rec = RollingRecorder(template, lambda p: BagWriter(p, chunk_size=2048, time_ordered=False,
+                                                    replace_atomically=False, durable=True),
+                      lambda: clock[0], max_bytes, max_s, (),
+                      (("rollergear_provenance", {"parameters": "gearbox: ..."}),))
+for k in range(3000):
+    clock[0] += 10_000_000
+    rec.write_raw("/rollergear/motor/torque", MessageType.FLOAT64, clock[0], encode_float64(np.array([float(k)]))[0])
+    if k % 50 == 49:
+        rec.roll_if_due()
+rec.close()
+print("not killed")
+"""
+
+
+@pytest.mark.parametrize("template", ["rig.mcap", "rig_{index}.mcap", "r_{start}_{index}.mcap", "rig_{start}.mcap"])
+def test_a_recorder_killed_at_any_write_leaves_every_named_file_readable_by_both_readers(tmp_path, template):
+    """SIGKILL at each of a recording's first writes (a file opened before its header, after it, after
+    its metadata, after each chunk), just after a file took its name, split by duration and by size,
+    restarted in the same folder: every file that has a name is read by ``mcap`` and ``rosbags`` alike,
+    holds the provenance, and every message it holds is one that was written, in order."""
+    runs = 0
+    for max_s, max_bytes in ((1.0, 0), (0.0, 6000)):
+        for kill_at in ("1", "2", "3", "5", "10", "link"):
+            folder = tmp_path / f"{max_s}_{max_bytes}"
+            folder.mkdir(exist_ok=True)
+            proc = subprocess.run([sys.executable, "-c", KILLED_RECORDER, str(folder / template), kill_at,
+                                   str(max_s), str(max_bytes)], capture_output=True, text=True, timeout=120)
+            assert proc.returncode == -signal.SIGKILL, (kill_at, proc.returncode, proc.stdout, proc.stderr)
+            runs += 1
+            for path in sorted(folder.glob("*.mcap")):  # the named files of every run so far (restarts)
+                by_mcap, by_rosbags = read_mcap_ros2(path), read_rosbags(path)
+                assert by_mcap.keys() == by_rosbags.keys(), path
+                assert read_metadata(path, "rollergear_provenance")["parameters"] == "gearbox: ...", path
+                for topic, (t, msgs) in by_mcap.items():
+                    np.testing.assert_array_equal(t, by_rosbags[topic][0])
+                    values = np.array([m.data for m in msgs])
+                    assert np.all(np.diff(values) == 1.0) and values[0] == np.round(values[0]), path
+    assert runs == 12

@@ -87,3 +87,80 @@ def test_padded_float64_inputs_are_copied_as_every_reader_reads_them(tmp_path):
         got = read(tmp_path / "o.mcap")
         for topic, v in values.items():
             np.testing.assert_array_equal(np.array([m if isinstance(m, float) else m.data for m in got[topic][1]]), v)
+
+
+def _uncompressed_copy(src, out):
+    """``src`` rewritten by the mcap library's writer with uncompressed chunks of 64 KiB; its chunk
+    indexes (where each chunk's records start and how long they are)."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    with open(src, "rb") as fh, open(out, "wb") as dst:
+        reader = make_reader(fh)
+        writer = Writer(dst, chunk_size=64 * 1024, compression=CompressionType.NONE)
+        writer.start(profile="ros2", library="test")
+        summary = reader.get_summary()
+        for schema in summary.schemas.values():
+            writer.register_schema(schema.name, schema.encoding, schema.data)
+        ids = {c.id: writer.register_channel(c.topic, c.message_encoding, c.schema_id, c.metadata)
+               for c in summary.channels.values()}
+        for _schema, channel, message in reader.iter_messages(log_time_order=False):
+            writer.add_message(ids[channel.id], message.log_time, message.data, message.publish_time,
+                               message.sequence)
+        writer.finish()
+    with open(out, "rb") as fh:
+        return sorted(make_reader(fh).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+
+
+def _patched(path, chunk, records: bytes | None = None, crc: int | None = None, length_at: int | None = None):
+    """Patch one uncompressed chunk in place: its records, its CRC, or the length field of the record
+    at ``length_at`` (bytes into the records) set to reach the end of the records."""
+    import struct
+    import zlib
+
+    data = bytearray(path.read_bytes())
+    head = chunk.chunk_start_offset + 9
+    size = struct.unpack_from("<Q", data, head + 16)[0]
+    rec = head + 8 + 8 + 8 + 4 + 4 + 8  # start, end, uncompressed size, crc, compression "" , compressed size
+    if records is not None:
+        data[rec:rec + size] = records
+    if length_at is not None:
+        struct.pack_into("<Q", data, rec + length_at + 1, size - length_at - 9)
+        crc = zlib.crc32(bytes(data[rec:rec + size]))  # a CRC-valid chunk: the damage was there when it was written
+    if crc is not None:
+        struct.pack_into("<I", data, head + 24, crc)
+    path.write_bytes(bytes(data))
+    return size
+
+
+@pytest.mark.parametrize("damage", ["empty records, CRC 0", "a record's length swallows the chunk"])
+def test_messages_a_chunks_index_lists_but_its_records_lost_are_reported_and_exit_3(tmp_path, damage):
+    """A chunk whose records are gone (CRC 0: "not computed") or whose one record's length swallows the
+    rest (CRC valid): its message index lists the messages.  info, replay, play and map --measured say
+    how many were lost, and where; each exits 3 (more than 1 % lost)."""
+    bag = tmp_path / "d.mcap"
+    chunks = _uncompressed_copy(SRC, bag)
+    assert len(chunks) >= 8
+    target = chunks[len(chunks) // 2]
+    import struct
+
+    from mcap.reader import make_reader
+
+    with open(bag, "rb") as fh:
+        reader = make_reader(fh)
+        listed = sum(1 for _s, _c, m in reader.iter_messages(log_time_order=False)
+                     if target.message_start_time <= m.log_time <= target.message_end_time)
+    if damage.startswith("empty"):
+        size = struct.unpack_from("<Q", bag.read_bytes(), target.chunk_start_offset + 9 + 16)[0]
+        _patched(bag, target, records=bytes([0x7F]) + struct.pack("<Q", size - 9) + bytes(size - 9), crc=0)
+    else:
+        _patched(bag, target, length_at=0)
+    info = json.loads(run_cli("info", str(bag), "--json", check=False).stdout)
+    said = " ".join(info["damaged"])
+    assert "message index lists" in said and "messages lost" in said, said
+    for command in (("replay", str(bag), "--out", str(tmp_path / "o.mcap")),
+                    ("map", "--recording", str(bag), "--measured", "--out", str(tmp_path / "m.vtlm"))):
+        proc = run_cli(*command, check=False, timeout=300)
+        assert proc.returncode == 3 and "Traceback" not in proc.stderr, (command, proc.returncode, proc.stderr)
+        assert "messages lost" in proc.stderr or "unreadable" in proc.stderr, proc.stderr
+    assert listed > 100
