@@ -10,6 +10,7 @@ import argparse
 import csv
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from collections.abc import Sequence
@@ -368,8 +369,23 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    if sys.stdout is None:  # started with its standard output closed (>&-): nothing it says would be seen
+        if sys.stderr is not None:
+            print("rollergear: error: standard output is closed", file=sys.stderr)
+        return 2
+    stdout, sys.stdout = sys.stdout, _NamedStdout(sys.stdout)
     try:
-        return int(args.func(args) or 0)
+        return _run(args)
+    finally:
+        sys.stdout = stdout
+
+
+def _run(args: argparse.Namespace) -> int:
+    """The command, its errors as one line and an exit status."""
+    try:
+        status = int(args.func(args) or 0)
+        sys.stdout.flush()  # what is still buffered: a full device is said here, not at exit
+        return status
     except RollergearError as exc:
         print(f"rollergear: error: {exc}", file=sys.stderr)
         return 2
@@ -379,11 +395,51 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:
         return 0
     except OSError as exc:
-        if exc.filename is None:  # not about a file: a defect, shown as one
+        if exc.filename == STDOUT:
+            _discard_stdout()
+        elif exc.filename is None:  # not about a file: a defect, shown as one
             raise
         # the file system refused (disk full, permissions changed during the run): one line
         print(f"rollergear: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
         return 2
+
+
+STDOUT = "standard output"  #: the file name an error writing standard output carries
+
+
+class _NamedStdout:
+    """Standard output whose write errors (a full device, a closed descriptor) name it: one error
+    line, as for any file, instead of a traceback."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        try:
+            return self._stream.write(text)
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror or str(exc), STDOUT) from None
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror or str(exc), STDOUT) from None
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
+
+
+def _discard_stdout() -> None:
+    """After standard output failed: what it still buffers goes to /dev/null, so that the
+    interpreter's exit does not fail on it again (and print a traceback of its own)."""
+    try:
+        stream = sys.stdout._stream if isinstance(sys.stdout, _NamedStdout) else sys.stdout
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, stream.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass
 
 
 if __name__ == "__main__":  # run as the package's module so exception classes are shared

@@ -705,6 +705,10 @@ def validate(values: Mapping[str, Any]) -> Config:
     return config
 
 
+#: the smallest size a split recording's files may be given (a file holds its header, provenance and summary)
+MIN_RECORD_MB = 0.01
+
+
 def _check_consistency(config: Config) -> None:
     if config.calibration.covariance:
         from .covariance import covariance_problem
@@ -722,6 +726,10 @@ def _check_consistency(config: Config) -> None:
         if problem:
             text = config.calibration.model_form
             raise ParameterError("calibration.model_form", text if len(text) <= 60 else text[:57] + "...", problem)
+    node = config.node
+    if 0 < node.record_max_mb < MIN_RECORD_MB:  # a size no file reaches with its header and summary
+        raise ParameterError("node.record_max_mb", node.record_max_mb,
+                             f"must be 0 (one file) or at least {MIN_RECORD_MB:g} MB")
     g = config.gearbox
     if g.z > g.Z:
         raise ParameterError("gearbox.z", g.z, f"connected balls z must be <= Z = {g.Z}")

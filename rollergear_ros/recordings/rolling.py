@@ -26,7 +26,8 @@ from pathlib import Path
 
 from .bag import BagWriter, encoder_for
 
-__all__ = ["RollingRecorder", "file_name", "free_name", "is_template", "next_file", "roll_due", "splits"]
+__all__ = ["MAX_NAME_BYTES", "RollingRecorder", "file_name", "free_name", "is_template", "next_file", "roll_due",
+           "splits", "template_problem"]
 
 FIELDS = ("{start}", "{index}")
 
@@ -34,6 +35,23 @@ FIELDS = ("{start}", "{index}")
 def is_template(name: str) -> bool:
     """Whether ``name`` holds a field of :data:`FIELDS`."""
     return any(f in name for f in FIELDS)
+
+
+#: the longest file name most file systems take, less what a file's hidden name while it is opened adds
+MAX_NAME_BYTES = 255 - len(".") - len(".000000.partial")
+
+
+def template_problem(template: str, suffix: str) -> str | None:
+    """Why ``template`` names no recording of files ending in ``suffix`` (None: it does): a name
+    with that suffix and something before it, not too long for the file system once its fields
+    ({start}, {index} up to 9999, or ``_9999`` where it is split) are filled in."""
+    name = Path(template).name
+    filled = file_name(template, 4_102_444_799 * 10**9, 9999, True).name  # the longest stamp and index
+    if not name or name in (".", "..") or Path(filled).suffix.lower() != suffix or not Path(filled).stem.strip("._-"):
+        return f"needs a file name ending in {suffix} with a name before it (e.g. rig_{{start}}{suffix})"
+    if len(filled.encode()) > MAX_NAME_BYTES:
+        return f"the file name is {len(filled.encode())} bytes with its fields filled in; at most {MAX_NAME_BYTES}"
+    return None
 
 
 def splits(max_bytes: int, max_s: float) -> bool:

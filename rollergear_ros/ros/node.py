@@ -33,7 +33,8 @@ from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64, Float64MultiArray
 
 from ..recordings import bag as bagmod
-from ..recordings.rolling import RollingRecorder, free_name, is_template, next_file, roll_due, splits
+from ..recordings.rolling import (RollingRecorder, free_name, is_template, next_file, roll_due, splits,
+                                  template_problem)
 from .diagnostics import (STATUS_NAME, DiagnosticLimits, InputMonitor, InputsNow, NodeLoad, SinceLast,
                           diagnose)
 from ..core.estimator import Estimate, Estimator
@@ -168,8 +169,12 @@ class LossEstimatorNode(Node):
         self._record_pairing_time = (node.input_mode == "float64" and not self.get_parameter("use_sim_time").value)
         # every output is checked before any is opened: a refused one leaves no half-written file
         split = splits(int(node.record_max_mb * 1e6), node.record_max_s)
-        for name, path in (("node.record_mcap", node.record_mcap), ("node.rerun_rrd", node.rerun_rrd)):
+        for name, path, suffix in (("node.record_mcap", node.record_mcap, ".mcap"),
+                                   ("node.rerun_rrd", node.rerun_rrd, ".rrd")):
             if path:
+                problem = template_problem(path, suffix)
+                if problem:
+                    raise ParameterError(name, path if len(path) <= 60 else path[:57] + "...", problem)
                 check_new_output(name, str(_first_file(path, split)))
         # the files rewritten during the run: an existing file is never replaced, the next free name is taken
         self.live_map.path = self._free_output("node.map_file", node.map_file)

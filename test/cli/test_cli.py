@@ -5,6 +5,9 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shlex
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -305,3 +308,21 @@ def test_model_over_a_grid_is_model_point_by_point_and_says_its_sign_rule():
     [row] = [p for p in grid if p["torque_nm"] == 90 and p["speed_rad_s"] == -10]
     assert row["loss_torque_nm"] == alone["loss_torque_nm"] < -0.2
     assert "the plain sign of each point's speed" in run_cli("model", "--torque", "10", "--speed", "5").stdout
+
+
+@pytest.mark.parametrize("command", [("model", "--torque", "1", "10", "--speed", "104.72", "--json"),
+                                     ("info", str(BAGS / "rig_map.mcap"), "--json"),
+                                     ("predict", str(BAGS / "rig_map.mcap"), "--json")])
+def test_standard_output_on_a_full_device_or_closed_is_one_line(command):
+    """``> /dev/full`` and ``>&-``: one error line naming standard output, exit 2 -- no traceback, and
+    not a run with its output going nowhere."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run([sys.executable, "-m", "rollergear_ros", *command], stdout=full, stderr=subprocess.PIPE,
+                              text=True, env=env, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip() == "rollergear: error: standard output: No space left on device", proc.stderr
+    closed = subprocess.run(f"{shlex.quote(sys.executable)} -m rollergear_ros {shlex.join(command)} >&-", shell=True,
+                            stderr=subprocess.PIPE, text=True, env=env, timeout=300)
+    assert closed.returncode == 2 and closed.stderr.strip() == "rollergear: error: standard output is closed", \
+        closed.stderr

@@ -209,3 +209,11 @@ def test_numbers_without_a_dot_read_as_ros2_reads_them(tmp_path):
     p.write_text("/**/loss_estimator:\n  ros__parameters:\n    map: {torque_step_nm: '1e-1'}\n")
     with pytest.raises(ParameterError):  # a quoted string stays a string
         load_config(p)
+
+
+def test_a_split_size_no_file_reaches_is_refused():
+    """``node.record_max_mb:=1e-9`` recorded one unsplit file without a word (int(1e-9·1e6) = 0)."""
+    with pytest.raises(ParameterError, match="node.record_max_mb"):
+        validate({"node.record_max_mb": 1e-9})
+    assert validate({"node.record_max_mb": 0.0}).node.record_max_mb == 0.0
+    assert validate({"node.record_max_mb": 0.5}).node.record_max_mb == 0.5

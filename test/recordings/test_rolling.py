@@ -15,7 +15,7 @@ import pytest
 
 from rollergear_ros.base.interface import MessageType
 from rollergear_ros.recordings.bag import BagWriter, encode_float64, read_metadata
-from rollergear_ros.recordings.rolling import RollingRecorder, file_name, free_name
+from rollergear_ros.recordings.rolling import RollingRecorder, file_name, free_name, template_problem
 
 from bagtools import read_mcap_ros2, read_rosbags
 
@@ -179,3 +179,17 @@ def test_a_recorder_killed_at_any_write_leaves_every_named_file_readable_by_both
                     values = np.array([m.data for m in msgs])
                     assert np.all(np.diff(values) == 1.0) and values[0] == np.round(values[0]), path
     assert runs == 12
+
+
+@pytest.mark.parametrize(("template", "problem"), [
+    ("{start}", "ending in .mcap"), (".mcap", "ending in .mcap"), ("rig.rrd", "ending in .mcap"),
+    ("r" * 300 + ".mcap", "bytes with its fields filled in"), ("r" * 236 + "_{start}.mcap", "bytes"),
+    ("rig_{start}.mcap", None), ("rig.mcap", None), ("runs/r_{start}_{index}.mcap", None), ("r" * 200 + ".mcap", None)])
+def test_a_name_that_makes_no_recording_is_refused_with_the_reason(template, problem):
+    """The node's record name: no suffix ('{start}' alone), nothing before it ('.mcap', which split made
+    hidden '.mcap_0' files), or a name the file system refuses once its fields are filled in."""
+    found = template_problem(template, ".mcap")
+    assert (found is None) if problem is None else (problem in found), found
+    if problem is None:  # the longest file it makes, hidden while it is opened, can be created
+        longest = file_name(template, 4_102_444_799 * 10**9, 9999, True).name
+        assert len(f".{longest}.000000.partial".encode()) <= 255
