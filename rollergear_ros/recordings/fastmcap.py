@@ -190,12 +190,19 @@ def _other_record(op: int, body: bytes, state: ReadState) -> None:
         _channel(body, state)
 
 
+#: the shortest schema record (its fields with empty strings): a bound on how many a chunk holds
+_MIN_OTHER_RECORD = 9 + 14
+
+
 def _native_message_starts(data: bytes, buf: np.ndarray, state: ReadState) -> tuple[np.ndarray, np.ndarray]:
-    """(start, record length) of each message record of a chunk, found by the C scan."""
+    """(start, record length) of each message record of a chunk, found by the C scan (schema and
+    channel records update ``state``; records of other opcodes are skipped, opcode 0 is damage)."""
     starts = np.empty(len(data) // (9 + _MSG_FIXED) + 1, dtype=np.int64)
-    count, others = _native_scan(buf, starts)
-    for op, pos, length in others:
-        _other_record(op, data[pos + 9:pos + 9 + length], state)
+    others = np.empty(len(data) // _MIN_OTHER_RECORD + 1, dtype=np.int64)
+    count, n_others = _native_scan(buf, starts, others)
+    for pos in others[:n_others].tolist():
+        length = int.from_bytes(data[pos + 1:pos + 9], "little")
+        _other_record(data[pos], data[pos + 9:pos + 9 + length], state)
     starts = starts[:count]
     return starts, 9 + byte_rows(buf, 8)[starts + 1].view("<i8").ravel()
 
@@ -214,27 +221,34 @@ def _numpy_message_starts(data: bytes, buf: np.ndarray, state: ReadState) -> tup
         rec = 9 + ln
         if pos + rec > n:
             raise ValueError("record runs past the end of its chunk")
+        if op == 0:
+            raise ValueError("invalid record (opcode 0)")
+        if op in (OP_SCHEMA, OP_CHANNEL):
+            if ln < (14 if op == OP_SCHEMA else 16):
+                raise ValueError("schema or channel record shorter than its fields")
+            _other_record(op, data[pos + 9:pos + rec], state)
+            pos += rec
+            continue
+        if op == OP_MESSAGE and ln < _MSG_FIXED:
+            raise ValueError("message record shorter than a message's fields")
+        # a run of records with the same opcode and length, checked in growing windows: a recorder's
+        # messages of one type -- or records of an opcode the spec says to skip, skipped as a run
+        avail = (n - pos) // rec
+        head = buf[pos:pos + 9]
+        m, window = 1, step
+        while m < avail:
+            k = min(window, avail - m)
+            rows = buf[pos + m * rec:pos + (m + k) * rec].reshape(k, rec)
+            bad = np.flatnonzero(~(rows[:, :9] == head).all(axis=1))
+            if len(bad):
+                m += int(bad[0])
+                break
+            m += k
+            window *= 2
         if op == OP_MESSAGE:
-            if ln < _MSG_FIXED:
-                raise ValueError("message record shorter than a message's fields")
-            avail = (n - pos) // rec
-            head = buf[pos:pos + 9]
-            m, window = 1, step
-            while m < avail:  # a run of records with the same opcode and length, checked in growing windows
-                k = min(window, avail - m)
-                rows = buf[pos + m * rec:pos + (m + k) * rec].reshape(k, rec)
-                bad = np.flatnonzero(~(rows[:, :9] == head).all(axis=1))
-                if len(bad):
-                    m += int(bad[0])
-                    break
-                m += k
-                window *= 2
             runs.append((pos, m, rec))
             step = max(64, m)
-            pos += m * rec
-            continue
-        _other_record(op, data[pos + 9:pos + rec], state)
-        pos += rec
+        pos += m * rec
     if not runs:
         e = np.empty(0, dtype=np.int64)
         return e, e
@@ -465,10 +479,11 @@ class _LinearRead:
                     state.bytes_read = self.pos = end
                     return None
                 fh.seek(pos + 9)
+                skipped = state.bad_log_times  # messages found but skipped for their log time are no loss
                 arrays = parse_records(chunk_records(fh.read(ln)), state)
                 times = arrays.log_time
-                self.after_chunk = [pos, end, len(arrays), int(times.min()) if len(times) else None,
-                                    int(times.max()) if len(times) else None, 0]
+                self.after_chunk = [pos, end, len(arrays) + state.bad_log_times - skipped,
+                                    int(times.min()) if len(times) else None, int(times.max()) if len(times) else None, 0]
             elif op == OP_MESSAGE_INDEX and self.after_chunk is not None:
                 count = _message_index_count(fh.read(ln))
                 if count is not None:

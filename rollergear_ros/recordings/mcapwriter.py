@@ -71,6 +71,7 @@ def lay_out_records(starts: np.ndarray, size: int, channel_id: np.ndarray, log_t
     as_int64 = functools.partial(np.ascontiguousarray, dtype=np.int64)
     starts, channel_id, log_time, group, row = map(as_int64, (starts, channel_id, log_time, group, row))
     payloads = [np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
+    _check_layout(starts, size, channel_id, log_time, group, row, payloads, counters)
     if native is None:
         native = _native_records is not None
     out = np.empty(size, dtype=np.uint8)
@@ -92,6 +93,39 @@ def lay_out_records(starts: np.ndarray, size: int, channel_id: np.ndarray, log_t
         return out
     out[:] = interleave(group, rows, starts, size, period_hint)
     return out
+
+
+def _check_layout(starts: np.ndarray, size: int, channel_id: np.ndarray, log_time: np.ndarray, group: np.ndarray,
+                  row: np.ndarray, payloads: list[np.ndarray], counters: np.ndarray) -> None:
+    """Every index of a layout checked before either path writes a byte or counts a message (the C
+    function checks them again, for any caller): a bad one is a ValueError, ``counters`` untouched."""
+    n = len(starts)
+    if not all(len(a) == n for a in (channel_id, log_time, group, row)):
+        raise ValueError("starts, channel, log_time, group and row: one value per record each")
+    if not (isinstance(counters, np.ndarray) and counters.dtype == np.int64 and counters.ndim == 1
+            and counters.flags.c_contiguous and counters.flags.writeable):
+        raise ValueError("counters: a writeable 1-D int64 array")
+    if any(p.ndim != 2 for p in payloads):
+        raise ValueError("payloads: 2-D uint8 arrays")
+    if not n:
+        return
+    if group.min() < 0 or group.max() >= len(payloads):
+        i = int(np.flatnonzero((group < 0) | (group >= len(payloads)))[0])
+        raise ValueError(f"group[{i}] = {int(group[i])}: no such payload array")
+    heights = np.array([p.shape[0] for p in payloads], dtype=np.int64)
+    widths = np.array([p.shape[1] for p in payloads], dtype=np.int64)
+    bad = (row < 0) | (row >= heights[group])
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"row[{i}] = {int(row[i])}: beyond its payload array")
+    bad = (channel_id < 0) | (channel_id >= len(counters)) | (channel_id > 0xFFFF)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"channel[{i}] = {int(channel_id[i])}: no counter")
+    bad = (starts < 0) | (starts > size - 9 - _MSG_FIXED - widths[group])
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"starts[{i}] = {int(starts[i])}: the record ends beyond out")
 
 
 def by_channel(ids: np.ndarray) -> list[tuple[int, np.ndarray | None]]:
