@@ -363,7 +363,8 @@ def testability(d: SampleData) -> dict[str, str]:
     """Each effect of the registry -> why this data cannot show it ("" where it can): one that needs a
     varying oil temperature, speeds near standstill, regeneration or both directions of rotation
     where the data have them; sensor errors not in a table (its rows are losses, not readings);
-    load-dependent ones not in a spin test nor under one load (:func:`_one_load`); effects with memory only where the speed reverses."""
+    load-dependent ones not in a spin test nor under one load (:func:`_one_load`);
+    effects with memory only where the speed reverses."""
     theta = d.temperature
     have_theta = np.isfinite(theta)
     span = float(np.nanmax(theta) - np.nanmin(theta)) if have_theta.any() else 0.0

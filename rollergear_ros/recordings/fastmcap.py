@@ -482,8 +482,8 @@ class _LinearRead:
                 skipped = state.bad_log_times  # messages found but skipped for their log time are no loss
                 arrays = parse_records(chunk_records(fh.read(ln)), state)
                 times = arrays.log_time
-                self.after_chunk = [pos, end, len(arrays) + state.bad_log_times - skipped,
-                                    int(times.min()) if len(times) else None, int(times.max()) if len(times) else None, 0]
+                first, last = (int(times.min()), int(times.max())) if len(times) else (None, None)
+                self.after_chunk = [pos, end, len(arrays) + state.bad_log_times - skipped, first, last, 0]
             elif op == OP_MESSAGE_INDEX and self.after_chunk is not None:
                 count = _message_index_count(fh.read(ln))
                 if count is not None:

@@ -224,7 +224,8 @@ def _multirate_rig_mcap(path, rig: Rig, seed: int = 0, duration_s: float = 44.0)
     loss = rig.drag_nm + rig.viscous_nm_s * np.abs(w)
     t_out = (tq - loss * np.sign(w)) * rig.ratio
     series = {"/rollergear/motor/torque": (t + 0.0002, tq + rng.normal(0.0, 0.01, len(t))),
-              "/rollergear/output/torque": (t + 0.0007, np.interp(t + 0.0005, t, t_out) + rng.normal(0.0, 0.04, len(t))),
+              "/rollergear/output/torque": (t + 0.0007,
+                                            np.interp(t + 0.0005, t, t_out) + rng.normal(0.0, 0.04, len(t))),
               "/rollergear/motor/speed": (t[3::10] + 0.0031, w[3::10] + rng.normal(0.0, 0.02, len(t[3::10])))}
     rows = []
     for topic, (stamps, values) in series.items():

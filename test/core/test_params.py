@@ -202,7 +202,8 @@ def test_numbers_without_a_dot_read_as_ros2_reads_them(tmp_path):
     """``1e-6`` and ``1e6`` are doubles in a ROS 2 parameter file (rcl); YAML 1.1 would read strings."""
     p = tmp_path / "p.yaml"
     p.write_text("/**/loss_estimator:\n  ros__parameters:\n    map: {torque_step_nm: 1e-1}\n"
-                 "    gearbox: {rated_speed_rpm: 1e4}\n    effects:\n      drag_speed: {enabled: true, c: 5e-05, p: 1.4}\n")
+                 "    gearbox: {rated_speed_rpm: 1e4}\n    effects:\n"
+                 "      drag_speed: {enabled: true, c: 5e-05, p: 1.4}\n")
     config = load_config(p)
     assert config.map.torque_step_nm == 0.1 and config.gearbox.rated_speed_rpm == 1e4
     assert config.effects.params("drag_speed")["c"] == 5e-5

@@ -17,9 +17,10 @@ RATIO = 4.0
 
 def _rig_messages(duration_s: float, rates_hz: dict[str, float], seed: int = 0,
                   speed_stops_at_s: float | None = None, first_within_periods: float = 0.9):
-    """A rig logging each channel at its own rate on its own stamps (first stamps a fraction of a
-    period apart, up to ``first_within_periods``): speed ``50 + 20 sin t`` rad/s, drive torque ``10 + sin t``, the output the drive torque
-    less a 0.3 N·m drag times the ratio.  Messages in log-time order: ``codes, t_ns, values``."""
+    """A rig logging each channel at its own rate on its own stamps (the first ones up to
+    ``first_within_periods`` of a period apart): speed ``50 + 20 sin t`` rad/s, drive torque
+    ``10 + sin t``, the output the drive torque less a 0.3 N·m drag times the ratio.  Messages in
+    log-time order: ``codes, t_ns, values``."""
     rng = np.random.default_rng(seed)
     speed = lambda t: 50.0 + 20.0 * np.sin(t)  # noqa: E731
     torque = lambda t: 10.0 + np.sin(t)  # noqa: E731
