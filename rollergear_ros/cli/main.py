@@ -271,7 +271,10 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     info = describe(args.file, args.channels)
     print(json.dumps(info.as_dict(), indent=2) if args.json else info.text())
-    return 0
+    if info.lost_share >= 1.0:  # the exit statuses of every command (docs/interface.md)
+        print(f"rollergear: error: {args.file}: nothing readable", file=sys.stderr)
+        return 2
+    return damaged_exit(args.file, info.lost_share, "described what was readable")
 
 
 # ---------------------------------------------------------------------------------- parser

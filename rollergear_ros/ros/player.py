@@ -368,6 +368,10 @@ def cmd_play(args: argparse.Namespace) -> int:
             stats = play(bag, options)
         finally:
             rclpy.try_shutdown()
+    if stats.damaged and not stats.messages:  # as replay: nothing readable is exit 2, not a damaged play
+        print(f"rollergear: error: {args.bag}: nothing readable: {len(stats.damaged)} damaged span(s); nothing played",
+              file=sys.stderr)
+        return 2
     return damaged_exit(args.bag, stats.lost_share, f"played what was readable ({stats.messages:,} messages)")
 
 

@@ -47,6 +47,8 @@ class FileInfo:
     damaged: list[str] = field(default_factory=list)  #: what of the file cannot be read, and where
     notes: list[str] = field(default_factory=list)
     counted: str = "messages"  #: what a stream's count counts (messages, samples, rows)
+    #: the share of a recording its damage cost (:func:`base.errors.lost_share`; 1: nothing readable)
+    lost_share: float = 0.0
 
     @property
     def duration_s(self) -> float | None:
@@ -135,11 +137,11 @@ def _mcap(path: Path, info: FileInfo) -> None:
 
     state = ReadState()
     preload_summary(path, state)
-    for _ in iter_message_arrays(path, state):
-        pass
+    read = sum(len(arrays) for arrays in iter_message_arrays(path, state))
     info.damaged += [line for line in state.damage_report() if line not in info.damaged]
     if state.damaged:
-        share = lost_share(state.damaged, bag.bytes_total, bag.message_count)
+        share = 1.0 if not read else lost_share(state.damaged, bag.bytes_total, bag.message_count)
+        info.lost_share = share
         info.damaged.append(f"{100 * share:.1f} % of the recording unreadable")
     info.notes.append("every chunk was read and its CRC checked")
     try:
