@@ -355,13 +355,15 @@ class MeasuredEfficiency:
         """A sample before the first added (a time slice's): the first integrates from it."""
         self.last_ns = last_ns
 
-    def boundaries(self, since_s: int | None) -> range:
+    def boundaries(self, since_s: int | None) -> list[int]:
         """The second boundaries completed after ``since_s`` (None: after the first sample's second)
-        up to the last sample's second: the windows to publish."""
+        up to the last sample's second whose last second holds samples: the windows to publish -- once
+        per second while samples come, none for the seconds of an idle gap (their windows would all
+        be published at once when the samples resume, each of stale or no samples)."""
         if self.last_ns is None or self._first_s is None:
-            return range(0)
+            return []
         first = self._first_s if since_s is None else since_s
-        return range(first + 1, self.last_ns // 1_000_000_000 + 1)
+        return [b for b in range(first + 1, self.last_ns // 1_000_000_000 + 1) if b - 1 in self._seconds]
 
     def forget(self, boundary_s: int) -> None:
         """Drop the seconds no window ending at ``boundary_s`` or later holds (after publishing it)."""

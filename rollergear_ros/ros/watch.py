@@ -20,6 +20,7 @@ import argparse
 import csv
 import json
 import math
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -50,6 +51,9 @@ class WatchWindow:
     payloads: dict[str, list[bytes]] = field(default_factory=lambda: {c.name: [] for c in watched_channels()})
     diagnostic: tuple[int, str] | None = None  #: (level, message) of the node's latest status
     traced: list[str] = field(default_factory=list)  #: online trace results received, not yet printed
+    #: the latest measured-efficiency window and its uncertainty, kept across periods (one comes a
+    #: second of sample time: a period of the watcher's own clock may see none)
+    measured: tuple[float, float] = (math.nan, math.nan)
 
     def add_traced(self, level: int, message: str) -> None:
         """An online trace's result (``loss/traced``): printed on a line of its own."""
@@ -75,13 +79,14 @@ class WatchWindow:
         level, message = self.diagnostic if self.diagnostic is not None else (None, "")
         eff = values["efficiency"]
         measured, spread = values["efficiency_measured"], values["efficiency_measured_uncertainty"]
+        if len(measured):
+            self.measured = (float(measured[-1]), float(spread[-1]) if len(spread) else math.nan)
         row = {"estimates_per_s": len(values["loss_torque"]) / period_s,
                "loss_torque_nm": _mean(values["loss_torque"]), "loss_power_w": _mean(values["loss_power"]),
                "efficiency": _mean(eff),
                "efficiency_min": float(np.nanmin(eff)) if np.isfinite(eff).any() else math.nan,
                "residual_nm": _mean(values["residual_torque"]),
-               "efficiency_measured": float(measured[-1]) if len(measured) else math.nan,
-               "efficiency_measured_uncertainty": float(spread[-1]) if len(spread) else math.nan,
+               "efficiency_measured": self.measured[0], "efficiency_measured_uncertainty": self.measured[1],
                "level": "" if level is None else LEVEL_NAMES.get(level, str(level)), "message": message}
         row |= {name: _mean(v) for name, v in values.items() if name not in _FORMATTED}
         return row
@@ -89,7 +94,10 @@ class WatchWindow:
     def line(self, period_s: float, topic_of_loss: str) -> str:
         """Format the period and start a new one: ``est/s  loss  power  η  residual  [level] message``."""
         row = self.take(period_s)
-        status = f"  [{row['level']}] {row['message']}" if row["level"] else ""
+        message = row["message"]
+        if math.isfinite(row["efficiency_measured"]):  # said once, in its column: the latest window
+            message = _HEADLINE.sub("", message)
+        status = f"  [{row['level']}] {message}" if row["level"] else ""
         if row["estimates_per_s"] == 0:
             return f"no estimates on {topic_of_loss} in the last {period_s:.1f} s{status}"
         parts = [
@@ -110,6 +118,10 @@ class WatchWindow:
         parts.extend(f"{name} {row[name]:.4g} {OUTPUT_CHANNELS[name].unit}" for name in self.payloads
                      if name not in _FORMATTED and math.isfinite(row[name]))
         return "  ".join(parts) + status
+
+
+#: the status message's measured-efficiency headline ("; measured efficiency 98.1 ± 0.3 % over 10 s")
+_HEADLINE = re.compile(r"(^|; )measured efficiency [^;]* over [^;]* s$")
 
 
 def _mean(v: np.ndarray) -> float:

@@ -326,3 +326,16 @@ def test_standard_output_on_a_full_device_or_closed_is_one_line(command):
                             stderr=subprocess.PIPE, text=True, env=env, timeout=300)
     assert closed.returncode == 2 and closed.stderr.strip() == "rollergear: error: standard output is closed", \
         closed.stderr
+
+
+def test_the_readmes_rig_parameters_are_shipped_as_they_are_shown():
+    """The README's three terminals start the node with ``config/rig.yaml``: shipped, valid, and the
+    sensors it states are those the README shows."""
+    from rollergear_ros.core.params import load_config
+
+    readme = (ROOT / "README.md").read_text()
+    assert "--params-file config/rig.yaml" in readme
+    shipped = (ROOT / "config" / "rig.yaml").read_text()
+    sensors = next(line.strip() for line in shipped.splitlines() if line.strip().startswith("sensors:"))
+    assert sensors in readme
+    assert load_config(ROOT / "config" / "rig.yaml").sensors.stated

@@ -199,3 +199,20 @@ def test_replay_reports_the_measured_efficiency_of_the_recording_as_computed_by_
     has[has] &= ends[k[has]] == (t_est[has] // 10**9) * 10**9
     np.testing.assert_array_equal(window[has], values[k[has]])
     assert np.isnan(window[~has]).all()
+
+
+def test_the_windows_of_an_idle_gap_are_not_published_when_the_samples_resume():
+    """After an idle gap the node published every missed window at once (10 within 0.6 ms), each of
+    stale samples or none: a window is due at a boundary whose last second holds samples."""
+    t, tq, w, tq_out, w_out = rig(6000)
+    t = t.copy()
+    t[3000:] += 30 * 10**9  # 3 s of samples, 30 s idle, 3 s more
+    tally = MeasuredEfficiency(RATIO, 1e-3, window_s=10.0)
+    tally.add(t[:3000], tq[:3000], w[:3000], tq_out[:3000], w_out[:3000])
+    before = tally.boundaries(None)
+    assert len(before) == 2  # the seconds completed while samples came
+    tally.add(t[3000:], tq[3000:], w[3000:], tq_out[3000:], w_out[3000:])
+    after = tally.boundaries(before[-1])
+    first_s = int(t[0]) // 10**9
+    # the boundary after the last second of samples before the gap, then those after it resumed
+    assert after == [first_s + 3, first_s + 34, first_s + 35]

@@ -122,3 +122,17 @@ def test_watch_writes_rows_for_a_logger(fmt):
     assert len(rows) == 2 and all(float(r["estimates_per_s"]) == 0 and r["time_utc"].endswith("Z") for r in rows)
     assert {"loss_torque_nm", "efficiency", "efficiency_measured", "efficiency_measured_uncertainty", "level",
             "message", "traced"} <= set(rows[0])
+
+
+def test_a_line_says_the_measured_efficiency_once_and_keeps_the_latest_window_across_periods():
+    """One line showed two measured efficiencies (its column's window and the status text's, a report
+    apart), and a period whose second brought no window showed none (null in --json)."""
+    w = _window(loss_torque=[0.1], loss_power=[10.0], efficiency=[0.99],
+                efficiency_measured=[0.9876], efficiency_measured_uncertainty=[0.0034])
+    w.diagnostic = (1, "the residual changed; measured efficiency 99.10 ± 0.37 % over 10 s")
+    line = w.line(1.0, "/x")
+    assert "η measured 98.76 ± 0.34 %" in line and "99.10" not in line and line.endswith("[WARN] the residual changed")
+    for raw in encode_float64(np.array([0.2])):
+        w.add("loss_torque", raw)
+    row = w.take(1.0)  # no new window this period: the latest still
+    assert row["efficiency_measured"] == 0.9876 and row["efficiency_measured_uncertainty"] == 0.0034
