@@ -159,11 +159,18 @@ class ReplaySummary:
         """The measured efficiency beside the model's, over the recording and per operating point."""
         m, stated = self.measured, self.sensors_stated
         unknown = "" if stated else " (its uncertainty not known: state the sensors' accuracy in sensors.*)"
-        lines = [f"measured efficiency: {_pct(m.efficiency, self.measured_uncertainty, stated)}{unknown}, "
+        both = bool(self.measured_quadrants) and all(b.supplied_j > 0 for b, _ in self.measured_quadrants)
+        cancels = ""
+        if both and stated and math.isfinite(self.measured_uncertainty):
+            smallest = min(u for _, u in self.measured_quadrants)
+            if self.measured_uncertainty < 0.5 * smallest:  # the gain errors cancel between the directions
+                cancels = (f" (either direction alone ± {100 * smallest:.2g} % or more: a torque sensor's gain "
+                           "error moves motoring and regenerating apart and cancels in the recording's sum)")
+        lines = [f"measured efficiency: {_pct(m.efficiency, self.measured_uncertainty, stated)}{unknown}{cancels}, "
                  f"energy-weighted: {m.delivered_j:,.0f} J delivered of {m.supplied_j:,.0f} J supplied over "
                  f"{m.seconds:,.1f} s with measured output; the model's over the same samples "
                  f"{100 * m.model_efficiency:.2f} %"]
-        if self.measured_quadrants and all(b.supplied_j > 0 for b, _ in self.measured_quadrants):
+        if both:
             (mot, u_mot), (reg, u_reg) = self.measured_quadrants
             lines.append(f"  motoring {_pct(mot.efficiency, u_mot, stated)} "
                          f"(model {100 * mot.model_efficiency:.2f} %), "

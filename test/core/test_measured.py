@@ -216,3 +216,15 @@ def test_the_windows_of_an_idle_gap_are_not_published_when_the_samples_resume():
     first_s = int(t[0]) // 10**9
     # the boundary after the last second of samples before the gap, then those after it resumed
     assert after == [first_s + 3, first_s + 34, first_s + 35]
+
+
+def test_an_overall_uncertainty_below_either_directions_says_why():
+    """A recording with both power flows was stated as ± 0.001 % without a word: the gain errors cancel
+    between the directions, 90x below either one's uncertainty, said on the same line."""
+    from helpers import ROOT
+
+    summary, _ = replay(BAGS / "rig_map_drag.mcap", load_config(ROOT / "config" / "rig.yaml"), show_progress=False)
+    first = next(line for line in summary.text().splitlines() if line.startswith("measured efficiency:"))
+    (_, u_mot), (_, u_reg) = summary.measured_quadrants
+    assert summary.measured_uncertainty < 0.1 * min(u_mot, u_reg)
+    assert f"either direction alone ± {100 * min(u_mot, u_reg):.2g} %" in first and "cancels" in first
