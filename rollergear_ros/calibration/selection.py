@@ -333,6 +333,15 @@ class Calibrator:
 
         return block_noise(self.b)
 
+    def measured_noise_rms(self) -> float:
+        """The noise of a block mean as the data measure it -- the scatter of consecutive whole blocks at
+        one held operating point (:mod:`.noise`) -- or NaN where no dwell tells it (operating points
+        that only recur, noise-free data: their scatter may be the loss's own variation)."""
+        rep = self.b.repeat
+        if rep is None or rep.cells or not math.isfinite(rep.se_block_nm) or rep.se_block_nm <= 0:
+            return math.nan
+        return self.noise_rms()
+
     def rms_of(self, column: np.ndarray) -> float:
         return float(np.sqrt(np.average(column * column, weights=self.b.count)))
 
@@ -600,7 +609,7 @@ class Calibrator:
             )
         if improvement <= self.min_improvement:
             reasons.append(f"held-out RMSE improves by only {100 * improvement:.1f} %")
-        noise = self.noise_rms()
+        noise = self.measured_noise_rms()
         if math.isfinite(noise) and cv_new < IDENTITY_SHARE * noise:
             reasons.append(f"an identity, not a loss: the set leaves {cv_new:.2g} N·m held out, far below the "
                            f"data's own noise ({noise:.2g} N·m) -- its regressor carries the measured loss itself")

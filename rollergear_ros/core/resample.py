@@ -143,27 +143,30 @@ class RateResampler:
             return self._route(message)
         self._waiting.append(message)
         self._tell(message)
-        if self._deciding and len(self._waiting) < MAX_WAITING_MESSAGES:
+        if not self._deciding:  # told: what waited goes on
+            return self._route_waiting()
+        if len(self._waiting) < MAX_WAITING_MESSAGES:
             return []
         for channel in list(self._deciding):  # a motor torque that does not come: paired as they are
             self._decide(channel, "paired")
-        waiting, self._waiting = self._waiting, []
-        out: list[Message] = []
-        for m in waiting:
-            out.extend(self._route(m))
-        return out
+        return self._route_waiting()
 
     def flush(self) -> list[Message]:
         """At the end of a stream: tell what is still being told by what came, and give every waiting
         motor torque message its values."""
         for channel, (stamps, n_torque) in list(self._deciding.items()):
             self._decide(channel, "resampled" if n_torque and self._other_rate(len(stamps), n_torque) else "paired")
+        out = self._route_waiting()
+        self._latest_torque = 2 ** 62
+        out.extend(self._release())
+        return out
+
+    def _route_waiting(self) -> list[Message]:
+        """The messages that waited while channels were told, in their order."""
         waiting, self._waiting = self._waiting, []
         out: list[Message] = []
         for m in waiting:
             out.extend(self._route(m))
-        self._latest_torque = 2 ** 62
-        out.extend(self._release())
         return out
 
     # ------------------------------------------------------------------ telling a channel's rate
