@@ -371,10 +371,12 @@ def test_run_time_change_of_pairing_limits_takes_effect():
         node = LossEstimatorNode(context=probe.context)
         try:
             push = node.estimator.push
-            for t_ns in (0, 200_000_000):  # a stream is running (it waited 0.1 s for output topics)
+            # a stream is running (it waited 0.1 s for output topics; its speed is told to come at the
+            # torque's rate, in step, by the torque's first eight messages: core/resample.py)
+            for t_ns in range(0, 225_000_000, 25_000_000):
                 push(TORQUE, t_ns, 10.0)
                 push(SPEED, t_ns, 50.0)
-            assert node.estimator.estimated == 2
+            assert node.estimator.estimated == 9
             assert not push(TORQUE, 300_000_000, 20.0)  # queued before the change
             results = node.set_parameters([Parameter("node.expected_rate_hz", value=100.0),
                                            Parameter("estimator.staleness_s", value=0.05)])
@@ -385,7 +387,7 @@ def test_run_time_change_of_pairing_limits_takes_effect():
             # 3 ms apart: wider than the old tolerance, within the new one
             est = node.estimator.push(SPEED, 303_000_000, 100.0)
             assert len(est) == 1 and est[0].torque_nm == 20.0 and est[0].speed_rad_s == 100.0
-            assert node.estimator.estimated == 3
+            assert node.estimator.estimated == 10
         finally:
             node.destroy_node()
 
@@ -1033,11 +1035,17 @@ def test_invalid_parameter_file_is_refused_at_start(tmp_path):
     (b"loss_estimator:\n  ros__parameters: {gearbox: {dw_m: []}}\n", None, "'gearbox.dw_m' = []"),
     (b"loss_estimator:\n  ros__parameters: {gearbox: {dw_mm: 0.1}}\n", None, "did you mean 'gearbox.dw_m'"),
     (None, "gearbox.dw_mm:=0.1", "did you mean 'gearbox.dw_m'"),
+    # a recording's name that makes no recording, a split size no file reaches (a traceback, a hidden
+    # '.mcap_0', one unsplit file without a word)
+    (None, "node.record_mcap:={tmp}/rec_{{start}}", "needs a file name ending in .mcap"),
+    (None, "node.record_mcap:={tmp}/" + "r" * 300 + ".mcap", "bytes with its fields filled in"),
+    (None, "node.record_max_mb:=1.0e-9", "node.record_max_mb"),
 ])
 def test_start_up_refuses_what_would_run_on_defaults_or_crash(tmp_path, file_text, param, message):
     params = tmp_path / "p.yaml"
     if file_text is not None:
         params.write_bytes(file_text)
+    param = param.format(tmp=tmp_path) if param else param
     node = NodeProcess(*([param] if param else []), params_file=params if file_text is not None else CONFIG)
     code = node.proc.wait(timeout=60)
     node.stop()
