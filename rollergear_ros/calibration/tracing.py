@@ -126,6 +126,9 @@ class TraceRequest:
     #: the last sample time analysed (None: all): a trace scheduled for a time sees exactly the samples
     #: up to it, however late the worker gets to it -- the same samples give the same result
     end_ns: int | None = None
+    #: the node's speed noise as it learned it (``auto``): its checkpoints ``(sample time, σ)``, which the
+    #: trace's estimates follow by sample time as a time slice of a recording does (``calibrate --start``)
+    speed_noise: tuple[tuple[int, float], ...] = ()
 
 
 @dataclass
@@ -217,22 +220,29 @@ def after_last_gap(t_ns: np.ndarray) -> int:
     return int(gaps[-1]) + 1 if len(gaps) else 0
 
 
-def _estimates(config: Config, s: dict[str, np.ndarray], keep: np.ndarray):
-    """The estimator with ``config`` over the samples where ``keep``, fresh (one batch)."""
-    return Estimator(config).process_batch(s["t_ns"][keep], s["torque_nm"][keep], s["speed_rad_s"][keep],
-                                           s["out_torque_nm"][keep], s["out_speed_rad_s"][keep],
-                                           s["temperature_c"][keep], breakdown=False)
+def _estimates(config: Config, s: dict[str, np.ndarray], keep: np.ndarray, speed_noise=()):
+    """The estimator with ``config`` over the samples where ``keep``, fresh (one batch), its speed noise
+    following the node's checkpoints (``speed_noise``): the estimates and the estimator."""
+    estimator = Estimator(config)
+    if speed_noise:
+        estimator.speed_noise.follow(list(speed_noise))
+    batch = estimator.process_batch(s["t_ns"][keep], s["torque_nm"][keep], s["speed_rad_s"][keep],
+                                    s["out_torque_nm"][keep], s["out_speed_rad_s"][keep], s["temperature_c"][keep],
+                                    breakdown=False)
+    return batch, estimator
 
 
-def _rms_residual(config: Config, s: dict[str, np.ndarray], keep: np.ndarray) -> float:
-    r = _estimates(config, s, keep).residual_nm
+def _rms_residual(config: Config, s: dict[str, np.ndarray], keep: np.ndarray, speed_noise=()) -> float:
+    r = _estimates(config, s, keep, speed_noise)[0].residual_nm
     r = r[np.isfinite(r)]
     return float(np.sqrt(np.mean(r ** 2))) if len(r) else math.nan
 
 
-def _calibrate(config: Config, s: dict[str, np.ndarray], keep: np.ndarray) -> CalibrationResult:
-    """``calibrate`` on the samples where ``keep``, exactly as on a recording of them."""
-    data = samples_from_estimates([[_estimates(bare_config(config), s, keep)]], config)
+def _calibrate(config: Config, s: dict[str, np.ndarray], keep: np.ndarray, speed_noise=()) -> CalibrationResult:
+    """``calibrate`` on the samples where ``keep``, exactly as on a recording of them (``calibrate
+    --start/--end`` on the node's recording: the same samples, the same speed noise)."""
+    batch, estimator = _estimates(bare_config(config), s, keep, speed_noise)
+    data = samples_from_estimates([[batch]], config, sign_width_rad_s=estimator.sign_width_rad_s)
     # the effects the parameters already accept are assumed where the data cannot tell them from another
     return calibrate(data, config, CalibrationSettings(assume=tuple(config.effects.enabled())))
 
@@ -257,7 +267,7 @@ def trace(request: TraceRequest) -> TraceResult:
     window_ns = int(request.window_s * 1e9)
     end = int(t[-1]) if len(t) else 0
     if request.reason == "alarm" and request.alarm_ns is not None and len(t) and request.alarm_ns >= t[0]:
-        residual = _estimates(config, s, np.ones(len(t), bool)).residual_nm
+        residual = _estimates(config, s, np.ones(len(t), bool), request.speed_noise)[0].residual_nm
         since = change_point(t, residual, request.alarm_ns)
     else:
         since = max(int(t[0]), end - window_ns) if len(t) else 0
@@ -275,23 +285,24 @@ def trace(request: TraceRequest) -> TraceResult:
         return _timed(result, start)
     before_s = (t[before][-1] - t[before][0]) * 1e-9 if before.any() else 0.0
     try:
-        cal = _calibrate(config, s, after)
-        before_cal = _calibrate(config, s, before) if request.reason == "alarm" and before_s >= MIN_BEFORE_S else None
+        cal = _calibrate(config, s, after, request.speed_noise)
+        before_cal = (_calibrate(config, s, before, request.speed_noise)
+                      if request.reason == "alarm" and before_s >= MIN_BEFORE_S else None)
     except RollergearError as exc:
         result.message = f"inconclusive: {exc}"
         return _timed(result, start)
-    _judge(result, config, cal, before_cal, s, after)
+    _judge(result, config, cal, before_cal, s, after, request.speed_noise)
     return _timed(result, start)
 
 
 def _judge(result: TraceResult, config: Config, cal: CalibrationResult, before_cal: CalibrationResult | None,
-           s: dict[str, np.ndarray], after: np.ndarray) -> None:
+           s: dict[str, np.ndarray], after: np.ndarray, speed_noise=()) -> None:
     """Fill ``result`` from the calibration after the change (and before it)."""
     enabled = set(config.effects.enabled())
     there_before = {e.name for e in before_cal.effects} if before_cal is not None and before_cal.written else set()
     new = [e for e in cal.effects if e.name not in enabled and e.name not in there_before]
     result.heldout_rmse_nm = (cal.error_before.rmse_nm, cal.error_after.rmse_nm)
-    result.error_now_nm = _rms_residual(config, s, after)
+    result.error_now_nm = _rms_residual(config, s, after, speed_noise)
     result.notes += list(cal.notes)
     if before_cal is not None:
         result.notes.append(f"before the change: {before_cal.verdict}"
@@ -312,7 +323,7 @@ def _judge(result: TraceResult, config: Config, cal: CalibrationResult, before_c
     result.verdict = "traced"
     result.effects = [{"name": e.name, "params": e.params, "ci95": e.ci95,
                        "rms_contribution_nm": e.rms_contribution_nm} for e in new]
-    result.error_candidate_nm = _rms_residual(cal.config, s, after)
+    result.error_candidate_nm = _rms_residual(cal.config, s, after, speed_noise)
     named = "; ".join(f"{e['name']} {_effect_text(e)}" for e in result.effects)
     result.message = (f"{when} the residual is {named}; with it the error falls from {result.error_now_nm:.4g} to "
                       f"{result.error_candidate_nm:.4g} N*m (RMS over {result.samples:,} samples)")

@@ -128,7 +128,8 @@ class LiveTracer:
             samples = self.buffer.snapshot()
         config = self.node.config
         self.worker.submit(TraceRequest(samples, config.to_flat(), reason, alarm_ns,
-                                        config.node.trace_window_s, config.node.trace_min_after_s, end_ns))
+                                        config.node.trace_window_s, config.node.trace_min_after_s, end_ns,
+                                        tuple(self.node.estimator.speed_noise.learned)))
 
     def _deliver(self, done: TraceResult | Exception) -> None:
         node = self.node

@@ -385,3 +385,44 @@ def test_the_last_gap_is_where_inputs_paused_or_went_back_in_time():
     assert after_last_gap(back) == len(t)
     slow = np.arange(0, 600_000_000_000, 1_000_000_000)  # 1 Hz: a 3 s step is 3 periods, no gap
     assert after_last_gap(np.append(slow, slow[-1] + 3_000_000_000)) == 0
+
+
+def test_a_trace_names_what_calibrate_names_on_the_same_samples_of_a_recording():
+    """The README's flow: the bundled drag recording as the node's buffer holds it, traced after an
+    alarm at its start with the node's learned speed noise -- and ``calibrate --start/--end`` of the
+    recording over the trace's window: the same effects, the same values (the same samples, the same
+    speed noise, the same selection)."""
+    from helpers import BAGS, ROOT
+
+    from rollergear_ros.calibration.calibrate import CalibrationSettings, calibrate
+    from rollergear_ros.calibration.samples import load_samples
+    from rollergear_ros.core.params import load_config
+    from rollergear_ros.recordings.bag import TopicMap, inspect_bag
+    from rollergear_ros.replay.inputs import paired_plan
+    from rollergear_ros.replay.run import _learn_speed_noise, replay
+
+    bag = BAGS / "rig_map_drag.mcap"
+    config = load_config(ROOT / "config" / "gearbox.yaml")
+    _, batches = replay(bag, config, show_progress=False, collect=True)
+    samples = {f: np.concatenate([getattr(b, f) for b in batches]) for f in SAMPLE_FIELDS}
+    measured = np.isfinite(samples["out_torque_nm"])
+    samples = {f: v[measured] for f, v in samples.items()}
+    info = inspect_bag(bag)
+    plan, pairing, period = paired_plan(info, TopicMap())
+    node_estimator = Estimator(config, pairing, period)
+    _learn_speed_noise(node_estimator, info, plan, 100_000)  # what the node learned from the stream's start
+    t = samples["t_ns"]
+    alarm = int(t[200])
+    result = trace(TraceRequest(samples, config.to_flat(), "alarm", alarm, 60.0, 20.0, None,
+                                tuple(node_estimator.speed_noise.learned)))
+    assert result.verdict == "traced", result.message
+    data = load_samples([bag], config)
+    first = int(data.t_ns[0])  # --start/--end count from the first sample analysed; --end is exclusive
+    window = calibrate(data, config, CalibrationSettings(start_s=(result.window_ns[0] - first) * 1e-9,
+                                                         end_s=(result.window_ns[1] - first) * 1e-9 + 1e-6))
+    named = {e["name"]: e["params"] for e in result.effects}
+    found = {e.name: e.params for e in window.effects}
+    assert set(named) == set(found) and named, (named, found)
+    for name, params in named.items():
+        for key, value in params.items():
+            assert value == pytest.approx(found[name][key], rel=1e-6), (name, key)
