@@ -282,7 +282,7 @@ class Estimator:
     def push(self, channel: str, t_ns: int, value: float, source_ns: int | None = None) -> Sequence[Estimate]:
         """Feed one input message (``source_ns``: its publisher's timestamp, by arrival); returns the
         estimates it completes."""
-        if self.resampler.passthrough and (channel == TORQUE or self.resampler.mode.get(channel, "") is not None):
+        if self.resampler.direct(channel):
             samples = self.sync.push(channel, t_ns, value, source_ns)
         else:
             samples = self._push_resampled(self.resampler.push(Message(channel, t_ns, value, source_ns)))

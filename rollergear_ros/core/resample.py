@@ -107,11 +107,23 @@ class RateResampler:
         self._history: dict[str, deque] = {}  # resampled channel -> recent (stamp, value)
         self._pending: deque[Message] = deque()  # motor torque messages waiting for their values
         self._latest_torque = -(2 ** 62)
+        self._newest = -(2 ** 62)  # the oldest of the resampled channels' newest stamps
 
     @property
     def passthrough(self) -> bool:
         """Whether messages go on as they are (nothing resampled, nothing being told, nothing held)."""
         return not (self._deciding or self._history or self._waiting or self._pending)
+
+    def direct(self, channel: str) -> bool:
+        """Whether a message of ``channel`` goes to the pairing as it is, now (what :meth:`push` would
+        return at once: a channel paired as before, the temperature, the motor torque where nothing
+        is resampled), so that the node's hot path need not come through here."""
+        if self._deciding or self._waiting:
+            return False
+        mode = self.mode.get(channel, "")
+        if mode == "paired" or channel == OIL_TEMPERATURE:
+            return True
+        return channel == TORQUE and not self._history and not self._pending
 
     @property
     def resampled(self) -> tuple[str, ...]:
@@ -212,6 +224,7 @@ class RateResampler:
         self.mode[channel] = mode
         if mode == "resampled":
             self._history[channel] = deque()
+            self._newest = -(2 ** 62)
             self.made[channel] = dict.fromkeys(("exact", "interpolated", "held", "none"), 0)
 
     # ------------------------------------------------------------------ resampling
@@ -220,38 +233,46 @@ class RateResampler:
         if not self._history:
             return [message]
         if channel == TORQUE:
-            self._pending.append(message)
-            self._latest_torque = max(self._latest_torque, self._stamp(message))
+            stamp = message.t_ns if message.source_ns is None else message.source_ns
+            pending = self._pending
+            pending.append(message)
+            if stamp > self._latest_torque:
+                self._latest_torque = stamp
+            head = pending[0]
+            head_stamp = head.t_ns if head.source_ns is None else head.source_ns
+            if head_stamp > self._newest and head_stamp + self.max_age_ns >= self._latest_torque:
+                return []  # (the usual case: it waits for the slower channel's next message)
             return self._release()
         if channel in self._history:
             if not is_lost(message.value):  # a lost message's neighbours give its stamp's value
                 history = self._history[channel]
-                stamp = self._stamp(message)
+                stamp = message.t_ns if message.source_ns is None else message.source_ns
                 if history and stamp <= history[-1][0]:  # out of time order or repeated: the first is kept
                     return []
                 history.append((stamp, message.value))
+                self._newest = min(h[-1][0] if h else -(2 ** 62) for h in self._history.values())
             return self._release()
         return [message]
 
     def _release(self) -> list[Message]:
         """The waiting motor torque messages whose values are known, each followed by its channels'."""
         out: list[Message] = []
-        pending, max_age = self._pending, self.max_age_ns
+        pending, max_age, histories, made = self._pending, self.max_age_ns, self._history, self.made
         while pending:
             head = pending[0]
-            stamp = self._stamp(head)
-            if stamp + max_age >= self._latest_torque and any(
-                    not h or h[-1][0] < stamp for h in self._history.values()):
+            stamp = head.t_ns if head.source_ns is None else head.source_ns
+            if stamp > self._newest and stamp + max_age >= self._latest_torque:
                 break  # a value just after it may still come
             pending.popleft()
             out.append(head)
-            for channel, history in self._history.items():
+            for channel, history in histories.items():
                 value, kind = value_at(history, stamp, max_age)
-                self.made[channel][kind] += 1
+                made[channel][kind] += 1
                 if kind == "none" and channel == SPEED:
                     value = STALE_VALUE
                 out.append(Message(channel, head.t_ns, value, head.source_ns))
-        self._trim()
+        if out:
+            self._trim()
         return out
 
     def _trim(self) -> None:
