@@ -177,7 +177,7 @@ EXIT_STATUSES = {"whole": 0, "damaged": 3, "nothing readable": 2}
                                      ("predict", "{bag}", "--json"),
                                      ("map", "--recording", "{bag}", "--out", "{tmp}/m.vtlm", "--no-plot")])
 def test_every_command_gives_the_exit_status_of_the_table(tmp_path, command):
-    """info exited 0 on a recording 7.2 % or 100 % unreadable; the table holds for each command."""
+    """The table holds for each command (`info` exited 0 on a recording 7.2 % or 100 % unreadable)."""
     bags = {"whole": SRC, "damaged": _damaged(tmp_path, 2)[0], "nothing readable": _damaged(tmp_path, 1)[0]}
     for kind, status in EXIT_STATUSES.items():
         args = [a.format(bag=bags[kind], tmp=tmp_path) for a in command]
