@@ -26,7 +26,7 @@ from .model import LossModel, rotation_sign, rotation_sign_scalar
 from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, CHANNELS, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
                       SyncedSample, is_lost, lost_mask, pairing_tolerance_s, samples_to_arrays)
 from .params import Config
-from .resample import Message, RateResampler, is_stale, stale_mask
+from .resample import RESAMPLED_CHANNELS, Message, RateResampler, is_stale, stale_mask
 from .speednoise import SpeedNoise
 
 
@@ -335,18 +335,27 @@ class Estimator:
     def _resample_many(self, codes, t_ns, values, source_ns):
         """A batch of messages through the resampler (message by message, as the node pushes them):
         the messages for the pairing as arrays."""
-        push = self.resampler.push
+        resampler = self.resampler
         sources = source_ns.tolist() if source_ns is not None else [None] * len(codes)
         out: list[Message] = []
+        # where each channel the resampler has not seen yet comes first in the batch (its rate to be told)
+        first = {c: int(np.argmax(codes == i)) for i, c in enumerate(CHANNELS)
+                 if c in RESAMPLED_CHANNELS and resampler.mode[c] is None and np.any(codes == i)}
+        k = 0
         for c, t, v, s in zip(codes.tolist(), t_ns.tolist(), values.tolist(), sources):
-            out.extend(push(Message(CHANNELS[c], t, v, s)))
-        index = {c: k for k, c in enumerate(CHANNELS)}
-        codes = np.fromiter((index[m.channel] for m in out), dtype=codes.dtype, count=len(out))
-        t_ns = np.fromiter((m.t_ns for m in out), dtype=np.int64, count=len(out))
-        values = np.fromiter((m.value for m in out), dtype=float, count=len(out))
+            out.extend(resampler.push(Message(CHANNELS[c], t, v, s)))
+            k += 1
+            if resampler.passthrough and not any(resampler.mode[ch] is None and at >= k for ch, at in first.items()):
+                break  # told, nothing resampled or waiting: the rest of the batch as it is
+        index = {c: i for i, c in enumerate(CHANNELS)}
+        head = (np.fromiter((index[m.channel] for m in out), dtype=codes.dtype, count=len(out)),
+                np.fromiter((m.t_ns for m in out), dtype=np.int64, count=len(out)),
+                np.fromiter((m.value for m in out), dtype=float, count=len(out)))
+        codes, t_ns, values = (np.concatenate([a, b[k:]]) for a, b in zip(head, (codes, t_ns, values)))
         if source_ns is not None:
-            source_ns = np.fromiter((m.t_ns if m.source_ns is None else m.source_ns for m in out),
-                                    dtype=np.int64, count=len(out))
+            given = np.fromiter((m.t_ns if m.source_ns is None else m.source_ns for m in out), dtype=np.int64,
+                                count=len(out))
+            source_ns = np.concatenate([given, source_ns[k:]])
         return codes, t_ns, values, source_ns
 
     def estimate_paired(self, t_ns: np.ndarray, torque: np.ndarray, speed: np.ndarray, out_torque: np.ndarray,
