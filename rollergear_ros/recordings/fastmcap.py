@@ -369,12 +369,14 @@ def _loose_records(fh, pos: int, file_size: int) -> bytes:
     return block[:p]
 
 
-def _message_index_count(body: bytes) -> int | None:
-    """Messages a message-index record lists (16 bytes per entry), None if it is malformed."""
+def _message_index_count(body: bytes, record_length: int | None = None) -> int | None:
+    """Messages a message-index record lists (16 bytes per entry), None if it is malformed; ``body``
+    its content, or its first 6 bytes with the record's ``record_length``."""
     if len(body) < 6:
         return None
     n = struct.unpack_from("<I", body, 2)[0]
-    return n // 16 if n % 16 == 0 and 6 + n <= len(body) else None
+    length = len(body) if record_length is None else record_length
+    return n // 16 if n % 16 == 0 and 6 + n <= length else None
 
 
 def preload_summary(path: str | Path, state: ReadState) -> None:
@@ -485,7 +487,7 @@ class _LinearRead:
                 first, last = (int(times.min()), int(times.max())) if len(times) else (None, None)
                 self.after_chunk = [pos, end, len(arrays) + state.bad_log_times - skipped, first, last, 0]
             elif op == OP_MESSAGE_INDEX and self.after_chunk is not None:
-                count = _message_index_count(fh.read(ln))
+                count = _message_index_count(fh.read(6), ln)  # its head tells the entries: not read
                 if count is not None:
                     self.after_chunk[5] += count
                 state.bytes_read = self.pos = end
