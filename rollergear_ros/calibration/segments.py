@@ -231,7 +231,7 @@ def _significant(x: np.ndarray, y: np.ndarray, w: np.ndarray, dwell: np.ndarray,
     over the directions of ``x`` both sides hold (at least :data:`TESTABLE_SHARE` of its weight each):
     a direction one side barely holds has no coefficient there to compare (its difference would be
     rounding noise divided by next to nothing)."""
-    from scipy.stats import chi2
+    from scipy.special import chdtri  # chi2.isf without importing scipy.stats
 
     q = orthonormal_basis(x, w)
     before = np.arange(len(y)) < split
@@ -250,4 +250,4 @@ def _significant(x: np.ndarray, y: np.ndarray, w: np.ndarray, dwell: np.ndarray,
         stat = float(d @ np.linalg.solve(cov, d))
     except np.linalg.LinAlgError:
         stat = float(d @ np.linalg.pinv(cov) @ d)
-    return math.isfinite(stat) and stat > chi2.isf(CHANGE_ALPHA, int(both.sum()))
+    return math.isfinite(stat) and stat > chdtri(int(both.sum()), CHANGE_ALPHA)
