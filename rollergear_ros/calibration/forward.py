@@ -30,7 +30,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from .blocks import groups
-from .selection import AmbiguousSet, Calibrator, RejectedEffect, Term, members, z_two_sided
+from .selection import AmbiguousSet, Calibrator, RejectedEffect, Term, members, viscosity_level, z_two_sided
 from .structure import NOISE_FACTOR
 from ..core.effects import EFFECTS, separating_data
 from ..core.modelparams import MODEL_PARAMETERS
@@ -163,7 +163,7 @@ class _Procedure:
         cal = self.cal
         if not any(t.name in EFFECTS and EFFECTS[t.name].scales_fr for t in from_file):
             return
-        level = next((k for k, p in MODEL_PARAMETERS.items() if p.part == "fr" and p.same_part_as is None), None)
+        level = viscosity_level()
         if level is None or level not in state.remaining or not members(cal.b, level, None):
             return
         whole = cal.optimise(from_file + members(cal.b, level))

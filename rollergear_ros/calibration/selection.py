@@ -195,6 +195,11 @@ def members(blocks: Blocks, name: str, law: tuple[float, float, float] | None = 
     return [Term(name, blocks.grids[name][i], float(m)) for i, m in enumerate(effect.member_grid)]
 
 
+def viscosity_level() -> str | None:
+    """The model's parameter that is a viscosity law's level: the rolling part's (η at θ_ref)."""
+    return next((k for k, p in MODEL_PARAMETERS.items() if p.part == "fr" and p.same_part_as is None), None)
+
+
 class Calibrator:
     """The fits on block means that the selection (:mod:`.forward`) decides with: a set of terms'
     weighted fit, held-out predictions, exponents profiled, a candidate's screen and test."""
@@ -454,7 +459,7 @@ class Calibrator:
         single = self._best_single(name, base)
         if single is None or name not in EFFECTS or not EFFECTS[name].scales_fr:
             return single
-        level = next((k for k, p in MODEL_PARAMETERS.items() if p.part == "fr" and p.same_part_as is None), None)
+        level = viscosity_level()
         if level is None or any(t.name == level for t in base) or not members(self.b, level, None):
             return single
         paired = self._best_single(name, base + members(self.b, level))

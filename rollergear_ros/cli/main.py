@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..base.atomic import together
-from ..base.errors import InputFileError, RollergearError, UsageError, damaged_exit
+from ..base.errors import BagError, InputFileError, RollergearError, UsageError, damaged_exit
 from ..base.interface import package_version
 from ..ros.nodehelp import contract_line
 from . import calibrate as calibrate_cli
@@ -272,8 +272,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     info = describe(args.file, args.channels)
     print(json.dumps(info.as_dict(), indent=2) if args.json else info.text())
     if info.lost_share >= 1.0:  # the exit statuses of every command (docs/interface.md)
-        print(f"rollergear: error: {args.file}: nothing readable", file=sys.stderr)
-        return 2
+        raise BagError(f"{args.file}: nothing readable")
     return damaged_exit(args.file, info.lost_share, "described what was readable")
 
 

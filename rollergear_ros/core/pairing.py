@@ -116,18 +116,34 @@ SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "outpu
 #: first-out pairing stays aligned across the loss and replay of the recording pairs as the node did.
 #: A sample with a lost motor input is skipped as ``lost``; a lost output leaves it without a residual
 LOST_BITS = 0x7FF8_0000_4C4F_5354  # a quiet NaN whose payload reads "LOST"
-_LOST_BYTES = struct.pack("<Q", LOST_BITS)
-LOST_VALUE: float = struct.unpack("<d", _LOST_BYTES)[0]
+
+
+def placeholder(bits: int) -> float:
+    """The quiet NaN whose 64 bits are ``bits``: a value that stands for something (a lost message)."""
+    return struct.unpack("<d", struct.pack("<Q", bits))[0]
+
+
+def is_placeholder(value: float, bits: int) -> bool:
+    """Whether ``value`` is :func:`placeholder` ``(bits)``, bit for bit."""
+    return value != value and struct.unpack("<Q", struct.pack("<d", value))[0] == bits
+
+
+def placeholder_mask(values: np.ndarray, bits: int) -> np.ndarray:
+    """:func:`is_placeholder` of each element of a float64 array."""
+    return np.ascontiguousarray(values, dtype=np.float64).view(np.uint64) == np.uint64(bits)
+
+
+LOST_VALUE: float = placeholder(LOST_BITS)
 
 
 def is_lost(value: float) -> bool:
     """Whether ``value`` is the placeholder of a lost message (:data:`LOST_VALUE`, bit for bit)."""
-    return value != value and struct.pack("<d", value) == _LOST_BYTES
+    return is_placeholder(value, LOST_BITS)
 
 
 def lost_mask(values: np.ndarray) -> np.ndarray:
     """:func:`is_lost` of each element of a float64 array."""
-    return np.ascontiguousarray(values, dtype=np.float64).view(np.uint64) == np.uint64(LOST_BITS)
+    return placeholder_mask(values, LOST_BITS)
 
 
 class SequenceGaps:

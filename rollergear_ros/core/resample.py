@@ -24,14 +24,14 @@ message's own times, so they pair with it exactly.  No rclpy import.
 
 from __future__ import annotations
 
-import struct
 from bisect import bisect_left
 from collections import deque
 from typing import NamedTuple
 
 import numpy as np
 
-from .pairing import CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, is_lost
+from .pairing import (CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, is_lost, is_placeholder,
+                      placeholder, placeholder_mask)
 
 RESAMPLED_CHANNELS = (SPEED, OUT_TORQUE, OUT_SPEED)
 DECIDE_TORQUE_MESSAGES = 8  #: motor torque messages a channel's rate is told against
@@ -44,18 +44,17 @@ MAX_WAITING_MESSAGES = 10_000
 #: the speed of a motor sample whose resampled speed had no value within the age limit: a quiet NaN
 #: whose payload reads "STAL"; the estimator skips the sample as ``stale``
 STALE_BITS = 0x7FF8_0000_5354_414C
-_STALE_BYTES = struct.pack("<Q", STALE_BITS)
-STALE_VALUE: float = struct.unpack("<d", _STALE_BYTES)[0]
+STALE_VALUE: float = placeholder(STALE_BITS)
 
 
 def is_stale(value: float) -> bool:
     """Whether ``value`` is :data:`STALE_VALUE`, bit for bit."""
-    return value != value and struct.pack("<d", value) == _STALE_BYTES
+    return is_placeholder(value, STALE_BITS)
 
 
 def stale_mask(values: np.ndarray) -> np.ndarray:
     """:func:`is_stale` of each element of a float64 array."""
-    return np.ascontiguousarray(values, dtype=np.float64).view(np.uint64) == np.uint64(STALE_BITS)
+    return placeholder_mask(values, STALE_BITS)
 
 
 class Message(NamedTuple):

@@ -190,8 +190,10 @@ def _other_record(op: int, body: bytes, state: ReadState) -> None:
         _channel(body, state)
 
 
-#: the shortest schema record (its fields with empty strings): a bound on how many a chunk holds
-_MIN_OTHER_RECORD = 9 + 14
+#: a schema's and a channel's fields with empty strings (the shortest records of each), and the
+#: shortest of them with its head: a bound on how many a chunk holds
+_SCHEMA_FIXED, _CHANNEL_FIXED = 14, 16
+_MIN_OTHER_RECORD = 9 + _SCHEMA_FIXED
 
 
 def _native_message_starts(data: bytes, buf: np.ndarray, state: ReadState) -> tuple[np.ndarray, np.ndarray]:
@@ -224,7 +226,7 @@ def _numpy_message_starts(data: bytes, buf: np.ndarray, state: ReadState) -> tup
         if op == 0:
             raise ValueError("invalid record (opcode 0)")
         if op in (OP_SCHEMA, OP_CHANNEL):
-            if ln < (14 if op == OP_SCHEMA else 16):
+            if ln < (_SCHEMA_FIXED if op == OP_SCHEMA else _CHANNEL_FIXED):
                 raise ValueError("schema or channel record shorter than its fields")
             _other_record(op, data[pos + 9:pos + rec], state)
             pos += rec
@@ -369,14 +371,13 @@ def _loose_records(fh, pos: int, file_size: int) -> bytes:
     return block[:p]
 
 
-def _message_index_count(body: bytes, record_length: int | None = None) -> int | None:
-    """Messages a message-index record lists (16 bytes per entry), None if it is malformed; ``body``
-    its content, or its first 6 bytes with the record's ``record_length``."""
-    if len(body) < 6:
+def _message_index_count(head: bytes, record_length: int) -> int | None:
+    """Messages a message-index record lists (16 bytes per entry), None if it is malformed: from the
+    first 6 bytes of its content (channel id, entries' byte length) and its ``record_length``."""
+    if len(head) < 6:
         return None
-    n = struct.unpack_from("<I", body, 2)[0]
-    length = len(body) if record_length is None else record_length
-    return n // 16 if n % 16 == 0 and 6 + n <= length else None
+    n = struct.unpack_from("<I", head, 2)[0]
+    return n // 16 if n % 16 == 0 and 6 + n <= record_length else None
 
 
 def preload_summary(path: str | Path, state: ReadState) -> None:
@@ -454,11 +455,8 @@ class _LinearRead:
         """Read the record at ``pos`` and move past it: its messages (a chunk, a run of loose
         messages), or None (another record, a damaged one skipped, the end)."""
         fh, state, pos, file_size = self.fh, self.state, self.pos, self.file_size
-        if self.after_chunk is not None:
-            head = _peek(fh, pos, file_size)
-            if head is None or head[0] != OP_MESSAGE_INDEX:
-                self._check_chunk()
         if pos + 9 > file_size:
+            self._check_chunk()
             state.truncated = True
             state.problem = "file ends without a data-end record"
             if pos < file_size:
@@ -468,6 +466,9 @@ class _LinearRead:
         fh.seek(pos)
         head = fh.read(9)
         op = head[0]
+        if self.after_chunk is not None and op != OP_MESSAGE_INDEX:  # the chunk before has its index behind it
+            self._check_chunk()
+            fh.seek(pos + 9)  # (a damaged span's log times were read from the chunk's head)
         ln = int.from_bytes(head[1:], "little")
         end = pos + 9 + ln
         if op == 0 or end > file_size:
@@ -497,7 +498,7 @@ class _LinearRead:
                 arrays = parse_records(run, state)
                 end = pos + len(run)
             elif op == OP_MESSAGE_INDEX and self.after_damage is not None:
-                count = _message_index_count(fh.read(ln))
+                count = _message_index_count(fh.read(6), ln)
                 if count is not None:
                     self.after_damage.messages_lost = (self.after_damage.messages_lost or 0) + count
                 self.pos = end
@@ -531,14 +532,6 @@ class _LinearRead:
             state.truncated = True
             state.problem = f"{reason} (byte {pos:,}); nothing readable after it"
         self.pos = nxt
-
-
-def _peek(fh, pos: int, file_size: int) -> bytes | None:
-    """The opcode byte of the record at ``pos`` (None at the end of the file)."""
-    if pos is None or pos >= file_size:
-        return None
-    fh.seek(pos)
-    return fh.read(1) or None
 
 
 def _outside(head: bytes, record_length: int, log_time_range: tuple[int, int]) -> bool:

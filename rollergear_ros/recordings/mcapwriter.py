@@ -259,7 +259,7 @@ class ChunkedMcapWriter:
         live recording, which a kill may end at any moment -- written under a hidden name until
         :meth:`publish` gives it its own (its header and what was added before on disk), and after
         its header, each metadata record and each chunk the file ends with a provisional summary
-        and footer (:meth:`_provisional_tail`), overwritten in the same write by what comes next: a
+        and footer (:meth:`_tail`), overwritten in the same write by what comes next: a
         killed recording is whole up to its last chunk for any MCAP reader."""
         import zstandard
         from mcap.data_stream import RecordBuilder
@@ -450,22 +450,18 @@ class ChunkedMcapWriter:
                 self._fh.write(part)
             return
         body = sum(memoryview(p).nbytes for p in parts)
-        tail = self._provisional_tail(self._data_end + body)
+        tail = self._tail(self._data_end + body, chunk_indexes=False)
         self._fh.seek(self._data_end)
         self._fh.write(b"".join([*parts, tail]))
         self._fh.truncate()
         self._fh.flush()
         self._data_end += body
 
-    def _provisional_tail(self, data_end: int) -> bytes:
-        """A data-end record, a summary of what is on disk (schemas, channels, statistics, metadata
-        indexes -- no chunk indexes: a reader then reads the chunks front to back), its footer and the
-        closing magic, for a data section that ends at ``data_end``."""
-        return self._tail(data_end, chunk_indexes=False)
-
     def _tail(self, data_end: int, chunk_indexes: bool = True) -> bytes:
         """The data-end record, the summary section, the footer and the closing magic after a data
-        section that ends at byte ``data_end`` (:meth:`_summary`)."""
+        section that ends at byte ``data_end`` (:meth:`_summary`); without ``chunk_indexes`` the
+        provisional one of a durable recording (what is on disk: a reader then reads the chunks front
+        to back)."""
         from mcap.data_stream import RecordBuilder
         from mcap.records import DataEnd, Footer
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..recordings.bag import inspect_bag
-from ..base.errors import UsageError, damaged_exit, lost_share
+from ..base.errors import BagError, UsageError, damaged_exit, lost_share
 from ..recordings.fastmcap import ReadState, iter_log_time_order, preload_summary
 from ..base.progress import TimedProgress
 
@@ -369,9 +369,7 @@ def cmd_play(args: argparse.Namespace) -> int:
         finally:
             rclpy.try_shutdown()
     if stats.damaged and not stats.messages:  # as replay: nothing readable is exit 2, not a damaged play
-        print(f"rollergear: error: {args.bag}: nothing readable: {len(stats.damaged)} damaged span(s); nothing played",
-              file=sys.stderr)
-        return 2
+        raise BagError(f"{args.bag}: nothing readable: {len(stats.damaged)} damaged span(s); nothing played")
     return damaged_exit(args.bag, stats.lost_share, f"played what was readable ({stats.messages:,} messages)")
 
 

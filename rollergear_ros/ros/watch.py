@@ -94,11 +94,12 @@ class WatchWindow:
     def line(self, period_s: float, topic_of_loss: str) -> str:
         """Format the period and start a new one: ``est/s  loss  power  η  residual  [level] message``."""
         row = self.take(period_s)
-        status = f"  [{row['level']}] {row['message']}" if row["level"] else ""
+        message = row["message"]
+        if row["estimates_per_s"] and math.isfinite(row["efficiency_measured"]):  # said once, in its column
+            message = _HEADLINE.sub("", message)
+        status = f"  [{row['level']}] {message}" if row["level"] else ""
         if row["estimates_per_s"] == 0:
             return f"no estimates on {topic_of_loss} in the last {period_s:.1f} s{status}"
-        if math.isfinite(row["efficiency_measured"]):  # said once, in its column: the latest window
-            status = f"  [{row['level']}] {_HEADLINE.sub('', row['message'])}" if row["level"] else ""
         parts = [
             f"{row['estimates_per_s']:7.0f} est/s",
             f"loss {row['loss_torque_nm']:.4f} N·m",
