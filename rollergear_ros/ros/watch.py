@@ -55,6 +55,21 @@ class WatchWindow:
     #: second of sample time: a period of the watcher's own clock may see none)
     measured: tuple[float, float] = (math.nan, math.nan)
 
+    def add_status(self, level: int, message: str, values: dict[str, str]) -> None:
+        """The node's status (``/diagnostics``): its level and message, and the measured efficiency it
+        states (the same window the window channels carry, so a row has it from the first status on,
+        not only after the next window message)."""
+        self.diagnostic = (level, message)
+        try:
+            efficiency = float(values.get("measured efficiency", "none"))
+        except ValueError:  # "none (no measured output torque)"
+            return
+        try:
+            uncertainty = float(values.get("measured efficiency uncertainty", "0"))
+        except ValueError:  # "not stated (sensors.*)": 0, as the window channel says it
+            uncertainty = 0.0
+        self.measured = (efficiency, uncertainty)
+
     def add_traced(self, level: int, message: str) -> None:
         """An online trace's result (``loss/traced``): printed on a line of its own."""
         self.traced.append(f"traced [{LEVEL_NAMES.get(level, str(level))}] {message}")
@@ -152,10 +167,8 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
     def on_diagnostics(msg: DiagnosticArray) -> None:
         for status in msg.status:
             if status.name.endswith(STATUS_NAME):
-                window.diagnostic = (
-                    status.level[0] if isinstance(status.level, bytes) else int(status.level),
-                    status.message,
-                )
+                window.add_status(status.level[0] if isinstance(status.level, bytes) else int(status.level),
+                                  status.message, {kv.key: kv.value for kv in status.values})
 
     node.create_subscription(DiagnosticArray, Topic.DIAGNOSTICS, on_diagnostics, 10)
     for channel in trace_channels():  # latched: the last result, also one made before watch started

@@ -136,3 +136,23 @@ def test_a_line_says_the_measured_efficiency_once_and_keeps_the_latest_window_ac
         w.add("loss_torque", raw)
     row = w.take(1.0)  # no new window this period: the latest still
     assert row["efficiency_measured"] == 0.9876 and row["efficiency_measured_uncertainty"] == 0.0034
+
+
+def test_a_row_has_the_measured_efficiency_from_the_first_status_before_any_window_message():
+    """A watcher that joined after the node's last window message printed an OK row with no measured
+    efficiency although the status it printed states one."""
+    w = _window(loss_torque=[0.1], loss_power=[10.0], efficiency=[0.99])
+    w.add_status(0, "estimating; measured efficiency 99.50 ± 0.10 % over 2 s",
+                 {"measured efficiency": repr(0.9949564436664599), "measured efficiency uncertainty": "0.001"})
+    row = w.take(0.5)
+    assert row["level"] == "OK" and row["efficiency_measured"] == 0.9949564436664599
+    assert row["efficiency_measured_uncertainty"] == 0.001
+    # a later window message is the latest; a status without output torque leaves it
+    for raw in encode_float64(np.array([0.9876])):
+        w.add("efficiency_measured", raw)
+    w.add_status(0, "estimating", {"measured efficiency": "none (no measured output torque)"})
+    assert w.take(0.5)["efficiency_measured"] == 0.9876
+    w.add_status(0, "estimating", {"measured efficiency": "0.97", "measured efficiency uncertainty":
+                                   "not stated (sensors.*)"})
+    row = w.take(0.5)
+    assert row["efficiency_measured"] == 0.97 and row["efficiency_measured_uncertainty"] == 0.0
