@@ -351,7 +351,8 @@ class Fuzzer:
 
 def _write_seeds(workdir: Path) -> dict[str, Path]:
     """Small valid inputs: a recording of three chunks, a CSV with its channel map, the parameter file."""
-    from rollergear_ros.recordings.bag import BagWriter, TopicMap
+    from rollergear_ros.recordings.bagwriter import BagWriter
+    from rollergear_ros.recordings.messages import TopicMap
 
     tm = TopicMap()
     n = 600

@@ -98,7 +98,7 @@ def test_the_package_has_no_import_circle():
     graph = import_graph()
     # the graph sees imports: within a wing, across wings, lazy ones
     assert graph["core.model"] >= {"core.equations"} and "core.model" not in graph["core.params"]
-    assert graph["ros.node"] >= {"core.estimator", "recordings.bag", "base.output_channels"}
+    assert graph["ros.node"] >= {"core.estimator", "ros.recorder", "recordings.messages", "base.output_channels"}
     assert "calibration.report" in graph["cli.calibrate"]
     assert circles(graph) == []
 
@@ -130,3 +130,52 @@ def test_a_circle_is_found_where_there_is_one(tmp_path):
     (tmp_path / "c.py").write_text("import importlib\nimportlib.import_module('rollergear_ros.a')\n")
     (tmp_path / "d.py").write_text("from .a import x\n")
     assert circles(import_graph(tmp_path)) == [["a", "b", "c"]]
+
+
+def cross_wing_imports(package: Path = PACKAGE) -> set[tuple[str, str, str]]:
+    """``(wing, module, name)`` of every ``from <wing>.<module> import <name>`` in a module of another wing."""
+    found = set()
+    for path in package.rglob("*.py"):
+        here = module_name(path, package).split(".")
+        here = here if path.name == "__init__.py" else here[:-1]
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if not isinstance(node, ast.ImportFrom):
+                continue
+            if node.level:
+                dotted = here[: len(here) - (node.level - 1)] + (node.module.split(".") if node.module else [])
+            elif (node.module or "").startswith("rollergear_ros."):
+                dotted = node.module.split(".")[1:]
+            else:
+                continue
+            if len(dotted) == 2 and here[:1] != dotted[:1]:
+                found |= {(dotted[0], dotted[1], a.name) for a in node.names}
+    return found
+
+
+def test_each_wing_has_a_face_that_holds_what_other_wings_import_and_imports_nothing_until_asked():
+    """A wing's ``__all__`` is its API: every name another wing imports is on it (a function named as
+    its module, such as ``calibrate.calibrate``, is reached through the module), each resolves to the
+    object its module defines, and importing the wing imports none of its modules."""
+    import importlib
+    import inspect
+    import subprocess
+    import sys
+
+    missing = sorted(f"{w}.{m}.{n}" for w, m, n in cross_wing_imports()
+                     if n != m and n not in importlib.import_module(f"rollergear_ros.{w}").__all__)
+    assert missing == [], f"imported across wings but not on the wing's face: {missing}"
+    for wing in WINGS:
+        package = importlib.import_module(f"rollergear_ros.{wing}")
+        faces = getattr(package, "_FACE", {})
+        assert sorted(package.__all__) == sorted(faces) or wing == "cli", wing
+        for name, module in faces.items():
+            obj = getattr(package, name)
+            assert obj is getattr(importlib.import_module(f"rollergear_ros.{wing}.{module}"), name)
+            if inspect.isclass(obj) or inspect.isfunction(obj):  # defined there, not passed on from elsewhere
+                assert obj.__module__ == f"rollergear_ros.{wing}.{module}", f"{wing}.{name} is {obj.__module__}'s"
+    # importing every wing loads none of their modules but the face's own helper (rclpy, scipy stay out)
+    code = ("import sys, rollergear_ros as r\n"
+            "for w in r.WINGS: __import__('rollergear_ros.' + w)\n"
+            "print(sorted(m for m in sys.modules if m.startswith('rollergear_ros.') and m.count('.') > 1))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert loaded.strip() == "['rollergear_ros.base.face']", loaded

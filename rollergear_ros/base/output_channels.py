@@ -3,7 +3,7 @@
 Every place that publishes, records, writes or shows an estimate loops over :data:`OUTPUT_CHANNELS`:
 the node (its publishers, its per-sample publishing plan and its MCAP recorder), replay's MCAP
 output, ``rollergear watch`` (the Float64 channels) and ``docs/interface.md`` (a test checks that
-each channel has its row there).  A channel's name is also its field of :class:`~recordings.bag.TopicMap`
+each channel has its row there).  A channel's name is also its field of :class:`~recordings.messages.TopicMap`
 (per-sample channels: ``--topic-<name>``) and its key wherever outputs are keyed.
 
 Five kinds of channel:
@@ -25,7 +25,7 @@ Five kinds of channel:
   publishes it (and records it).
 
 The per-sample channels (Float64 and stamped) are also the fields of
-:class:`~recordings.bag.TopicMap`, so ``--topic-<name>`` moves them in a recording.
+:class:`~recordings.messages.TopicMap`, so ``--topic-<name>`` moves them in a recording.
 
 To add a Float64 output: one :class:`OutputChannel` entry passed to :func:`register` (its value an
 attribute both estimate types have), its row in ``docs/interface.md``, and its tests; the node,

@@ -50,12 +50,12 @@ from .segments import find_changes
 from .jointfit import fitted_covariance
 from .selection import Calibrator, ErrorStats, Fit, Term, error_stats, members
 from .structure import adequacy, angle_spectrum, residual_structure
-from ..base.errors import BagError, UsageError
+from ..base.errors import BagError, ParameterError, UsageError
 from ..core.effects import EFFECTS, reading_errors, viscosity_law
 from ..core.model import LossModel
 from ..core.modelparams import MODEL_PARAMETERS
 from ..core.oil import vogel_from_datasheet
-from ..core.params import Config, ParameterError, config_to_yaml, validate
+from ..core.params import Config, config_to_yaml, validate
 
 __all__ = ["CalibrationResult", "CalibrationSettings", "SampleData", "calibrate", "calibrated_yaml", "load_samples"]
 

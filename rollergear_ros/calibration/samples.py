@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..recordings.bag import TopicMap
+from ..recordings.messages import TopicMap
 from ..sources.channelmap import ChannelMap
 from ..base.errors import BagError, InputFileError
 from ..core.model import LossModel

@@ -23,7 +23,8 @@ from collections.abc import Callable
 import numpy as np
 
 from ..core.oil import oil_viscosity_ratio, vogel_viscosity_ratio, walther_viscosity_mm2_s  # noqa: F401 - re-exported
-from ..recordings.bag import BagWriter, TopicMap, encode_float64, stamp
+from ..recordings.bagwriter import BagWriter
+from ..recordings.messages import TopicMap, encode_float64, stamp
 from ..core.effects import EFFECTS, EffectInputs, viscosity_law
 from ..base.errors import UsageError
 from ..base.interface import RAD_S_PER_RPM, MessageType, Metadata
@@ -299,7 +300,7 @@ def _temperature_message(rig: SimulatedRig, opts: SimulationOptions, i: int) -> 
 
 def read_truth(path: Path) -> dict:
     """The ``rollergear_simulation`` metadata of a simulated bag (for tests and docs only)."""
-    from ..recordings.bag import read_metadata
+    from ..recordings.baginfo import read_metadata
 
     md = read_metadata(path, Metadata.SIMULATION)
     if md is None:

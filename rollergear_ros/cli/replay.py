@@ -8,7 +8,7 @@ import time
 from dataclasses import fields
 from pathlib import Path
 
-from ..recordings.bag import TopicMap
+from ..recordings.messages import TopicMap
 from .args import config_from_args
 from ..core.effects import viscosity_law
 from ..outputs.exports import EXPORT_KINDS

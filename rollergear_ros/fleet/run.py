@@ -150,7 +150,7 @@ def _identity(url: str, local: bool, group_by: str) -> tuple[str, tuple[int | No
     folder = Path(url.rstrip("/")).parent.name or "fleet"
     gid, span = None, (None, None, None)
     if local and is_format(url, "MCAP"):
-        from ..recordings.bag import inspect_bag, read_metadata
+        from ..recordings.baginfo import inspect_bag, read_metadata
 
         try:
             record = read_metadata(url, Metadata.GEARBOX) or {}

@@ -33,7 +33,7 @@ import struct
 
 import numpy as np
 
-from ..recordings.bag import decoder_for, encoder_for
+from ..recordings.messages import decoder_for, encoder_for
 from ..base.errors import BagError
 from ..base.interface import MessageType
 
@@ -80,7 +80,7 @@ class EstimateCodec:
         return bytes(buf)
 
     def payloads(self, t_ns: np.ndarray, values: np.ndarray) -> np.ndarray:
-        """Messages for arrays, as the rows of a ``uint8`` matrix (:meth:`recordings.bag.BagWriter.write_fixed`):
+        """Messages for arrays, as the rows of a ``uint8`` matrix (:meth:`recordings.bagwriter.BagWriter.write_fixed`):
         ``t_ns`` (n,), ``values`` (n, len(ESTIMATE_FIELDS))."""
         t = np.asarray(t_ns, dtype=np.int64)
         n = len(t)

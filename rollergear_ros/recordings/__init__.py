@@ -1,3 +1,48 @@
-"""ROS 2 MCAP recordings without ROS: reading (the numpy chunk parser, damage handling),
-writing (chunked, time-ordered, atomic) and the CDR codec.  Imports ``base`` and ``core``.
+"""ROS 2 MCAP recordings without ROS, by concern: ``messages`` (definitions, the topic map, the CDR
+codec), ``baginfo`` (what a bag holds, its metadata, raw messages), ``bagwriter`` (writing),
+``fastmcap`` and ``mcapwriter`` (the numpy chunk reader with damage handling, and the chunked
+writer; the optional C kernel ``_records`` lays out the same records), ``rolling`` (a recording
+split by size and age).  Imports ``base`` only.
 """
+
+from ..base.face import lazy_face
+
+#: the wing's API (the names other wings use) and the module that defines each
+_FACE = {
+    "BagInfo": "baginfo",
+    "RawBatch": "baginfo",
+    "SUMMARY_ERRORS": "baginfo",
+    "inspect_bag": "baginfo",
+    "iter_raw_batches": "baginfo",
+    "median_period_s": "baginfo",
+    "read_metadata": "baginfo",
+    "BagWriter": "bagwriter",
+    "offered_qos_yaml": "bagwriter",
+    "ReadState": "fastmcap",
+    "byte_rows": "fastmcap",
+    "iter_log_time_order": "fastmcap",
+    "iter_message_arrays": "fastmcap",
+    "preload_summary": "fastmcap",
+    "release_count": "fastmcap",
+    "CDR_LE_HEADER": "messages",
+    "MSG_DEFINITIONS": "messages",
+    "TopicMap": "messages",
+    "cdr_problem": "messages",
+    "decode_float64": "messages",
+    "decoder_for": "messages",
+    "encode_float64": "messages",
+    "encoder_for": "messages",
+    "float64_payloads": "messages",
+    "float64_problem": "messages",
+    "stamp": "messages",
+    "temperature_payloads": "messages",
+    "RollingRecorder": "rolling",
+    "free_name": "rolling",
+    "is_template": "rolling",
+    "next_file": "rolling",
+    "roll_due": "rolling",
+    "splits": "rolling",
+    "template_problem": "rolling",
+}
+
+__all__, __getattr__, __dir__ = lazy_face(__name__, _FACE)

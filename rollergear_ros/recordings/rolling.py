@@ -24,7 +24,8 @@ import datetime
 from collections.abc import Callable
 from pathlib import Path
 
-from .bag import BagWriter, encoder_for
+from .bagwriter import BagWriter
+from .messages import encoder_for
 
 __all__ = ["MAX_NAME_BYTES", "RollingRecorder", "file_name", "free_name", "is_template", "next_file", "roll_due",
            "splits", "template_problem"]

@@ -13,9 +13,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..recordings.bag import (BagError, BagInfo, BagWriter, RawBatch, TopicMap, cdr_problem, decode_float64,
-                              decoder_for, encode_float64, float64_problem, iter_raw_batches, median_period_s,
-                              read_metadata)
+from ..base.errors import BagError
+from ..recordings.baginfo import BagInfo, RawBatch, iter_raw_batches, median_period_s, read_metadata
+from ..recordings.bagwriter import BagWriter
+from ..recordings.messages import TopicMap, cdr_problem, decode_float64, decoder_for, encode_float64, float64_problem
 from ..recordings.fastmcap import byte_rows
 from ..base.errors import damage_totals, lost_share
 from ..core.pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE

@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from ..outputs import stamped
-from ..recordings.bag import BagInfo, BagWriter, TopicMap, offered_qos_yaml
+from ..recordings.baginfo import BagInfo
+from ..recordings.bagwriter import BagWriter, offered_qos_yaml
+from ..recordings.messages import TopicMap
 from ..core.estimator import BatchEstimate, Estimator
 from ..base.interface import MessageType, Metadata
 from ..base.output_channels import float64_channels, stamped_channels, window_channels

@@ -26,7 +26,8 @@ from ..base.progress import TimedProgress
 from ..core.params import Config, load_config
 from ..core.prediction import Prediction, PredictionSums
 from ..base.interface import Channel
-from ..recordings.bag import TopicMap, inspect_bag
+from ..recordings.messages import TopicMap
+from ..recordings.baginfo import inspect_bag
 from .inputs import InputProblems, damaged_share, input_batches, paired_plan
 
 __all__ = ["ARRAY_KEYS", "predict"]

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Callable, Iterator, Sequence
 
-from ..recordings.bag import BagInfo, TopicMap, inspect_bag
+from ..recordings.baginfo import BagInfo, inspect_bag
+from ..recordings.messages import TopicMap
 from ..base import atomic
 from ..base.errors import UsageError
 from ..core.estimator import BatchEstimate, Estimator

@@ -21,7 +21,8 @@ import numpy as np
 from ..base.interface import NODE_NAME, MessageType, Topic
 from ..core.estimator import Estimator
 from ..core.params import spec_by_name
-from ..recordings.bag import BagInfo, decoder_for, iter_raw_batches
+from ..recordings.baginfo import BagInfo, iter_raw_batches
+from ..recordings.messages import decoder_for
 
 __all__ = ["ParameterSwitch", "apply_switch", "recorded_switches", "split_at"]
 

@@ -18,7 +18,7 @@ import struct
 from ..base.interface import MessageType
 from ..base.output_channels import window_channels
 from ..core.measured import MeasuredEfficiency, WindowValue
-from ..recordings.bag import CDR_LE_HEADER
+from ..recordings.messages import CDR_LE_HEADER
 
 __all__ = ["CHECK_S", "LiveEfficiencyWindow"]
 

@@ -1,10 +1,16 @@
-"""``loss_estimator``: the live node, a thin rclpy shell over :class:`~core.estimator.Estimator`.
+"""``loss_estimator``: the live node, an rclpy shell over :class:`~core.estimator.Estimator`.
 
-Subscribes to the drive (and optionally output) torque and speed, estimates every paired sample,
-publishes loss torque, loss power, efficiency (and the residual when the output is measured),
-reports ``/diagnostics`` at 1 Hz, and optionally records to MCAP and rerun.  Parameters are the
-package's one parameter set (``config/gearbox.yaml``), declared with descriptors; run-time changes
-go through :func:`core.params.validate` and are refused with its reason.
+The node wires topics, parameters and timers to its parts: the input callbacks hand every message
+to the estimator (and to the recording, at the times it was paired by; a gap in a publisher's
+sequence numbers becomes placeholders), each estimate is published on the output channels
+(:mod:`base.output_channels`: loss torque, loss power, efficiency, the residual when the output is
+measured, the stamped estimate).  The parts: the recordings (:mod:`.recorder`: MCAP and rerun,
+rolled by size and age), the status on ``/diagnostics`` (:mod:`.reporter`, from a thread of its
+own), the measured efficiency's windows (:mod:`.efficiencywindow`), the live loss map
+(:mod:`.livemaps`), the online tracer (:mod:`.tracer`) and the input thread of the events executor
+(:mod:`.intake`).  Parameters are the package's one parameter set (``config/gearbox.yaml``),
+declared with descriptors; run-time changes go through :func:`core.params.validate` and are refused
+with its reason.
 
 Run: ``loss_estimator --ros-args --params-file config/gearbox.yaml`` (or ``ros2 run rollergear_ros
 loss_estimator …``).
@@ -17,14 +23,13 @@ import math
 import struct
 import sys
 import threading
-from collections import deque
 import time
 from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
@@ -32,27 +37,26 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState, Temperature
 from std_msgs.msg import Float64, Float64MultiArray
 
-from ..recordings import bag as bagmod
-from ..recordings.rolling import (RollingRecorder, free_name, is_template, next_file, roll_due, splits,
-                                  template_problem)
-from .diagnostics import (STATUS_NAME, DiagnosticLimits, InputMonitor, InputsNow, NodeLoad, SinceLast,
-                          diagnose)
+from ..recordings.messages import CDR_LE_HEADER, TopicMap, decode_float64, float64_problem
+from ..recordings.rolling import free_name
+from .diagnostics import (InputMonitor)
 from ..core.estimator import Estimate, Estimator
-from ..base.errors import RollergearError
+from ..base.errors import ParameterError, RollergearError
 from .intake import InputTaker
 from .livemaps import LiveMapPublisher
 from ..sources.paths import Output, check_outputs
 from ..core.pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
                             SequenceGaps)
 from ..outputs.stamped import EstimateCodec, estimate_values
-from ..base.interface import NAMESPACE, MessageType, Metadata, Topic
+from ..base.interface import NAMESPACE, MessageType, Topic
 from .nodehelp import help_text, wants_help
 from ..base.output_channels import (OUTPUT_CHANNELS, float64_channels, map_channels, stamped_channels, trace_channels,
                                     window_channels)
-from ..core.params import Config, ParameterError
-from .parameters import (check_new_output, check_params_files, declare_parameters, live_provenance,
-                         package_parameter_names, parameter_event, params_files)
+from ..core.params import Config
+from .parameters import (check_params_files, declare_parameters, package_parameter_names, parameter_event, params_files)
 from .qos import INPUT_QOS, output_qos
+from .recorder import NodeRecording, check_recording_names
+from .reporter import StatusReporter
 from .spin import make_executor, stop_on_signals
 from .efficiencywindow import CHECK_S as EFFICIENCY_CHECK_S
 from .efficiencywindow import LiveEfficiencyWindow
@@ -66,8 +70,7 @@ _MESSAGE_CLASSES = {MessageType.FLOAT64: Float64, MessageType.JOINT_STATE: Joint
 MAP_CHECK_S = 1.0  #: how often the adapted coefficients are compared with those of the last map
 _PACK = struct.Struct("<4sd").pack
 HEARTBEAT_S = 0.1  #: period of the executor heartbeat timer (executor lag in /diagnostics)
-ROLL_CHECK_S = 1.0  #: how often the recordings are looked at (size, age) and /diagnostics written into them
-_CDR = bagmod.CDR_LE_HEADER
+_CDR = CDR_LE_HEADER
 _LOST_RAW = _PACK(_CDR, LOST_VALUE)
 #: a gap in a publisher's sequence numbers longer than this is not filled with placeholders message
 #: by message (a node frozen for minutes): the pairing restarts as for a new stream instead
@@ -100,8 +103,6 @@ class LossEstimatorNode(Node):
         self.parameter_changes = 0  #: accepted run-time changes
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.monitor = InputMonitor(time.time_ns())
-        self._skips_reported = dict(self.estimator.counts)
-        self._alarms_reported = 0
         self._published = 0
         self._every = self.config.node.publish_every_n
         #: while the start-up backlog is taken: where the input callbacks hold what they are given
@@ -119,9 +120,8 @@ class LossEstimatorNode(Node):
         self._input_log_ns = 0  #: log time of the last input recorded (the sample boundary of a change)
         self._input_handles: dict[str, Any] = {}  # input thread's subscriptions, by channel
         self._interleaved_warned = False
-        topics = bagmod.TopicMap()
+        topics = TopicMap()
         self._create_outputs()
-        self.pub_diag = self.create_publisher(DiagnosticArray, Topic.DIAGNOSTICS, 10)
         # the live loss map (transient-local: an energy manager that starts later gets the last one)
         self.live_map = LiveMapPublisher(self._map_publishers, self.get_fully_qualified_name(), self.get_logger())
         self.params_file_paths = {Path(p).resolve() for p in params_files(sys.argv)}
@@ -137,10 +137,7 @@ class LossEstimatorNode(Node):
             for c in window_channels() if c.name in self.output_publishers})
         self.create_timer(EFFICIENCY_CHECK_S, self.efficiency_window.update)
         self._subscribe_inputs(topics)
-        # /diagnostics from a thread of its own: an executor flooded with input callbacks starves
-        # its timers (a 1 s timer stalled ~5 s at 5 kHz), exactly when the report matters
         self.busy_ns = 0  #: time spent in input callbacks (saturation: /diagnostics)
-        self._busy_reported = (time.time_ns(), 0)
         # executor lag: a heartbeat timer queued behind the input events fires as late as they are
         # taken (single_threaded; the events node's input thread measures how long inputs waited)
         self._heartbeat_ns = time.time_ns()
@@ -148,9 +145,7 @@ class LossEstimatorNode(Node):
         self.create_timer(HEARTBEAT_S, self._heartbeat)
         if self._map_publishers or node.map_file:
             self.create_timer(MAP_CHECK_S, self._update_map)
-        self._diagnostics_stop = threading.Event()
-        self._diagnostics_thread = threading.Thread(target=self._diagnostics_loop, name="diagnostics", daemon=True)
-        self._diagnostics_thread.start()
+        self.status = StatusReporter(self)  # /diagnostics, from a thread of its own
         self.get_logger().info(
             f"estimating from {'Float64 topics' if node.input_mode == 'float64' else topics.joint_states}; "
             f"effects: {', '.join(self.config.effects.enabled()) or 'none'}; executor: {self.executor_kind}; "
@@ -159,23 +154,14 @@ class LossEstimatorNode(Node):
 
     def _open_recordings(self) -> None:
         """Check every output file before any is opened, publish the first loss map, and open the
-        MCAP recorder and the rerun log the parameters ask for."""
+        recordings the parameters ask for (:class:`~.recorder.NodeRecording`)."""
         node = self.config.node
-        self.recorder: RollingRecorder | None = None
-        self.recorder_files: list[Path] = []  #: the MCAP files of the run, in order
         # Float64 inputs are recorded at the very times the estimator paired them by (publisher
         # timestamps, or arrival times), so that replay of the recording pairs them as the node did
         # (``rollergear_recording`` metadata); under sim time the recording keeps one clock: ROS time
         self._record_pairing_time = (node.input_mode == "float64" and not self.get_parameter("use_sim_time").value)
         # every output is checked before any is opened: a refused one leaves no half-written file
-        split = splits(int(node.record_max_mb * 1e6), node.record_max_s)
-        for name, path, suffix in (("node.record_mcap", node.record_mcap, ".mcap"),
-                                   ("node.rerun_rrd", node.rerun_rrd, ".rrd")):
-            if path:
-                problem = template_problem(path, suffix)
-                if problem:
-                    raise ParameterError(name, path if len(path) <= 60 else path[:57] + "...", problem)
-                check_new_output(name, str(_first_file(path, split)))
+        check_recording_names(self.config)
         # the files rewritten during the run: an existing file is never replaced, the next free name is taken
         self.live_map.path = self._free_output("node.map_file", node.map_file)
         self.traced_params_path = self._free_output("node.traced_params_file", node.traced_params_path()) \
@@ -187,90 +173,19 @@ class LossEstimatorNode(Node):
                        Output("node.traced_params_file", self.traced_params_path, "yaml")])
         if self._map_publishers or node.map_file:
             self._update_map()  # before the inputs are subscribed: nothing waits for it
-        #: what other threads have for the recording (/diagnostics), written by the executor's timer
-        self._to_record: deque[tuple[str, str, int, bytes]] = deque()
-        if node.record_mcap:
-            # written as the messages come (in arrival order), with the QoS the outputs are offered with
-            offered = {self.out_topics[c.name]: bagmod.offered_qos_yaml(c.reliable, c.depth, c.transient_local)
-                       for c in OUTPUT_CHANNELS.values() if c.name in self.out_topics}
-
-            def open_file(path: Path) -> bagmod.BagWriter:
-                return bagmod.BagWriter(path, chunk_size=256 * 1024, time_ordered=False, offered_qos=offered,
-                                        replace_atomically=False, durable=True)  # in place: a kill keeps what came
-
-            latched = tuple(self.out_topics[c.name] for c in (*map_channels(), *trace_channels())
-                            if c.name in self.out_topics)
-            recording = {
-                "recorded_by": self.get_fully_qualified_name(), "executor": node.executor,
-                "pairing": self.pairing if self._record_pairing_time else "timestamp",
-                "input_log_time": ("arrival" if self.pairing in ARRIVAL_PAIRINGS else "source_timestamp")
-                if self._record_pairing_time else "receive",
-                "sample_period_s": repr(1.0 / node.expected_rate_hz)}
-            provenance = live_provenance(self.get_fully_qualified_name(), self.config, sys.argv)
-            self.recorder = RollingRecorder(node.record_mcap, open_file, time.time_ns, int(node.record_max_mb * 1e6),
-                                            node.record_max_s, latched,
-                                            ((Metadata.RECORDING, recording), (Metadata.PROVENANCE, provenance)))
-            self.recorder_files = self.recorder.files
-            self._record_map()  # the first map, published before the recorder opened
-        self.rerun = None
-        self._rr_buffer: list[Estimate] = []
-        self.rerun_files: list[Path] = []  #: the .rrd files of the run, in order
-        if node.rerun_rrd or node.rerun_connect:
-            from ..outputs.review import SkipEvents
-
-            self.rerun = self._open_rerun()
-            self._rr_skips = SkipEvents()
-            self.create_timer(0.5, self._flush_rerun)
-        if self.recorder is not None or self.rerun_files:
-            self.create_timer(ROLL_CHECK_S, self._roll_recordings)
-
-    def _open_rerun(self):
-        """The rerun log: to the next ``.rrd`` file of the run (and/or the viewer)."""
-        from ..outputs.review import RerunLog
-
-        node = self.config.node
-        path = None
-        if node.rerun_rrd:
-            split = splits(int(node.record_max_mb * 1e6), node.record_max_s)
-            path = next_file(node.rerun_rrd, time.time_ns(), len(self.rerun_files), split)
-            self.rerun_files.append(path)
-            self._rerun_opened_ns = time.time_ns()
-        return RerunLog("rollergear_live", path, node.rerun_connect or None,
-                        breakdown_terms=self.estimator.model.nonzero_terms(),
-                        with_effects=bool(self.config.effects.enabled()))
-
-    def _roll_recordings(self) -> None:
-        """The timer: write what other threads left for the recording, and start the next MCAP and
-        ``.rrd`` file when the current one has reached ``node.record_max_mb`` or ``node.record_max_s``."""
-        node = self.config.node
-        if self.recorder is not None:
-            with self._input_lock:
-                while self._to_record:
-                    self.recorder.write_raw(*self._to_record.popleft())
-                closed = self.recorder.roll_if_due()
-            if closed is not None:
-                self.get_logger().info(f"recording: {closed} complete; now {self.recorder.path}")
-        if self.rerun is not None and self.rerun_files:
-            path = self.rerun_files[-1]
-            size = path.stat().st_size if path.exists() else 0
-            if roll_due(size, time.time_ns() - self._rerun_opened_ns, int(node.record_max_mb * 1e6),
-                        int(node.record_max_s * 1e9)):
-                self._flush_rerun()
-                old, self.rerun = self.rerun, self._open_rerun()
-                try:
-                    old.close()
-                except Exception as exc:  # noqa: BLE001 - a viewer that went away costs its data, not the node
-                    self.get_logger().warn(f"rerun logging incomplete: {exc}")
+        self.recording = NodeRecording(self, self.config, self.out_topics, self._input_lock, self.pairing,
+                                       self._record_pairing_time, lambda: self.estimator)
+        #: the MCAP recorder the input and output paths write into (None: not recording)
+        self.recorder = self.recording.mcap
+        self._rerun_estimates = self.recording.estimates
+        self._record_map()  # the first map, published before the recorder opened
 
     def _record_map(self) -> None:
         """The live map last published, into the recording (``loss/map``)."""
-        msg = self.live_map.last_message
         topic = self.out_topics.get(next((c.name for c in map_channels()), ""), "")
-        if self.recorder is not None and msg is not None and topic:
-            with self._input_lock:
-                self.recorder.write_raw(topic, MessageType.FLOAT64_MULTI_ARRAY, time.time_ns(), serialize_message(msg))
+        self.recording.record_map(self.live_map.last_message, topic)
 
-    def _subscribe_inputs(self, topics: bagmod.TopicMap) -> None:
+    def _subscribe_inputs(self, topics: TopicMap) -> None:
         """The input subscriptions: the four Float64 channels or the joint states, and the oil temperature."""
         node = self.config.node
         input_qos = INPUT_QOS[node.input_qos]
@@ -410,8 +325,8 @@ class LossEstimatorNode(Node):
                 self.recorder.write_raw(topic, MessageType.FLOAT64, log_ns, raw, publish_time_ns=source_ns)
             if len(raw) >= 12 and raw[1] == 1 and raw[0] == 0:
                 value = unpack(raw, 4)[0]
-            elif bagmod.float64_problem(raw) is None:
-                value = float(bagmod.decode_float64([raw])[0])
+            elif float64_problem(raw) is None:
+                value = float(decode_float64([raw])[0])
             else:  # not a Float64 payload: counted (diagnostics warn), never decoded as garbage
                 self.estimator.counts["malformed"] += 1
                 return
@@ -504,13 +419,18 @@ class LossEstimatorNode(Node):
         if math.isfinite(msg.temperature):
             self.live_map.oil_temperature_c = float(msg.temperature)
 
+    @property
+    def rerun(self):
+        """The rerun log (None: none), for the tracer's and the efficiency window's events."""
+        return self.recording.rerun
+
     # ------------------------------------------------------------------ outputs
     def _update_map(self) -> None:
         """The map timer: a new loss map when the adapted coefficients moved (:class:`LiveMapPublisher`),
         published and recorded."""
         made = self.live_map.published
         self.live_map.update(self.config, self.estimator)
-        if self.live_map.published > made and getattr(self, "recorder", None) is not None:
+        if self.live_map.published > made and getattr(self, "recording", None) is not None:
             self._record_map()
 
     @property
@@ -580,37 +500,8 @@ class LossEstimatorNode(Node):
                     publish(raw)
                 if recorder is not None:
                     recorder.write_raw(topic, MessageType.JOINT_STATE, stamp, raw)
-        if self.rerun is not None:
-            self._rr_buffer.append(est)
-
-    def _flush_rerun(self) -> None:
-        """The estimates since the last flush to rerun, with the samples skipped meanwhile as an event."""
-        if not self._rr_buffer or self.rerun is None:
-            return
-        import numpy as np
-
-        from ..core.estimator import BatchEstimate
-
-        with self._input_lock:
-            buf, self._rr_buffer = self._rr_buffer, []
-            skipped = self._rr_skips.since_last(self.estimator.counts)
-            alarms = list(self.estimator.detector.alarm_times_ns)
-            estimator = self.estimator  # the breakdown is the current model's (a parameter change makes another)
-
-        def column(name: str) -> np.ndarray:
-            return np.array([getattr(e, name) for e in buf], dtype=np.float64)
-
-        t = np.array([e.t_ns for e in buf], dtype=np.int64)
-        torque, speed, temperature, loss = (column("torque_nm"), column("speed_rad_s"), column("temperature_c"),
-                                            column("loss_torque_nm"))
-        breakdown, effects = estimator.breakdown(torque, speed, temperature, loss)  # off the input path
-        self.rerun.send_estimates(BatchEstimate(
-            t, torque, speed, loss, column("loss_power_w"), column("efficiency"), column("measured_loss_nm"),
-            column("residual_nm"), temperature, breakdown_nm=breakdown, effects_nm=effects, alarms_t_ns=alarms,
-            out_torque_nm=column("out_torque_nm"), out_speed_rad_s=column("out_speed_rad_s"),
-            efficiency_measured=column("efficiency_measured")))
-        if skipped:
-            self.rerun.events([int(t[-1])], [skipped], "WARN")
+        if self._rerun_estimates is not None:
+            self._rerun_estimates.append(est)
 
     def _heartbeat(self) -> None:
         self._heartbeat_ns = time.time_ns()
@@ -623,73 +514,13 @@ class LossEstimatorNode(Node):
         waited = waited_ns * 1e-9 if now - taken_ns < 1_000_000_000 else 0.0
         return max(0.0, (now - self._heartbeat_ns) * 1e-9 - HEARTBEAT_S, waited)
 
-    def _diagnostics_loop(self) -> None:
-        while not self._diagnostics_stop.wait(1.0):
-            try:
-                self._publish_diagnostics()
-            except Exception as exc:  # noqa: BLE001 - a report that fails must not end the reports
-                if self._diagnostics_stop.is_set() or not self.context.ok():
-                    return
-                self.get_logger().warn(f"diagnostics: {type(exc).__name__}: {exc}")
-
-    def _publish_diagnostics(self) -> None:
-        now = time.time_ns()
-        node = self.config.node
-        then, busy_then = self._busy_reported
-        busy = self.busy_ns
-        self._busy_reported = (now, busy)
-        depth = INPUT_QOS[node.input_qos].depth if node.input_qos == "sensor_data" else None
-        report = diagnose(InputsNow(now, self.monitor, self.monitor.rates(now)), self.estimator,
-                          DiagnosticLimits(node.expected_rate_hz, node.min_efficiency_warn, depth,
-                                           node.learn_input_rate),
-                          SinceLast(self._skips_reported, self._alarms_reported),
-                          NodeLoad((busy - busy_then) / max(now - then, 1), self.executor_lag_s()),
-                          self.efficiency_window.latest, self.tracer.hint())
-        self._skips_reported = dict(self.estimator.counts)
-        self._alarms_reported = self.estimator.detector.alarms
-        status = DiagnosticStatus(level=bytes([report.level]), name=f"{self.get_name()}: {STATUS_NAME}",
-                                  message=report.message, hardware_id=node.hardware_id,
-                                  values=[KeyValue(key=k, value=v) for k, v in report.values]
-                                  + [KeyValue(key="start-up backlog discarded [messages]",
-                                              value=str(self.backlog_discarded))]
-                                  + self._latest_trace_values())
-        traced = self.tracer.latest_status
-        arr = DiagnosticArray(status=[status] if traced is None else [status, traced])
-        stamp = self.get_clock().now()
-        arr.header.stamp = stamp.to_msg()
-        self.pub_diag.publish(arr)
-        if self.recorder is not None:  # written by the executor's timer, which holds the input lock
-            self._to_record.append((Topic.DIAGNOSTICS, MessageType.DIAGNOSTIC_ARRAY, stamp.nanoseconds,
-                                    serialize_message(arr)))
-
-    def _latest_trace_values(self) -> list[KeyValue]:
-        """The latest online trace's verdict and sentence, in the node's own status (also whole as
-        the ``loss/traced`` entry beside it)."""
-        latest = self.tracer.latest
-        running = self.tracer.worker.running_s()
-        priority = "at the lowest nice level" if self.tracer.worker.hurried else "at the idle priority"
-        under_way = [] if running is None else [
-            KeyValue(key="trace under way [s]", value=f"{running:.0f} ({priority})")]
-        if latest is None:
-            return [KeyValue(key="latest trace", value="none yet" if self.config.node.trace else "tracing off")] \
-                + under_way
-        return [KeyValue(key="latest trace", value=latest.message),
-                KeyValue(key="latest trace verdict", value=latest.verdict),
-                KeyValue(key="latest trace window [ns]", value=f"{latest.window_ns[0]}..{latest.window_ns[1]}")] \
-            + under_way
-
     # ------------------------------------------------------------------ shutdown
-    def _stop_diagnostics(self) -> None:
-        self._diagnostics_stop.set()
-        if self._diagnostics_thread.is_alive() and self._diagnostics_thread is not threading.current_thread():
-            self._diagnostics_thread.join(timeout=10)
-
     def destroy_node(self) -> None:
         """Stop the input and diagnostics threads before their subscriptions and publisher go away,
         then destroy the node."""
         if self.inputs is not None:
             self.inputs.destroy()
-        self._stop_diagnostics()
+        self.status.stop()
         super().destroy_node()
 
     def _finish_pending(self) -> None:
@@ -721,25 +552,14 @@ class LossEstimatorNode(Node):
         or a traceback."""
         if self.inputs is not None:
             self.inputs.stop()  # no input is taken after this
-        self._stop_diagnostics()
+        self.status.stop()
         if self._closed:
             return
         self._closed = True
         self.tracer.close()
         self._finish_pending()
-        if self.recorder is not None:
-            while self._to_record:
-                self.recorder.write_raw(*self._to_record.popleft())
-            self.recorder.close()
-            self.recorder = None
-        if self.rerun is not None:
-            try:
-                self._flush_rerun()
-                self.rerun.close()
-            except Exception as exc:  # rerun raises RuntimeError when its gRPC sink never connected
-                self.get_logger().warn(f"rerun logging incomplete: {exc}")
-            finally:
-                self.rerun = None
+        self.recorder = None
+        self.recording.close()
         self.get_logger().info(self.summary_line())
 
     def _free_output(self, name: str, path: str) -> Path | None:
@@ -757,7 +577,7 @@ class LossEstimatorNode(Node):
         change alarms, parameter changes, loss maps and the files written."""
         est = self.estimator
         skips = ", ".join(f"{reason.replace('_', ' ')} {n}" for reason, n in est.counts.items() if n) or "none"
-        files = [str(p) for p in self.recorder_files] + [str(p) for p in self.rerun_files]
+        files = [str(p) for p in self.recording.files] + [str(p) for p in self.recording.rerun_files]
         files += [str(self.live_map.path)] if self.live_map.path and self.maps_published else []
         files += [self.tracer.proposed] if self.tracer.proposed else []
         return (f"stopped: {est.estimated:,} samples estimated of {est.motor_messages:,} received; skipped: {skips}; "
@@ -766,14 +586,6 @@ class LossEstimatorNode(Node):
                 f"parameter changes: {self.parameter_changes}; "
                 f"loss maps: {self.maps_published}; wrote: {', '.join(files) or 'no file'}")
 
-
-def _first_file(path: str, split: bool) -> Path:
-    """The first file a recording named ``path`` writes, as start-up checks it: with a field in the
-    name or split, the next free name (never an existing file); a plain name as it is (refused when
-    it exists: :func:`~.parameters.check_new_output`)."""
-    if is_template(path) or split:
-        return next_file(path, time.time_ns(), 0, split)
-    return Path(path)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -12,7 +12,8 @@ from pathlib import Path
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-from ..core.params import Config, ParameterError, parameter_specs, validate
+from ..base.errors import ParameterError
+from ..core.params import Config, parameter_specs, validate
 
 __all__ = ["check_new_output", "check_params_files", "declare_parameters", "live_provenance",
            "package_parameter_names", "params_files", "parameter_event"]
@@ -145,7 +146,7 @@ def live_provenance(node_name: str, config: Config, argv: list[str]) -> dict[str
 def parameter_event(node_name: str, stamp_ns: int, changes: dict) -> dict:
     """``rcl_interfaces/msg/ParameterEvent`` of a run-time change, as rclpy publishes it on
     ``/parameter_events`` (the node's recording keeps one per accepted change), as a message dict
-    for :func:`~recordings.bag.encoder_for` -- whose CDR every reader takes (rclpy's own
+    for :func:`~recordings.messages.encoder_for` -- whose CDR every reader takes (rclpy's own
     serialisation pads the empty sequences of ``ParameterValue``, which rosbags refuses)."""
     from rclpy.parameter import Parameter
 

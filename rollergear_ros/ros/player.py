@@ -19,7 +19,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..recordings.bag import inspect_bag
+from ..recordings.baginfo import inspect_bag
 from ..base.errors import BagError, UsageError, damaged_exit, lost_share
 from ..recordings.fastmcap import ReadState, iter_log_time_order, preload_summary
 from ..base.progress import TimedProgress

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..recordings.bag import decode_float64
+from ..recordings.messages import decode_float64
 from ..base.interface import NAMESPACE, Topic
 from ..base.output_channels import OUTPUT_CHANNELS, float64_channels, trace_channels, window_channels
 from ..base.errors import UsageError

@@ -2,7 +2,7 @@
 
 ``rollergear import SRC --out OUT.mcap`` and, behind it, every command that reads recordings
 (``replay``, ``calibrate``): a source that is not already an MCAP bag is converted first, so
-that one reader (:mod:`recordings.bag`) and one estimator see everything.  Sources, by what ``SRC`` is:
+that one reader (:mod:`recordings.baginfo`) and one estimator see everything.  Sources, by what ``SRC`` is:
 
 * a ROS 2 MCAP file: used as it is;
 * a rosbag2 folder (``metadata.yaml``; MCAP or SQLite ``.db3`` storage, split into several
@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..recordings.bag import MSG_DEFINITIONS, BagWriter, TopicMap, float64_payloads, temperature_payloads
+from ..recordings.messages import MSG_DEFINITIONS, TopicMap, float64_payloads, temperature_payloads
+from ..recordings.bagwriter import BagWriter
 from .channelmap import load_channel_map
 from ..base.errors import InputFileError, UsageError
 from .formats import INPUT_FORMATS, input_format

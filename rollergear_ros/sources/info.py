@@ -120,7 +120,7 @@ def _rate(count: int, start_ns: int | None, end_ns: int | None) -> float | None:
 def _mcap(path: Path, info: FileInfo) -> None:
     from mcap.reader import make_reader
 
-    from ..recordings.bag import SUMMARY_ERRORS, inspect_bag
+    from ..recordings.baginfo import SUMMARY_ERRORS, inspect_bag
 
     bag = inspect_bag(path)
     info.start_ns, info.end_ns = (bag.start_ns, bag.end_ns) if bag.message_count else (None, None)

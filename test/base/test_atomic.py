@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rollergear_ros.base import atomic
-from rollergear_ros.recordings.bag import BagWriter
+from rollergear_ros.recordings.bagwriter import BagWriter
 
 from bagtools import read_rosbags
 from helpers import BAGS, partial_files, run_cli

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from rollergear_ros.recordings.bag import TopicMap, inspect_bag, read_metadata
+from rollergear_ros.recordings.messages import TopicMap
+from rollergear_ros.recordings.baginfo import inspect_bag, read_metadata
 from rollergear_ros.base.interface import MessageType, Topic
 from rollergear_ros.base.output_channels import (OUTPUT_CHANNELS, OutputChannel, float64_channels, map_channels,
                                                  register, sample_channels, trace_channels, window_channels)
@@ -89,7 +90,7 @@ def test_a_toy_channel_is_written_by_replay_and_read_back_by_both_readers(toy_ch
 
 
 def test_watch_shows_a_toy_channel_after_the_four(toy_channel):
-    from rollergear_ros.recordings.bag import encode_float64
+    from rollergear_ros.recordings.messages import encode_float64
 
     window = WatchWindow()
     assert set(window.payloads) == {c.name for c in float64_channels() + window_channels()}

@@ -288,7 +288,8 @@ def test_online_adaptation_follows_a_step_and_alarms_once(tmp_path):
 
 
 def test_calibrate_bad_input(tmp_path):
-    from rollergear_ros.recordings.bag import BagWriter, encode_float64
+    from rollergear_ros.recordings.bagwriter import BagWriter
+    from rollergear_ros.recordings.messages import encode_float64
     from rollergear_ros.base.interface import MessageType
 
     proc = run_cli("calibrate", str(tmp_path / "none.mcap"), check=False)

@@ -397,7 +397,8 @@ def test_a_trace_names_what_calibrate_names_on_the_same_samples_of_a_recording()
     from rollergear_ros.calibration.calibrate import CalibrationSettings, calibrate
     from rollergear_ros.calibration.samples import load_samples
     from rollergear_ros.core.params import load_config
-    from rollergear_ros.recordings.bag import TopicMap, inspect_bag
+    from rollergear_ros.recordings.messages import TopicMap
+    from rollergear_ros.recordings.baginfo import inspect_bag
     from rollergear_ros.replay.inputs import paired_plan
     from rollergear_ros.replay.run import _learn_speed_noise, replay
 

@@ -15,7 +15,7 @@ import pytest
 
 from rollergear_ros.core.params import load_config
 from rollergear_ros.outputs.lossmap import efficiency_levels
-from rollergear_ros.recordings.bag import inspect_bag, read_metadata
+from rollergear_ros.recordings.baginfo import inspect_bag, read_metadata
 from rollergear_ros.replay import run as replay_run
 from rollergear_ros.replay.run import replay
 

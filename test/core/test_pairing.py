@@ -337,7 +337,7 @@ def test_a_lost_messages_placeholder_is_known_by_its_bits_only():
     values = np.array([1.0, np.nan, LOST_VALUE, -np.inf])
     assert lost_mask(values).tolist() == [False, False, True, False]
     # it survives the recording: a Float64 payload decoded back is the same placeholder
-    from rollergear_ros.recordings.bag import decode_float64, float64_payloads
+    from rollergear_ros.recordings.messages import decode_float64, float64_payloads
 
     assert lost_mask(decode_float64([bytes(r) for r in float64_payloads(values)])).tolist() == [False, False, True,
                                                                                                   False]

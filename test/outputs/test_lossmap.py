@@ -163,7 +163,8 @@ def test_map_of_a_calibrated_parameter_file_equals_replays_estimate_at_the_same_
     """The energy manager gets what the estimator computes: a recording that visits the map's
     grid (read by a torque sensor with the accepted offset and gain errors, at the map's oil
     temperature) replays to the losses the map holds."""
-    from rollergear_ros.recordings.bag import BagWriter, stamp
+    from rollergear_ros.recordings.bagwriter import BagWriter
+    from rollergear_ros.recordings.messages import stamp
     from rollergear_ros.base.interface import MessageType
     from rollergear_ros.core.params import config_to_yaml, load_config
     from rollergear_ros.replay.run import replay
@@ -251,7 +252,7 @@ def test_the_measured_map_of_a_rig_run_is_each_cells_energy_lost_over_its_angle(
             assert row[2] == pytest.approx(lost / angle, rel=1e-5)
     proc = run_cli("map", "--out", str(out), "--measured", check=False)
     assert proc.returncode == 2 and "--measured needs a --recording" in proc.stderr
-    from rollergear_ros.recordings.bag import BagWriter
+    from rollergear_ros.recordings.bagwriter import BagWriter
 
     drive_only = tmp_path / "drive_only.mcap"  # a drive without an output torque sensor
     with BagWriter(drive_only) as writer:

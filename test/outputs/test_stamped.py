@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rollergear_ros.recordings.bag import TopicMap
+from rollergear_ros.recordings.messages import TopicMap
 from rollergear_ros.base.errors import BagError
 from rollergear_ros.core.params import ParameterError, load_config, validate
 from rollergear_ros.replay.run import replay

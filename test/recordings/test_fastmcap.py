@@ -82,7 +82,7 @@ def test_writer_stores_the_crcs_that_mcap_validates_and_the_reader_checks_them(t
     """The chunk and summary CRCs are written (the ``mcap`` reader validates them), and a byte
     flipped inside a chunk's compressed data is found: the read stops there, flagged, instead of
     yielding garbage."""
-    from rollergear_ros.recordings.bag import BagWriter
+    from rollergear_ros.recordings.bagwriter import BagWriter
 
     path = tmp_path / "crc.mcap"
     n = 20_000
@@ -145,7 +145,7 @@ def _twenty_chunks(path, n: int = 20_000) -> list:
 
 
 def _values(path, state) -> np.ndarray:
-    from rollergear_ros.recordings.bag import decode_float64
+    from rollergear_ros.recordings.messages import decode_float64
 
     return np.concatenate([np.empty(0)] + [decode_float64(p) for _t, _c, p in iter_log_time_order(path, state)])
 
@@ -230,7 +230,7 @@ def test_an_unchunked_file_reads_fast_and_complete(tmp_path):
     """Messages outside chunks (``use_chunking=False``) are parsed in runs, not one by one."""
     from mcap.writer import CompressionType
 
-    from rollergear_ros.recordings.bag import inspect_bag
+    from rollergear_ros.recordings.baginfo import inspect_bag
 
     path = tmp_path / "flat.mcap"
     n = 50_000
@@ -269,7 +269,8 @@ def test_time_ordered_writer_puts_messages_of_every_size_in_log_time_order(tmp_p
     import yaml
     from rosbags.highlevel import AnyReader
 
-    from rollergear_ros.recordings.bag import BagWriter, encoder_for, float64_payloads, offered_qos_yaml
+    from rollergear_ros.recordings.bagwriter import BagWriter, offered_qos_yaml
+    from rollergear_ros.recordings.messages import encoder_for, float64_payloads
     from rollergear_ros.base.interface import MessageType
 
     rng = np.random.default_rng(7)
@@ -332,7 +333,7 @@ def test_one_call_of_many_messages_is_cut_into_chunks(tmp_path):
 
 
 def test_a_time_ordered_writer_with_nothing_or_nothing_old_enough_to_release(tmp_path):
-    from rollergear_ros.recordings.bag import BagWriter
+    from rollergear_ros.recordings.bagwriter import BagWriter
 
     with BagWriter(tmp_path / "empty.mcap") as bw:
         bw.release(10**18)  # nothing held
@@ -347,7 +348,8 @@ def test_a_time_ordered_writer_with_nothing_or_nothing_old_enough_to_release(tmp
 def test_publish_times_are_written_and_read_back_by_both_readers(tmp_path):
     """A message's publish time (when its publisher sent it) is stored beside its log time and read
     back by this reader and by the ``mcap`` library's; where none is given it is the log time."""
-    from rollergear_ros.recordings.bag import BagWriter, encode_float64
+    from rollergear_ros.recordings.bagwriter import BagWriter
+    from rollergear_ros.recordings.messages import encode_float64
     from rollergear_ros.base.interface import MessageType
 
     p = tmp_path / "sent.mcap"

@@ -78,7 +78,7 @@ def test_interleave_equals_a_byte_by_byte_layout(seed):
 def write_bag(path, background: bool, fail_at: int | None = None) -> None:
     """A time-ordered bag of two payload widths over many releases, as replay writes its output
     (``fail_at``: the release whose payloads cannot be made)."""
-    from rollergear_ros.recordings.bag import BagWriter
+    from rollergear_ros.recordings.bagwriter import BagWriter
 
     rng = np.random.default_rng(1)
     with BagWriter(path, chunk_size=16 * 1024, background=background) as bw:

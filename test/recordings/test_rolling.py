@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from rollergear_ros.base.interface import MessageType
-from rollergear_ros.recordings.bag import BagWriter, encode_float64, read_metadata
+from rollergear_ros.recordings.bagwriter import BagWriter
+from rollergear_ros.recordings.messages import encode_float64
+from rollergear_ros.recordings.baginfo import read_metadata
 from rollergear_ros.recordings.rolling import RollingRecorder, file_name, free_name, template_problem
 
 from bagtools import read_mcap_ros2, read_rosbags
@@ -119,7 +121,8 @@ import os, signal, sys
 import numpy as np
 from rollergear_ros.base.interface import MessageType
 from rollergear_ros.recordings import mcapwriter
-from rollergear_ros.recordings.bag import BagWriter, encode_float64
+from rollergear_ros.recordings.bagwriter import BagWriter
+from rollergear_ros.recordings.messages import encode_float64
 from rollergear_ros.recordings.rolling import RollingRecorder
 
 template, kill_at, max_s, max_bytes = sys.argv[1], sys.argv[2], float(sys.argv[3]), int(sys.argv[4])

@@ -72,7 +72,8 @@ def test_padded_float64_inputs_are_copied_as_every_reader_reads_them(tmp_path):
     import numpy as np
 
     from rollergear_ros.base.interface import MessageType
-    from rollergear_ros.recordings.bag import BagWriter, TopicMap, encode_float64
+    from rollergear_ros.recordings.bagwriter import BagWriter
+    from rollergear_ros.recordings.messages import TopicMap, encode_float64
 
     from bagtools import read_mcap_ros2, read_rosbags
 

@@ -12,7 +12,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rollergear_ros.recordings.bag import BagWriter, TopicMap, encode_float64, inspect_bag
+from rollergear_ros.recordings.bagwriter import BagWriter
+from rollergear_ros.recordings.messages import TopicMap, encode_float64
+from rollergear_ros.recordings.baginfo import inspect_bag
 from rollergear_ros.base.errors import BagError, UsageError
 from rollergear_ros.base.interface import MessageType
 from rollergear_ros.core.estimator import Estimator
@@ -404,7 +406,7 @@ def _mcap_with_payloads(path: Path, messages: list[tuple[str, int, bytes]], floa
     """An MCAP written by the ``mcap`` library with the given (topic, log time, payload) in this order."""
     from mcap.writer import Writer
 
-    from rollergear_ros.recordings.bag import MSG_DEFINITIONS
+    from rollergear_ros.recordings.messages import MSG_DEFINITIONS
 
     with open(path, "wb") as fh:
         w = Writer(fh)
@@ -819,7 +821,7 @@ def test_a_node_recording_is_replayed_in_the_order_the_node_took_its_inputs(tmp_
     sorted by their timestamps, and so estimates what the node estimated -- as :meth:`Estimator.push`
     does message by message.  (Found by the stress test: replay had estimated a sample the node
     had given up.)"""
-    from rollergear_ros.recordings.bag import encode_float64
+    from rollergear_ros.recordings.messages import encode_float64
     from rollergear_ros.core.estimator import Estimator
     from rollergear_ros.base.interface import Metadata, MessageType
 

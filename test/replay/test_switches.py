@@ -6,7 +6,8 @@ import numpy as np
 
 from rollergear_ros.base.interface import MessageType, Topic
 from rollergear_ros.calibration.samples import load_samples
-from rollergear_ros.recordings.bag import BagWriter, inspect_bag, iter_raw_batches
+from rollergear_ros.recordings.bagwriter import BagWriter
+from rollergear_ros.recordings.baginfo import inspect_bag, iter_raw_batches
 from rollergear_ros.replay.run import replay
 from rollergear_ros.replay.switches import recorded_switches, split_at
 from rollergear_ros.ros.parameters import parameter_event

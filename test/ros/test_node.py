@@ -9,7 +9,8 @@ import time
 import numpy as np
 import pytest
 
-from rollergear_ros.recordings.bag import TopicMap, inspect_bag
+from rollergear_ros.recordings.messages import TopicMap
+from rollergear_ros.recordings.baginfo import inspect_bag
 from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 
@@ -285,7 +286,7 @@ def test_a_live_recording_holds_what_made_it_its_parameter_changes_and_the_break
     from rcl_interfaces.srv import SetParameters
 
     from rollergear_ros.outputs.review import BREAKDOWN, LOSS_TORQUE, read_rrd_series
-    from rollergear_ros.recordings.bag import read_metadata
+    from rollergear_ros.recordings.baginfo import read_metadata
 
     rec, rrd = tmp_path / "live.mcap", tmp_path / "live.rrd"
     node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}", LOSSLESS)
@@ -733,7 +734,7 @@ def test_player_loops_with_the_bag_timing_and_stops_cleanly_on_ctrl_c(tmp_path):
 
     from std_msgs.msg import Float64
 
-    from rollergear_ros.recordings.bag import BagWriter
+    from rollergear_ros.recordings.bagwriter import BagWriter
     from helpers import ROOT
 
     n, period_s = 50, 0.01
@@ -765,7 +766,7 @@ def test_play_into_a_running_node_loses_nothing_at_the_start(tmp_path):
     """20 plays of a short bag into a node that is already running (its default, best-effort
     inputs): every sample of every play is estimated.  The player used to start publishing before
     it had matched the node's subscriptions and lost the first 0.35-2.7 s."""
-    from rollergear_ros.recordings.bag import BagWriter
+    from rollergear_ros.recordings.bagwriter import BagWriter
 
     bag = tmp_path / "short.mcap"
     n = 50

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rollergear_ros.recordings.bag import BagWriter, inspect_bag
+from rollergear_ros.recordings.bagwriter import BagWriter
+from rollergear_ros.recordings.baginfo import inspect_bag
 from rollergear_ros.ros.player import _playable
 
 from helpers import BAGS, damaged_copy, run_cli

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from rollergear_ros.recordings.bag import TopicMap, inspect_bag, read_metadata
+from rollergear_ros.recordings.messages import TopicMap
+from rollergear_ros.recordings.baginfo import inspect_bag, read_metadata
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
 from helpers import BAGS

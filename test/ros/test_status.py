@@ -13,7 +13,7 @@ import pytest
 
 from rollergear_ros.core.model import LossModel
 from rollergear_ros.core.params import load_config
-from rollergear_ros.recordings.bag import TopicMap
+from rollergear_ros.recordings.messages import TopicMap
 
 from helpers import CONFIG
 from rostools import NodeProcess, WatchProcess, ros_context, wait_for

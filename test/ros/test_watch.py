@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from rollergear_ros.recordings.bag import encode_float64
+from rollergear_ros.recordings.messages import encode_float64
 from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 from rollergear_ros.ros.watch import WatchWindow

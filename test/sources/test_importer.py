@@ -388,7 +388,7 @@ def test_a_rosbag2_bag_whose_metadata_qos_differs_from_its_storage_is_imported_w
     import yaml
     from rosbags.highlevel import AnyReader
 
-    from rollergear_ros.recordings.bag import offered_qos_yaml
+    from rollergear_ros.recordings.bagwriter import offered_qos_yaml
 
     bag = _rosbag2(tmp_path, storage)
     meta = bag / "metadata.yaml"
@@ -413,7 +413,7 @@ def test_every_topic_of_a_rosbag2_bag_is_copied_for_play(tmp_path, storage):
     """``copy_rosbag2`` (what ``play`` publishes a rosbag2 bag from): every topic and message of
     ros2/rosbag2's talker bag, whose metadata and storage QoS differ, against the storage read by
     its own library (SQLite) or the mcap reader."""
-    from rollergear_ros.recordings.bag import inspect_bag
+    from rollergear_ros.recordings.baginfo import inspect_bag
     from rollergear_ros.sources.importer import copy_rosbag2
 
     src = REALDATA / f"rosbag2_test_fixtures/rosbag2_py/test/resources/{storage}/talker"
@@ -602,7 +602,7 @@ def test_temperature_payloads_are_what_the_typestore_serialises():
     """The importer's oil temperatures are a template patched with numpy: byte for byte what the
     typestore's own serializer gives for each stamp and value; a stamp beyond int32 seconds is one
     clear error."""
-    from rollergear_ros.recordings.bag import encoder_for, temperature_payloads
+    from rollergear_ros.recordings.messages import encoder_for, temperature_payloads
     from rollergear_ros.base.errors import BagError
     from rollergear_ros.base.interface import MessageType
 
@@ -847,7 +847,7 @@ def test_a_parquet_file_of_millions_of_rows_is_imported_within_bounded_memory(tm
     peak_kib = int(proc.stderr.split("peak_kib")[1].split()[0])  # this process's own peak, not another test's
     assert "6,000,000 samples, 24,000,000 messages" in proc.stdout
     assert peak_kib < 1_000_000, f"peak {peak_kib / 1024:.0f} MiB"
-    from rollergear_ros.recordings.bag import inspect_bag
+    from rollergear_ros.recordings.baginfo import inspect_bag
 
     info = inspect_bag(tmp_path / "big.mcap")
     assert info.counts["/rollergear/motor/torque"] == n
@@ -860,7 +860,7 @@ def _one_torque_time(tmp_path, text: str, map_extra: str, time_unit: str = "date
     proc = run_cli("import", str(tmp_path / "rig.csv"), "--channels", str(tmp_path / "map.yaml"), "--out",
                    str(tmp_path / "o.mcap"))
     t, _ = float_series(read_rosbags(tmp_path / "o.mcap"), "/rollergear/motor/torque")
-    from rollergear_ros.recordings.bag import read_metadata
+    from rollergear_ros.recordings.baginfo import read_metadata
 
     return int(t[0]), proc.stdout, read_metadata(tmp_path / "o.mcap", "rollergear_import")
 

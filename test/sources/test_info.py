@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
-from rollergear_ros.recordings.bag import inspect_bag
+from rollergear_ros.recordings.baginfo import inspect_bag
 from rollergear_ros.base.errors import InputFileError
 from rollergear_ros.sources.info import describe
 
@@ -127,7 +127,7 @@ def test_a_steady_state_table_and_what_is_no_recording(tmp_path):
 
 def test_what_a_file_names_cannot_fake_lines_on_the_terminal(tmp_path):
     """Topic names with escape codes and carriage returns were printed as they are."""
-    from rollergear_ros.recordings.bag import BagWriter
+    from rollergear_ros.recordings.bagwriter import BagWriter
 
     with BagWriter(tmp_path / "fake.mcap") as w:
         w.write_float64_series("/a\x1b[2J\rdamaged:   nothing found\nfake", np.arange(1, 3, dtype=np.int64), np.ones(2))
