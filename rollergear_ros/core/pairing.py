@@ -34,10 +34,11 @@ backlog of a topic whose subscription matched before its partner's (a node start
 plays) is not paired with the wrong samples.  Below ~500 Hz a lost message mispairs two samples
 before the resync.  Above it, neighbouring samples lie within 2 ms of each other, so a pairing one
 sample off (a lost message; the start-up backlog of a node that joined a running stream, taken in
-one burst while its subscriptions had matched a few samples apart) is found by its mean instead:
-each channel's offset from the motor torque, averaged over ~16 pairs, is near zero when the
-messages of one sample were sent together and near a whole period when they are paired with a
-neighbour's; beyond 0.75 periods the lagging heads are dropped (:meth:`SampleSynchronizer._arrival_skewed`).
+one burst while its subscriptions had matched a few samples apart) is found by its votes instead:
+a pair in which a channel's offset from the motor torque is beyond 0.75 periods votes for a pairing
+one sample off; when nearly all of the last 16 pairs do, the lagging heads are dropped
+(:meth:`SampleSynchronizer._arrival_skewed`), while a publisher preempted between the messages of
+some samples does not outvote the rest.
 The offsets are those of the publishers' timestamps where the middleware gives them (``source_ns``;
 the live node records them as its inputs' MCAP publish times, so replay sees them too): the order
 of arrival pairs, the publisher's clock tells a skew, and neither depends on how much CPU the node
@@ -85,13 +86,15 @@ LOSSLESS_HOLD_S = 5.0
 ARRIVAL_TOLERANCE_S = 0.002
 AUTO_TOLERANCE_FRACTION = 0.4  #: automatic pairing tolerance as a fraction of the sample period
 FALLBACK_PERIOD_S = 0.001  #: assumed sample period when it is unknown (1 kHz)
-#: arrival pairing, skew detector: gain of the running means of the channels' arrival offsets and of
-#: the sample period; mean offset (fraction of the period) that means a skewed pairing; pairs
-#: observed before it acts; shortest mean period it acts on (a burst of queued messages, or a rate
-#: above 10 kHz, carries no timing information)
+#: arrival pairing, skew detector: gain of the running mean of the sample period; offset from the
+#: motor torque (fraction of the period) beyond which a pair votes for a pairing that many samples
+#: off; the pairs whose votes count, and how many of them must agree (a publisher preempted between
+#: the messages of some samples votes in those pairs only); shortest mean period it acts on (a burst
+#: of queued messages, or a rate above 10 kHz, carries no timing information)
 SKEW_GAIN = 1.0 / 16.0
 SKEW_LIMIT = 0.75
-SKEW_MIN_PAIRS = 8
+SKEW_WINDOW = 16
+SKEW_VOTES = 14
 SKEW_MIN_PERIOD_NS = 100_000
 #: over a lossless delivery, a pair whose messages arrived further apart than this many periods was held up
 #: in delivery (one topic stalled), which says nothing about a skew
@@ -209,8 +212,7 @@ class SampleSynchronizer:
         # arrival pairing, skew detector: channels observed, their mean arrival offsets from the
         # motor torque's (ns), pairs since the last reset, mean sample period (ns), last pair time
         self._skew_chans: tuple[str, ...] = ()
-        self._skew_mean: list[float] = []
-        self._skew_n = 0
+        self._skew_votes: deque[list[int]] = deque()  # the last SKEW_WINDOW pairs' votes, per channel
         self._timed_pairs = 0  # pairs observed with timing since the stream (re)started
         self._skew_last: list[int] = []  # each observed channel's time in the previous pair
         self._period_ns = 0.0
@@ -526,14 +528,17 @@ class SampleSynchronizer:
         head dropped for it pairs every later sample with its neighbour's.
 
         A skew of one sample keeps every pair within the 2 ms of jitter allowed above ~500 Hz (a
-        node that joined a running stream, or a lost message), so it is told by its mean: each
-        channel's offset from the motor torque (clipped to ± one period), averaged over the last
-        ~16 pairs, against the mean sample period.  Messages of one sample are sent together (mean
-        offset ~0); a pairing one sample off has a mean offset of a whole period.  A pair that
+        node that joined a running stream, or a lost message), so it is told by votes: in each pair,
+        each channel votes its offset from the motor torque in whole mean sample periods where it lies
+        beyond ``SKEW_LIMIT`` of one, else 0, and the votes of the last ``SKEW_WINDOW`` pairs count.
+        Messages of one sample are sent together (no votes); a pairing k samples off votes k in every
+        pair; a publisher preempted between the messages of some samples -- a busy machine -- votes
+        in those pairs only, and moderate offsets not at all.  A pair that
         came less than half the nominal sample period after the previous one (when it is known;
-        else ``SKEW_MIN_PERIOD_NS``) was sent in a catch-up and is not observed.  A spread of the means
-        beyond ``SKEW_LIMIT`` x the period drops the heads of the channels that lag the most advanced
-        one; channels published at independent phases settle at an offset within ±0.25 periods after
+        else ``SKEW_MIN_PERIOD_NS``) was sent in a catch-up and is not observed.  When ``SKEW_VOTES``
+        of a channel's votes agree on a side, its offset is the smallest of them, and the channels that
+        lag the most advanced one drop that many heads at once (:meth:`_drop_heads`); channels published
+        at independent phases settle at an offset within ±0.25 periods after
         one such drop.  A
         pair whose late messages came in a burst (each within ``SKEW_MIN_PERIOD_NS`` of its
         channel's previous one) while the earlier ones did not -- one topic's delivery held up and
@@ -557,24 +562,30 @@ class SampleSynchronizer:
         # lossless delivery a pair whose messages arrived many periods apart was held up, not skewed
         if self.lossless and max(times) - min(times) > max(SKEW_MAX_OFFSET_PERIODS * period, SKEW_HELD_UP_NS):
             return False
+        # a pair's vote per channel: its offset from the motor torque in whole periods where it lies
+        # beyond SKEW_LIMIT of one, else 0 (and 0 while the period is unknown); the last SKEW_WINDOW pairs'
+        if period < SKEW_MIN_PERIOD_NS:
+            votes = [0] * len(times)
+        else:
+            beyond = SKEW_LIMIT * period
+            votes = [round((t - t0) / period) if abs(t - t0) > beyond else 0 for t in times]
+        window = self._skew_votes
         if chans is not self._skew_chans:
-            self._skew_chans, self._skew_n = chans, 1
-            self._skew_mean = [max(-period, min(period, float(t - t0))) for t in times]
-            return False
-        mean = self._skew_mean
-        for i in range(1, len(times)):
-            mean[i] += SKEW_GAIN * (max(-period, min(period, times[i] - t0)) - mean[i])
-        self._skew_n += 1
+            self._skew_chans = chans
+            window.clear()
+        if len(window) == SKEW_WINDOW:
+            window.popleft()
+        window.append(votes)
         if period < SKEW_MIN_PERIOD_NS:
             return False
         self._timed_pairs += 1
-        if self._skew_n < SKEW_MIN_PAIRS or (self.lossless and self._timed_pairs > LOSSLESS_SKEW_WINDOW):
+        if len(window) < SKEW_WINDOW or not any(votes) or (self.lossless and self._timed_pairs > LOSSLESS_SKEW_WINDOW):
+            return False  # (a skew votes in this pair too: a pair without votes needs no count)
+        offsets = [_consistent_offset([w[i] for w in window]) for i in range(len(times))]
+        lead = max(offsets)
+        if all(n == lead for n in offsets):
             return False
-        lead = max(mean)
-        limit = SKEW_LIMIT * period
-        if lead - min(mean) <= limit:
-            return False
-        self._drop_lagging(chans, mean, lead, limit)
+        self._drop_heads(chans, [lead - n for n in offsets])
         return True
 
     def _held_up_burst(self, times: list[int]) -> bool:
@@ -587,12 +598,13 @@ class SampleSynchronizer:
         return any(burst) and not all(burst) and (min(t for t, b in zip(times, burst) if b)
                                                   > max(t for t, b in zip(times, burst) if not b))
 
-    def _drop_lagging(self, chans: tuple[str, ...], mean: list[float], lead: float, limit: float) -> None:
-        """Drop the heads of the channels whose mean offset lags the ``lead`` by more than ``limit``
-        (``unpaired`` for the motor's), and observe the new pairing afresh."""
-        for ch, m in zip(chans, mean):
-            if lead - m > limit:
-                self.queues[ch].popleft()
+    def _drop_heads(self, chans: tuple[str, ...], lags: list[int]) -> None:
+        """Drop ``lags[i]`` heads of channel ``chans[i]`` (``unpaired`` for the motor's): the channels
+        that lag the most advanced one by that many samples; then observe the new pairing afresh."""
+        for ch, lag in zip(chans, lags):
+            q = self.queues[ch]
+            for _ in range(min(lag, len(q))):
+                q.popleft()
                 if ch in _REQUIRED:
                     self.counts["unpaired"] += 1
         self._skew_chans, self._skew_last = (), []
@@ -615,6 +627,18 @@ class SampleSynchronizer:
             temp = plausible_oil_temperature(self.temperature[1])
         return SyncedSample(t_ns, vals[TORQUE], vals[SPEED], vals.get(OUT_TORQUE, math.nan),
                             vals.get(OUT_SPEED, math.nan), temp)
+
+
+def _consistent_offset(votes: list[int]) -> int:
+    """A channel's offset in whole samples when at least :data:`SKEW_VOTES` of its ``votes`` (one a
+    pair) say it is off to the same side: the smallest of them; else 0."""
+    ahead = [v for v in votes if v > 0]
+    behind = [v for v in votes if v < 0]
+    if len(ahead) >= SKEW_VOTES:
+        return min(ahead)
+    if len(behind) >= SKEW_VOTES:
+        return max(behind)
+    return 0
 
 
 def samples_to_arrays(samples: list[SyncedSample]) -> tuple[np.ndarray, ...]:

@@ -13,10 +13,10 @@ paired: each motor torque message takes the channel's value at its own stamp,
 Which channels are resampled is told from the stream itself, live and offline alike: from a
 channel's first message on, the motor torque's next :data:`DECIDE_TORQUE_MESSAGES` messages are
 counted against the channel's own in the same span; at most :data:`SLOWER_AT_MOST` or at least
-:data:`FASTER_AT_LEAST` of them is another rate, and a channel at the torque's rate whose stamps mostly
-lie further than the pairing tolerance from the torque's (a DAQ on its own clock, half a period
-apart) is resampled too; one in step is paired as before.  While a channel is being told, the messages wait
-here (a few sample periods).  The values are a pure function of the messages' stamps (the
+:data:`FASTER_AT_LEAST` of them is another rate, and a channel at the torque's rate whose stamps
+lie further than the pairing tolerance from the torque's, nearly all of them (a DAQ on its own clock,
+half a period apart), is resampled too; one in step is paired as before.  While a channel is being
+told, the messages wait here (a few dozen sample periods).  The values are a pure function of the messages' stamps (the
 publishers' timestamps where given), not of their arrival order, so the node and a replay of its
 recording give the same samples; the resampled values are pushed into the pairing with the torque
 message's own times, so they pair with it exactly.  No rclpy import.
@@ -34,9 +34,9 @@ from .pairing import (CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, T
                       placeholder, placeholder_mask)
 
 RESAMPLED_CHANNELS = (SPEED, OUT_TORQUE, OUT_SPEED)
-DECIDE_TORQUE_MESSAGES = 8  #: motor torque messages a channel's rate is told against
-SLOWER_AT_MOST = 5  #: ... a channel with at most this many messages in their span is slower
-FASTER_AT_LEAST = 12  #: ... with at least this many, faster
+DECIDE_TORQUE_MESSAGES = 32  #: motor torque messages a channel's rate and step are told against
+SLOWER_AT_MOST = 20  #: ... a channel with at most this many messages in their span is slower
+FASTER_AT_LEAST = 48  #: ... with at least this many, faster
 #: messages held while a channel's rate is told: beyond this (a motor torque that never comes) the
 #: channels still being told are paired
 MAX_WAITING_MESSAGES = 10_000
@@ -91,7 +91,7 @@ class RateResampler:
 
     def __init__(self, max_age_s: float, tolerance_ns: int) -> None:
         """``max_age_s``: how far a value may lie from a motor stamp (0: nothing is resampled);
-        ``tolerance_ns``: the pairing tolerance (a channel at the torque's rate whose stamps mostly lie
+        ``tolerance_ns``: the pairing tolerance (a channel at the torque's rate whose stamps nearly all lie
         further from the torque's is resampled too)."""
         self.max_age_ns = int(round(max_age_s * 1e9))
         self.tolerance_ns = tolerance_ns
@@ -209,14 +209,21 @@ class RateResampler:
                                  or not self._in_step(mine) else "paired")
 
     def _in_step(self, stamps: list[int]) -> bool:
-        """Whether most of a channel's ``stamps`` lie within the pairing tolerance of a motor torque stamp."""
+        """Whether a channel's ``stamps`` are in step with the motor torque's: at least an eighth of those
+        after the first motor torque stamp seen lie within the pairing tolerance of one.
+
+        Out of step is a channel on a clock of its own (a DAQ half a period apart: none of its stamps
+        near one); a publisher preempted between the messages of some samples on a busy machine stamps
+        those late, never nearly all.  A stamp before the first motor torque seen has no neighbour on
+        one side (that torque message may have gone by before the channel's first) and is not judged."""
         torque = sorted(self._recent_torque)
+        judged = [s for s in stamps if torque and s >= torque[0]]
         near = 0
-        for s in stamps:
+        for s in judged:
             k = bisect_left(torque, s)
             if any(0 <= j < len(torque) and abs(torque[j] - s) <= self.tolerance_ns for j in (k - 1, k)):
                 near += 1
-        return 2 * near > len(stamps)
+        return 8 * near >= len(judged)
 
     def _decide(self, channel: str, mode: str) -> None:
         del self._deciding[channel]

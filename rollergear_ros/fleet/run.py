@@ -44,8 +44,8 @@ __all__ = ["FLEET_TABLE", "CALIBRATE_TABLE", "SLICES_TABLE", "SLICE_MESSAGES", "
 FLEET_TABLE = "fleet.parquet"
 CALIBRATE_TABLE = "fleet_calibrate.parquet"
 SLICES_TABLE = "fleet_slices.parquet"  #: the time slices done of recordings not yet complete
-#: a recording of more messages is replayed in time slices of about this many: a task then takes
-#: ~10 s here (replay without outputs: ~3 M messages/s per core), under a minute on a machine 5x slower
+#: a recording of more messages is replayed in time slices of about this many: a task of seconds to
+#: a minute, short enough to spread an hours-long recording over the workers
 SLICE_MESSAGES = 30_000_000
 GLOB_CHARS = set("*?[")
 
@@ -406,8 +406,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None,
             note(f"--workers {n}: this machine has {cores} cores; running {cores} worker processes")
         n = cores
     # Dask's nanny starts its workers with MALLOC_TRIM_THRESHOLD_=65536: glibc then maps and unmaps
-    # every allocation above 128 KB instead of reusing it, and replay's numpy batches ran 1.6-1.9x
-    # slower in a worker than in a plain process.  None: the workers inherit this process's setting.
+    # every allocation above 128 KB instead of reusing it, which slows replay's numpy batches in a
+    # worker.  None: the workers inherit this process's setting.
     # the workers start with Ctrl-C ignored: the terminal's SIGINT is this process's to handle; it
     # closes the cluster, which ends them quietly
     with ExitStack() as stack:

@@ -31,8 +31,8 @@ except ImportError:  # pragma: no cover - a build without a compiler: numpy lays
 #: recording added at once still costs no more than this beside it)
 _PIECE_BYTES = 8 * 1024 * 1024
 _MAX_PENDING = 16  #: chunks waiting for the background thread before the caller waits too
-#: zstd level of the chunks: on a replay's output (Float64 streams, stamped estimates, copied inputs)
-#: a sixth faster to compress than level 1 for a file 0.6 % larger
+#: zstd level of the chunks: a replay's output (Float64 streams, stamped estimates, copied inputs)
+#: compresses faster than at level 1 for a file hardly larger (docs/benchmarks.md)
 ZSTD_LEVEL = -1
 #: a background writer's file is synced to disk every this many bytes, while the caller goes on
 _SYNC_BYTES = 32 * 1024 * 1024

@@ -176,8 +176,8 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
             DiagnosticStatus, channel.absolute_topic(namespace),
             lambda msg: window.add_traced(msg.level[0] if isinstance(msg.level, bytes) else int(msg.level),
                                           msg.message), output_qos(channel))
-    # the events executor takes a message for a few µs: a watcher of four 1 kHz topics keeps up
-    # (the single-threaded one manages ~3 k messages/s here, far fewer on a slower machine)
+    # the events executor takes a message for a few µs: a watcher of four 1 kHz topics keeps up,
+    # where the single-threaded one falls behind on a slower machine
     executor = EventsExecutor()
     executor.add_node(node)
     topic_of_loss = OUTPUT_CHANNELS["loss_torque"].absolute_topic(namespace)

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from rollergear_ros.core.estimator import Estimator
 from rollergear_ros.core.pairing import CHANNELS, OIL_TEMPERATURE, OUT_TORQUE, SPEED, TORQUE
-from rollergear_ros.core.resample import value_at
+from rollergear_ros.core.resample import DECIDE_TORQUE_MESSAGES, value_at
 
 RATIO = 4.0
 
@@ -90,7 +91,7 @@ def test_channels_at_other_rates_are_estimated_at_every_torque_stamp_live_and_of
     inside = t < t[-1] - 0.05
     resampled = SPEED in estimator.resampler.resampled
     assert resampled == (rates[SPEED] != rates[TORQUE] or not estimator.resampler._in_step(
-        [int(x) for x in t_ns[codes == CHANNELS.index(SPEED)][:8]]))
+        [int(x) for x in t_ns[codes == CHANNELS.index(SPEED)][:DECIDE_TORQUE_MESSAGES]]))
     bound = 20.0 * (1.0 / rates[SPEED]) ** 2 / 8 if resampled else 20.0 * estimator.resampler.tolerance_ns * 1e-9
     assert np.max(np.abs(offline["speed_rad_s"][inside] - speed(t[inside]))) < 1.01 * bound
     # the residual: the 0.3 N·m the model lacks, everywhere
@@ -126,3 +127,48 @@ def test_a_speed_that_stops_holds_its_last_value_for_the_age_limit_then_samples_
     assert estimator.counts["stale"] == made["none"] >= 4900
     assert out["t_ns"].max() < 5.06e9
     assert "held value" in estimator.resampler.describe()
+
+
+def test_a_busy_machines_recorded_arrivals_at_one_rate_are_paired_not_resampled(config):
+    """The arrival times, order and publisher timestamps of 8 000 input messages a node received in
+    a stress run (``data/preempted_publisher_events.npz``: rig_map_drag played at 5x, reliable, keep
+    all, two test processes busy on the two cores).  The player was preempted between the messages
+    of some samples, stamping their outputs 0.3-0.5 periods late (a few 2 ms late): the output speed
+    was once told out of step and resampled, its first value one sample ahead, and two samples were
+    lost.  Every channel is at the torque's rate and nothing was lost, so every sample pairs with its
+    own partners and none is resampled."""
+    data = np.load(Path(__file__).resolve().parents[1] / "data" / "preempted_publisher_events.npz")
+    t_ns = np.cumsum(data["dt_ns"]) + 1_000_000_000
+    estimator = Estimator(config.with_values({"estimator.paper_model": False}), "arrival_reliable", 0.001)
+    seen = dict.fromkeys(range(4), 0)
+    out = []
+    for t, code, offset in zip(t_ns.tolist(), data["channel"].tolist(), data["source_offset_ns"].tolist()):
+        k = seen[code]
+        seen[code] += 1
+        # the value: the message's index on its topic, in a plausible operating point
+        value = (10.0, 100.0, 30.0, 25.0)[code] + 1e-4 * k
+        out += estimator.push(CHANNELS[code], t, value, t + offset)
+    out += estimator.finish()
+    assert estimator.resampler.resampled == () and estimator.counts["unpaired"] == 0
+    assert len(out) == min(seen.values())
+    index = np.array([[(e.torque_nm - 10.0), (e.speed_rad_s - 100.0), (e.out_torque_nm - 30.0),
+                       (e.out_speed_rad_s - 25.0)] for e in out]) / 1e-4
+    np.testing.assert_allclose(index, np.repeat(np.arange(len(out))[:, None], 4, axis=1), atol=1e-6)
+
+
+@pytest.mark.parametrize("late_share", [0.0, 0.6])
+def test_a_channel_on_a_clock_of_its_own_is_resampled_and_one_sometimes_late_is_not(config, late_share):
+    """At the torque's 1 kHz: an output torque half a period after every torque stamp (a DAQ on its
+    own clock) is resampled; one sent with its sample but stamped 0.45 periods late in 60 % of the
+    samples (a preempted publisher) is paired."""
+    rng = np.random.default_rng(3)
+    n = 400
+    t = 1_000_000_000 + 1_000_000 * np.arange(n)
+    late = rng.random(n) < late_share
+    out_offset = np.where(late, 450_000, 20_000) if late_share else np.full(n, 500_000)
+    estimator = Estimator(config.with_values({"estimator.paper_model": False}), "arrival_reliable", 0.001)
+    for k in range(n):
+        for channel, offset, value in ((TORQUE, 0, 10.0), (SPEED, 10_000, 100.0), (OUT_TORQUE, out_offset[k], 38.0)):
+            estimator.push(channel, int(t[k] + offset), value, int(t[k] + offset))
+    estimator.finish()
+    assert estimator.resampler.resampled == (() if late_share else (OUT_TORQUE,))
