@@ -366,6 +366,7 @@ def test_run_time_change_of_pairing_limits_takes_effect():
     from rclpy.parameter import Parameter
 
     from rollergear_ros.core.pairing import SPEED, TORQUE
+    from rollergear_ros.core.resample import DECIDE_TORQUE_MESSAGES
     from rollergear_ros.ros.node import LossEstimatorNode
 
     with ros_context() as probe:
@@ -373,12 +374,14 @@ def test_run_time_change_of_pairing_limits_takes_effect():
         try:
             push = node.estimator.push
             # a stream is running (it waited 0.1 s for output topics; its speed is told to come at the
-            # torque's rate, in step, by the torque's first eight messages: core/resample.py)
-            for t_ns in range(0, 225_000_000, 25_000_000):
+            # torque's rate, in step, by the torque's next DECIDE_TORQUE_MESSAGES messages: core/resample.py)
+            n = DECIDE_TORQUE_MESSAGES + 1
+            for t_ns in range(0, n * 25_000_000, 25_000_000):
                 push(TORQUE, t_ns, 10.0)
                 push(SPEED, t_ns, 50.0)
-            assert node.estimator.estimated == 9
-            assert not push(TORQUE, 300_000_000, 20.0)  # queued before the change
+            assert node.estimator.estimated == n
+            t_ns = n * 25_000_000
+            assert not push(TORQUE, t_ns, 20.0)  # queued before the change
             results = node.set_parameters([Parameter("node.expected_rate_hz", value=100.0),
                                            Parameter("estimator.staleness_s", value=0.05)])
             assert all(r.successful for r in results)
@@ -386,9 +389,9 @@ def test_run_time_change_of_pairing_limits_takes_effect():
             assert sync.tolerance_ns == 4_000_000  # 0.4 x 10 ms (it was 2 ms at 1 kHz)
             assert sync.staleness_ns == 50_000_000
             # 3 ms apart: wider than the old tolerance, within the new one
-            est = node.estimator.push(SPEED, 303_000_000, 100.0)
+            est = node.estimator.push(SPEED, t_ns + 3_000_000, 100.0)
             assert len(est) == 1 and est[0].torque_nm == 20.0 and est[0].speed_rad_s == 100.0
-            assert node.estimator.estimated == 10
+            assert node.estimator.estimated == n + 1
         finally:
             node.destroy_node()
 
