@@ -39,7 +39,7 @@ from std_msgs.msg import Float64, Float64MultiArray
 
 from ..recordings.messages import CDR_LE_HEADER, TopicMap, decode_float64, float64_problem
 from ..recordings.rolling import free_name
-from .diagnostics import (InputMonitor)
+from .diagnostics import InputMonitor
 from ..core.estimator import Estimate, Estimator
 from ..base.errors import ParameterError, RollergearError
 from .intake import InputTaker
