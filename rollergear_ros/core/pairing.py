@@ -209,8 +209,8 @@ class SampleSynchronizer:
         self.lossless = lossless  # arrival pairing over a delivery that loses nothing: no resync on wide pairs
         self._wide = 0  # consecutive pairs wider than the tolerance (arrival pairing)
         self._locked = False  # arrival pairing: the heads have paired within the tolerance
-        # arrival pairing, skew detector: channels observed, their mean arrival offsets from the
-        # motor torque's (ns), pairs since the last reset, mean sample period (ns), last pair time
+        # arrival pairing, skew detector: channels observed, their votes in the last pairs, timed pairs
+        # since the stream (re)started, each channel's time in the previous pair, mean sample period (ns)
         self._skew_chans: tuple[str, ...] = ()
         self._skew_votes: deque[list[int]] = deque()  # the last SKEW_WINDOW pairs' votes, per channel
         self._timed_pairs = 0  # pairs observed with timing since the stream (re)started
@@ -564,11 +564,9 @@ class SampleSynchronizer:
             return False
         # a pair's vote per channel: its offset from the motor torque in whole periods where it lies
         # beyond SKEW_LIMIT of one, else 0 (and 0 while the period is unknown); the last SKEW_WINDOW pairs'
-        if period < SKEW_MIN_PERIOD_NS:
-            votes = [0] * len(times)
-        else:
-            beyond = SKEW_LIMIT * period
-            votes = [round((t - t0) / period) if abs(t - t0) > beyond else 0 for t in times]
+        untimed = period < SKEW_MIN_PERIOD_NS
+        beyond = SKEW_LIMIT * period
+        votes = [0 if untimed or abs(t - t0) <= beyond else round((t - t0) / period) for t in times]
         window = self._skew_votes
         if chans is not self._skew_chans:
             self._skew_chans = chans
@@ -576,7 +574,7 @@ class SampleSynchronizer:
         if len(window) == SKEW_WINDOW:
             window.popleft()
         window.append(votes)
-        if period < SKEW_MIN_PERIOD_NS:
+        if untimed:
             return False
         self._timed_pairs += 1
         if len(window) < SKEW_WINDOW or not any(votes) or (self.lossless and self._timed_pairs > LOSSLESS_SKEW_WINDOW):
