@@ -1,9 +1,9 @@
 /* MCAP records in one pass: laid out for the writer (the native path of
  * mcapwriter.lay_out_records) and found in a chunk for the reader (of fastmcap.parse_records).
  *
- * records(out, starts, channel, log_time, group, row, payloads, counters) writes record i at
- * out[starts[i]:]: opcode 0x05, record length (uint64), channel id (uint16), sequence (uint32),
- * log time and publish time (both log_time[i], uint64), then row row[i] of payloads[group[i]]
+ * records(out, starts, channel, log_time, publish_time, group, row, payloads, counters) writes record
+ * i at out[starts[i]:]: opcode 0x05, record length (uint64), channel id (uint16), sequence (uint32),
+ * log time and publish time (log_time[i], publish_time[i]: uint64), then row row[i] of payloads[group[i]]
  * (a C-contiguous 2-D uint8 array: one payload per row).  The sequence number of a record is
  * ++counters[channel[i]] (an int64 array indexed by channel id, updated in place), so each channel
  * counts on by itself.  All integers are little-endian, as MCAP wants.  The index arrays must be
@@ -74,9 +74,9 @@ static int get_int64(PyObject *obj, Py_buffer *view, Py_ssize_t n, const char *n
 
 static PyObject *records(PyObject *self, PyObject *args) {
     (void)self;
-    PyObject *out_o, *starts_o, *channel_o, *time_o, *group_o, *row_o, *payloads_o, *counters_o;
-    if (!PyArg_ParseTuple(args, "OOOOOOOO:records", &out_o, &starts_o, &channel_o, &time_o, &group_o,
-                          &row_o, &payloads_o, &counters_o)) {
+    PyObject *out_o, *starts_o, *channel_o, *time_o, *publish_o, *group_o, *row_o, *payloads_o, *counters_o;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOO:records", &out_o, &starts_o, &channel_o, &time_o, &publish_o,
+                          &group_o, &row_o, &payloads_o, &counters_o)) {
         return NULL;
     }
     PyObject *seq = PySequence_Fast(payloads_o, "payloads: expected a sequence of 2-D uint8 arrays");
@@ -90,7 +90,8 @@ static PyObject *records(PyObject *self, PyObject *args) {
         Py_DECREF(seq);
         return PyErr_NoMemory();
     }
-    Py_buffer out = {0}, starts = {0}, channel = {0}, ltime = {0}, group = {0}, row = {0}, counters = {0};
+    Py_buffer out = {0}, starts = {0}, channel = {0}, ltime = {0}, ptime = {0}, group = {0}, row = {0},
+              counters = {0};
     Py_ssize_t got_payloads = 0;
     PyObject *result = NULL;
     int64_t *private = NULL;
@@ -100,6 +101,7 @@ static PyObject *records(PyObject *self, PyObject *args) {
     n = starts.len / 8;
     if (get_int64(channel_o, &channel, n, "channel", 0) < 0) goto done_channel;
     if (get_int64(time_o, &ltime, n, "log_time", 0) < 0) goto done_time;
+    if (get_int64(publish_o, &ptime, n, "publish_time", 0) < 0) goto done_publish;
     if (get_int64(group_o, &group, n, "group", 0) < 0) goto done_group;
     if (get_int64(row_o, &row, n, "row", 0) < 0) goto done_row;
     if (get_int64(counters_o, &counters, -1, "counters", 1) < 0) goto done_counters;
@@ -116,9 +118,9 @@ static PyObject *records(PyObject *self, PyObject *args) {
     {
         /* out and counters are written: neither may share a byte with another buffer (a view of
          * starts as out, counters as channel: the writes would change the indices being used) */
-        const Py_buffer *inputs[] = {&starts, &channel, &ltime, &group, &row, &counters};
-        for (int k = 0; k < 6; k++) {
-            if (ranges_overlap(&out, inputs[k]) || (k < 5 && ranges_overlap(&counters, inputs[k]))) {
+        const Py_buffer *inputs[] = {&starts, &channel, &ltime, &ptime, &group, &row, &counters};
+        for (int k = 0; k < 7; k++) {
+            if (ranges_overlap(&out, inputs[k]) || (k < 6 && ranges_overlap(&counters, inputs[k]))) {
                 PyErr_SetString(PyExc_ValueError, "out and counters must not share memory with another argument");
                 goto done_payloads;
             }
@@ -131,7 +133,7 @@ static PyObject *records(PyObject *self, PyObject *args) {
         }
         /* the indices copied into memory of this call's own before they are checked: another thread
          * cannot change them between the check and their use without the interpreter lock */
-        private = PyMem_Malloc(n > 0 ? (size_t)n * 5 * sizeof(int64_t) : 1);
+        private = PyMem_Malloc(n > 0 ? (size_t)n * 6 * sizeof(int64_t) : 1);
         if (private == NULL) {
             PyErr_NoMemory();
             goto done_payloads;
@@ -141,8 +143,9 @@ static PyObject *records(PyObject *self, PyObject *args) {
         memcpy(private + 2 * n, ltime.buf, (size_t)n * sizeof(int64_t));
         memcpy(private + 3 * n, group.buf, (size_t)n * sizeof(int64_t));
         memcpy(private + 4 * n, row.buf, (size_t)n * sizeof(int64_t));
+        memcpy(private + 5 * n, ptime.buf, (size_t)n * sizeof(int64_t));
         const int64_t *st = private, *ch = private + n, *lt = private + 2 * n, *gr = private + 3 * n,
-                      *rw = private + 4 * n;
+                      *rw = private + 4 * n, *pt = private + 5 * n;
         int64_t *count = counters.buf;
         const Py_ssize_t n_channels = counters.len / 8;
         uint8_t *dst = out.buf;
@@ -177,7 +180,7 @@ static PyObject *records(PyObject *self, PyObject *args) {
             put_le(p + 9, (uint64_t)ch[i], 2);
             put_le(p + 11, (uint64_t)sequence & 0xFFFFFFFFu, 4);
             put_le(p + 15, (uint64_t)lt[i], 8);
-            put_le(p + 23, (uint64_t)lt[i], 8);
+            put_le(p + 23, (uint64_t)pt[i], 8);
             memcpy(p + HEAD_BYTES, (const uint8_t *)v->buf + rw[i] * width, (size_t)width);
         }
         Py_END_ALLOW_THREADS
@@ -193,6 +196,8 @@ done_counters:
 done_row:
     PyBuffer_Release(&group);
 done_group:
+    PyBuffer_Release(&ptime);
+done_publish:
     PyBuffer_Release(&ltime);
 done_time:
     PyBuffer_Release(&channel);
@@ -275,7 +280,8 @@ done_data:
 
 static PyMethodDef methods[] = {
     {"records", records, METH_VARARGS,
-     "records(out, starts, channel, log_time, group, row, payloads, counters): lay out MCAP message records."},
+     "records(out, starts, channel, log_time, publish_time, group, row, payloads, counters): lay out MCAP "
+     "message records."},
     {"scan", scan, METH_VARARGS, "scan(data, starts, others) -> (message count, schema/channel count): a chunk's records."},
     {NULL, NULL, 0, NULL},
 };

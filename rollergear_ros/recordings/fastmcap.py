@@ -32,7 +32,6 @@ OP_SCHEMA, OP_CHANNEL, OP_MESSAGE, OP_CHUNK, OP_MESSAGE_INDEX, OP_DATA_END, OP_F
     int(Opcode.SCHEMA), int(Opcode.CHANNEL), int(Opcode.MESSAGE), int(Opcode.CHUNK), int(Opcode.MESSAGE_INDEX),
     int(Opcode.DATA_END), int(Opcode.FOOTER))
 _MSG_FIXED = 2 + 4 + 8 + 8  # channel id, sequence, log time, publish time
-_MSG_HEAD = struct.Struct("<BQHIqq")
 
 
 def byte_rows(buf: np.ndarray, width: int, writeable: bool = False) -> np.ndarray:

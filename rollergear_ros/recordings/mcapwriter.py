@@ -1,9 +1,10 @@
 """Writing ROS 2 MCAP files from whole numpy arrays of equal-sized messages (no rclpy).
 
-One message record per row of a uint8 array, a chunk compressed at a time; the file structure is
-the ``mcap`` library writer's (tested against ``mcap`` and ``rosbags``).  The records are laid out
-by a C function where the package was built with one (``_records.c``), else with numpy; the two
-give the same bytes (tested).
+One message record per row of a uint8 array (:func:`message_rows`, the package's one layout of a
+message record), a chunk compressed at a time.  Records other than messages are the ``mcap``
+library's, except a chunk's head and its message indexes, packed here from arrays; re-encoded by
+``mcap``, a written file is the same bytes (tested).  The records are laid out by a C function where
+the package was built with one (``_records.c``, the same layout), else with numpy.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from mcap.well_known import Profile
 from mcap.writer import MCAP0_MAGIC as MAGIC
 
 from ..base import atomic
-from .fastmcap import _MSG_FIXED, _MSG_HEAD, OP_MESSAGE, byte_rows
+from .fastmcap import _MSG_FIXED, OP_MESSAGE, byte_rows
 
 try:  # the record layout in C (built by setup.py where a compiler is found)
     from ._records import records as _native_records
@@ -39,8 +40,11 @@ _SYNC_BYTES = 32 * 1024 * 1024
 
 
 def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray,
-                 sequence: np.ndarray | None = None) -> np.ndarray:
-    """Message records (one row each) for payloads of equal length; ``sequence`` None leaves 0."""
+                 sequence: np.ndarray | None = None, publish_time: np.ndarray | None = None) -> np.ndarray:
+    """Message records (one row each) for payloads of equal length: the MCAP message record, opcode
+    0x05, its length, channel id (uint16), sequence (uint32; None leaves 0), log time and publish time
+    (uint64; ``publish_time`` None: the log time), the payload -- all little-endian.  The one layout
+    of a message record in the package (``_records.c`` lays out exactly this, faster)."""
     n, plen = payload.shape
     rows = np.empty((n, 9 + _MSG_FIXED + plen), dtype=np.uint8)
     rows[:, 0] = OP_MESSAGE
@@ -50,33 +54,38 @@ def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarr
         rows[:, 11:15] = 0
     else:
         rows[:, 11:15] = (sequence & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
-    lt = np.ascontiguousarray(log_time, dtype="<i8").view(np.uint8).reshape(n, 8)
-    rows[:, 15:23] = lt
-    rows[:, 23:31] = lt
+    rows[:, 15:23] = np.ascontiguousarray(log_time, dtype="<i8").view(np.uint8).reshape(n, 8)
+    if publish_time is None:
+        rows[:, 23:31] = rows[:, 15:23]
+    else:
+        rows[:, 23:31] = np.ascontiguousarray(publish_time, dtype="<i8").view(np.uint8).reshape(n, 8)
     rows[:, 31:] = payload
     return rows
 
 
 def lay_out_records(starts: np.ndarray, size: int, channel_id: np.ndarray, log_time: np.ndarray,
                     group: np.ndarray, row: np.ndarray, payloads: list[np.ndarray], counters: np.ndarray,
-                    period_hint: list[int] | None = None, native: bool | None = None) -> np.ndarray:
-    """The bytes (``size`` of them) of ``n`` message records: record ``i`` starts at ``starts[i]``,
-    is on channel ``channel_id[i]`` at ``log_time[i]`` (also its publish time) and carries row
-    ``row[i]`` of ``payloads[group[i]]`` (each an m × L uint8 array).  Sequence numbers count on from
-    ``counters`` (int64, indexed by channel id; updated in place), each channel by itself.
+                    period_hint: list[int] | None = None, native: bool | None = None,
+                    publish_time: np.ndarray | None = None) -> np.ndarray:
+    """The bytes (``size`` of them) of ``n`` message records (:func:`message_rows`' layout): record
+    ``i`` starts at ``starts[i]``, is on channel ``channel_id[i]`` at ``log_time[i]``, published at
+    ``publish_time[i]`` (None: its log time), and carries row ``row[i]`` of ``payloads[group[i]]``
+    (each an m × L uint8 array).  Sequence numbers count on from ``counters`` (int64, indexed by
+    channel id; updated in place), each channel by itself.
 
     ``native``: the C function (True), numpy (False), or C where built (None); same bytes either way.
     ``period_hint``: for the numpy path, as in :func:`interleave`.
     """
     as_int64 = functools.partial(np.ascontiguousarray, dtype=np.int64)
     starts, channel_id, log_time, group, row = map(as_int64, (starts, channel_id, log_time, group, row))
+    publish = log_time if publish_time is None else as_int64(publish_time)
     payloads = [np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
-    _check_layout(starts, size, channel_id, log_time, group, row, payloads, counters)
+    _check_layout(starts, size, channel_id, log_time, publish, group, row, payloads, counters)
     if native is None:
         native = _native_records is not None
     out = np.empty(size, dtype=np.uint8)
     if native:
-        _native_records(out, starts, channel_id, log_time, group, row, payloads, counters)
+        _native_records(out, starts, channel_id, log_time, publish, group, row, payloads, counters)
         return out
     seq = np.empty(len(starts), dtype=np.int64)
     for cid, where in (by_channel(channel_id) if len(starts) else []):
@@ -87,7 +96,8 @@ def lay_out_records(starts: np.ndarray, size: int, channel_id: np.ndarray, log_t
     for g in range(len(payloads)):
         where = np.flatnonzero(group == g)
         if len(where):
-            rows[g] = message_rows(channel_id[where], log_time[where], payloads[g][row[where]], seq[where])
+            rows[g] = message_rows(channel_id[where], log_time[where], payloads[g][row[where]], seq[where],
+                                   None if publish_time is None else publish[where])
     if len(rows) == 1 and len(starts) and (np.diff(starts) == rows[int(group[0])].shape[1]).all():
         out[starts[0]:starts[0] + rows[int(group[0])].nbytes] = rows[int(group[0])].reshape(-1)
         return out
@@ -95,13 +105,14 @@ def lay_out_records(starts: np.ndarray, size: int, channel_id: np.ndarray, log_t
     return out
 
 
-def _check_layout(starts: np.ndarray, size: int, channel_id: np.ndarray, log_time: np.ndarray, group: np.ndarray,
-                  row: np.ndarray, payloads: list[np.ndarray], counters: np.ndarray) -> None:
+def _check_layout(starts: np.ndarray, size: int, channel_id: np.ndarray, log_time: np.ndarray,
+                  publish_time: np.ndarray, group: np.ndarray, row: np.ndarray, payloads: list[np.ndarray],
+                  counters: np.ndarray) -> None:
     """Every index of a layout checked before either path writes a byte or counts a message (the C
     function checks them again, for any caller): a bad one is a ValueError, ``counters`` untouched."""
     n = len(starts)
-    if not all(len(a) == n for a in (channel_id, log_time, group, row)):
-        raise ValueError("starts, channel, log_time, group and row: one value per record each")
+    if not all(len(a) == n for a in (channel_id, log_time, publish_time, group, row)):
+        raise ValueError("starts, channel, log_time, publish_time, group and row: one value per record each")
     if not (isinstance(counters, np.ndarray) and counters.dtype == np.int64 and counters.ndim == 1
             and counters.flags.c_contiguous and counters.flags.writeable):
         raise ValueError("counters: a writeable 1-D int64 array")
@@ -294,7 +305,9 @@ class ChunkedMcapWriter:
         self._chunk = bytearray()  # record bytes of the open chunk
         # the open chunk's messages: (channel ids, log times, offsets) per part appended
         self._index: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self._single: list[tuple[int, int, int]] = []  # the same for messages added one by one
+        #: messages added one by one whose records are not laid out yet: (channel id, log time,
+        #: publish time, payload); laid out together before anything else enters the chunk
+        self._one_by_one: list[tuple[int, int, int, bytes]] = []
         self._size = 0
         self._start = self._end = None
         self._seq: dict[int, int] = {}  # messages written so far, by channel id (the last sequence number)
@@ -333,6 +346,7 @@ class ChunkedMcapWriter:
         rb = RecordBuilder()
         record.write(rb)
         data = rb.end()
+        self._lay_out_one_by_one()
         self._chunk += data
         self._size += len(data)
 
@@ -360,6 +374,7 @@ class ChunkedMcapWriter:
         n = len(log_time)
         if n == 0:
             return
+        self._lay_out_one_by_one()  # before these: the records of the open chunk stay in the order added
         ids = np.asarray(channel_id, dtype=np.int64)
         log_time = np.asarray(log_time, dtype=np.int64)
         group = np.asarray(group, dtype=np.int64)
@@ -373,8 +388,7 @@ class ChunkedMcapWriter:
             sl = slice(start, stop)
             g_sl, ids_sl, t_sl = group[sl], ids[sl], log_time[sl]
             piece_ends = ends[sl] - base
-            counters = np.zeros(max(self._seq) + 1, dtype=np.int64)
-            counters[list(self._seq)] = list(self._seq.values())
+            counters = self._counters()
             records = lay_out_records(piece_ends - rec_of_group[g_sl], int(piece_ends[-1]), ids_sl, t_sl, g_sl,
                                       row[sl], payloads, counters, self._period_hint)
             self._seq.update(zip(self._seq, counters[list(self._seq)].tolist()))
@@ -401,37 +415,62 @@ class ChunkedMcapWriter:
             else:
                 self._chunk += records[base:top].data
             self._size += top - base
-            self._message_count += stop - start
-            lo, hi = int(log_time[sl].min()), int(log_time[sl].max())
-            self._start = lo if self._start is None else min(self._start, lo)
-            self._end = hi if self._end is None else max(self._end, hi)
-            self._t_min = lo if self._t_min is None else min(self._t_min, lo)
-            self._t_max = hi if self._t_max is None else max(self._t_max, hi)
+            self._count(stop - start, int(log_time[sl].min()), int(log_time[sl].max()))
             if self._size >= self.chunk_size:
                 self.flush_chunk()
             start, base = stop, top
 
+    def _count(self, n: int, lo: int, hi: int) -> None:
+        """``n`` messages laid out in the open chunk, their log times from ``lo`` to ``hi``."""
+        self._message_count += n
+        self._start = lo if self._start is None else min(self._start, lo)
+        self._end = hi if self._end is None else max(self._end, hi)
+        self._t_min = lo if self._t_min is None else min(self._t_min, lo)
+        self._t_max = hi if self._t_max is None else max(self._t_max, hi)
+
+    def _counters(self) -> np.ndarray:
+        """The last sequence number of each channel, indexed by channel id (for :func:`lay_out_records`)."""
+        counters = np.zeros(max(self._seq, default=0) + 1, dtype=np.int64)
+        counters[list(self._seq)] = list(self._seq.values())
+        return counters
+
     def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int | None = None) -> None:
-        """Add one message (plain Python: ~1 µs, for recorders that get messages one by one);
+        """Add one message (for recorders that get messages one by one: a list append here, the
+        records laid out together by :func:`lay_out_records` before anything else enters the chunk);
         ``publish_time``: when its publisher sent it (None: ``log_time``)."""
-        seq = self._seq[channel_id] = self._seq[channel_id] + 1  # also its count
-        rec = _MSG_HEAD.pack(OP_MESSAGE, _MSG_FIXED + len(data), channel_id, seq & 0xFFFFFFFF, log_time,
-                             log_time if publish_time is None else publish_time)
-        self._single.append((channel_id, log_time, self._size))
-        self._chunk += rec
-        self._chunk += data
-        self._size += len(rec) + len(data)
-        self._message_count += 1
-        if self._start is None or log_time < self._start:
-            self._start = log_time
-        if self._end is None or log_time > self._end:
-            self._end = log_time
-        if self._t_min is None or log_time < self._t_min:
-            self._t_min = log_time
-        if self._t_max is None or log_time > self._t_max:
-            self._t_max = log_time
+        if channel_id not in self._seq:
+            raise ValueError(f"channel {channel_id} is not registered")
+        self._one_by_one.append((channel_id, log_time, log_time if publish_time is None else publish_time, data))
+        self._size += 9 + _MSG_FIXED + len(data)
         if self._size >= self.chunk_size:
             self.flush_chunk()
+
+    def _lay_out_one_by_one(self) -> None:
+        """Append the records of the messages added one by one since the last call to the open chunk,
+        laid out in one call (one payload group per payload width)."""
+        pending, self._one_by_one = self._one_by_one, []
+        if not pending:
+            return
+        ids, log_times, publish_times, datas = zip(*pending)
+        widths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
+        unique, group = np.unique(widths, return_inverse=True)
+        row = np.empty(len(datas), dtype=np.int64)
+        payloads = []
+        for g, width in enumerate(unique.tolist()):
+            where = np.flatnonzero(group == g)
+            payloads.append(np.frombuffer(b"".join([datas[i] for i in where.tolist()]), dtype=np.uint8)
+                            .reshape(len(where), width))
+            row[where] = np.arange(len(where))
+        ends = np.cumsum(9 + _MSG_FIXED + widths)
+        starts = ends - (9 + _MSG_FIXED + widths)
+        ids, log_times = np.array(ids, dtype=np.int64), np.array(log_times, dtype=np.int64)
+        counters = self._counters()
+        records = lay_out_records(starts, int(ends[-1]), ids, log_times, group, row, payloads, counters,
+                                  publish_time=np.array(publish_times, dtype=np.int64))
+        self._seq.update(zip(self._seq, counters[list(self._seq)].tolist()))
+        self._index.append((ids, log_times, starts + len(self._chunk)))
+        self._chunk += records.data
+        self._count(len(ids), int(log_times.min()), int(log_times.max()))
 
     @property
     def bytes_written(self) -> int:
@@ -486,9 +525,10 @@ class ChunkedMcapWriter:
             return self.path
         target = Path(path) if path is not None else self.path
         with atomic.named(target):
-            self.flush_chunk()
-            self._fh.flush()
-            os.fsync(self._fh.fileno())
+            if not self._fh.closed:  # (closed: close synced it, and publishes it now)
+                self.flush_chunk()
+                self._fh.flush()
+                os.fsync(self._fh.fileno())
             try:
                 os.link(self._hidden, target)  # fails where the name exists: never overwrites
             except FileExistsError:
@@ -504,13 +544,17 @@ class ChunkedMcapWriter:
 
     @property
     def channel_counts(self) -> dict[int, int]:
-        """Messages written so far, by channel id (the Statistics record's)."""
-        return dict(self._seq)
+        """Messages added so far, by channel id (the Statistics record's)."""
+        counts = dict(self._seq)
+        for cid, *_ in self._one_by_one:
+            counts[cid] += 1
+        return counts
 
     @property
     def log_time_range(self) -> tuple[int, int] | None:
-        """First and last log time written so far (None before the first message)."""
-        return None if self._t_min is None else (self._t_min, self._t_max)
+        """First and last log time added so far (None before the first message)."""
+        times = [t for _, t, _, _ in self._one_by_one] + ([] if self._t_min is None else [self._t_min, self._t_max])
+        return (min(times), max(times)) if times else None
 
     def add_metadata(self, name: str, data: dict[str, str]) -> None:
         from mcap.data_stream import RecordBuilder
@@ -529,11 +573,10 @@ class ChunkedMcapWriter:
         ``background=True``: the next chunk is built while this one is compressed and written)."""
         if not self._size:
             return
-        if self._single:
-            self._index.append(tuple(np.array(column, dtype=np.int64) for column in zip(*self._single)))
+        self._lay_out_one_by_one()
         job = (self._chunk, self._index, self._start if self._start is not None else 0,
                self._end if self._end is not None else 0)
-        self._chunk, self._index, self._single, self._size = bytearray(), [], [], 0
+        self._chunk, self._index, self._size = bytearray(), [], 0
         self._start = self._end = None
         if self._pool is None:
             self._emit(*job)

@@ -157,3 +157,89 @@ def test_message_indexes_point_at_every_record_by_log_time(tmp_path):
                     assert chunk.channel[i] == record.channel_id and chunk.log_time[i] == time
                     indexed[(k, i)] = indexed.get((k, i), 0) + 1
     assert seen == n + 2000 and len(indexed) == seen and set(indexed.values()) == {1}
+
+
+def _encoded_by_mcap(records) -> bytes:
+    """The bytes the ``mcap`` library's encoder makes of ``records``."""
+    from mcap.data_stream import RecordBuilder
+
+    builder = RecordBuilder()
+    for record in records:
+        record.write(builder)
+    return builder.end()
+
+
+@pytest.mark.parametrize("durable", [False, True], ids=["file", "durable"])
+@pytest.mark.parametrize("native", [True, False], ids=["C", "numpy"])
+def test_every_record_written_is_the_one_mcap_encodes(tmp_path, monkeypatch, native, durable):
+    """One encoder of each record: the file read by ``mcap``'s stream reader and every record of it
+    encoded again by ``mcap`` gives the file byte for byte -- header, schemas and channels, chunk
+    records, message indexes, metadata, summary and footer; inside each chunk the message records
+    added one by one (publish times of their own, payload widths 0 to 300), as arrays and as
+    interleaved widths, laid out by C and by numpy -- and every message carries what was added."""
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
+    from mcap.writer import MCAP0_MAGIC
+
+    from rollergear_ros.recordings import mcapwriter
+
+    if native and mcapwriter._native_records is None:
+        pytest.skip("the C part was not built (no compiler)")
+    if not native:
+        monkeypatch.setattr(mcapwriter, "_native_records", None)
+    rng = np.random.default_rng(4)
+    path = tmp_path / "w.mcap"
+    w = ChunkedMcapWriter(path, chunk_size=8 * 1024, durable=durable)
+    sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+    channels = [w.register_channel("/a", "cdr", sid, {"offered_qos_profiles": ""})]
+    added = []  # (channel, log time, publish time, payload) in the order added
+    for k in range(3000):
+        if k % 700 == 0:
+            channels.append(w.register_channel(f"/late{k}", "cdr", sid))
+        if k % 1000 == 500:
+            w.add_metadata(f"m{k}", {"k": str(k)})
+        t = 10**9 + 1000 * k
+        if k % 10 == 3:  # arrays: one width, then two interleaved
+            wide = rng.integers(0, 256, (4, 40), dtype=np.uint8)
+            narrow = rng.integers(0, 256, (4, 12), dtype=np.uint8)
+            w.add_messages(channels[0], t + np.arange(4), narrow)
+            added += [(channels[0], t + i, t + i, narrow[i].tobytes()) for i in range(4)]
+            w.add_mixed(np.array([channels[-1]] * 4), t + 5 + np.arange(4), np.array([0, 1, 0, 1]),
+                        np.array([0, 0, 1, 1]), [narrow, wide])
+            added += [(channels[-1], t + 5 + i, t + 5 + i, [narrow, wide][i % 2][i // 2].tobytes()) for i in range(4)]
+            continue
+        c = int(rng.choice(channels))
+        data = rng.integers(0, 256, 12 if rng.random() < 0.8 else int(rng.integers(0, 300)), dtype=np.uint8).tobytes()
+        published = None if rng.random() < 0.5 else t - int(rng.integers(0, 10**6))
+        w.add_message(c, t, data, published)
+        added.append((c, t, t if published is None else published, data))
+    w.close()
+    raw = path.read_bytes()
+    with path.open("rb") as fh:
+        records = list(StreamReader(fh, emit_chunks=True).records)
+    assert MCAP0_MAGIC + _encoded_by_mcap(records) + MCAP0_MAGIC == raw
+    messages = []
+    chunks = [r for r in records if isinstance(r, Chunk)]
+    assert len(chunks) > 10
+    for chunk in chunks:
+        inside = breakup_chunk(chunk, validate_crc=True)
+        assert _encoded_by_mcap(inside) == fastmcap_records(chunk)
+        messages += [m for m in inside if isinstance(m, Message)]
+    assert [(m.channel_id, m.log_time, m.publish_time, m.data) for m in messages] == added
+    for cid in channels:
+        assert [m.sequence for m in messages if m.channel_id == cid] == list(
+            range(1, sum(1 for m in messages if m.channel_id == cid) + 1))
+
+
+def fastmcap_records(chunk) -> bytes:
+    """A chunk's decompressed records, as the package's reader takes them out."""
+    from rollergear_ros.recordings.fastmcap import _decompress
+
+    return _decompress(chunk.compression, chunk.data, chunk.uncompressed_size)
+
+
+def test_a_message_on_a_channel_never_registered_is_refused(tmp_path):
+    w = ChunkedMcapWriter(tmp_path / "w.mcap")
+    with pytest.raises(ValueError, match="channel 3 is not registered"):
+        w.add_message(3, 1, b"")
+    w.close()

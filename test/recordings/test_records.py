@@ -1,5 +1,5 @@
-"""The record layout and the chunk scan in C against their numpy twins and a record-by-record
-reference: the same bytes, the same messages, the same refusals."""
+"""The record layout and the chunk scan in C against their numpy twins and the ``mcap`` library's
+encoder of each record: the same bytes, the same messages, the same refusals."""
 
 from __future__ import annotations
 
@@ -35,27 +35,34 @@ def _random_records(seed: int):
     return group, row, channel, log_time, payloads, counters
 
 
-def _reference(group, row, channel, log_time, payloads, counters) -> bytes:
-    """Each record packed by itself with struct, as the MCAP spec lays it out."""
+def _reference(group, row, channel, log_time, payloads, counters, publish_time=None) -> bytes:
+    """Each record as the ``mcap`` library's writer encodes it (``publish_time`` None: the log time)."""
+    from mcap.data_stream import RecordBuilder
+    from mcap.records import Message
+
     counters = counters.copy()
-    out = bytearray()
-    for g, r, c, t in zip(group.tolist(), row.tolist(), channel.tolist(), log_time.tolist()):
+    builder = RecordBuilder()
+    published = log_time if publish_time is None else publish_time
+    for g, r, c, t, p in zip(group.tolist(), row.tolist(), channel.tolist(), log_time.tolist(), published.tolist()):
         counters[c] += 1
-        data = payloads[g][r].tobytes()
-        out += struct.pack("<BQHIQQ", 5, 22 + len(data), c, int(counters[c]) & 0xFFFFFFFF, t, t) + data
-    return bytes(out)
+        Message(channel_id=c, sequence=int(counters[c]) & 0xFFFFFFFF, log_time=t, publish_time=p,
+                data=payloads[g][r].tobytes()).write(builder)
+    return builder.end()
 
 
 @pytest.mark.parametrize("way", [pytest.param(True, marks=native, id="C"), pytest.param(False, id="numpy")])
 @pytest.mark.parametrize("seed", range(6))
-def test_both_layouts_give_the_records_packed_one_by_one(seed, way):
+def test_both_layouts_give_the_records_mcap_encodes(seed, way):
     group, row, channel, log_time, payloads, counters = _random_records(seed)
     widths = np.array([31 + p.shape[1] for p in payloads])[group]
     starts = np.cumsum(widths) - widths
-    expected = _reference(group, row, channel, log_time, payloads, counters)
-    counted = counters.copy()
-    out = lay_out_records(starts, int(widths.sum()), channel, log_time, group, row, payloads, counted, native=way)
-    assert out.tobytes() == expected
+    published = log_time - np.random.default_rng(seed).integers(0, 10**9, size=len(log_time))
+    for publish_time in (None, published):
+        expected = _reference(group, row, channel, log_time, payloads, counters, publish_time)
+        counted = counters.copy()
+        out = lay_out_records(starts, int(widths.sum()), channel, log_time, group, row, payloads, counted,
+                              native=way, publish_time=publish_time)
+        assert out.tobytes() == expected
     np.testing.assert_array_equal(counted - counters, np.bincount(channel, minlength=5))
 
 
@@ -97,7 +104,7 @@ def test_the_c_layout_refuses_a_bad_index_and_writes_nothing(bad):
     counted = counters.copy()
     out = np.zeros(size, dtype=np.uint8)
     with pytest.raises(ValueError):
-        mcapwriter._native_records(out, starts, channel, log_time, group, row, payloads, counted)
+        mcapwriter._native_records(out, starts, channel, log_time, log_time, group, row, payloads, counted)
     assert not out.any() and np.array_equal(counted, counters)
 
 
@@ -185,7 +192,8 @@ def test_records_other_than_messages_cost_no_memory_per_record_and_the_two_scans
             parse_records(message + bad + message, ReadState(), native=way == "c")
 
 
-@pytest.mark.parametrize("bad", ["group", "row", "channel", "channel 65537", "start", "short", "counters int32"])
+@pytest.mark.parametrize("bad", ["group", "row", "channel", "channel 65537", "start", "short", "counters int32",
+                                 "short publish times"])
 def test_both_layouts_refuse_a_bad_index_alike_and_change_nothing(bad):
     """One behaviour for both: the same refusal, counters untouched (numpy stored a channel's counts
     before it found the bad group; it wrapped a channel id of 65 537 to 1)."""
@@ -207,13 +215,15 @@ def test_both_layouts_refuse_a_bad_index_alike_and_change_nothing(bad):
         starts[k] = size - widths[k] + 1
     elif bad == "short":
         channel = channel[:-1]
-    else:
+    elif bad == "counters int32":
         counters = counters.astype(np.int32)
+    publish_time = log_time[:-1] if bad == "short publish times" else log_time
     errors = []
     for way in ([True] if mcapwriter._native_records is not None else []) + [False]:
         counted = counters.copy()
         with pytest.raises(ValueError) as err:
-            lay_out_records(starts, size, channel, log_time, group, row, payloads, counted, native=way)
+            lay_out_records(starts, size, channel, log_time, group, row, payloads, counted, native=way,
+                            publish_time=publish_time)
         assert np.array_equal(counted, counters)
         errors.append(str(err.value))
     assert len(set(errors)) == 1, errors
@@ -221,7 +231,7 @@ def test_both_layouts_refuse_a_bad_index_alike_and_change_nothing(bad):
 
 @native
 @pytest.mark.parametrize("hostile", ["counters is channel", "out is a view of starts", "float64 starts",
-                                     "unaligned starts", "counters is a payload"])
+                                     "unaligned starts", "counters is a payload", "counters is the publish times"])
 def test_the_c_layout_is_safe_for_any_caller(hostile):
     """Direct calls a well-behaved caller never makes wrote past an array (a sentinel changed, a
     segfault, heap bytes in the output): each is refused, nothing written."""
@@ -231,9 +241,9 @@ def test_the_c_layout_is_safe_for_any_caller(hostile):
     size = int(widths.sum())
     out = np.zeros(size, dtype=np.uint8)
     counted = counters.copy()
-    args = [out, starts, channel, log_time, group, row, payloads, counted]
+    args = [out, starts, channel, log_time, log_time, group, row, payloads, counted]
     if hostile == "counters is channel":
-        args[7] = args[2] = np.ascontiguousarray(channel, dtype=np.int64)
+        args[8] = args[2] = np.ascontiguousarray(channel, dtype=np.int64)
     elif hostile == "out is a view of starts":
         args[0] = starts.view(np.uint8)
     elif hostile == "float64 starts":
@@ -243,8 +253,10 @@ def test_the_c_layout_is_safe_for_any_caller(hostile):
         unaligned = raw[1:].view(np.int64)
         unaligned[:] = starts
         args[1] = unaligned
+    elif hostile == "counters is the publish times":
+        args[8] = args[4] = log_time.copy()
     else:
-        args[7] = payloads[0].reshape(-1)[:8 * 5].view(np.int64)
+        args[8] = payloads[0].reshape(-1)[:8 * 5].view(np.int64)
     before = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
     with pytest.raises(ValueError):
         mcapwriter._native_records(*args)
