@@ -86,9 +86,9 @@ def main() -> None:
                     help="as a build without a C compiler: numpy lays out and finds the records")
     args = ap.parse_args()
     if args.without_c:
-        from rollergear_ros.recordings import fastmcap, mcapwriter
+        from rollergear_ros.recordings import fastmcap, layout
 
-        fastmcap._native_scan = mcapwriter._native_records = None
+        fastmcap._native_scan = layout._native_records = None
     work = args.keep or Path(tempfile.mkdtemp(prefix="rollergear_bench_"))
     work.mkdir(parents=True, exist_ok=True)
     config = load_config()

@@ -1,7 +1,8 @@
 """ROS 2 MCAP recordings without ROS, by concern: ``messages`` (definitions, the topic map, the CDR
 codec), ``baginfo`` (what a bag holds, its metadata, raw messages), ``bagwriter`` (writing),
-``fastmcap`` and ``mcapwriter`` (the numpy chunk reader with damage handling, and the chunked
-writer; the optional C kernel ``_records`` lays out the same records), ``rolling`` (a recording
+``fastmcap`` (the one chunk reader, damage skipped and reported), ``layout`` (the one layout of
+a message record; the optional C kernel ``_records`` lays out the same bytes), ``mcapwriter`` (the
+chunked writer), ``timeorder`` (messages handed to it in log-time order), ``rolling`` (a recording
 split by size and age).  Imports ``base`` only.
 """
 

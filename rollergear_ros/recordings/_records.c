@@ -1,5 +1,5 @@
 /* MCAP records in one pass: laid out for the writer (the native path of
- * mcapwriter.lay_out_records) and found in a chunk for the reader (of fastmcap.parse_records).
+ * layout.lay_out_records) and found in a chunk for the reader (of fastmcap.parse_records).
  *
  * records(out, starts, channel, log_time, publish_time, group, row, payloads, counters) writes record
  * i at out[starts[i]:]: opcode 0x05, record length (uint64), channel id (uint16), sequence (uint32),

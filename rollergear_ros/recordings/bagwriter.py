@@ -37,7 +37,7 @@ class BagWriter:
     (:class:`~.mcapwriter.ChunkedMcapWriter`).  Used as a context manager; :meth:`close`
     (also on error or interrupt) writes the summary and footer, so everything added so far stays
     readable.  ``time_ordered``: messages are held back and written in log-time order across topics
-    (:class:`~.mcapwriter.TimeOrderBuffer`; :meth:`release` writes what is older than
+    (:class:`~.timeorder.TimeOrderBuffer`; :meth:`release` writes what is older than
     a watermark, :meth:`close` the rest), as streaming readers need; a recorder that writes as
     messages come passes False.  ``offered_qos``: topic -> the QoS profiles its publisher offers
     (:func:`offered_qos_yaml`), stored as rosbag2 does.  :meth:`close` adds rosbag2's own metadata
@@ -54,7 +54,8 @@ class BagWriter:
     def __init__(self, path: str | Path, chunk_size: int = 1024 * 1024, time_ordered: bool = True,
                  offered_qos: Mapping[str, str] | None = None, background: bool = False,
                  replace_atomically: bool = True, durable: bool = False) -> None:
-        from .mcapwriter import ChunkedMcapWriter, TimeOrderBuffer
+        from .mcapwriter import ChunkedMcapWriter
+        from .timeorder import TimeOrderBuffer
 
         self.path = Path(path)
         self._writer = ChunkedMcapWriter(self.path, chunk_size=chunk_size, background=background,

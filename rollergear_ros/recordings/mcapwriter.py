@@ -1,15 +1,13 @@
 """Writing ROS 2 MCAP files from whole numpy arrays of equal-sized messages (no rclpy).
 
-One message record per row of a uint8 array (:func:`message_rows`, the package's one layout of a
-message record), a chunk compressed at a time.  Records other than messages are the ``mcap``
+Message records laid out by :mod:`.layout` (the package's one layout of a message record), a chunk
+compressed at a time.  Records other than messages are the ``mcap``
 library's, except a chunk's head and its message indexes, packed here from arrays; re-encoded by
-``mcap``, a written file is the same bytes (tested).  The records are laid out by a C function where
-the package was built with one (``_records.c``, the same layout), else with numpy.
+``mcap``, a written file is the same bytes (tested).
 """
 
 from __future__ import annotations
 
-import functools
 import os
 import struct
 import zlib
@@ -21,12 +19,8 @@ from mcap.well_known import Profile
 from mcap.writer import MCAP0_MAGIC as MAGIC
 
 from ..base import atomic
-from .fastmcap import _MSG_FIXED, OP_MESSAGE, byte_rows
-
-try:  # the record layout in C (built by setup.py where a compiler is found)
-    from ._records import records as _native_records
-except ImportError:  # pragma: no cover - a build without a compiler: numpy lays out the records
-    _native_records = None
+from .fastmcap import _MSG_FIXED
+from .layout import lay_out_records
 
 #: records laid out per pass (a few chunks: whole arrays amortise the per-call cost, and a whole
 #: recording added at once still costs no more than this beside it)
@@ -37,193 +31,6 @@ _MAX_PENDING = 16  #: chunks waiting for the background thread before the caller
 ZSTD_LEVEL = -1
 #: a background writer's file is synced to disk every this many bytes, while the caller goes on
 _SYNC_BYTES = 32 * 1024 * 1024
-
-
-def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray,
-                 sequence: np.ndarray | None = None, publish_time: np.ndarray | None = None) -> np.ndarray:
-    """Message records (one row each) for payloads of equal length: the MCAP message record, opcode
-    0x05, its length, channel id (uint16), sequence (uint32; None leaves 0), log time and publish time
-    (uint64; ``publish_time`` None: the log time), the payload -- all little-endian.  The one layout
-    of a message record in the package (``_records.c`` lays out exactly this, faster)."""
-    n, plen = payload.shape
-    rows = np.empty((n, 9 + _MSG_FIXED + plen), dtype=np.uint8)
-    rows[:, 0] = OP_MESSAGE
-    rows[:, 1:9] = np.frombuffer(struct.pack("<Q", _MSG_FIXED + plen), dtype=np.uint8)
-    rows[:, 9:11] = np.ascontiguousarray(channel_id, dtype="<u2").view(np.uint8).reshape(n, 2)
-    if sequence is None:
-        rows[:, 11:15] = 0
-    else:
-        rows[:, 11:15] = (sequence & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
-    rows[:, 15:23] = np.ascontiguousarray(log_time, dtype="<i8").view(np.uint8).reshape(n, 8)
-    if publish_time is None:
-        rows[:, 23:31] = rows[:, 15:23]
-    else:
-        rows[:, 23:31] = np.ascontiguousarray(publish_time, dtype="<i8").view(np.uint8).reshape(n, 8)
-    rows[:, 31:] = payload
-    return rows
-
-
-def lay_out_records(starts: np.ndarray, size: int, channel_id: np.ndarray, log_time: np.ndarray,
-                    group: np.ndarray, row: np.ndarray, payloads: list[np.ndarray], counters: np.ndarray,
-                    period_hint: list[int] | None = None, native: bool | None = None,
-                    publish_time: np.ndarray | None = None) -> np.ndarray:
-    """The bytes (``size`` of them) of ``n`` message records (:func:`message_rows`' layout): record
-    ``i`` starts at ``starts[i]``, is on channel ``channel_id[i]`` at ``log_time[i]``, published at
-    ``publish_time[i]`` (None: its log time), and carries row ``row[i]`` of ``payloads[group[i]]``
-    (each an m × L uint8 array).  Sequence numbers count on from ``counters`` (int64, indexed by
-    channel id; updated in place), each channel by itself.
-
-    ``native``: the C function (True), numpy (False), or C where built (None); same bytes either way.
-    ``period_hint``: for the numpy path, as in :func:`interleave`.
-    """
-    as_int64 = functools.partial(np.ascontiguousarray, dtype=np.int64)
-    starts, channel_id, log_time, group, row = map(as_int64, (starts, channel_id, log_time, group, row))
-    publish = log_time if publish_time is None else as_int64(publish_time)
-    payloads = [np.ascontiguousarray(p, dtype=np.uint8) for p in payloads]
-    _check_layout(starts, size, channel_id, log_time, publish, group, row, payloads, counters)
-    if native is None:
-        native = _native_records is not None
-    out = np.empty(size, dtype=np.uint8)
-    if native:
-        _native_records(out, starts, channel_id, log_time, publish, group, row, payloads, counters)
-        return out
-    seq = np.empty(len(starts), dtype=np.int64)
-    for cid, where in (by_channel(channel_id) if len(starts) else []):
-        k = len(starts) if where is None else len(where)
-        seq[slice(None) if where is None else where] = np.arange(counters[cid] + 1, counters[cid] + k + 1)
-        counters[cid] += k
-    rows = {}
-    for g in range(len(payloads)):
-        where = np.flatnonzero(group == g)
-        if len(where):
-            rows[g] = message_rows(channel_id[where], log_time[where], payloads[g][row[where]], seq[where],
-                                   None if publish_time is None else publish[where])
-    if len(rows) == 1 and len(starts) and (np.diff(starts) == rows[int(group[0])].shape[1]).all():
-        out[starts[0]:starts[0] + rows[int(group[0])].nbytes] = rows[int(group[0])].reshape(-1)
-        return out
-    out[:] = interleave(group, rows, starts, size, period_hint)
-    return out
-
-
-def _check_layout(starts: np.ndarray, size: int, channel_id: np.ndarray, log_time: np.ndarray,
-                  publish_time: np.ndarray, group: np.ndarray, row: np.ndarray, payloads: list[np.ndarray],
-                  counters: np.ndarray) -> None:
-    """Every index of a layout checked before either path writes a byte or counts a message (the C
-    function checks them again, for any caller): a bad one is a ValueError, ``counters`` untouched."""
-    n = len(starts)
-    if not all(len(a) == n for a in (channel_id, log_time, publish_time, group, row)):
-        raise ValueError("starts, channel, log_time, publish_time, group and row: one value per record each")
-    if not (isinstance(counters, np.ndarray) and counters.dtype == np.int64 and counters.ndim == 1
-            and counters.flags.c_contiguous and counters.flags.writeable):
-        raise ValueError("counters: a writeable 1-D int64 array")
-    if any(p.ndim != 2 for p in payloads):
-        raise ValueError("payloads: 2-D uint8 arrays")
-    if not n:
-        return
-    if group.min() < 0 or group.max() >= len(payloads):
-        i = int(np.flatnonzero((group < 0) | (group >= len(payloads)))[0])
-        raise ValueError(f"group[{i}] = {int(group[i])}: no such payload array")
-    heights = np.array([p.shape[0] for p in payloads], dtype=np.int64)
-    widths = np.array([p.shape[1] for p in payloads], dtype=np.int64)
-    bad = (row < 0) | (row >= heights[group])
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"row[{i}] = {int(row[i])}: beyond its payload array")
-    bad = (channel_id < 0) | (channel_id >= len(counters)) | (channel_id > 0xFFFF)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"channel[{i}] = {int(channel_id[i])}: no counter")
-    bad = (starts < 0) | (starts > size - 9 - _MSG_FIXED - widths[group])
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise ValueError(f"starts[{i}] = {int(starts[i])}: the record ends beyond out")
-
-
-def by_channel(ids: np.ndarray) -> list[tuple[int, np.ndarray | None]]:
-    """Each channel in ``ids`` with the positions of its messages, ascending (None: all of them)."""
-    if ids[0] == ids[-1] and (ids == ids[0]).all():
-        return [(int(ids[0]), None)]
-    order = np.argsort(ids.astype(np.uint16), kind="stable")  # channel ids are 16-bit: a radix sort
-    counts = np.bincount(ids)
-    present = np.flatnonzero(counts)
-    return list(zip(present.tolist(), np.split(order, np.cumsum(counts[present])[:-1])))
-
-
-def interleave(group: np.ndarray, rows: dict[int, np.ndarray], offsets: np.ndarray, size: int,
-               period_hint: list[int] | None = None) -> np.ndarray:
-    """The bytes of records of several widths in the order ``group`` gives: record ``i`` is the next
-    unused row of ``rows[group[i]]`` and starts at ``offsets[i]`` (``size`` bytes in all).
-
-    A replay's output repeats one pattern per sample (four Float64 messages, a stamped estimate,
-    the copied inputs): where the sequence of ``group`` repeats with a period, the bytes are a 2-D
-    array of one period per row, and each slot of the pattern is copied as one strided column
-    block; the rest (the messages that break the pattern) are scattered byte by byte.
-    ``period_hint``: a one-element list with the period found last time (tried first, updated).
-    """
-    out = np.empty(size, dtype=np.uint8)
-    n = len(group)
-    rank = np.empty(n, dtype=np.int64)  # index of each record among its group's rows
-    for g in rows:
-        where = np.flatnonzero(group == g)
-        rank[where] = np.arange(len(where))
-    done = np.zeros(n, dtype=bool)
-    plans: dict[bytes, list[tuple[int, int, int, int, int]]] = {}
-    for m0, m1, period in _periodic_stretches(group, period_hint):
-        motif = group[m0:m0 + period]
-        plan = plans.get(motif.tobytes())
-        if plan is None:  # the motif's runs of one group: (first slot, slots, group, its rows per period, place)
-            cuts = np.flatnonzero(np.diff(motif)) + 1
-            plan = plans[motif.tobytes()] = [
-                (j, j_end - j, int(motif[j]), int(np.count_nonzero(motif == motif[j])),
-                 int(np.count_nonzero(motif[:j] == motif[j])))
-                for j, j_end in zip([0, *cuts.tolist()], [*cuts.tolist(), period])]
-        per_bytes = int(offsets[m0 + period] - offsets[m0])  # m1 - m0 >= 2 periods
-        k = (m1 - m0) // period
-        block = out[offsets[m0]:offsets[m0] + k * per_bytes].reshape(k, per_bytes)
-        for j, length, g, count, slot in plan:
-            width = rows[g].shape[1]
-            first = int(rank[m0 + j]) - slot  # the stretch's first row of group g
-            src = rows[g][first:first + k * count].reshape(k, count * width)
-            col = int(offsets[m0 + j] - offsets[m0])
-            block[:, col:col + length * width] = src[:, slot * width:(slot + length) * width]
-        done[m0:m1] = True
-    for g in rows:
-        where = np.flatnonzero((group == g) & ~done)
-        if len(where):
-            width = rows[g].shape[1]
-            byte_rows(out, width, writeable=True)[offsets[where]] = rows[g][rank[where]]
-    return out
-
-
-def _periodic_stretches(group: np.ndarray, period_hint: list[int] | None = None, max_period: int = 32,
-                        min_repeats: int = 4):
-    """(start, stop, period) of the stretches of ``group`` that repeat a pattern ``period`` long at
-    least ``min_repeats`` times (the period that covers the most of the sequence; ``period_hint``
-    as in :func:`interleave`)."""
-    probe = group[:1024]  # the period is chosen on the first messages, then applied to all
-    hint = period_hint[0] if period_hint else 0
-    if 0 < hint < len(probe) and np.count_nonzero(probe[hint:] == probe[:-hint]) >= 0.9 * (len(probe) - hint):
-        best = hint
-    else:
-        best, best_count = 0, -1
-        for period in range(1, min(max_period, len(probe) // min_repeats) + 1):
-            count = int(np.count_nonzero(probe[period:] == probe[:-period]))
-            if count > best_count + period:  # a multiple of the period matches about as often: the shortest
-                best, best_count = period, count
-        if best == 0:
-            return []
-        if period_hint is not None:
-            period_hint[:] = [best]
-    best_same = group[best:] == group[:-best]
-    # runs of True in `same`: group[i] == group[i + period] for i in [s, e) -> [s, e + period) repeats
-    edges = np.diff(np.concatenate([[0], best_same.view(np.int8), [0]]))
-    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    out = []
-    for s, e in zip(starts.tolist(), stops.tolist()):
-        k = (e + best - s) // best
-        if k >= min_repeats:
-            out.append((s, s + k * best, best))
-    return out
 
 
 def _message_indexes(index: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
@@ -311,7 +118,7 @@ class ChunkedMcapWriter:
         self._size = 0
         self._start = self._end = None
         self._seq: dict[int, int] = {}  # messages written so far, by channel id (the last sequence number)
-        self._period_hint = [0]  # the pattern of payload widths last seen by add_mixed (see interleave)
+        self._period_hint = [0]  # the pattern of payload widths last seen by add_mixed (see layout.interleave)
         self._message_count = 0
         self._t_min: int | None = None
         self._t_max: int | None = None
@@ -700,79 +507,3 @@ class ChunkedMcapWriter:
         for o in offsets:
             o.write(sb)
         return sb.end(), summary_offset_start
-
-
-class TimeOrderBuffer:
-    """Holds messages back and hands them to a :class:`ChunkedMcapWriter` in log-time order.
-
-    Streaming readers (Foxglove, ``ros2 bag play``) read a file front to back and want its messages
-    in log-time order across topics; a replay produces each batch's estimates topic by topic, and a
-    sample completes a little after its inputs arrived.  :meth:`release` writes what is older than a
-    watermark (nothing later can be older than that), :meth:`release` with none writes the rest.
-    Payloads stay numpy arrays throughout, grouped by size; only a message with a publish time of
-    its own goes one by one.
-    """
-
-    def __init__(self, writer: ChunkedMcapWriter) -> None:
-        self._writer = writer
-        self._fixed: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # (channel ids, log times, payload rows)
-        self._single: list[tuple[int, int, bytes, int | None]] = []  # (channel id, log time, payload, publish time)
-
-    def __len__(self) -> int:
-        return sum(len(t) for _, t, _ in self._fixed) + len(self._single)
-
-    def add_messages(self, channel_id: int | np.ndarray, log_time: np.ndarray, payload: np.ndarray) -> None:
-        log_time = np.asarray(log_time, dtype=np.int64)
-        ids = np.broadcast_to(np.asarray(channel_id, dtype=np.int64), log_time.shape).copy()
-        if len(log_time):
-            self._fixed.append((ids, log_time, payload))
-
-    def add_message(self, channel_id: int, log_time: int, data: bytes, publish_time: int | None = None) -> None:
-        if publish_time is None:  # a one-row array: released with the others of its size in one call
-            self._fixed.append((np.array([channel_id], dtype=np.int64), np.array([log_time], dtype=np.int64),
-                                np.frombuffer(data, dtype=np.uint8)[None, :]))
-        else:
-            self._single.append((channel_id, log_time, data, publish_time))
-
-    def release(self, up_to_ns: int | None = None) -> None:
-        """Write, in log-time order (the order added among equal times), every message whose log
-        time is at most ``up_to_ns`` (all of them when None); keep the rest."""
-        if not self._fixed and not self._single:
-            return
-        groups: dict[int, list] = {}
-        for ids, t, pl in self._fixed:
-            groups.setdefault(pl.shape[1], []).append((ids, t, pl))
-        merged = [tuple(np.concatenate(parts) for parts in zip(*items)) for items in groups.values()]
-        single = self._single
-        sizes = [len(t) for _, t, _ in merged] + [len(single)]
-        source = np.repeat(np.arange(len(sizes), dtype=np.int64), sizes)
-        source[len(source) - len(single):] = -1
-        index = np.concatenate([np.arange(k, dtype=np.int64) for k in sizes])
-        t_all = np.concatenate([t for _, t, _ in merged] + [np.array([m[1] for m in single], dtype=np.int64)])
-        ids_all = np.concatenate([i for i, _, _ in merged] + [np.array([m[0] for m in single], dtype=np.int64)])
-        order = np.argsort(t_all, kind="stable")
-        t_sorted = t_all[order]
-        n_out = len(order) if up_to_ns is None else int(t_sorted.searchsorted(np.int64(up_to_ns), side="right"))
-        out = order[:n_out]
-        src, idx, ids_out, t_out = source[out], index[out], ids_all[out], t_sorted[:n_out]
-        # the runs between messages with a publish time of their own go to the writer in one call
-        # each, whatever the interleaving of payload widths inside them (one call per run of one
-        # width made a 1 kHz replay with a stamped estimate call the writer twice per sample)
-        payloads = [pl for _, _, pl in merged]
-        a = 0
-        for cut in np.flatnonzero(src < 0).tolist() + [n_out]:
-            if cut > a:
-                if len(merged) == 1:
-                    self._writer.add_messages(ids_out[a:cut], t_out[a:cut], payloads[0][idx[a:cut]])
-                else:
-                    self._writer.add_mixed(ids_out[a:cut], t_out[a:cut], src[a:cut], idx[a:cut], payloads)
-            if cut < n_out:
-                self._writer.add_message(*single[int(idx[cut])])
-            a = cut + 1
-        rest = order[n_out:]
-        self._fixed = []
-        for g, (ids, t, pl) in enumerate(merged):
-            sel = np.sort(index[rest][source[rest] == g])
-            if len(sel):
-                self._fixed.append((ids[sel], t[sel], pl[sel]))
-        self._single = [single[j] for j in np.sort(index[rest][source[rest] == -1]).tolist()]

@@ -53,7 +53,7 @@ def test_an_error_of_the_writing_thread_is_raised_in_the_caller():
 def test_interleave_equals_a_byte_by_byte_layout(seed):
     """The strided copy of repeating patterns lays out the same bytes as placing each record alone,
     for periodic sequences broken by stray records and for sequences with no period at all."""
-    from rollergear_ros.recordings.mcapwriter import interleave
+    from rollergear_ros.recordings.layout import interleave
 
     rng = np.random.default_rng(seed)
     widths = {0: 43, 1: 219, 2: 61}
@@ -181,12 +181,12 @@ def test_every_record_written_is_the_one_mcap_encodes(tmp_path, monkeypatch, nat
     from mcap.stream_reader import StreamReader, breakup_chunk
     from mcap.writer import MCAP0_MAGIC
 
-    from rollergear_ros.recordings import mcapwriter
+    from rollergear_ros.recordings import layout
 
-    if native and mcapwriter._native_records is None:
+    if native and layout._native_records is None:
         pytest.skip("the C part was not built (no compiler)")
     if not native:
-        monkeypatch.setattr(mcapwriter, "_native_records", None)
+        monkeypatch.setattr(layout, "_native_records", None)
     rng = np.random.default_rng(4)
     path = tmp_path / "w.mcap"
     w = ChunkedMcapWriter(path, chunk_size=8 * 1024, durable=durable)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from rollergear_ros.recordings import fastmcap, mcapwriter
+from rollergear_ros.recordings import fastmcap, layout
 from rollergear_ros.recordings.fastmcap import ReadState, parse_records
-from rollergear_ros.recordings.mcapwriter import lay_out_records
+from rollergear_ros.recordings.layout import lay_out_records
 
-native = pytest.mark.skipif(mcapwriter._native_records is None, reason="the C part was not built (no compiler)")
+native = pytest.mark.skipif(layout._native_records is None, reason="the C part was not built (no compiler)")
 
 
 def _random_records(seed: int):
@@ -104,7 +104,7 @@ def test_the_c_layout_refuses_a_bad_index_and_writes_nothing(bad):
     counted = counters.copy()
     out = np.zeros(size, dtype=np.uint8)
     with pytest.raises(ValueError):
-        mcapwriter._native_records(out, starts, channel, log_time, log_time, group, row, payloads, counted)
+        layout._native_records(out, starts, channel, log_time, log_time, group, row, payloads, counted)
     assert not out.any() and np.array_equal(counted, counters)
 
 
@@ -219,7 +219,7 @@ def test_both_layouts_refuse_a_bad_index_alike_and_change_nothing(bad):
         counters = counters.astype(np.int32)
     publish_time = log_time[:-1] if bad == "short publish times" else log_time
     errors = []
-    for way in ([True] if mcapwriter._native_records is not None else []) + [False]:
+    for way in ([True] if layout._native_records is not None else []) + [False]:
         counted = counters.copy()
         with pytest.raises(ValueError) as err:
             lay_out_records(starts, size, channel, log_time, group, row, payloads, counted, native=way,
@@ -259,7 +259,7 @@ def test_the_c_layout_is_safe_for_any_caller(hostile):
         args[8] = payloads[0].reshape(-1)[:8 * 5].view(np.int64)
     before = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
     with pytest.raises(ValueError):
-        mcapwriter._native_records(*args)
+        layout._native_records(*args)
     for a, b in zip(args, before):
         if isinstance(a, np.ndarray):
             assert np.array_equal(a, b)
