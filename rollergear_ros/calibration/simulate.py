@@ -24,7 +24,7 @@ import numpy as np
 
 from ..core.oil import oil_viscosity_ratio, vogel_viscosity_ratio, walther_viscosity_mm2_s  # noqa: F401 - re-exported
 from ..recordings.bagwriter import BagWriter
-from ..recordings.messages import TopicMap, encode_float64, stamp
+from ..recordings.messages import TopicMap, float64_payloads, stamp
 from ..core.effects import EFFECTS, EffectInputs, viscosity_law
 from ..base.errors import UsageError
 from ..base.interface import RAD_S_PER_RPM, MessageType, Metadata
@@ -265,28 +265,29 @@ def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics
         block = 20_000
         temp_every = max(int(round(opts.rate_hz / opts.temperature_rate_hz)), 1)
         temp_msgs = {i: _temperature_message(rig, opts, i) for i in range(0, n, temp_every)}
-        names = (topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed)
+        float64_topics = [(name, MessageType.FLOAT64, None) for name in
+                          (topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed)]
         for s in range(0, n, block):
             e = min(s + block, n)
-            payloads = [encode_float64(v[s:e]) for v in (rig.torque_meas_nm, rig.speed_rad_s,
-                                                         rig.out_torque_meas_nm, rig.out_speed_meas_rad_s)]
-            for i in range(s, e):
-                t = int(rig.t_ns[i])
-                if opts.joint_states:
+            if opts.joint_states:
+                for i in range(s, e):
+                    t = int(rig.t_ns[i])
                     bw.write_message(topics.joint_states, MessageType.JOINT_STATE, t, {
                         "header": {"stamp": stamp(t), "frame_id": ""},
                         "name": [topics.input_joint, topics.output_joint], "position": [],
                         "velocity": [float(rig.speed_rad_s[i]), float(rig.out_speed_meas_rad_s[i])],
                         "effort": [float(rig.torque_meas_nm[i]), float(rig.out_torque_meas_nm[i])]})
-                    count += 1
-                else:
-                    # channels interleaved sample by sample, as a recorder stores them
-                    for name, pl in zip(names, payloads):
-                        bw.write_raw(name, MessageType.FLOAT64, t, pl[i - s])
-                    count += 4
-                if i in temp_msgs:
-                    bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, t, temp_msgs[i])
-                    count += 1
+            else:
+                # the four channels interleaved sample by sample, as a recorder stores them
+                values = np.stack([rig.torque_meas_nm[s:e], rig.speed_rad_s[s:e], rig.out_torque_meas_nm[s:e],
+                                   rig.out_speed_meas_rad_s[s:e]], axis=1).reshape(-1)
+                bw.write_fixed_mixed(float64_topics, np.tile(np.arange(4), e - s), np.repeat(rig.t_ns[s:e], 4),
+                                     float64_payloads(values))
+            count += (e - s) * (1 if opts.joint_states else 4)
+            # each temperature after the sample of its time (the buffer keeps the order added among equal times)
+            for i in range(s + (-s) % temp_every, e, temp_every):
+                bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, int(rig.t_ns[i]), temp_msgs[i])
+                count += 1
             if progress:
                 progress(e - s)
     return count
