@@ -1,9 +1,9 @@
 """Writing ROS 2 MCAP files from whole numpy arrays of equal-sized messages (no rclpy).
 
 Message records laid out by :mod:`.layout` (the package's one layout of a message record), a chunk
-compressed at a time.  Records other than messages are the ``mcap``
-library's, except a chunk's head and its message indexes, packed here from arrays; re-encoded by
-``mcap``, a written file is the same bytes (tested).
+compressed at a time.  Records other than messages are the ``mcap`` library's, except a chunk's head
+and its message indexes, packed here from arrays; re-encoded by ``mcap``, a written file is the same
+bytes (tested).
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ _MAX_PENDING = 16  #: chunks waiting for the background thread before the caller
 ZSTD_LEVEL = -1
 #: a background writer's file is synced to disk every this many bytes, while the caller goes on
 _SYNC_BYTES = 32 * 1024 * 1024
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 
 
 def _message_indexes(index: list[tuple[np.ndarray, np.ndarray, np.ndarray]]):
@@ -117,7 +118,7 @@ class ChunkedMcapWriter:
         self._one_by_one: list[tuple[int, int, int, bytes]] = []
         self._size = 0
         self._start = self._end = None
-        self._seq: dict[int, int] = {}  # messages written so far, by channel id (the last sequence number)
+        self._seq: dict[int, int] = {}  # messages laid out so far, by channel id (the last sequence number)
         self._period_hint = [0]  # the pattern of payload widths last seen by add_mixed (see layout.interleave)
         self._message_count = 0
         self._t_min: int | None = None
@@ -247,7 +248,14 @@ class ChunkedMcapWriter:
         ``publish_time``: when its publisher sent it (None: ``log_time``)."""
         if channel_id not in self._seq:
             raise ValueError(f"channel {channel_id} is not registered")
-        self._one_by_one.append((channel_id, log_time, log_time if publish_time is None else publish_time, data))
+        if publish_time is None:
+            publish_time = log_time
+        # refused here, not when the chunk is laid out: one bad message never costs the others
+        if not (_INT64_MIN <= log_time <= _INT64_MAX and _INT64_MIN <= publish_time <= _INT64_MAX):
+            raise ValueError(f"log time {log_time} or publish time {publish_time}: not a 64-bit time in ns")
+        if type(data) is not bytes:  # a copy of a buffer its owner may change before the layout
+            data = bytes(data)
+        self._one_by_one.append((channel_id, log_time, publish_time, data))
         self._size += 9 + _MSG_FIXED + len(data)
         if self._size >= self.chunk_size:
             self.flush_chunk()

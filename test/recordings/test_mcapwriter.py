@@ -243,3 +243,24 @@ def test_a_message_on_a_channel_never_registered_is_refused(tmp_path):
     with pytest.raises(ValueError, match="channel 3 is not registered"):
         w.add_message(3, 1, b"")
     w.close()
+
+
+def test_a_bad_message_added_one_by_one_is_refused_at_once_and_costs_no_other(tmp_path):
+    """The records of messages added one by one are laid out later, together: a time beyond 64 bits
+    is refused when added (the others stay), and a buffer changed after it was added is recorded as
+    it was when added."""
+    from bagtools import read_mcap_ros2
+
+    w = ChunkedMcapWriter(tmp_path / "w.mcap")
+    sid = w.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+    cid = w.register_channel("/a", "cdr", sid)
+    w.add_message(cid, 10, bytes([0, 1, 0, 0]) + np.float64(1.5).tobytes())
+    for bad in ({"log_time": 2**63}, {"log_time": 11, "publish_time": -(2**63) - 1}):
+        with pytest.raises(ValueError, match="not a 64-bit time"):
+            w.add_message(cid, bad["log_time"], bytes(12), bad.get("publish_time"))
+    buffer = bytearray(bytes([0, 1, 0, 0]) + np.float64(2.5).tobytes())
+    w.add_message(cid, 12, buffer)
+    buffer[4:] = np.float64(-9.0).tobytes()
+    w.close()
+    t, messages = read_mcap_ros2(tmp_path / "w.mcap")["/a"]
+    assert t.tolist() == [10, 12] and [m.data for m in messages] == [1.5, 2.5]
