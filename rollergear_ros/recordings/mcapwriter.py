@@ -116,6 +116,7 @@ class ChunkedMcapWriter:
         #: messages added one by one whose records are not laid out yet: (channel id, log time,
         #: publish time, payload); laid out together before anything else enters the chunk
         self._one_by_one: list[tuple[int, int, int, bytes]] = []
+        self._one_by_one_bytes = 0  # the size of their records
         self._size = 0
         self._start = self._end = None
         self._seq: dict[int, int] = {}  # messages laid out so far, by channel id (the last sequence number)
@@ -178,15 +179,24 @@ class ChunkedMcapWriter:
         ``row[i]`` of ``payloads[group[i]]`` (each an m × L uint8 array), on channel
         ``channel_id[i]`` at ``log_time[i]``.  The records are laid out in one pass whatever the
         interleaving (a time-ordered output alternates widths sample by sample), a few MB at a
-        time (:func:`lay_out_records`); chunks close at ``chunk_size`` as in :meth:`add_messages`."""
-        n = len(log_time)
-        if n == 0:
+        time (:func:`lay_out_records`); chunks close at ``chunk_size`` as in :meth:`add_messages`.
+        Messages added one by one before come first, laid out in the same pass."""
+        if len(log_time) == 0:
             return
-        self._lay_out_one_by_one()  # before these: the records of the open chunk stay in the order added
-        ids = np.asarray(channel_id, dtype=np.int64)
-        log_time = np.asarray(log_time, dtype=np.int64)
-        group = np.asarray(group, dtype=np.int64)
-        row = np.asarray(row, dtype=np.int64)
+        arrays = (np.asarray(channel_id, dtype=np.int64), np.asarray(log_time, dtype=np.int64),
+                  np.asarray(group, dtype=np.int64), np.asarray(row, dtype=np.int64), list(payloads), None)
+        pending = self._take_one_by_one()
+        if pending is not None:  # (a temperature between runs of Float64 arrays: no call of its own)
+            ids, times, p_group, p_row, p_payloads, published = pending
+            arrays = (np.concatenate([ids, arrays[0]]), np.concatenate([times, arrays[1]]),
+                      np.concatenate([p_group, arrays[2] + len(p_payloads)]), np.concatenate([p_row, arrays[3]]),
+                      p_payloads + arrays[4], np.concatenate([published, arrays[1]]))
+        self._lay_out(*arrays)
+
+    def _lay_out(self, ids: np.ndarray, log_time: np.ndarray, group: np.ndarray, row: np.ndarray,
+                 payloads: list[np.ndarray], publish_time: np.ndarray | None) -> None:
+        """:meth:`add_mixed` of int64 arrays (``publish_time`` None: the log times)."""
+        n = len(log_time)
         rec_of_group = np.array([9 + _MSG_FIXED + p.shape[1] for p in payloads], dtype=np.int64)
         ends = np.cumsum(rec_of_group[group])
         start = 0
@@ -198,7 +208,8 @@ class ChunkedMcapWriter:
             piece_ends = ends[sl] - base
             counters = self._counters()
             records = lay_out_records(piece_ends - rec_of_group[g_sl], int(piece_ends[-1]), ids_sl, t_sl, g_sl,
-                                      row[sl], payloads, counters, self._period_hint)
+                                      row[sl], payloads, counters, self._period_hint,
+                                      publish_time=None if publish_time is None else publish_time[sl])
             self._seq.update(zip(self._seq, counters[list(self._seq)].tolist()))
             self._append_records(ids_sl, t_sl, records, piece_ends)
             start = stop
@@ -256,16 +267,22 @@ class ChunkedMcapWriter:
         if type(data) is not bytes:  # a copy of a buffer its owner may change before the layout
             data = bytes(data)
         self._one_by_one.append((channel_id, log_time, publish_time, data))
-        self._size += 9 + _MSG_FIXED + len(data)
-        if self._size >= self.chunk_size:
+        self._one_by_one_bytes += 9 + _MSG_FIXED + len(data)
+        if self._size + self._one_by_one_bytes >= self.chunk_size:
             self.flush_chunk()
 
     def _lay_out_one_by_one(self) -> None:
-        """Append the records of the messages added one by one since the last call to the open chunk,
-        laid out in one call (one payload group per payload width)."""
-        pending, self._one_by_one = self._one_by_one, []
+        """Append the records of the messages added one by one since the last call to the open chunk."""
+        pending = self._take_one_by_one()
+        if pending is not None:
+            self._lay_out(*pending)
+
+    def _take_one_by_one(self) -> tuple | None:
+        """The messages added one by one since the last call as :meth:`_lay_out`'s arrays (one payload
+        group per payload width), or None; they are no longer pending."""
+        pending, self._one_by_one, self._one_by_one_bytes = self._one_by_one, [], 0
         if not pending:
-            return
+            return None
         ids, log_times, publish_times, datas = zip(*pending)
         widths = np.fromiter(map(len, datas), dtype=np.int64, count=len(datas))
         unique, group = np.unique(widths, return_inverse=True)
@@ -276,21 +293,13 @@ class ChunkedMcapWriter:
             payloads.append(np.frombuffer(b"".join([datas[i] for i in where.tolist()]), dtype=np.uint8)
                             .reshape(len(where), width))
             row[where] = np.arange(len(where))
-        ends = np.cumsum(9 + _MSG_FIXED + widths)
-        starts = ends - (9 + _MSG_FIXED + widths)
-        ids, log_times = np.array(ids, dtype=np.int64), np.array(log_times, dtype=np.int64)
-        counters = self._counters()
-        records = lay_out_records(starts, int(ends[-1]), ids, log_times, group, row, payloads, counters,
-                                  publish_time=np.array(publish_times, dtype=np.int64))
-        self._seq.update(zip(self._seq, counters[list(self._seq)].tolist()))
-        self._index.append((ids, log_times, starts + len(self._chunk)))
-        self._chunk += records.data
-        self._count(len(ids), int(log_times.min()), int(log_times.max()))
+        return (np.array(ids, dtype=np.int64), np.array(log_times, dtype=np.int64), group.astype(np.int64), row,
+                payloads, np.array(publish_times, dtype=np.int64))
 
     @property
     def bytes_written(self) -> int:
         """The file's size so far, with the open chunk (uncompressed) and the chunks being written."""
-        return self._position() + self._size
+        return self._position() + self._size + self._one_by_one_bytes
 
     def _position(self) -> int:
         """Where the next record goes: the end of the data section written so far."""
@@ -386,9 +395,9 @@ class ChunkedMcapWriter:
     def flush_chunk(self) -> None:
         """Compress and write the open chunk with its message indexes (in the background with
         ``background=True``: the next chunk is built while this one is compressed and written)."""
+        self._lay_out_one_by_one()  # (which closes the chunk itself where they fill it)
         if not self._size:
             return
-        self._lay_out_one_by_one()
         job = (self._chunk, self._index, self._start if self._start is not None else 0,
                self._end if self._end is not None else 0)
         self._chunk, self._index, self._size = bytearray(), [], 0
