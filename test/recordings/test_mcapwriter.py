@@ -182,6 +182,7 @@ def test_every_record_written_is_the_one_mcap_encodes(tmp_path, monkeypatch, nat
     from mcap.writer import MCAP0_MAGIC
 
     from rollergear_ros.recordings import layout
+    from rollergear_ros.recordings.fastmcap import _decompress
 
     if native and layout._native_records is None:
         pytest.skip("the C part was not built (no compiler)")
@@ -223,19 +224,12 @@ def test_every_record_written_is_the_one_mcap_encodes(tmp_path, monkeypatch, nat
     assert len(chunks) > 10
     for chunk in chunks:
         inside = breakup_chunk(chunk, validate_crc=True)
-        assert _encoded_by_mcap(inside) == fastmcap_records(chunk)
+        assert _encoded_by_mcap(inside) == _decompress(chunk.compression, chunk.data, chunk.uncompressed_size)
         messages += [m for m in inside if isinstance(m, Message)]
     assert [(m.channel_id, m.log_time, m.publish_time, m.data) for m in messages] == added
     for cid in channels:
         assert [m.sequence for m in messages if m.channel_id == cid] == list(
             range(1, sum(1 for m in messages if m.channel_id == cid) + 1))
-
-
-def fastmcap_records(chunk) -> bytes:
-    """A chunk's decompressed records, as the package's reader takes them out."""
-    from rollergear_ros.recordings.fastmcap import _decompress
-
-    return _decompress(chunk.compression, chunk.data, chunk.uncompressed_size)
 
 
 def test_a_message_on_a_channel_never_registered_is_refused(tmp_path):
