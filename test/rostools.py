@@ -13,6 +13,8 @@ from pathlib import Path
 
 from helpers import CONFIG, ROOT
 
+from rollergear_ros.base.interface import MAX_QUEUE_DEPTH
+
 
 class NodeProcess:
     """``loss_estimator`` in a subprocess, stopped with SIGINT (or another signal); one a failing
@@ -159,7 +161,13 @@ def ros_context():
 
 #: a reader's history holds at most this many samples (Fast DDS's default resource limit,
 #: whatever larger depth is asked for): 5 s of backlog at 1 kHz
-PROBE_DEPTH = 5000
+PROBE_DEPTH = MAX_QUEUE_DEPTH
+
+
+#: nothing lost on either side: the inputs subscribed reliable (the player waits for the node), the
+#: outputs offered as deep as Fast DDS keeps (a probe on a loaded machine that stalls for up to
+#: PROBE_DEPTH messages has them resent)
+LOSSLESS = ("node.input_qos:=reliable", f"node.output_depth:={PROBE_DEPTH}")
 
 
 class FloatProbe:

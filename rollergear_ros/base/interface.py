@@ -77,8 +77,13 @@ class Metadata:
     PROVENANCE = "rollergear_provenance"  #: written by ``replay --out`` and the node: what made the estimates
 
 
-#: depth of the node's (reliable, volatile, keep-last) output publishers
-OUTPUT_QUEUE_DEPTH = 200
+#: default depth of the node's (reliable, volatile, keep-last) per-sample and per-window output
+#: publishers (``node.output_depth``): what a reliable subscriber that stalls can still have resent --
+#: 1 s at 1 kHz, as deep as the sensor-data inputs
+OUTPUT_QUEUE_DEPTH = 1000
+#: the deepest history Fast DDS keeps for a writer or reader (its default resource limit
+#: ``max_samples``), whatever larger depth is asked for
+MAX_QUEUE_DEPTH = 5000
 
 
 def package_version() -> str:

@@ -58,7 +58,9 @@ class OutputChannel:
     #: published only for samples with measured output torque (the value is NaN without one)
     measured_only: bool = False
     reliable: bool = True  #: QoS reliability the node offers it with (keep-last)
-    depth: int = OUTPUT_QUEUE_DEPTH  #: QoS history depth
+    #: QoS history depth; a per-sample or per-window channel's is the node's ``node.output_depth``
+    #: (:meth:`offered_depth`), this default where there is no node (replay's offered QoS)
+    depth: int = OUTPUT_QUEUE_DEPTH
     #: one message per estimate ("sample"), per second of measured efficiency ("window"), per loss map
     #: ("map") or per online trace ("trace")
     per: str = "sample"
@@ -69,6 +71,11 @@ class OutputChannel:
     def stamped(self) -> bool:
         """Each estimate as one stamped message (rather than one Float64 value)."""
         return self.per == "sample" and self.value is None
+
+    def offered_depth(self, output_depth: int) -> int:
+        """The history depth the node offers this channel with, given ``node.output_depth``: that
+        depth for a channel of samples or windows, the channel's own (1) for a latched one."""
+        return output_depth if self.per in ("sample", "window") else self.depth
 
     def absolute_topic(self, namespace: str = NAMESPACE) -> str:
         """The topic under ``namespace`` (the node's default namespace unless given)."""

@@ -25,6 +25,7 @@ from collections.abc import Mapping
 import yaml
 
 from ..base import safeyaml
+from ..base.interface import MAX_QUEUE_DEPTH, OUTPUT_QUEUE_DEPTH
 
 from .effects import EFFECTS, REGISTRY_VERSION, viscosity_law
 from ..base.errors import ParameterError
@@ -237,6 +238,10 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
               choices=("sensor_data", "reliable"), read_only=True),
     ParamSpec("node.publish_every_n", int, 1, "publish every n-th estimate (decimation for slow consumers)",
               low=1, high=100000),
+    ParamSpec("node.output_depth", int, OUTPUT_QUEUE_DEPTH,
+              "history depth the per-sample and per-second outputs are offered with (reliable, keep last): how "
+              "many messages a reliable subscriber that stalls can still have resent (1000: 1 s at 1 kHz); at "
+              f"most {MAX_QUEUE_DEPTH}, the deepest Fast DDS keeps", low=1, high=MAX_QUEUE_DEPTH, read_only=True),
     ParamSpec("node.publish_stamped", bool, True,
               "publish each estimate as one stamped sensor_msgs/JointState on loss/estimate (header.stamp: the "
               "sample's time; names and values in name/position)", read_only=True),
@@ -472,6 +477,7 @@ class NodeParams:
     executor: str = "events"
     input_qos: str = "sensor_data"
     publish_every_n: int = 1
+    output_depth: int = OUTPUT_QUEUE_DEPTH
     publish_stamped: bool = True
     publish_map: bool = True
     map_file: str = ""

@@ -456,7 +456,7 @@ class LossEstimatorNode(Node):
             if published:
                 self.out_topics[channel.name] = self.resolve_topic_name(channel.topic)
                 self.output_publishers[channel.name] = self.create_publisher(
-                    _MESSAGE_CLASSES[channel.message_type], channel.topic, output_qos(channel))
+                    _MESSAGE_CLASSES[channel.message_type], channel.topic, output_qos(channel, node.output_depth))
         # (value of the estimate, raw publish, topic, published only with measured output), per channel
         self._float64_plan = tuple(
             (attrgetter(c.value), _raw_publish(self.output_publishers[c.name]), self.out_topics[c.name],

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from ..base.interface import OUTPUT_QUEUE_DEPTH
 from ..base.output_channels import OutputChannel
 
 __all__ = ["INPUT_QOS", "RELIABLE_INPUT_QOS", "SENSOR_QOS", "output_qos"]
@@ -23,10 +24,11 @@ RELIABLE_INPUT_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durabili
 INPUT_QOS = {"sensor_data": SENSOR_QOS, "reliable": RELIABLE_INPUT_QOS}
 
 
-def output_qos(channel: OutputChannel) -> QoSProfile:
-    """The QoS an output channel is offered with: keep-last, its reliability, depth and durability
+def output_qos(channel: OutputChannel, output_depth: int = OUTPUT_QUEUE_DEPTH) -> QoSProfile:
+    """The QoS an output channel is offered with: keep-last, its reliability, its depth given
+    ``node.output_depth`` (:meth:`~base.output_channels.OutputChannel.offered_depth`) and durability
     (volatile, or transient-local for the loss map that late joiners should get)."""
     return QoSProfile(reliability=ReliabilityPolicy.RELIABLE if channel.reliable else ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if channel.transient_local
                       else DurabilityPolicy.VOLATILE,
-                      history=HistoryPolicy.KEEP_LAST, depth=channel.depth)
+                      history=HistoryPolicy.KEEP_LAST, depth=channel.offered_depth(output_depth))

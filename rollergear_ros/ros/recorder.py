@@ -95,7 +95,8 @@ class NodeRecording:
         """The MCAP recorder: written as the messages come (in arrival order), in place (a kill keeps what
         came), with the QoS the outputs are offered with and the latched outputs repeated in each file."""
         params = self._config.node
-        offered = {out_topics[c.name]: offered_qos_yaml(c.reliable, c.depth, c.transient_local)
+        offered = {out_topics[c.name]: offered_qos_yaml(c.reliable, c.offered_depth(params.output_depth),
+                                                        c.transient_local)
                    for c in OUTPUT_CHANNELS.values() if c.name in out_topics}
 
         def open_file(path: Path) -> BagWriter:

@@ -65,6 +65,9 @@ def test_the_loss_map_and_trace_channels_are_offered_latched_and_the_node_takes_
         assert qos.durability == DurabilityPolicy.TRANSIENT_LOCAL and qos.reliability == ReliabilityPolicy.RELIABLE
     sample = output_qos(OUTPUT_CHANNELS["loss_torque"])
     assert sample.durability == DurabilityPolicy.VOLATILE and sample.depth == OUTPUT_CHANNELS["loss_torque"].depth
+    # node.output_depth: the depth of every channel of samples or windows; the latched ones keep theirs
+    for c in OUTPUT_CHANNELS.values():
+        assert output_qos(c, 4321).depth == (1 if c.transient_local else 4321), c.name
 
 
 def test_a_toy_channel_is_written_by_replay_and_read_back_by_both_readers(toy_channel, tmp_path, config):

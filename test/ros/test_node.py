@@ -16,7 +16,8 @@ from rollergear_ros.replay.run import replay
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
 from helpers import BAGS, CONFIG, REALDATA, with_effect
-from rostools import FloatProbe, NodeProcess, WatchProcess, call_until_answered, play, ros_context, wait_for
+from rostools import (LOSSLESS, PROBE_DEPTH, FloatProbe, NodeProcess, WatchProcess, call_until_answered, play,
+                      ros_context, wait_for)
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -25,7 +26,6 @@ T = TopicMap()
 PLAY_RATE = {"rig_map": 5.0, "rig_map_drag": 10.0, "drive_cycle_joint_states": 10.0, "warmup": 10.0}
 #: tests that count every sample take the inputs reliably: a node that falls behind on a busy machine
 #: holds the player back instead of losing samples (best-effort loss at 1 kHz is bench_node.py's measure)
-LOSSLESS = "node.input_qos:=reliable"
 
 
 def play_and_receive(bag, rate: float, n_expected: int, topic: str = T.loss_torque, msg_type=None):
@@ -44,7 +44,7 @@ def play_and_receive(bag, rate: float, n_expected: int, topic: str = T.loss_torq
 @pytest.mark.parametrize("bag", sorted(BAGS.glob("*.mcap")), ids=lambda p: p.stem)
 def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     rec = tmp_path / "live.mcap"
-    params = [f"node.record_mcap:={rec}", LOSSLESS]
+    params = [f"node.record_mcap:={rec}", *LOSSLESS]
     if "joint_states" in bag.stem:
         params.append("node.input_mode:=joint_state")
     node = NodeProcess(*params)
@@ -115,7 +115,7 @@ def test_with_only_the_stamped_estimate_the_node_publishes_one_message_per_sampl
     from rollergear_ros.outputs.stamped import ESTIMATE_FIELDS, decode_estimates
 
     bag = BAGS / "rig_map_drag.mcap"
-    node = NodeProcess("node.publish_float64:=false", LOSSLESS)
+    node = NodeProcess("node.publish_float64:=false", *LOSSLESS)
     n_expected = inspect_bag(bag).counts[T.motor_torque]
     raw = play_and_receive(bag, PLAY_RATE[bag.stem], n_expected, T.loss_estimate, JointState)
     with ros_context() as probe_node:
@@ -289,7 +289,7 @@ def test_a_live_recording_holds_what_made_it_its_parameter_changes_and_the_break
     from rollergear_ros.recordings.baginfo import read_metadata
 
     rec, rrd = tmp_path / "live.mcap", tmp_path / "live.rrd"
-    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}", LOSSLESS)
+    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}", *LOSSLESS)
     with ros_context() as probe:
         client = probe.create_client(SetParameters, "/rollergear/loss_estimator/set_parameters")
         assert client.wait_for_service(timeout_sec=60)
@@ -300,8 +300,17 @@ def test_a_live_recording_holds_what_made_it_its_parameter_changes_and_the_break
     play_and_receive(BAGS / "rig_map_drag.mcap", PLAY_RATE["rig_map_drag"], n)
     assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
 
+    import yaml
+
     provenance = read_metadata(rec, "rollergear_provenance")
     assert provenance is not None and provenance["params_file"] == str(CONFIG.resolve())
+    # the QoS the outputs were offered with, as the recording states it: node.output_depth per sample
+    topics = yaml.safe_load(read_metadata(rec, "rosbag2")["serialized_metadata"])["rosbag2_bagfile_information"]
+    offered = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"]
+               for t in topics["topics_with_message_count"]}
+    assert yaml.safe_load(offered[T.loss_torque])[0]["depth"] == PROBE_DEPTH
+    assert yaml.safe_load(offered[T.loss_estimate])[0]["depth"] == PROBE_DEPTH
+    assert yaml.safe_load(offered["/rollergear/loss/map"])[0]["depth"] == 1
     assert provenance["params_file_text"] == CONFIG.read_text(encoding="utf-8")
     assert provenance["params_file_sha256"] == hashlib.sha256(CONFIG.read_bytes()).hexdigest()
     assert provenance["parameters_sha256"] == hashlib.sha256(provenance["parameters"].encode()).hexdigest()
@@ -716,7 +725,7 @@ def test_decimated_outputs_are_every_nth_estimate(tmp_path):
     offline replay, for consumers that cannot take the input rate; with the online tracer off, no
     ``loss/traced`` topic and the rest as with it."""
     rec = tmp_path / "every10.mcap"
-    node = NodeProcess(f"node.record_mcap:={rec}", "node.publish_every_n:=10", LOSSLESS, "node.trace:=false")
+    node = NodeProcess(f"node.record_mcap:={rec}", "node.publish_every_n:=10", *LOSSLESS, "node.trace:=false")
     got = play_and_receive(BAGS / "rig_map.mcap", 5, 10080 // 10)
     assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
     assert "traces: 0 (effects traced in 0, taken in 0)" in node.stderr
@@ -863,7 +872,7 @@ def test_use_sim_time_stamps_estimates_with_the_bag_clock(tmp_path):
 def test_clean_shutdown_keeps_the_recording(tmp_path, sig):
     rec = tmp_path / "r.mcap"
     rrd = tmp_path / "r.rrd"
-    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}", LOSSLESS)
+    node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}", *LOSSLESS)
     play_and_receive(BAGS / "rig_map.mcap", 5, 10080)
     code = node.stop(sig)
     assert code == 0 and "Traceback" not in node.stderr, node.stderr
@@ -891,7 +900,7 @@ def test_a_sample_waiting_for_its_output_at_shutdown_is_estimated_and_recorded(e
 
     rec = tmp_path / "held.mcap"
     # 20 Hz: a publisher preempted a few ms between a sample's messages still stamps them together
-    node = NodeProcess(f"node.record_mcap:={rec}", f"node.executor:={executor}", LOSSLESS,
+    node = NodeProcess(f"node.record_mcap:={rec}", f"node.executor:={executor}", *LOSSLESS,
                        "node.expected_rate_hz:=20.0")
     n = 30
     with ros_context() as probe:
@@ -988,7 +997,7 @@ def test_rerun_streams_to_a_viewer_address(tmp_path):
         assert wait_for(listening, 30), "rerun server did not listen"
         rec = tmp_path / "r.mcap"
         node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_connect:=rerun+http://127.0.0.1:{port}/proxy",
-                           LOSSLESS)
+                           *LOSSLESS)
         play_and_receive(BAGS / "rig_map.mcap", 5, 10080)
         assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
     finally:
@@ -1010,7 +1019,7 @@ def test_rerun_streams_to_a_viewer_address(tmp_path):
 def test_unreachable_rerun_viewer_costs_only_the_rerun_data(tmp_path):
     rec = tmp_path / "r.mcap"
     node = NodeProcess(f"node.record_mcap:={rec}", f"node.rerun_connect:=rerun+http://127.0.0.1:{_free_port()}/proxy",
-                       LOSSLESS)
+                       *LOSSLESS)
     received = play_and_receive(BAGS / "rig_map.mcap", 5, 10080)
     assert node.stop() == 0, node.stderr
     assert "Traceback" not in node.stderr and "rerun logging incomplete" in node.stderr, node.stderr
@@ -1117,7 +1126,7 @@ def test_the_live_loss_map_reaches_a_late_subscriber_and_follows_the_adaptation(
                       "      drag_speed: {enabled: true, c: 1.5e-4, p: 1.4}\n")
     config = load_config(params)
     map_file = tmp_path / "live.vtlm"
-    node = NodeProcess(f"node.map_file:={map_file}", LOSSLESS, params_file=params)
+    node = NodeProcess(f"node.map_file:={map_file}", *LOSSLESS, params_file=params)
     maps = []
     with ros_context() as probe_node:
         # the node subscribes to its inputs after publishing its first map: from then on this is late
@@ -1165,7 +1174,7 @@ def test_a_node_whose_model_follows_the_oil_republishes_its_map_as_the_oil_warms
     params.write_text("/**/loss_estimator:\n  ros__parameters:\n    estimator: {adapt: false}\n    effects:\n"
                       "      viscosity_temperature: {enabled: true, B_k: 700.0, C_k: 95.0, theta_ref_c: 40.0}\n")
     config = load_config(params)
-    node = NodeProcess(LOSSLESS, "node.map_oil_step_c:=10.0", params_file=params)
+    node = NodeProcess(*LOSSLESS, "node.map_oil_step_c:=10.0", params_file=params)
     maps = []
     with ros_context() as probe_node:
         qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -1222,7 +1231,7 @@ def test_the_node_traces_an_effect_that_appears_mid_play_and_proposes_a_paramete
                     "--rate", "200", "--seed", "4", "--effect", TRACED[effect], "--step-change-at",
                     str(TRACE_ONSET_S), "--out", str(bag)], check=True, capture_output=True)
     truth = read_truth(bag)
-    node = NodeProcess("node.input_mode:=joint_state", LOSSLESS, f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}",
+    node = NodeProcess("node.input_mode:=joint_state", *LOSSLESS, f"node.record_mcap:={rec}", f"node.rerun_rrd:={rrd}",
                        f"node.traced_params_file:={cand}")
     watcher = WatchProcess()  # the README's third terminal
     traced, diagnosed = [], []
@@ -1305,7 +1314,7 @@ def test_a_traced_effect_taken_in_switches_the_estimator_at_a_recorded_sample_an
     then = SimulationOptions("drive_cycle", 200.0, 6, [drag], joint_states=True, start_ns=int(rig.t_ns[-1]) + 5_000_000)
     write_rig_bag(simulate(config, then), then, tmp_path / "then.mcap")
     rec = tmp_path / "live.mcap"
-    node = NodeProcess("node.input_mode:=joint_state", LOSSLESS, f"node.record_mcap:={rec}", "node.accept_traced:=on",
+    node = NodeProcess("node.input_mode:=joint_state", *LOSSLESS, f"node.record_mcap:={rec}", "node.accept_traced:=on",
                        f"node.traced_params_file:={tmp_path / 'candidate.yaml'}")
     n = sum(inspect_bag(tmp_path / b).counts[T.joint_states] for b in ("first.mcap", "then.mcap"))
     traced = []

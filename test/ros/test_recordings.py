@@ -11,7 +11,7 @@ from rollergear_ros.recordings.baginfo import inspect_bag, read_metadata
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
 from helpers import BAGS
-from rostools import FloatProbe, NodeProcess, play, ros_context, wait_for
+from rostools import LOSSLESS, FloatProbe, NodeProcess, play, ros_context, wait_for
 from test_layouts import check_node_topics
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -22,7 +22,7 @@ T = TopicMap()
 def test_a_split_recording_is_whole_files_that_together_are_the_unsplit_one(tmp_path):
     bag = BAGS / "rig_map_drag.mcap"
     n = inspect_bag(bag).counts[T.motor_torque]
-    common = ("node.input_qos:=reliable", "node.trace_period_s:=3.0")
+    common = (*LOSSLESS, "node.trace_period_s:=3.0")
     split = NodeProcess(f"node.record_mcap:={tmp_path / 'split' / 'rig_{start}.mcap'}", "node.record_max_s:=2.0",
                         *common)
     whole = NodeProcess(f"node.record_mcap:={tmp_path / 'whole.mcap'}", *common)
