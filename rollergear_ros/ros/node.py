@@ -1,16 +1,15 @@
 """``loss_estimator``: the live node, an rclpy shell over :class:`~core.estimator.Estimator`.
 
-The node wires topics, parameters and timers to its parts: the input callbacks hand every message
-to the estimator (and to the recording, at the times it was paired by; a gap in a publisher's
-sequence numbers becomes placeholders), each estimate is published on the output channels
-(:mod:`base.output_channels`: loss torque, loss power, efficiency, the residual when the output is
-measured, the stamped estimate).  The parts: the recordings (:mod:`.recorder`: MCAP and rerun,
-rolled by size and age), the status on ``/diagnostics`` (:mod:`.reporter`, from a thread of its
-own), the measured efficiency's windows (:mod:`.efficiencywindow`), the live loss map
-(:mod:`.livemaps`), the online tracer (:mod:`.tracer`) and the input thread of the events executor
-(:mod:`.intake`).  Parameters are the package's one parameter set (``config/gearbox.yaml``),
-declared with descriptors; run-time changes go through :func:`core.params.validate` and are refused
-with its reason.
+The node wires topics, parameters and timers to its parts and publishes each estimate on the
+output channels (:mod:`base.output_channels`: loss torque, loss power, efficiency, the residual when
+the output is measured, the stamped estimate).  The parts: the input path (:mod:`.inputpath`: the
+subscriptions, whose callbacks hand every message to the estimator and the recording, and the
+input thread of the events executor, :mod:`.intake`), the recordings (:mod:`.recorder`: MCAP and
+rerun, rolled by size and age), the status on ``/diagnostics`` (:mod:`.reporter`, from a thread of
+its own), the measured efficiency's windows (:mod:`.efficiencywindow`), the live loss map
+(:mod:`.livemaps`) and the online tracer (:mod:`.tracer`).  Parameters are the package's one
+parameter set (``config/gearbox.yaml``), declared with descriptors; run-time changes go through
+:func:`core.params.validate` and are refused with its reason.
 
 Run: ``loss_estimator --ros-args --params-file config/gearbox.yaml`` (or ``ros2 run rollergear_ros
 loss_estimator …``).
@@ -19,7 +18,6 @@ loss_estimator …``).
 from __future__ import annotations
 
 import gc
-import math
 import struct
 import sys
 import threading
@@ -33,20 +31,16 @@ from diagnostic_msgs.msg import DiagnosticStatus
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.serialization import serialize_message
-from sensor_msgs.msg import JointState, Temperature
+from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, Float64MultiArray
 
-from ..recordings.messages import CDR_LE_HEADER, TopicMap, decode_float64, float64_problem
+from ..recordings.messages import CDR_LE_HEADER, TopicMap
 from ..recordings.rolling import free_name
-from .diagnostics import InputMonitor
 from ..core.estimator import Estimate, Estimator
 from ..base.errors import ParameterError, RollergearError
-from .intake import InputTaker
+from .inputpath import InputPath
 from .livemaps import LiveMapPublisher
 from ..sources.paths import Output, check_outputs
-from ..core.pairing import (ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
-                            SequenceGaps)
 from ..outputs.stamped import EstimateCodec, estimate_values
 from ..base.interface import NAMESPACE, MessageType, Topic
 from .nodehelp import help_text, wants_help
@@ -54,7 +48,7 @@ from ..base.output_channels import (OUTPUT_CHANNELS, float64_channels, map_chann
                                     window_channels)
 from ..core.params import Config
 from .parameters import (check_params_files, declare_parameters, package_parameter_names, parameter_event, params_files)
-from .qos import INPUT_QOS, output_qos
+from .qos import output_qos
 from .recorder import NodeRecording, check_recording_names
 from .reporter import StatusReporter
 from .spin import make_executor, stop_on_signals
@@ -71,10 +65,6 @@ MAP_CHECK_S = 1.0  #: how often the adapted coefficients are compared with those
 _PACK = struct.Struct("<4sd").pack
 HEARTBEAT_S = 0.1  #: period of the executor heartbeat timer (executor lag in /diagnostics)
 _CDR = CDR_LE_HEADER
-_LOST_RAW = _PACK(_CDR, LOST_VALUE)
-#: a gap in a publisher's sequence numbers longer than this is not filled with placeholders message
-#: by message (a node frozen for minutes): the pairing restarts as for a new stream instead
-MAX_PLACEHOLDERS = 100_000
 
 
 def _raw_publish(publisher):
@@ -96,31 +86,24 @@ class LossEstimatorNode(Node):
         if node.executor == "single_threaded":
             self.pairing = "timestamp"
         else:  # a reliable, keep-all input loses nothing; over best effort the publishers'
-            # sequence numbers tell what was lost (filled in with placeholders: _push_lost)
+            # sequence numbers tell what was lost (filled in with placeholders: :mod:`.inputpath`)
             self.pairing = "arrival_reliable" if node.input_qos == "reliable" else "arrival_sequenced"
         self.estimator = Estimator(self.config, self.pairing, 1.0 / self.config.node.expected_rate_hz)
         self._package_parameters = package_parameter_names()
         self.parameter_changes = 0  #: accepted run-time changes
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.monitor = InputMonitor(time.time_ns())
         self._published = 0
         self._every = self.config.node.publish_every_n
-        #: while the start-up backlog is taken: where the input callbacks hold what they are given
-        self._backlog: list[tuple[str, Any, bytes, dict]] | None = None
-        self.backlog_discarded = 0  #: input messages queued before the first take, discarded
-        self.backlog_kept = 0  #: ... and estimated (the start of their publishers' streams)
         self.executor_kind = node.executor
-        # the events executor gives no message info: the inputs are taken in a thread of their own
-        # (with it), under this lock, which a parameter change takes too
+        # the events executor's input thread delivers under this lock, which a parameter change takes too
         self._input_lock = threading.Lock()
         self._closed = False
-        self.inputs = InputTaker(self, self._input_lock) if node.executor == "events" else None
-        self._sequence_gaps = {c: SequenceGaps() for c in Topic.OF_CHANNEL}
-        self._last_input_ns: dict[str, int] = {}
-        self._input_log_ns = 0  #: log time of the last input recorded (the sample boundary of a change)
-        self._input_handles: dict[str, Any] = {}  # input thread's subscriptions, by channel
-        self._interleaved_warned = False
-        topics = TopicMap()
+        # Float64 inputs are recorded at the very times the estimator paired them by (publisher
+        # timestamps, or arrival times), so that replay of the recording pairs them as the node did
+        # (``rollergear_recording`` metadata); under sim time the recording keeps one clock: ROS time
+        record_pairing_time = node.input_mode == "float64" and not self.get_parameter("use_sim_time").value
+        #: the input subscriptions and what each message does (:mod:`.inputpath`)
+        self.input_path = InputPath(self, self._input_lock, self.pairing, record_pairing_time)
         self._create_outputs()
         # the live loss map (transient-local: an energy manager that starts later gets the last one)
         self.live_map = LiveMapPublisher(self._map_publishers, self.get_fully_qualified_name(), self.get_logger())
@@ -136,18 +119,16 @@ class LossEstimatorNode(Node):
             c.name: (_raw_publish(self.output_publishers[c.name]), self.out_topics[c.name])
             for c in window_channels() if c.name in self.output_publishers})
         self.create_timer(EFFICIENCY_CHECK_S, self.efficiency_window.update)
-        self._subscribe_inputs(topics)
-        self.busy_ns = 0  #: time spent in input callbacks (saturation: /diagnostics)
+        self.input_path.subscribe()
         # executor lag: a heartbeat timer queued behind the input events fires as late as they are
         # taken (single_threaded; the events node's input thread measures how long inputs waited)
         self._heartbeat_ns = time.time_ns()
-        self._input_lag = (0, 0)  # (when, how long the message taken then had waited), input thread
         self.create_timer(HEARTBEAT_S, self._heartbeat)
         if self._map_publishers or node.map_file:
             self.create_timer(MAP_CHECK_S, self._update_map)
         self.status = StatusReporter(self)  # /diagnostics, from a thread of its own
         self.get_logger().info(
-            f"estimating from {'Float64 topics' if node.input_mode == 'float64' else topics.joint_states}; "
+            f"estimating from {'Float64 topics' if node.input_mode == 'float64' else TopicMap().joint_states}; "
             f"effects: {', '.join(self.config.effects.enabled()) or 'none'}; executor: {self.executor_kind}; "
             f"input QoS: {node.input_qos}"
             + (f"; recording {node.record_mcap}" if self.recorder else ""))
@@ -156,10 +137,6 @@ class LossEstimatorNode(Node):
         """Check every output file before any is opened, publish the first loss map, and open the
         recordings the parameters ask for (:class:`~.recorder.NodeRecording`)."""
         node = self.config.node
-        # Float64 inputs are recorded at the very times the estimator paired them by (publisher
-        # timestamps, or arrival times), so that replay of the recording pairs them as the node did
-        # (``rollergear_recording`` metadata); under sim time the recording keeps one clock: ROS time
-        self._record_pairing_time = (node.input_mode == "float64" and not self.get_parameter("use_sim_time").value)
         # every output is checked before any is opened: a refused one leaves no half-written file
         check_recording_names(self.config)
         # the files rewritten during the run: an existing file is never replaced, the next free name is taken
@@ -174,7 +151,7 @@ class LossEstimatorNode(Node):
         if self._map_publishers or node.map_file:
             self._update_map()  # before the inputs are subscribed: nothing waits for it
         self.recording = NodeRecording(self, self.config, self.out_topics, self._input_lock, self.pairing,
-                                       self._record_pairing_time, lambda: self.estimator)
+                                       self.input_path.record_pairing_time, lambda: self.estimator)
         #: the MCAP recorder the input and output paths write into (None: not recording)
         self.recorder = self.recording.mcap
         self._rerun_estimates = self.recording.estimates
@@ -184,27 +161,6 @@ class LossEstimatorNode(Node):
         """The live map last published, into the recording (``loss/map``)."""
         topic = self.out_topics.get(next((c.name for c in map_channels()), ""), "")
         self.recording.record_map(self.live_map.last_message, topic)
-
-    def _subscribe_inputs(self, topics: TopicMap) -> None:
-        """The input subscriptions: the four Float64 channels or the joint states, and the oil temperature."""
-        node = self.config.node
-        input_qos = INPUT_QOS[node.input_qos]
-        if node.input_mode == "float64":
-            for channel, rel in Topic.OF_CHANNEL.items():
-                self._input_handles[channel] = self._subscribe(
-                    Float64, rel, self._float_callback(channel, self.resolve_topic_name(rel)), input_qos, raw=True)
-        else:
-            self._subscribe(JointState, topics.joint_states, lambda msg, _info=None: self._joint_state_callback(msg),
-                            input_qos)
-        self._subscribe(Temperature, Topic.OIL_TEMPERATURE, lambda msg, _info=None: self._temperature_callback(msg),
-                        input_qos)
-
-    def _subscribe(self, msg_type, topic: str, callback, qos, raw: bool = False):
-        """An input subscription: ``callback(message, info)``, on the input thread (events executor;
-        returns its handle) or on the executor."""
-        if self.inputs is not None:
-            return self.inputs.subscribe(msg_type, topic, qos, callback, raw=raw)
-        return self.create_subscription(msg_type, topic, callback, qos, raw=raw)
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params) -> SetParametersResult:
@@ -240,184 +196,7 @@ class LossEstimatorNode(Node):
         """The log time of the last input message the recording holds (0: none yet): a change made
         now applies after it, where replay, which takes the inputs in log-time order, applies it
         (:mod:`replay.switches`)."""
-        return self._input_log_ns
-
-    # ------------------------------------------------------------------ inputs
-    def start_inputs(self, executor) -> int:
-        """Take the start-up backlog (:meth:`take_start_up_backlog`), then start the input thread
-        (events executor); returns how many messages were discarded.
-
-        Under sim time the inputs are stamped with the ROS clock, which the executor sets from
-        ``/clock``: the thread takes nothing, the backlog included, before that has happened (the
-        inputs wait in the middleware's queues meanwhile), and this returns at once."""
-        if self.inputs is None:
-            return 0
-        if self.get_parameter("use_sim_time").value:
-            self.inputs.start(ready=lambda: self.get_clock().now().nanoseconds > 0, first=self.take_start_up_backlog)
-            return 0
-        discarded = self.take_start_up_backlog()
-        self.inputs.start()
-        return discarded
-
-    def take_start_up_backlog(self) -> int:
-        """Take the Float64 inputs queued before the node first takes from its subscriptions
-        (arrival pairing only): estimate them when they are the start of their publishers' streams,
-        else discard them.  Returns how many were discarded.
-
-        A node that joins a running stream finds up to a queue's depth of messages waiting, its
-        subscriptions having matched a few samples apart; taken in one burst, their arrival order
-        says nothing about which torque belongs to which speed, so they are discarded and live
-        messages pair by their arrival.  But a stream that began after the node subscribed -- a
-        player started as soon as the node's subscriptions matched it, while the node was still
-        starting up -- queues the same way and is no backlog to lose: the publishers' sequence
-        numbers tell the two apart.  When every input topic's first queued message is its
-        publisher's first (number 1), each topic is there from the first sample on and first-in
-        first-out pairs them.  Publisher timestamps (``single_threaded``) and JointState header
-        stamps pair any backlog exactly, so it is kept there (and nothing is taken here).
-        """
-        if self.pairing not in ARRIVAL_PAIRINGS or self.config.node.input_mode != "float64":
-            return 0
-        held: list[tuple[str, Any, bytes, dict]] = []
-        with self._input_lock:
-            self._backlog = held
-            try:
-                idle = 0
-                while idle < 3:  # a few empty takes in a row: the queues are drained
-                    before = len(held)
-                    self.inputs.take_round_robin()  # the callbacks hold what they are given
-                    idle = idle + 1 if len(held) == before else 0
-            finally:
-                self._backlog = None
-            first: dict[str, int | None] = {}
-            for channel, _, _, info in held:
-                first.setdefault(channel, info.get("publication_sequence_number"))
-            if held and all(n == 1 for n in first.values()):
-                self.backlog_kept = len(held)
-                for _, callback, raw, info in held:
-                    callback(raw, info)
-                self.get_logger().info(f"took {len(held)} input messages queued at start-up: every topic from "
-                                       "its publisher's first message on (a stream that started with the node)")
-                return 0
-            for channel, _, _, info in held:  # the next live message after them is no loss
-                self._sequence_gaps[channel].lost_before(info.get("publication_sequence_number"))
-            self.backlog_discarded += len(held)
-        if self.backlog_discarded:
-            self.get_logger().info(f"discarded {self.backlog_discarded} input messages queued before start-up "
-                                   "(a running stream: their arrival order cannot pair them)")
-        return self.backlog_discarded
-
-    def _float_callback(self, channel: str, topic: str):
-        """The hot path: one Float64 message (raw CDR bytes) -> estimator -> outputs.
-
-        Paired by the publisher's timestamp (``single_threaded``) or by arrival (``events``; the
-        messages the middleware lost, told by the gaps in the publisher's sequence numbers, are
-        pushed as placeholders in their place: :meth:`_push_lost`)."""
-        counts, last = self.monitor.counts, self.monitor.last_ns
-        unpack = struct.Struct("<d").unpack_from
-        time_ns = time.time_ns
-        record_pairing_time = self._record_pairing_time
-
-        def handle(raw: bytes, t_ns: int, wall_ns: int, source_ns: int | None = None) -> None:
-            counts[channel] += 1
-            last[channel] = wall_ns
-            if self.recorder is not None:
-                log_ns = self._input_log_ns = t_ns if record_pairing_time else self.get_clock().now().nanoseconds
-                self.recorder.write_raw(topic, MessageType.FLOAT64, log_ns, raw, publish_time_ns=source_ns)
-            if len(raw) >= 12 and raw[1] == 1 and raw[0] == 0:
-                value = unpack(raw, 4)[0]
-            elif float64_problem(raw) is None:
-                value = float(decode_float64([raw])[0])
-            else:  # not a Float64 payload: counted (diagnostics warn), never decoded as garbage
-                self.estimator.counts["malformed"] += 1
-                return
-            for est in self.estimator.push(channel, t_ns, value, source_ns):
-                self._publish(est)
-
-        if self.pairing not in ARRIVAL_PAIRINGS:
-            def cb_timestamp(raw: bytes, info) -> None:
-                wall = time_ns()
-                handle(raw, info["source_timestamp"] or wall, wall)
-                self.busy_ns += time_ns() - wall
-            return cb_timestamp
-
-        lost_before = self._sequence_gaps[channel].lost_before
-        last_input = self._last_input_ns
-
-        def cb_arrival(raw: bytes, info) -> None:
-            if self._backlog is not None:  # queued before start-up: held until the backlog is judged
-                self._backlog.append((channel, cb_arrival, raw, info))
-                return
-            wall = t_ns = time_ns()
-            self._input_lag = (wall, wall - (info["received_timestamp"] or wall))
-            lost = lost_before(info["publication_sequence_number"])
-            if lost:
-                t_ns = self._push_lost(channel, topic, lost, wall)
-            last_input[channel] = t_ns
-            handle(raw, t_ns, wall, info["source_timestamp"] or None)
-            self.busy_ns += time_ns() - wall
-        return cb_arrival
-
-    def _push_lost(self, channel: str, topic: str, lost: int, t_ns: int) -> int:
-        """``lost`` messages of ``channel`` were lost just before the one taken at ``t_ns``: push
-        (and record) a placeholder for each (:data:`~core.pairing.LOST_VALUE`), 1 ns
-        apart just before it, so that first-in first-out pairing stays aligned.  Returns the time
-        for the message itself (moved on by at most ``lost`` ns where the channel's previous message
-        leaves no room: the times on a topic must grow for replay to keep this order)."""
-        handle = self._input_handles.get(channel)
-        if handle is not None and handle.get_publisher_count() > 1:
-            # two publishers' numbers interleave: a gap between them is no loss
-            if not self._interleaved_warned:
-                self._interleaved_warned = True
-                self.get_logger().warn(f"{topic} has {handle.get_publisher_count()} publishers: messages "
-                                       "lost in delivery cannot be told (one publisher per input topic)")
-            return t_ns
-        self.monitor.lost[channel] += lost
-        if lost > MAX_PLACEHOLDERS:
-            self.estimator.sync.restart()
-            return t_ns
-        t_ns = max(t_ns, self._last_input_ns.get(channel, t_ns) + lost + 1)
-        for t_i in range(t_ns - lost, t_ns):
-            if self.recorder is not None:
-                log_ns = self._input_log_ns = (t_i if self._record_pairing_time
-                                               else self.get_clock().now().nanoseconds)
-                self.recorder.write_raw(topic, MessageType.FLOAT64, log_ns, _LOST_RAW)
-            for est in self.estimator.push(channel, t_i, LOST_VALUE):
-                self._publish(est)
-        return t_ns
-
-    def _joint_state_callback(self, msg: JointState) -> None:
-        wall = time.time_ns()
-        t_ns = (msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec) or wall
-        names = list(msg.name)
-        node = self.config.node
-        if self.recorder is not None:
-            log_ns = self._input_log_ns = self.get_clock().now().nanoseconds
-            self.recorder.write_raw(Topic.JOINT_STATES, MessageType.JOINT_STATE, log_ns, serialize_message(msg))
-        for joint, ch_t, ch_w in ((node.input_joint, TORQUE, SPEED), (node.output_joint, OUT_TORQUE, OUT_SPEED)):
-            if joint in names:
-                k = names.index(joint)
-                effort = msg.effort[k] if k < len(msg.effort) else float("nan")
-                velocity = msg.velocity[k] if k < len(msg.velocity) else float("nan")
-                self.monitor.record(ch_t, wall)
-                self.monitor.record(ch_w, wall)
-                for channel, value in ((ch_t, effort), (ch_w, velocity)):
-                    for est in self.estimator.push(channel, t_ns, float(value)):
-                        self._publish(est)
-        self.busy_ns += time.time_ns() - wall
-
-    def _temperature_callback(self, msg: Temperature) -> None:
-        wall = time.time_ns()
-        self.monitor.record(OIL_TEMPERATURE, wall)
-        if self.recorder is not None:
-            self.recorder.write_raw(self.resolve_topic_name(Topic.OIL_TEMPERATURE), MessageType.TEMPERATURE,
-                                    wall if self._record_pairing_time else self.get_clock().now().nanoseconds,
-                                    serialize_message(msg))
-        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        # the stamp keeps the temperature on the inputs' clock in JointState mode (header stamps)
-        t_ns = stamp if (stamp and self.config.node.input_mode == "joint_state") else wall
-        self.estimator.push(OIL_TEMPERATURE, t_ns, float(msg.temperature))
-        if math.isfinite(msg.temperature):
-            self.live_map.oil_temperature_c = float(msg.temperature)
+        return self.input_path.log_ns
 
     @property
     def rerun(self):
@@ -510,16 +289,13 @@ class LossEstimatorNode(Node):
         """How far the node is behind: the heartbeat's age beyond its period, or (input thread) how
         long the last message taken in the past second had waited since the middleware received it."""
         now = time.time_ns()
-        taken_ns, waited_ns = self._input_lag
-        waited = waited_ns * 1e-9 if now - taken_ns < 1_000_000_000 else 0.0
-        return max(0.0, (now - self._heartbeat_ns) * 1e-9 - HEARTBEAT_S, waited)
+        return max(0.0, (now - self._heartbeat_ns) * 1e-9 - HEARTBEAT_S, self.input_path.waited_s(now))
 
     # ------------------------------------------------------------------ shutdown
     def destroy_node(self) -> None:
         """Stop the input and diagnostics threads before their subscriptions and publisher go away,
         then destroy the node."""
-        if self.inputs is not None:
-            self.inputs.destroy()
+        self.input_path.destroy()
         self.status.stop()
         super().destroy_node()
 
@@ -550,8 +326,7 @@ class LossEstimatorNode(Node):
         """Flush and close the recordings, the MCAP first (safe to call twice), then log one summary
         line.  A rerun viewer that cannot be reached costs its data, with a warning, never the MCAP
         or a traceback."""
-        if self.inputs is not None:
-            self.inputs.stop()  # no input is taken after this
+        self.input_path.stop()  # no input is taken after this
         self.status.stop()
         if self._closed:
             return
@@ -616,11 +391,11 @@ def main(args: list[str] | None = None) -> int:
         executor = make_executor(node.executor_kind)
         executor.add_node(node)
         gc.freeze()  # and the node's own objects (no collection: it would delay the first take)
-        node.start_inputs(executor)
+        node.input_path.start()
         # spin_once with a timeout: EventsExecutor.spin() never returns on this rclpy version
         while rclpy.ok() and not stop.is_set():
-            if node.inputs is not None and node.inputs.error is not None:
-                raise node.inputs.error
+            if node.input_path.error is not None:
+                raise node.input_path.error
             try:
                 executor.spin_once(timeout_sec=0.1)
             except RuntimeError:

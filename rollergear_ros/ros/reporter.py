@@ -30,7 +30,7 @@ class StatusReporter:
         self.publisher = node.create_publisher(DiagnosticArray, Topic.DIAGNOSTICS, 10)
         self._skips_reported = dict(node.estimator.counts)
         self._alarms_reported = 0
-        self._busy_reported = (time.time_ns(), node.busy_ns)
+        self._busy_reported = (time.time_ns(), node.input_path.busy_ns)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._loop, name="diagnostics", daemon=True)
         self._thread.start()
@@ -50,11 +50,12 @@ class StatusReporter:
         now = time.time_ns()
         params = node.config.node
         then, busy_then = self._busy_reported
-        busy = node.busy_ns
+        busy = node.input_path.busy_ns
         self._busy_reported = (now, busy)
         estimator = node.estimator
         depth = INPUT_QOS[params.input_qos].depth if params.input_qos == "sensor_data" else None
-        report = diagnose(InputsNow(now, node.monitor, node.monitor.rates(now)), estimator,
+        monitor = node.input_path.monitor
+        report = diagnose(InputsNow(now, monitor, monitor.rates(now)), estimator,
                           DiagnosticLimits(params.expected_rate_hz, params.min_efficiency_warn, depth,
                                            params.learn_input_rate),
                           SinceLast(self._skips_reported, self._alarms_reported),
@@ -66,7 +67,7 @@ class StatusReporter:
                                   message=report.message, hardware_id=params.hardware_id,
                                   values=[KeyValue(key=k, value=v) for k, v in report.values]
                                   + [KeyValue(key="start-up backlog discarded [messages]",
-                                              value=str(node.backlog_discarded))]
+                                              value=str(node.input_path.backlog_discarded))]
                                   + self._latest_trace_values())
         traced = node.tracer.latest_status
         arr = DiagnosticArray(status=[status] if traced is None else [status, traced])

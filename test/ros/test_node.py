@@ -408,7 +408,7 @@ def test_run_time_change_of_pairing_limits_takes_effect():
 def _start_up(probe, before_node: int, queued: int, live: int):
     """An events node in ``probe``'s context whose input topics are published ``before_node`` samples
     before it subscribes (they never reach it) and ``queued`` after, before it first takes its inputs
-    (``start_inputs``); then ``live`` samples at ~1 kHz.  Sample k is torque 10 + k/1000 and speed
+    (``InputPath.start``); then ``live`` samples at ~1 kHz.  Sample k is torque 10 + k/1000 and speed
     50 + k/1000.  Returns the node (destroyed) and its estimates' sample indices ``(k_t, k_w)``."""
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
@@ -441,15 +441,17 @@ def _start_up(probe, before_node: int, queued: int, live: int):
             publish(k)
         assert wait_for(lambda: all(v and v[-1] >= base + last * 1e-3 - 1e-9
                                     for v, base in zip(seen.values(), (10.0, 50.0))), 30)
-        node.start_inputs(executor)
+        inputs = node.input_path
+        inputs.start()
         for k in range(last + 1, last + 1 + live):
             publish(k)
             next_sample = time.monotonic() + 0.001
             while time.monotonic() < next_sample:
                 executor.spin_once(timeout_sec=0.0005)
         n_sent = before_node + queued + live
-        assert wait_for(lambda: executor.spin_once(timeout_sec=0.01) or sum(node.monitor.counts.values())
-                        + node.backlog_discarded + sum(node.monitor.lost.values()) >= 2 * (n_sent - before_node), 60)
+        taken = 2 * (n_sent - before_node)
+        assert wait_for(lambda: executor.spin_once(timeout_sec=0.01) or sum(inputs.monitor.counts.values())
+                        + inputs.backlog_discarded + sum(inputs.monitor.lost.values()) >= taken, 60)
         node.close()
     finally:
         executor.shutdown()
@@ -467,7 +469,7 @@ def test_start_up_backlog_of_a_running_stream_is_discarded():
     messages after that are estimated."""
     with ros_context() as probe:
         node, k_t, k_w = _start_up(probe, before_node=50, queued=200, live=300)
-    assert node.backlog_discarded == 400 and node.backlog_kept == 0
+    assert node.input_path.backlog_discarded == 400 and node.input_path.backlog_kept == 0
     assert np.all(k_t >= 250) and len(k_t) >= 290, (len(k_t), node.estimator.counts)
     assert np.mean(k_t == k_w) > 0.95 and node.estimator.counts["unpaired"] < 10
 
@@ -482,7 +484,7 @@ def test_a_stream_that_starts_while_the_node_starts_up_is_estimated_from_its_fir
     estimated from its own inputs."""
     with ros_context() as probe:
         node, k_t, k_w = _start_up(probe, before_node=0, queued=200, live=100)
-    assert node.backlog_kept == 400 and node.backlog_discarded == 0
+    assert node.input_path.backlog_kept == 400 and node.input_path.backlog_discarded == 0
     assert k_t.tolist() == k_w.tolist() == list(range(300)), node.estimator.counts
 
 
@@ -513,17 +515,17 @@ def test_under_sim_time_a_stream_queued_at_start_up_waits_for_the_clock(tmp_path
             for k in range(100):
                 for p, base in zip(pubs, (10.0, 50.0)):
                     p.publish(Float64(data=base + k * 1e-3))
-            assert node.start_inputs(executor) == 0
+            assert node.input_path.start() == 0
             time.sleep(0.2)  # what must not happen meanwhile: nothing is taken before the clock is set
-            assert sum(node.monitor.counts.values()) == 0 and node.backlog_kept == 0
+            assert sum(node.input_path.monitor.counts.values()) == 0 and node.input_path.backlog_kept == 0
             clock.publish(Clock(clock=Time(sec=1000)))
-            assert wait_for(lambda: executor.spin_once(timeout_sec=0.01) or sum(node.monitor.counts.values()) == 200,
-                            30), node.monitor.counts
+            counts = node.input_path.monitor.counts
+            assert wait_for(lambda: executor.spin_once(timeout_sec=0.01) or sum(counts.values()) == 200, 30), counts
             node.close()
         finally:
             executor.shutdown()
             node.destroy_node()
-    assert node.backlog_kept == 200 and node.backlog_discarded == 0
+    assert node.input_path.backlog_kept == 200 and node.input_path.backlog_discarded == 0
     recorded = read_rosbags(rec)
     t_in = np.concatenate([float_series(recorded, topic)[0] for topic in (T.motor_torque, T.motor_speed)])
     t_out = float_series(recorded, T.loss_torque)[0]
@@ -562,7 +564,8 @@ def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inpu
         executor = make_executor("events", context=probe.context)
         try:
             executor.add_node(node)
-            node.start_inputs(executor)
+            node.input_path.start()
+            monitor = node.input_path.monitor
             qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
             pub_t, pub_w = (probe.create_publisher(Float64, t, qos) for t in (T.motor_torque, T.motor_speed))
             assert wait_for(lambda: pub_t.get_subscription_count() == pub_w.get_subscription_count() == 2, 20)
@@ -578,7 +581,7 @@ def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inpu
                 publish(pub_t, k)
                 publish(pub_w, k)
                 time.sleep(0.001)
-            assert wait_for(lambda: node.estimator.estimated >= 150 and node.monitor.counts[SPEED] == 200, 30)
+            assert wait_for(lambda: node.estimator.estimated >= 150 and monitor.counts[SPEED] == 200, 30)
             # the node stalls; its queues overflow: torque loses samples 200..(200 + 300), speed 200..(200 + 200)
             with node._input_lock:
                 for k in range(200, depth + 500 + 1):
@@ -587,18 +590,18 @@ def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inpu
                         publish(pub_w, k)
                 assert sent(T.motor_torque, depth + 500) and sent(T.motor_speed, depth + 400)
             queued = {TORQUE: depth + 501, SPEED: depth + 401}  # published so far, by topic
-            assert wait_for(lambda: all(node.monitor.counts[ch] + node.monitor.lost[ch] == n
-                                        for ch, n in queued.items()), 30), (node.monitor.counts, node.monitor.lost)
+            assert wait_for(lambda: all(monitor.counts[ch] + monitor.lost[ch] == n
+                                        for ch, n in queued.items()), 30), (monitor.counts, monitor.lost)
             for k in range(depth + 401, depth + 501):
                 publish(pub_w, k)
             for k in range(depth + 501, last_k + 1):
                 publish(pub_t, k)
                 publish(pub_w, k)
                 time.sleep(0.001)
-            assert wait_for(lambda: all(node.monitor.counts[ch] + node.monitor.lost[ch] == last_k + 1
-                                        for ch in (TORQUE, SPEED)), 60), (node.monitor.counts, node.monitor.lost)
+            assert wait_for(lambda: all(monitor.counts[ch] + monitor.lost[ch] == last_k + 1
+                                        for ch in (TORQUE, SPEED)), 60), (monitor.counts, monitor.lost)
             with node._input_lock:
-                counts, lost, estimated = dict(node.estimator.counts), dict(node.monitor.lost), node.estimator.estimated
+                counts, lost, estimated = dict(node.estimator.counts), dict(monitor.lost), node.estimator.estimated
         finally:
             node.close()
             executor.shutdown()
