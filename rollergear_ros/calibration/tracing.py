@@ -351,7 +351,7 @@ def worker_cpus(node_cpus: set[int], cpu_count: int) -> set[int]:
     return (set(range(cpu_count)) - node_cpus) or node_cpus
 
 
-def _worker_start(node_cpus: tuple[int, ...] = (), idle: bool = True) -> None:
+def _worker_start(node_pid: int, node_cpus: tuple[int, ...] = (), idle: bool = True) -> None:
     """The worker process keeps off the node's input path: on the CPUs the node was not pinned to
     (:func:`worker_cpus`; a spawned process inherits the node's affinity, and a worker on the node's
     only core delays its inputs by milliseconds whatever its priority), and scheduled when nothing else
@@ -361,9 +361,11 @@ def _worker_start(node_cpus: tuple[int, ...] = (), idle: bool = True) -> None:
     :data:`IDLE_PRIORITY_S` goes on at the lowest nice level (:meth:`TraceWorker.hurry_if_late`; ``idle``
     False: a worker started there).  Ctrl-C is the
     node's: the worker ignores it (the node stops it).  A node that dies without stopping it (killed,
-    crashed) takes it along: the worker watches its parent (:func:`_exit_with_parent`)."""
+    crashed) takes it along: the worker watches its parent (:func:`_exit_with_parent`), named by the
+    node (``node_pid``): a node that died while the worker started up is no longer the parent the
+    worker would find."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _exit_with_parent(os.getppid())
+    _exit_with_parent(node_pid)
     if node_cpus and hasattr(os, "sched_setaffinity"):
         try:
             os.sched_setaffinity(0, worker_cpus(set(node_cpus), os.cpu_count() or 1))
@@ -471,7 +473,7 @@ class TraceWorker:
             node_cpus = tuple(sorted(os.sched_getaffinity(0))) if hasattr(os, "sched_getaffinity") else ()
             with children_spared_interrupts():  # the worker is spawned with Ctrl-C ignored, from its first instruction
                 self._pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
-                                                 initializer=_worker_start, initargs=(node_cpus, idle))
+                                                 initializer=_worker_start, initargs=(os.getpid(), node_cpus, idle))
                 self._pid = self._pool.submit(_ready)
 
     def submit(self, request: TraceRequest) -> None:

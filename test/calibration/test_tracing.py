@@ -275,15 +275,18 @@ def test_where_the_idle_class_cannot_be_left_the_late_trace_starts_over_in_a_wor
     assert got["verdict"] == here.verdict == "traced" and got["message"] == here.message
 
 
-#: a "node" that starts the tracer's worker, keeps it busy with a long task, says the worker's and the
-#: resource tracker's process ids and waits to be killed
+#: a "node" that starts the tracer's worker, says the worker's and the resource tracker's process ids
+#: (argv[1] "started": once the worker has started and taken a long task; "spawned": at once, before the
+#: worker has run a line of its own) and waits to be killed
 _BUSY_NODE = """
-import time
+import sys, time
 from multiprocessing import resource_tracker
 from rollergear_ros.calibration.tracing import TraceWorker
 worker = TraceWorker()
 worker.start()
-busy = worker._pool.submit(time.sleep, 600)
+if sys.argv[1] == "started":
+    worker._pid.result(timeout=600)
+    busy = worker._pool.submit(time.sleep, 600)
 print(*[p.pid for p in worker._pool._processes.values()], resource_tracker._resource_tracker._pid, flush=True)
 time.sleep(600)
 """
@@ -298,23 +301,28 @@ def _alive(pid: int) -> bool:
         return False
 
 
-@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads /proc")
-def test_a_node_killed_mid_trace_takes_its_worker_and_the_resource_tracker_along():
-    """A node killed (SIGKILL: no shutdown) while its worker traces: the worker used to run its trace
-    to the end (minutes at the idle priority on a busy machine), the resource tracker beside it."""
+def _kill_node_and_wait_for_its_children(when: str) -> None:
+    """Start :data:`_BUSY_NODE`, kill it (SIGKILL: no shutdown) and wait for the worker and the
+    resource tracker to end; "spawned": the worker is held stopped from just after its spawn until
+    the node is dead, so it starts its first line an orphan."""
     import signal
     import subprocess
     import sys
     import time
 
-    node = subprocess.Popen([sys.executable, "-c", _BUSY_NODE], stdout=subprocess.PIPE, text=True)
+    node = subprocess.Popen([sys.executable, "-c", _BUSY_NODE, when], stdout=subprocess.PIPE, text=True)
     try:
         worker_pid, tracker_pid = map(int, node.stdout.readline().split())
-        time.sleep(1.0)  # the worker is in its task (a second of it), the tracker running
         assert _alive(worker_pid) and _alive(tracker_pid)
+        if when == "spawned":
+            os.kill(worker_pid, signal.SIGSTOP)
         node.send_signal(signal.SIGKILL)
         node.wait(timeout=60)
-        deadline = time.monotonic() + 60  # a condition: both gone (within a second here)
+        if when == "spawned":
+            os.kill(worker_pid, signal.SIGCONT)
+        # a condition: both gone (within a second here; an orphan starting up imports numpy and scipy
+        # first, at whatever share of a core a busy machine leaves it)
+        deadline = time.monotonic() + 600
         while (_alive(worker_pid) or _alive(tracker_pid)) and time.monotonic() < deadline:
             time.sleep(0.05)
         assert not _alive(worker_pid), "the worker outlived the node"
@@ -322,6 +330,20 @@ def test_a_node_killed_mid_trace_takes_its_worker_and_the_resource_tracker_along
     finally:
         if node.poll() is None:
             node.kill()
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads /proc")
+def test_a_node_killed_mid_trace_takes_its_worker_and_the_resource_tracker_along():
+    """A node killed (SIGKILL: no shutdown) while its worker traces: neither the worker (whose trace
+    runs for minutes at the idle priority on a busy machine) nor the resource tracker stays behind."""
+    _kill_node_and_wait_for_its_children("started")
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads /proc")
+def test_a_node_killed_while_its_worker_starts_takes_the_worker_along():
+    """The worker is told which process is its node (not its parent at the time it looks, which is
+    already another process when the node died during the worker's start-up)."""
+    _kill_node_and_wait_for_its_children("spawned")
 
 
 @pytest.mark.parametrize("onset_s", [12.0, 30.0])
