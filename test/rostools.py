@@ -24,8 +24,11 @@ class NodeProcess:
 
     started: list[NodeProcess] = []
 
-    def __init__(self, *params: str, params_file: Path = CONFIG, args: tuple[str, ...] = ()) -> None:
-        cmd = [sys.executable, "-m", "rollergear_ros.ros.node", *args, "--ros-args", "--params-file", str(params_file)]
+    def __init__(self, *params: str, params_file: Path | tuple[Path, ...] = CONFIG, args: tuple[str, ...] = ()) -> None:
+        """``params_file``: one or several (``--params-file`` each, in order, as the README starts the node)."""
+        cmd = [sys.executable, "-m", "rollergear_ros.ros.node", *args, "--ros-args"]
+        for path in (params_file if isinstance(params_file, tuple) else (params_file,)):
+            cmd += ["--params-file", str(path)]
         for p in params:
             cmd += ["-p", p]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,

@@ -1296,6 +1296,72 @@ def test_the_node_traces_an_effect_that_appears_mid_play_and_proposes_a_paramete
     assert (result["since_ns"], f"traced (alarm): {traced[-1].message}") in events
 
 
+def test_the_readme_three_terminals_trace_what_calibrate_names_on_the_nodes_recording(tmp_path):
+    """The README's rig engineer as written: the node started with ``config/gearbox.yaml`` and
+    ``config/rig.yaml``, recording; ``play bags/rig_map_drag.mcap --rate 2``; ``watch``.  The node
+    traces the drag within the play, watch prints the trace, and ``calibrate --start/--end`` of the
+    node's own recording over the trace's window, with the node's parameters in one file, names the
+    same effects with the same values (the same samples, the same selection)."""
+    import json
+    import subprocess
+    import sys
+
+    from diagnostic_msgs.msg import DiagnosticStatus
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    from helpers import ROOT
+
+    from rollergear_ros.calibration.samples import load_samples
+    from rollergear_ros.core.params import config_to_yaml, flat_from_yaml_document
+    from rollergear_ros.base import safeyaml
+
+    gearbox, rig = ROOT / "config" / "gearbox.yaml", ROOT / "config" / "rig.yaml"
+    rec = tmp_path / "rig.mcap"
+    node = NodeProcess(f"node.record_mcap:={rec}", params_file=(gearbox, rig))
+    watcher = WatchProcess()
+    traced = []
+    with ros_context() as probe:
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        probe.create_subscription(DiagnosticStatus, "/rollergear/loss/traced", traced.append, latched)
+        FloatProbe(probe, T.loss_torque).wait_matched()
+        player = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "play", str(BAGS / "rig_map_drag.mcap"),
+                                   "--rate", "2", "--wait-for-subscribers", "20"], cwd=ROOT,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:  # the trace comes well within the play (it has 20 s of samples after the alarm at 2x: ~10 s)
+            assert wait_for(lambda: traced and traced[-1].level == DiagnosticStatus.WARN, 600), \
+                [m.message for m in traced]
+            assert wait_for(lambda: any(f"traced [WARN] {traced[-1].message}" in line for line in watcher.lines),
+                            600), "\n".join(watcher.lines)
+        finally:
+            player.terminate()
+            player.communicate(timeout=60)
+    assert watcher.stop() == 0, watcher.errors
+    assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
+    result = json.loads({kv.key: kv.value for kv in traced[-1].values}["json"])
+    assert result["verdict"] == "traced" and result["effects"], result
+
+    # the node's parameters as one file (a later --params-file's keys over an earlier's, as ROS merges them)
+    flat = flat_from_yaml_document(safeyaml.load(gearbox), str(gearbox))
+    flat.update(flat_from_yaml_document(safeyaml.load(rig), str(rig)))
+    params = tmp_path / "node_params.yaml"
+    config = load_config(None, flat)
+    params.write_text(config_to_yaml(config))
+    first = int(load_samples([rec], config).t_ns[0])  # --start/--end count from the first sample analysed
+    start_s, end_s = (result["window_ns"][0] - first) * 1e-9, (result["window_ns"][1] - first) * 1e-9 + 1e-6
+    proc = subprocess.run([sys.executable, "-m", "rollergear_ros", "calibrate", str(rec), "--params", str(params),
+                           "--start", repr(start_s), "--end", repr(end_s), "--json"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert proc.returncode in (0, 1) and proc.stdout.strip(), proc.stderr
+    window = json.loads(proc.stdout)
+    named = {e["name"]: e["params"] for e in result["effects"]}
+    found = {e["name"]: e["params"] for e in window["effects"]}
+    assert set(named) == set(found), (named, found, window.get("verdict"))
+    for name, values in named.items():
+        for key, value in values.items():
+            assert value == pytest.approx(found[name][key], rel=1e-6), (name, key, value, found[name][key])
+
+
 def test_a_traced_effect_taken_in_switches_the_estimator_at_a_recorded_sample_and_replay_reproduces_it(tmp_path):
     """``node.accept_traced: on``: a speed drag appears at 50 s; once traced, the node takes it in
     (a run-time parameter change at a sample boundary, recorded on ``/parameter_events``); a second
