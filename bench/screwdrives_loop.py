@@ -1,0 +1,154 @@
+#!/usr/bin/env python3
+"""``calibrate`` on three measured screw drives it has never seen, held-out speed levels, as a Markdown table.
+
+The data: the steady-state friction tests of Mablekos-Alexiou, da Cruz, Bergeles, "Friction-Inclusive
+Modeling of Sliding Contact Transmission Systems in Robotics", IEEE T-RO 37(4), 2021 -- the public
+repository https://github.com/RViMLab/TRO2021-Dynamic-Modelling (MIT), folder ``experiments/``: a
+lead screw (drive 1), an antibacklash lead screw (drive 2) and a 60:1 worm drive (drive 3), each a
+Maxon motor on an EPOS controller lifting and lowering one 0.096 kg payload at steady speeds of
+±1…200 rpm, 500 samples per speed (the controller's averaged velocity in whole rpm and its averaged
+torque in % of the 9.84 mN·m nominal torque, signs as the authors' ``getEposData.m``).
+
+Each drive is calibrated as a spin test (output torque 0: the payload shows as the torque sensor's
+offset, a constant in the drive torque), the paper's model off, adaptation off, on half of its speed
+levels; the written file is replayed on the other half (``replay --csv``: the claim is the file) and
+compared with a least-squares fit of Coulomb + viscous friction + a constant on the same training
+samples. A second split holds out the slowest two levels (extrapolation to near standstill).
+
+Usage: ``python bench/screwdrives_loop.py DATA_DIR`` (a clone of the repository above).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+NOMINAL_TORQUE_NM = 9.84e-3  #: the motors' nominal torque (sd_1dof.m): the unit of the torque column (%)
+DRIVES = {"driveNo1": "lead screw", "driveNo2": "antibacklash lead screw", "driveNo3": "60:1 worm drive"}
+CHANNELS = ("format: timeseries\ntime: {column: time_s, unit: s}\nmotor_torque: {column: torque_nm, unit: N*m}\n"
+            "motor_speed: {column: speed_rpm, unit: rpm}\noutput_torque: {constant: 0, unit: N*m}\nratio: 1\n")
+
+
+def convert(src: Path, dst: Path) -> int:
+    """An EPOS Studio export -> a plain CSV (time [s], speed [rpm], torque [N·m], signs as ``getEposData.m``);
+    rows that are no numbers (a hand note in a few of the worm's files) are left out: how many."""
+    lines = src.read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("ms;")) + 1
+    rows, dropped = [], 0
+    for line in lines[start:]:
+        fields = [f for f in line.replace(",", "").split(";") if f]
+        try:
+            rows.append((float(fields[0]) / 1e3, -float(fields[1]), -float(fields[2]) * NOMINAL_TORQUE_NM / 100.0))
+        except (ValueError, IndexError):
+            dropped += 1
+    with dst.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["time_s", "speed_rpm", "torque_nm"])
+        writer.writerows(rows)
+    return dropped
+
+
+def level_rpm(path: Path) -> float:
+    """The speed level a file is named by (``n30.csv``: −30 rpm)."""
+    return float(re.sub(r"^n", "-", path.stem))
+
+
+def replay_residuals(csv_path: Path, channels: Path, params: Path, out: Path) -> np.ndarray:
+    """The residual (measured − estimated loss) of each sample ``replay`` estimates with ``params``."""
+    subprocess.run([sys.executable, "-m", "rollergear_ros", "replay", str(csv_path), "--channels", str(channels),
+                    "--params", str(params), "--csv", str(out)], check=True, capture_output=True, text=True)
+    with out.open() as fh:
+        reader = csv.DictReader(fh)
+        key = next(k for k in reader.fieldnames if k.startswith("residual_torque"))
+        values = np.array([float(row[key]) for row in reader])
+    return values[np.isfinite(values)]
+
+
+def evaluate(drive: str, files: list[Path], held: set[float], work: Path, given: Path, channels: Path) -> dict:
+    """Calibrate on the levels not ``held``, replay the held ones; the errors [N·m] of each way."""
+    train = [p for p in files if abs(level_rpm(p)) not in held]
+    test = [p for p in files if abs(level_rpm(p)) in held]
+    written = work / f"{drive}.yaml"
+    proc = subprocess.run([sys.executable, "-m", "rollergear_ros", "calibrate", *map(str, train), "--channels",
+                           str(channels), "--params", str(given), "--out", str(written), "--json"],
+                          capture_output=True, text=True)
+    result = json.loads(proc.stdout)
+    row = {"effects": result["effects"], "written": result["written"]}
+
+    def data(paths):
+        arrays = [np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2) for p in paths]
+        return [a[:, 1] * np.pi / 30.0 for a in arrays], [a[:, 2] for a in arrays]
+
+    speed, torque = data(train)
+    w, t = np.concatenate(speed), np.concatenate(torque)
+    moving = w != 0.0
+    design = lambda w: np.column_stack([np.sign(w), w, np.ones_like(w)])  # noqa: E731 - Coulomb, viscous, constant
+    coef, *_ = np.linalg.lstsq(design(w[moving]), t[moving], rcond=None)
+    speed, torque = data(test)
+    ls_levels = [t[w != 0] - design(w[w != 0]) @ coef for w, t in zip(speed, torque)]
+    row["floor"] = _rms(np.concatenate([t - t.mean() for t in torque]))
+    row["ls"] = (_rms(np.concatenate(ls_levels)), _rms(np.array([r.mean() for r in ls_levels])))
+    for name, params in (("given", given), ("file", written if result["written"] else given)):
+        levels = [replay_residuals(p, channels, params, work / f"{p.stem}_{name}.csv") for p in test]
+        estimated = [r for r in levels if len(r)]  # a level may have no sample the estimator takes (near 0)
+        row[name] = (_rms(np.concatenate(estimated or [np.empty(0)])), _rms(np.array([r.mean() for r in estimated])),
+                     sum(map(len, levels)), sum(len(t) for t in torque))
+    return row
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values ** 2))) if len(values) else float("nan")
+
+
+def _mnm(value_nm: float) -> str:
+    """N·m as mN·m for the table ("—": no sample estimated)."""
+    return f"{1e3 * value_nm:.3f}" if np.isfinite(value_nm) else "—"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", type=Path, help="a clone of RViMLab/TRO2021-Dynamic-Modelling")
+    args = ap.parse_args()
+    sys.path.insert(0, str(ROOT))
+    from rollergear_ros.core.params import config_to_yaml, load_config
+
+    print("| drive | held out [rpm] | effects written | per sample: given → file / least squares / noise floor "
+          "[mN·m] | level means: file / least squares [mN·m] | samples estimated (file) |")
+    print("|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory(prefix="rollergear_screws_") as tmp:
+        tmp = Path(tmp)
+        channels = tmp / "map.yaml"
+        channels.write_text(CHANNELS)
+        given = tmp / "given.yaml"
+        given.write_text(config_to_yaml(load_config(ROOT / "config" / "gearbox.yaml",
+                                                    {"estimator.paper_model": False, "estimator.adapt": False})))
+        for drive, label in DRIVES.items():
+            folder = tmp / drive
+            folder.mkdir()
+            sources = sorted((args.data / "experiments" / drive / "steady_state" / "0.096kg").glob("*.csv"))
+            for src in sources:
+                convert(src, folder / src.name)
+            files = sorted(folder.glob("*.csv"), key=level_rpm)
+            levels = sorted({abs(level_rpm(p)) for p in files})
+            for split, held in (("every other", set(levels[1::2])), ("slowest two", set(levels[:2]))):
+                row = evaluate(drive, files, held, folder, given, channels)
+                effects = "; ".join(f"`{e['name']}` " + ", ".join(f"{k} = {v:.3g}" for k, v in e["params"].items())
+                                    for e in row["effects"]) or "none"
+                g, f, ls = row["given"], row["file"], row["ls"]
+                print(f"| {drive[-1]}: {label} | {split}: {', '.join(f'{x:g}' for x in sorted(held))} | {effects} | "
+                      f"{_mnm(g[0])} → {_mnm(f[0])} / {_mnm(ls[0])} / {_mnm(row['floor'])} | "
+                      f"{_mnm(f[1])} / {_mnm(ls[1])} | {f[2]:,} of {f[3]:,} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
