@@ -11,7 +11,8 @@ torque in % of the 9.84 mN·m nominal torque, signs as the authors' ``getEposDat
 
 Each drive is calibrated as a spin test (output torque 0: the payload shows as the torque sensor's
 offset, a constant in the drive torque), the paper's model off, adaptation off, on half of its speed
-levels; the written file is replayed on the other half (``replay --csv``: the claim is the file) and
+levels (the worm also with its payload given as a constant output torque at 60:1: one load, so no
+load law may be claimed); the written file is replayed on the other half (``replay --csv``: the claim is the file) and
 compared with a least-squares fit of Coulomb + viscous friction + a constant on the same training
 samples. A second split holds out the slowest two levels (extrapolation to near standstill).
 
@@ -35,7 +36,10 @@ ROOT = Path(__file__).resolve().parent.parent
 NOMINAL_TORQUE_NM = 9.84e-3  #: the motors' nominal torque (sd_1dof.m): the unit of the torque column (%)
 DRIVES = {"driveNo1": "lead screw", "driveNo2": "antibacklash lead screw", "driveNo3": "60:1 worm drive"}
 CHANNELS = ("format: timeseries\ntime: {column: time_s, unit: s}\nmotor_torque: {column: torque_nm, unit: N*m}\n"
-            "motor_speed: {column: speed_rpm, unit: rpm}\noutput_torque: {constant: 0, unit: N*m}\nratio: 1\n")
+            "motor_speed: {column: speed_rpm, unit: rpm}\noutput_torque: {constant: %r, unit: N*m}\nratio: %r\n")
+#: the worm's payload as its output torque: 0.096 kg on a 20 mm pulley (the authors' ``extLoad``), against
+#: the lifting direction (power out positive while lifting, the motor turning backwards)
+WORM_PAYLOAD_NM, WORM_RATIO = -0.096 * 9.812 * 0.02, 60.0
 
 
 def convert(src: Path, dst: Path) -> int:
@@ -126,11 +130,15 @@ def main() -> int:
     print("|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory(prefix="rollergear_screws_") as tmp:
         tmp = Path(tmp)
-        channels = tmp / "map.yaml"
-        channels.write_text(CHANNELS)
-        given = tmp / "given.yaml"
-        given.write_text(config_to_yaml(load_config(ROOT / "config" / "gearbox.yaml",
-                                                    {"estimator.paper_model": False, "estimator.adapt": False})))
+        def setup(name: str, payload_nm: float, ratio: float) -> tuple[Path, Path]:
+            """A channel map and the parameter file given (the paper's model and adaptation off, the ratio)."""
+            channels, given = tmp / f"{name}_map.yaml", tmp / f"{name}_given.yaml"
+            channels.write_text(CHANNELS % (payload_nm, ratio))
+            given.write_text(config_to_yaml(load_config(ROOT / "config" / "gearbox.yaml", {
+                "estimator.paper_model": False, "estimator.adapt": False, "gearbox.ratio": ratio})))
+            return channels, given
+
+        spin = setup("spin", 0.0, 1.0)
         for drive, label in DRIVES.items():
             folder = tmp / drive
             folder.mkdir()
@@ -139,7 +147,11 @@ def main() -> int:
                 convert(src, folder / src.name)
             files = sorted(folder.glob("*.csv"), key=level_rpm)
             levels = sorted({abs(level_rpm(p)) for p in files})
-            for split, held in (("every other", set(levels[1::2])), ("slowest two", set(levels[:2]))):
+            runs = [("every other", set(levels[1::2]), spin), ("slowest two", set(levels[:2]), spin)]
+            if drive == "driveNo3":
+                runs.append(("every other, the payload as output torque", set(levels[1::2]),
+                             setup("load", WORM_PAYLOAD_NM, WORM_RATIO)))
+            for split, held, (channels, given) in runs:
                 row = evaluate(drive, files, held, folder, given, channels)
                 effects = "; ".join(f"`{e['name']}` " + ", ".join(f"{k} = {v:.3g}" for k, v in e["params"].items())
                                     for e in row["effects"]) or "none"

@@ -62,6 +62,9 @@ class SampleData:
     lost_share: float = 0.0
     #: the recordings' speed noise, where the parameter file's was far off it (:func:`load_samples`)
     speed_noise_override: float | None = None
+    #: the recordings' own speed ratio, where the parameter file's was another (:func:`load_samples`)
+    ratio_override: float | None = None
+    ratio_text: str = ""  #: what was done about the ratio, when it was overridden
     #: each recording's paired samples (None: rows of tables), and each analysed sample's index in its
     #: recording's: where a parameter file is replayed on them
     recordings: list[RecordedInputs] | None = None
@@ -97,22 +100,64 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
     :data:`SPEED_NOISE_FACTOR` times off the noise the recordings' speeds show (their second
     differences, :func:`~core.speednoise.reading_noise`) is a rig nuisance the file has wrong: the
     recordings are replayed again at theirs, said in :attr:`SampleData.speed_noise_text`, and
-    :attr:`SampleData.speed_noise_override` carries it into the calibrated file."""
+    :attr:`SampleData.speed_noise_override` carries it into the calibrated file.
+
+    The same for the gearbox ratio (:func:`recordings_ratio`): where the recordings' own ratio is not the
+    file's, they are read again at theirs (:attr:`SampleData.ratio_override`; the paper's model takes
+    the balls' kinematics from the geometry, not from this ratio)."""
     data = _load(bags, config, topics, warn, min_speed_rad_s, progress)
+    overrides: dict[str, float] = {}
     given = config.estimator.speed_noise_rad_s
     if isinstance(given, float) and not data.steady_state:
         seen = reading_noise(data.speed, data.bag_id)
         if math.isfinite(seen) and seen > 0 and not 1.0 / SPEED_NOISE_FACTOR <= given / seen <= SPEED_NOISE_FACTOR:
-            measured = float(f"{seen:.3g}")
-            again = _load(bags, config.with_values({"estimator.speed_noise_rad_s": measured}), topics, None,
-                          min_speed_rad_s, progress)
-            again.speed_noise_text = (f"{measured:.3g} rad/s, what the recordings' speeds show (their second "
-                                      f"differences): the parameter file's {given:.3g} rad/s is "
-                                      f"{given / seen:.3g} × that; the samples were read again at the recordings' "
-                                      "and the calibrated file says it")
-            again.speed_noise_override = measured
-            return again
-    return data
+            overrides["estimator.speed_noise_rad_s"] = measured = float(f"{seen:.3g}")
+            noise_text = (f"{measured:.3g} rad/s, what the recordings' speeds show (their second differences): the "
+                          f"parameter file's {given:.3g} rad/s is {given / seen:.3g} × that; the samples were read "
+                          "again at the recordings' and the calibrated file says it")
+    ratio = recordings_ratio(data, config.estimator.min_speed_for_efficiency_rad_s)
+    if ratio is not None:
+        overrides["gearbox.ratio"] = ratio
+    if not overrides:
+        return data
+    again = _load(bags, config.with_values(overrides), topics, None, min_speed_rad_s, progress)
+    if "estimator.speed_noise_rad_s" in overrides:
+        again.speed_noise_text, again.speed_noise_override = noise_text, overrides["estimator.speed_noise_rad_s"]
+    if ratio is not None:
+        again.ratio_override = ratio
+        again.ratio_text = (f"the recordings' speed ratio is {ratio:.6g} (median motor/output speed), the parameter "
+                            f"file's gearbox.ratio gives {data.speed_ratio:.6g}: below "
+                            f"{config.estimator.min_speed_for_efficiency_rad_s:g} rad/s the measured loss is the "
+                            "torque balance at the file's ratio, so the samples were read again at the recordings' "
+                            "and the calibrated file says it")
+    return again
+
+
+#: the recordings' speed ratio may differ from the parameter file's by this share (a roller gearing's
+#: creep, rounding of a stated ratio) before the two are taken to describe different gearboxes
+RATIO_TOLERANCE = 0.02
+
+
+def recordings_ratio(data: SampleData, min_speed_rad_s: float) -> float | None:
+    """The recordings' own speed ratio where it is not the parameter file's (beyond
+    :data:`RATIO_TOLERANCE`), else None.
+
+    Where the drive turns fast enough (``|ω| ≥ min_speed_rad_s``) the measured loss takes the output
+    speed the recordings hold (measured, or the channel map's ratio's); below it, where the quotient
+    of two speeds is noise, the torque balance ``(T_in − T_out/ratio)·sgn ω`` with the file's
+    ``gearbox.ratio``.  Two ratios make two losses on either side of that speed: a fit of the slow
+    samples' error, not of the gearbox.  A spin test (no output torque) is the same under any ratio.
+    """
+    if data.steady_state or data.spin_test or data.out_speed is None or data.out_torque is None:
+        return None
+    moving = (np.isfinite(data.out_speed) & (data.out_speed != 0) & np.isfinite(data.out_torque)
+              & (np.abs(data.speed) >= min_speed_rad_s))
+    if np.count_nonzero(moving) < 10:
+        return None
+    ratio = float(f"{float(np.median(data.speed[moving] / data.out_speed[moving])):.6g}")
+    if ratio <= 0 or abs(ratio / data.speed_ratio - 1.0) <= RATIO_TOLERANCE:
+        return None
+    return ratio
 
 
 #: a parameter file's speed noise this many times off what the recordings show is replaced
@@ -302,7 +347,6 @@ def _round_up(value: float) -> float:
 
 
 LOADED_SHARE = 0.2  #: a sample is loaded when its |T| is at least this share of the 95th percentile of |T|
-
 
 def power_balance_warning(data: SampleData) -> str | None:
     """A line saying so when the measured loss exceeds the input torque in most loaded samples.

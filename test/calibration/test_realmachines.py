@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from helpers import REALDATA, run_cli
-from rigs import Joint, Rig, loaded_rig, params, rig_map, slow_joint
+from rigs import Joint, Rig, loaded_rig, params, rig_map, slow_joint, worm_drive
 
 
 def calibrate_json(*args: str, check: bool = True) -> dict:
@@ -279,8 +279,6 @@ def test_one_constant_load_is_no_load_friction_and_predicts_as_the_spin_test(tmp
     torque then carries load and loss, and a law in it reproduces the torque balance exactly (c = 1
     with a torque offset: an identity, not a friction).  No load-dependent effect is claimed, with the
     reason; the written file predicts held-out speeds as well as the spin test's (payload unknown) does."""
-    from rigs import worm_drive
-
     p = str(params(tmp_path / "p.yaml", "    gearbox: {ratio: 60.0}\n"))
     fitted = (1, 2, 4, 8, 15, 30, 50, 70, 100, 140, 200)
     held_out = (3, 6, 10, 20, 40, 60, 120, 180)
@@ -304,12 +302,33 @@ def test_one_constant_load_is_no_load_friction_and_predicts_as_the_spin_test(tmp
     assert errors["load"][0] < errors["load"][1], errors  # better than no model
 
 
+def test_a_parameter_file_at_another_ratio_than_the_recordings_calibrates_at_theirs(tmp_path):
+    """The worm's channel map derives the output speed at 60:1; a parameter file left at another ratio
+    would make the slow samples' measured loss (the torque balance, at the file's ratio) a different
+    quantity from the others' (the power balance, at the recordings').  With the paper's model off the
+    samples are read at the recordings' ratio, said, and written: the same file as from a parameter file
+    at 60."""
+    from rollergear_ros.core.params import load_config
+
+    csv, cmap = worm_drive(tmp_path, 0.6, (1, 2, 4, 10, 30, 100, 200))
+    results = {}
+    for ratio in (6.0, 60.0):
+        out = tmp_path / f"cal{ratio:g}.yaml"
+        p = params(tmp_path / f"p{ratio:g}.yaml", f"    gearbox: {{ratio: {ratio}}}\n")
+        results[ratio] = (calibrate_json(csv.as_posix(), "--channels", str(cmap), "--params", str(p), "--out",
+                                         str(out)), load_config(out).to_flat())
+    (wrong, wrong_file), (right, right_file) = results[6.0], results[60.0]
+    assert any("speed ratio is 60" in n and "gives 6" in n for n in wrong["notes"]), wrong["notes"]
+    assert not any("speed ratio" in n for n in right["notes"]), right["notes"]
+    assert wrong_file["gearbox.ratio"] == 60.0 and wrong_file == right_file
+    for key in ("effects", "error_before", "error_after"):
+        assert wrong[key] == right[key], key
+
+
 def test_a_set_that_explains_the_data_below_their_noise_is_refused_as_an_identity(tmp_path, monkeypatch):
     """The backstop behind the one-load rule: the worm drive with that rule off.  load_dependent (c = 1,
     q = 1) with a torque offset then reproduces the torque balance to 1e-7 N·m, under the 2e-4 N·m of the
     torque reading's noise: that set is refused as an identity, whatever its significance."""
-    from rigs import worm_drive
-
     from rollergear_ros.calibration import blocks
     from rollergear_ros.calibration.calibrate import calibrate
     from rollergear_ros.calibration.samples import load_samples
