@@ -348,6 +348,7 @@ def _round_up(value: float) -> float:
 
 LOADED_SHARE = 0.2  #: a sample is loaded when its |T| is at least this share of the 95th percentile of |T|
 
+
 def power_balance_warning(data: SampleData) -> str | None:
     """A line saying so when the measured loss exceeds the input torque in most loaded samples.
 
