@@ -144,7 +144,9 @@ def main() -> int:
             folder.mkdir()
             sources = sorted((args.data / "experiments" / drive / "steady_state" / "0.096kg").glob("*.csv"))
             for src in sources:
-                convert(src, folder / src.name)
+                dropped = convert(src, folder / src.name)
+                if dropped:
+                    print(f"{drive}/{src.name}: {dropped} row(s) that are no numbers left out", file=sys.stderr)
             files = sorted(folder.glob("*.csv"), key=level_rpm)
             levels = sorted({abs(level_rpm(p)) for p in files})
             runs = [("every other", set(levels[1::2]), spin), ("slowest two", set(levels[:2]), spin)]

@@ -309,10 +309,9 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
     # (nuisance columns, ambiguous sets kept in the fit) on the other folds
     pred_after = cal.cv_predictions(final, only_terms=len(selected))
     idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
-    # the parameter file as given (at the recordings' speed noise where its own was far off: a rig
-    # nuisance corrected either way, said), replayed through the one forward path
-    overrides = _recordings_overrides(data)
-    given = config.with_values(overrides) if overrides else config
+    # the parameter file as given (at the recordings' speed noise and ratio where its own were off them:
+    # rig facts corrected either way, said), replayed through the one forward path
+    given = config.with_values(data.overrides) if data.overrides else config
     if before is None:
         error_before, sample_before, s_b = _file_errors(data, blocks0, given)
         err_b = blocks0.mean(s_b)  # the residual it leaves, as block means
@@ -334,9 +333,8 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
         {"calibration.model_form": _model_form(cal, out, full, final, selected, data, verdict).to_text()})
     if data.ratio is not None:  # the table's own ratio: what a map of the file states
         new_config = new_config.with_values({"gearbox.ratio": data.ratio})
-    # the recordings' speed noise and ratio, where the file's were off them
-    if overrides:
-        new_config = new_config.with_values(overrides)
+    if data.overrides:  # the recordings' speed noise and ratio, where the file's were off them
+        new_config = new_config.with_values(data.overrides)
     notes: list[str] = [data.ratio_text] if data.ratio_text else []
     same_terms = {e.name for e in effects} == {t.name for t in start} and not parameters
     if start and same_terms and before is None and error_after.rmse_nm >= error_before.rmse_nm:
@@ -426,17 +424,6 @@ def _model_form(cal: Calibrator, out, full, final: list[Term], selected: list[Te
     speed, torque = np.abs(data.speed), np.abs(data.torque)
     return ModelForm(verdict, tuple(alternatives), unresolved,
                      float(speed.max()) if len(speed) else math.inf, float(torque.max()) if len(torque) else math.inf)
-
-
-def _recordings_overrides(data: SampleData) -> dict[str, float]:
-    """What the samples were read at instead of the parameter file's values (:func:`.samples.load_samples`):
-    the recordings' speed noise and ratio, each where the file's was off it."""
-    out: dict[str, float] = {}
-    if data.speed_noise_override is not None:
-        out["estimator.speed_noise_rad_s"] = data.speed_noise_override
-    if data.ratio_override is not None:
-        out["gearbox.ratio"] = data.ratio_override
-    return out
 
 
 def _file_errors(data: SampleData, blocks: Blocks, config: Config) -> tuple[ErrorStats, ErrorStats, np.ndarray]:

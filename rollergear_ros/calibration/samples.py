@@ -60,10 +60,9 @@ class SampleData:
     speed_noise_text: str = ""  #: the speed noise the estimates were made with, and where it came from
     #: the largest share of a recording lost to damage (:func:`base.errors.lost_share`)
     lost_share: float = 0.0
-    #: the recordings' speed noise, where the parameter file's was far off it (:func:`load_samples`)
-    speed_noise_override: float | None = None
-    #: the recordings' own speed ratio, where the parameter file's was another (:func:`load_samples`)
-    ratio_override: float | None = None
+    #: parameter -> the recordings' value the samples were read at instead of the parameter file's far-off
+    #: one (the speed noise, the gearbox ratio: :func:`load_samples`); the calibrated file carries them
+    overrides: dict[str, float] = field(default_factory=dict)
     ratio_text: str = ""  #: what was done about the ratio, when it was overridden
     #: each recording's paired samples (None: rows of tables), and each analysed sample's index in its
     #: recording's: where a parameter file is replayed on them
@@ -100,11 +99,11 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
     :data:`SPEED_NOISE_FACTOR` times off the noise the recordings' speeds show (their second
     differences, :func:`~core.speednoise.reading_noise`) is a rig nuisance the file has wrong: the
     recordings are replayed again at theirs, said in :attr:`SampleData.speed_noise_text`, and
-    :attr:`SampleData.speed_noise_override` carries it into the calibrated file.
+    :attr:`SampleData.overrides` carries it into the calibrated file.
 
     The same for the gearbox ratio (:func:`recordings_ratio`): where the recordings' own ratio is not the
-    file's, they are read again at theirs (:attr:`SampleData.ratio_override`; the paper's model takes
-    the balls' kinematics from the geometry, not from this ratio)."""
+    file's, they are read again at theirs (said in :attr:`SampleData.ratio_text`; the paper's model
+    takes the balls' kinematics from the geometry, not from this ratio)."""
     data = _load(bags, config, topics, warn, min_speed_rad_s, progress)
     overrides: dict[str, float] = {}
     given = config.estimator.speed_noise_rad_s
@@ -121,10 +120,10 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
     if not overrides:
         return data
     again = _load(bags, config.with_values(overrides), topics, None, min_speed_rad_s, progress)
+    again.overrides = overrides
     if "estimator.speed_noise_rad_s" in overrides:
-        again.speed_noise_text, again.speed_noise_override = noise_text, overrides["estimator.speed_noise_rad_s"]
+        again.speed_noise_text = noise_text
     if ratio is not None:
-        again.ratio_override = ratio
         again.ratio_text = (f"the recordings' speed ratio is {ratio:.6g} (median motor/output speed), the parameter "
                             f"file's gearbox.ratio gives {data.speed_ratio:.6g}: below "
                             f"{config.estimator.min_speed_for_efficiency_rad_s:g} rad/s the measured loss is the "
