@@ -14,7 +14,9 @@ offset, a constant in the drive torque), the paper's model off, adaptation off, 
 levels (the worm also with its payload given as a constant output torque at 60:1: one load, so no
 load law may be claimed); the written file is replayed on the other half (``replay --csv``: the claim is the file) and
 compared with a least-squares fit of Coulomb + viscous friction + a constant on the same training
-samples. A second split holds out the slowest two levels (extrapolation to near standstill).
+samples. A second split holds out the slowest two levels (extrapolation to near standstill). The worm
+is run once more as a steady-state table of its levels' means (one row a level and direction, the
+payload as output torque): the one-load rule holds for a table's rows as for a recording.
 
 Usage: ``python bench/screwdrives_loop.py DATA_DIR`` (a clone of the repository above).
 """
@@ -109,6 +111,61 @@ def evaluate(drive: str, files: list[Path], held: set[float], work: Path, given:
     return row
 
 
+TABLE_MAP = ("format: steady_state\nmotor_torque: {column: torque_nm, unit: N*m}\n"
+             "motor_speed: {column: speed_rpm, unit: rpm}\noutput_torque: {constant: %r, unit: N*m}\nratio: %r\n")
+
+
+def level_table(files: list[Path], dst: Path, half: int | None = None) -> Path:
+    """Each speed level's means (speed [rpm], torque [N·m]) as one row of a steady-state table; ``half``:
+    of the level's first (0) or second (1) half of samples only."""
+    with dst.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["speed_rpm", "torque_nm"])
+        for p in files:
+            a = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+            if half is not None:
+                a = a[: len(a) // 2] if half == 0 else a[len(a) // 2:]
+            writer.writerow([float(a[:, 1].mean()), float(a[:, 2].mean())])
+    return dst
+
+
+def evaluate_table(drive: str, files: list[Path], held: set[float] | None, work: Path, given: Path,
+                   channels: Path) -> dict:
+    """:func:`evaluate` on the levels' means as steady-state tables (one row a level and direction): the
+    written file replayed on the held-out levels' rows (``held`` None: every level's first half fitted,
+    its second half held out); the least-squares fit on the training rows."""
+    tag = "halves" if held is None else "levels"
+    if held is None:
+        train = level_table(files, work / f"{drive}_{tag}_train.csv", half=0)
+        test = level_table(files, work / f"{drive}_{tag}_test.csv", half=1)
+    else:
+        train = level_table([p for p in files if abs(level_rpm(p)) not in held], work / f"{drive}_{tag}_train.csv")
+        test = level_table([p for p in files if abs(level_rpm(p)) in held], work / f"{drive}_{tag}_test.csv")
+    written = work / f"{drive}_{tag}.yaml"
+    proc = subprocess.run([sys.executable, "-m", "rollergear_ros", "calibrate", str(train), "--channels", str(channels),
+                           "--params", str(given), "--out", str(written), "--json"], capture_output=True, text=True)
+    if proc.returncode:  # too few rows: said in the table
+        return {"error": proc.stderr.strip().splitlines()[-1]}
+    result = json.loads(proc.stdout)
+    row = {"effects": result["effects"], "written": result["written"], "floor": float("nan"),
+           "untestable": result["untestable"]}
+
+    def rows(path):
+        a = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        return a[:, 0] * np.pi / 30.0, a[:, 1]
+
+    w, t = rows(train)
+    design = lambda w: np.column_stack([np.sign(w), w, np.ones_like(w)])  # noqa: E731 - as in evaluate
+    coef, *_ = np.linalg.lstsq(design(w), t, rcond=None)
+    w, t = rows(test)
+    ls = _rms(t - design(w) @ coef)
+    row["ls"] = (ls, ls)
+    for name, params in (("given", given), ("file", written if result["written"] else given)):
+        r = replay_residuals(test, channels, params, work / f"{drive}_{tag}_{name}.csv")
+        row[name] = (_rms(r), _rms(r), len(r), len(t))
+    return row
+
+
 def _rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(values ** 2))) if len(values) else float("nan")
 
@@ -150,15 +207,27 @@ def main() -> int:
             files = sorted(folder.glob("*.csv"), key=level_rpm)
             levels = sorted({abs(level_rpm(p)) for p in files})
             runs = [("every other", set(levels[1::2]), spin), ("slowest two", set(levels[:2]), spin)]
+            payload, ratio = (WORM_PAYLOAD_NM, WORM_RATIO) if drive == "driveNo3" else (0.0, 1.0)
             if drive == "driveNo3":
                 runs.append(("every other, the payload as output torque", set(levels[1::2]),
                              setup("load", WORM_PAYLOAD_NM, WORM_RATIO)))
+            rows_map = tmp / f"{drive}_rows_map.yaml"
+            rows_map.write_text(TABLE_MAP % (payload, ratio))
+            rows_given = setup("load", payload, ratio)[1] if payload else spin[1]
+            load = ", the payload as output torque" if payload else ""
+            runs += [(f"table of level means{load}: every other", set(levels[1::2]), (rows_map, rows_given)),
+                     (f"table of level means{load}: each level's second half", None, (rows_map, rows_given))]
             for split, held, (channels, given) in runs:
-                row = evaluate(drive, files, held, folder, given, channels)
+                table = split.startswith("table")
+                row = (evaluate_table if table else evaluate)(drive, files, held, folder, given, channels)
+                where = "" if held is None else ": " + ", ".join(f"{x:g}" for x in sorted(held))
+                if "error" in row:
+                    print(f"| {drive[-1]}: {label} | {split}{where} | {row['error']} | — | — | — |")
+                    continue
                 effects = "; ".join(f"`{e['name']}` " + ", ".join(f"{k} = {v:.3g}" for k, v in e["params"].items())
                                     for e in row["effects"]) or "none"
                 g, f, ls = row["given"], row["file"], row["ls"]
-                print(f"| {drive[-1]}: {label} | {split}: {', '.join(f'{x:g}' for x in sorted(held))} | {effects} | "
+                print(f"| {drive[-1]}: {label} | {split}{where} | {effects} | "
                       f"{_mnm(g[0])} → {_mnm(f[0])} / {_mnm(ls[0])} / {_mnm(row['floor'])} | "
                       f"{_mnm(f[1])} / {_mnm(ls[1])} | {f[2]:,} of {f[3]:,} |")
     return 0

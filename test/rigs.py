@@ -158,10 +158,7 @@ def worm_drive(tmp: Path, payload_nm: float | None, rpms=(1, 2, 3, 4, 6, 8, 10, 
             pieces += [w * ramp, np.full(400, w), w * ramp[::-1]]
     w = np.concatenate(pieces)
     t = np.arange(len(w)) / 100.0
-    eta = 0.4
-    gravity = np.where(w >= 0, load_nm / ratio / eta, load_nm / ratio * (2 - 1 / eta))
-    friction = 0.04 + 0.03 * np.sin(np.abs(w) / 3.0) + 0.002 * np.abs(w)
-    torque = gravity + friction * np.tanh(w / 0.01) + rng.normal(0.0, 2e-4, len(w))
+    torque = _worm_torque(w, load_nm, ratio) + rng.normal(0.0, 2e-4, len(w))
     csv = write_csv(tmp / f"{name}.csv", {"t": t, "T": torque, "w": w + rng.normal(0.0, 0.002, len(w))})
     cmap = tmp / f"{name}_map.yaml"
     cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\n"
@@ -169,6 +166,48 @@ def worm_drive(tmp: Path, payload_nm: float | None, rpms=(1, 2, 3, 4, 6, 8, 10, 
                     f"output_torque: {{constant: {0.0 if payload_nm is None else payload_nm}, unit: N*m}}\n"
                     f"ratio: {ratio}\n")
     return csv, cmap
+
+
+def _worm_torque(w: np.ndarray, load_nm: float, ratio: float) -> np.ndarray:
+    """The worm drive's motor torque at motor speed ``w`` [rad/s] (:func:`worm_drive`), noise-free."""
+    eta = 0.4
+    gravity = np.where(w >= 0, load_nm / ratio / eta, load_nm / ratio * (2 - 1 / eta))
+    friction = 0.04 + 0.03 * np.sin(np.abs(w) / 3.0) + 0.002 * np.abs(w)
+    return gravity + friction * np.tanh(w / 0.01)
+
+
+def worm_table(tmp: Path, payload_nm: float | None, rpms=(1, 2, 4, 8, 15, 30, 50, 70, 100, 140, 200),
+               name: str = "worm_table", ratio: float = 60.0, load_nm: float = 0.6) -> tuple[Path, Path]:
+    """The :func:`worm_drive`'s steady runs as a steady-state table: one row per speed and direction, the
+    motor torque's dwell mean (noise-free); ``payload_nm`` the output torque the channel map gives (None:
+    a spin test's table, 0 on the output)."""
+    w = np.array([d * rpm for rpm in rpms for d in (1.0, -1.0)]) * 2 * np.pi / 60
+    csv = write_csv(tmp / f"{name}.csv", {"w": w, "T": _worm_torque(w, load_nm, ratio)})
+    cmap = tmp / f"{name}_map.yaml"
+    cmap.write_text("format: steady_state\nmotor_torque: {column: T, unit: N*m}\n"
+                    "motor_speed: {column: w, unit: rad/s}\n"
+                    f"output_torque: {{constant: {0.0 if payload_nm is None else payload_nm}, unit: N*m}}\n"
+                    f"ratio: {ratio}\n")
+    return csv, cmap
+
+
+def lifting_table(tmp: Path, rpms, name: str, seed: int, offset_nm: float = 0.0) -> tuple[Path, Path]:
+    """A drive lifting (ω > 0) and lowering one payload at steady speeds, as a table of dwell means: the
+    payload's torque at the motor P = 0.01 N·m, friction Fc 0.02 + 1e-3·|ω| N·m, and near standstill
+    (ω_s 0.3 rad/s, δ 1) a lifting torque that rises by 0.008 N·m while the lowering torque falls by
+    0.002 (a breakaway excess 0.003 ± 0.005); the drive torque read with ``offset_nm`` and 2e-5 N·m of
+    scatter in a row's mean; the payload given as the output torque at 60:1."""
+    rng = np.random.default_rng(seed)
+    w = np.array([d * rpm for rpm in rpms for d in (1.0, -1.0)]) * np.pi / 30.0
+    near = np.exp(-np.abs(w) / 0.3)
+    torque = 0.01 + np.sign(w) * (0.02 + 1e-3 * np.abs(w) + 0.003 * near) + 0.005 * near
+    torque = torque + offset_nm + rng.normal(0.0, 2e-5, len(w))
+    path = tmp / f"{name}.csv"
+    path.write_text("n,T\n" + "".join(f"{a!r},{b!r}\n" for a, b in zip((w * 30.0 / np.pi).tolist(), torque.tolist())))
+    cmap = tmp / "lifting.yaml"
+    cmap.write_text("format: steady_state\nmotor_torque: {column: T, unit: N*m}\nmotor_speed: {column: n, unit: rpm}\n"
+                    "output_torque: {constant: 0.6, unit: N*m}\nratio: 60\n")
+    return path, cmap
 
 
 #: the warm-up's oil (a PAO gear oil's Vogel law from its data sheet) and the one the file states (a

@@ -75,6 +75,9 @@ class Metadata:
     GEARBOX = "rollergear"  #: key ``gearbox_id``: which gearbox a recording is of (fleets)
     SIMULATION = "rollergear_simulation"  #: written by ``simulate``: the ground truth (tests only)
     PROVENANCE = "rollergear_provenance"  #: written by ``replay --out`` and the node: what made the estimates
+    IMPORT = "rollergear_import"  #: written by ``import``: the source, its kind and how its samples were made
+    #: key of :attr:`IMPORT`: ``"true"`` where each sample is a steady-state table's row (an operating point)
+    IMPORT_ROWS = "operating_points"
 
 
 #: default depth of the node's (reliable, volatile, keep-last) per-sample and per-window output

@@ -362,7 +362,8 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
 def testability(d: SampleData) -> dict[str, str]:
     """Each effect of the registry -> why this data cannot show it ("" where it can): one that needs a
     varying oil temperature, speeds near standstill, regeneration or both directions of rotation
-    where the data have them; sensor errors not in a table (its rows are losses, not readings);
+    where the data have them; sensor errors in a table only where its loss is the power balance of its
+    torque readings and its rows turn both ways (else its rows are taken as losses);
     load-dependent ones not in a spin test nor under one load (:func:`_one_load`);
     effects with memory only where the speed reverses."""
     theta = d.temperature
@@ -373,7 +374,7 @@ def testability(d: SampleData) -> dict[str, str]:
     reverses = not d.steady_state and _reverses(d.speed, d.bag_id, 3.0 * d.sign_width_rad_s)
     regenerating = float(np.mean(d.torque * d.speed < 0)) if len(d.speed) else 0.0
     directions = min(float(np.mean(d.speed > 0)), float(np.mean(d.speed < 0))) if len(d.speed) else 0.0
-    one_load = "" if d.spin_test else _one_load(d.out_torque)
+    one_load = "" if d.spin_test else _one_load(d.load_torque, d.steady_state)
     why = {}
     for n, e in EFFECTS.items():
         reason = ""
@@ -381,8 +382,11 @@ def testability(d: SampleData) -> dict[str, str]:
             reason = ("no oil temperature" if not have_theta.any() else
                       f"the oil temperature varies by {span:.2g} °C only (needs {MIN_TEMPERATURE_SPAN_C:g} °C over "
                       "90 % of the samples)")
-        elif not e.physical and d.steady_state:
+        elif not e.physical and d.steady_state and not d.torque_readings:
             reason = "a table's rows are losses, not a sensor's readings"
+        elif not e.physical and d.steady_state and directions < MIN_SLOW_SHARE:
+            reason = ("a table's torque readings in one direction: its rows are taken as losses (a reading's zero "
+                      "error is a constant drag there)")
         elif e.needs_speeds_below is not None and (
                 not len(d.speed) or np.mean(np.abs(d.speed) <= e.needs_speeds_below) < MIN_SLOW_SHARE):
             reason = (f"too few samples at |speed| <= {e.needs_speeds_below:g} rad/s (needs "
@@ -401,20 +405,24 @@ def testability(d: SampleData) -> dict[str, str]:
     return why
 
 
-def _one_load(out_torque: np.ndarray | None) -> str:
-    """Why the data hold one load only ('' where the output torque varies): then a law in the load
-    cannot be told from a constant drag, and one in the drive torque -- the load plus the very loss
-    measured -- reproduces the torque balance whatever the friction (an identity, not a loss)."""
-    if out_torque is None or not len(out_torque):
+def _one_load(load_torque: np.ndarray | None, rows: bool = False) -> str:
+    """Why the data hold one load only ('' where the output torque varies; ``load_torque``:
+    :attr:`~.samples.SampleData.load_torque`): then a law in the load cannot be told from a constant
+    drag, and one in the drive torque -- the load plus the very loss measured -- reproduces the torque
+    balance whatever the friction (an identity, not a loss).  ``rows``: a table's (its load referred to
+    the input)."""
+    if load_torque is None or not len(load_torque):
         return ""
-    load = np.abs(out_torque[np.isfinite(out_torque)])
-    if len(load) < 0.9 * len(out_torque) or not len(load):
+    load = np.abs(load_torque[np.isfinite(load_torque)])
+    if len(load) < 0.9 * len(load_torque) or not len(load):
         return ""
     median = float(np.median(load))
     low, high = np.percentile(load, [5.0, 95.0])
     if median <= 0 or high - low > ONE_LOAD_SPREAD * median:
         return ""
-    return (f"one load (the output torque stays at {median:.4g} N·m, 90 % of the samples within "
+    what = "the rows' output torque referred to the input" if rows else "the output torque"
+    unit = "rows" if rows else "samples"
+    return (f"one load ({what} stays at {median:.4g} N·m, 90 % of the {unit} within "
             f"{high - low:.2g} N·m): a load-dependent law cannot be told from a constant drag")
 
 

@@ -48,6 +48,8 @@ class SampleData:
     fr_part: np.ndarray
     skipped: dict[str, int] = field(default_factory=dict)
     steady_state: bool = False  #: rows of steady-state tables (dwell means), not a time series
+    #: rows whose loss is the power balance of their torque readings (:attr:`~sources.tables.SteadyStateTable.readings`)
+    torque_readings: bool = False
     ratio: float | None = None  #: the tables' own input/output ratio (one for all), for the calibrated file
     sign_width_rad_s: float = 0.0  #: the estimator's smooth sign width (its effects see the same direction)
     #: a spin test: nothing on the output (its torque 0 throughout), the drive torque is the loss itself
@@ -72,6 +74,16 @@ class SampleData:
     @property
     def residual(self) -> np.ndarray:
         return self.measured_loss - self.model_loss
+
+    @property
+    def load_torque(self) -> np.ndarray | None:
+        """The torque each sample passes through the gearbox, to tell its loads apart: a recording's
+        measured output torque (None: not measured); a table row's output torque referred to the input,
+        ``T_in − L·sgn ω`` -- its power balance, whichever of output torque, efficiency or loss column
+        the row came with."""
+        if self.steady_state:
+            return self.torque - self.measured_loss * np.sign(self.speed)
+        return self.out_torque
 
     def select(self, keep: np.ndarray) -> SampleData:
         """The samples where ``keep`` (a boolean mask) holds."""
@@ -248,16 +260,13 @@ def file_residual(data: SampleData, config: Config) -> np.ndarray:
     speed noise and online adaptation), from its first sample, exactly as ``replay`` estimates it; rows of tables
     each on their own, as operating points (nothing adapts between them, nothing is learned from them),
     against the table's own measured loss."""
-    from dataclasses import replace
-
     from ..core.estimator import Estimator
+    from ..core.operating_points import rows_config
 
     if data.recordings is None or data.source_index is None:  # rows: the table's own measured loss
-        noise = config.estimator.speed_noise_rad_s  # operating points: nothing learned from a list of them
-        rows = replace(config, estimator=replace(config.estimator, adapt=False,
-                                                 speed_noise_rad_s=noise if isinstance(noise, float) else 0.0))
-        est = Estimator(rows).process_batch(np.arange(len(data.t_ns), dtype=np.int64), data.torque, data.speed,
-                                            temperature=data.temperature, breakdown=False)
+        est = Estimator(rows_config(config), operating_points=True).process_batch(
+            np.arange(len(data.t_ns), dtype=np.int64), data.torque, data.speed, temperature=data.temperature,
+            breakdown=False)
         out = np.full(len(data.t_ns), np.nan)
         kept = est.t_ns.astype(np.intp)
         out[kept] = data.measured_loss[kept] - (est.loss_magnitude_nm + est.sensor_nm)
@@ -297,8 +306,10 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     implausible = 0
     ratios: set[float | None] = set()
     states: dict[tuple[int, str], int] = {}
+    readings = True
     for i, path in enumerate(paths):
         table = read_table(path, cmap, config.gearbox.ratio_effective)
+        readings = readings and table.readings
         if table.dropped and warn:
             warn(f"{path}: {table.dropped} rows without a finite torque, speed or loss: skipped")
         keep = ((np.abs(table.torque_nm) <= est.max_abs_torque_nm)
@@ -328,12 +339,18 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
         raise BagError(f"no rows of {', '.join(map(str, paths))} within the estimator's plausible range")
     # nominal times 1 s apart: every row is its own block and dwell (see blocks.make_blocks)
     t_ns = np.arange(len(speed), dtype=np.int64) * 1_000_000_000
+    # nothing on the output in any row (its loss is all of its drive torque, to rounding): a spin test
+    spin = bool(np.all(np.abs(torque - loss * np.sign(speed)) <= SPIN_TOLERANCE * np.abs(torque)))
     return SampleData(t_ns, bag_id, torque, speed, temperature, loss, model.loss_magnitude(torque, speed),
                       model.fr_part(torque, speed), {"implausible": implausible} if implausible else {},
-                      steady_state=True, ratio=ratios.pop() if len(ratios) == 1 else None,
+                      steady_state=True, ratio=ratios.pop() if len(ratios) == 1 else None, spin_test=spin,
+                      torque_readings=readings,
                       parts=model.parts(torque, speed) if model.enabled else {})
 
 
+#: a table row whose output torque referred to the input is within this share of its drive torque has
+#: nothing on the output (its loss computed from an output torque of 0 differs from ``|T_in|`` by rounding)
+SPIN_TOLERANCE = 1e-9
 MAX_BEYOND_SHARE = 0.25  #: a table with more of its rows beyond the plausible range is refused, not cut
 
 

@@ -38,6 +38,7 @@ _FACE = {
     "evaluate_points": "operating_points",
     "only": "operating_points",
     "reference_temperature_c": "operating_points",
+    "rows_config": "operating_points",
     "temperature_effects": "operating_points",
     "ARRIVAL_PAIRINGS": "pairing",
     "CHANNELS": "pairing",

@@ -117,6 +117,17 @@ def drag_direction(x: EffectInputs, c, p):
     return c * power(x.abs_speed, p) * x.rot_sign
 
 
+def stribeck_direction(x: EffectInputs, c, omega_s, delta):
+    """Stribeck excess that differs by direction: ``ΔT = c·exp(−(|ω|/ω_s)^δ)·sgn ω`` (c of either sign).
+
+    Near standstill forward c more, in reverse as much less; beside ``stribeck`` the breakaway excess
+    is ``c_stribeck ± c`` per direction: a drive lifting and lowering a load whose lifting torque rises
+    near standstill while its lowering torque falls (a worm, a lead screw under a payload).  Far above
+    ``ω_s`` it vanishes, which tells it from ``torque_offset``'s constant ``b·sgn ω``.
+    """
+    return c * power(math.e, -power(x.abs_speed / omega_s, delta)) * x.rot_sign
+
+
 def backdrive(x: EffectInputs, c, q):
     """Back-driving friction: ``ΔT = c·|T|^q`` while the output drives the input (``T·ω < 0``), else 0.
 
@@ -449,6 +460,21 @@ for _effect in (
            alternative_needs="a standstill zero reading of the torque sensor (the zero error flips the loss by the "
                              "same amount at every speed; a drag that differs by direction grows with speed)",
            separated_from={"drag_speed": "both directions of rotation"}),
+    Effect("stribeck_direction", stribeck_direction, True,
+           "add a Stribeck excess that differs by direction c*exp(-(|w|/omega_s)^delta)*sign(w)",
+           "breakaway friction that differs by direction: a load lifted and lowered through a worm or a screw",
+           (EffectParameter("c", "c_nm", 0.0, "forward minus mean breakaway excess c (negative: more in reverse)",
+                            "N*m", simulated=-0.02),
+            EffectParameter("omega_s", "omega_s_rad_s", 0.1, "Stribeck speed", "rad/s", low=1e-4, low_open=True,
+                            high=1e3),
+            EffectParameter("delta", "delta", 2.0, "Stribeck shape exponent (2: Gaussian)", low=0.1, high=5.0)),
+           coefficient="c", member="omega_s",
+           member_grid=(0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0), member_bounds=(0.001, 20.0),
+           second_member="delta", second_grid=(0.5, 1.0, 2.0), second_bounds=(0.3, 3.0),
+           vanishes_above=lambda p: p["omega_s"] * 40.0 ** (1.0 / p["delta"]), needs_speeds_below=5.0,
+           signed=True, needs_both_directions=True, plotted_against="speed_near_zero",
+           separated_from={"torque_offset": "speeds near standstill and far from it, in both directions",
+                           "stribeck": "speeds near standstill in both directions"}),
     Effect("backdrive", backdrive, True, "add a friction c*|T|^q that appears only while the output drives the input",
            "friction only under back-driving: a self-locking tendency, a one-way clutch, a worm's back-driving",
            (EffectParameter("c", "c", 0.0, "back-driving friction coefficient c (N*m/(N*m)^q)", simulated=3e-3),

@@ -125,14 +125,18 @@ def _synced(paired: tuple[np.ndarray, ...]) -> list[SyncedSample]:
 class Estimator:
     """Model + accepted effects + residual + online adaptation, for one :class:`Config`."""
 
-    def __init__(self, config: Config, pairing: str = "timestamp", sample_period_s: float | None = None) -> None:
-        """``pairing``: ``timestamp`` (bags; live with publisher timestamps), ``arrival`` or
+    def __init__(self, config: Config, pairing: str = "timestamp", sample_period_s: float | None = None,
+                 operating_points: bool = False) -> None:
+        """``operating_points``: each sample is an operating point of its own (a steady-state table's
+        row, a dwell mean): its direction is its speed's sign, a measured loss wherever it moves.
+        ``pairing``: ``timestamp`` (bags; live with publisher timestamps), ``arrival`` or
         ``arrival_reliable`` / ``arrival_sequenced`` (arrival order over a delivery that loses
         nothing, or whose losses are filled in; see :class:`~.pairing.SampleSynchronizer`);
         ``sample_period_s``: the motor torque's median message period, for the automatic pairing
         tolerance (:func:`pairing_tolerance_s`; 1 ms when not given)."""
         self.config = config
         self.pairing, self.sample_period_s = pairing, sample_period_s  # for an estimator that takes over
+        self.operating_points = operating_points
         est = config.estimator
         self.sync_tolerance_s = pairing_tolerance_s(est.sync_tolerance_s, sample_period_s)
         self.model = LossModel(config.gearbox, est.min_torque_for_efficiency_nm, est.min_speed_for_efficiency_rad_s,
@@ -243,26 +247,34 @@ class Estimator:
         balance ``(T_in − T_out/ratio)·sgn ω`` instead (a spin test: ``T_in·sgn ω``), where the
         direction is known -- ``|ω|`` and the previous sample's (``previous_speed``, in the same
         direction) at least 3 × the speed reading's noise: a reading at rest is beyond 3σ once in 400
-        samples, twice in a row in the same direction once in 300 000; NaN elsewhere.
+        samples, twice in a row in the same direction once in 300 000; NaN elsewhere (and at a speed of
+        exactly 0, where no direction is).  Operating points (:attr:`operating_points`) are dwell means,
+        without a speed reading's noise: the power balance wherever they move.
         """
         w_out = np.where(np.isnan(out_speed), speed / self.ratio, out_speed)
         with np.errstate(divide="ignore", invalid="ignore"):
             m = (torque * speed - out_torque * w_out) / np.abs(speed)
+        if self.operating_points:  # dwell means: no speed noise to divide by, the power balance throughout
+            return np.where(speed != 0, m, np.nan)
         slow = np.abs(speed) < max(self.model.min_speed_rad_s, 1e-9)
         if np.any(slow):
             m = np.where(slow, (torque - out_torque / self.ratio) * np.sign(speed), m)
             prev = previous_speed if previous_speed is not None else speed
-            known = (np.abs(speed) >= self.min_measured_speed_rad_s) & (np.abs(prev) >= self.min_measured_speed_rad_s) \
-                & (np.sign(prev) == np.sign(speed))
+            least = self.min_measured_speed_rad_s
+            known = (np.abs(speed) >= least) & (np.abs(prev) >= least) & (np.sign(prev) == np.sign(speed)) \
+                & (speed != 0)
             m = np.where(slow & ~known, np.nan, m)
         return m
 
     def _measured_loss_scalar(self, torque, speed, out_torque, out_speed, previous_speed) -> float:
         if not math.isfinite(out_torque):
             return math.nan
-        if abs(speed) < self.model.min_speed_rad_s:  # the torque balance, where the direction is known
-            least = self.min_measured_speed_rad_s
-            if abs(speed) < least or abs(previous_speed) < least or (speed > 0) != (previous_speed > 0):
+        if speed == 0 and self.operating_points:
+            return math.nan
+        if abs(speed) < self.model.min_speed_rad_s and not self.operating_points:  # the torque balance, where
+            least = self.min_measured_speed_rad_s  # the direction is known
+            if abs(speed) < least or abs(previous_speed) < least or (speed > 0) != (previous_speed > 0) \
+                    or speed == 0:
                 return math.nan
             return (torque - out_torque / self.ratio) * (1.0 if speed > 0 else -1.0)
         w_out = speed / self.ratio if math.isnan(out_speed) else out_speed

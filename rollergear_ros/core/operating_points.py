@@ -34,7 +34,7 @@ from .params import Config, EffectParams
 from .speednoise import AUTO
 
 __all__ = ["PointLosses", "evaluate_points", "map_config", "only", "points_config", "reference_temperature_c",
-           "temperature_effects"]
+           "rows_config", "temperature_effects"]
 
 
 @dataclass
@@ -67,6 +67,15 @@ def points_config(config: Config) -> Config:
     if cfg.estimator.speed_noise_rad_s == AUTO:
         cfg = replace(cfg, estimator=replace(cfg.estimator, speed_noise_rad_s=0.0))
     return cfg
+
+
+def rows_config(config: Config) -> Config:
+    """``config`` as a steady-state table's rows are estimated against their measured loss: each row
+    an operating point on its own -- nothing adapts between rows, the speed noise is never learned from
+    them (``auto``: the plain sign) -- with the sensor errors kept (a row's torque is a reading)."""
+    noise = config.estimator.speed_noise_rad_s
+    return replace(config, estimator=replace(config.estimator, adapt=False,
+                                             speed_noise_rad_s=0.0 if noise == AUTO else noise))
 
 
 def temperature_effects(config: Config) -> list[str]:

@@ -17,11 +17,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Callable, Iterator, Sequence
 
-from ..recordings.baginfo import BagInfo, inspect_bag
+from ..recordings.baginfo import BagInfo, inspect_bag, read_metadata
 from ..recordings.messages import TopicMap
 from ..base import atomic
 from ..base.errors import UsageError
+from ..base.interface import Metadata
 from ..core.estimator import BatchEstimate, Estimator
+from ..core.operating_points import rows_config
 from ..core.params import Config
 from ..base.progress import TimedProgress
 from .inputs import InputBatch, InputProblems, damaged_share, input_batches, paired_plan
@@ -118,7 +120,9 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
     info = inspect_bag(req.bag)
     _warn_unindexed(info, _warn)
     plan, pairing, period_s = paired_plan(info, req.topics)
-    estimator = Estimator(req.config, pairing=pairing, sample_period_s=period_s)
+    rows = table_rows(info)  # a table's rows: each an operating point, as calibrate estimates them
+    estimator = Estimator(rows_config(req.config) if rows else req.config, pairing=pairing, sample_period_s=period_s,
+                          operating_points=rows)
     # the node's run-time parameter changes, where it applied them
     switches = recorded_switches(info) if req.parameter_changes else []
     problems = InputProblems(estimator.counts, plan)
@@ -173,6 +177,13 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
         except KeyboardInterrupt:
             _warn(f"interrupted: no summary picture {req.summary_png}")
     return summary, outputs.collected
+
+
+def table_rows(info: BagInfo) -> bool:
+    """Whether the recording is a steady-state table's import (``import`` says so in its metadata): one
+    operating point per sample, each estimated on its own (:func:`~core.operating_points.rows_config`)."""
+    record = read_metadata(info.path, Metadata.IMPORT) if info.path.is_file() else None
+    return bool(record) and record.get(Metadata.IMPORT_ROWS) == "true"
 
 
 def _warn_unindexed(info: BagInfo, warn: Callable[[str], None]) -> None:

@@ -38,12 +38,12 @@ from ..recordings.bagwriter import BagWriter
 from .channelmap import load_channel_map
 from ..base.errors import InputFileError, UsageError
 from .formats import INPUT_FORMATS, input_format
-from ..base.interface import Channel, MessageType
+from ..base.interface import Channel, MessageType, Metadata
 from .timeseries import align, read_series
 
 __all__ = ["ImportSummary", "as_mcap", "copy_rosbag2", "import_source", "source_kind"]
 
-IMPORT_METADATA = "rollergear_import"
+IMPORT_METADATA = Metadata.IMPORT
 RESAMPLING_RULE = ("paired channels on the motor torque's time stamps: taken as they are where they coincide, "
                    "else linear interpolation between the two neighbouring samples (no extrapolation: NaN "
                    "outside a channel's span); oil temperature at its own time stamps, at most 1 Hz")
@@ -386,7 +386,7 @@ def _import_table(src: Path, kind: str, out: Path, channels: str | Path | None, 
             "channel_map": "" if channels is None else Path(channels).read_text(encoding="utf-8"),
             "rows": f"one sample per row, {TABLE_PERIOD_NS * 1e-9:g} s apart in file order; the input-referred "
                     "loss L as output torque T - L*sgn(w) at an output speed equal to the input speed",
-            "standstill_rows_left_out": str(standstill)})
+            "standstill_rows_left_out": str(standstill), Metadata.IMPORT_ROWS: "true"})
         have = np.isfinite(theta)
         _write_in_time_order(bw, topics, _FloatMessages([(topic_of[c], MessageType.FLOAT64, None) for c in names],
                                                         which, np.repeat(t_rows, len(names)), payloads),

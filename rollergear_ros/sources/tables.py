@@ -50,6 +50,9 @@ class SteadyStateTable:
     group: np.ndarray | None = None  #: gearbox state of each row (the map's group column)
     dropped: int = 0  #: rows without a finite torque, speed or loss (e.g. a loss from output torque at standstill)
     ratio: float | None = None  #: the table's own input/output ratio (the map's), when it has one
+    #: the loss is the power balance of the rows' drive and output torque (not a loss or efficiency
+    #: column): the drive torque is a sensor's dwell mean, and that sensor's errors are in the loss
+    readings: bool = False
 
 
 def is_table(path: str | Path, cmap: ChannelMap | None = None) -> bool:
@@ -119,8 +122,9 @@ def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadySta
         raise InputFileError(f"{path}: {int(ok.sum())} usable rows; a table needs at least {MIN_ROWS}")
     own = cmap.ratio if cmap.ratio is not None else (
         float(ratio[ok][0]) if cmap.ratio_column is not None and np.unique(ratio[ok]).size == 1 else None)
+    readings = "loss_torque" not in col and Channel.OUTPUT_TORQUE in col and not cmap.output_side
     return SteadyStateTable(path, speed[ok], torque[ok], loss[ok], theta[ok], line[ok], group,
-                            int(np.count_nonzero(~ok)), own)
+                            int(np.count_nonzero(~ok)), own, readings)
 
 
 def _check_efficiency(path: Path, eta: np.ndarray) -> None:

@@ -150,3 +150,30 @@ def test_the_error_calibrate_claims_after_is_what_its_written_file_leaves(tmp_pa
         assert "channel lags (the parameter file's): output_torque 29.8 ms late" in said
         assert "channel lags (the parameter file's): output_torque 29.8 ms late" in run_cli(
             "predict", str(bag), "--params", str(out)).stdout
+
+
+def test_a_tables_rows_replayed_leave_what_calibrate_claims_for_them(tmp_path):
+    """A table of a slow drive's dwell means, rows down to 1 rpm (far below the speed under which a
+    recording's loss is its torque balance at the file's ratio, and within any speed noise of 0):
+    ``replay`` of the table estimates every row as calibrate does -- an operating point on its own,
+    the power balance of its own torques -- and leaves what calibrate claims for the rows, to 1e-9."""
+    from rigs import lifting_table
+
+    fit, cmap = lifting_table(tmp_path, (1, 1.5, 2, 3, 4, 6, 8, 12, 20, 30, 50, 80, 120, 200), "fit", seed=0,
+                              offset_nm=0.001)
+    p = tmp_path / "p.yaml"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    estimator: {paper_model: false}\n")
+    written = tmp_path / "cal.yaml"
+    run_cli("calibrate", str(fit), "--channels", str(cmap), "--params", str(p), "--out", str(written))
+    held, _ = lifting_table(tmp_path, (1.2, 1.7, 2.5, 3.5, 5, 7, 10, 14, 25, 40), "held", seed=1, offset_nm=0.001)
+    claimed = json.loads(run_cli("calibrate", str(held), "--channels", str(cmap), "--params", str(written),
+                                 "--json").stdout)["error_before"]["rmse_nm"]
+    out = tmp_path / "rows.csv"
+    run_cli("replay", str(held), "--channels", str(cmap), "--params", str(written), "--csv", str(out), "--no-png")
+    import csv
+
+    with out.open() as fh:
+        rows = list(csv.DictReader(fh))
+    residual = np.array([float(r["residual_torque [N*m]"]) for r in rows])
+    assert len(rows) == 20 and np.isfinite(residual).all(), residual
+    assert np.sqrt(np.mean(residual ** 2)) == pytest.approx(claimed, rel=1e-9, abs=1e-15)

@@ -18,21 +18,24 @@ from rollergear_ros.core.params import load_config
 
 from helpers import run_cli
 from joints import joint_csv, joint_velocity, lugre_friction, memory_config
+from rigs import lifting_table
 
 JOINT = "/**/loss_estimator:\n  ros__parameters:\n    estimator: {paper_model: false, speed_noise_rad_s: 0.005}\n"
 
 
-def spin_test_csv(tmp_path, stribeck: bool, seed: int = 0, name: str = "spin"):
+def spin_test_csv(tmp_path, stribeck: bool, seed: int = 0, name: str = "spin", direction_nm: float = 0.0):
     """A joint driven back and forth at low speeds with nothing on its output: dwells at ±0.08 …
     5 rad/s, the drive torque all friction (Fc 0.30 N·m, Fs − Fc 0.25 N·m at ω_s 0.15 rad/s,
-    Gaussian, viscous 0.01 N·m/(rad/s)), 1 kHz noise on torque and speed."""
+    Gaussian, viscous 0.01 N·m/(rad/s)), 1 kHz noise on torque and speed.  ``direction_nm``: a
+    breakaway that differs by direction -- the excess ``Fs − Fc ± direction_nm`` forward / in reverse."""
     rng = np.random.default_rng(seed)
     levels = [0.08, 0.1, 0.13, 0.17, 0.22, 0.3, 0.4, 0.6, 1.0, 1.5, 2.5, 5.0]
     rate, dwell = 200.0, 1.5
     w = np.concatenate([np.full(int(rate * dwell), d * v) for _ in range(2) for v in levels for d in (1, -1)])
     t = np.arange(len(w)) / rate
     fc, excess, ws, visc = 0.30, 0.25 if stribeck else 0.0, 0.15, 0.01
-    friction = (fc + excess * np.exp(-(np.abs(w) / ws) ** 2) + visc * np.abs(w)) * np.sign(w)
+    bump = np.exp(-(np.abs(w) / ws) ** 2)
+    friction = (fc + (excess + direction_nm * np.sign(w)) * bump + visc * np.abs(w)) * np.sign(w)
     torque = friction + rng.normal(0, 0.005, len(w))
     speed = w + rng.normal(0, 0.005, len(w))
     path = tmp_path / f"{name}.csv"
@@ -51,7 +54,7 @@ def test_a_joints_stribeck_friction_is_found_on_a_spin_test_csv(tmp_path):
     result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(params), "--json",
                                 "--out", str(out)).stdout)
     found = {e["name"]: e for e in result["effects"]}
-    assert "stribeck" in found and "torque_offset" not in found, sorted(found)
+    assert "stribeck" in found and not {"torque_offset", "stribeck_direction"} & set(found), sorted(found)
     s = found["stribeck"]
     assert s["ci95"]["c"][0] <= 0.25 <= s["ci95"]["c"][1], s
     assert s["ci95"]["omega_s"][0] <= 0.15 <= s["ci95"]["omega_s"][1], s
@@ -70,7 +73,50 @@ def test_a_coulomb_joint_gets_no_stribeck_term(tmp_path):
     result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(params),
                                 "--json").stdout)
     found = {e["name"] for e in result["effects"]}
-    assert "stribeck" not in found and "drag_constant" in found, found
+    assert not {"stribeck", "stribeck_direction"} & found and "drag_constant" in found, found
+
+
+def test_a_breakaway_that_differs_by_direction_is_found_and_predicts_another_run(tmp_path):
+    """The joint's excess 0.25 ± 0.1 N·m forward / in reverse: ``stribeck`` and ``stribeck_direction``,
+    their intervals holding the joint's values, no torque offset; the written file on another run."""
+    csv, cmap, params = spin_test_csv(tmp_path, stribeck=True, direction_nm=0.1)
+    out = tmp_path / "cal.yaml"
+    result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(params), "--json",
+                                "--out", str(out)).stdout)
+    found = {e["name"]: e for e in result["effects"]}
+    assert {"stribeck", "stribeck_direction"} <= set(found) and "torque_offset" not in found, sorted(found)
+    both, one = found["stribeck"]["ci95"], found["stribeck_direction"]["ci95"]
+    assert both["c"][0] <= 0.25 <= both["c"][1] and one["c"][0] <= 0.1 <= one["c"][1], (both, one)
+    assert one["omega_s"][0] <= 0.15 <= one["omega_s"][1], one
+    csv2, _, _ = spin_test_csv(tmp_path, stribeck=True, seed=1, name="spin2", direction_nm=0.1)
+    replayed = run_cli("replay", str(csv2), "--channels", str(cmap), "--params", str(out), "--no-png").stdout
+    rms = float(next(ln for ln in replayed.splitlines() if "residual" in ln and "RMS" in ln).split("RMS")[1]
+                .split()[0])
+    assert rms < 0.02, replayed
+
+
+def test_a_lifting_torque_rising_and_a_lowering_torque_falling_near_standstill_is_a_directed_breakaway(tmp_path):
+    """Issue #51's low-speed case from level means: one payload, so no load law; the directed excess,
+    the symmetric one and the reading's offset found within their intervals; the written file predicts
+    speeds it did not see (held-out rows between the fitted ones) to the rows' scatter."""
+    fitted = (1, 1.5, 2, 3, 4, 6, 8, 12, 20, 30, 50, 80, 120, 200)
+    csv, cmap = lifting_table(tmp_path, fitted, "fit", seed=0, offset_nm=0.001)
+    p = tmp_path / "p.yaml"
+    p.write_text(JOINT)
+    out = tmp_path / "cal.yaml"
+    result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(p), "--json",
+                                "--out", str(out)).stdout)
+    found = {e["name"]: e for e in result["effects"]}
+    assert not {"load_dependent", "load_speed", "backdrive"} & set(found), sorted(found)
+    assert "one load" in result["untestable"]["load_dependent"]
+    assert {"stribeck_direction", "torque_offset"} <= set(found), sorted(found)
+    one = found["stribeck_direction"]["ci95"]
+    assert one["c"][0] <= 0.005 <= one["c"][1] and one["omega_s"][0] <= 0.3 <= one["omega_s"][1], one
+    assert found["torque_offset"]["ci95"]["b"][0] <= 0.001 <= found["torque_offset"]["ci95"]["b"][1]
+    held, _ = lifting_table(tmp_path, (1.2, 1.7, 2.5, 3.5, 5, 7, 10, 14, 25, 40), "held", seed=1, offset_nm=0.001)
+    again = json.loads(run_cli("calibrate", str(held), "--channels", str(cmap), "--params", str(out),
+                               "--json").stdout)
+    assert again["error_before"]["rmse_nm"] < 1e-4, again["error_before"]  # 5 × the rows' scatter
 
 
 def test_the_estimators_loss_torque_runs_smoothly_through_standstill():

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from helpers import REALDATA, run_cli
-from rigs import Joint, Rig, loaded_rig, params, rig_map, slow_joint, worm_drive
+from rigs import Joint, Rig, loaded_rig, params, rig_map, slow_joint, worm_drive, worm_table
 
 
 def calibrate_json(*args: str, check: bool = True) -> dict:
@@ -302,6 +302,21 @@ def test_one_constant_load_is_no_load_friction_and_predicts_as_the_spin_test(tmp
     assert errors["load"][0] < errors["load"][1], errors  # better than no model
 
 
+@pytest.mark.parametrize("payload", [0.6, None], ids=["one_load", "spin_test"])
+def test_a_steady_state_table_under_one_load_claims_no_load_friction_either(tmp_path, payload):
+    """The worm's speed levels as a table of dwell means (rows carry losses, not a recording's output
+    torque): under one payload each row's output torque referred to the input, ``T_in − L·sgn ω``, is
+    the same, and a law in the drive torque would again reproduce the torque balance; with 0 on the
+    output the table is a spin test.  No load law is claimed, with the reason, and the drag is found."""
+    csv, cmap = worm_table(tmp_path, payload)
+    p = str(params(tmp_path / "p.yaml", "    gearbox: {ratio: 60.0}\n"))
+    result = calibrate_json(csv.as_posix(), "--channels", str(cmap), "--params", p)
+    assert not {"load_dependent", "load_speed", "backdrive"} & set(effects_of(result)), result["effects"]
+    reason = "one load" if payload is not None else "a spin test"
+    assert all(reason in result["untestable"][name] for name in ("load_dependent", "load_speed")), result["untestable"]
+    assert "drag_constant" in effects_of(result)
+
+
 def test_a_parameter_file_at_another_ratio_than_the_recordings_calibrates_at_theirs(tmp_path):
     """The worm's channel map derives the output speed at 60:1; a parameter file left at another ratio
     would make the slow samples' measured loss (the torque balance, at the file's ratio) a different
@@ -335,7 +350,7 @@ def test_a_set_that_explains_the_data_below_their_noise_is_refused_as_an_identit
     from rollergear_ros.core.params import load_config
     from rollergear_ros.sources.importer import as_mcap
 
-    monkeypatch.setattr(blocks, "_one_load", lambda out_torque: "")
+    monkeypatch.setattr(blocks, "_one_load", lambda load_torque, rows=False: "")
     config = load_config(params(tmp_path / "p.yaml", "    gearbox: {ratio: 60.0}\n"))
     csv, cmap = worm_drive(tmp_path, 0.6)
     with as_mcap([csv], cmap) as bags:

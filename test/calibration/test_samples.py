@@ -67,3 +67,33 @@ def test_calibrate_warns_of_an_output_torque_in_the_other_sign_convention(tmp_pa
     result = json.loads(proc.stdout)
     assert [e["name"] for e in result["effects"]] == ["drag_constant"]
     assert result["effects"][0]["params"]["c"] == pytest.approx(0.3, rel=0.01)
+
+
+@pytest.mark.parametrize(("columns", "directions", "reason"), [
+    ("output_torque: {column: T_out, unit: N*m}\n", (1.0, -1.0), ""),
+    ("output_torque: {column: T_out, unit: N*m}\n", (1.0,), "torque readings in one direction"),
+    ("loss_torque: {column: L, unit: N*m}\n", (1.0, -1.0), "rows are losses, not a sensor's readings"),
+])
+def test_a_tables_sensor_errors_are_tested_where_its_loss_is_its_readings_power_balance(tmp_path, columns, directions,
+                                                                                        reason):
+    """A table whose loss is the power balance of its drive and output torque readings carries the drive
+    torque sensor's errors (where its rows turn both ways: else a zero error is a constant drag there);
+    one whose loss is given as a loss column does not."""
+    from rollergear_ros.calibration.blocks import testability
+    from rollergear_ros.calibration.samples import table_samples
+    from rollergear_ros.core.params import load_config
+    from rollergear_ros.sources.channelmap import load_channel_map
+
+    w = np.array([d * n for n in (100.0, 300.0, 1000.0) for t in (5.0, 20.0, 50.0) for d in directions])
+    t_in = np.array([t * d for n in (100.0, 300.0, 1000.0) for t in (5.0, 20.0, 50.0) for d in directions])
+    loss = 0.3 + 0.01 * np.abs(t_in)
+    t_out = (t_in - loss * np.sign(w)) * 2.0  # ratio 2
+    (tmp_path / "rows.csv").write_text("n,T,T_out,L\n" + "".join(
+        f"{a!r},{b!r},{c!r},{d!r}\n" for a, b, c, d in zip(w.tolist(), t_in.tolist(), t_out.tolist(), loss.tolist())))
+    (tmp_path / "map.yaml").write_text("format: steady_state\nmotor_torque: {column: T, unit: N*m}\n"
+                                       "motor_speed: {column: n, unit: rpm}\nratio: 2\n" + columns)
+    data = table_samples([tmp_path / "rows.csv"], load_config(), cmap=load_channel_map(tmp_path / "map.yaml"))
+    np.testing.assert_allclose(data.measured_loss, loss, rtol=1e-12)
+    why = testability(data)
+    assert reason in why["torque_offset"] and (reason != "" or why["torque_offset"] == ""), why["torque_offset"]
+    assert reason in why["torque_gain"] and (reason != "" or why["torque_gain"] == ""), why["torque_gain"]

@@ -36,6 +36,9 @@ X = EffectInputs(abs_torque=np.array([2.0, 40.0]), abs_speed=np.array([10.0, 200
     ("torque_offset", {"b": 0.05}, 0.05 * X.rot_sign),
     ("torque_gain", {"g": 0.01}, 0.01 * X.torque * X.rot_sign),
     ("stribeck", {"c": 0.25, "omega_s": 20.0, "delta": 2.0}, 0.25 * np.exp(-(X.abs_speed / 20.0) ** 2)),
+    ("stribeck_direction", {"c": -0.1, "omega_s": 20.0, "delta": 1.5},
+     -0.1 * np.exp(-(X.abs_speed / 20.0) ** 1.5) * X.rot_sign),
+    ("drag_direction", {"c": -2e-4, "p": 1.2}, -2e-4 * X.abs_speed ** 1.2 * X.rot_sign),
     ("drag_viscous", {"c": 3e-4, "p": 1.5, "a": 0.5, "B": 900.0, "C": 95.0, "theta_ref": 40.0},
      3e-4 * np.exp(900.0 / (X.temperature_c + 95.0) - 900.0 / 135.0) ** 0.5 * X.abs_speed ** 1.5),
     ("dahl", {"c": 0.1, "presliding": 0.01}, 0.1 + 0.0 * X.abs_speed),  # no state: steady motion
