@@ -96,9 +96,9 @@ def test_a_breakaway_that_differs_by_direction_is_found_and_predicts_another_run
 
 
 def test_a_lifting_torque_rising_and_a_lowering_torque_falling_near_standstill_is_a_directed_breakaway(tmp_path):
-    """Issue #51's low-speed case from level means: one payload, so no load law; the directed excess,
-    the symmetric one and the reading's offset found within their intervals; the written file predicts
-    speeds it did not see (held-out rows between the fitted ones) to the rows' scatter."""
+    """Issue #51's low-speed case from level means: one payload, so no load law; the directed excess
+    and the reading's offset found within their intervals; the written file predicts speeds it did not
+    see (held-out rows between the fitted ones) to the rows' scatter."""
     fitted = (1, 1.5, 2, 3, 4, 6, 8, 12, 20, 30, 50, 80, 120, 200)
     csv, cmap = lifting_table(tmp_path, fitted, "fit", seed=0, offset_nm=0.001)
     p = tmp_path / "p.yaml"

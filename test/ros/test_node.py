@@ -656,8 +656,8 @@ def test_node_started_after_the_player_still_estimates(executor, tmp_path):
     # can tell a pairing one sample off.  The player is a fixture here, not under test: it runs at a
     # higher priority where the test may give one (root).  --no-wait: the player must not wait for
     # the node (its default), the node joins a running stream: it starts once a probe hears the
-    # stream, and the stream is stopped once the node has estimated 5000 samples (conditions, not
-    # whiles: on a loaded machine the node's start-up alone may take many seconds)
+    # stream, and the stream is stopped once the node has estimated 5000 samples (conditions, not fixed
+    # times: on a loaded machine the node's start-up alone may take many seconds)
     with ros_context() as probe_node:
         stream = FloatProbe(probe_node, T.motor_torque)
         player = subprocess.Popen([sys.executable, "-m", "rollergear_ros", "play", str(stream_bag), "--rate", "5",
