@@ -23,12 +23,14 @@ import numpy as np
 
 from ..base.errors import UsageError
 from ..base.progress import TimedProgress
+from ..core.operating_points import rows_config
 from ..core.params import Config, load_config
 from ..core.prediction import Prediction, PredictionSums
 from ..base.interface import Channel
 from ..recordings.messages import TopicMap
 from ..recordings.baginfo import inspect_bag
 from .inputs import InputProblems, damaged_share, input_batches, paired_plan
+from .run import table_rows
 
 __all__ = ["ARRAY_KEYS", "predict"]
 
@@ -94,12 +96,14 @@ def _add_recording(config: Config, collect: bool, adapt: bool, bag: Path, topics
     """A recording's samples, paired and estimated as ``replay`` does, batch by batch: its sums, and
     the share of it lost to damage, as replay states it (nothing readable: a :class:`BagError`).
     A recording with measured output torque (an output torque topic, or joint states, which a rig or
-    robot records) is a recorded drive, evaluated as replay does; one without, a plan."""
+    robot records) is a recorded drive, evaluated as replay does; one without, a plan.  A steady-state
+    table's import: its rows as operating points, as replay estimates them."""
     info = inspect_bag(bag)
     plan, pairing, period_s = paired_plan(info, topics)
     recorded = plan.mode == "joint_state" or Channel.OUTPUT_TORQUE in plan.float64.values()
-    sums = PredictionSums(config, collect, adapt, recorded)
-    estimator = sums.base_estimator(pairing=pairing, sample_period_s=period_s)
+    rows = table_rows(info)
+    sums = PredictionSums(rows_config(config) if rows else config, collect, adapt, recorded)
+    estimator = sums.base_estimator(pairing=pairing, sample_period_s=period_s, operating_points=rows)
     problems = InputProblems(estimator.counts, plan)
     total = sum(info.counts.get(t, 0) for t in plan.all_topics)
     read = 0

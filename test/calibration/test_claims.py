@@ -177,3 +177,18 @@ def test_a_tables_rows_replayed_leave_what_calibrate_claims_for_them(tmp_path):
     residual = np.array([float(r["residual_torque [N*m]"]) for r in rows])
     assert len(rows) == 20 and np.isfinite(residual).all(), residual
     assert np.sqrt(np.mean(residual ** 2)) == pytest.approx(claimed, rel=1e-9, abs=1e-15)
+    # predict of the table is its replay, row by row (a file that adapts: rows adapt in neither)
+    adapting = tmp_path / "adapting.yaml"
+    adapting.write_text(written.read_text().replace("adapt: false", "adapt: true"))
+    got = predict(held, adapting, channels=cmap, collect=True)
+    _s, batches = replay_table(held, cmap, adapting)
+    np.testing.assert_allclose(got.loss_power_w, np.concatenate([b.loss_power_w for b in batches]), rtol=1e-12,
+                               atol=1e-15)
+
+
+def replay_table(table, cmap, params):
+    """``replay`` of a steady-state table as the command line reads it (imported first)."""
+    from rollergear_ros.sources.importer import as_mcap
+
+    with as_mcap([table], cmap) as (bag,):
+        return replay(bag, load_config(params), collect=True, show_progress=False)
