@@ -97,10 +97,9 @@ def evaluate(drive: str, files: list[Path], held: set[float], work: Path, given:
     speed, torque = data(train)
     w, t = np.concatenate(speed), np.concatenate(torque)
     moving = w != 0.0
-    design = lambda w: np.column_stack([np.sign(w), w, np.ones_like(w)])  # noqa: E731 - Coulomb, viscous, constant
-    coef, *_ = np.linalg.lstsq(design(w[moving]), t[moving], rcond=None)
+    coef, *_ = np.linalg.lstsq(_coulomb_viscous_constant(w[moving]), t[moving], rcond=None)
     speed, torque = data(test)
-    ls_levels = [t[w != 0] - design(w[w != 0]) @ coef for w, t in zip(speed, torque)]
+    ls_levels = [t[w != 0] - _coulomb_viscous_constant(w[w != 0]) @ coef for w, t in zip(speed, torque)]
     row["floor"] = _rms(np.concatenate([t - t.mean() for t in torque]))
     row["ls"] = (_rms(np.concatenate(ls_levels)), _rms(np.array([r.mean() for r in ls_levels])))
     for name, params in (("given", given), ("file", written if result["written"] else given)):
@@ -155,15 +154,19 @@ def evaluate_table(drive: str, files: list[Path], held: set[float] | None, work:
         return a[:, 0] * np.pi / 30.0, a[:, 1]
 
     w, t = rows(train)
-    design = lambda w: np.column_stack([np.sign(w), w, np.ones_like(w)])  # noqa: E731 - as in evaluate
-    coef, *_ = np.linalg.lstsq(design(w), t, rcond=None)
+    coef, *_ = np.linalg.lstsq(_coulomb_viscous_constant(w), t, rcond=None)
     w, t = rows(test)
-    ls = _rms(t - design(w) @ coef)
+    ls = _rms(t - _coulomb_viscous_constant(w) @ coef)
     row["ls"] = (ls, ls)
     for name, params in (("given", given), ("file", written if result["written"] else given)):
         r = replay_residuals(test, channels, params, work / f"{drive}_{tag}_{name}.csv")
         row[name] = (_rms(r), _rms(r), len(r), len(t))
     return row
+
+
+def _coulomb_viscous_constant(w: np.ndarray) -> np.ndarray:
+    """The least-squares fit's columns at speeds ``w``: Coulomb, viscous, a constant."""
+    return np.column_stack([np.sign(w), w, np.ones_like(w)])
 
 
 def _rms(values: np.ndarray) -> float:

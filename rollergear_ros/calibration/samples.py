@@ -339,13 +339,13 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
         raise BagError(f"no rows of {', '.join(map(str, paths))} within the estimator's plausible range")
     # nominal times 1 s apart: every row is its own block and dwell (see blocks.make_blocks)
     t_ns = np.arange(len(speed), dtype=np.int64) * 1_000_000_000
-    # nothing on the output in any row (its loss is all of its drive torque, to rounding): a spin test
-    spin = bool(np.all(np.abs(torque - loss * np.sign(speed)) <= SPIN_TOLERANCE * np.abs(torque)))
-    return SampleData(t_ns, bag_id, torque, speed, temperature, loss, model.loss_magnitude(torque, speed),
+    data = SampleData(t_ns, bag_id, torque, speed, temperature, loss, model.loss_magnitude(torque, speed),
                       model.fr_part(torque, speed), {"implausible": implausible} if implausible else {},
-                      steady_state=True, ratio=ratios.pop() if len(ratios) == 1 else None, spin_test=spin,
-                      torque_readings=readings,
-                      parts=model.parts(torque, speed) if model.enabled else {})
+                      steady_state=True, ratio=ratios.pop() if len(ratios) == 1 else None,
+                      torque_readings=readings, parts=model.parts(torque, speed) if model.enabled else {})
+    # nothing on the output in any row (its loss is all of its drive torque, to rounding): a spin test
+    data.spin_test = bool(np.all(np.abs(data.load_torque) <= SPIN_TOLERANCE * np.abs(torque)))
+    return data
 
 
 #: a table row whose output torque referred to the input is within this share of its drive torque has

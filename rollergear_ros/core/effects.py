@@ -125,7 +125,7 @@ def stribeck_direction(x: EffectInputs, c, omega_s, delta):
     near standstill while its lowering torque falls (a worm, a lead screw under a payload).  Far above
     ``ω_s`` it vanishes, which tells it from ``torque_offset``'s constant ``b·sgn ω``.
     """
-    return c * power(math.e, -power(x.abs_speed / omega_s, delta)) * x.rot_sign
+    return stribeck(x, c, omega_s, delta) * x.rot_sign
 
 
 def backdrive(x: EffectInputs, c, q):
@@ -380,6 +380,17 @@ EFFECTS: dict[str, Effect] = {}
 REGISTRY_VERSION = [0]
 
 
+#: the Stribeck speed and shape of ``stribeck`` and ``stribeck_direction``, and how calibrate searches them
+_STRIBECK_SHAPE = (
+    EffectParameter("omega_s", "omega_s_rad_s", 0.1, "Stribeck speed", "rad/s", low=1e-4, low_open=True, high=1e3),
+    EffectParameter("delta", "delta", 2.0, "Stribeck shape exponent (2: Gaussian)", low=0.1, high=5.0))
+_STRIBECK_SEARCH = dict(
+    coefficient="c", member="omega_s", member_grid=(0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0),
+    member_bounds=(0.001, 20.0), second_member="delta", second_grid=(0.5, 1.0, 2.0), second_bounds=(0.3, 3.0),
+    vanishes_above=lambda p: p["omega_s"] * 40.0 ** (1.0 / p["delta"]), needs_speeds_below=5.0,
+    plotted_against="speed_near_zero")
+
+
 def register(effect: Effect) -> Effect:
     """Add (or replace) an effect in the registry; returns it."""
     EFFECTS[effect.name] = effect
@@ -426,15 +437,8 @@ for _effect in (
                                                     "load; the rolling part does)"}),
     Effect("stribeck", stribeck, True, "add a Stribeck excess c*exp(-(|w|/omega_s)^delta) near standstill",
            "breakaway friction of lubricated contacts at low speed (boundary and mixed lubrication)",
-           (EffectParameter("c", "c_nm", 0.0, "breakaway excess Fs - Fc", "N*m", simulated=0.05),
-            EffectParameter("omega_s", "omega_s_rad_s", 0.1, "Stribeck speed", "rad/s", low=1e-4, low_open=True,
-                            high=1e3),
-            EffectParameter("delta", "delta", 2.0, "Stribeck shape exponent (2: Gaussian)", low=0.1, high=5.0)),
-           coefficient="c", member="omega_s",
-           member_grid=(0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0), member_bounds=(0.001, 20.0),
-           second_member="delta", second_grid=(0.5, 1.0, 2.0), second_bounds=(0.3, 3.0),
-           vanishes_above=lambda p: p["omega_s"] * 40.0 ** (1.0 / p["delta"]), needs_speeds_below=5.0,
-           plotted_against="speed_near_zero",
+           (EffectParameter("c", "c_nm", 0.0, "breakaway excess Fs - Fc", "N*m", simulated=0.05), *_STRIBECK_SHAPE),
+           **_STRIBECK_SEARCH,
            separated_from={"drag_constant": "speeds near standstill (down to a few times the speed noise)",
                            "torque_offset": "speeds near standstill in both directions"}),
     Effect("dahl", dahl, True, "add a Coulomb friction with memory (Dahl): c*z*sign(w), the state z following "
@@ -464,15 +468,8 @@ for _effect in (
            "add a Stribeck excess that differs by direction c*exp(-(|w|/omega_s)^delta)*sign(w)",
            "breakaway friction that differs by direction: a load lifted and lowered through a worm or a screw",
            (EffectParameter("c", "c_nm", 0.0, "forward minus mean breakaway excess c (negative: more in reverse)",
-                            "N*m", simulated=-0.02),
-            EffectParameter("omega_s", "omega_s_rad_s", 0.1, "Stribeck speed", "rad/s", low=1e-4, low_open=True,
-                            high=1e3),
-            EffectParameter("delta", "delta", 2.0, "Stribeck shape exponent (2: Gaussian)", low=0.1, high=5.0)),
-           coefficient="c", member="omega_s",
-           member_grid=(0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0), member_bounds=(0.001, 20.0),
-           second_member="delta", second_grid=(0.5, 1.0, 2.0), second_bounds=(0.3, 3.0),
-           vanishes_above=lambda p: p["omega_s"] * 40.0 ** (1.0 / p["delta"]), needs_speeds_below=5.0,
-           signed=True, needs_both_directions=True, plotted_against="speed_near_zero",
+                            "N*m", simulated=-0.02), *_STRIBECK_SHAPE),
+           **_STRIBECK_SEARCH, signed=True, needs_both_directions=True,
            separated_from={"torque_offset": "speeds near standstill and far from it, in both directions",
                            "stribeck": "speeds near standstill in both directions"}),
     Effect("backdrive", backdrive, True, "add a friction c*|T|^q that appears only while the output drives the input",
