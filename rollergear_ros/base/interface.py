@@ -78,6 +78,11 @@ class Metadata:
     IMPORT = "rollergear_import"  #: written by ``import``: the source, its kind and how its samples were made
     #: key of :attr:`IMPORT`: ``"true"`` where each sample is a steady-state table's row (an operating point)
     IMPORT_ROWS = "operating_points"
+    #: key of :attr:`IMPORT`: ``"true"`` where a table's loss was the power balance of its drive and output
+    #: torque readings (:attr:`~sources.tables.SteadyStateTable.readings`)
+    IMPORT_READINGS = "torque_readings"
+    #: key of :attr:`IMPORT`: the table's own input/output ratio (the channel map's), empty for none
+    IMPORT_RATIO = "table_ratio"
 
 
 #: default depth of the node's (reliable, volatile, keep-last) per-sample and per-window output

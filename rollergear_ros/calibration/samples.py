@@ -16,9 +16,11 @@ import numpy as np
 from ..recordings.messages import TopicMap
 from ..sources.channelmap import ChannelMap
 from ..base.errors import BagError, InputFileError
+from ..base.interface import Metadata
 from ..core.model import LossModel
 from ..core.params import Config, validate
 from ..core.speednoise import reading_noise
+from ..sources.tables import SteadyStateTable
 
 
 @dataclass
@@ -296,8 +298,10 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     Rows outside the estimator's plausible range (``estimator.max_abs_*``) are skipped and
     counted, as the estimator skips such samples; the model is the paper's unless
     ``estimator.paper_model`` switches it off.  Each file, and each value of the map's group
-    column, is a gearbox state of its own (``bag_id``).
+    column, is a gearbox state of its own (``bag_id``).  An MCAP that ``import`` made of a table is
+    read back as that table's rows (:func:`imported_rows`).
     """
+    from ..replay.run import imported_table
     from ..sources.tables import read_table
 
     model = LossModel(config.gearbox, enabled=config.estimator.paper_model)
@@ -308,7 +312,9 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     states: dict[tuple[int, str], int] = {}
     readings = True
     for i, path in enumerate(paths):
-        table = read_table(path, cmap, config.gearbox.ratio_effective)
+        record = imported_table(path)
+        table = (imported_rows(path, record, config, warn) if record is not None else
+                 read_table(path, cmap, config.gearbox.ratio_effective))
         readings = readings and table.readings
         if table.dropped and warn:
             warn(f"{path}: {table.dropped} rows without a finite torque, speed or loss: skipped")
@@ -346,6 +352,37 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
     # nothing on the output in any row (its loss is all of its drive torque, to rounding): a spin test
     data.spin_test = bool(np.all(np.abs(data.load_torque) <= SPIN_TOLERANCE * np.abs(torque)))
     return data
+
+
+def imported_rows(path: str | Path, record: dict[str, str], config: Config,
+                  warn: Callable[[str], None] | None = None) -> SteadyStateTable:
+    """The rows of a steady-state table that ``import`` wrote as an MCAP (``record``: its import
+    metadata), read back through replay as replay estimates them: each sample an operating point, its
+    loss the power balance of its torques -- the table's own loss, to rounding.  The table's ratio and
+    whether its loss was its torque readings' come from the metadata; rows beyond the plausible range
+    are the estimator's to skip (counted as ``implausible``)."""
+    from ..replay.run import replay
+
+    summary, batches = replay(path, bare_config(config), collect=True, parameter_changes=False,
+                              show_progress=False, warn=warn)
+    if summary.interrupted:
+        raise KeyboardInterrupt
+
+    def column(name: str) -> np.ndarray:
+        parts = [getattr(b, name) if getattr(b, name) is not None else np.full(len(b.t_ns), np.nan) for b in batches]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+    loss = column("measured_loss_nm")
+    ok = np.isfinite(loss)
+    implausible = summary.skipped.get("implausible", 0)
+    if implausible and warn:
+        warn(f"{path}: {implausible} rows beyond estimator.max_abs_torque_nm or max_abs_speed_rad_s: skipped "
+             "(raise them in the parameter file for this gearbox)")
+    ratio = record.get(Metadata.IMPORT_RATIO, "")
+    return SteadyStateTable(Path(path), column("speed_rad_s")[ok], column("torque_nm")[ok], loss[ok],
+                            column("temperature_c")[ok], np.flatnonzero(ok), dropped=int(np.count_nonzero(~ok)),
+                            ratio=float(ratio) if ratio else None,
+                            readings=record.get(Metadata.IMPORT_READINGS) == "true")
 
 
 #: a table row whose output torque referred to the input is within this share of its drive torque has

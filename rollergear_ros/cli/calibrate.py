@@ -63,15 +63,17 @@ def _load(args: argparse.Namespace, config):
     """The samples with measured output of the recordings, or the rows of the steady-state tables."""
     from ..base.errors import UsageError
     from ..calibration.samples import load_samples, power_balance_warning, table_samples
+    from ..replay.run import imported_table
     from ..sources.channelmap import load_channel_map
     from ..sources.importer import as_mcap
     from ..sources.tables import is_table
 
     cmap = load_channel_map(args.channels) if args.channels else None
-    tables = [is_table(p, cmap) for p in args.bags]
+    # a table's import is its rows again: calibrated as the table, as replay estimates them
+    tables = [is_table(p, cmap) or imported_table(p) is not None for p in args.bags]
     if any(tables) and not all(tables):
-        raise UsageError("give either recordings or steady-state tables (.vtlm), not both: a table's rows are "
-                         "dwell means, a recording's samples are not")
+        raise UsageError("give either recordings or steady-state tables (.vtlm, or their import), not both: a "
+                         "table's rows are dwell means, a recording's samples are not")
     if not args.json:
         _log(f"reading {len(args.bags)} {'table' if all(tables) else 'recording'}(s) …")
     topics = topics_from_args(args)

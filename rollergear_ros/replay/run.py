@@ -182,8 +182,14 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
 def table_rows(info: BagInfo) -> bool:
     """Whether the recording is a steady-state table's import (``import`` says so in its metadata): one
     operating point per sample, each estimated on its own (:func:`~core.operating_points.rows_config`)."""
-    record = read_metadata(info.path, Metadata.IMPORT) if info.path.is_file() else None
-    return bool(record) and record.get(Metadata.IMPORT_ROWS) == "true"
+    return imported_table(info.path) is not None
+
+
+def imported_table(path: str | Path) -> dict[str, str] | None:
+    """The ``import`` metadata of an MCAP that ``import`` made of a steady-state table (one sample per
+    row); None for any other file (a recording, a CSV, a file that is not there)."""
+    record = read_metadata(path, Metadata.IMPORT) if Path(path).is_file() else None
+    return record if record and record.get(Metadata.IMPORT_ROWS) == "true" else None
 
 
 def _warn_unindexed(info: BagInfo, warn: Callable[[str], None]) -> None:

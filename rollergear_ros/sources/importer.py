@@ -386,7 +386,9 @@ def _import_table(src: Path, kind: str, out: Path, channels: str | Path | None, 
             "channel_map": "" if channels is None else Path(channels).read_text(encoding="utf-8"),
             "rows": f"one sample per row, {TABLE_PERIOD_NS * 1e-9:g} s apart in file order; the input-referred "
                     "loss L as output torque T - L*sgn(w) at an output speed equal to the input speed",
-            "standstill_rows_left_out": str(standstill), Metadata.IMPORT_ROWS: "true"})
+            "standstill_rows_left_out": str(standstill), Metadata.IMPORT_ROWS: "true",
+            Metadata.IMPORT_READINGS: "true" if table.readings else "false",
+            Metadata.IMPORT_RATIO: "" if table.ratio is None else repr(float(table.ratio))})
         have = np.isfinite(theta)
         _write_in_time_order(bw, topics, _FloatMessages([(topic_of[c], MessageType.FLOAT64, None) for c in names],
                                                         which, np.repeat(t_rows, len(names)), payloads),

@@ -186,6 +186,58 @@ def test_a_tables_rows_replayed_leave_what_calibrate_claims_for_them(tmp_path):
                                atol=1e-15)
 
 
+def test_a_tables_import_calibrates_as_the_table_and_its_claim_is_what_replay_of_it_leaves(tmp_path):
+    """``import`` of a steady-state table makes an MCAP whose samples are the table's rows.  ``calibrate``
+    of that MCAP is ``calibrate`` of the table: the same effects and values, the same written file (the
+    table's ratio; its torque readings' offset tested), and the claim that ``replay`` of the MCAP
+    leaves.  A recording beside it is refused in one line."""
+    from rigs import lifting_table
+
+    fit, cmap = lifting_table(tmp_path, (1, 1.5, 2, 3, 4, 6, 8, 12, 20, 30, 50, 80, 120, 200), "fit", seed=0,
+                              offset_nm=0.001)
+    p = tmp_path / "p.yaml"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    estimator: {paper_model: false}\n")
+    bag = tmp_path / "fit.mcap"
+    run_cli("import", str(fit), "--channels", str(cmap), "--out", str(bag))
+    from_table, from_bag = tmp_path / "table.yaml", tmp_path / "bag.yaml"
+    table = json.loads(run_cli("calibrate", str(fit), "--channels", str(cmap), "--params", str(p), "--json",
+                               "--out", str(from_table)).stdout)
+    imported = json.loads(run_cli("calibrate", str(bag), "--params", str(p), "--json", "--out", str(from_bag)).stdout)
+    assert [e["name"] for e in imported["effects"]] == [e["name"] for e in table["effects"]]
+    assert "torque_offset" in [e["name"] for e in table["effects"]]  # the readings' offset, as in the table
+    for mine, theirs in zip(imported["effects"], table["effects"]):
+        assert mine["params"] == pytest.approx(theirs["params"], rel=1e-9, abs=1e-15), mine["name"]
+    a, b = load_config(from_table).to_flat(), load_config(from_bag).to_flat()
+    assert a.keys() == b.keys() and a["gearbox.ratio"] == b["gearbox.ratio"] == 60
+    cov_a, cov_b = (json.loads(f.pop("calibration.covariance")) for f in (a, b))
+    assert cov_a["keys"] == cov_b["keys"]
+    # the rows' losses come back as T − (T − L): rounding the exponents' numerical derivatives magnify
+    ca, cb = np.array(cov_a["matrix"]), np.array(cov_b["matrix"])
+    scale = np.sqrt(np.outer(np.diag(ca), np.diag(ca)))
+    assert np.max(np.abs(ca - cb) / scale) < 1e-7
+    for key, value in a.items():  # the model's form is JSON: compared number by number
+        mine, theirs = (json.loads(v) if key.startswith("calibration.") else v for v in (b[key], value))
+        assert mine == _approx(theirs), key
+    claimed = json.loads(run_cli("calibrate", str(bag), "--params", str(from_bag), "--json").stdout)
+    _s, batches = replay(bag, load_config(from_bag), collect=True, show_progress=False)
+    residual = np.concatenate([b.residual_nm for b in batches])
+    assert len(residual) == len(fit.read_text().splitlines()) - 1 and np.isfinite(residual).all()
+    assert np.sqrt(np.mean(residual ** 2)) == pytest.approx(claimed["error_before"]["rmse_nm"], rel=1e-9, abs=1e-15)
+    mixed = run_cli("calibrate", str(bag), str(BAGS / "rig_map_drag.mcap"), "--params", str(p), check=False)
+    assert mixed.returncode == 2 and "not both" in mixed.stderr and len(mixed.stderr.strip().splitlines()) == 1
+
+
+def _approx(value):
+    """``value`` with every float in it compared to 1e-9 (nested lists and dicts, as JSON holds them)."""
+    if isinstance(value, float):
+        return pytest.approx(value, rel=1e-9, abs=1e-15)
+    if isinstance(value, list):
+        return [_approx(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _approx(v) for k, v in value.items()}
+    return value
+
+
 def replay_table(table, cmap, params):
     """``replay`` of a steady-state table as the command line reads it (imported first)."""
     from rollergear_ros.sources.importer import as_mcap
