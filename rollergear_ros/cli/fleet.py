@@ -50,6 +50,8 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     for r in failed[:10]:
         print(f"  failed: {r.get('recording') or r.get('gearbox_id')}: {r.get('reason')}")
     if args.action == "calibrate":
+        for r in [r for r in rows if r.get("warning")][:10]:
+            print(f"  warning: {r.get('gearbox_id')} window {r.get('window')}: {r.get('warning')}")
         for g in drift(rows):
             if g.drifts:
                 print(f"  drift: {g.sentence()}")

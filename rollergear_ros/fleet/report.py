@@ -140,6 +140,10 @@ def write_fleet_report(out_dir: Path) -> Path:
         map_path = _write_map(out_dir, g.gearbox_id, latest.get("calibrated_yaml") or "")
         lines.append(f"| {g.gearbox_id} | {len(g.windows)} | {latest.get('verdict')} | "
                      f"{_num(latest.get('error_after_rmse_nm')):.3g} | {map_path or 'not written'} |")
+    warned = [r for r in cal_rows if r.get("warning")]
+    if warned:
+        lines += ["\n## Warnings\n"] + [f"- {r.get('gearbox_id')}, window {r.get('window')}: {r.get('warning')}"
+                                        for r in warned]
     if failed:
         lines += ["\n## Failed\n"] + [f"- {r.get('recording') or r.get('gearbox_id')}: {r.get('reason')}"
                                       for r in failed]

@@ -309,13 +309,14 @@ def calibrate_task(win: CalibrationWindow, config: Config, channels: str | None,
     from contextlib import ExitStack
 
     from ..calibration.calibrate import CalibrationSettings, calibrate, load_samples
+    from ..calibration.samples import power_balance_warning
     from ..sources.importer import as_mcap
 
     gearbox_id, window, window_ns, recs = win.gearbox_id, win.window, win.window_ns, win.recordings
     row = {"gearbox_id": gearbox_id, "window": window, "window_start_ns": window * window_ns,
            "window_end_ns": (window + 1) * window_ns, "window_start": utc_text(window * window_ns),
            "window_end": utc_text((window + 1) * window_ns), "recordings": len(recs),
-           "key": win.key, "status": "ok", "reason": ""}
+           "key": win.key, "status": "ok", "reason": "", "warning": ""}
     t0 = time.perf_counter()
     bad = [r for r in recs if r.problem]
     if bad:
@@ -325,6 +326,7 @@ def calibrate_task(win: CalibrationWindow, config: Config, channels: str | None,
             local = [stack.enter_context(_local(r.path)) for r in recs]
             bags = stack.enter_context(as_mcap(local, channels))
             data = load_samples(bags, config)
+            row["warning"] = power_balance_warning(data) or ""  # as calibrate's command line warns
             result = calibrate(data, config, CalibrationSettings(assume=assume))
     except Exception as exc:  # noqa: BLE001 - one bad window must not stop the fleet; the row says why
         return _failed(row, exc) | {"seconds": time.perf_counter() - t0}

@@ -162,6 +162,34 @@ def test_fleet_calibrate_takes_what_the_user_assumes(client, tmp_path):
     assert row["drag_constant.c"] == effect["params"]["c"]
 
 
+def test_a_window_whose_output_torque_is_in_the_other_sign_convention_is_warned_of(client, tmp_path, capsys):
+    """As ``calibrate`` warns on its command line: a gearbox logged with its output torque negated (power
+    out counted negative) gets its window's warning in the table, the command's output and the report;
+    its correctly logged twin gets none."""
+    import dataclasses
+
+    from rollergear_ros.calibration.simulate import SimulationOptions, simulate, write_rig_bag
+    from rollergear_ros.cli.main import main
+
+    config = load_config(CONFIG)
+    opts = SimulationOptions(profile="rig_map", rate_hz=50.0, seed=7)
+    rig = simulate(config, opts)
+    for gearbox, logged in (("gb_ok", rig), ("gb_flipped", dataclasses.replace(
+            rig, out_torque_meas_nm=-rig.out_torque_meas_nm))):
+        (tmp_path / "logs" / gearbox).mkdir(parents=True)
+        write_rig_bag(logged, opts, tmp_path / "logs" / gearbox / "day00.mcap")
+    out = tmp_path / "out"
+    assert main(["fleet", "calibrate", str(tmp_path / "logs"), "--params", str(CONFIG), "--out", str(out),
+                 "--scheduler", client.scheduler.address]) == 0
+    rows = {r["gearbox_id"]: r for r in read_table(out / "fleet_calibrate.parquet")}
+    assert rows["gb_ok"]["warning"] == ""
+    assert "opposite sign convention" in rows["gb_flipped"]["warning"]
+    printed = capsys.readouterr().out
+    assert f"warning: gb_flipped window {rows['gb_flipped']['window']}: the measured loss exceeds" in printed
+    assert "gb_ok window" not in printed
+    assert "## Warnings" in (out / "report.md").read_text() and "gb_flipped, window" in (out / "report.md").read_text()
+
+
 def test_bad_recordings_are_failed_rows_and_the_rest_go_on(fleet, client, tmp_path):
     logs, _ = fleet
     mixed = tmp_path / "logs" / "gb99"
