@@ -7,6 +7,7 @@ from ..base.face import lazy_face
 
 #: the wing's API (the names other wings use) and the module that defines each
 _FACE = {
+    "imported_table": "run",
     "replay": "run",
 }
 

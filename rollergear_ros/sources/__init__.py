@@ -21,6 +21,7 @@ _FACE = {
     "check_input_file": "paths",
     "check_outputs": "paths",
     "MIN_ROWS": "tables",
+    "SteadyStateTable": "tables",
     "is_table": "tables",
     "read_table": "tables",
 }
