@@ -590,8 +590,9 @@ def _cells(d: SampleData, start: np.ndarray, count: np.ndarray) -> np.ndarray:
 
     w = mean(d.speed)
     keys = [d.bag_id[start], np.sign(w), _log_bin(np.abs(w)), _speeding(d, start, count, w)]
-    if not d.spin_test:
-        keys.append(_log_bin(np.abs(mean(d.torque))))
+    load = d.load_torque
+    if not d.spin_test and load is not None:
+        keys.append(_log_bin(np.abs(mean(np.nan_to_num(load)))))
     theta = mean(np.nan_to_num(d.temperature, nan=-1e6))
     keys.append(np.floor(theta / CELL_TEMPERATURE_C))
     span = np.maximum.reduceat(d.speed, start) - np.minimum.reduceat(d.speed, start)

@@ -34,6 +34,8 @@ OWN_DIFFERENCES = 10
 NOISIER = 4.0
 #: δ is this many standard errors of a block mean (the scatter of the same operating point)
 DELTA_STANDARD_ERRORS = 3.0
+#: ... or this share of the RMS measured loss where that is smaller (a table's rows: that share)
+MATERIAL_LOSS_SHARE = 0.02
 
 
 def difference_variance(y: np.ndarray, start: np.ndarray, count: np.ndarray,
@@ -127,15 +129,17 @@ class MinimumEffect:
 
 def minimum_effect(user_delta_nm: float | None, rep: Repeatability, sensors_nm: float | None,
                    noise_se_nm: float, rms_measured_nm: float, table: bool, block_s: float) -> MinimumEffect:
-    """δ: the user's ``--delta``; else the largest of what the measurement can tell -- the sensors'
-    stated accuracy (RMS of the loss's uncertainty over the samples) and 3 × the standard error of a
-    block mean at one operating point (:func:`repeatability`); without a dwell of two blocks, 3 × that
-    from the samples' noise; a table's rows (dwell means without a noise estimate): 2 % of the RMS
-    measured loss."""
+    """δ: the user's ``--delta``; else 3 × the standard error of a block mean at one operating point
+    (:func:`repeatability`; without a dwell of two blocks, 3 × that from the samples' noise), or 2 % of
+    the RMS measured loss where that is smaller -- an effect of 2 % of the loss is material however
+    much a block of slow, coarse or coloured readings scatters (its significance and held-out
+    improvement are tested apart); never below the sensors' stated accuracy (RMS of the loss's
+    uncertainty over the samples).  A table's rows (dwell means without a noise estimate): 2 % of the
+    RMS measured loss."""
     if user_delta_nm is not None:
         return MinimumEffect(user_delta_nm, "user", f"delta = {user_delta_nm:.4g} N·m (--delta)")
     if table:
-        d = 0.02 * rms_measured_nm
+        d = MATERIAL_LOSS_SHARE * rms_measured_nm
         return MinimumEffect(d, "table", f"delta = {d:.4g} N·m: 2 % of the RMS measured loss (a table's rows carry "
                                          "no noise estimate)")
     k = DELTA_STANDARD_ERRORS
@@ -151,6 +155,11 @@ def minimum_effect(user_delta_nm: float | None, rep: Repeatability, sensors_nm: 
         text = (f"{k:g} × the standard error of a {block_s:g} s mean from the samples' noise ({noise_se_nm:.3g} N·m; "
                 "no operating point was held or visited again)")
         source = "noise"
+    share = MATERIAL_LOSS_SHARE * rms_measured_nm
+    if share < base:  # a block scatters more than a material share of the loss
+        text = (f"{100 * MATERIAL_LOSS_SHARE:g} % of the RMS measured loss ({rms_measured_nm:.3g} N·m), below {text} = "
+                f"{base:.3g} N·m")
+        base, source = share, "loss share"
     if sensors_nm is not None and sensors_nm > base:
         return MinimumEffect(sensors_nm, "sensors", f"delta = {sensors_nm:.4g} N·m: the loss's expanded uncertainty "
                                                     f"(k = 2) from the sensors' stated accuracy (sensors.*; RMS over "

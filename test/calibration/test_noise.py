@@ -35,14 +35,19 @@ def test_without_dwells_the_operating_point_visited_again_gives_it():
 
 def test_delta_says_where_it_came_from():
     rep = Repeatability(0.01, 100, 20)
-    assert minimum_effect(0.5, rep, None, 0.1, 1.0, False, 0.25).source == "user"
-    by_rep = minimum_effect(None, rep, None, 0.1, 1.0, False, 0.25)
+    assert minimum_effect(0.5, rep, None, 0.1, 5.0, False, 0.25).source == "user"
+    by_rep = minimum_effect(None, rep, None, 0.1, 5.0, False, 0.25)
     assert by_rep.source == "repeatability" and by_rep.delta_nm == pytest.approx(0.03)
-    by_sensors = minimum_effect(None, rep, 0.2, 0.1, 1.0, False, 0.25)
+    by_sensors = minimum_effect(None, rep, 0.2, 0.1, 5.0, False, 0.25)
     assert by_sensors.source == "sensors" and by_sensors.delta_nm == 0.2 and "sensors" in by_sensors.text
-    no_rep = minimum_effect(None, Repeatability(math.nan, 0, 0), None, 0.004, 1.0, False, 0.25)
+    no_rep = minimum_effect(None, Repeatability(math.nan, 0, 0), None, 0.004, 5.0, False, 0.25)
     assert no_rep.source == "noise" and no_rep.delta_nm == pytest.approx(0.012)
     assert minimum_effect(None, rep, None, 0.1, 2.0, True, 0.25).source == "table"
+    # a block mean that scatters more than 2 % of the loss: an effect of 2 % of the loss is material
+    share = minimum_effect(None, rep, None, 0.1, 1.0, False, 0.25)
+    assert share.source == "loss share" and share.delta_nm == pytest.approx(0.02) and "0.03" in share.text
+    assert minimum_effect(None, rep, 0.025, 0.1, 1.0, False, 0.25).source == "sensors"  # never below the sensors'
+    assert minimum_effect(None, rep, None, 0.1, 1.0, True, 0.25).delta_nm == share.delta_nm  # a table's alike
 
 
 def test_the_sensors_stated_accuracy_sets_delta_where_it_says_more(tmp_path):
@@ -61,3 +66,28 @@ def test_the_sensors_stated_accuracy_sets_delta_where_it_says_more(tmp_path):
     # u(T_in) = 1 N·m/√3, u(T_out)/ratio = 4/4 N·m/√3: the loss's u = 0.816 N·m, expanded 1.63 N·m
     assert result["delta"]["source"] == "sensors" and result["delta"]["delta_nm"] == pytest.approx(1.633, rel=0.01)
     assert result["verdict"] == "no_missing_effect"  # a 0.2 N·m drag is below what such sensors can tell
+
+
+@pytest.mark.parametrize("load_nm", [0.3, 30.0])
+def test_operating_points_visited_again_are_told_by_speed_and_load_not_by_the_loss_measured(load_nm):
+    """A back-and-forth drive (one 0.25 s block per visit to one of 30 speeds, 100 Hz) under a constant
+    load: the repeatability of a block mean is the samples' noise over a block (σ = 0.25 N·m over 25
+    samples: 0.05 N·m), also where the load is small against the loss (0.3 N·m beside ~1 N·m): there
+    the drive torque is mostly the loss measured, and cells told by it would pair only blocks whose
+    measured loss happened to agree (their scatter then ~0.01 N·m: δ far below what the data tell)."""
+    from rollergear_ros.calibration.blocks import make_blocks
+    from rollergear_ros.calibration.samples import SampleData
+
+    rng = np.random.default_rng(4)
+    visits, per_block = 600, 25
+    speed = np.repeat(20.0 + 10.0 * (np.arange(visits) * 7 % 30), per_block)  # rad/s, each visit one block
+    n = len(speed)
+    loss = 1.0 + 0.001 * speed + rng.normal(0, 0.25, n)
+    torque = load_nm + loss
+    t_ns = np.arange(n, dtype=np.int64) * 10_000_000
+    z = np.zeros(n)
+    data = SampleData(t_ns, np.zeros(n, dtype=np.int64), torque, speed, np.full(n, np.nan), loss, z, z,
+                      out_torque=np.full(n, load_nm), out_speed=speed)
+    rep = make_blocks(data).repeat
+    assert rep.cells and rep.pairs > 400
+    assert rep.se_block_nm == pytest.approx(0.05, rel=0.2)
