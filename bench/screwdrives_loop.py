@@ -16,7 +16,9 @@ load law may be claimed); the written file is replayed on the other half (``repl
 compared with a least-squares fit of Coulomb + viscous friction + a constant on the same training
 samples. A second split holds out the slowest two levels (extrapolation to near standstill). The worm
 is run once more as a steady-state table of its levels' means (one row a level and direction, the
-payload as output torque): the one-load rule holds for a table's rows as for a recording.
+payload as output torque): the one-load rule holds for a table's rows as for a recording.  A second table:
+each drive calibrated on every steady-state level, its file replayed on the drive's start-stop runs (another
+experiment of the same repository: from standstill to one speed, a reversal, a stop), never fitted.
 
 Usage: ``python bench/screwdrives_loop.py DATA_DIR`` (a clone of the repository above).
 """
@@ -68,15 +70,20 @@ def level_rpm(path: Path) -> float:
     return float(re.sub(r"^n", "-", path.stem))
 
 
-def replay_residuals(csv_path: Path, channels: Path, params: Path, out: Path) -> np.ndarray:
-    """The residual (measured − estimated loss) of each sample ``replay`` estimates with ``params``."""
+def replay_residuals(csv_path: Path, channels: Path, params: Path, out: Path, steady: bool = False) -> np.ndarray:
+    """The residual (measured − estimated loss) of each sample ``replay`` estimates with ``params``;
+    ``steady``: of the samples within 5 % of the run's top speed only (no start, reversal or stop)."""
     subprocess.run([sys.executable, "-m", "rollergear_ros", "replay", str(csv_path), "--channels", str(channels),
                     "--params", str(params), "--csv", str(out)], check=True, capture_output=True, text=True)
     with out.open() as fh:
         reader = csv.DictReader(fh)
         key = next(k for k in reader.fieldnames if k.startswith("residual_torque"))
-        values = np.array([float(row[key]) for row in reader])
-    return values[np.isfinite(values)]
+        rows = [(float(row[key]), abs(float(row["motor_speed [rad/s]"]))) for row in reader]
+    if not rows:  # no sample replayed
+        return np.empty(0)
+    values, speed = (np.array(column) for column in zip(*rows))
+    keep = np.isfinite(values) & ((speed >= 0.95 * speed.max()) if steady else True)
+    return values[keep]
 
 
 def evaluate(drive: str, files: list[Path], held: set[float], work: Path, given: Path, channels: Path) -> dict:
@@ -107,6 +114,33 @@ def evaluate(drive: str, files: list[Path], held: set[float], work: Path, given:
         estimated = [r for r in levels if len(r)]  # a level may have no sample the estimator takes (near 0)
         row[name] = (_rms(np.concatenate(estimated or [np.empty(0)])), _rms(np.array([r.mean() for r in estimated])),
                      sum(map(len, levels)), sum(len(t) for t in torque))
+    return row
+
+
+def evaluate_start_stop(drive: str, files: list[Path], runs: list[Path], work: Path, given: Path,
+                        channels: Path) -> dict:
+    """Calibrate on every steady-state level; replay the written file on the drive's start-stop runs (another
+    experiment: from standstill to one speed, a reversal, a stop) beside the least-squares fit of the levels."""
+    written = work / f"{drive}_levels.yaml"
+    proc = subprocess.run([sys.executable, "-m", "rollergear_ros", "calibrate", *map(str, files), "--channels",
+                           str(channels), "--params", str(given), "--out", str(written), "--json"],
+                          capture_output=True, text=True)
+    result = json.loads(proc.stdout)
+    a = np.concatenate([np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2) for p in files])
+    w, t = a[:, 1] * np.pi / 30.0, a[:, 2]
+    coef, *_ = np.linalg.lstsq(_coulomb_viscous_constant(w[w != 0]), t[w != 0], rcond=None)
+    row = {"effects": result["effects"], "runs": []}
+    for run in runs:
+        b = np.loadtxt(run, delimiter=",", skiprows=1, ndmin=2)
+        w, t = b[:, 1] * np.pi / 30.0, b[:, 2]
+        ls = t[w != 0] - _coulomb_viscous_constant(w[w != 0]) @ coef
+        top = np.abs(w) >= 0.95 * np.abs(w).max()
+        ls_steady = t[top] - _coulomb_viscous_constant(w[top]) @ coef
+        errors = [replay_residuals(run, channels, params, work / f"{run.stem}_{name}.csv", steady)
+                  for steady in (False, True)
+                  for name, params in (("given", given), ("file", written if result["written"] else given))]
+        row["runs"].append((run, *map(_rms, errors[:2]), _rms(ls), *map(_rms, errors[2:]), _rms(ls_steady),
+                            len(errors[1]), len(w)))
     return row
 
 
@@ -199,6 +233,7 @@ def main() -> int:
             return channels, given
 
         spin = setup("spin", 0.0, 1.0)
+        start_stop = []
         for drive, label in DRIVES.items():
             folder = tmp / drive
             folder.mkdir()
@@ -227,13 +262,32 @@ def main() -> int:
                 if "error" in row:
                     print(f"| {drive[-1]}: {label} | {split}{where} | {row['error']} | — | — | — |")
                     continue
-                effects = "; ".join(f"`{e['name']}` " + ", ".join(f"{k} = {v:.3g}" for k, v in e["params"].items())
-                                    for e in row["effects"]) or "none"
                 g, f, ls = row["given"], row["file"], row["ls"]
-                print(f"| {drive[-1]}: {label} | {split}{where} | {effects} | "
+                print(f"| {drive[-1]}: {label} | {split}{where} | {_effects(row)} | "
                       f"{_mnm(g[0])} → {_mnm(f[0])} / {_mnm(ls[0])} / {_mnm(row['floor'])} | "
                       f"{_mnm(f[1])} / {_mnm(ls[1])} | {f[2]:,} of {f[3]:,} |")
+            runs = []
+            for src in sorted((args.data / "experiments" / drive / "start_stop").glob("*.csv"), key=level_rpm):
+                convert(src, folder / f"start_stop_{src.name}")
+                runs.append(folder / f"start_stop_{src.name}")
+            row = evaluate_start_stop(drive, files, runs, folder, given=spin[1], channels=spin[0])
+            start_stop.append((label, drive, row))
+        print("\n| drive | start-stop run [rpm] | effects written (every steady-state level) | per sample: given → "
+              "file / least squares [mN·m] | at the top speed only: given → file / least squares [mN·m] | "
+              "samples estimated (file) |")
+        print("|---|---|---|---|---|---|")
+        for label, drive, row in start_stop:
+            for run, given_rms, file_rms, ls_rms, given_top, file_top, ls_top, estimated, total in row["runs"]:
+                print(f"| {drive[-1]}: {label} | ±{run.stem.split('_')[-1]} | {_effects(row)} | {_mnm(given_rms)} → "
+                      f"{_mnm(file_rms)} / {_mnm(ls_rms)} | {_mnm(given_top)} → {_mnm(file_top)} / {_mnm(ls_top)} | "
+                      f"{estimated:,} of {total:,} |")
     return 0
+
+
+def _effects(row: dict) -> str:
+    """The effects written, as the table shows them."""
+    return "; ".join(f"`{e['name']}` " + ", ".join(f"{k} = {v:.3g}" for k, v in e["params"].items())
+                     for e in row["effects"]) or "none"
 
 
 if __name__ == "__main__":
