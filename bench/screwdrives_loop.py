@@ -103,8 +103,7 @@ def evaluate(drive: str, files: list[Path], held: set[float], work: Path, given:
 
     speed, torque = data(train)
     w, t = np.concatenate(speed), np.concatenate(torque)
-    moving = w != 0.0
-    coef, *_ = np.linalg.lstsq(_coulomb_viscous_constant(w[moving]), t[moving], rcond=None)
+    coef = _least_squares(w, t)
     speed, torque = data(test)
     ls_levels = [t[w != 0] - _coulomb_viscous_constant(w[w != 0]) @ coef for w, t in zip(speed, torque)]
     row["floor"] = _rms(np.concatenate([t - t.mean() for t in torque]))
@@ -128,7 +127,7 @@ def evaluate_start_stop(drive: str, files: list[Path], runs: list[Path], work: P
     result = json.loads(proc.stdout)
     a = np.concatenate([np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2) for p in files])
     w, t = a[:, 1] * np.pi / 30.0, a[:, 2]
-    coef, *_ = np.linalg.lstsq(_coulomb_viscous_constant(w[w != 0]), t[w != 0], rcond=None)
+    coef = _least_squares(w, t)
     row = {"effects": result["effects"], "runs": []}
     for run in runs:
         b = np.loadtxt(run, delimiter=",", skiprows=1, ndmin=2)
@@ -188,7 +187,7 @@ def evaluate_table(drive: str, files: list[Path], held: set[float] | None, work:
         return a[:, 0] * np.pi / 30.0, a[:, 1]
 
     w, t = rows(train)
-    coef, *_ = np.linalg.lstsq(_coulomb_viscous_constant(w), t, rcond=None)
+    coef = _least_squares(w, t)
     w, t = rows(test)
     ls = _rms(t - _coulomb_viscous_constant(w) @ coef)
     row["ls"] = (ls, ls)
@@ -196,6 +195,13 @@ def evaluate_table(drive: str, files: list[Path], held: set[float] | None, work:
         r = replay_residuals(test, channels, params, work / f"{drive}_{tag}_{name}.csv")
         row[name] = (_rms(r), _rms(r), len(r), len(t))
     return row
+
+
+def _least_squares(w: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The least-squares fit's coefficients (:func:`_coulomb_viscous_constant`) on the samples that move."""
+    moving = w != 0.0
+    coef, *_ = np.linalg.lstsq(_coulomb_viscous_constant(w[moving]), t[moving], rcond=None)
+    return coef
 
 
 def _coulomb_viscous_constant(w: np.ndarray) -> np.ndarray:
