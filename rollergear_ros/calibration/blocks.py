@@ -9,12 +9,13 @@ cross-validation folds never split.  The candidate columns come from the effect 
 from __future__ import annotations
 
 import math
+import zlib
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
-from ..core.effects import EFFECTS, EffectInputs
+from ..core.effects import EFFECTS, EffectInputs, state_speed
 from ..core.floatops import shared_powers
 from ..core.modelparams import MODEL_PARAMETERS, fitted_parameters
 from ..core.model import rotation_sign
@@ -82,6 +83,10 @@ class Blocks:
     t_s: np.ndarray | None = None  # per-sample time [s], recording and signed speed: effects with memory
     bag_id: np.ndarray | None = None
     sample_speed: np.ndarray | None = None
+    #: each recording's every estimated sample (time [ns], speed) and each analysed sample's index in
+    #: it: what an effect's memory steps over, as the estimator steps it (None: the analysed ones only)
+    streams: list[tuple[np.ndarray, np.ndarray]] | None = None
+    source_index: np.ndarray | None = None
     sign_width_rad_s: float = 0.0  # the smooth sign's width: 3 of it beyond standstill the direction is known
     repeat: Repeatability | None = None  # the scatter of a block mean at one operating point (δ)
     full_count: float = 1.0  # samples in a whole block (a transient's parts hold fewer)
@@ -180,15 +185,27 @@ class Blocks:
         return cached
 
     def _steps(self):
-        """Per recording: its samples' indices and time steps.  The analysis has only the samples with
-        a measured loss: across the others (near standstill, a dwell at rest) a step counts one sample
-        period, not the gap -- the motion there is next to none, and the gap at the next sample's
-        speed would turn the drive by far too much."""
+        """Per recording: its analysed samples' indices ``idx``, and the stream the memory steps over:
+        speeds (:func:`~core.effects.state_speed`: none at rest), time steps [s] and the position of
+        each of ``idx`` in it.  The stream is the recording's
+        every estimated sample (:attr:`streams`) -- those near standstill that the analysis leaves out
+        turn the drive too, and the estimator steps its state over each one.  Without it (rows of
+        tables, samples of another source) the analysed samples themselves: across the others a step
+        counts one sample period, not the gap (the motion there is next to none, and the gap at the
+        next sample's speed would turn the drive by far too much)."""
         for b in np.unique(self.bag_id):
             idx = np.flatnonzero(self.bag_id == b)
+            if self.streams is not None and self.source_index is not None:
+                t_ns, w = self.streams[int(b)]
+                t_ns = np.asarray(t_ns, dtype=np.int64)
+                # the estimator's steps: the gaps in integer ns, then seconds (core.estimator._advance_many)
+                dt = np.diff(t_ns, prepend=t_ns[:1]).astype(float) * 1e-9
+                yield idx, state_speed(w, self.sign_width_rad_s), dt, self.source_index[idx]
+                continue
             dt = np.diff(self.t_s[idx], prepend=self.t_s[idx][:1])
             period = float(np.median(dt[1:])) if len(dt) > 1 else 0.0
-            yield idx, np.minimum(dt, 2.0 * period)
+            yield idx, state_speed(self.sample_speed[idx], self.sign_width_rad_s), np.minimum(dt, 2.0 * period), \
+                np.arange(len(idx))
 
     def states(self, name: str, params: dict) -> np.ndarray:
         """The state of an effect with memory at every sample, each recording from a state of 0."""
@@ -200,8 +217,8 @@ class Blocks:
             z[moving] += (z_start - runs.sign)[runs.run[moving]] * decay
             return z
         z = np.empty(len(self.t_s))
-        for idx, dt in self._steps():
-            z[idx] = effect.state_steps(0.0, self.sample_speed[idx], dt, params)
+        for idx, w, dt, at in self._steps():
+            z[idx] = effect.state_steps(0.0, w, dt, params)[at]
         return z
 
     def _by_speed(self) -> tuple[EffectInputs, np.ndarray]:
@@ -220,8 +237,7 @@ class Blocks:
             n = len(self.t_s)
             run, since, settled = np.empty(n, dtype=np.int64), np.empty(n), np.empty(n)
             sign, whole, opens = [], [], []
-            for idx, dt in self._steps():
-                w = self.sample_speed[idx]
+            for idx, w, dt, at in self._steps():
                 s = np.sign(w)
                 # standstill continues a run; before any motion the direction is 0 (the state stays)
                 last = np.maximum.accumulate(np.where(s != 0, np.arange(len(w)), -1))
@@ -232,9 +248,9 @@ class Blocks:
                 turned = np.cumsum(np.abs(w) * dt)  # the first sample's step is 0
                 before = np.where(starts > 0, turned[np.maximum(starts - 1, 0)], 0.0)
                 ends = np.r_[starts[1:], len(w)] - 1
-                run[idx] = len(sign) + local
-                since[idx] = turned - before[local]
-                settled[idx] = held
+                run[idx] = len(sign) + local[at]
+                since[idx] = (turned - before[local])[at]
+                settled[idx] = held[at]
                 sign += held[starts].tolist()
                 whole += (turned[ends] - before).tolist()
                 opens += [True] + [False] * (len(starts) - 1)
@@ -283,18 +299,17 @@ class Blocks:
         """The angle [rad] turned since the drive last turned round, at every sample (NaN before a
         recording's first reversal); a reversal as :func:`_reverses` counts one (beyond the noise)."""
         phi = np.full(len(self.t_s), np.nan)
-        for idx, dt in self._steps():
-            w = self.sample_speed[idx]
+        for idx, w, dt, at in self._steps():
             turned = np.cumsum(np.abs(w) * dt)
             moving = np.flatnonzero(np.abs(w) >= max(clear_rad_s, 1e-12))
             flips = moving[1:][np.sign(w[moving[1:]]) != np.sign(w[moving[:-1]])]
             if not len(flips):
                 continue
             # the last reversal at or before each sample: the angle turned since the sample before it
-            last = np.searchsorted(flips, np.arange(len(w)), side="right") - 1
+            last = np.searchsorted(flips, at, side="right") - 1
             since = last >= 0
             base = turned[np.maximum(flips[np.maximum(last, 0)] - 1, 0)]
-            phi[idx[since]] = (turned - base)[since]
+            phi[idx[since]] = (turned[at] - base)[since]
         return phi
 
 
@@ -349,6 +364,9 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         t_s=t,
         bag_id=d.bag_id,
         sample_speed=d.speed,
+        streams=None if d.recordings is None or d.source_index is None or d.steady_state
+        else [(r.t_ns, r.speed_rad_s) for r in d.recordings],
+        source_index=d.source_index,
         sign_width_rad_s=d.sign_width_rad_s,
     )
     blocks.repeat = repeat
@@ -633,7 +651,7 @@ def _dwells(d: SampleData, spd: np.ndarray, trq: np.ndarray, start: np.ndarray, 
     nb = len(start)
     if d.steady_state:
         dwell = np.arange(nb, dtype=np.int64)
-        return dwell, dwell % folds
+        return dwell, _folds(d, dwell, start, folds)
     dwell = np.zeros(nb, dtype=np.int64)
     scale_w = DWELL_SCALE_SHARE * float(np.percentile(np.abs(spd), 95)) if nb else 0.0
     scale_t = DWELL_SCALE_SHARE * float(np.percentile(np.abs(trq), 95)) if nb else 0.0
@@ -649,4 +667,31 @@ def _dwells(d: SampleData, spd: np.ndarray, trq: np.ndarray, start: np.ndarray, 
             cur += 1
             since = t_start[i]
         dwell[i] = cur
-    return dwell, dwell % folds
+    return dwell, _folds(d, dwell, start, folds)
+
+
+def _folds(d: SampleData, dwell: np.ndarray, start: np.ndarray, folds: int) -> np.ndarray:
+    """Each dwell's fold: dwells counted in turn, the recordings taken in an order of their own (first
+    stamp, length, content) -- not the order they were given in, so that which dwells are held out
+    together, and what the selection decides from it, is the same for the same recordings listed
+    in any order."""
+    bag = d.bag_id[start]
+    ids = np.unique(bag)
+    if len(ids) < 2:
+        return dwell % folds
+    first = {int(b): int(np.flatnonzero(bag == b)[0]) for b in ids}
+    count = {int(b): int(dwell[bag == b].max() - dwell[first[int(b)]] + 1) for b in ids}
+
+    def key(b: int) -> tuple:
+        mine = d.bag_id == b
+        digest = zlib.crc32(np.ascontiguousarray(d.t_ns[mine]).tobytes())
+        for values in (d.torque[mine], d.speed[mine]):
+            digest = zlib.crc32(np.ascontiguousarray(values).tobytes(), digest)
+        return int(d.t_ns[mine][0]), int(np.count_nonzero(mine)), digest
+
+    offset, fold = 0, np.empty(len(dwell), dtype=np.int64)
+    for b in sorted(count, key=key):
+        mine = bag == b
+        fold[mine] = (dwell[mine] - dwell[first[b]] + offset) % folds
+        offset += count[b]
+    return fold

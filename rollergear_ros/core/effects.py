@@ -162,6 +162,25 @@ def dahl(x: EffectInputs, c, presliding):
     return c * x.state.get("dahl", x.rot_sign) * x.rot_sign
 
 
+#: an effect's memory steps on speeds beyond this many of the speed reading's noise widths σ from
+#: standstill (where the direction is known, as for a measured loss): a reading at rest is noise, and
+#: its magnitude summed sample by sample would turn the state as if the drive moved (a dwell of 1 s at
+#: 500 Hz with σ = 0.002 rad/s relaxes a state of presliding 0.01 rad by a fifth)
+STATE_STILL_WIDTHS = 3.0
+
+
+def state_speed(speed_rad_s, sign_width_rad_s: float):
+    """The speed an effect's memory steps on: the reading, 0 within :data:`STATE_STILL_WIDTHS` noise
+    widths of standstill (a scalar or an array, as given)."""
+    still = STATE_STILL_WIDTHS * sign_width_rad_s
+    if isinstance(speed_rad_s, float):
+        return speed_rad_s if abs(speed_rad_s) >= still else 0.0
+    import numpy as np
+
+    w = np.asarray(speed_rad_s, dtype=float)
+    return np.where(np.abs(w) >= still, w, 0.0)
+
+
 def dahl_step(z: float, speed_rad_s: float, dt_s: float, params: Mapping[str, float]) -> float:
     """The Dahl state after ``dt_s`` at ``speed_rad_s``: ``z → s + (z − s)·exp(−|ω|·dt/presliding)``,
     ``s = sgn ω`` -- exact for a speed constant over the step (0: no motion, no change)."""

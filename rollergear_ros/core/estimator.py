@@ -18,7 +18,8 @@ import numpy as np
 
 from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, adaptive_effects,
                          effect_coefficients, regressor_plan, regressors)
-from .effects import EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale, reading_errors
+from .effects import (EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale, reading_errors,
+                      state_speed)
 from .equations import efficiency
 from .lagalign import LAG_CHANNELS, LagAligner
 from .measured import measured_efficiency
@@ -460,11 +461,13 @@ class Estimator:
         return bool(self._stateful)
 
     def _advance(self, t_ns: int, speed: float) -> dict[str, float]:
-        """The states of the effects with memory after this sample (one step from the last one)."""
+        """The states of the effects with memory after this sample (one step from the last one, at the
+        speed :func:`~.effects.state_speed` makes of the reading: none at rest)."""
         dt = 0.0 if self._state_t_ns is None else (t_ns - self._state_t_ns) * 1e-9
         states = self._states
+        w = state_speed(float(speed), self.sign_width_rad_s)
         for name, step, params in self._steppers:
-            states[name] = step(states[name], speed, dt, params)
+            states[name] = step(states[name], w, dt, params)
         self._state_t_ns = t_ns
         return states  # read within this sample only (the next one steps it on)
 
@@ -475,9 +478,10 @@ class Estimator:
             return {name: np.empty(0) for name in self._stateful}
         gaps = np.diff(t_ns, prepend=t_ns[0] if self._state_t_ns is None else np.int64(self._state_t_ns))
         dt = gaps.astype(float) * 1e-9
+        w = state_speed(speed, self.sign_width_rad_s)
         out = {}
         for name, params in self._stateful.items():
-            out[name] = EFFECTS[name].state_steps(self._states[name], speed, dt, params)
+            out[name] = EFFECTS[name].state_steps(self._states[name], w, dt, params)
             self._states[name] = float(out[name][-1])
         self._state_t_ns = int(t_ns[-1])
         return out
