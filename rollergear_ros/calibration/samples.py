@@ -359,12 +359,16 @@ def imported_rows(path: str | Path, record: dict[str, str], config: Config,
     """The rows of a steady-state table that ``import`` wrote as an MCAP (``record``: its import
     metadata), read back through replay as replay estimates them: each sample an operating point, its
     loss the power balance of its torques -- the table's own loss, to rounding.  The table's ratio and
-    whether its loss was its torque readings' come from the metadata; rows beyond the plausible range
-    are the estimator's to skip (counted as ``implausible``)."""
+    whether its loss was its torque readings' come from the metadata.  Every row comes back, those
+    beyond the plausible range too: :func:`table_samples` judges them as it judges a table's own."""
+    from ..core.params import spec_by_name
     from ..replay.run import replay
 
-    summary, batches = replay(path, bare_config(config), collect=True, parameter_changes=False,
-                              show_progress=False, warn=warn)
+    specs = spec_by_name()
+    every_row = bare_config(config).with_values({name: specs[name].high for name in (
+        "estimator.max_abs_torque_nm", "estimator.max_abs_speed_rad_s")})
+    summary, batches = replay(path, every_row, collect=True, parameter_changes=False, show_progress=False,
+                              warn=warn)
     if summary.interrupted:
         raise KeyboardInterrupt
 
@@ -374,10 +378,6 @@ def imported_rows(path: str | Path, record: dict[str, str], config: Config,
 
     loss = column("measured_loss_nm")
     ok = np.isfinite(loss)
-    implausible = summary.skipped.get("implausible", 0)
-    if implausible and warn:
-        warn(f"{path}: {implausible} rows beyond estimator.max_abs_torque_nm or max_abs_speed_rad_s: skipped "
-             "(raise them in the parameter file for this gearbox)")
     ratio = record.get(Metadata.IMPORT_RATIO, "")
     return SteadyStateTable(Path(path), column("speed_rad_s")[ok], column("torque_nm")[ok], loss[ok],
                             column("temperature_c")[ok], np.flatnonzero(ok), dropped=int(np.count_nonzero(~ok)),

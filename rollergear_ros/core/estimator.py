@@ -18,8 +18,8 @@ import numpy as np
 
 from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, adaptive_effects,
                          effect_coefficients, regressor_plan, regressors)
-from .effects import (EFFECTS, EffectInputs, additive_terms, corrected_torque, fr_scale, reading_errors,
-                      state_speed)
+from .effects import (EFFECTS, STATE_STILL_WIDTHS, EffectInputs, additive_terms, corrected_torque, fr_scale,
+                      reading_errors, state_speed)
 from .equations import efficiency
 from .lagalign import LAG_CHANNELS, LagAligner
 from .measured import measured_efficiency
@@ -149,6 +149,7 @@ class Estimator:
         self.speed_noise = SpeedNoise(est.speed_noise_rad_s)  # given, or learned from the first samples
         self.sign_width_rad_s = self.speed_noise.value
         self.min_measured_speed_rad_s = self.speed_noise.min_measured_rad_s
+        self._still_rad_s = STATE_STILL_WIDTHS * self.sign_width_rad_s  # a memory does not step within it
         if pairing in ARRIVAL_PAIRINGS:
             self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
             self.sync = SampleSynchronizer(self.sync_tolerance_s, est.staleness_s, arrival=True,
@@ -454,6 +455,7 @@ class Estimator:
         """The sign's width and the least measured speed after the speed noise was (re)learned."""
         self.sign_width_rad_s = self.speed_noise.value
         self.min_measured_speed_rad_s = self.speed_noise.min_measured_rad_s
+        self._still_rad_s = STATE_STILL_WIDTHS * self.sign_width_rad_s
 
     @property
     def has_memory(self) -> bool:
@@ -465,7 +467,7 @@ class Estimator:
         speed :func:`~.effects.state_speed` makes of the reading: none at rest)."""
         dt = 0.0 if self._state_t_ns is None else (t_ns - self._state_t_ns) * 1e-9
         states = self._states
-        w = state_speed(float(speed), self.sign_width_rad_s)
+        w = speed if abs(speed) >= self._still_rad_s else 0.0  # state_speed, inline: once per sample
         for name, step, params in self._steppers:
             states[name] = step(states[name], w, dt, params)
         self._state_t_ns = t_ns

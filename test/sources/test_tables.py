@@ -376,6 +376,14 @@ def test_a_table_mostly_beyond_the_plausible_range_stops_naming_the_limit_to_rai
     error = [ln for ln in proc.stderr.splitlines() if "error" in ln]
     assert len(error) == 1 and "12 of 18 rows lie beyond the estimator's plausible range" in error[0]
     assert "estimator.max_abs_torque_nm: 36000" in error[0], error[0]
+    # the table's import is that table: the same line, not a calibration of the quarter replay keeps
+    bag = tmp_path / "big.mcap"
+    run_cli("import", str(tmp_path / "big.vtlm"), "--out", str(bag))
+    proc = run_cli("calibrate", str(bag), check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    imported = [ln for ln in proc.stderr.splitlines() if "error" in ln]
+    assert [ln.replace(str(bag), "T") for ln in imported] == [ln.replace(str(tmp_path / "big.vtlm"), "T")
+                                                              for ln in error]
 
 
 @needs_realdata
