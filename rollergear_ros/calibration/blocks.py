@@ -187,9 +187,9 @@ class Blocks:
     def _steps(self):
         """Per recording: its analysed samples' indices ``idx``, and the stream the memory steps over:
         speeds (:func:`~core.effects.state_speed`: none at rest), time steps [s] and the position of
-        each of ``idx`` in it.  The stream is the recording's
-        every estimated sample (:attr:`streams`) -- those near standstill that the analysis leaves out
-        turn the drive too, and the estimator steps its state over each one.  Without it (rows of
+        each of ``idx`` in it.  The stream is the recording's every estimated sample (:attr:`streams`):
+        those near standstill that the analysis leaves out turn the drive too, and the estimator steps
+        its state over each one.  Without it (rows of
         tables, samples of another source) the analysed samples themselves: across the others a step
         counts one sample period, not the gap (the motion there is next to none, and the gap at the
         next sample's speed would turn the drive by far too much)."""
@@ -679,19 +679,21 @@ def _folds(d: SampleData, dwell: np.ndarray, start: np.ndarray, folds: int) -> n
     ids = np.unique(bag)
     if len(ids) < 2:
         return dwell % folds
-    first = {int(b): int(np.flatnonzero(bag == b)[0]) for b in ids}
-    count = {int(b): int(dwell[bag == b].max() - dwell[first[int(b)]] + 1) for b in ids}
 
     def key(b: int) -> tuple:
         mine = d.bag_id == b
-        digest = zlib.crc32(np.ascontiguousarray(d.t_ns[mine]).tobytes())
-        for values in (d.torque[mine], d.speed[mine]):
+        # a table's rows are stamped by their place in the tables given: only their values count
+        first = 0 if d.steady_state else int(d.t_ns[mine][0])
+        digest = 0
+        for values in (d.torque[mine], d.speed[mine]) + (() if d.steady_state else (d.t_ns[mine],)):
             digest = zlib.crc32(np.ascontiguousarray(values).tobytes(), digest)
-        return int(d.t_ns[mine][0]), int(np.count_nonzero(mine)), digest
+        return first, int(np.count_nonzero(mine)), digest
 
     offset, fold = 0, np.empty(len(dwell), dtype=np.int64)
-    for b in sorted(count, key=key):
+    for b in sorted(ids.tolist(), key=key):
         mine = bag == b
-        fold[mine] = (dwell[mine] - dwell[first[b]] + offset) % folds
-        offset += count[b]
+        # each of its dwells' place among them (a table's group may interleave with another's rows)
+        distinct, rank = np.unique(dwell[mine], return_inverse=True)
+        fold[mine] = (rank + offset) % folds
+        offset += len(distinct)
     return fold
