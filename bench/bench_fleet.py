@@ -28,7 +28,9 @@ from pathlib import Path
 
 from common import long_bag
 
-from rollergear_ros.fleet.run import FleetRun, dask_client, discover, run_replay
+from rollergear_ros.fleet.cluster import dask_client
+from rollergear_ros.fleet.logs import discover
+from rollergear_ros.fleet.run import FleetRun, run_replay
 from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 

@@ -10,7 +10,7 @@ from pathlib import Path
 from .calibrate import add_assume_option
 from .args import config_from_args
 from ..base.errors import UsageError
-from ..fleet.run import SLICE_MESSAGES
+from ..fleet.logs import SLICE_MESSAGES
 from ..sources.paths import Output, check_outputs
 
 DAY_S = 86_400
@@ -19,7 +19,9 @@ MIN_SLICE_MESSAGES = 10_000
 
 
 def cmd_fleet(args: argparse.Namespace) -> int:
-    from ..fleet.run import FleetRun, dask_client, discover, run_calibrate, run_replay
+    from ..fleet.cluster import dask_client
+    from ..fleet.logs import discover
+    from ..fleet.run import FleetRun, run_calibrate, run_replay
     from ..fleet.report import drift, write_fleet_report
 
     config = config_from_args(args)

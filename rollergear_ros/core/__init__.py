@@ -12,6 +12,7 @@ _FACE = {
     "EffectInputs": "effects",
     "reading_errors": "effects",
     "separating_data": "effects",
+    "state_speed": "effects",
     "viscosity_law": "effects",
     "BatchEstimate": "estimator",
     "Estimate": "estimator",

@@ -15,8 +15,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from rollergear_ros.fleet.run import (FLEET_TABLE, SLICES_TABLE, FleetRun, dask_client, discover, read_table,
-                                      replay_task, run_calibrate, run_replay, settings_fingerprint, time_slices)
+from rollergear_ros.fleet.cluster import dask_client
+from rollergear_ros.fleet.logs import discover, time_slices
+from rollergear_ros.fleet.run import (FLEET_TABLE, SLICES_TABLE, FleetRun, read_table, run_calibrate, run_replay,
+                                      settings_fingerprint)
+from rollergear_ros.fleet.tasks import replay_task
 from rollergear_ros.fleet.report import drift, write_fleet_report
 from rollergear_ros.fleet.simulated import DAY_NS, FleetScenario, simulate_fleet
 from rollergear_ros.core.params import load_config

@@ -66,7 +66,7 @@ def test_more_workers_than_cores_are_capped_and_said():
     """``--workers 10000``: "Too many open files" tracebacks and no result after 180 s."""
     import os
 
-    from rollergear_ros.fleet.run import dask_client
+    from rollergear_ros.fleet.cluster import dask_client
 
     said = []
     with dask_client(None, 10_000, said.append) as client:
@@ -78,7 +78,7 @@ def test_one_file_under_two_names_is_one_recording(tmp_path, monkeypatch):
     """``day00.mcap`` and ``./day00.mcap`` (and the folder holding it) were counted twice."""
     import shutil
 
-    from rollergear_ros.fleet.run import discover
+    from rollergear_ros.fleet.logs import discover
 
     from helpers import BAGS
 

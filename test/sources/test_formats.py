@@ -12,7 +12,7 @@ from rollergear_ros.cli import main as cli
 
 from rollergear_ros.sources import formats
 from rollergear_ros.base.errors import InputFileError
-from rollergear_ros.fleet.run import discover
+from rollergear_ros.fleet.logs import discover
 from rollergear_ros.sources.formats import INPUT_FORMATS, InputFormat, input_format, recording_suffixes, suffixes
 from rollergear_ros.sources.timeseries import Series
 
