@@ -23,8 +23,9 @@ from .channelmap import ChannelMap
 from ..base.errors import InputFileError
 from .formats import is_format
 from ..base.interface import Channel
-from .timeseries import (TEMPERATURE_MAX_RATE_HZ, Aligned, Series, _first_line, _require, _time_ns, csv_reading,
-                         has_value, numeric_column)
+from .arrowfiles import csv_reading, first_line, has_value, numeric_column, require_columns
+from .clocktimes import time_column_ns
+from .timeseries import TEMPERATURE_MAX_RATE_HZ, Aligned, Series
 
 __all__ = ["BATCH_ROWS", "aligned_batches"]
 
@@ -56,13 +57,13 @@ def _batches(path: Path, cmap: ChannelMap, batch_rows: int) -> Iterator:
         try:
             pf = pq.ParquetFile(path)
         except (pa.ArrowException, OSError) as exc:
-            raise InputFileError(f"{path}: not a Parquet file ({_first_line(exc)})") from None
-        _require(path, cmap, pf.schema_arrow.names)
+            raise InputFileError(f"{path}: not a Parquet file ({first_line(exc)})") from None
+        require_columns(path, cmap, pf.schema_arrow.names)
         try:
             for batch in pf.iter_batches(batch_size=batch_rows, columns=wanted):
                 yield pa.Table.from_batches([batch])
         except (pa.ArrowException, OSError) as exc:  # a damaged page or footer
-            raise InputFileError(f"{path}: a damaged Parquet file ({_first_line(exc)})") from None
+            raise InputFileError(f"{path}: a damaged Parquet file ({first_line(exc)})") from None
 
 
 @dataclass
@@ -116,7 +117,7 @@ class _Aligner:
 
     def __init__(self, path: Path, cmap: ChannelMap, batch_rows: int, notes: list[str] | None) -> None:
         from .csvdialect import sniff
-        from .timeseries import time_base
+        from .clocktimes import time_base
 
         self.path, self.cmap, self.batch_rows, self.notes = path, cmap, batch_rows, notes
         self.names = list(cmap.channels)
@@ -148,7 +149,7 @@ class _Aligner:
         path, cmap = self.path, self.cmap
         t_col = table.column(cmap.time.column)
         t_valid = ~np.asarray(t_col.is_null())
-        t_ns = _time_ns(path, cmap.time, t_col, self.clock, self.last_t, self.notes)
+        t_ns = time_column_ns(path, cmap.time, t_col, self.clock, self.last_t, self.notes)
         values, present = {}, {}
         for name, spec in cmap.channels.items():
             try:

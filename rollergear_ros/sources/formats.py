@@ -101,10 +101,10 @@ for _fmt in (
     InputFormat("MCAP", (".mcap",), "mcap"),
     InputFormat("rosbag2", (".db3",), "rosbag2"),
     InputFormat("VTLM", (".vtlm",), "table"),
-    InputFormat("CSV", (".csv",), "timeseries", arrow=True, reader=".timeseries:read_arrow_series"),
-    InputFormat("Parquet", (".parquet",), "timeseries", arrow=True, reader=".timeseries:read_arrow_series"),
-    InputFormat("MDF4", (".mf4", ".mdf"), "timeseries", own_time=True, reader=".timeseries:read_mdf4_series"),
-    InputFormat("TDMS", (".tdms",), "timeseries", own_time=True, reader=".timeseries:read_tdms_series"),
+    InputFormat("CSV", (".csv",), "timeseries", arrow=True, reader=".arrowfiles:read_arrow_series"),
+    InputFormat("Parquet", (".parquet",), "timeseries", arrow=True, reader=".arrowfiles:read_arrow_series"),
+    InputFormat("MDF4", (".mf4", ".mdf"), "timeseries", own_time=True, reader=".mdf4:read_mdf4_series"),
+    InputFormat("TDMS", (".tdms",), "timeseries", own_time=True, reader=".tdms:read_tdms_series"),
 ):
     register(_fmt)
 

@@ -218,12 +218,12 @@ def _columns(path: Path, fmt: InputFormat, info: FileInfo) -> None:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        from .timeseries import _first_line
+        from .arrowfiles import first_line
 
         try:
             meta = pq.ParquetFile(path).metadata
         except (pa.ArrowException, OSError) as exc:
-            raise InputFileError(f"{path}: not a Parquet file ({_first_line(exc)})") from None
+            raise InputFileError(f"{path}: not a Parquet file ({first_line(exc)})") from None
         schema = meta.schema.to_arrow_schema()
         info.streams = [StreamInfo(f.name, str(f.type), meta.num_rows) for f in schema]
     elif fmt.name == "CSV":
@@ -236,7 +236,7 @@ def _columns(path: Path, fmt: InputFormat, info: FileInfo) -> None:
         info.streams = [StreamInfo(c.strip(), "column", rows) for c in next(csv.reader([header], delimiter=delimiter))]
         info.notes.append("columns of the first line, rows counted as lines after it (a units row counts)")
     elif fmt.name == "MDF4":
-        from .timeseries import open_mdf
+        from .mdf4 import open_mdf
 
         mdf = open_mdf(path)
         try:

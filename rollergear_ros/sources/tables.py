@@ -79,7 +79,7 @@ def read_table(path: str | Path, cmap: ChannelMap | None = None, ratio: float | 
 
 
 def _read_mapped(path: Path, cmap: ChannelMap, ratio: float | None) -> SteadyStateTable:
-    from .timeseries import arrow_table, numeric_column
+    from .arrowfiles import arrow_table, numeric_column
 
     table, first_line = arrow_table(path, cmap)
     col = {name: spec.to_si(numeric_column(path, name, spec, table)) for name, spec in cmap.channels.items()}
