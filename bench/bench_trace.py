@@ -19,7 +19,8 @@ import time
 import numpy as np
 
 from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate
-from rollergear_ros.calibration.tracing import SAMPLE_FIELDS, TraceRequest, TraceWorker, trace
+from rollergear_ros.calibration.traceworker import TraceWorker
+from rollergear_ros.calibration.tracing import SAMPLE_FIELDS, TraceRequest, trace
 from rollergear_ros.core.estimator import Estimator
 from rollergear_ros.core.params import load_config
 

@@ -19,11 +19,11 @@ _FACE = {
     "PROFILES": "simulate",
     "SimulationOptions": "simulate",
     "write_rig_bag": "simulate",
-    "IDLE_PRIORITY_S": "tracing",
+    "IDLE_PRIORITY_S": "traceworker",
     "TraceBuffer": "tracing",
     "TraceRequest": "tracing",
     "TraceResult": "tracing",
-    "TraceWorker": "tracing",
+    "TraceWorker": "traceworker",
 }
 
 __all__, __getattr__, __dir__ = lazy_face(__name__, _FACE)

@@ -23,7 +23,8 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..base.atomic import write_text
 from ..base.interface import MessageType
-from ..calibration.tracing import IDLE_PRIORITY_S, TraceBuffer, TraceRequest, TraceResult, TraceWorker
+from ..calibration.traceworker import IDLE_PRIORITY_S, TraceWorker
+from ..calibration.tracing import TraceBuffer, TraceRequest, TraceResult
 from ..core.params import Config
 
 __all__ = ["LiveTracer", "status_of"]
