@@ -361,7 +361,7 @@ def imported_rows(path: str | Path, record: dict[str, str], config: Config,
     loss the power balance of its torques -- the table's own loss, to rounding.  The table's ratio and
     whether its loss was its torque readings' come from the metadata.  Every row comes back, those
     beyond the plausible range too: :func:`table_samples` judges them as it judges a table's own."""
-    from ..core.params import spec_by_name
+    from ..core.paramspecs import spec_by_name
     from ..replay.run import replay
 
     specs = spec_by_name()

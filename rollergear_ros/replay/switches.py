@@ -20,7 +20,7 @@ import numpy as np
 
 from ..base.interface import NODE_NAME, MessageType, Topic
 from ..core.estimator import Estimator
-from ..core.params import spec_by_name
+from ..core.paramspecs import spec_by_name
 from ..recordings.baginfo import BagInfo, iter_raw_batches
 from ..recordings.messages import decoder_for
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..base.output_channels import OUTPUT_CHANNELS
 from ..base.interface import NAMESPACE, Topic
-from ..core.params import parameter_specs
+from ..core.paramspecs import parameter_specs
 
 #: the installed copy of the docs (``setup.py`` puts ``docs/*.md`` under ``share/rollergear_ros/docs``)
 _SOURCE_DOCS = Path(__file__).resolve().parents[2] / "docs"

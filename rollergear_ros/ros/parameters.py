@@ -13,7 +13,8 @@ from pathlib import Path
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from ..base.errors import ParameterError
-from ..core.params import Config, parameter_specs, validate
+from ..core.params import Config, validate
+from ..core.paramspecs import parameter_specs
 
 __all__ = ["check_new_output", "check_params_files", "declare_parameters", "live_provenance",
            "package_parameter_names", "params_files", "parameter_event"]

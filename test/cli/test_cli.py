@@ -188,7 +188,7 @@ def test_the_nodes_help_prints_usage_and_every_parameter_without_starting_ros():
     import subprocess
     import sys
 
-    from rollergear_ros.core.params import parameter_specs
+    from rollergear_ros.core.paramspecs import parameter_specs
 
     proc = subprocess.run([sys.executable, "-m", "rollergear_ros.ros.node", "--help"], capture_output=True, text=True,
                           timeout=120, env={**os.environ, "ROS_DOMAIN_ID": "231"})

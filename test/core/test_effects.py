@@ -17,7 +17,8 @@ import pytest
 from rollergear_ros.core import effects
 from rollergear_ros.calibration.calibrate import calibrate, calibrated_yaml, load_samples
 from rollergear_ros.core.effects import _DRAWN_OVER, EFFECTS, Effect, EffectInputs, EffectParameter
-from rollergear_ros.core.params import load_config, parameter_specs
+from rollergear_ros.core.params import load_config
+from rollergear_ros.core.paramspecs import parameter_specs
 from rollergear_ros.replay.run import replay
 from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
 

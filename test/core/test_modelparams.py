@@ -54,7 +54,7 @@ def calibrate_file(tmp_path, *bags):
 
 def test_the_table_names_parameters_of_the_parameter_file_with_a_part_of_the_model_each():
     from rollergear_ros.core.model import LossModel
-    from rollergear_ros.core.params import spec_by_name
+    from rollergear_ros.core.paramspecs import spec_by_name
 
     parts = LossModel(load_config().gearbox).parts(np.array([10.0]), np.array([100.0]))
     for key, p in MODEL_PARAMETERS.items():

@@ -7,7 +7,9 @@ import math
 import pytest
 import yaml
 
-from rollergear_ros.core.params import ParameterError, config_to_yaml, load_config, parameter_specs, validate
+from rollergear_ros.base.errors import ParameterError
+from rollergear_ros.core.params import config_to_yaml, load_config, validate
+from rollergear_ros.core.paramspecs import parameter_specs
 
 from helpers import CONFIG, run_cli
 
@@ -96,7 +98,8 @@ def test_ints_accepted_for_floats_and_integral_floats_for_ints():
 
 def test_dataclass_defaults_equal_the_spec_defaults():
     """The typed dataclasses repeat the specs' defaults; they must not drift apart."""
-    from rollergear_ros.core.params import Config, parameter_specs
+    from rollergear_ros.core.params import Config
+    from rollergear_ros.core.paramspecs import parameter_specs
 
     flat = Config().to_flat()
     for spec in parameter_specs():

@@ -275,7 +275,8 @@ def test_a_grid_too_large_is_refused_before_anything_is_allocated(tmp_path, grid
 
 
 def test_a_parameter_file_or_a_run_time_change_with_a_grid_too_large_is_refused():
-    from rollergear_ros.core.params import MAX_MAP_AXIS_POINTS, ParameterError, load_config
+    from rollergear_ros.base.errors import ParameterError
+    from rollergear_ros.core.params import MAX_MAP_AXIS_POINTS, load_config
 
     config = load_config()
     with pytest.raises(ParameterError, match="map.speed_step_rpm.*at most"):

@@ -8,7 +8,8 @@ import pytest
 
 from rollergear_ros.recordings.messages import TopicMap
 from rollergear_ros.base.errors import BagError
-from rollergear_ros.core.params import ParameterError, load_config, validate
+from rollergear_ros.base.errors import ParameterError
+from rollergear_ros.core.params import load_config, validate
 from rollergear_ros.replay.run import replay
 from rollergear_ros.outputs.stamped import ESTIMATE_FIELDS, EstimateCodec, decode_estimates
 
