@@ -48,7 +48,8 @@ from ..core.lagalign import LAG_CHANNELS
 from ..core.modelform import ModelForm
 from .segments import find_changes
 from .jointfit import fitted_covariance
-from .selection import Calibrator, ErrorStats, Fit, Term, error_stats, members
+from .leastsquares import Fit
+from .selection import Calibrator, ErrorStats, Term, error_stats, members
 from .structure import adequacy, angle_spectrum, residual_structure
 from ..base.errors import BagError, ParameterError, UsageError
 from ..core.effects import EFFECTS, reading_errors, viscosity_law

@@ -30,7 +30,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from .blocks import groups
-from .selection import AmbiguousSet, Calibrator, RejectedEffect, Term, members, viscosity_level, z_two_sided
+from .leastsquares import z_two_sided
+from .selection import AmbiguousSet, Calibrator, RejectedEffect, Term, members, viscosity_level
 from .structure import NOISE_FACTOR
 from ..core.effects import EFFECTS, separating_data
 from ..core.modelparams import MODEL_PARAMETERS

@@ -22,7 +22,8 @@ from ..core.covariance import ParameterCovariance
 from ..core.effects import EFFECTS
 from ..core.modelparams import MODEL_PARAMETERS
 from ..core.params import Config
-from .selection import Calibrator, Term, wls
+from .leastsquares import wls
+from .selection import Calibrator, Term
 
 __all__ = ["fitted_covariance"]
 

@@ -27,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .selection import Calibrator, Term, members, orthonormal_basis, wls
+from .leastsquares import orthonormal_basis, wls
+from .selection import Calibrator, Term, members
 from ..core.effects import EFFECTS, viscosity_law
 
 __all__ = ["Split", "find_changes"]

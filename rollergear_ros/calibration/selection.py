@@ -1,6 +1,6 @@
 """The fits the selection of missing effects decides with, on block means (step 4 of :mod:`.calibrate`).
 
-Weighted least squares with cluster-robust errors (:func:`wls`), one candidate :class:`Term` per
+Weighted least squares with cluster-robust errors (:func:`~.leastsquares.wls`), one candidate :class:`Term` per
 effect and member of its grid (:func:`members`), and the :class:`Calibrator`: a set's fit, its
 held-out predictions, exponents profiled with their ranges, a candidate's screen (is it an
 explanation at all?) and its acceptance test.  The procedure that uses them is :mod:`.forward`.
@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .blocks import Blocks
+from .leastsquares import Fit, weighted_sse, wls, z_two_sided
 from .noise import Repeatability, minimum_effect
 from ..core.effects import EFFECTS
 from ..core.modelparams import MODEL_PARAMETERS
@@ -68,89 +69,6 @@ class AmbiguousSet:
         return {"effects": self.effects, "needs": self.needs,
                 "rms_contribution_nm": [v if math.isfinite(v) else None for v in self.rms_contribution_nm],
                 "assumed": self.assumed, "taken": self.taken, "readings": self.readings}
-
-
-@dataclass
-class Fit:
-    coef: np.ndarray
-    cov: np.ndarray
-    wsse: float
-    pred: np.ndarray
-
-
-#: singular values of a design (columns scaled to unit weighted norm) below this share of the largest
-#: are no direction of it (the rank every fit and covariance uses)
-RANK_RCOND = 1e-12
-
-
-def _scaled_svd(x: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(u, s, vt, scale)`` of the weighted design ``√w·x`` with its columns scaled to unit norm, the
-    directions below :data:`RANK_RCOND` dropped.  Scaling first and never forming ``xᵀWx`` keeps a
-    design of columns of very different size (a drag per rad/s beside a level in N·m) at its own
-    condition, not its square: what a covariance or a test derived from it says does not hinge on
-    the last bits the CPU's BLAS kernel computes."""
-    xs = x * np.sqrt(w)[:, None]
-    scale = np.linalg.norm(xs, axis=0)
-    scale = np.where(scale > 0, scale, 1.0)
-    u, s, vt = np.linalg.svd(xs / scale, full_matrices=False)
-    keep = s > RANK_RCOND * (s[0] if len(s) else 1.0)
-    return u[:, keep], s[keep], vt[keep], scale
-
-
-def orthonormal_basis(x: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Columns spanning what ``x``'s span (weighted-orthonormal: ``Qᵀ·W·Q = I``).  A fit's prediction,
-    residual and a Wald test of its coefficients do not change when its design is replaced by this
-    basis; their numerics then no longer depend on the design's condition."""
-    _u, s, vt, scale = _scaled_svd(x, w)
-    return x @ ((vt.T / s) / scale[:, None])
-
-
-def wls(x: np.ndarray, y: np.ndarray, w: np.ndarray, groups: np.ndarray | None = None) -> Fit:
-    """Weighted least squares with a cluster-robust (by ``groups``) sandwich covariance (by the SVD
-    of the scaled design: :func:`_scaled_svd`)."""
-    u, s, vt, scale = _scaled_svd(x, w)
-    ys = y * np.sqrt(w)
-    inv = 1.0 / s
-    coef = (vt.T @ (inv * (u.T @ ys))) / scale
-    pred = x @ coef
-    r = y - pred
-    root = (vt.T * inv) / scale[:, None]  # bread = root·rootᵀ = (xᵀWx)⁺
-    bread = root @ root.T
-    if groups is not None and len(np.unique(groups)) > x.shape[1] + 1:
-        score = x * (w * r)[:, None]
-        ug, inv_g = np.unique(groups, return_inverse=True)
-        sums = np.zeros((len(ug), x.shape[1]))
-        np.add.at(sums, inv_g, score)
-        g = len(ug)
-        meat = sums.T @ sums * (g / (g - 1))
-        cov = bread @ meat @ bread
-    else:
-        dof = max(len(y) - x.shape[1], 1)
-        cov = bread * float(np.sum(w * r * r)) / dof
-    return Fit(coef, cov, float(np.sum(w * r * r)), pred)
-
-
-#: the normal equations of a fit (columns scaled to unit norm) are solved where their condition is
-#: below this; else the least-squares solver (rank-revealing) is asked
-WELL_CONDITIONED = 1e8
-
-
-def weighted_sse(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> float:
-    """The weighted residual sum of squares of the least-squares fit of ``y`` by the columns of ``x``:
-    by its normal equations (columns scaled to unit weighted norm; a profile evaluates thousands of
-    these) where they are well conditioned, else by the rank-revealing solver; the residual itself is
-    computed, never ``y'Wy − b'X'Wy`` (a near-exact fit would cancel)."""
-    wx = x * w[:, None]
-    gram = x.T @ wx
-    scale = np.sqrt(np.maximum(np.diag(gram), 1e-300))
-    g = gram / np.outer(scale, scale)
-    if np.linalg.cond(g) < WELL_CONDITIONED:
-        coef = np.linalg.solve(g, (wx.T @ y) / scale) / scale
-    else:
-        sw = np.sqrt(w)
-        coef, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=1e-12)
-    r = y - x @ coef
-    return float(np.sum(w * r * r))
 
 
 @dataclass
@@ -649,14 +567,6 @@ class Calibrator:
 #: a set whose held-out error is below this share of the block means' noise explains the noise too: its
 #: regressors carry the measured loss (a torque balance reproduced), it describes no loss
 IDENTITY_SHARE = 0.1
-
-
-def z_two_sided(alpha: float) -> float:
-    """``z`` with ``P(|Z| > z) = alpha`` for a standard normal ``Z`` (scipy.special's inverse normal
-    CDF: the same numbers as ``scipy.stats.norm.isf``, without importing scipy.stats, ~1 s)."""
-    from scipy.special import ndtri
-
-    return float(-ndtri(alpha / 2))
 
 
 def error_stats(err: np.ndarray, measured: np.ndarray, count: np.ndarray) -> ErrorStats:
