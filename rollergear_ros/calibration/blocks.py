@@ -9,7 +9,6 @@ cross-validation folds never split.  The candidate columns come from the effect 
 from __future__ import annotations
 
 import math
-import zlib
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -21,7 +20,7 @@ from ..core.modelparams import MODEL_PARAMETERS, fitted_parameters
 from ..core.model import rotation_sign
 from .noise import Repeatability, difference_variance, reading_noise, repeatability
 from .nuisance import nuisance_columns
-from .samples import SampleData
+from .samples import SampleData, recording_key
 
 #: an effect that needs the oil temperature is testable when it varies by at least this much
 MIN_TEMPERATURE_SPAN_C = 3.0
@@ -683,11 +682,7 @@ def _folds(d: SampleData, dwell: np.ndarray, start: np.ndarray, folds: int) -> n
     def key(b: int) -> tuple:
         mine = d.bag_id == b
         # a table's rows are stamped by their place in the tables given: only their values count
-        first = 0 if d.steady_state else int(d.t_ns[mine][0])
-        digest = 0
-        for values in (d.torque[mine], d.speed[mine]) + (() if d.steady_state else (d.t_ns[mine],)):
-            digest = zlib.crc32(np.ascontiguousarray(values).tobytes(), digest)
-        return first, int(np.count_nonzero(mine)), digest
+        return recording_key(0 if d.steady_state else int(d.t_ns[mine][0]), d.torque[mine], d.speed[mine])
 
     offset, fold = 0, np.empty(len(dwell), dtype=np.int64)
     for b in sorted(ids.tolist(), key=key):

@@ -116,8 +116,9 @@ def calibrate(data: SampleData, config: Config,
     blocks = result.calibrator.b
     cuts = [int(blocks.start[sp.block]) for sp in splits]  # the first sample after each change
     changes = [Change(int(data.t_ns[i]), sp.t_s, sp.ci95_s, sp.rms_change_nm, sp.heldout_one_nm, sp.heldout_two_nm,
-                      int(data.bag_id[i]), math.nan if sp.between_recordings else _temperature_at(data, i),
-                      sp.between_recordings) for i, sp in zip(cuts, splits)]
+                      data.given_index(int(data.bag_id[i])),
+                      math.nan if sp.between_recordings else _temperature_at(data, i), sp.between_recordings)
+               for i, sp in zip(cuts, splits)]
     n = len(data.t_ns)
     stretches = list(zip([0, *cuts], [*cuts, n]))
     start_s = [0.0, *(sp.t_s for sp in splits)]

@@ -72,6 +72,12 @@ class SampleData:
     #: recording's: where a parameter file is replayed on them
     recordings: list[RecordedInputs] | None = None
     source_index: np.ndarray | None = None
+    #: each recording's place in the list given (``bag_id`` counts them in :func:`recording_key` order)
+    given_order: list[int] | None = None
+
+    def given_index(self, bag: int) -> int:
+        """Recording ``bag``'s place in the list it was given in."""
+        return self.given_order[bag] if self.given_order is not None else bag
 
     @property
     def residual(self) -> np.ndarray:
@@ -223,6 +229,10 @@ def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, 
     parts = []
     recordings, index = [], []
     loaded = False  # any output torque other than 0 (else: a spin test)
+    # the recordings in an order of their own, not the order given: what is decided across them (folds,
+    # changes between recordings) is the same for the same recordings listed in any order
+    given = sorted(range(len(batches_of_bags)), key=lambda k: _inputs_key(batches_of_bags[k]))
+    batches_of_bags = [batches_of_bags[k] for k in given]
     for i, batches in enumerate(batches_of_bags):
         offset = 0
         inputs: list[tuple[np.ndarray, ...]] = []
@@ -252,7 +262,26 @@ def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, 
                       parts=model.parts(cols[2], cols[3]) if model.enabled else {},
                       sign_width_rad_s=sign_width_rad_s, spin_test=not loaded,
                       out_torque=cols[7], out_speed=cols[8], speed_ratio=config.gearbox.ratio_effective,
-                      recordings=recordings, source_index=np.concatenate(index))
+                      recordings=recordings, source_index=np.concatenate(index), given_order=given)
+
+
+def recording_key(first_ns: int, torque: np.ndarray, speed: np.ndarray) -> tuple:
+    """What orders recordings (or a table's groups) by themselves: first stamp, sample count, then their
+    readings' sums of magnitudes to 9 digits (not their last bits: a recording read on another machine,
+    or with a reading 1 ulp off, keeps its place)."""
+    def digest(x: np.ndarray) -> str:
+        x = np.asarray(x, dtype=np.float64)
+        return f"{float(np.sum(np.abs(x[np.isfinite(x)]))):.9g}"
+
+    return int(first_ns), len(torque), digest(torque), digest(speed)
+
+
+def _inputs_key(batches: Sequence) -> tuple:
+    """:func:`recording_key` of one recording's estimates."""
+    if not batches or not sum(len(b.t_ns) for b in batches):
+        return 0, 0, "", ""
+    return recording_key(int(batches[0].t_ns[0]), np.concatenate([b.torque_nm for b in batches]),
+                         np.concatenate([b.speed_rad_s for b in batches]))
 
 
 def file_residual(data: SampleData, config: Config) -> np.ndarray:

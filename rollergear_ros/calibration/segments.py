@@ -53,8 +53,8 @@ class Split:
 
 
 def find_changes(cal: Calibrator, terms: list[Term]) -> list[Split]:
-    """The changes in ``cal``'s blocks (the recordings one after another, in the order given), the
-    latest last."""
+    """The changes in ``cal``'s blocks (the recordings one after another, in their own order:
+    :func:`~.samples.recording_key`, first stamp first), the latest last."""
     b = cal.b
     if b.steady_state or b.t_s is None or len(b.y) < 8 * cal_folds(cal):
         return []
@@ -77,13 +77,13 @@ def find_changes(cal: Calibrator, terms: list[Term]) -> list[Split]:
 
 
 def _running_time(b) -> np.ndarray:
-    """Each block's time [s] on one clock: the recordings one after another in the order given, each
-    from where the one before ended."""
+    """Each block's time [s] on one clock: the recordings one after another in their own order
+    (:func:`~.samples.recording_key`), each from where the one before ended."""
     t = b.t_s[b.start].astype(float)
     bag = b.bag_id[b.start]
     out = np.empty(len(t))
     offset = 0.0
-    for k in np.unique(bag):  # bag ids are the order given
+    for k in np.unique(bag):  # bag ids count the recordings in that order
         i = np.flatnonzero(bag == k)
         out[i] = t[i] - t[i[0]] + offset
         offset = out[i[-1]] + 1.0
