@@ -37,10 +37,9 @@ def _worker_start(node_pid: int, node_cpus: tuple[int, ...] = (), idle: bool = T
     (:func:`worker_cpus`; a spawned process inherits the node's affinity, and a worker on the node's
     only core delays its inputs by milliseconds whatever its priority), and scheduled when nothing else
     wants a core (``SCHED_IDLE``: a waking thread of the node takes the core from it at once), else at
-    the lowest nice level.  On a machine whose cores are all busy the idle class gets next to nothing
-    (a trace waited there for minutes, still importing): a trace under way for longer than
-    :data:`IDLE_PRIORITY_S` goes on at the lowest nice level (:meth:`TraceWorker.hurry_if_late`; ``idle``
-    False: a worker started there).  Ctrl-C is the
+    the lowest nice level.  On a machine whose cores are all busy the idle class gets next to nothing,
+    so a trace under way for longer than :data:`IDLE_PRIORITY_S` goes on at the lowest nice level
+    (:meth:`TraceWorker.hurry_if_late`; ``idle`` False: a worker started there).  Ctrl-C is the
     node's: the worker ignores it (the node stops it).  A node that dies without stopping it (killed,
     crashed) takes it along: the worker watches its parent (:func:`_exit_with_parent`), named by the
     node (``node_pid``): a node that died while the worker started up is no longer the parent the

@@ -44,7 +44,7 @@ def _available_class(type_name: str):
 
 class _Prefetch:
     """Reads and orders the bag in a background thread, a few chunks ahead of the publishing loop,
-    so decoding never stalls the timing (the ``mcap`` reader stalled ~100 ms per 1 MB chunk)."""
+    so decoding a chunk never holds up the timing of the messages being published."""
 
     def __init__(self, bag: Path, state: ReadState, depth: int = 4) -> None:
         self._queue: queue.Queue = queue.Queue(maxsize=depth)
