@@ -41,3 +41,36 @@ def float_series(messages: dict, topic: str) -> tuple[np.ndarray, np.ndarray]:
     v = np.array([m.data for m in ms], dtype=float)
     order = np.argsort(t, kind="stable")
     return t[order], v[order]
+
+
+def shifted_copy(src: Path, dst: Path, shift_s: int) -> Path:
+    """A copy of the MCAP ``src`` with every time ``shift_s`` whole seconds later (negative: earlier):
+    log and publish times, and the header stamp of stamped messages (CDR: its seconds follow the
+    4-byte encapsulation header)."""
+    import struct
+
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    shift_ns = shift_s * 10**9
+    with open(src, "rb") as fin, open(dst, "wb") as fout:
+        reader = make_reader(fin)
+        writer = Writer(fout)
+        writer.start(profile="ros2", library="rollergear tests")
+        schemas, channels = {}, {}
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                               schemas[schema.id], channel.metadata)
+            data = message.data
+            if b"std_msgs/Header header" in schema.data:
+                (sec,) = struct.unpack_from("<i", data, 4)
+                data = data[:4] + struct.pack("<i", sec + shift_s) + data[8:]
+            writer.add_message(channels[channel.id], message.log_time + shift_ns, data,
+                               message.publish_time + shift_ns, message.sequence)
+        for record in reader.iter_metadata():
+            writer.add_metadata(record.name, record.metadata)
+        writer.finish()
+    return dst

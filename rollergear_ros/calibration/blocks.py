@@ -88,6 +88,8 @@ class Blocks:
     source_index: np.ndarray | None = None
     sign_width_rad_s: float = 0.0  # the smooth sign's width: 3 of it beyond standstill the direction is known
     repeat: Repeatability | None = None  # the scatter of a block mean at one operating point (δ)
+    #: each block's operating point across recordings (:func:`places`): where two stretches can be compared
+    place: np.ndarray | None = None
     full_count: float = 1.0  # samples in a whole block (a transient's parts hold fewer)
     untestable: dict[str, str] = field(default_factory=dict)  # candidate -> why this data cannot test it
     #: the rig's nuisances' columns (:mod:`.nuisance`: a channel's lag, the inertia), always in the fit
@@ -369,6 +371,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         sign_width_rad_s=d.sign_width_rad_s,
     )
     blocks.repeat = repeat
+    blocks.place = places(d, start, count)
     blocks.full_count = _full_block(t, block_s)
     blocks.untestable = untestable
     blocks.nuisance = nuisance
@@ -616,6 +619,31 @@ def _cells(d: SampleData, start: np.ndarray, count: np.ndarray) -> np.ndarray:
     steady = span <= 2 * CELL_RELATIVE * np.maximum(np.abs(w), 1e-12) + 6.0 * max(d.sign_width_rad_s, 0.0)
     _u, label = np.unique(np.column_stack(keys), axis=0, return_inverse=True)
     return np.where(steady & (w != 0), label.ravel(), -1)
+
+
+#: operating points across recordings (:func:`places`): the speed's and the load's magnitude in bins this
+#: wide (relative)
+PLACE_RELATIVE = 0.1
+
+
+def places(d: SampleData, start: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """A label per block for its operating point, the same in any recording: the direction, the speed's
+    and (unless a spin test, whose drive torque is the loss measured) the load's magnitude in bins
+    :data:`PLACE_RELATIVE` wide; -1 at standstill.  Two stretches of the data can only be told apart
+    where both visit one (a loss that differs between speeds neither shares is the law's shape)."""
+    def mean(x):
+        return np.add.reduceat(x, start) / count
+
+    def bins(x):
+        return np.floor(np.log(np.maximum(np.abs(x), 1e-12)) / np.log1p(PLACE_RELATIVE))
+
+    w = mean(d.speed)
+    keys = [np.sign(w), bins(w)]
+    load = d.load_torque
+    if not d.spin_test and load is not None:
+        keys.append(bins(mean(np.nan_to_num(load))))
+    _u, label = np.unique(np.column_stack(keys), axis=0, return_inverse=True)
+    return np.where(w != 0, label.ravel(), -1)
 
 
 def _speeding(d: SampleData, start: np.ndarray, count: np.ndarray, w: np.ndarray) -> np.ndarray:

@@ -46,7 +46,7 @@ from .outcome import CalibrationResult, Change, FoundEffect, FoundParameter, seg
 from .samples import SampleData, file_residual, load_samples
 from ..core.lagalign import LAG_CHANNELS
 from ..core.modelform import ModelForm
-from .segments import find_changes
+from .segments import differing_recording, find_changes, in_time_order
 from .jointfit import fitted_covariance
 from .leastsquares import Fit
 from .selection import Calibrator, ErrorStats, Term, error_stats, members
@@ -109,9 +109,20 @@ def calibrate(data: SampleData, config: Config,
         result.stretch = window or "every sample"
         return result
     stage("changes inside the recordings")
+    odd = differing_recording(result.calibrator, result.terms)
+    if odd is not None:
+        raise UsageError(
+            f"recording {data.given_index(odd.bag) + 1} of those given differs from the others where their operating "
+            f"points meet (held-out RMSE {odd.heldout_one_nm:.4g} N·m with one fit, {odd.heldout_two_nm:.4g} with one "
+            f"of its own; it changes the loss by {odd.rms_change_nm:.3g} N·m RMS): a change or another gearbox, and "
+            "the recordings' times overlap, so which came later is not known -- calibrate them apart, give them "
+            "times that put them one after another, or --segments off to fit them as one")
     splits = find_changes(result.calibrator, result.terms)
     if not splits:
-        result.stretch = window or "every sample (no change found inside the recordings)"
+        result.stretch = window or ("every sample (no change found inside the recordings)"
+                                    if in_time_order(result.calibrator.b) else
+                                    "every sample (the recordings' times overlap: no order in time to search "
+                                    "for a change in)")
         return result
     blocks = result.calibrator.b
     cuts = [int(blocks.start[sp.block]) for sp in splits]  # the first sample after each change

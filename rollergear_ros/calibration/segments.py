@@ -12,12 +12,16 @@ block means; every split at a block boundary, both sides at least :data:`MIN_STR
 * the accepted terms with a level and a direction-dependent level, fitted on each side apart,
   predict the held-out blocks better than one fit across it (by more than the selection's minimum
   improvement, folds by dwell as everywhere),
-* what the change changes -- the RMS over the blocks of the difference between the flexible fits on
-  each side and one across -- exceeds δ, and
+* what the change changes -- the RMS of the difference between the flexible fits on each side and one
+  across, over the blocks at operating points both sides visit (direction, speed and load in 10 %
+  bins: where only one side has data, a side's fit extrapolates) -- exceeds δ, and
 * their coefficients differ significantly (a cluster-robust Wald test by dwell at :data:`CHANGE_ALPHA`).
 
 Its time comes with the range of splits whose fit is within the χ² threshold of the best.  The
-latest stretch is then searched again, up to :data:`MAX_CHANGES` changes.  No rclpy import.
+latest stretch is then searched again, up to :data:`MAX_CHANGES` changes.  Recordings whose clocks
+overlap (each from 0) are in no order in time: no latest stretch, so no change is searched across
+or inside them (:func:`in_time_order`); each recording is tested against the others instead, by the
+same test (:func:`differing_recording`).  No rclpy import.
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ from .leastsquares import orthonormal_basis, wls
 from .selection import Calibrator, Term, members
 from ..core.effects import EFFECTS, viscosity_law
 
-__all__ = ["Split", "find_changes"]
+__all__ = ["Outlier", "Split", "differing_recording", "find_changes", "in_time_order"]
 
 MIN_STRETCH_S = 20.0  #: a stretch between changes is at least this long ...
 MIN_STRETCH_SHARE = 0.1  #: ... and holds at least this share of the blocks searched
@@ -56,7 +60,7 @@ def find_changes(cal: Calibrator, terms: list[Term]) -> list[Split]:
     """The changes in ``cal``'s blocks (the recordings one after another, in their own order:
     :func:`~.samples.recording_key`, first stamp first), the latest last."""
     b = cal.b
-    if b.steady_state or b.t_s is None or len(b.y) < 8 * cal_folds(cal):
+    if b.steady_state or b.t_s is None or len(b.y) < 8 * cal_folds(cal) or not in_time_order(b):
         return []
     t = _running_time(b)
     # each design as an orthonormal basis of its columns: the same fits, tests and splits, computed at
@@ -88,6 +92,47 @@ def _running_time(b) -> np.ndarray:
         out[i] = t[i] - t[i[0]] + offset
         offset = out[i[-1]] + 1.0
     return out
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """A recording that differs from the others, when their times overlap (no order in time)."""
+
+    bag: int  #: its index among the recordings as loaded (:func:`~.samples.recording_key` order)
+    rms_change_nm: float
+    heldout_one_nm: float
+    heldout_two_nm: float
+
+
+def differing_recording(cal: Calibrator, terms: list[Term]) -> Outlier | None:
+    """Of recordings whose times overlap, the one that differs most from the others by the test of a
+    change (see the module docstring: the held-out gain of a fit of its own, what it changes at the
+    operating points it shares with the others beyond δ, a Wald test), or None: they can be fitted as
+    one gearbox."""
+    b = cal.b
+    if b.steady_state or b.t_s is None or len(b.y) < 8 * cal_folds(cal) or in_time_order(b):
+        return None
+    x = orthonormal_basis(_design(cal, terms, flexible=True), b.weight)
+    small = orthonormal_basis(_design(cal, terms, flexible=False), b.weight)
+    bag = b.bag_id[b.start]
+    found = []
+    for k in np.unique(bag).tolist():
+        tested = _change(cal, x, small, 0, bag == k)
+        if tested is not None:
+            one, two, rms_change = tested
+            found.append((one - two, -k, Outlier(int(k), rms_change, one, two)))
+    return max(found, key=lambda f: f[:2])[2] if found else None
+
+
+def in_time_order(b) -> bool:
+    """Whether the recordings' clocks put them one after another (each starts after the one before
+    ended): only then is there a latest stretch.  Recordings whose times overlap (each from 0, a
+    table's import, a DAQ's relative clock) have no order in time to search for a change in."""
+    ids = np.unique(b.bag_id)
+    if len(ids) < 2:
+        return True
+    spans = sorted((float(b.t_s[b.bag_id == k].min()), float(b.t_s[b.bag_id == k].max())) for k in ids)
+    return all(after[0] > before[1] for before, after in zip(spans, spans[1:]))
 
 
 def cal_folds(cal: Calibrator) -> int:
@@ -169,24 +214,49 @@ def _best_split(cal: Calibrator, x: np.ndarray, small: np.ndarray, t: np.ndarray
     best = float(np.nanmin(total))
     j = int(np.flatnonzero(total <= best + TIE * abs(best))[0])
     split = int(cand[j])
-    one = _cv_rmse(cal, small[lo:hi], y, w, lo, None)
-    two = _cv_rmse(cal, small[lo:hi], y, w, lo, split)
-    if not (one > 0 and (one - two) / one > cal.min_improvement):
+    tested = _change(cal, xs, small[lo:hi], lo, np.arange(n) >= split)
+    if tested is None:
         return None
-    # what the change changes: the fits on each side against one across, where the data are
-    one_fit = xs @ wls(xs, y, w).coef
-    two_fits = np.concatenate([xs[:split] @ wls(xs[:split], y[:split], w[:split]).coef,
-                               xs[split:] @ wls(xs[split:], y[split:], w[split:]).coef])
-    diff = two_fits - one_fit
-    count = b.count[lo:hi]
-    rms_change = float(np.sqrt(np.average(diff * diff, weights=count)))
-    if rms_change <= cal.delta or not _significant(xs, y, w, b.dwell[lo:hi], split):
-        return None
+    one, two, rms_change = tested
     dof = max(n - 2 * k, 1)
     sigma2 = max(float(total[j]) / dof, 1e-300)
     near = cand[np.isfinite(total) & (total <= total[j] + 3.84 * sigma2)]
     ci = (float(tt[near.min()]), float(tt[near.max()]))
     return Split(lo + split, float(tt[split]), ci, rms_change, one, two, bool(bag[split] != bag[split - 1]))
+
+
+def _change(cal: Calibrator, xs: np.ndarray, small: np.ndarray, lo: int, later: np.ndarray
+            ) -> tuple[float, float, float] | None:
+    """Whether the blocks ``later`` (a mask over the stretch from block ``lo``) differ from the others
+    (see the module docstring): their held-out RMSE with one fit and with a fit on each side, and what
+    the change changes; None when it is no change."""
+    b = cal.b
+    n = len(later)
+    y, w = b.y[lo:lo + n], b.weight[lo:lo + n]
+    one = _cv_rmse(cal, small, y, w, lo, None)
+    two = _cv_rmse(cal, small, y, w, lo, later)
+    if not (one > 0 and (one - two) / one > cal.min_improvement):
+        return None
+    # what the change changes: the fits on each side against one across, at the operating points both
+    # sides visit (elsewhere a side's fit extrapolates: a difference there is the law's shape, not a change)
+    shared = _shared_places(b.place[lo:lo + n], later) if b.place is not None else np.ones(n, bool)
+    if not shared.any():
+        return None
+    one_fit = xs @ wls(xs, y, w).coef
+    two_fits = np.empty(n)
+    for side in (~later, later):
+        two_fits[side] = xs[side] @ wls(xs[side], y[side], w[side]).coef
+    diff = (two_fits - one_fit)[shared]
+    rms_change = float(np.sqrt(np.average(diff * diff, weights=b.count[lo:lo + n][shared])))
+    if rms_change <= cal.delta or not _significant(xs, y, w, b.dwell[lo:lo + n], later):
+        return None
+    return one, two, rms_change
+
+
+def _shared_places(place: np.ndarray, later: np.ndarray) -> np.ndarray:
+    """The blocks at an operating point (:func:`~.blocks.places`) both sides visit."""
+    both = np.intersect1d(place[~later], place[later])
+    return np.isin(place, both[both >= 0])
 
 
 #: the split search's normal equations (over an orthonormal basis: the whole stretch's is the identity)
@@ -204,12 +274,14 @@ def _sse(a: np.ndarray, v: np.ndarray, s: np.ndarray) -> np.ndarray:
     return s - np.einsum("ij,ij->i", beta, v)
 
 
-def _cv_rmse(cal: Calibrator, x: np.ndarray, y: np.ndarray, w: np.ndarray, lo: int, split: int | None) -> float:
-    """Held-out RMSE (folds by dwell) of one fit over the blocks, or of one fit on each side of ``split``."""
+def _cv_rmse(cal: Calibrator, x: np.ndarray, y: np.ndarray, w: np.ndarray, lo: int,
+             later: np.ndarray | None) -> float:
+    """Held-out RMSE (folds by dwell) of one fit over the blocks, or of one fit on each side (``later``
+    and the others)."""
     fold = cal.b.fold[lo:lo + len(y)]
     count = cal.b.count[lo:lo + len(y)]
     pred = np.zeros(len(y))
-    sides = [np.arange(len(y))] if split is None else [np.arange(split), np.arange(split, len(y))]
+    sides = [np.arange(len(y))] if later is None else [np.flatnonzero(~later), np.flatnonzero(later)]
     for side in sides:
         for f in np.unique(fold[side]):
             test = side[fold[side] == f]
@@ -227,15 +299,15 @@ def _cv_rmse(cal: Calibrator, x: np.ndarray, y: np.ndarray, w: np.ndarray, lo: i
 TESTABLE_SHARE = 1e-6
 
 
-def _significant(x: np.ndarray, y: np.ndarray, w: np.ndarray, dwell: np.ndarray, split: int) -> bool:
-    """A cluster-robust Wald test (by dwell) that the right side's coefficients differ from the left's,
+def _significant(x: np.ndarray, y: np.ndarray, w: np.ndarray, dwell: np.ndarray, later: np.ndarray) -> bool:
+    """A cluster-robust Wald test (by dwell) that the ``later`` side's coefficients differ from the others',
     over the directions of ``x`` both sides hold (at least :data:`TESTABLE_SHARE` of its weight each):
     a direction one side barely holds has no coefficient there to compare (its difference would be
     rounding noise divided by next to nothing)."""
     from scipy.special import chdtri  # chi2.isf without importing scipy.stats
 
     q = orthonormal_basis(x, w)
-    before = np.arange(len(y)) < split
+    before = ~later
     qb = q[before] * np.sqrt(w[before])[:, None]
     share, vectors = np.linalg.eigh(qb.T @ qb)  # each direction's share of the weight left of the split
     both = (share >= TESTABLE_SHARE) & (share <= 1.0 - TESTABLE_SHARE)

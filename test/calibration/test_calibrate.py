@@ -316,13 +316,23 @@ def test_calibrate_bad_input(tmp_path):
 
 
 def test_recordings_of_different_rigs_are_not_fitted_across(tmp_path):
-    """Two recordings of different rigs (the viscosity law in one, a load friction in the other): the
-    change between them is said, and the latest recording alone is calibrated -- what a fit across both
-    would give (negative frictions, exponents at their bounds) is never written."""
+    """Two recordings of different rigs (the viscosity law in one, a load friction in the other), one
+    after the other: the change between them is said, and the latest recording alone is calibrated --
+    what a fit across both would give (negative frictions, exponents at their bounds) is never
+    written.  With times that overlap (which came later is not known) the one that differs is named
+    in one line, and nothing is written."""
+    from bagtools import shifted_copy
     from helpers import BAGS
 
+    overlapping = (str(BAGS / "warmup.mcap"), str(BAGS / "drive_cycle_joint_states.mcap"))
+    proc = run_cli("calibrate", *overlapping[::-1], "--out", str(tmp_path / "none.yaml"), "--json", check=False)
+    assert proc.returncode == 2 and proc.stdout == "" and not (tmp_path / "none.yaml").exists()
+    [line] = proc.stderr.strip().splitlines()
+    assert "recording 1 of those given differs from the others" in line and "times overlap" in line, line
+
     out = tmp_path / "cal.yaml"
-    bags = (str(BAGS / "warmup.mcap"), str(BAGS / "drive_cycle_joint_states.mcap"))
+    earlier = shifted_copy(BAGS / "warmup.mcap", tmp_path / "warmup_earlier.mcap", -300)  # ends before the other starts
+    bags = (str(earlier), overlapping[1])
     result = json.loads(run_cli("calibrate", *bags, "--out", str(out), "--json").stdout)
     [change] = result["changes"]
     assert change["between_recordings"] and change["recording"] == 1, change
