@@ -49,20 +49,24 @@ def _kernels() -> list[str]:
     return ["Prescott", "Sandybridge", "Haswell"] + (["SkylakeX"] if " avx512f" in flags else [])
 
 
-def _decisions(kernel: str, threads: int, ulp: bool) -> dict:
+def _decisions(bags: list[str], kernel: str, threads: int, ulp: bool) -> dict:
     env = {**os.environ, "OPENBLAS_CORETYPE": kernel, "OPENBLAS_NUM_THREADS": str(threads)}
-    bags = [str(BAGS / "warmup.mcap"), str(BAGS / "drive_cycle_joint_states.mcap")]
     proc = subprocess.run([sys.executable, "-c", WORKER, *bags, "ulp" if ulp else "exact"], env=env,
                           capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def test_decisions_do_not_depend_on_the_cpu_kernel_threads_or_one_ulp():
+def test_decisions_do_not_depend_on_the_cpu_kernel_threads_or_one_ulp(tmp_path):
+    from bagtools import shifted_copy
+
+    # the warm-up ends before the drive cycle starts (the bundled two share one epoch)
+    bags = [str(shifted_copy(BAGS / "warmup.mcap", tmp_path / "warmup.mcap", -300)),
+            str(BAGS / "drive_cycle_joint_states.mcap")]
     kernels = _kernels()
     cases = [(k, 1, False) for k in kernels] + [(kernels[-1], 2, False), ("Prescott", 2, True)]
     with ThreadPoolExecutor(max_workers=2) as pool:
-        results = list(pool.map(lambda case: _decisions(*case), cases))
+        results = list(pool.map(lambda case: _decisions(bags, *case), cases))
     first = results[0]
     for case, result in zip(cases, results):
         assert result["changes"] == first["changes"], (case, result, first)
