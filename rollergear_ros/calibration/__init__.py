@@ -7,7 +7,7 @@ from ..base.face import lazy_face
 #: the wing's API (the names other wings use) and the module that defines each
 _FACE = {
     "CalibrationSettings": "calibrate",
-    "calibrated_yaml": "calibrate",
+    "calibrated_yaml": "written",
     "write_figures": "figures",
     "REPORT_FILES": "report",
     "reading_choice": "report",

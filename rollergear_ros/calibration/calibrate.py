@@ -51,14 +51,15 @@ from .jointfit import fitted_covariance
 from .leastsquares import Fit
 from .selection import Calibrator, ErrorStats, Term, error_stats, members
 from .structure import adequacy, angle_spectrum, residual_structure
+from .written import calibrated_config, changed, describing, not_written_because
 from ..base.errors import BagError, ParameterError, UsageError
 from ..core.effects import EFFECTS, reading_errors, viscosity_law
 from ..core.model import LossModel
 from ..core.modelparams import MODEL_PARAMETERS
 from ..core.oil import vogel_from_datasheet
-from ..core.params import Config, config_to_yaml, validate
+from ..core.params import Config
 
-__all__ = ["CalibrationResult", "CalibrationSettings", "SampleData", "calibrate", "calibrated_yaml", "load_samples"]
+__all__ = ["CalibrationResult", "CalibrationSettings", "SampleData", "calibrate", "load_samples"]
 
 
 @dataclass(frozen=True)
@@ -150,7 +151,7 @@ def calibrate(data: SampleData, config: Config,
     when = ", ".join(c.when() for c in changes)
     final.stretch = (f"the latest stretch, {len(latest.t_ns):,} samples after the change at {changes[-1].when()}"
                      + (f" ({window})" if window else ""))
-    final.config = _describing(final.config, final.stretch)
+    final.config = describing(final.config, final.stretch)
     final.notes.insert(0, f"the gearbox changed inside the recordings at {when} (one fit across "
                           f"{'them' if len(changes) > 1 else 'it'}: held-out RMSE {changes[-1].heldout_one_nm:.4g} "
                           f"N·m, a fit on each side {changes[-1].heldout_two_nm:.4g}); the latest stretch is "
@@ -337,7 +338,7 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
     verdict = _verdict(out, selected, cal.delta)
     s_a = data_c.residual - pred_after[idx_block]
     sample_level = {"before": sample_before, "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a)))}
-    new_config = _calibrated_config(config, effects, parameters, kept=_untested_file_effects(config, cal))
+    new_config = calibrated_config(config, effects, parameters, kept=_untested_file_effects(config, cal))
     # the lags the samples were aligned by: the written file aligns them as the selection did
     new_config = new_config.with_values({f"estimator.{c}_lag_s": (applied or {}).get(c, 0.0) for c in LAG_CHANNELS})
     covariance = fitted_covariance(cal, final, len(selected), config)
@@ -370,7 +371,7 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
                      f"means), more than the selection's held-out {error_after.rmse_nm:.4g} N·m: the error after is "
                      "the written file's")
         error_after = written_blocks
-    why_not = not_written_because(error_before, error_after, _changed(config, new_config))
+    why_not = not_written_because(error_before, error_after, changed(config, new_config))
     written = why_not is None
     if not written:
         verdict = "inconclusive"
@@ -415,14 +416,6 @@ def _untested_file_effects(config: Config, cal: Calibrator) -> list[str]:
     return [n for n in config.effects.enabled() if n not in cal.b.testable]
 
 
-def _describing(config: Config, stretch: str) -> Config:
-    """``config`` saying in its model form which stretch of the recordings it describes."""
-    form = ModelForm.from_text(config.calibration.model_form)
-    if form is None:
-        return config
-    return config.with_values({"calibration.model_form": replace(form, segment=stretch).to_text()})
-
-
 def _model_form(cal: Calibrator, out, full, final: list[Term], selected: list[Term], data: SampleData,
                 verdict: str) -> ModelForm:
     """What the written file leaves unresolved (the terms kept in the fit and not written, at their
@@ -456,15 +449,6 @@ def _file_errors(data: SampleData, blocks: Blocks, config: Config) -> tuple[Erro
 def _as_given(found: FoundEffect, config: Config) -> FoundEffect:
     """An accepted effect at the parameter file's values (its intervals from the refit)."""
     return replace(found, params=config.effects.params(found.name))
-
-
-def _changed(config: Config, new: Config) -> bool:
-    """Whether the calibrated file differs from the one given in an effect, a model parameter or a
-    channel lag calibrate fits (not in what it only states: a table's ratio, the recordings' speed noise)."""
-    a, b = config.to_flat(), new.to_flat()
-    keys = [k for k in a if k.startswith("effects.")] + [p.key for p in MODEL_PARAMETERS.values()] \
-        + [f"estimator.{c}_lag_s" for c in LAG_CHANNELS]
-    return any(a[k] != b[k] for k in keys)
 
 
 def _nuisances(cal: Calibrator, full, data: SampleData,
@@ -542,7 +526,7 @@ def _value_check(config: Config, ranges: Mapping[str, tuple[float, float]]) -> C
                         f"{100 * coef:+.0f} % of its part of the model)")
             return None
         try:
-            _calibrated_config(config, [FoundEffect(term.name, term.params(coef), {}, 0.0, [0.0, 0.0])], [])
+            calibrated_config(config, [FoundEffect(term.name, term.params(coef), {}, 0.0, [0.0, 0.0])], [])
         except ParameterError as exc:
             return f"fitted value outside the physical range: {exc}"
         return None
@@ -653,15 +637,6 @@ def _adequacy(data: SampleData, config: Config, cal: Calibrator, full, final: li
                     viscous=any(k in EFFECTS for k in in_model), apart=apart)
 
 
-def not_written_because(error_before: ErrorStats, error_after: ErrorStats, changed: bool) -> str | None:
-    """Why a calibration is not written (None: it is): when it changes anything, it would predict the
-    held-out data no better than the parameter file calibrated (nothing changed: the file as it was)."""
-    if changed and error_after.rmse_nm >= error_before.rmse_nm:
-        return (f"not written: the calibrated parameters would predict the held-out data no better than the "
-                f"parameter file as given (RMSE {error_after.rmse_nm:.4g} >= {error_before.rmse_nm:.4g} N·m)")
-    return None
-
-
 def _flat(config: Config) -> dict:
     return config.to_flat()
 
@@ -718,35 +693,3 @@ def _refit_sensor_errors(cal: Calibrator, data: SampleData, final: list[Term], c
         cal = new
     return cal, final, corrected
 
-
-def _calibrated_config(config: Config, effects: list[FoundEffect], parameters: list[FoundParameter],
-                       kept: Sequence[str] = ()) -> Config:
-    """``config`` with exactly the accepted effects enabled, at their fitted parameters (and the file's
-    ``kept`` ones as they are: this data could not test them), the model's parameters calibrate
-    changed, and its coefficients held (``estimator.adapt: false``)."""
-    flat = {k: v for k, v in config.to_flat().items()}
-    for name in EFFECTS:
-        if name not in kept:
-            flat[f"effects.{name}.enabled"] = False
-    for e in effects:
-        flat[f"effects.{e.name}.enabled"] = True
-        for q in EFFECTS[e.name].parameters:
-            flat[f"effects.{e.name}.{q.key}"] = e.params[q.short]
-    for p in parameters:
-        flat[p.name] = p.fitted
-    # the coefficients as calibrated, held: what the claims are of (online adaptation follows each
-    # sample's noise); a node that should track them sets estimator.adapt: true
-    flat["estimator.adapt"] = False
-    return validate(flat)
-
-
-def calibrated_yaml(result: CalibrationResult, sources: Sequence[str]) -> str:
-    header = (
-        "# Written by `rollergear calibrate` from " + ", ".join(map(str, sources)) + "\n"
-        f"# verdict: {result.verdict}; held-out RMSE {result.error_before.rmse_nm:.4g} -> "
-        f"{result.error_after.rmse_nm:.4g} N·m\n"
-        + "".join(f"# {p.name}: {p.fitted:.6g} (was {p.file:.6g}), calibrated: {MODEL_PARAMETERS[p.name].label}\n"
-                  for p in result.parameters)
-        + "".join(f"# {n}\n" for n in result.notes)
-    )
-    return config_to_yaml(result.config, header)

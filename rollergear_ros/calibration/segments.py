@@ -254,7 +254,7 @@ def _change(cal: Calibrator, xs: np.ndarray, small: np.ndarray, lo: int, later: 
 
 
 def _shared_places(place: np.ndarray, later: np.ndarray) -> np.ndarray:
-    """The blocks at an operating point (:func:`~.blocks.places`) both sides visit."""
+    """The blocks at an operating point (:func:`~.grouping.places`) both sides visit."""
     both = np.intersect1d(place[~later], place[later])
     return np.isin(place, both[both >= 0])
 

@@ -27,7 +27,7 @@ def _warn(msg: str) -> None:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..base.atomic import together, write_text
-    from ..calibration.calibrate import calibrated_yaml
+    from ..calibration.written import calibrated_yaml
     from ..calibration.report import REPORT_FILES, write_report
 
     check_outputs([*args.bags, args.params, args.channels],  # now, not after the whole analysis

@@ -174,17 +174,18 @@ def test_a_loss_only_negative_frictions_would_explain_gets_no_file_and_one_line(
 
 
 def test_a_calibration_that_would_predict_worse_than_the_file_is_not_written():
-    from rollergear_ros.calibration.calibrate import not_written_because
+    from rollergear_ros.calibration.written import not_written_because
     from rollergear_ros.calibration.selection import ErrorStats
 
     def err(rmse):
         return ErrorStats(rmse, rmse, rmse, 10 * rmse)
 
-    assert not_written_because(err(0.31), err(0.33), changed=True) is not None
+    assert not_written_because(err(0.31), err(0.33), anything_changed=True) is not None
     assert "no better than the parameter file as given (RMSE 0.33 >= 0.31 N·m)" in not_written_because(
         err(0.31), err(0.33), True)
-    assert not_written_because(err(0.31), err(0.2), changed=True) is None
-    assert not_written_because(err(0.31), err(0.31), changed=False) is None  # nothing changed: the file as it was
+    assert not_written_because(err(0.31), err(0.2), anything_changed=True) is None
+    # nothing changed: the file as it was
+    assert not_written_because(err(0.31), err(0.31), anything_changed=False) is None
 
 
 def test_parameters_are_in_the_json_contract_and_the_text_and_the_files_comments(tmp_path):
