@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from rollergear_ros.core import effects
-from rollergear_ros.calibration.calibrate import calibrate, calibrated_yaml, load_samples
+from rollergear_ros.calibration.calibrate import calibrate, load_samples
+from rollergear_ros.calibration.written import calibrated_yaml
 from rollergear_ros.core.effects import _DRAWN_OVER, EFFECTS, Effect, EffectInputs, EffectParameter
 from rollergear_ros.core.params import load_config
 from rollergear_ros.core.paramspecs import parameter_specs
