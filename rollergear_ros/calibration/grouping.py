@@ -61,14 +61,11 @@ def places(d: SampleData, start: np.ndarray, count: np.ndarray) -> np.ndarray:
     def mean(x):
         return np.add.reduceat(x, start) / count
 
-    def bins(x):
-        return np.floor(np.log(np.maximum(np.abs(x), 1e-12)) / np.log1p(PLACE_RELATIVE))
-
     w = mean(d.speed)
-    keys = [np.sign(w), bins(w)]
+    keys = [np.sign(w), _log_bin(np.abs(w), PLACE_RELATIVE)]
     load = d.load_torque
     if not d.spin_test and load is not None:
-        keys.append(bins(mean(np.nan_to_num(load))))
+        keys.append(_log_bin(np.abs(mean(np.nan_to_num(load))), PLACE_RELATIVE))
     _u, label = np.unique(np.column_stack(keys), axis=0, return_inverse=True)
     return np.where(w != 0, label.ravel(), -1)
 
@@ -87,8 +84,9 @@ def _speeding(d: SampleData, start: np.ndarray, count: np.ndarray, w: np.ndarray
     return np.where(drift > tol, 1.0, np.where(drift < -tol, -1.0, 0.0))
 
 
-def _log_bin(x: np.ndarray) -> np.ndarray:
-    return np.floor(np.log(np.maximum(x, 1e-12)) / np.log1p(CELL_RELATIVE))
+def _log_bin(x: np.ndarray, relative: float = CELL_RELATIVE) -> np.ndarray:
+    """Magnitudes ``x`` (≥ 0) in logarithmic bins ``relative`` wide."""
+    return np.floor(np.log(np.maximum(x, 1e-12)) / np.log1p(relative))
 
 
 #: consecutive blocks are one dwell while speed and torque stay within this share of their level
