@@ -41,7 +41,7 @@ from ..base.errors import BagError, RollergearError
 from ..core.estimator import Estimator
 from ..core.params import Config, config_to_yaml, validate
 from .calibrate import CalibrationResult, CalibrationSettings, calibrate
-from .samples import bare_config, samples_from_estimates
+from .samples import SampleData, bare_config, samples_from_estimates
 
 __all__ = ["TraceBuffer", "TraceRequest", "TraceResult", "change_point", "trace"]
 
@@ -234,18 +234,20 @@ def _rms_residual(config: Config, s: dict[str, np.ndarray], keep: np.ndarray, sp
     return float(np.sqrt(np.mean(r ** 2))) if len(r) else math.nan
 
 
-def _calibrate(config: Config, s: dict[str, np.ndarray], keep: np.ndarray, speed_noise=()) -> CalibrationResult:
-    """``calibrate`` on the samples where ``keep`` (a span of time), exactly as ``calibrate --start/--end``
-    on the node's recording: every buffered sample estimated (an effect's memory steps over those
-    before the window too), the window's analysed, the same speed noise."""
-    t = s["t_ns"][keep]
-    if not len(t):
-        raise BagError("no samples in the window")
+def _bare_samples(config: Config, s: dict[str, np.ndarray], speed_noise=()) -> SampleData:
+    """Every buffered sample estimated with the bare model, as ``calibrate`` loads the node's recording
+    (an effect's memory steps over all of them), with the same speed noise: once per trace, for both
+    windows."""
     batch, estimator = _estimates(bare_config(config), s, np.ones(len(s["t_ns"]), bool), speed_noise)
-    data = samples_from_estimates([[batch]], config, sign_width_rad_s=estimator.sign_width_rad_s)
-    data = data.select((data.t_ns >= t[0]) & (data.t_ns <= t[-1]))
+    return samples_from_estimates([[batch]], config, sign_width_rad_s=estimator.sign_width_rad_s)
+
+
+def _calibrate(config: Config, data: SampleData, t_ns: np.ndarray) -> CalibrationResult:
+    """``calibrate`` on the samples of ``data`` from ``t_ns[0]`` to ``t_ns[-1]`` (a window's times, not empty),
+    exactly as ``calibrate --start/--end`` on the node's recording."""
+    window = data.select((data.t_ns >= t_ns[0]) & (data.t_ns <= t_ns[-1]))
     # the effects the parameters already accept are assumed where the data cannot tell them from another
-    return calibrate(data, config, CalibrationSettings(assume=tuple(config.effects.enabled())))
+    return calibrate(window, config, CalibrationSettings(assume=tuple(config.effects.enabled())))
 
 
 def trace(request: TraceRequest) -> TraceResult:
@@ -286,8 +288,11 @@ def trace(request: TraceRequest) -> TraceResult:
         return _timed(result, start)
     before_s = (t[before][-1] - t[before][0]) * 1e-9 if before.any() else 0.0
     try:
-        cal = _calibrate(config, s, after, request.speed_noise)
-        before_cal = (_calibrate(config, s, before, request.speed_noise)
+        if not after.any():
+            raise BagError("no samples in the window")
+        data = _bare_samples(config, s, request.speed_noise)
+        cal = _calibrate(config, data, t[after])
+        before_cal = (_calibrate(config, data, t[before])
                       if request.reason == "alarm" and before_s >= MIN_BEFORE_S else None)
     except RollergearError as exc:
         result.message = f"inconclusive: {exc}"
