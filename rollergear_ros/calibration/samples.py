@@ -231,7 +231,9 @@ def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, 
     loaded = False  # any output torque other than 0 (else: a spin test)
     # the recordings in an order of their own, not the order given: what is decided across them (folds,
     # changes between recordings) is the same for the same recordings listed in any order
-    given = sorted(range(len(batches_of_bags)), key=lambda k: _inputs_key(batches_of_bags[k]))
+    given = list(range(len(batches_of_bags)))
+    if len(given) > 1:  # one recording: nothing to order (its key reads every sample)
+        given.sort(key=lambda k: _inputs_key(batches_of_bags[k]))
     batches_of_bags = [batches_of_bags[k] for k in given]
     for i, batches in enumerate(batches_of_bags):
         offset = 0
