@@ -20,7 +20,7 @@ import numpy as np
 
 from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, simulate
 from rollergear_ros.calibration.traceworker import TraceWorker
-from rollergear_ros.calibration.tracing import SAMPLE_FIELDS, TraceRequest, trace
+from rollergear_ros.calibration.tracing import INPUT_FIELDS, SAMPLE_FIELDS, TraceRequest, trace
 from rollergear_ros.core.estimator import Estimator
 from rollergear_ros.core.params import load_config
 
@@ -39,8 +39,7 @@ def main() -> None:
     inputs = (rig.t_ns, rig.torque_meas_nm, rig.speed_rad_s, rig.out_torque_meas_nm, rig.out_speed_meas_rad_s,
               rig.temperature_c)
     est = Estimator(config).process_batch(*inputs, breakdown=False)
-    keep = np.isfinite(est.measured_loss_nm)
-    samples = {f: np.asarray(getattr(est, f))[keep] for f in SAMPLE_FIELDS}
+    samples = {f: np.asarray(getattr(est, f)) for f in SAMPLE_FIELDS}  # every estimate, as the node buffers them
     alarm = est.alarms_t_ns[0]
     end = alarm + int(WINDOW_S * 1e9)
     request = TraceRequest(samples, config.to_flat(), "alarm", alarm, WINDOW_S, 20.0, end)
@@ -52,7 +51,7 @@ def main() -> None:
     try:
         for rep in range(args.repeat):
             t0 = time.perf_counter()
-            Estimator(config).process_batch(*(samples[f][window] for f in SAMPLE_FIELDS), breakdown=False)
+            Estimator(config).process_batch(*(samples[f][window] for f in INPUT_FIELDS), breakdown=False)
             base.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
             result = trace(request)

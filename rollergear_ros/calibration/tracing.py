@@ -1,13 +1,15 @@
 """Online tracing: ``calibrate``'s discovery on a window of the live node's own samples.
 
-The node keeps its recent samples with measured output (:class:`TraceBuffer`); when its change
+The node keeps the inputs of its recent estimates (:class:`TraceBuffer`); when its change
 detector fires, once enough samples have come after the alarm, or every ``node.trace_period_s``,
 it hands a snapshot (:class:`TraceRequest`) to a worker process (:class:`~.traceworker.TraceWorker`) that runs
 :func:`trace`:
 
-1. the samples (those since the last gap in the inputs) are estimated with the bare model
-   (:func:`~.samples.bare_config`) into the very :class:`~.samples.SampleData` that ``calibrate``
-   analyses for a recording (:func:`~.samples.samples_from_estimates`);
+1. the samples (those since the last gap in the inputs, with a measured output or not) are
+   estimated with the bare model (:func:`~.samples.bare_config`) into the very
+   :class:`~.samples.SampleData` that ``calibrate`` analyses for a recording
+   (:func:`~.samples.samples_from_estimates`): an effect's memory steps over every sample, the
+   analysis takes those with a measured output;
 2. with an alarm, the change point is where the running parameters' residual (block means of
    ``block_s``) splits best into two levels -- least squares, searched before the alarm;
 3. :func:`~.calibrate.calibrate` runs on the latest window after the change point (at most
@@ -43,10 +45,13 @@ from ..core.params import Config, config_to_yaml, validate
 from .calibrate import CalibrationResult, CalibrationSettings, calibrate
 from .samples import SampleData, bare_config, samples_from_estimates
 
-__all__ = ["TraceBuffer", "TraceRequest", "TraceResult", "change_point", "trace"]
+__all__ = ["INPUT_FIELDS", "SAMPLE_FIELDS", "TraceBuffer", "TraceRequest", "TraceResult", "change_point", "trace"]
 
-#: the fields of an estimate the buffer keeps, in its tuples' order
-SAMPLE_FIELDS = ("t_ns", "torque_nm", "speed_rad_s", "out_torque_nm", "out_speed_rad_s", "temperature_c")
+#: the estimator's inputs, in :meth:`~core.estimator.Estimator.process_batch`'s order
+INPUT_FIELDS = ("t_ns", "torque_nm", "speed_rad_s", "out_torque_nm", "out_speed_rad_s", "temperature_c")
+#: the fields of an estimate the buffer keeps, in its tuples' order: the inputs, and the measured loss
+#: (NaN: none; the node's measured-efficiency window takes the samples that have one, as replay's does)
+SAMPLE_FIELDS = (*INPUT_FIELDS, "measured_loss_nm")
 MIN_BEFORE_S = 10.0  #: a window before the change point shorter than this is not analysed
 #: inputs silent this long (at least; 20 sample periods where those are longer), or time going back,
 #: are a gap -- a new recording, a pause of the rig: a trace's window starts after the last one
@@ -55,7 +60,8 @@ CHANGE_BLOCK_S = 0.25  #: block length of the change point's search [s]
 
 
 class TraceBuffer:
-    """The node's most recent samples with measured output: their times (``int64``) and the other
+    """The inputs of the node's most recent estimates, with a measured output or not (NaN): their
+    times (``int64``) and the other
     :data:`SAMPLE_FIELDS` (``float64``, interleaved) in two growing ``array.array``.
 
     The input path appends with two C calls (:attr:`add_time`, :attr:`add_values`), no Python
@@ -68,7 +74,8 @@ class TraceBuffer:
         self.times = array("q")
         self.values = array("d")
         self.add_time = self.times.append  #: ``add_time(t_ns)``
-        self.add_values = self.values.extend  #: ``add_values((torque, speed, out_torque, out_speed, temperature))``
+        #: ``add_values((torque, speed, out_torque, out_speed, temperature, measured_loss))``
+        self.add_values = self.values.extend
 
     def __len__(self) -> int:
         return len(self.times)
@@ -81,7 +88,7 @@ class TraceBuffer:
         return self.times[max(len(self.times) - self.capacity, 0)] if self.times else None
 
     def add(self, row: tuple) -> None:
-        """One sample: ``(t_ns, torque, speed, out_torque, out_speed, temperature)``."""
+        """One sample: ``(t_ns, torque, speed, out_torque, out_speed, temperature, measured_loss)``."""
         self.add_time(row[0])
         self.add_values(row[1:])
 
@@ -267,16 +274,17 @@ def trace(request: TraceRequest) -> TraceResult:
                     "the window starts after it")
         s = {k: v[cut:] for k, v in s.items()}
     t = s["t_ns"]
+    measured = np.isfinite(s["out_torque_nm"])  # the windows are spans of samples with a measured output
     window_ns = int(request.window_s * 1e9)
-    end = int(t[-1]) if len(t) else 0
-    if request.reason == "alarm" and request.alarm_ns is not None and len(t) and request.alarm_ns >= t[0]:
+    end = int(t[measured][-1]) if measured.any() else 0
+    if request.reason == "alarm" and request.alarm_ns is not None and measured.any() and request.alarm_ns >= t[0]:
         residual = _estimates(config, s, np.ones(len(t), bool), request.speed_noise)[0].residual_nm
-        since = change_point(t, residual, request.alarm_ns)
+        since = change_point(t, residual, request.alarm_ns)  # at samples with a residual
     else:
-        since = max(int(t[0]), end - window_ns) if len(t) else 0
+        since = max(int(t[measured][0]), end - window_ns) if measured.any() else 0
     # the latest window after the change point (a later trace of the same change slides it on)
-    after = t >= max(since, end - window_ns)
-    before = (t < since) & (t >= since - window_ns)
+    after = measured & (t >= max(since, end - window_ns))
+    before = measured & (t < since) & (t >= since - window_ns)
     span = (int(t[after][0]), int(t[after][-1])) if after.any() else (since, since)
     result = TraceResult(request.reason, "inconclusive", "", since, span, int(after.sum()), alarm_ns=request.alarm_ns)
     if gap_note:
@@ -297,13 +305,15 @@ def trace(request: TraceRequest) -> TraceResult:
     except RollergearError as exc:
         result.message = f"inconclusive: {exc}"
         return _timed(result, start)
-    _judge(result, config, cal, before_cal, s, after, request.speed_noise)
+    # the errors: the estimator over every sample of the window after the change, measured output or not
+    _judge(result, config, cal, before_cal, s, (t >= span[0]) & (t <= span[1]), request.speed_noise)
     return _timed(result, start)
 
 
 def _judge(result: TraceResult, config: Config, cal: CalibrationResult, before_cal: CalibrationResult | None,
            s: dict[str, np.ndarray], after: np.ndarray, speed_noise=()) -> None:
-    """Fill ``result`` from the calibration after the change (and before it)."""
+    """Fill ``result`` from the calibration after the change (and before it); ``after``: the samples of
+    the window after the change."""
     enabled = set(config.effects.enabled())
     there_before = {e.name for e in before_cal.effects} if before_cal is not None and before_cal.written else set()
     new = [e for e in cal.effects if e.name not in enabled and e.name not in there_before]

@@ -1,10 +1,11 @@
 """The node's measured efficiency over a rolling window, once a second (rclpy).
 
-The estimates with a measured output are kept in the online tracer's buffer
+Every estimate's inputs and measured loss are kept in the online tracer's buffer
 (:class:`~calibration.tracing.TraceBuffer`, appended on the input path); a timer on the executor
-takes the samples added since its last look into a :class:`~core.measured.MeasuredEfficiency` and,
-for each whole second of sample time completed since, publishes the energy-weighted efficiency of
-the last ``node.efficiency_window_s`` and its uncertainty (the window channels of
+takes the samples with a measured loss added since its last look (as replay's window takes them)
+into a :class:`~core.measured.MeasuredEfficiency` and, for each whole second of sample time
+completed since, publishes the energy-weighted efficiency of the last ``node.efficiency_window_s``
+and its uncertainty (the window channels of
 :mod:`base.output_channels`), records them in the node's MCAP and keeps the latest for
 ``/diagnostics``.  Replay computes the same windows of the same samples (:mod:`replay.output`): a
 replay of the node's recording writes the values the node published.
@@ -14,6 +15,8 @@ from __future__ import annotations
 
 import math
 import struct
+
+import numpy as np
 
 from ..base.interface import MessageType
 from ..base.output_channels import window_channels
@@ -54,8 +57,9 @@ class LiveEfficiencyWindow:
         if len(fresh["t_ns"]) == 0:
             return
         self._seen_ns = int(fresh["t_ns"][-1])
-        self.tally.add(fresh["t_ns"], fresh["torque_nm"], fresh["speed_rad_s"], fresh["out_torque_nm"],
-                       fresh["out_speed_rad_s"])
+        # the samples with a measured loss, as replay's window takes them (replay.summary)
+        out = np.where(np.isfinite(fresh["measured_loss_nm"]), fresh["out_torque_nm"], np.nan)
+        self.tally.add(fresh["t_ns"], fresh["torque_nm"], fresh["speed_rad_s"], out, fresh["out_speed_rad_s"])
         due = self.tally.boundaries(self._boundary_s)
         sensors = node.config.sensors
         windows = [self.tally.window_value(k, sensors) for k in due[-60:]]  # a stalled timer: the last minute

@@ -252,12 +252,12 @@ class LossEstimatorNode(Node):
         self.traced_topic = next((self.out_topics[c.name] for c in trace_channels() if c.name in self.out_topics), "")
 
     def _publish(self, est: Estimate, send: bool = True) -> None:
-        """Publish one estimate (``send=False``: record it only) and buffer it for rerun and, with a
-        measured output, for the online tracer."""
-        if est.measured_loss_nm == est.measured_loss_nm:  # not NaN
-            self._trace_time(est.t_ns)
-            self._trace_values((est.torque_nm, est.speed_rad_s, est.out_torque_nm, est.out_speed_rad_s,
-                                est.temperature_c))
+        """Publish one estimate (``send=False``: record it only) and buffer its inputs for rerun and the
+        online tracer (every sample, with a measured output or not: a trace steps an effect's memory
+        over each, as ``calibrate`` does over the recording)."""
+        self._trace_time(est.t_ns)
+        self._trace_values((est.torque_nm, est.speed_rad_s, est.out_torque_nm, est.out_speed_rad_s,
+                            est.temperature_c, est.measured_loss_nm))
         self._published += 1
         if self._every > 1 and self._published % self._every:
             return

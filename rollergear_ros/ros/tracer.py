@@ -1,6 +1,6 @@
 """The node's online tracer: when to trace, and where a result goes.
 
-:class:`LiveTracer` keeps the node's recent samples with measured output
+:class:`LiveTracer` keeps the inputs of the node's recent estimates, with a measured output or not
 (:class:`~calibration.tracing.TraceBuffer`, appended on the input path), and from a timer on the
 executor: hands a snapshot to the worker process after a new change alarm -- once
 ``node.trace_min_after_s`` of samples have come after it, and again each ``node.trace_min_after_s``
@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 
 from ..base.atomic import write_text
@@ -127,6 +128,8 @@ class LiveTracer:
     def _start(self, reason: str, alarm_ns: int | None, end_ns: int | None) -> None:
         with self.node._input_lock:  # a memory copy: milliseconds
             samples = self.buffer.snapshot()
+        if reason == "period" and not np.isfinite(samples["out_torque_nm"]).any():
+            return  # no measured output to trace (an alarm's trace says what it lacks)
         config = self.node.config
         self.worker.submit(TraceRequest(samples, config.to_flat(), reason, alarm_ns,
                                         config.node.trace_window_s, config.node.trace_min_after_s, end_ns,

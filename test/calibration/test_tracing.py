@@ -2,7 +2,7 @@
 
 The samples are a simulated gearbox's (the whole model plus a declared effect switched on at a
 known time), estimated by the node's estimator and kept as the node keeps them
-(:class:`TraceBuffer`: the samples with a measured output); the alarm is the estimator's own
+(:class:`TraceBuffer`: every estimate's inputs); the alarm is the estimator's own
 change detector's.  The tracer is not told what was simulated.
 """
 
@@ -96,17 +96,17 @@ def test_the_buffer_keeps_the_latest_samples_in_time_order():
     buffer = TraceBuffer(3)
     for i in range(5):
         buffer.add_time(1_700_000_000_000_000_000 + i)  # as the node appends: two calls a sample
-        buffer.add_values((1.0 * i, 2.0 * i, 3.0, 4.0, float("nan")))
+        buffer.add_values((1.0 * i, 2.0 * i, 3.0, 4.0, float("nan"), 5.0))
     arrays = buffer.snapshot()  # the last `capacity` samples, also before a trim
     assert list(arrays) == list(SAMPLE_FIELDS)
     assert arrays["t_ns"].dtype == np.int64 and (arrays["t_ns"] - 1_700_000_000_000_000_000).tolist() == [2, 3, 4]
     assert arrays["torque_nm"].tolist() == [2.0, 3.0, 4.0] and arrays["speed_rad_s"].tolist() == [4.0, 6.0, 8.0]
     assert np.isnan(arrays["temperature_c"]).all()
     buffer.trim()
-    assert len(buffer) == 3 and len(buffer.values) == 15 and buffer.last_ns() == 1_700_000_000_000_000_004
+    assert len(buffer) == 3 and len(buffer.values) == 18 and buffer.last_ns() == 1_700_000_000_000_000_004
     for name, values in buffer.snapshot().items():
         np.testing.assert_array_equal(values, arrays[name])
-    buffer.add((9, 9.0, 9.0, 9.0, 9.0, 9.0))  # and appends go on after a trim
+    buffer.add((9, 9.0, 9.0, 9.0, 9.0, 9.0, 9.0))  # and appends go on after a trim
     assert buffer.snapshot()["t_ns"].tolist()[-1] == 9 and TraceBuffer(5).snapshot()["t_ns"].dtype == np.int64
 
 
@@ -173,27 +173,19 @@ def test_the_last_gap_is_where_inputs_paused_or_went_back_in_time():
     assert after_last_gap(np.append(slow, slow[-1] + 3_000_000_000)) == 0
 
 
-def test_a_trace_names_what_calibrate_names_on_the_same_samples_of_a_recording():
-    """The README's flow: the bundled drag recording as the node's buffer holds it, traced after an
-    alarm at its start with the node's learned speed noise -- and ``calibrate --start/--end`` of the
-    recording over the trace's window: the same effects, the same values (the same samples, the same
-    speed noise, the same selection)."""
-    from helpers import BAGS, ROOT
-
+def _trace_and_calibrate_window(bag, config):
+    """``bag`` as the node's buffer holds it (every estimate's inputs), traced after an alarm at its
+    start with the speed noise the node learned from the stream's start; and ``calibrate --start/--end``
+    of the recording over the trace's window: the trace's result and calibrate's."""
     from rollergear_ros.calibration.calibrate import CalibrationSettings, calibrate
     from rollergear_ros.calibration.samples import load_samples
-    from rollergear_ros.core.params import load_config
     from rollergear_ros.recordings.messages import TopicMap
     from rollergear_ros.recordings.baginfo import inspect_bag
     from rollergear_ros.replay.inputs import paired_plan
     from rollergear_ros.replay.run import _learn_speed_noise, replay
 
-    bag = BAGS / "rig_map_drag.mcap"
-    config = load_config(ROOT / "config" / "gearbox.yaml")
     _, batches = replay(bag, config, show_progress=False, collect=True)
     samples = {f: np.concatenate([getattr(b, f) for b in batches]) for f in SAMPLE_FIELDS}
-    measured = np.isfinite(samples["out_torque_nm"])
-    samples = {f: v[measured] for f, v in samples.items()}
     info = inspect_bag(bag)
     plan, pairing, period = paired_plan(info, TopicMap())
     node_estimator = Estimator(config, pairing, period)
@@ -202,14 +194,73 @@ def test_a_trace_names_what_calibrate_names_on_the_same_samples_of_a_recording()
     alarm = int(t[200])
     result = trace(TraceRequest(samples, config.to_flat(), "alarm", alarm, 60.0, 20.0, None,
                                 tuple(node_estimator.speed_noise.learned)))
-    assert result.verdict == "traced", result.message
     data = load_samples([bag], config)
     first = int(data.t_ns[0])  # --start/--end count from the first sample analysed; --end is exclusive
     window = calibrate(data, config, CalibrationSettings(start_s=(result.window_ns[0] - first) * 1e-9,
                                                          end_s=(result.window_ns[1] - first) * 1e-9 + 1e-6))
+    return result, window
+
+
+def _same_effects(result, window) -> None:
     named = {e["name"]: e["params"] for e in result.effects}
     found = {e.name: e.params for e in window.effects}
     assert set(named) == set(found) and named, (named, found)
     for name, params in named.items():
         for key, value in params.items():
             assert value == pytest.approx(found[name][key], rel=1e-6), (name, key)
+
+
+def test_a_trace_names_what_calibrate_names_on_the_same_samples_of_a_recording():
+    """The README's flow: the bundled drag recording as the node's buffer holds it, traced after an
+    alarm at its start with the node's learned speed noise -- and ``calibrate --start/--end`` of the
+    recording over the trace's window: the same effects, the same values (the same samples, the same
+    speed noise, the same selection)."""
+    from helpers import BAGS, ROOT
+
+    from rollergear_ros.core.params import load_config
+
+    config = load_config(ROOT / "config" / "gearbox.yaml")
+    result, window = _trace_and_calibrate_window(BAGS / "rig_map_drag.mcap", config)
+    assert result.verdict == "traced", result.message
+    _same_effects(result, window)
+
+
+def test_a_trace_over_stretches_without_output_torque_is_calibrate_of_the_same_window(tmp_path):
+    """The drag recording with its output torque lost for 3 s of every 15 (a torque flange's link
+    dropping out), and friction with memory among the candidates: the trace steps the memory over
+    every sample, as ``calibrate --start/--end`` does over the recording, and its window runs across
+    the stretches (the inputs never paused) -- the same effects with the same values as calibrate's."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from helpers import BAGS, ROOT
+
+    from rollergear_ros.core.params import load_config
+    from rollergear_ros.recordings.messages import TopicMap
+
+    src, bag = BAGS / "rig_map_drag.mcap", tmp_path / "dropouts.mcap"
+    output = TopicMap().output_torque
+    with open(src, "rb") as fin, open(bag, "wb") as fout:
+        reader, writer = make_reader(fin), Writer(fout)
+        writer.start(profile="ros2", library="rollergear tests")
+        schemas, channels, start_ns, dropped = {}, {}, None, 0
+        for schema, channel, message in reader.iter_messages(log_time_order=True):
+            start_ns = message.log_time if start_ns is None else start_ns
+            if channel.topic == output and (message.log_time - start_ns) % 15_000_000_000 >= 12_000_000_000:
+                dropped += 1
+                continue
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                               schemas[schema.id], channel.metadata)
+            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time,
+                               message.sequence)
+        writer.finish()
+    assert dropped > 1000
+    config = load_config(ROOT / "config" / "gearbox.yaml")
+    result, window = _trace_and_calibrate_window(bag, config)
+    assert not any("starts after it" in note for note in result.notes), result.notes  # no gap: the inputs ran on
+    assert result.window_ns[1] - result.window_ns[0] >= 55e9, result.window_ns
+    assert result.verdict == "traced", result.message
+    _same_effects(result, window)
