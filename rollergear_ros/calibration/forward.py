@@ -453,14 +453,16 @@ class _Procedure:
                 cv_without = cal.cv_rmse(rest)
                 lower, _upper, z, reasons = cal.test(_moved_last(final, i), t.name, cv_without, cv_all,
                                                      len(state.selected), self.check)
-                if reasons:
-                    failing.append((z, i, t, cv_without, reasons))
+                unfixed = None if reasons else cal.level_unfixed(final, i)  # judged beside the whole set only
+                if reasons or unfixed:
+                    failing.append((z, i, t, cv_without, reasons or [unfixed], unfixed))
             if not failing:
                 return
-            z, i, t, cv_without, reasons = min(failing, key=lambda f: f[0])
+            z, i, t, cv_without, reasons, unfixed = min(failing, key=lambda f: f[0])
             self.log.append(f"backward: {t.name} dropped: beside the others it no longer passes "
                             f"({'; '.join(reasons)}; held-out RMSE {cv_all:.4g} with it, {cv_without:.4g} without)")
-            state.notes[t.name] = "dropped: no longer needed beside the effects accepted after it"
+            state.notes[t.name] = (f"dropped beside the final set: {unfixed}" if unfixed else
+                                   "dropped: no longer needed beside the effects accepted after it")
             del state.selected[i]
             state.selected = cal.optimise(state.selected + state.provisional)[:len(state.selected)]
             state.accepted_at.pop(t.name, None)

@@ -549,6 +549,20 @@ class Calibrator:
                 reasons.append(f"its coefficient's 95 % interval [{ci[0]:.3g}, {ci[1]:.3g}] reaches 0")
         return lower, upper, z, reasons
 
+    def level_unfixed(self, terms: list[Term], i: int) -> str | None:
+        """Why term ``i``, a law that fades with speed (its coefficient its level near standstill), is no
+        measurement beside the others (None: it may be): its level's 95 % interval, over its Stribeck
+        speed's range, spans more than :data:`LEVEL_SPAN` -- the data hold its tail, not its level."""
+        t = terms[i]
+        if t.name not in EFFECTS or EFFECTS[t.name].vanishes_above is None or t.member is None:
+            return None
+        lo, hi = self.coefficient_interval(terms, i, self.member_range(terms, i))
+        if lo <= 0 <= hi or max(abs(lo), abs(hi)) <= LEVEL_SPAN * min(abs(lo), abs(hi)):
+            return None  # an interval that reaches 0 is the significance test's
+        return (f"its level's 95 % interval [{lo:.3g}, {hi:.3g}] spans more than a factor of {LEVEL_SPAN:g}: the "
+                f"data (the slowest at {float(np.abs(self.b.speed).min()):.3g} rad/s) hold its tail, not its level "
+                "near standstill")
+
     def partial_corr(self, a: Term, b: Term, base: Sequence[Term]) -> float:
         """|correlation| of two columns after removing the nuisance and base columns (weighted)."""
         w = self.b.weight
@@ -567,6 +581,9 @@ class Calibrator:
 #: a set whose held-out error is below this share of the block means' noise explains the noise too: its
 #: regressors carry the measured loss (a torque balance reproduced), it describes no loss
 IDENTITY_SHARE = 0.1
+#: a law that fades with speed whose level's 95 % interval spans more than this factor beside the final
+#: set is not fixed by the data (:meth:`Calibrator.level_unfixed`)
+LEVEL_SPAN = 10.0
 
 
 def error_stats(err: np.ndarray, measured: np.ndarray, count: np.ndarray) -> ErrorStats:

@@ -258,3 +258,20 @@ def test_a_state_is_stepped_the_same_sample_by_sample_and_in_batches():
             loss = np.array(batched)
             forwards = (t > 5.0) & (t < 5.5) & (speed > 8 * 0.002)
             assert loss[forwards][:5].max() < -0.15 and loss[forwards & (t > 5.4)].min() > 0.3
+
+
+
+def test_a_breakaway_whose_level_lies_below_the_slowest_speed_measured_is_not_claimed(tmp_path):
+    """The same drive with its slowest rows at 4 rpm (0.42 rad/s), above the excess's 0.3 rad/s: the rows
+    hold its tail, its level at standstill is nowhere measured (the level's 95 % interval reaches 1e12
+    N·m).  No Stribeck law is written, and the directed one says why; the same drive's rows down to 1
+    rpm (the test above) fix the level and give it."""
+    fitted = (4, 4.5, 5, 5.5, 6, 7, 8, 10, 12, 16, 20, 30)
+    csv, cmap = lifting_table(tmp_path, fitted, "fit", seed=0, offset_nm=0.001)
+    p = tmp_path / "p.yaml"
+    p.write_text(JOINT)
+    result = json.loads(run_cli("calibrate", str(csv), "--channels", str(cmap), "--params", str(p), "--json").stdout)
+    found = {e["name"] for e in result["effects"]}
+    assert not {"stribeck", "stribeck_direction"} & found, sorted(found)
+    why = {r["name"]: r["reason"] for r in result["rejected"]}["stribeck_direction"]
+    assert "hold its tail, not its level near standstill" in why and "slowest at 0.419 rad/s" in why, why
