@@ -582,8 +582,9 @@ class Calibrator:
 #: regressors carry the measured loss (a torque balance reproduced), it describes no loss
 IDENTITY_SHARE = 0.1
 #: a law that fades with speed whose level's 95 % interval spans more than this factor beside the final
-#: set is not fixed by the data (:meth:`Calibrator.level_unfixed`)
-LEVEL_SPAN = 10.0
+#: set is not fixed by the data (:meth:`Calibrator.level_unfixed`): not known within two orders of
+#: magnitude, the data hold its tail
+LEVEL_SPAN = 100.0
 
 
 def error_stats(err: np.ndarray, measured: np.ndarray, count: np.ndarray) -> ErrorStats:
