@@ -324,7 +324,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     sensor errors are not candidates there (a table holds losses, not a torque sensor's readings).
     """
     t = d.t_ns.astype(np.float64) * 1e-9
-    sg = rotation_sign(d.speed, d.torque, d.sign_width_rad_s)
+    sg = d.sign if d.sign is not None else rotation_sign(d.speed, d.torque, d.sign_width_rad_s)
     start, count, brk = _block_starts(d, t, block_s, like)
 
     def mean(x: np.ndarray) -> np.ndarray:

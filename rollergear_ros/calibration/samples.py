@@ -17,7 +17,7 @@ from ..recordings.messages import TopicMap
 from ..sources.channelmap import ChannelMap
 from ..base.errors import BagError, InputFileError
 from ..base.interface import Metadata
-from ..core.model import LossModel
+from ..core.model import LossModel, rotation_sign
 from ..core.params import Config, validate
 from ..core.speednoise import reading_noise
 from ..sources.tables import SteadyStateTable
@@ -74,6 +74,9 @@ class SampleData:
     source_index: np.ndarray | None = None
     #: each recording's place in the list given (``bag_id`` counts them in :func:`recording_key` order)
     given_order: list[int] | None = None
+    #: the direction the estimate took at each sample (:attr:`~core.estimator.BatchEstimate.sign`; None:
+    #: the smooth sign of the speed, as for a table's rows)
+    sign: np.ndarray | None = None
 
     def given_index(self, bag: int) -> int:
         """Recording ``bag``'s place in the list it was given in."""
@@ -105,7 +108,7 @@ class SampleData:
                        measured_loss=self.measured_loss[keep], model_loss=self.model_loss[keep],
                        fr_part=self.fr_part[keep], parts={k: v[keep] for k, v in self.parts.items()},
                        out_torque=pick(self.out_torque), out_speed=pick(self.out_speed),
-                       source_index=pick(self.source_index))
+                       source_index=pick(self.source_index), sign=pick(self.sign))
 
 
 def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = TopicMap(),
@@ -246,8 +249,9 @@ def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, 
             out_t_all = b.out_torque_nm if b.out_torque_nm is not None else np.full(m, np.nan)
             out_w_all = b.out_speed_rad_s if b.out_speed_rad_s is not None else np.full(m, np.nan)
             inputs.append((b.t_ns, b.torque_nm, b.speed_rad_s, out_t_all, out_w_all, temp))
+            sign = b.sign if b.sign is not None else rotation_sign(b.speed_rad_s, b.torque_nm, sign_width_rad_s)
             parts.append((b.t_ns[ok], np.full(n, i), b.torque_nm[ok], b.speed_rad_s[ok], temp[ok],
-                          b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok]), out_t_all[ok], out_w_all[ok]))
+                          b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok]), out_t_all[ok], out_w_all[ok], sign[ok]))
             index.append(offset + np.flatnonzero(ok))
             offset += m
             if b.out_torque_nm is not None and np.any(b.out_torque_nm[ok] != 0):
@@ -258,13 +262,13 @@ def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, 
         raise BagError("no samples with a measured output torque and |speed| >= "
                        f"{max(min_speed_rad_s, 3 * sign_width_rad_s):g} rad/s: calibration needs "
                        "the output torque topic")
-    cols = [np.concatenate([p[j] for p in parts]) for j in range(9)]
+    cols = [np.concatenate([p[j] for p in parts]) for j in range(10)]
     return SampleData(cols[0], cols[1], cols[2], cols[3], cols[4], cols[5], cols[6],
                       model.fr_part(cols[2], cols[3]), dict(skipped or {}),
                       parts=model.parts(cols[2], cols[3]) if model.enabled else {},
                       sign_width_rad_s=sign_width_rad_s, spin_test=not loaded,
                       out_torque=cols[7], out_speed=cols[8], speed_ratio=config.gearbox.ratio_effective,
-                      recordings=recordings, source_index=np.concatenate(index), given_order=given)
+                      recordings=recordings, source_index=np.concatenate(index), given_order=given, sign=cols[9])
 
 
 def recording_key(first_ns: int, torque: np.ndarray, speed: np.ndarray) -> tuple:

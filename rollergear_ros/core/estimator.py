@@ -28,7 +28,7 @@ from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, CHANNELS, LOSSLESS_
                       SyncedSample, is_lost, lost_mask, pairing_tolerance_s, samples_to_arrays)
 from .params import Config
 from .resample import RESAMPLED_CHANNELS, Message, RateResampler, is_stale, stale_mask
-from .speednoise import SpeedNoise
+from .speednoise import DirectionRun, SpeedNoise
 
 
 @dataclass(slots=True)
@@ -49,6 +49,7 @@ class Estimate:
     #: P_out/P_in (motoring) or P_in/P_out (regenerating) as the sensors read them (:mod:`.measured`);
     #: NaN without measured output or where undefined
     efficiency_measured: float = math.nan
+    sign: float = math.nan  #: the direction the loss opposes, as the estimate took it (:attr:`BatchEstimate.sign`)
 
 
 @dataclass
@@ -78,6 +79,9 @@ class BatchEstimate:
     #: uncertainty (:mod:`.measured`; filled in by replay's outputs, None from the estimator)
     efficiency_measured_window: np.ndarray | None = None
     efficiency_measured_uncertainty: np.ndarray | None = None
+    #: the direction the loss opposes at each sample, as the estimate took it: ``tanh(ω/σ)`` near
+    #: standstill, ±1 where a run of readings tells it (:class:`~.speednoise.DirectionRun`)
+    sign: np.ndarray | None = None
 
     def select(self, keep: np.ndarray) -> BatchEstimate:
         """The estimates where ``keep`` (a boolean mask) is true."""
@@ -92,7 +96,7 @@ class BatchEstimate:
             {k: v[keep] for k, v in self.breakdown_nm.items()}, pick(self.effects_nm),
             {k: v[keep] for k, v in self.coefficients.items()}, [a for a in self.alarms_t_ns if lo <= a <= hi],
             pick(self.loss_magnitude_nm), pick(self.out_torque_nm), pick(self.out_speed_rad_s),
-            pick(self.efficiency_measured), sensor_nm=pick(self.sensor_nm))
+            pick(self.efficiency_measured), sensor_nm=pick(self.sensor_nm), sign=pick(self.sign))
 
 
 def concatenate_estimates(parts: Sequence[BatchEstimate]) -> BatchEstimate:
@@ -114,6 +118,7 @@ def concatenate_estimates(parts: Sequence[BatchEstimate]) -> BatchEstimate:
         alarms_t_ns=list(parts[-1].alarms_t_ns), loss_magnitude_nm=cat([p.loss_magnitude_nm for p in parts]),
         out_torque_nm=cat([p.out_torque_nm for p in parts]), out_speed_rad_s=cat([p.out_speed_rad_s for p in parts]),
         efficiency_measured=cat([p.efficiency_measured for p in parts]), sensor_nm=cat([p.sensor_nm for p in parts]),
+        sign=cat([p.sign for p in parts]),
     ) if len(parts) > 1 else first
 
 
@@ -189,6 +194,7 @@ class Estimator:
         self._steppers = [(n, EFFECTS[n].state_step, p) for n, p in self._stateful.items()]
         self._state_t_ns: int | None = None
         self._previous_speed = 0.0  # of the last sample estimated: a direction known twice in a row
+        self._run = DirectionRun()  # the last readings: a direction a run of them tells
         self._sensor_offset, self._sensor_gain = reading_errors(self._active)
         self.residual_stats = ResidualStats()
         self.estimated = 0
@@ -207,6 +213,7 @@ class Estimator:
         self._states.update({n: z for n, z in previous._states.items() if n in self._states})  # memory goes on
         self._state_t_ns = previous._state_t_ns
         self._previous_speed = previous._previous_speed
+        self._run.take_over(previous._run)
         self.speed_noise.take_over(previous.speed_noise)
         self._noise_changed()
         self.counts = self.sync.counts
@@ -242,16 +249,17 @@ class Estimator:
             return "implausible"
         return None
 
-    def measured_loss(self, torque, speed, out_torque, out_speed, previous_speed=None):
+    def measured_loss(self, torque, speed, out_torque, out_speed, previous_speed=None, run=None):
         """``T_loss,meas = (T_in·ω_in − T_out·ω_out)/|ω_in|``; ``ω_out = ω_in/ratio`` when not measured.
 
         Below the efficiency speed threshold the quotient of two noisy speeds is noise: the torque
         balance ``(T_in − T_out/ratio)·sgn ω`` instead (a spin test: ``T_in·sgn ω``), where the
         direction is known -- ``|ω|`` and the previous sample's (``previous_speed``, in the same
         direction) at least 3 × the speed reading's noise: a reading at rest is beyond 3σ once in 400
-        samples, twice in a row in the same direction once in 300 000; NaN elsewhere (and at a speed of
-        exactly 0, where no direction is).  Operating points (:attr:`operating_points`) are dwell means,
-        without a speed reading's noise: the power balance wherever they move.
+        samples, twice in a row in the same direction once in 300 000 -- or a run of readings tells it
+        (``run``: :class:`~.speednoise.DirectionRun`'s ±1, 0 where it does not); NaN elsewhere.
+        Operating points (:attr:`operating_points`) are dwell means, without a speed reading's noise:
+        the power balance wherever they move.
         """
         w_out = np.where(np.isnan(out_speed), speed / self.ratio, out_speed)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -260,15 +268,15 @@ class Estimator:
             return np.where(speed != 0, m, np.nan)
         slow = np.abs(speed) < max(self.model.min_speed_rad_s, 1e-9)
         if np.any(slow):
-            m = np.where(slow, (torque - out_torque / self.ratio) * np.sign(speed), m)
             prev = previous_speed if previous_speed is not None else speed
             least = self.min_measured_speed_rad_s
             known = (np.abs(speed) >= least) & (np.abs(prev) >= least) & (np.sign(prev) == np.sign(speed)) \
                 & (speed != 0)
-            m = np.where(slow & ~known, np.nan, m)
+            direction = np.where(known, np.sign(speed), 0.0 if run is None else run)
+            m = np.where(slow, np.where(direction != 0, (torque - out_torque / self.ratio) * direction, np.nan), m)
         return m
 
-    def _measured_loss_scalar(self, torque, speed, out_torque, out_speed, previous_speed) -> float:
+    def _measured_loss_scalar(self, torque, speed, out_torque, out_speed, previous_speed, run: int) -> float:
         if not math.isfinite(out_torque):
             return math.nan
         if speed == 0 and self.operating_points:
@@ -277,7 +285,7 @@ class Estimator:
             least = self.min_measured_speed_rad_s  # the direction is known
             if abs(speed) < least or abs(previous_speed) < least or (speed > 0) != (previous_speed > 0) \
                     or speed == 0:
-                return math.nan
+                return (torque - out_torque / self.ratio) * float(run) if run else math.nan
             return (torque - out_torque / self.ratio) * (1.0 if speed > 0 else -1.0)
         w_out = speed / self.ratio if math.isnan(out_speed) else out_speed
         return (torque * speed - out_torque * w_out) / abs(speed)
@@ -409,7 +417,9 @@ class Estimator:
             self._noise_changed()
         t = t_meas if self._sensor_offset == 0.0 and self._sensor_gain == 0.0 else self.corrected_torque(t_meas)
         at, aw = abs(t), abs(w)
-        sg = rotation_sign_scalar(w, t, self.sign_width_rad_s)
+        run = self._run.step(w, self.sign_width_rad_s, self.speed_noise.known)
+        sg = float(run) if run and aw < self.min_measured_speed_rad_s \
+            else rotation_sign_scalar(w, t, self.sign_width_rad_s)
         vscale = 1.0
         if self._fr_scaling:
             if math.isfinite(s.temperature_c) or not self._needs_temperature:
@@ -424,7 +434,7 @@ class Estimator:
         phi = [term(x) / scale for term, scale in self._regressor_plan] if self.adaptive else ()  # regressors()
         phys, sens = self._effects_scalar(fixed, phi)
         loss = mag + phys
-        meas = self._measured_loss_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s, self._previous_speed)
+        meas = self._measured_loss_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s, self._previous_speed, run)
         self._previous_speed = w
         if math.isnan(s.out_torque_nm):
             pass
@@ -440,7 +450,7 @@ class Estimator:
         eta_meas = self._measured_efficiency_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s) \
             if math.isfinite(meas) else math.nan
         est = Estimate(s.t_ns, t_meas, w, loss * sg, loss * aw, self.model.efficiency_scalar(t, w, loss), meas,
-                       residual, s.out_torque_nm, s.out_speed_rad_s, s.temperature_c, eta_meas)
+                       residual, s.out_torque_nm, s.out_speed_rad_s, s.temperature_c, eta_meas, sg)
         self.last = est
         if self.speed_noise.learning and self.speed_noise.add((w,), s.t_ns):
             self._noise_changed()
@@ -554,14 +564,17 @@ class Estimator:
         """:meth:`process_batch` of plausible samples at the speed noise of now."""
         torque = self.corrected_torque(torque_meas)
         at, aw = np.abs(torque), np.abs(speed)
-        sg = rotation_sign(speed, torque, self.sign_width_rad_s)
+        run = self._run.many(speed, self.sign_width_rad_s, self.speed_noise.known)
+        sg = np.where((run != 0) & (aw < self.min_measured_speed_rad_s), run,
+                      rotation_sign(speed, torque, self.sign_width_rad_s))
         res = self._model_result(torque, speed, sg, temperature, breakdown=breakdown, count=True)
         mag = res.loss_magnitude_nm
         bad_out = ~np.isnan(out_torque) & (~np.isfinite(out_torque) | (~np.isfinite(out_speed) & ~np.isnan(out_speed)))
         self.counts["output_non_finite"] += int(np.count_nonzero(bad_out))
         with np.errstate(invalid="ignore"):
             previous = np.concatenate([[self._previous_speed], speed[:-1]])
-            meas = np.where(bad_out, np.nan, self.measured_loss(torque_meas, speed, out_torque, out_speed, previous))
+            meas = np.where(bad_out, np.nan, self.measured_loss(torque_meas, speed, out_torque, out_speed, previous,
+                                                                run))
         if len(speed):
             self._previous_speed = float(speed[-1])
         state = self._advance_many(t_ns, speed) if self._stateful else {}
@@ -594,6 +607,7 @@ class Estimator:
             out_speed_rad_s=out_speed,
             efficiency_measured=eff_meas,
             sensor_nm=sens,
+            sign=sg,
         )
 
     def _model_result(self, torque: np.ndarray, speed: np.ndarray, sg: np.ndarray, temperature: np.ndarray, *,
@@ -611,13 +625,14 @@ class Estimator:
         return self.model.evaluate(torque, speed, vscale, breakdown=breakdown)
 
     def breakdown(self, torque_nm: np.ndarray, speed_rad_s: np.ndarray, temperature_c: np.ndarray,
-                  loss_torque_nm: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
+                  loss_torque_nm: np.ndarray, sign: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """The loss's parts at samples already estimated (the node's rerun view, off its input path):
         the paper's terms (as :meth:`process_batch` gives them) and the effects' share of the loss
-        magnitude, from the measured torque, the speed, the oil temperature and the signed loss."""
+        magnitude, from the measured torque, the speed, the oil temperature, the signed loss and the
+        direction the estimate took (:attr:`Estimate.sign`)."""
         torque = self.corrected_torque(np.asarray(torque_nm, float))
         speed = np.asarray(speed_rad_s, float)
-        sg = rotation_sign(speed, torque, self.sign_width_rad_s)
+        sg = np.asarray(sign, float)
         res = self._model_result(torque, speed, sg, np.asarray(temperature_c, float), breakdown=True)
         with np.errstate(invalid="ignore", divide="ignore"):
             effects = np.where(sg != 0, np.asarray(loss_torque_nm, float) / sg - res.loss_magnitude_nm, 0.0)

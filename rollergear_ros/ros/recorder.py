@@ -191,7 +191,7 @@ class NodeRecording:
         t = np.array([e.t_ns for e in buf], dtype=np.int64)
         torque, speed, temperature, loss = (column("torque_nm"), column("speed_rad_s"), column("temperature_c"),
                                             column("loss_torque_nm"))
-        breakdown, effects = estimator.breakdown(torque, speed, temperature, loss)  # off the input path
+        breakdown, effects = estimator.breakdown(torque, speed, temperature, loss, column("sign"))  # off the input path
         self.rerun.send_estimates(BatchEstimate(
             t, torque, speed, loss, column("loss_power_w"), column("efficiency"), column("measured_loss_nm"),
             column("residual_nm"), temperature, breakdown_nm=breakdown, effects_nm=effects, alarms_t_ns=alarms,
