@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..core.model import rotation_sign
 from .samples import SampleData
 
 __all__ = ["ChannelLag", "apply_lags", "lag_channel", "nuisance_columns", "shift"]
@@ -104,8 +105,10 @@ def shift(d: SampleData, channel: str, lag_s: float) -> SampleData:
         new = _resample(d, t, d.speed, lag_s)
         flips = np.sign(new) != np.sign(d.speed)
         new = np.where(flips & (np.abs(new) < 3.0 * d.sign_width_rad_s), d.speed, new)
-        loss = np.where(np.sign(new) != np.sign(d.speed), -d.measured_loss, d.measured_loss)
-        return replace(d, speed=new, measured_loss=loss)
+        moved = np.sign(new) != np.sign(d.speed)
+        loss = np.where(moved, -d.measured_loss, d.measured_loss)
+        sign = None if d.sign is None else np.where(moved, rotation_sign(new, d.torque, d.sign_width_rad_s), d.sign)
+        return replace(d, speed=new, measured_loss=loss, sign=sign)
     raise ValueError(f"no lag for channel {channel!r}")
 
 
