@@ -210,6 +210,40 @@ def lifting_table(tmp: Path, rpms, name: str, seed: int, offset_nm: float = 0.0)
     return path, cmap
 
 
+def lifting_recording(tmp: Path, rpms, name: str, seed: int, offset_nm: float = 0.0) -> tuple[Path, Path]:
+    """:func:`lifting_table`'s drive recorded at 10 Hz as a controller reads it: 300 samples a level and
+    direction, the levels slowest first; the drive torque the law at the set speed (2e-4 N·m of noise),
+    the speed its average over each sample in whole rpm -- below 8 rpm the drive sticks and slips (stuck
+    for 3 samples on average, reading 0; slipping for 4 at 7/4 of the set speed), above it turns evenly
+    (0.5 rpm of noise).  The first 1,000 speeds, which σ is learned from, are the stick-slip readings."""
+    rng = np.random.default_rng(seed)
+    set_rpm, read_rpm = [], []
+    for rpm in rpms:
+        for d in (1.0, -1.0):
+            if rpm < 8:
+                out: list[float] = []
+                sticking = True
+                while len(out) < 300:
+                    k = int(rng.geometric(1 / 3 if sticking else 1 / 4))
+                    out += [0.0] * k if sticking else (1.75 * rpm * (1 + rng.normal(0, 0.1, k))).tolist()
+                    sticking = not sticking
+                reading = np.array(out[:300])
+            else:
+                reading = rpm + rng.normal(0.0, 0.5, 300)
+            set_rpm.append(np.full(300, d * rpm))
+            read_rpm.append(d * np.round(reading))
+    n_set, n_read = np.concatenate(set_rpm), np.concatenate(read_rpm)
+    w = n_set * np.pi / 30.0
+    near = np.exp(-np.abs(w) / 0.3)
+    torque = 0.01 + np.sign(w) * (0.02 + 1e-3 * np.abs(w) + 0.003 * near) + 0.005 * near + offset_nm
+    csv = write_csv(tmp / f"{name}.csv", {"t": np.arange(len(w)) / 10.0, "T": torque + rng.normal(0.0, 2e-4, len(w)),
+                                          "n": n_read})
+    cmap = tmp / f"{name}_map.yaml"
+    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T, unit: N*m}\n"
+                    "motor_speed: {column: n, unit: rpm}\noutput_torque: {constant: 0.6, unit: N*m}\nratio: 60\n")
+    return csv, cmap
+
+
 #: the warm-up's oil (a PAO gear oil's Vogel law from its data sheet) and the one the file states (a
 #: mineral ISO VG 220's), each ``(η at 40 °C [Pa·s], B [K], C [K])``
 WARM_UP_OIL = (0.14, 1362.4, 124.8)
