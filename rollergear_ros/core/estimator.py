@@ -21,7 +21,7 @@ from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, a
 from .effects import (EFFECTS, STATE_STILL_WIDTHS, EffectInputs, additive_terms, corrected_torque, fr_scale,
                       reading_errors, state_speed)
 from .equations import efficiency
-from .lagalign import LAG_CHANNELS, LagAligner
+from .lagalign import LAG_CHANNELS, LagAligner, max_gap_s
 from .measured import measured_efficiency
 from .model import LossModel, rotation_sign, rotation_sign_scalar
 from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, CHANNELS, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
@@ -170,7 +170,7 @@ class Estimator:
                                        int(round(pairing_tolerance_s(est.sync_tolerance_s, sample_period_s) * 1e9)))
         #: a channel that reads late, aligned between the pairing and the estimate (None: none lags)
         lags = {c: getattr(est, f"{c}_lag_s") for c in LAG_CHANNELS}
-        self.aligner = LagAligner(lags, est.staleness_s) if any(lags.values()) else None
+        self.aligner = LagAligner(lags, max_gap_s(est.staleness_s, sample_period_s)) if any(lags.values()) else None
         self.adaptive = adaptive_effects(config) if est.adapt else ()
         coef = effect_coefficients(config)
         self._regressor_plan = regressor_plan(self.adaptive, config)

@@ -6,7 +6,8 @@ estimate: each paired sample at ``t`` takes the lagging channel's value at ``t +
 interpolated between the two paired samples around it -- a sample waits until one at or after
 ``t + τ`` has come (τ > 0), or takes it from the samples before (τ < 0: the channel leads).  Where no
 pair of samples brackets ``t + τ`` within ``max_gap_s`` (a gap in the recording, the end of a
-stream), the value is NaN: that sample has no measured output to align.  ``calibrate`` writes the lag
+stream; :func:`max_gap_s`: the staleness, or :data:`GAP_PERIODS` sample periods of a slower recording),
+the value is NaN: that sample has no measured output to align.  ``calibrate`` writes the lag
 it found and aligned into the file, and the node, ``replay`` and ``calibrate``'s own claims apply it
 here -- one rule for all.  Zero lags (the default) change nothing.  No rclpy import.
 """
@@ -17,11 +18,20 @@ from collections.abc import Mapping
 
 import numpy as np
 
-__all__ = ["LAG_CHANNELS", "LagAligner"]
+__all__ = ["GAP_PERIODS", "LAG_CHANNELS", "LagAligner", "max_gap_s"]
 
 #: channels a lag can be given for, and their column in a paired sample
 #: ``(t_ns, torque, speed, out_torque, out_speed, temperature)``
 LAG_CHANNELS = {"motor_speed": 2, "output_torque": 3, "output_speed": 4}
+#: two samples this many sample periods apart still bracket ``t + τ``: one sample missing is no gap
+GAP_PERIODS = 2.5
+
+
+def max_gap_s(staleness_s: float, sample_period_s: float | None) -> float:
+    """The widest span two samples may bracket ``t + τ`` across: ``estimator.staleness_s``, or
+    :data:`GAP_PERIODS` periods of a recording whose samples are further apart than that (a controller
+    read every 256 ms: with the staleness alone, no two of its samples would bracket any time)."""
+    return max(staleness_s, GAP_PERIODS * (sample_period_s or 0.0))
 
 
 class LagAligner:

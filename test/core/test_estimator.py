@@ -53,6 +53,44 @@ def test_the_nodes_sample_by_sample_path_equals_replays_arrays_bit_for_bit(name,
         np.testing.assert_array_equal(np.array([getattr(e, field) for e in live]), getattr(batch, field), err_msg=field)
 
 
+def test_a_lag_aligns_a_recording_whose_samples_are_further_apart_than_the_staleness():
+    """A controller read every 256 ms (a worm drive's slowest levels) with its speed 43 ms late (what
+    calibrate finds in the faster levels): each sample takes the speed at t + lag between the two
+    samples around it, the node's path and replay's alike; one sample missing is bridged, a pause of
+    a second is not (staleness 0.1 s; with it alone no two samples bracketed any time, and every
+    sample was skipped)."""
+    from rollergear_ros.core.pairing import CHANNELS
+
+    grid = np.arange(300) * 256_000_000
+    t = np.concatenate([grid[:100], grid[101:200], grid[200:] + 1_000_000_000])  # one missing, then a 1.3 s pause
+    before_pause = int(grid[199])
+    speed = 0.5 + 0.2 * np.sin(t * 1e-9)
+    torque = 0.002 + 0.0 * t
+    n = len(t)
+    codes = np.tile(np.arange(4), n)
+    t_ns = np.repeat(t.astype(np.int64), 4)
+    values = np.column_stack([torque, speed, np.zeros(n), speed]).ravel()
+    config = load_config().with_values({"estimator.motor_speed_lag_s": 0.0426, "estimator.adapt": False,
+                                        "estimator.paper_model": False})
+
+    def estimates(by_message: bool):
+        est = Estimator(config, sample_period_s=0.256)
+        if by_message:
+            out = [e for c, ts, v in zip(codes.tolist(), t_ns.tolist(), values.tolist())
+                   for e in est.push(CHANNELS[c], ts, v)] + list(est.finish())
+            return np.array([e.t_ns for e in out]), np.array([e.speed_rad_s for e in out])
+        parts = [p for p in (est.push_many(codes, t_ns, values), est.flush()) if p is not None]
+        return np.concatenate([p.t_ns for p in parts]), np.concatenate([p.speed_rad_s for p in parts])
+
+    (t_node, w_node), (t_replay, w_replay) = estimates(True), estimates(False)
+    np.testing.assert_array_equal(t_node, t_replay)
+    np.testing.assert_array_equal(w_node, w_replay)
+    lost = set(t.tolist()) - set(t_replay.tolist())
+    assert lost == {before_pause, int(t[-1])}, sorted(lost)  # before the pause, and the last: nothing after
+    expected = 0.5 + 0.2 * np.sin((t_replay + 42_600_000) * 1e-9)
+    np.testing.assert_allclose(w_replay, expected, atol=0.2 * 0.256 ** 2 / 8 * 1.01)  # linear between samples
+
+
 @pytest.mark.parametrize("lag_s", [0.03, 0.0173])
 def test_a_lagging_channel_is_aligned_alike_message_by_message_and_in_arrays(lag_s):
     """An output torque channel 30 ms late (and one late by a fraction of a period): with
