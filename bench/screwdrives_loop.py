@@ -44,6 +44,10 @@ CHANNELS = ("format: timeseries\ntime: {column: time_s, unit: s}\nmotor_torque: 
 #: the worm's payload as its output torque: 0.096 kg on a 20 mm pulley (the authors' ``extLoad``), against
 #: the lifting direction (power out positive while lifting, the motor turning backwards)
 WORM_PAYLOAD_NM, WORM_RATIO = -0.096 * 9.812 * 0.02, 60.0
+#: the level files are runs of one drive in one session, each on a clock from 0: their times overlap, so
+#: calibrate cannot tell which came later, and it fits them as one (a stick-slipping 1 rpm level's
+#: samples differ from the steady levels' at the same speed readings: a slip is no steady state)
+ONE_SESSION = ("--segments", "off")
 
 
 def convert(src: Path, dst: Path) -> int:
@@ -92,7 +96,7 @@ def evaluate(drive: str, files: list[Path], held: set[float], work: Path, given:
     test = [p for p in files if abs(level_rpm(p)) in held]
     written = work / f"{drive}.yaml"
     proc = subprocess.run([sys.executable, "-m", "rollergear_ros", "calibrate", *map(str, train), "--channels",
-                           str(channels), "--params", str(given), "--out", str(written), "--json"],
+                           str(channels), "--params", str(given), "--out", str(written), "--json", *ONE_SESSION],
                           capture_output=True, text=True)
     result = json.loads(proc.stdout)
     row = {"effects": result["effects"], "written": result["written"]}
@@ -122,7 +126,7 @@ def evaluate_start_stop(drive: str, files: list[Path], runs: list[Path], work: P
     experiment: from standstill to one speed, a reversal, a stop) beside the least-squares fit of the levels."""
     written = work / f"{drive}_levels.yaml"
     proc = subprocess.run([sys.executable, "-m", "rollergear_ros", "calibrate", *map(str, files), "--channels",
-                           str(channels), "--params", str(given), "--out", str(written), "--json"],
+                           str(channels), "--params", str(given), "--out", str(written), "--json", *ONE_SESSION],
                           capture_output=True, text=True)
     result = json.loads(proc.stdout)
     a = np.concatenate([np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2) for p in files])
