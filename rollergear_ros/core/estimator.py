@@ -134,7 +134,8 @@ class Estimator:
     def __init__(self, config: Config, pairing: str = "timestamp", sample_period_s: float | None = None,
                  operating_points: bool = False) -> None:
         """``operating_points``: each sample is an operating point of its own (a steady-state table's
-        row, a dwell mean): its direction is its speed's sign, a measured loss wherever it moves.
+        row, a dwell mean, a point of a map): its direction is its speed's sign, a measured loss wherever
+        it moves, and no run of samples tells a direction (:class:`~.speednoise.DirectionRun`).
         ``pairing``: ``timestamp`` (bags; live with publisher timestamps), ``arrival`` or
         ``arrival_reliable`` / ``arrival_sequenced`` (arrival order over a delivery that loses
         nothing, or whose losses are filled in; see :class:`~.pairing.SampleSynchronizer`);
@@ -417,7 +418,7 @@ class Estimator:
             self._noise_changed()
         t = t_meas if self._sensor_offset == 0.0 and self._sensor_gain == 0.0 else self.corrected_torque(t_meas)
         at, aw = abs(t), abs(w)
-        run = self._run.step(w, self.sign_width_rad_s, self.speed_noise.known)
+        run = 0 if self.operating_points else self._run.step(w, self.sign_width_rad_s, self.speed_noise.known)
         sg = float(run) if run and aw < self.min_measured_speed_rad_s \
             else rotation_sign_scalar(w, t, self.sign_width_rad_s)
         vscale = 1.0
@@ -564,7 +565,8 @@ class Estimator:
         """:meth:`process_batch` of plausible samples at the speed noise of now."""
         torque = self.corrected_torque(torque_meas)
         at, aw = np.abs(torque), np.abs(speed)
-        run = self._run.many(speed, self.sign_width_rad_s, self.speed_noise.known)
+        run = np.zeros(len(speed), np.int64) if self.operating_points \
+            else self._run.many(speed, self.sign_width_rad_s, self.speed_noise.known)
         sg = np.where((run != 0) & (aw < self.min_measured_speed_rad_s), run,
                       rotation_sign(speed, torque, self.sign_width_rad_s))
         res = self._model_result(torque, speed, sg, temperature, breakdown=breakdown, count=True)

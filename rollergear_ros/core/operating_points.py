@@ -110,7 +110,7 @@ def evaluate_points(config: Config, torque_nm, speed_rad_s, temperature_c: float
     theta = np.full(n, np.nan if temperature_c is None else float(temperature_c))
 
     def run(effects: Config) -> tuple[np.ndarray, Estimator, object]:
-        estimator = Estimator(effects)
+        estimator = Estimator(effects, operating_points=True)  # points in no order: no run of them is a direction
         batch = estimator.process_batch(np.arange(n, dtype=np.int64), torque, speed, temperature=theta)
         magnitude = np.full(n, np.nan)
         magnitude[batch.t_ns.astype(np.intp)] = batch.loss_magnitude_nm
