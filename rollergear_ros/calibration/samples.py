@@ -17,7 +17,7 @@ from ..recordings.messages import TopicMap
 from ..sources.channelmap import ChannelMap
 from ..base.errors import BagError, InputFileError
 from ..base.interface import Metadata
-from ..core.model import LossModel, rotation_sign
+from ..core.model import LossModel
 from ..core.params import Config, validate
 from ..core.speednoise import reading_noise
 from ..sources.tables import SteadyStateTable
@@ -249,9 +249,9 @@ def samples_from_estimates(batches_of_bags: Sequence[Sequence], config: Config, 
             out_t_all = b.out_torque_nm if b.out_torque_nm is not None else np.full(m, np.nan)
             out_w_all = b.out_speed_rad_s if b.out_speed_rad_s is not None else np.full(m, np.nan)
             inputs.append((b.t_ns, b.torque_nm, b.speed_rad_s, out_t_all, out_w_all, temp))
-            sign = b.sign if b.sign is not None else rotation_sign(b.speed_rad_s, b.torque_nm, sign_width_rad_s)
             parts.append((b.t_ns[ok], np.full(n, i), b.torque_nm[ok], b.speed_rad_s[ok], temp[ok],
-                          b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok]), out_t_all[ok], out_w_all[ok], sign[ok]))
+                          b.measured_loss_nm[ok], np.abs(b.loss_torque_nm[ok]), out_t_all[ok], out_w_all[ok],
+                          b.sign[ok]))
             index.append(offset + np.flatnonzero(ok))
             offset += m
             if b.out_torque_nm is not None and np.any(b.out_torque_nm[ok] != 0):

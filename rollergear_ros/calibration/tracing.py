@@ -275,13 +275,14 @@ def trace(request: TraceRequest) -> TraceResult:
         s = {k: v[cut:] for k, v in s.items()}
     t = s["t_ns"]
     measured = np.isfinite(s["out_torque_nm"])  # the windows are spans of samples with a measured output
+    stamps = t[measured]
     window_ns = int(request.window_s * 1e9)
-    end = int(t[measured][-1]) if measured.any() else 0
-    if request.reason == "alarm" and request.alarm_ns is not None and measured.any() and request.alarm_ns >= t[0]:
+    end = int(stamps[-1]) if len(stamps) else 0
+    if request.reason == "alarm" and request.alarm_ns is not None and len(stamps) and request.alarm_ns >= t[0]:
         residual = _estimates(config, s, np.ones(len(t), bool), request.speed_noise)[0].residual_nm
         since = change_point(t, residual, request.alarm_ns)  # at samples with a residual
     else:
-        since = max(int(t[measured][0]), end - window_ns) if measured.any() else 0
+        since = max(int(stamps[0]), end - window_ns) if len(stamps) else 0
     # the latest window after the change point (a later trace of the same change slides it on)
     after = measured & (t >= max(since, end - window_ns))
     before = measured & (t < since) & (t >= since - window_ns)
