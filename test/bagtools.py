@@ -49,27 +49,55 @@ def shifted_copy(src: Path, dst: Path, shift_s: int) -> Path:
     4-byte encapsulation header)."""
     import struct
 
+    shift_ns = shift_s * 10**9
+
+    def shifted(schema, _channel, message):
+        data = message.data
+        if b"std_msgs/Header header" in schema.data:
+            (sec,) = struct.unpack_from("<i", data, 4)
+            data = data[:4] + struct.pack("<i", sec + shift_s) + data[8:]
+        return message.log_time + shift_ns, data, message.publish_time + shift_ns
+
+    return _copy(src, dst, shifted, log_time_order=False)
+
+
+def filtered_copy(src: Path, dst: Path, keep) -> tuple[Path, int]:
+    """A copy of the MCAP ``src`` in log-time order with only the messages ``keep(topic, log_time_ns)``
+    holds for: the copy, and how many were left out."""
+    left_out = 0
+
+    def kept(_schema, channel, message):
+        nonlocal left_out
+        if keep(channel.topic, message.log_time):
+            return message.log_time, message.data, message.publish_time
+        left_out += 1
+        return None
+
+    return _copy(src, dst, kept, log_time_order=True), left_out
+
+
+def _copy(src: Path, dst: Path, each, log_time_order: bool) -> Path:
+    """``src`` copied to ``dst`` (schemas, channels, metadata), each message as ``each(schema, channel,
+    message)`` gives its ``(log_time, data, publish_time)``, or None to leave it out."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
-    shift_ns = shift_s * 10**9
     with open(src, "rb") as fin, open(dst, "wb") as fout:
         reader = make_reader(fin)
         writer = Writer(fout)
         writer.start(profile="ros2", library="rollergear tests")
         schemas, channels = {}, {}
-        for schema, channel, message in reader.iter_messages(log_time_order=False):
+        for schema, channel, message in reader.iter_messages(log_time_order=log_time_order):
+            written = each(schema, channel, message)
+            if written is None:
+                continue
             if schema.id not in schemas:
                 schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
             if channel.id not in channels:
                 channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
                                                                schemas[schema.id], channel.metadata)
-            data = message.data
-            if b"std_msgs/Header header" in schema.data:
-                (sec,) = struct.unpack_from("<i", data, 4)
-                data = data[:4] + struct.pack("<i", sec + shift_s) + data[8:]
-            writer.add_message(channels[channel.id], message.log_time + shift_ns, data,
-                               message.publish_time + shift_ns, message.sequence)
+            log_time, data, publish_time = written
+            writer.add_message(channels[channel.id], log_time, data, publish_time, message.sequence)
         for record in reader.iter_metadata():
             writer.add_metadata(record.name, record.metadata)
         writer.finish()
