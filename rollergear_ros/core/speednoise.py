@@ -20,8 +20,10 @@ No rclpy import.
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 __all__ = ["AUTO", "CHECKPOINTS", "RUN_BEYOND", "RUN_SAMPLES", "DirectionRun", "SpeedNoise", "reading_noise"]
 
@@ -157,52 +159,72 @@ class DirectionRun:
     same directions."""
 
     def __init__(self) -> None:
-        #: the last RUN_SAMPLES − 1 readings' flags: sign, ±1 beyond σ (0 within), 1 within 3σ
-        self._flags: list[tuple[int, int, int]] = []
+        #: the last RUN_SAMPLES − 1 readings' flags: sign (±1, 0), ±1 beyond σ (0 within), 1 within 3σ
+        self._flags: deque[tuple[int, int, int]] = deque()
+        #: over those flags: readings < 0, > 0, beyond −σ, beyond +σ, within 3σ
+        self._counts = [0, 0, 0, 0, 0]
 
-    @staticmethod
-    def _flag(w: float, sigma: float) -> tuple[int, int, int]:
-        w = float(w)
-        return (int(w > 0) - int(w < 0), int(w > sigma) - int(w < -sigma), int(abs(w) < 3.0 * sigma))
+    def _hold(self, flags: list[tuple[int, int, int]]) -> None:
+        self._flags = deque(flags[-(RUN_SAMPLES - 1):])
+        self._counts = [sum(f[0] < 0 for f in self._flags), sum(f[0] > 0 for f in self._flags),
+                        sum(f[1] < 0 for f in self._flags), sum(f[1] > 0 for f in self._flags),
+                        sum(f[2] for f in self._flags)]
 
     def many(self, speed: np.ndarray, sigma: float, known: bool = True) -> np.ndarray:
         """The direction at each of ``speed``'s readings, following the readings before them; ``known``:
-        σ is known (else nothing is: the readings are kept for later)."""
+        σ is known (else nothing is: the readings are kept for later).  The counts are taken only where a
+        run can tell the direction: at readings beyond σ whose last readings are half within 3σ."""
         w = np.asarray(speed, dtype=float)
-        flags = np.stack([np.sign(w), np.where(w > sigma, 1, np.where(w < -sigma, -1, 0)),
-                          np.abs(w) < 3.0 * sigma], axis=1).astype(np.int64)
-        held = np.array(self._flags, dtype=np.int64).reshape(-1, 3)
-        every = np.concatenate([held, flags])
-        n, h = len(w), len(held)
-        self._flags = [tuple(f) for f in every[-(RUN_SAMPLES - 1):].tolist()]
+        n, h = len(w), len(self._flags)
+        held = np.array(self._flags, dtype=np.int8).reshape(h, 3)
+        sign = np.concatenate([held[:, 0], (w > 0).astype(np.int8) - (w < 0)])
+        beyond = np.concatenate([held[:, 1], (w > sigma).astype(np.int8) - (w < -sigma)])
+        within = np.concatenate([held[:, 2], (np.abs(w) < 3.0 * sigma).astype(np.int8)])
+        self._hold(list(zip(sign[-(RUN_SAMPLES - 1):].tolist(), beyond[-(RUN_SAMPLES - 1):].tolist(),
+                            within[-(RUN_SAMPLES - 1):].tolist())))
         out = np.zeros(n, dtype=np.int64)
         if not known or n == 0:
             return out
-        end = np.arange(h, h + n) + 1
-
-        def window(x: np.ndarray) -> np.ndarray:  # the count over the RUN_SAMPLES readings ending at each
-            c = np.concatenate([[0], np.cumsum(x)])
-            return c[end] - c[np.maximum(end - RUN_SAMPLES, 0)]
-
-        slow = (end >= RUN_SAMPLES) & (2 * window(every[:, 2]) >= RUN_SAMPLES)
-        beyond = flags[:, 1]
-        out[slow & (beyond > 0) & (window(every[:, 0] < 0) == 0) & (window(every[:, 1] > 0) >= RUN_BEYOND)] = 1
-        out[slow & (beyond < 0) & (window(every[:, 0] > 0) == 0) & (window(every[:, 1] < 0) >= RUN_BEYOND)] = -1
+        end = np.arange(h, h + n) + 1  # each reading's window: the RUN_SAMPLES readings up to it
+        c = np.concatenate([[0], np.cumsum(within, dtype=np.int64)])
+        slow = (end >= RUN_SAMPLES) & (2 * (c[end] - c[np.maximum(end - RUN_SAMPLES, 0)]) >= RUN_SAMPLES)
+        at = np.flatnonzero(slow & (beyond[h:] != 0))
+        if len(at) == 0:
+            return out
+        rows = at + h - (RUN_SAMPLES - 1)  # the window ending at each candidate
+        signs = sliding_window_view(sign, RUN_SAMPLES)[rows]
+        beyonds = sliding_window_view(beyond, RUN_SAMPLES)[rows]
+        now = beyond[h:][at]
+        up = (now > 0) & ~np.any(signs < 0, axis=1) & (np.count_nonzero(beyonds > 0, axis=1) >= RUN_BEYOND)
+        down = (now < 0) & ~np.any(signs > 0, axis=1) & (np.count_nonzero(beyonds < 0, axis=1) >= RUN_BEYOND)
+        out[at[up]] = 1
+        out[at[down]] = -1
         return out
 
     def step(self, speed: float, sigma: float, known: bool = True) -> int:
-        """:meth:`many` of one reading."""
-        now = self._flag(speed, sigma)
-        flags = self._flags + [now]
-        self._flags = flags[-(RUN_SAMPLES - 1):]
-        if not known or len(flags) < RUN_SAMPLES or 2 * sum(f[2] for f in flags) < RUN_SAMPLES:
-            return 0
-        if now[1] > 0 and all(f[0] >= 0 for f in flags) and sum(f[1] > 0 for f in flags) >= RUN_BEYOND:
-            return 1
-        if now[1] < 0 and all(f[0] <= 0 for f in flags) and sum(f[1] < 0 for f in flags) >= RUN_BEYOND:
-            return -1
-        return 0
+        """:meth:`many` of one reading, with running counts over the readings held."""
+        w = float(speed)
+        sign, beyond, within = int(w > 0) - int(w < 0), int(w > sigma) - int(w < -sigma), int(abs(w) < 3.0 * sigma)
+        counts = self._counts
+        negative, positive = counts[0] + (sign < 0), counts[1] + (sign > 0)
+        below, above, slow = counts[2] + (beyond < 0), counts[3] + (beyond > 0), counts[4] + within
+        direction = 0
+        if known and len(self._flags) == RUN_SAMPLES - 1 and 2 * slow >= RUN_SAMPLES:
+            if beyond > 0 and negative == 0 and above >= RUN_BEYOND:
+                direction = 1
+            elif beyond < 0 and positive == 0 and below >= RUN_BEYOND:
+                direction = -1
+        self._flags.append((sign, beyond, within))
+        if len(self._flags) == RUN_SAMPLES:
+            old_sign, old_beyond, old_within = self._flags.popleft()
+            negative -= old_sign < 0
+            positive -= old_sign > 0
+            below -= old_beyond < 0
+            above -= old_beyond > 0
+            slow -= old_within
+        self._counts = [negative, positive, below, above, slow]
+        return direction
 
     def take_over(self, previous: DirectionRun) -> None:
         """Go on from ``previous``'s readings (a parameter change at run time)."""
-        self._flags = list(previous._flags)
+        self._hold(list(previous._flags))
