@@ -20,10 +20,8 @@ No rclpy import.
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 
 __all__ = ["AUTO", "CHECKPOINTS", "RUN_BEYOND", "RUN_SAMPLES", "DirectionRun", "SpeedNoise", "reading_noise"]
 
@@ -147,6 +145,12 @@ class SpeedNoise:
         return f"{self.value:.3g} rad/s (auto: learned from the first {len(self._speeds):,} samples)"
 
 
+#: a reading's flags packed into one integer, a field of 5 bits each (a window of 16 counts up to 16, so
+#: the sum of a window's codes is the count of each flag): below 0, above 0, beyond −σ, beyond +σ, within 3σ
+_NEG, _POS, _BNEG, _BPOS, _WITHIN = 1, 1 << 5, 1 << 10, 1 << 15, 1 << 20
+_FIELD = 31
+
+
 class DirectionRun:
     """The direction a run of speed readings shows of a drive turning slower than one reading can tell:
     +1 or −1 at a reading beyond σ where, of the last :data:`RUN_SAMPLES` readings (this one included),
@@ -156,75 +160,76 @@ class DirectionRun:
     drive sticks, where its torque holds it rather than turns it, and which a reversal may begin with.
     Each reading is flagged against the σ of its own time, so a σ learned later does not change what
     was known; :meth:`step` (one sample) and :meth:`many` (an array) count the same flags and give the
-    same directions."""
+    same directions.  A reading's flags are one packed integer and a window's counts the sum of its
+    readings' (:data:`_NEG` …), kept running over a ring of the last readings: a step is a few integer
+    operations, a batch one cumulative sum."""
 
     def __init__(self) -> None:
-        #: the last RUN_SAMPLES − 1 readings' flags: sign (±1, 0), ±1 beyond σ (0 within), 1 within 3σ
-        self._flags: deque[tuple[int, int, int]] = deque()
-        #: over those flags: readings < 0, > 0, beyond −σ, beyond +σ, within 3σ
-        self._counts = [0, 0, 0, 0, 0]
+        self._ring = [0] * (RUN_SAMPLES - 1)  #: the last RUN_SAMPLES − 1 readings' codes, oldest at _next
+        self._next = 0
+        self._held = 0  #: readings in the ring (up to RUN_SAMPLES − 1)
+        self._total = 0  #: the sum of the ring's codes
 
-    def _hold(self, flags: list[tuple[int, int, int]]) -> None:
-        self._flags = deque(flags[-(RUN_SAMPLES - 1):])
-        self._counts = [sum(f[0] < 0 for f in self._flags), sum(f[0] > 0 for f in self._flags),
-                        sum(f[1] < 0 for f in self._flags), sum(f[1] > 0 for f in self._flags),
-                        sum(f[2] for f in self._flags)]
+    def _codes(self) -> list[int]:
+        """The held readings' codes, oldest first."""
+        if self._held < RUN_SAMPLES - 1:
+            return self._ring[:self._held]
+        return self._ring[self._next:] + self._ring[:self._next]
+
+    def _hold(self, codes: list[int]) -> None:
+        """Hold these readings' codes (oldest first; the last RUN_SAMPLES − 1 of them)."""
+        codes = codes[-(RUN_SAMPLES - 1):]
+        self._held = len(codes)
+        self._ring = codes + [0] * (RUN_SAMPLES - 1 - len(codes))
+        self._next = self._held % (RUN_SAMPLES - 1)
+        self._total = sum(codes)
 
     def many(self, speed: np.ndarray, sigma: float, known: bool = True) -> np.ndarray:
         """The direction at each of ``speed``'s readings, following the readings before them; ``known``:
-        σ is known (else nothing is: the readings are kept for later).  The counts are taken only where a
-        run can tell the direction: at readings beyond σ whose last readings are half within 3σ."""
+        σ is known (else nothing is: the readings are kept for later)."""
         w = np.asarray(speed, dtype=float)
-        n, h = len(w), len(self._flags)
-        held = np.array(self._flags, dtype=np.int8).reshape(h, 3)
-        sign = np.concatenate([held[:, 0], (w > 0).astype(np.int8) - (w < 0)])
-        beyond = np.concatenate([held[:, 1], (w > sigma).astype(np.int8) - (w < -sigma)])
-        within = np.concatenate([held[:, 2], (np.abs(w) < 3.0 * sigma).astype(np.int8)])
-        self._hold(list(zip(sign[-(RUN_SAMPLES - 1):].tolist(), beyond[-(RUN_SAMPLES - 1):].tolist(),
-                            within[-(RUN_SAMPLES - 1):].tolist())))
+        n, h = len(w), self._held
+        code = (np.where(w < 0, _NEG, 0) + np.where(w > 0, _POS, 0) + np.where(w < -sigma, _BNEG, 0)
+                + np.where(w > sigma, _BPOS, 0) + np.where(np.abs(w) < 3.0 * sigma, _WITHIN, 0)).astype(np.int64)
+        every = np.concatenate([np.array(self._codes(), dtype=np.int64), code])
+        self._hold(every[-(RUN_SAMPLES - 1):].tolist())
         out = np.zeros(n, dtype=np.int64)
         if not known or n == 0:
             return out
         end = np.arange(h, h + n) + 1  # each reading's window: the RUN_SAMPLES readings up to it
-        c = np.concatenate([[0], np.cumsum(within, dtype=np.int64)])
-        slow = (end >= RUN_SAMPLES) & (2 * (c[end] - c[np.maximum(end - RUN_SAMPLES, 0)]) >= RUN_SAMPLES)
-        at = np.flatnonzero(slow & (beyond[h:] != 0))
-        if len(at) == 0:
-            return out
-        rows = at + h - (RUN_SAMPLES - 1)  # the window ending at each candidate
-        signs = sliding_window_view(sign, RUN_SAMPLES)[rows]
-        beyonds = sliding_window_view(beyond, RUN_SAMPLES)[rows]
-        now = beyond[h:][at]
-        up = (now > 0) & ~np.any(signs < 0, axis=1) & (np.count_nonzero(beyonds > 0, axis=1) >= RUN_BEYOND)
-        down = (now < 0) & ~np.any(signs > 0, axis=1) & (np.count_nonzero(beyonds < 0, axis=1) >= RUN_BEYOND)
-        out[at[up]] = 1
-        out[at[down]] = -1
+        c = np.concatenate([[0], np.cumsum(every)])
+        total = c[end] - c[np.maximum(end - RUN_SAMPLES, 0)]
+        slow = (end >= RUN_SAMPLES) & (2 * ((total >> 20) & _FIELD) >= RUN_SAMPLES)
+        out[slow & (w > sigma) & ((total & _FIELD) == 0) & (((total >> 15) & _FIELD) >= RUN_BEYOND)] = 1
+        out[slow & (w < -sigma) & (((total >> 5) & _FIELD) == 0) & (((total >> 10) & _FIELD) >= RUN_BEYOND)] = -1
         return out
 
     def step(self, speed: float, sigma: float, known: bool = True) -> int:
-        """:meth:`many` of one reading, with running counts over the readings held."""
+        """:meth:`many` of one reading."""
         w = float(speed)
-        sign, beyond, within = int(w > 0) - int(w < 0), int(w > sigma) - int(w < -sigma), int(abs(w) < 3.0 * sigma)
-        counts = self._counts
-        negative, positive = counts[0] + (sign < 0), counts[1] + (sign > 0)
-        below, above, slow = counts[2] + (beyond < 0), counts[3] + (beyond > 0), counts[4] + within
+        if w > 0:
+            code = _POS + _BPOS if w > sigma else _POS
+        elif w < 0:
+            code = _NEG + _BNEG if w < -sigma else _NEG
+        else:
+            code = 0
+        if -3.0 * sigma < w < 3.0 * sigma:
+            code += _WITHIN
+        total = self._total + code
         direction = 0
-        if known and len(self._flags) == RUN_SAMPLES - 1 and 2 * slow >= RUN_SAMPLES:
-            if beyond > 0 and negative == 0 and above >= RUN_BEYOND:
+        if known and self._held == RUN_SAMPLES - 1 and 2 * ((total >> 20) & _FIELD) >= RUN_SAMPLES:
+            if w > sigma and not total & _FIELD and (total >> 15) & _FIELD >= RUN_BEYOND:
                 direction = 1
-            elif beyond < 0 and positive == 0 and below >= RUN_BEYOND:
+            elif w < -sigma and not (total >> 5) & _FIELD and (total >> 10) & _FIELD >= RUN_BEYOND:
                 direction = -1
-        self._flags.append((sign, beyond, within))
-        if len(self._flags) == RUN_SAMPLES:
-            old_sign, old_beyond, old_within = self._flags.popleft()
-            negative -= old_sign < 0
-            positive -= old_sign > 0
-            below -= old_beyond < 0
-            above -= old_beyond > 0
-            slow -= old_within
-        self._counts = [negative, positive, below, above, slow]
+        i = self._next
+        self._total = total - self._ring[i]  # the oldest leaves (0 while the ring fills)
+        self._ring[i] = code
+        self._next = i + 1 if i < RUN_SAMPLES - 2 else 0
+        if self._held < RUN_SAMPLES - 1:
+            self._held += 1
         return direction
 
     def take_over(self, previous: DirectionRun) -> None:
         """Go on from ``previous``'s readings (a parameter change at run time)."""
-        self._hold(list(previous._flags))
+        self._hold(previous._codes())
