@@ -20,7 +20,7 @@ from ..core.modelparams import MODEL_PARAMETERS, fitted_parameters
 from ..core.model import rotation_sign
 from .noise import Repeatability, difference_variance, reading_noise, repeatability
 from .nuisance import nuisance_columns
-from .grouping import cells, dwells, places
+from .grouping import OperatingGroups, cells, dwells, operating_groups
 from .samples import SampleData
 
 #: an effect that needs the oil temperature is testable when it varies by at least this much
@@ -89,11 +89,16 @@ class Blocks:
     source_index: np.ndarray | None = None
     sign_width_rad_s: float = 0.0  # the smooth sign's width: 3 of it beyond standstill the direction is known
     repeat: Repeatability | None = None  # the scatter of a block mean at one operating point (δ)
-    #: each block's operating point across recordings (:func:`places`): where two stretches can be compared
+    #: each block's operating point across recordings (:func:`~.grouping.operating_groups`): where two
+    #: stretches can be compared
     place: np.ndarray | None = None
+    #: the operating points held out together, the folds, the runs' steadiness (:mod:`.grouping`)
+    groups: OperatingGroups | None = None
     full_count: float = 1.0  # samples in a whole block (a transient's parts hold fewer)
     untestable: dict[str, str] = field(default_factory=dict)  # candidate -> why this data cannot test it
-    #: the rig's nuisances' columns (:mod:`.nuisance`: a channel's lag, the inertia), always in the fit
+    load_rule: str = ""  # why a law in the load cannot be tested here ('' where it can: :func:`load_rule`)
+    #: the rig's nuisances' columns (:mod:`.nuisance`: a channel's lag, the inertia), always in the fit --
+    #: where a run holds a transient (:attr:`~.grouping.OperatingGroups.transients`), else none
     nuisance: dict[str, np.ndarray] = field(default_factory=dict)
     _distinct: tuple | None = field(default=None, repr=False)  # distinct temperatures, inverse index
     _runs: _DirectionRuns | None = field(default=None, repr=False)  # runs of one direction (memory), once
@@ -334,16 +339,21 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     aw, at = np.abs(d.speed), np.abs(d.torque)
     spd, trq = mean(d.speed), mean(d.torque)
     temp = mean(np.nan_to_num(d.temperature, nan=np.nan))
-    dwell, fold = dwells(d, spd, trq, start, block_s, folds, t)
     if like is not None:
-        dwell, fold = like.dwell, like.fold
+        dwell, groups = like.dwell, like.groups
+    else:
+        dwell, _fold = dwells(d, spd, trq, start, block_s, folds, t)
+        groups = operating_groups(d, start, count, dwell, folds)
+    fold = groups.fold
     weight, inflation, repeat = _block_weights(d, start, count, brk, dwell, mean(d.measured_loss),
                                                _full_block(t, block_s))
     theta = d.temperature
     untestable = {n: r for n, r in testability(d).items() if r}
     testable = tuple(n for n in EFFECTS if n not in untestable)
     columns: dict[str, np.ndarray] = {}
-    nuisance = {name: mean(col) for name, col in nuisance_columns(d, sg).items()}
+    # a lag or an inertia shows only where a run's operating point moves: steady runs, and the pauses
+    # between them, carry none (their readings' noise would be fitted as one)
+    nuisance = {name: mean(col) for name, col in nuisance_columns(d, sg).items()} if groups.transients else {}
     x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
     blocks = Blocks(
         start,
@@ -372,9 +382,11 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
         sign_width_rad_s=d.sign_width_rad_s,
     )
     blocks.repeat = repeat
-    blocks.place = places(d, start, count)
+    blocks.place = groups.place
+    blocks.groups = groups
     blocks.full_count = _full_block(t, block_s)
     blocks.untestable = untestable
+    blocks.load_rule = load_rule(d)
     blocks.nuisance = nuisance
     _add_columns(blocks, d, mean)
     return blocks
@@ -395,7 +407,7 @@ def testability(d: SampleData) -> dict[str, str]:
     reverses = not d.steady_state and _reverses(d.speed, d.bag_id, 3.0 * d.sign_width_rad_s)
     regenerating = float(np.mean(d.torque * d.speed < 0)) if len(d.speed) else 0.0
     directions = min(float(np.mean(d.speed > 0)), float(np.mean(d.speed < 0))) if len(d.speed) else 0.0
-    one_load = "" if d.spin_test else _one_load(d.load_torque, d.steady_state)
+    one_load = load_rule(d)
     why = {}
     for n, e in EFFECTS.items():
         reason = ""
@@ -426,6 +438,14 @@ def testability(d: SampleData) -> dict[str, str]:
     return why
 
 
+def load_rule(d: SampleData) -> str:
+    """Why this data cannot test a law in the load ('' where it can; a spin test says so apart): one load
+    (:func:`_one_load`), or a load that varies with the speed only (:func:`_load_follows_speed`)."""
+    if d.spin_test:
+        return ""
+    return _one_load(d.load_torque, d.steady_state) or _load_follows_speed(d)
+
+
 def _one_load(load_torque: np.ndarray | None, rows: bool = False) -> str:
     """Why the data hold one load only ('' where the output torque varies; ``load_torque``:
     :attr:`~.samples.SampleData.load_torque`): then a law in the load cannot be told from a constant
@@ -445,6 +465,48 @@ def _one_load(load_torque: np.ndarray | None, rows: bool = False) -> str:
     unit = "rows" if rows else "samples"
     return (f"one load ({what} stays at {median:.4g} N·m, 90 % of the {unit} within "
             f"{high - low:.2g} N·m): a load-dependent law cannot be told from a constant drag")
+
+
+#: the load varies at a fixed speed where, in a speed bin (10 %), its 10-90 % spread reaches this share of the
+#: drive torque there ...
+LOAD_SPREAD_AT_SPEED = 0.1
+#: ... in at least this share of the samples (else a law in the load is a law in the speed)
+LOAD_VARIES_SHARE = 0.2
+
+
+def _load_follows_speed(d: SampleData) -> str:
+    """Why a law in the load cannot be told from one in the speed ('' where it can): the load (the output
+    torque referred to the input; a table row's ``T_in − L·sgn ω``) must vary at a fixed speed -- by
+    :data:`LOAD_SPREAD_AT_SPEED` of the drive torque within a 10 % speed bin, in
+    :data:`LOAD_VARIES_SHARE` of the samples.  A test plan whose every speed has one load (a payload, a
+    torque sensor's small constant reading while the drive torque rises with the friction) cannot: the drive
+    torque's rise there is the loss itself, and a load law in it explains the loss by the loss."""
+    load = d.load_torque
+    if load is None or not len(load):
+        return ""
+    if d.steady_state:
+        load_in = np.abs(load)
+    else:
+        ratio = d.speed_ratio if d.speed_ratio and d.speed_ratio > 0 else 1.0
+        w_out = d.speed / ratio if d.out_speed is None else np.where(np.isnan(d.out_speed), d.speed / ratio,
+                                                                         d.out_speed)
+        load_in = np.abs(np.nan_to_num(load) * w_out / np.maximum(np.abs(d.speed), 1e-300))
+    drive = np.abs(d.torque)
+    speed_bin = np.floor(np.log(np.maximum(np.abs(d.speed), 1e-12)) / np.log1p(0.1))
+    _u, inv = np.unique(speed_bin, return_inverse=True)
+    varies = np.zeros(len(load_in), bool)
+    for k in range(len(_u)):
+        mine = inv == k
+        if np.count_nonzero(mine) < 2:
+            continue
+        lo, hi = np.percentile(load_in[mine], [10.0, 90.0])
+        varies[mine] = hi - lo >= LOAD_SPREAD_AT_SPEED * float(np.median(drive[mine]))
+    if float(np.mean(varies)) >= LOAD_VARIES_SHARE:
+        return ""
+    unit = "rows" if d.steady_state else "samples"
+    return (f"the load varies with the speed only (at a fixed speed it stays within {100 * LOAD_SPREAD_AT_SPEED:g} % "
+            f"of the drive torque in {100 * (1 - float(np.mean(varies))):.0f} % of the {unit}): a law in the load "
+            "cannot be told from one in the speed -- it needs two or more loads at one speed")
 
 
 def _add_columns(blocks: Blocks, d: SampleData, mean) -> None:
@@ -472,6 +534,9 @@ def _add_columns(blocks: Blocks, d: SampleData, mean) -> None:
             blocks.untestable[key] = "the paper's model is switched off (estimator.paper_model: false)"
         elif not np.any(part != 0):
             blocks.untestable[key] = f"the model's {MODEL_PARAMETERS[key].part} part is 0 on this data"
+        elif MODEL_PARAMETERS[key].depends_on_load and blocks.load_rule:
+            blocks.untestable[key] = (f"its part ({MODEL_PARAMETERS[key].part}) scales with the load, and "
+                                      f"{blocks.load_rule}")
         else:
             blocks.columns[key] = mean(part)
             blocks.testable += (key,)

@@ -47,6 +47,8 @@ from .samples import SampleData, file_residual, load_samples
 from ..core.lagalign import LAG_CHANNELS
 from ..core.modelform import ModelForm
 from .segments import differing_recording, find_changes, in_time_order
+from .handfit import hand_fit, weigh
+from .drift import find_drift
 from .jointfit import fitted_covariance
 from .leastsquares import Fit
 from .selection import Calibrator, ErrorStats, Term, error_stats, members
@@ -110,7 +112,8 @@ def calibrate(data: SampleData, config: Config,
         result.stretch = window or "every sample"
         return result
     stage("changes inside the recordings")
-    odd = differing_recording(result.calibrator, result.terms)
+    apart: list[str] = []
+    odd = differing_recording(result.calibrator, result.terms, apart)
     if odd is not None:
         raise UsageError(
             f"recording {data.given_index(odd.bag) + 1} of those given differs from the others where their operating "
@@ -118,13 +121,16 @@ def calibrate(data: SampleData, config: Config,
             f"of its own; it changes the loss by {odd.rms_change_nm:.3g} N·m RMS): a change or another gearbox, and "
             "the recordings' times overlap, so which came later is not known -- calibrate them apart, give them "
             "times that put them one after another, or --segments off to fit them as one")
-    splits = find_changes(result.calibrator, result.terms)
+    confounded: list[str] = []
+    splits = find_changes(result.calibrator, result.terms, confounded)
     if not splits:
         result.stretch = window or ("every sample (no change found inside the recordings)"
                                     if in_time_order(result.calibrator.b) else
                                     "every sample (the recordings' times overlap: no order in time to search "
                                     "for a change in)")
+        result.notes.extend(apart if odd is None and not in_time_order(result.calibrator.b) else confounded)
         return result
+    drift = find_drift(result.calibrator, result.terms, splits)
     blocks = result.calibrator.b
     cuts = [int(blocks.start[sp.block]) for sp in splits]  # the first sample after each change
     changes = [Change(int(data.t_ns[i]), sp.t_s, sp.ci95_s, sp.rms_change_nm, sp.heldout_one_nm, sp.heldout_two_nm,
@@ -147,7 +153,17 @@ def calibrate(data: SampleData, config: Config,
     end_s = float(blocks.t_s[-1] - blocks.t_s[0]) if len(np.unique(data.bag_id)) == 1 else math.nan
     if settings.segments == "each":
         summaries.append(segment_summary(final, start_s[-1], end_s))
-    final.changes, final.segments = changes, summaries
+    final.segments = summaries
+    final.notes.extend(confounded)
+    if drift is not None:  # no steps: the latest stretch's conditions, said
+        final.drift = drift
+        final.stretch = (f"the latest stretch, {len(latest.t_ns):,} samples from {changes[-1].t_s:.1f} s, after a "
+                         f"drift of {drift.total_nm:+.3g} N·m over {drift.end_s - drift.start_s:.0f} s (following "
+                         f"{drift.follows})" + (f" ({window})" if window else ""))
+        final.config = describing(final.config, final.stretch)
+        final.notes.insert(0, drift.sentence(changes[-1].t_s))
+        return final
+    final.changes = changes
     when = ", ".join(c.when() for c in changes)
     final.stretch = (f"the latest stretch, {len(latest.t_ns):,} samples after the change at {changes[-1].when()}"
                      + (f" ({window})" if window else ""))
@@ -308,6 +324,8 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
     blocks, cal, ranges = _calibrator(data, config, how)
     start = _file_terms(cal, config)
     out = select(cal, start, how.assume, _value_check(config, ranges))
+    # the engineer's least-squares line on the same folds: the written file is never worse than it
+    hand = weigh(cal, out, hand_fit(cal, _value_check(config, ranges)))
     selected: list[Term] = out.selected
     final = selected + out.provisional
     blocks0, data_c = blocks, data
@@ -388,6 +406,8 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
     result.decisions, result.minimum, result.untestable = out.decisions, cal.minimum, out.untestable
     result.lags, result.inertia = _nuisances(cal, full, data, applied or {})
     result.from_file = [t.name for t in start]
+    result.hand_fit = hand
+    result.groups = _heldout_groups(blocks, err_a)
     result.calibrator, result.terms = cal, final
     return result
 
@@ -641,13 +661,45 @@ def _flat(config: Config) -> dict:
     return config.to_flat()
 
 
+def _heldout_groups(blocks: Blocks, err: np.ndarray) -> list[dict]:
+    """The held-out error of each operating-point group (:mod:`.grouping`), the worst first."""
+    groups = blocks.groups
+    if groups is None or not len(err):
+        return []
+    out = []
+    for g, label in enumerate(groups.labels):
+        k = groups.group == g
+        n = float(np.sum(blocks.count[k]))
+        if n <= 0:
+            continue
+        rmse = float(np.sqrt(np.average(err[k] ** 2, weights=blocks.count[k])))
+        out.append({"operating_point": label, "samples": int(n), "blocks": int(np.count_nonzero(k)),
+                    "heldout_rmse_nm": rmse, "heldout_mean_nm": float(np.average(err[k], weights=blocks.count[k]))})
+    return sorted(out, key=lambda r: -r["heldout_rmse_nm"])
+
+
 def _holdout_text(blocks: Blocks, folds: int) -> str:
+    groups = blocks.groups
+    if groups is not None and groups.by_operating_point:
+        what = "rows of the steady-state table(s), each its own operating point" if blocks.steady_state else (
+            f"{len(groups.labels)} operating points (direction, speed and load in 10 % bins"
+            + (", oil temperature" if any("oil" in x for x in groups.labels) else "")
+            + f"; a run that holds one is one, {100 * groups.steady_share:.0f} % of the samples in such runs)")
+        return (f"{folds}-fold cross-validation over {what}: every fold holds out whole operating points, both "
+                "directions of a speed together, spread over the speeds and loads, so each is predicted by a fit "
+                f"that saw the others but never it; errors are of the {blocks.block_s:g} s block means "
+                f"({len(blocks.y)} blocks)" if not blocks.steady_state else
+                f"{folds}-fold cross-validation over {what}: every fold holds out whole operating points, spread over "
+                f"the speeds and loads; errors are of the rows' losses predicted by a fit that did not see them "
+                f"({len(blocks.y)} rows; no sensor noise model: a table's rows are taken as exact means)")
     if blocks.steady_state:
         return (f"{folds}-fold cross-validation over the rows of the steady-state table(s) (each row a dwell mean, "
                 f"weighted equally; fold k holds every {folds}th row, so every fold spans the map); errors are of the "
                 f"rows' losses predicted by a fit that did not see them ({len(blocks.y)} rows; no sensor noise model: "
                 "a table's rows are taken as exact means)")
-    return (f"{folds}-fold cross-validation grouped by dwell ({int(blocks.dwell.max()) + 1} dwells of steady "
+    few = (f"only {len(groups.labels)} operating point(s), fewer than the folds: held out by time within them "
+           "(the fit is judged where it was fitted); " if groups is not None else "")
+    return few + (f"{folds}-fold cross-validation grouped by dwell ({int(blocks.dwell.max()) + 1} dwells of steady "
             f"operation, at most 5 s each, a transient cut into shorter blocks; whole dwells held out, never single "
             f"rows); errors are of {blocks.block_s:g} s block means of every held-out block, predicted by a fit that "
             f"did not see its fold ({len(blocks.y)} blocks)")

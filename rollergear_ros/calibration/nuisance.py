@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..core.model import rotation_sign
+from .grouping import pauses
 from .samples import SampleData
 
 __all__ = ["ChannelLag", "apply_lags", "lag_channel", "nuisance_columns", "shift"]
@@ -146,13 +147,17 @@ def _output_speed(d: SampleData) -> np.ndarray:
 
 
 def _derivative(d: SampleData, t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """dx/dt within each recording (np.gradient over time)."""
+    """dx/dt within each run of each recording (np.gradient over time; never across a pause,
+    :func:`~.grouping.pauses`: nothing is known of the motion there)."""
     out = np.zeros(len(t))
     for b in np.unique(d.bag_id):
         idx = np.flatnonzero(d.bag_id == b)
-        if len(idx) > 2:
-            tt = t[idx] + 1e-12 * np.arange(len(idx))
-            out[idx] = np.gradient(x[idx], tt)
+        cuts = pauses(t[idx])
+        for lo, hi in zip(cuts[:-1], cuts[1:]):
+            run = idx[lo:hi]
+            if len(run) > 2:
+                tt = t[run] + 1e-12 * np.arange(len(run))
+                out[run] = np.gradient(x[run], tt)
     return out
 
 

@@ -141,6 +141,11 @@ class CalibrationResult:
     stretch: str = ""  #: which samples were fitted (all; the latest stretch after a change; a window)
     untestable: dict[str, str] = field(default_factory=dict)  #: candidate -> why the data cannot test it
     segments: list[dict] = field(default_factory=list)  #: each stretch's own result (``--segments``)
+    #: the least-squares line weighed against the selection (:mod:`.handfit`): its error, whether it was written
+    hand_fit: dict | None = None
+    #: the held-out error of what the file writes at each operating point (:mod:`.grouping`), the worst first
+    groups: list[dict] = field(default_factory=list)
+    drift: object | None = None  #: a loss that moved one way in time (:class:`~.drift.Drift`), not steps
     #: the analysis's fits and its final terms (what the search for changes fits on each side)
     calibrator: object | None = field(default=None, repr=False)
     terms: list = field(default_factory=list, repr=False)
@@ -166,8 +171,11 @@ class CalibrationResult:
                           "speed_noise": self.speed_noise},
             "from_file": self.from_file,
             "changes": [c.to_json() for c in self.changes],
+            "drift": _json_safe(self.drift.to_json()) if self.drift is not None else None,
             "stretch": self.stretch,
             "segments": self.segments,
+            "hand_fit": _json_safe(self.hand_fit),
+            "heldout_by_operating_point": _json_safe(self.groups),
             "sample_level_errors": {k: v.to_json() for k, v in self.sample_level.items()},
             "adequacy": self.adequacy.to_json() if self.adequacy else None,
             "written": self.written,

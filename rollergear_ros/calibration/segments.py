@@ -35,11 +35,14 @@ from .leastsquares import orthonormal_basis, wls
 from .selection import Calibrator, Term, members
 from ..core.effects import EFFECTS, viscosity_law
 
-__all__ = ["Outlier", "Split", "differing_recording", "find_changes", "in_time_order"]
+__all__ = ["Outlier", "Split", "differing_recording", "find_changes", "in_time_order", "running_time",
+           "small_design"]
 
 MIN_STRETCH_S = 20.0  #: a stretch between changes is at least this long ...
 MIN_STRETCH_SHARE = 0.1  #: ... and holds at least this share of the blocks searched
 MAX_CHANGES = 4
+#: each side of a change holds at least this share of its samples at operating points the other side visits
+MIN_SHARED_SHARE = 0.2
 CHANGE_ALPHA = 1e-4  #: the Wald test of a change (strict: the split is the best of many)
 
 
@@ -54,15 +57,17 @@ class Split:
     heldout_one_nm: float
     heldout_two_nm: float
     between_recordings: bool = False  #: at the start of a recording
+    shift_nm: float = 0.0  #: the loss after it minus before, at the operating points both sides visit
 
 
-def find_changes(cal: Calibrator, terms: list[Term]) -> list[Split]:
+def find_changes(cal: Calibrator, terms: list[Term], said: list[str] | None = None) -> list[Split]:
     """The changes in ``cal``'s blocks (the recordings one after another, in their own order:
-    :func:`~.samples.recording_key`, first stamp first), the latest last."""
+    :func:`~.samples.recording_key`, first stamp first), the latest last; ``said``: gets a sentence for a
+    split that fits better but shares too few operating points with the rest to be told from them."""
     b = cal.b
     if b.steady_state or b.t_s is None or len(b.y) < 8 * cal_folds(cal) or not in_time_order(b):
         return []
-    t = _running_time(b)
+    t = running_time(b)
     # each design as an orthonormal basis of its columns: the same fits, tests and splits, computed at
     # the basis's condition (1), not the design's (~1e9 with a drag per rad/s beside a level)
     x = orthonormal_basis(_design(cal, terms, flexible=True), b.weight)
@@ -71,8 +76,8 @@ def find_changes(cal: Calibrator, terms: list[Term]) -> list[Split]:
     lo = 0
     while len(changes) < MAX_CHANGES:
         # between two recordings first (one may be another gearbox, or the same one days later), then within
-        split = _best_split(cal, x, small, t, lo, len(b.y), boundaries=True) or \
-            _best_split(cal, x, small, t, lo, len(b.y))
+        split = _best_split(cal, x, small, t, lo, len(b.y), boundaries=True, said=said) or \
+            _best_split(cal, x, small, t, lo, len(b.y), said=said)
         if split is None:
             break
         changes.append(split)
@@ -80,7 +85,7 @@ def find_changes(cal: Calibrator, terms: list[Term]) -> list[Split]:
     return changes
 
 
-def _running_time(b) -> np.ndarray:
+def running_time(b) -> np.ndarray:
     """Each block's time [s] on one clock: the recordings one after another in their own order
     (:func:`~.samples.recording_key`), each from where the one before ended."""
     t = b.t_s[b.start].astype(float)
@@ -104,7 +109,7 @@ class Outlier:
     heldout_two_nm: float
 
 
-def differing_recording(cal: Calibrator, terms: list[Term]) -> Outlier | None:
+def differing_recording(cal: Calibrator, terms: list[Term], said: list[str] | None = None) -> Outlier | None:
     """Of recordings whose times overlap, the one that differs most from the others by the test of a
     change (see the module docstring: the held-out gain of a fit of its own, what it changes at the
     operating points it shares with the others beyond δ, a Wald test), or None: they can be fitted as
@@ -117,9 +122,15 @@ def differing_recording(cal: Calibrator, terms: list[Term]) -> Outlier | None:
     bag = b.bag_id[b.start]
     found = []
     for k in np.unique(bag).tolist():
-        tested = _change(cal, x, small, 0, bag == k)
+        why: list[float] = []
+        tested = _change(cal, x, small, 0, bag == k, why)
+        if why and said is not None and not said:
+            said.append(f"the recordings' times overlap, and one of them shares {100 * why[0]:.0f} % of its samples' "
+                        f"operating points with the others (needs {100 * MIN_SHARED_SHARE:g} %): whether they are one "
+                        "gearbox cannot be told from the operating point -- they are analysed as one (calibrate them "
+                        "apart if they are not)")
         if tested is not None:
-            one, two, rms_change = tested
+            one, two, rms_change, _shift = tested
             found.append((one - two, -k, Outlier(int(k), rms_change, one, two)))
     return max(found, key=lambda f: f[:2])[2] if found else None
 
@@ -137,6 +148,11 @@ def in_time_order(b) -> bool:
 
 def cal_folds(cal: Calibrator) -> int:
     return int(cal.b.fold.max()) + 1 if len(cal.b.fold) else 1
+
+
+def small_design(cal: Calibrator, terms: list[Term]) -> np.ndarray:
+    """The accepted terms' columns with a level and a direction-dependent level (one fit across a change)."""
+    return _design(cal, terms, flexible=False)
 
 
 def _design(cal: Calibrator, terms: list[Term], flexible: bool) -> np.ndarray:
@@ -182,7 +198,7 @@ def _default_law(name: str) -> tuple[float, float, float] | None:
 
 
 def _best_split(cal: Calibrator, x: np.ndarray, small: np.ndarray, t: np.ndarray, lo: int, hi: int,
-                boundaries: bool = False) -> Split | None:
+                boundaries: bool = False, said: list[str] | None = None) -> Split | None:
     """The best split of blocks ``[lo, hi)`` if it is a change (see the module docstring): found and
     tested with the flexible design ``x``, held out with the ``small`` one (a flexible design fitted
     on part of a stretch extrapolates to its held-out dwells); ``boundaries``: only between recordings."""
@@ -214,33 +230,48 @@ def _best_split(cal: Calibrator, x: np.ndarray, small: np.ndarray, t: np.ndarray
     best = float(np.nanmin(total))
     j = int(np.flatnonzero(total <= best + TIE * abs(best))[0])
     split = int(cand[j])
-    tested = _change(cal, xs, small[lo:hi], lo, np.arange(n) >= split)
+    why: list[float] = []
+    tested = _change(cal, xs, small[lo:hi], lo, np.arange(n) >= split, why)
     if tested is None:
+        text = (f"the residual's best split in time, at {float(tt[split]):.1f} s, falls between stretches that share "
+                f"{100 * why[0]:.0f} % of their samples' operating points (needs {100 * MIN_SHARED_SHARE:g} % on "
+                "each side): a change there cannot be told from the operating point -- no change is claimed, every "
+                "sample is analysed at once (a repeated operating point after the suspected change would tell)"
+                if why else "")
+        if text and said is not None and text not in said:
+            said.append(text)
         return None
-    one, two, rms_change = tested
+    one, two, rms_change, shift = tested
     dof = max(n - 2 * k, 1)
     sigma2 = max(float(total[j]) / dof, 1e-300)
     near = cand[np.isfinite(total) & (total <= total[j] + 3.84 * sigma2)]
     ci = (float(tt[near.min()]), float(tt[near.max()]))
-    return Split(lo + split, float(tt[split]), ci, rms_change, one, two, bool(bag[split] != bag[split - 1]))
+    return Split(lo + split, float(tt[split]), ci, rms_change, one, two, bool(bag[split] != bag[split - 1]), shift)
 
 
-def _change(cal: Calibrator, xs: np.ndarray, small: np.ndarray, lo: int, later: np.ndarray
-            ) -> tuple[float, float, float] | None:
+def _change(cal: Calibrator, xs: np.ndarray, small: np.ndarray, lo: int, later: np.ndarray,
+            why: list[float] | None = None) -> tuple[float, float, float, float] | None:
     """Whether the blocks ``later`` (a mask over the stretch from block ``lo``) differ from the others
     (see the module docstring): their held-out RMSE with one fit and with a fit on each side, and what
-    the change changes; None when it is no change."""
+    the change changes; None when it is no change (``why``: gets the smaller side's share of samples at
+    shared operating points where that is too few for the two sides to be compared).
+
+    Only the operating points both sides visit can tell a change from the operating point (elsewhere a
+    side's fit extrapolates: a difference there is the law's shape): each side holds at least
+    :data:`MIN_SHARED_SHARE` of its samples at them, and the held-out comparison is made there."""
     b = cal.b
     n = len(later)
     y, w = b.y[lo:lo + n], b.weight[lo:lo + n]
-    one = _cv_rmse(cal, small, y, w, lo, None)
-    two = _cv_rmse(cal, small, y, w, lo, later)
-    if not (one > 0 and (one - two) / one > cal.min_improvement):
-        return None
-    # what the change changes: the fits on each side against one across, at the operating points both
-    # sides visit (elsewhere a side's fit extrapolates: a difference there is the law's shape, not a change)
     shared = _shared_places(b.place[lo:lo + n], later) if b.place is not None else np.ones(n, bool)
-    if not shared.any():
+    count = b.count[lo:lo + n]
+    shares = [float(np.sum(count[side & shared]) / max(np.sum(count[side]), 1.0)) for side in (~later, later)]
+    if min(shares) < MIN_SHARED_SHARE:
+        if why is not None:
+            why.append(min(shares))
+        return None
+    one = _cv_rmse(cal, small, y, w, lo, None, shared)
+    two = _cv_rmse(cal, small, y, w, lo, later, shared)
+    if not (one > 0 and (one - two) / one > cal.min_improvement):
         return None
     one_fit = xs @ wls(xs, y, w).coef
     two_fits = np.empty(n)
@@ -250,7 +281,10 @@ def _change(cal: Calibrator, xs: np.ndarray, small: np.ndarray, lo: int, later: 
     rms_change = float(np.sqrt(np.average(diff * diff, weights=b.count[lo:lo + n][shared])))
     if rms_change <= cal.delta or not _significant(xs, y, w, b.dwell[lo:lo + n], later):
         return None
-    return one, two, rms_change
+    # the signed shift: the later side's fit against the earlier one's, at the operating points both visit
+    before_fit, after_fit = (wls(xs[side], y[side], w[side]).coef for side in (~later, later))
+    shift = float(np.average(xs[shared] @ (after_fit - before_fit), weights=b.count[lo:lo + n][shared]))
+    return one, two, rms_change, shift
 
 
 def _shared_places(place: np.ndarray, later: np.ndarray) -> np.ndarray:
@@ -275,9 +309,9 @@ def _sse(a: np.ndarray, v: np.ndarray, s: np.ndarray) -> np.ndarray:
 
 
 def _cv_rmse(cal: Calibrator, x: np.ndarray, y: np.ndarray, w: np.ndarray, lo: int,
-             later: np.ndarray | None) -> float:
-    """Held-out RMSE (folds by dwell) of one fit over the blocks, or of one fit on each side (``later``
-    and the others)."""
+             later: np.ndarray | None, judged: np.ndarray | None = None) -> float:
+    """Held-out RMSE (the analysis' folds: whole operating points) of one fit over the blocks, or of one
+    fit on each side (``later`` and the others), over the blocks ``judged`` (None: all)."""
     fold = cal.b.fold[lo:lo + len(y)]
     count = cal.b.count[lo:lo + len(y)]
     pred = np.zeros(len(y))
@@ -291,6 +325,8 @@ def _cv_rmse(cal: Calibrator, x: np.ndarray, y: np.ndarray, w: np.ndarray, lo: i
             coef = wls(x[train], y[train], w[train]).coef
             pred[test] = x[test] @ coef
     e = y - pred
+    if judged is not None:
+        e, count = e[judged], count[judged]
     return float(np.sqrt(np.average(e * e, weights=count)))
 
 

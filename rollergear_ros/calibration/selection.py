@@ -80,6 +80,7 @@ class Term:
     member: float | None = None  # p, q or B
     second: float | None = None  # Vogel C (None: the registry's default)
     law: tuple[float, float, float] | None = None  # the oil's Vogel B, C, θ_ref (an effect that follows the oil)
+    fixed: bool = False  # the member held (the law's line, :attr:`~core.effects.Effect.linear`), not profiled
 
     def params(self, coef: float) -> dict[str, float]:
         """The effect's parameters (short names, registry order): the fitted coefficient, the
@@ -250,6 +251,11 @@ class Calibrator:
         e = self.b.y - self.cv_predictions(terms)
         return float(np.sqrt(np.average(e * e, weights=self.b.count)))
 
+    def cv_rmse_points(self, terms: Sequence[Term], written: int | None = None) -> float:
+        """The held-out error at each operating point (:func:`operating_point_rmse`) of a set's fit, or of
+        its first ``written`` terms alone (what a file of them predicts)."""
+        return operating_point_rmse(self.b, self.b.y - self.cv_predictions(terms, only_terms=written))
+
     def noise_rms(self) -> float:
         """The RMS noise of the block means (:func:`.structure.block_noise`)."""
         from .structure import block_noise
@@ -358,7 +364,7 @@ class Calibrator:
         for _ in range(passes):
             changed = False
             for i, t in enumerate(terms):
-                if t.member is None:
+                if t.member is None or t.fixed:
                     continue
                 effect = EFFECTS[t.name]
                 best = self._best_pair(terms, i) if effect.second_member else self._best_member(terms, i)[1]
@@ -394,7 +400,25 @@ class Calibrator:
         if name in self.starts:  # a known start (a data sheet): refined from there within its bounds
             return self.optimise(base + [self._with_member(cands[0], *self.starts[name])])
         scores = [self.wsse(base + [c]) for c in cands]
-        return self.optimise(base + [cands[int(np.argmin(scores))]])
+        curved = self.optimise(base + [cands[int(np.argmin(scores))]])
+        return self._line_unless_curve_predicts(name, base, curved)
+
+    def _line_unless_curve_predicts(self, name: str, base: list[Term], curved: list[Term]) -> list[Term]:
+        """The law as a line (its :attr:`~core.effects.Effect.linear` member, held) unless the curve found
+        predicts held-out operating points better by more than :attr:`min_improvement` and is a law within
+        the vocabulary (its member not stopped at its search's bound): curvature enters only where the
+        data between the operating points fitted ask for it."""
+        linear = EFFECTS[name].linear
+        if linear is None:
+            return curved
+        t = self._with_member(members(self.b, name)[0], linear)
+        line = self.optimise(base + [Term(t.name, t.column, t.member, t.second, t.law, fixed=True)])
+        lo, hi = self.search_ranges(name)[EFFECTS[name].member]
+        member = curved[-1].member
+        at_bound = min(abs(member - lo), abs(member - hi)) <= 1e-3 * (hi - lo)
+        if at_bound or self.cv_rmse_points(curved) >= (1.0 - self.min_improvement) * self.cv_rmse_points(line):
+            return line
+        return curved
 
     def member_range(self, terms: list[Term], i: int, second: bool = False) -> list[float]:
         """Profile-likelihood 95 % range of term i's exponent (the others held at their optimum); of
@@ -403,6 +427,8 @@ class Calibrator:
         from scipy.optimize import brentq, minimize_scalar
 
         t = terms[i]
+        if t.fixed:  # held at its line: no range of its own
+            return [float(t.second if second else t.member)] * 2
         effect = EFFECTS[t.name]
         pair = effect.second_member is not None
         w0 = self.wsse_held(terms, i) if effect.profile_coefficient is not None else self.wsse(terms)
@@ -585,6 +611,18 @@ IDENTITY_SHARE = 0.1
 #: set is not fixed by the data (:meth:`Calibrator.level_unfixed`): not known within two orders of
 #: magnitude, the data hold its tail
 LEVEL_SPAN = 100.0
+
+
+def operating_point_rmse(blocks: Blocks, err: np.ndarray) -> float:
+    """The RMS over operating-point groups (:mod:`.grouping`) of ``err``'s mean in each (block errors weighed by
+    samples; each group by its samples): the map's error at each operating point, a block's noise averaged
+    out as over a steady run."""
+    groups = blocks.groups
+    if groups is None:
+        return float(np.sqrt(np.average(err * err, weights=blocks.count)))
+    n = np.bincount(groups.group, weights=blocks.count)
+    mean = np.bincount(groups.group, weights=blocks.count * err) / np.where(n > 0, n, 1.0)
+    return float(np.sqrt(np.average(mean * mean, weights=n)))
 
 
 def error_stats(err: np.ndarray, measured: np.ndarray, count: np.ndarray) -> ErrorStats:

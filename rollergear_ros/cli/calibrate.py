@@ -161,6 +161,16 @@ def _print_result(result) -> None:
     if result.from_file:
         print(f"before: the parameter file as given (its {', '.join(result.from_file)}, not refitted)")
     print(f"held out: {result.holdout}")
+    if result.groups:
+        worst = result.groups[0]
+        print(f"worst held-out operating point: {worst['operating_point']} ({worst['heldout_rmse_nm']:.4g} N·m RMS "
+              f"over {worst['samples']:,} samples, mean {worst['heldout_mean_nm']:+.4g}); best "
+              f"{result.groups[-1]['heldout_rmse_nm']:.4g} N·m ({len(result.groups)} operating points: --json "
+              "heldout_by_operating_point)")
+    if result.hand_fit:
+        h = result.hand_fit
+        print(f"hand fit: {h['text']} held out {h['heldout_rmse_nm']:.4g} N·m against the selection's "
+              f"{h['selection_heldout_rmse_nm']:.4g}: {'written' if h['written'] else 'not written'} ({h['reason']})")
     if result.minimum:
         print(f"minimum effect size: {result.minimum.text}")
     for line in _nuisance_lines(result):

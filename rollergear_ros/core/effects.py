@@ -338,6 +338,9 @@ class Effect:
     #: the report draws its fitted curve over "speed", "torque", "temperature", "speed_near_zero"
     #: (signed speed, standstill magnified) or "angle_since_reversal" (an effect with memory: per sample)
     plotted_against: str = "speed"
+    #: the member that makes the law a line (p = 1: viscous, linear in the load): the form ``calibrate`` takes
+    #: unless a curved one (the member profiled) predicts held-out operating points better (None: no line)
+    linear: float | None = None
 
     def parameter(self, short: str) -> EffectParameter:
         return next(p for p in self.parameters if p.short == short)
@@ -435,7 +438,7 @@ for _effect in (
            (EffectParameter("c", "c", 0.0, "speed drag coefficient c (N*m/(rad/s)^p)", simulated=2e-4),
             EffectParameter("p", "p", 1.0, "speed drag exponent p", low=0.0, high=4.0, simulated=1.5)),
            coefficient="c", member="p", member_grid=_grid(0.5, 3.0, 0.1), member_bounds=(0.3, 3.5),
-           regressor_scale=lambda params: SPEED_REF_RAD_S ** params["p"],
+           regressor_scale=lambda params: SPEED_REF_RAD_S ** params["p"], linear=1.0,
            separated_from={"viscosity_temperature": "the same speeds at different oil temperatures"}),
     Effect("drag_viscous", drag_viscous, True, "add a churning drag that follows the oil: c*(eta/eta_ref)^a*|w|^p",
            "churning and splash losses of an oil whose viscosity changes with its temperature",
@@ -479,7 +482,7 @@ for _effect in (
             EffectParameter("p", "p", 1.0, "speed exponent p of the difference", low=0.0, high=4.0)),
            coefficient="c", member="p", member_grid=_grid(0.5, 3.0, 0.1), member_bounds=(0.3, 3.5),
            regressor_scale=lambda params: SPEED_REF_RAD_S ** params["p"], signed=True, needs_both_directions=True,
-           alternative_to=("torque_offset",),
+           alternative_to=("torque_offset",), linear=1.0,
            alternative_needs="a standstill zero reading of the torque sensor (the zero error flips the loss by the "
                              "same amount at every speed; a drag that differs by direction grows with speed)",
            separated_from={"drag_speed": "both directions of rotation"}),
@@ -497,7 +500,7 @@ for _effect in (
             EffectParameter("q", "q", 1.0, "back-driving friction exponent q", low=0.0, high=4.0)),
            coefficient="c", member="q", member_grid=_grid(0.5, 2.5, 0.1), member_bounds=(0.3, 3.0),
            regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="torque", depends_on_load=True,
-           needs_regeneration=True, alternative_to=("torque_gain", "load_dependent"),
+           needs_regeneration=True, alternative_to=("torque_gain", "load_dependent"), linear=1.0,
            alternative_needs="a calibration of the torque sensors (a known torque at standstill: a gain error shows "
                              "in it, a friction does not)",
            separated_from={"load_dependent": "motoring and regeneration at the same loads"}),
@@ -506,7 +509,7 @@ for _effect in (
             EffectParameter("q", "q", 1.0, "load friction exponent q", low=0.0, high=4.0)),
            coefficient="c", member="q", member_grid=_grid(0.5, 2.5, 0.1), member_bounds=(0.3, 3.0),
            regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="torque", depends_on_load=True,
-           separated_from={"torque_gain": "regeneration (torque and speed of opposite sign)",
+           linear=1.0, separated_from={"torque_gain": "regeneration (torque and speed of opposite sign)",
                            "viscosity_temperature": "the same torques at different oil temperatures"}),
     Effect("load_speed", load_speed, True, "add a load-speed friction c*|T|*|w|^p",
            "load- and speed-dependent sliding (gear mesh), a loss power proportional to the transmitted power",
@@ -514,6 +517,7 @@ for _effect in (
             EffectParameter("p", "p", 1.0, "load-speed exponent p of |w|", low=0.0, high=4.0)),
            coefficient="c", member="p", member_grid=_grid(0.5, 2.0, 0.1), member_bounds=(0.3, 2.5),
            regressor_scale=lambda params: TORQUE_REF_NM * SPEED_REF_RAD_S ** params["p"], depends_on_load=True,
+           linear=1.0,
            separated_from={"load_dependent": "the same torques at several speeds",
                            "drag_speed": "the same speeds at several torques, including light load",
                            "torque_gain": "regeneration (torque and speed of opposite sign)"}),

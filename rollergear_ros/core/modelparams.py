@@ -52,6 +52,9 @@ class ModelParameter:
     tells_apart: str  #: what in the data tells it from the effects
     same_part_as: str | None = None  #: another parameter of the same part: not fitted apart from it
     exponent: float | None = None  #: factor = value^exponent (a closed-form inverse), None: solved
+    #: its part grows with the load alone (at one load, or a load that follows the speed, it is a constant
+    #: or a speed law: the parameter is then no more than a drag, and not tested)
+    depends_on_load: bool = False
 
     @property
     def name(self) -> str:
@@ -88,13 +91,14 @@ MODEL_PARAMETERS: dict[str, ModelParameter] = {p.key: p for p in (
     ModelParameter("gearbox.eta0_pa_s", "oil viscosity at the reference temperature", "Pa·s", "fr",
                    lambda v: v ** 0.66, 1e-4, 10.0,
                    "the rolling part's shape |ω|^0.66·|T|^0.47 (and, with a varying oil temperature, the "
-                   "viscosity law's level at every temperature)", exponent=0.66),
+                   "viscosity law's level at every temperature)", exponent=0.66, depends_on_load=True),
     ModelParameter("gearbox.mu_m", "local friction coefficient of the curvature torque (eq. 17)", "", "tc",
                    lambda v: v, 0.0, 0.5, "the curvature part's shape |T|^(5/3): load only, steeper than linear",
-                   exponent=1.0),
+                   exponent=1.0, depends_on_load=True),
     ModelParameter("gearbox.Y", "relative pure-rolling point (eq. 17)", "", "tc",
                    lambda v: 1.0 - 5.0 * v ** 3 + 3.0 * v ** 5, 0.0, 0.6,
-                   "nothing apart from mu_m: the curvature part is mu_m·(1 − 5Y³ + 3Y⁵)", same_part_as="gearbox.mu_m"),
+                   "nothing apart from mu_m: the curvature part is mu_m·(1 − 5Y³ + 3Y⁵)", same_part_as="gearbox.mu_m",
+                   depends_on_load=True),
     ModelParameter("gearbox.mu_b", "friction coefficient between balls", "", "tb", lambda v: v, 0.0, 1.0,
                    "nothing apart from drag_constant (a constant); it acts only with a ball force gearbox.Fg_n > 0",
                    exponent=1.0),

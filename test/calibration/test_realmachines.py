@@ -175,11 +175,13 @@ EMPS = REALDATA / "emps"
 @pytest.mark.skipif(not (EMPS / "scripts" / "score_calibration.py").exists(), reason=f"no EMPS benchmark at {EMPS}")
 def test_the_emps_drive_scores_as_the_published_identification(tmp_path):
     """The EMPS ball-screw drive (measured; Janot, Gautier, Brunot 2019), calibrated as a spin test
-    from the shared parameter file with the default settings: by the benchmark's own score the file
-    is within 4.3 % direct and 6.3 % cross-test (published 4.08 / 5.98 %), the force offset within
-    10 % of the published −3.165 N, no Stribeck or Dahl claimed; the friction that differs by
-    direction, named as the other reading of the offset and taken with --assume, reaches the
-    published asymmetric model's cross-test level (5.40 %)."""
+    from the shared parameter file with the default settings: by the benchmark's own score the file is
+    at the published asymmetric identification's figures (3.11 / 5.40 %) or below -- the viscous friction
+    that differs by direction (the authors: the screw's fatigue) taken over the torque offset, its other
+    reading, because it alone leaves the held-out residual at the noise of a block mean; no Stribeck or
+    Dahl claimed; the least-squares line per direction weighed beside it and not written (it predicts
+    held-out operating points worse).  The offset reading taken with --assume stays within the published
+    symmetric model's figures (4.08 / 5.98 %)."""
     conv = EMPS / "converted"
     base = ["calibrate", str(conv / "emps_train.csv"), "--channels", str(conv / "map_spin.yaml"),
             "--params", str(conv / "params.yaml")]
@@ -199,16 +201,15 @@ def test_the_emps_drive_scores_as_the_published_identification(tmp_path):
     (tmp_path / "rg").chmod(0o755)
     result, figures = score([], "default")
     found = effects_of(result)
-    assert figures["direct"] <= 4.3 and figures["cross"] <= 6.3, figures
-    assert found["torque_offset"]["params"]["b"] == pytest.approx(-3.165, rel=0.10)
-    assert "stribeck" not in found and "dahl" not in found
+    assert figures["direct"] <= 3.11 and figures["cross"] <= 5.40, figures
+    assert "drag_direction" in found and "stribeck" not in found and "dahl" not in found, sorted(found)
     [reading] = [a for a in result["ambiguous"] if "drag_direction" in a["effects"]]
-    assert reading["taken"] == "torque_offset"
-    better = [r for r in reading["readings"] if "drag_direction" in r["effects"]][0]
-    assert better["heldout_rmse_nm"] < result["error_after"]["rmse_nm"]  # said: the data favour it
-    _direction, figures_dir = score(["--assume", "drag_direction"], "direction")
-    assert figures_dir["cross"] <= 5.4, figures_dir
-    np.testing.assert_array_less([figures_dir["direct"]], [figures["direct"]])
+    assert reading["taken"] == "drag_direction", reading
+    hand = result["hand_fit"]
+    assert not hand["written"] and hand["heldout_rmse_nm"] > hand["selection_heldout_rmse_nm"], hand
+    offset, figures_offset = score(["--assume", "torque_offset"], "offset")
+    assert "torque_offset" in effects_of(offset)
+    assert figures_offset["direct"] <= 4.08 and figures_offset["cross"] <= 5.98, figures_offset
 
 
 def _multirate_rig_mcap(path, rig: Rig, seed: int = 0, duration_s: float = 44.0):
@@ -295,8 +296,8 @@ def test_one_constant_load_is_no_load_friction_and_predicts_as_the_spin_test(tmp
     errors = {}
     for kind, payload in (("load", 0.6), ("spin", None)):
         csv, cmap = worm_drive(tmp_path, payload, held_out, seed=1, name=f"{kind}_heldout")
-        again = calibrate_json(csv.as_posix(), "--channels", str(cmap), "--params", str(files[kind][0]))
-        bare = calibrate_json(csv.as_posix(), "--channels", str(cmap), "--params", p)
+        again = calibrate_json(csv.as_posix(), "--channels", str(cmap), "--params", str(files[kind][0]), check=False)
+        bare = calibrate_json(csv.as_posix(), "--channels", str(cmap), "--params", p, check=False)
         errors[kind] = (again["error_before"]["rmse_nm"], bare["error_before"]["rmse_nm"])
     assert errors["load"][0] <= 1.1 * errors["spin"][0], errors
     assert errors["load"][0] < errors["load"][1], errors  # better than no model
@@ -341,7 +342,8 @@ def test_a_parameter_file_at_another_ratio_than_the_recordings_calibrates_at_the
 
 
 def test_a_set_that_explains_the_data_below_their_noise_is_refused_as_an_identity(tmp_path, monkeypatch):
-    """The backstop behind the one-load rule: the worm drive with that rule off.  load_dependent (c = 1,
+    """The backstop behind the one-load rule: the worm drive with that rule (and the load-follows-speed rule)
+    off.  load_dependent (c = 1,
     q = 1) with a torque offset then reproduces the torque balance to 1e-7 N·m, under the 2e-4 N·m of the
     torque reading's noise: that set is refused as an identity, whatever its significance."""
     from rollergear_ros.calibration import blocks
@@ -350,7 +352,7 @@ def test_a_set_that_explains_the_data_below_their_noise_is_refused_as_an_identit
     from rollergear_ros.core.params import load_config
     from rollergear_ros.sources.importer import as_mcap
 
-    monkeypatch.setattr(blocks, "_one_load", lambda load_torque, rows=False: "")
+    monkeypatch.setattr(blocks, "load_rule", lambda d: "")
     config = load_config(params(tmp_path / "p.yaml", "    gearbox: {ratio: 60.0}\n"))
     csv, cmap = worm_drive(tmp_path, 0.6)
     with as_mcap([csv], cmap) as bags:
