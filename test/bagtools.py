@@ -61,6 +61,21 @@ def shifted_copy(src: Path, dst: Path, shift_s: int) -> Path:
     return _copy(src, dst, shifted, log_time_order=False)
 
 
+def scaled_copy(src: Path, dst: Path, topic: str, factor: float) -> Path:
+    """A copy of the MCAP ``src`` with the Float64 readings of ``topic`` times ``factor`` (a sensor that reads
+    high or low; CDR: the float64 follows the 4-byte encapsulation header)."""
+    import struct
+
+    def scaled(_schema, channel, message):
+        data = message.data
+        if channel.topic == topic:
+            (value,) = struct.unpack_from("<d", data, 4)
+            data = data[:4] + struct.pack("<d", value * factor) + data[12:]
+        return message.log_time, data, message.publish_time
+
+    return _copy(src, dst, scaled, log_time_order=False)
+
+
 def filtered_copy(src: Path, dst: Path, keep) -> tuple[Path, int]:
     """A copy of the MCAP ``src`` in log-time order with only the messages ``keep(topic, log_time_ns)``
     holds for: the copy, and how many were left out."""

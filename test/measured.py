@@ -142,24 +142,31 @@ class Judged:
 
     result: dict  #: calibrate's --json
     written: Path | None
-    #: per held-out run: speed [rad/s], mean error [N·m], samples estimated, rows
-    run_errors: list[tuple[float, float, int, int]]
+    #: per held-out run: speed [rad/s], mean error [N·m], samples with a measured loss estimated, rows,
+    #: rows with a loss estimate
+    run_errors: list[tuple[float, float, int, int, int]]
     given_rms: float  #: no model (the parameter file given) at the held-out runs' means
     file_rms: float
     references: dict[str, float]
 
     @property
     def estimated(self) -> tuple[int, int]:
+        """Held-out samples with a residual, and rows."""
         return sum(r[2] for r in self.run_errors), sum(r[3] for r in self.run_errors)
+
+    @property
+    def loss_estimated(self) -> int:
+        """Held-out rows with a loss estimate (every one, unless a lag or a limit cost some)."""
+        return sum(r[4] for r in self.run_errors)
 
     def worst(self) -> tuple[float, float]:
         speed, error, *_ = max(self.run_errors, key=lambda r: abs(r[1]) if np.isfinite(r[1]) else np.inf)
         return speed, error
 
 
-def held_out_run_errors(s: MeasuredSet, params: Path) -> list[tuple[float, float, int, int]]:
+def held_out_run_errors(s: MeasuredSet, params: Path) -> list[tuple[float, float, int, int, int]]:
     """``replay`` of the held-out export with ``params``: per run its speed, the mean of the residual over
-    the samples it estimates a loss of, their count and the rows."""
+    the samples it measures a loss of, their count, the rows and the rows with a loss estimate."""
     from rollergear_ros.core.params import load_config
     from rollergear_ros.replay.run import replay
     from rollergear_ros.sources.importer import as_mcap
@@ -169,12 +176,14 @@ def held_out_run_errors(s: MeasuredSet, params: Path) -> list[tuple[float, float
     t = np.concatenate([b.t_ns for b in batches]).astype(float) * 1e-9
     r = np.concatenate([b.residual_nm for b in batches])
     w = np.concatenate([b.speed_rad_s for b in batches])
+    loss = np.concatenate([b.loss_torque_nm for b in batches])
     cut = np.r_[0, np.flatnonzero(np.diff(t) > 1.0) + 1, len(t)]
+    rows = [len(r) for r in runs_of(s.held)]
     out = []
-    for i, j in zip(cut[:-1], cut[1:]):
+    for k, (i, j) in enumerate(zip(cut[:-1], cut[1:])):
         ok = np.isfinite(r[i:j])
         out.append((float(np.mean(w[i:j])), float(np.mean(r[i:j][ok])) if ok.any() else float("nan"),
-                    int(ok.sum()), j - i))
+                    int(ok.sum()), rows[k] if k < len(rows) else 0, int(np.count_nonzero(np.isfinite(loss[i:j])))))
     return out
 
 

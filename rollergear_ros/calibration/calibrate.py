@@ -106,6 +106,67 @@ def calibrate(data: SampleData, config: Config,
         raise UsageError(f"unknown effect(s) to assume: {', '.join(unknown)} (one of {', '.join(EFFECTS)})")
     stage = settings.stage or (lambda text: None)
     how = _Analysis(settings.delta_nm, settings.block_s, settings.folds, stage, tuple(settings.assume))
+    result = _readings_as_written(data, config, settings, how, _over_time(data, config, settings, how))
+    if data.beyond_text:  # left out of the analysis, said with the limit and the setting to raise
+        result.notes.append(f"left out as implausible: {data.beyond_text}")
+    return result
+
+
+def _readings_as_written(data: SampleData, config: Config, settings: CalibrationSettings, how: _Analysis,
+                         result: CalibrationResult) -> CalibrationResult:
+    """Each pair of readings of one part of the loss (:mod:`.forward`) said with the numbers a file of the
+    other reading has: the analysis run again with ``--assume`` of it, its parameters and held-out error as
+    that file writes them -- and where that file holds fewer terms (effects and model parameters counted
+    alike; between equally many, fewer fitted values), it is the result, as the manual's tie-break says."""
+    for a in result.ambiguous:
+        if a.taken is None or a.assumed is not None:
+            continue
+        other = [e for e in a.effects if e not in a.taken.split(" + ")]
+        if not other:
+            continue
+        how.stage(f"the other reading: {' + '.join(other)}")
+        assumed = [*settings.assume, *other]
+        alt = _over_time(data, config, replace(settings, assume=assumed), replace(how, assume=tuple(assumed)))
+        mine_said, alt_said = _reading_said(result), _reading_said(alt)
+        for r in a.readings:
+            r.update(mine_said if r["written"] else alt_said | {
+                "params": {e.name: e.params for e in alt.effects if e.name in other}})
+        if alt.written and _size(alt) < _size(result):
+            # the reading dropped, as --assume of it writes it (not as the selection first took it)
+            taken = a.taken.split(" + ")
+            assumed = [*settings.assume, *taken]
+            back = _over_time(data, config, replace(settings, assume=assumed), replace(how, assume=tuple(assumed)))
+            back_said = _reading_said(back) | {"params": {e.name: e.params for e in back.effects if e.name in taken}}
+            twin = next((b for b in alt.ambiguous if set(b.effects) == set(a.effects)), None)
+            if twin is not None:
+                twin.assumed, twin.taken = None, " + ".join(other)
+                twin.readings = [dict(r, written=not r["written"], **(back_said if r["written"] else {}))
+                                 for r in a.readings]
+            alt.notes.insert(0, f"two readings of one part of the loss: {' + '.join(other)} holds fewer terms "
+                                f"({', '.join(alt_said['writes'])} against {', '.join(back_said['writes'])}): taken")
+            return alt
+    return result
+
+
+def _reading_said(result: CalibrationResult) -> dict:
+    """What a result's file holds and its held-out error (a reading's numbers)."""
+    return {"heldout_rmse_nm": result.error_after.rmse_nm,
+            "writes": [e.name for e in result.effects] + [p.name for p in result.parameters]}
+
+
+def _size(result: CalibrationResult) -> tuple[int, int]:
+    """A written file's terms (effects and model parameters alike), then its fitted values (coefficients,
+    model parameters, exponents not held at a line)."""
+    values = len(result.parameters)
+    for e in result.effects:
+        values += 1 + sum(1 for k, (lo, hi) in e.ci95.items() if k != EFFECTS[e.name].coefficient and hi > lo)
+    return len(result.effects) + len(result.parameters), values
+
+
+def _over_time(data: SampleData, config: Config, settings: CalibrationSettings, how: _Analysis) -> CalibrationResult:
+    """The analysis of the window, then the changes inside it: the latest stretch after the last (said),
+    each stretch (``--segments each``), a drift, or all samples at once."""
+    stage = how.stage
     data, window = _window(data, settings.start_s, settings.end_s)
     result = _analyse(data, config, how)
     if settings.segments == "off" or data.steady_state or result.calibrator is None:

@@ -49,6 +49,8 @@ class SampleData:
     model_loss: np.ndarray
     fr_part: np.ndarray
     skipped: dict[str, int] = field(default_factory=dict)
+    #: the samples left out beyond a plausibility limit, by limit, and the setting to raise ('': none)
+    beyond_text: str = ""
     steady_state: bool = False  #: rows of steady-state tables (dwell means), not a time series
     #: rows whose loss is the power balance of their torque readings (:attr:`~sources.tables.SteadyStateTable.readings`)
     torque_readings: bool = False
@@ -192,7 +194,7 @@ def _load(bags, config, topics, warn, min_speed_rad_s, progress) -> SampleData:
     base = bare_config(config)
     batches_of_bags = []
     skipped: dict[str, int] = {}
-    widths, said, lost = [], [], [0.0]
+    widths, said, lost, beyond = [], [], [0.0], []
     for bag in bags:
         summary, batches = replay(bag, base, topics, show_progress=progress, warn=warn, collect=True,
                                   parameter_changes=False)  # the bare model throughout
@@ -204,9 +206,12 @@ def _load(bags, config, topics, warn, min_speed_rad_s, progress) -> SampleData:
         batches_of_bags.append(batches)
         widths.append(summary.speed_noise_rad_s)
         said.append(summary.speed_noise_text)
+        if summary.beyond_text:
+            beyond.append(summary.beyond_text if len(bags) == 1 else f"{bag}: {summary.beyond_text}")
     data = samples_from_estimates(batches_of_bags, config, skipped, min_speed_rad_s, max(widths, default=0.0))
     data.speed_noise_text = "; ".join(dict.fromkeys(said))
     data.lost_share = max(lost)
+    data.beyond_text = "; ".join(beyond)
     return data
 
 

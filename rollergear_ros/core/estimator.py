@@ -200,6 +200,8 @@ class Estimator:
         self.residual_stats = ResidualStats()
         self.estimated = 0
         self.last: Estimate | None = None
+        #: the samples beyond a plausibility limit, per input: their count and the largest magnitude seen
+        self.beyond: dict[str, list[float]] = {"speed": [0, 0.0], "torque": [0, 0.0]}
 
     def take_over_inputs(self, previous: Estimator) -> None:
         """Continue the input stream of ``previous`` (a parameter change at run time): keep its
@@ -219,6 +221,7 @@ class Estimator:
         self._noise_changed()
         self.counts = self.sync.counts
         self.estimated = previous.estimated
+        self.beyond = previous.beyond
 
     # ------------------------------------------------------------------ helpers
     def coefficients(self) -> dict[str, float]:
@@ -235,6 +238,19 @@ class Estimator:
                     t / s + 1.96 * math.sqrt(var * self.rls.P[i][i]) / s)
                 for i, (n, t, s) in enumerate(zip(self.adaptive, self.rls.theta, self._scales))}
 
+    def beyond_text(self) -> str:
+        """The samples skipped as implausible, by the limit they passed: its name and value, the largest seen,
+        and the setting to raise ('' where none)."""
+        est = self.config.estimator
+        said = []
+        for name, key, limit, unit in (("speed", "max_abs_speed_rad_s", est.max_abs_speed_rad_s, "rad/s"),
+                                       ("torque", "max_abs_torque_nm", est.max_abs_torque_nm, "N·m")):
+            n, largest = self.beyond[name]
+            if n:
+                said.append(f"{int(n):,} samples with |{name}| above estimator.{key} = {limit:g} {unit} (up to "
+                            f"{largest:.4g}): raise estimator.{key} to {_raise_to(largest):g} to estimate them")
+        return "; ".join(said)
+
     def corrected_torque(self, torque_meas):
         """Drive torque with the accepted torque-sensor errors removed (:func:`.effects.corrected_torque`)."""
         return corrected_torque(torque_meas, self._sensor_offset, self._sensor_gain)
@@ -247,6 +263,12 @@ class Estimator:
             return "stale" if is_stale(speed) else "non_finite"
         est = self.config.estimator
         if abs(torque) > est.max_abs_torque_nm or abs(speed) > est.max_abs_speed_rad_s:
+            for name, value, limit in (("speed", speed, est.max_abs_speed_rad_s),
+                                       ("torque", torque, est.max_abs_torque_nm)):
+                if abs(value) > limit:
+                    seen = self.beyond[name]
+                    seen[0] += 1
+                    seen[1] = max(seen[1], abs(value))
             return "implausible"
         return None
 
@@ -655,6 +677,13 @@ class Estimator:
             self.counts["stale"] += int(np.count_nonzero(stale))
             self.counts["non_finite"] += int(np.count_nonzero(~finite & ~lost & ~stale))
         self.counts["implausible"] += int(np.count_nonzero(finite & ~plausible))
+        if not plausible.all():
+            for name, x, limit in (("speed", speed, est.max_abs_speed_rad_s), ("torque", torque, est.max_abs_torque_nm)):
+                over = finite & (np.abs(x) > limit)
+                if over.any():
+                    seen = self.beyond[name]
+                    seen[0] += int(np.count_nonzero(over))
+                    seen[1] = max(seen[1], float(np.max(np.abs(x[over]))))
         keep = finite & plausible
         return tuple(a[keep] for a in (t_ns, torque, speed, *others))
 
@@ -704,3 +733,11 @@ class Estimator:
                 det.add(err, ts[i])
                 stats.add(err)
         return hist
+
+
+def _raise_to(value: float) -> float:
+    """A round limit above ``value`` (two significant digits up)."""
+    if value <= 0 or not math.isfinite(value):
+        return value
+    scale = 10.0 ** (math.floor(math.log10(value)) - 1)
+    return math.ceil(value / scale * 1.0000001) * scale

@@ -5,9 +5,11 @@ time ``t`` what the gearbox did at ``t − τ``.  :class:`LagAligner` sits betwe
 estimate: each paired sample at ``t`` takes the lagging channel's value at ``t + τ``, linearly
 interpolated between the two paired samples around it -- a sample waits until one at or after
 ``t + τ`` has come (τ > 0), or takes it from the samples before (τ < 0: the channel leads).  Where no
-pair of samples brackets ``t + τ`` within ``max_gap_s`` (a gap in the recording, the end of a
+pair of samples brackets ``t + τ`` within ``max_gap_s`` (a pause in the recording, the end of a
 stream; :func:`max_gap_s`: the staleness, or :data:`GAP_PERIODS` sample periods of a slower recording),
-the value is NaN: that sample has no measured output to align.  ``calibrate`` writes the lag
+the nearest reading is held where it lies within ``|τ|`` of ``t + τ`` (the last of a run before a pause:
+no later reading exists, and one from before the lag is closer than any other), counted per channel
+(:attr:`LagAligner.held`); beyond that the value is NaN: that sample has no reading to align.  ``calibrate`` writes the lag
 it found and aligned into the file, and the node, ``replay`` and ``calibrate``'s own claims apply it
 here -- one rule for all.  Zero lags (the default) change nothing.  No rclpy import.
 """
@@ -45,6 +47,8 @@ class LagAligner:
         self._times = np.empty(0, dtype=np.int64)  #: the samples kept: history and those waiting
         self._rows = np.empty((0, 5))  #: their torque, speed, output torque, output speed, temperature
         self._pending = 0  #: index of the first sample not yet given out
+        #: channel -> samples that took the nearest reading (no two around ``t + τ``: a pause, an end)
+        self.held: dict[str, int] = {name: 0 for name, column in LAG_CHANNELS.items() if column in self.lags_ns}
 
     @property
     def active(self) -> bool:
@@ -77,17 +81,20 @@ class LagAligner:
         stop = max(stop, self._pending)
         idx = np.arange(self._pending, stop)
         out = [times[idx], *(rows[idx, j].copy() for j in range(5))]
+        names = {column: name for name, column in LAG_CHANNELS.items()}
         for column, lag in self.lags_ns.items():
-            out[column] = self._at(rows[:, column - 1], times[idx] + lag)
+            out[column], held = self._at(rows[:, column - 1], times[idx] + lag, abs(lag))
+            self.held[names[column]] += held
         self._pending = stop
         if stop:  # keep what the samples still waiting may read back to (one sample before it)
             keep = max(int(np.searchsorted(times, int(times[stop - 1]) - self._back_ns, side="left")) - 1, 0)
             self._times, self._rows, self._pending = times[keep:], rows[keep:], stop - keep
         return tuple(out)
 
-    def _at(self, values: np.ndarray, at: np.ndarray) -> np.ndarray:
+    def _at(self, values: np.ndarray, at: np.ndarray, hold_ns: int) -> tuple[np.ndarray, int]:
         """``values`` at times ``at``: linear between the two samples around each (the sample itself at
-        its own time), NaN where no two within ``max_gap_s`` bracket it."""
+        its own time); where no two within ``max_gap_s`` bracket it, the nearest sample's value if it lies
+        within ``hold_ns`` of it (else NaN).  Also how many took the nearest."""
         times = self._times
         j = np.searchsorted(times, at, side="right")  # times[j-1] <= at < times[j]
         lo = np.clip(j - 1, 0, max(len(times) - 1, 0))
@@ -97,7 +104,11 @@ class LagAligner:
         inside = (j > 0) & (j < len(times)) & (span > 0) & (span <= self.max_gap_ns)
         w = (at - times[lo]).astype(np.float64) / np.where(span > 0, span, 1.0)
         between = values[lo] + w * (values[hi] - values[lo])
-        return np.where(exact, values[lo], np.where(inside, between, np.nan))
+        to_lo, to_hi = np.abs(at - times[lo]), np.abs(times[hi] - at)
+        nearest = np.where(to_lo <= to_hi, lo, hi)
+        held = ~exact & ~inside & (np.minimum(to_lo, to_hi) <= hold_ns)
+        out = np.where(exact, values[lo], np.where(inside, between, np.where(held, values[nearest], np.nan)))
+        return out, int(np.count_nonzero(held))
 
 
 def _empty() -> tuple[np.ndarray, ...]:

@@ -320,7 +320,15 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
     summary.resampled = {c: dict(made) for c, made in estimator.resampler.made.items()}
     if estimator.aligner is not None:
         summary.lags_text = estimator.aligner.describe()
+        held = {c: n for c, n in estimator.aligner.held.items() if n}
+        if held:
+            lags = {c: v for c, v in estimator.config.to_flat().items() if c.endswith("_lag_s")}
+            summary.lags_text += "; " + "; ".join(
+                f"no {c} reading {1e3 * abs(lags[f'estimator.{c}_lag_s']):.3g} ms "
+                f"{'later' if lags[f'estimator.{c}_lag_s'] > 0 else 'earlier'} at {n:,} samples (a pause or an end of "
+                "the recording): the nearest reading held" for c, n in held.items())
     summary.describes = _describes(estimator.config)
+    summary.beyond_text = estimator.beyond_text()
 
 
 def _describes(config: Config) -> str:

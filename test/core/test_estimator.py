@@ -58,7 +58,8 @@ def test_a_lag_aligns_a_recording_whose_samples_are_further_apart_than_the_stale
     calibrate finds in the faster levels): each sample takes the speed at t + lag between the two
     samples around it, the node's path and replay's alike; one sample missing is bridged, a pause of
     a second is not (staleness 0.1 s; with it alone no two samples bracketed any time, and every
-    sample was skipped)."""
+    sample was skipped): there, and at the end, no reading comes 43 ms later, and the nearest one --
+    the sample's own -- is held and counted."""
     from rollergear_ros.core.pairing import CHANNELS
 
     grid = np.arange(300) * 256_000_000
@@ -78,17 +79,20 @@ def test_a_lag_aligns_a_recording_whose_samples_are_further_apart_than_the_stale
         if by_message:
             out = [e for c, ts, v in zip(codes.tolist(), t_ns.tolist(), values.tolist())
                    for e in est.push(CHANNELS[c], ts, v)] + list(est.finish())
-            return np.array([e.t_ns for e in out]), np.array([e.speed_rad_s for e in out])
+            return np.array([e.t_ns for e in out]), np.array([e.speed_rad_s for e in out]), est.aligner.held
         parts = [p for p in (est.push_many(codes, t_ns, values), est.flush()) if p is not None]
-        return np.concatenate([p.t_ns for p in parts]), np.concatenate([p.speed_rad_s for p in parts])
+        return (np.concatenate([p.t_ns for p in parts]), np.concatenate([p.speed_rad_s for p in parts]),
+                est.aligner.held)
 
-    (t_node, w_node), (t_replay, w_replay) = estimates(True), estimates(False)
+    (t_node, w_node, held_node), (t_replay, w_replay, held) = estimates(True), estimates(False)
     np.testing.assert_array_equal(t_node, t_replay)
     np.testing.assert_array_equal(w_node, w_replay)
-    lost = set(t.tolist()) - set(t_replay.tolist())
-    assert lost == {before_pause, int(t[-1])}, sorted(lost)  # before the pause, and the last: nothing after
-    expected = 0.5 + 0.2 * np.sin((t_replay + 42_600_000) * 1e-9)
-    np.testing.assert_allclose(w_replay, expected, atol=0.2 * 0.256 ** 2 / 8 * 1.01)  # linear between samples
+    assert set(t_replay.tolist()) == set(t.tolist())  # none lost
+    ends = np.isin(t_replay, [before_pause, int(t[-1])])  # before the pause, and the last: nothing after
+    np.testing.assert_array_equal(w_replay[ends], speed[np.isin(t, [before_pause, int(t[-1])])])
+    assert held == held_node == {"motor_speed": 2}, held
+    expected = 0.5 + 0.2 * np.sin((t_replay[~ends] + 42_600_000) * 1e-9)
+    np.testing.assert_allclose(w_replay[~ends], expected, atol=0.2 * 0.256 ** 2 / 8 * 1.01)  # linear between
 
 
 @pytest.mark.parametrize("lag_s", [0.03, 0.0173])

@@ -1,0 +1,113 @@
+"""Test plans as rigs run them: steady runs one after another, each at one operating point, a pause between
+them, a handful of speeds, a load that is whatever the rig holds -- simulated from formulas of their own and
+written as a DAQ exports them (one CSV, runs in recording order, a channel map).
+
+* :func:`joint_plan`: a robot joint behind a harmonic drive (100:1), constant-speed runs one way, its
+  friction a straight line in the speed; the joint's torque sensor reads a small, nearly constant load, so
+  the drive torque is mostly the friction itself.
+* :func:`one_load_plan`: the paper's gearbox (``config/gearbox.yaml``) in steady runs at one drive torque,
+  with a drag and a viscous line the parameter file lacks.
+* :func:`held_out_runs`: the mean of a replay's residual over each run of an export (the static map's
+  error at each held-out operating point).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from rigs import write_csv
+
+PAUSE_S = 2.0
+
+
+def _export(path: Path, runs: list[dict[str, np.ndarray]]) -> Path:
+    """Runs (column -> values, ``t`` from 0) one after another on one clock, a pause between them."""
+    start, pieces = 0.0, []
+    for run in runs:
+        pieces.append({k: (v + start if k == "t" else v) for k, v in run.items()})
+        start += float(run["t"][-1]) + PAUSE_S
+    return write_csv(path, {k: np.concatenate([p[k] for p in pieces]) for k in pieces[0]})
+
+
+#: the joint's friction at the joint [N·m]: a line in its speed [rad/s]
+JOINT_COULOMB_NM, JOINT_VISCOUS_NM_S, JOINT_RATIO = 1.85, 0.75, 100.0
+
+
+def joint_plan(tmp: Path, speeds, name: str, seed: int, load: bool) -> tuple[Path, Path]:
+    """3 s at each joint speed (200 Hz), one direction: the joint torque sensor reads −0.25 N·m (a spring
+    that helps) and the motor's current-based torque ``(Fc + Fv·ω − 0.25)/100`` rises 1.6 → 2.7 N·m at the
+    joint; ``load``: the sensor given as the output torque (else a spin test: 0 on the output)."""
+    rng = np.random.default_rng(seed)
+    runs = []
+    for w in speeds:
+        t = np.arange(600) / 200.0
+        held = -0.25 + 0.01 * np.sin(2 * np.pi * 0.3 * t)
+        friction = JOINT_COULOMB_NM + JOINT_VISCOUS_NM_S * w
+        runs.append({"t": t, "T_in": (friction + held) / JOINT_RATIO + rng.normal(0.0, 4e-4, len(t)),
+                     "w_in": w * JOINT_RATIO + rng.normal(0.0, 0.05, len(t)),
+                     "T_out": held + rng.normal(0.0, 0.02, len(t))})
+    csv = _export(tmp / f"{name}.csv", runs)
+    cmap = tmp / f"{name}_map.yaml"
+    out = "{column: T_out, unit: N*m}" if load else "{constant: 0, unit: N*m}"
+    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
+                    f"motor_speed: {{column: w_in, unit: rad/s}}\noutput_torque: {out}\nratio: {JOINT_RATIO}\n")
+    return csv, cmap
+
+
+def one_load_plan(tmp: Path, torque_nm: float, speeds_rpm, name: str, seed: int) -> tuple[Path, Path]:
+    """The paper's gearbox in 20 s runs at each speed both ways (100 Hz), every run at ``torque_nm``; its
+    loss the model's plus a 0.05 N·m drag and a viscous 2e-4·|ω| -- what the parameter file lacks."""
+    from rollergear_ros.core.model import LossModel
+    from rollergear_ros.core.params import load_config
+
+    gearbox = load_config().gearbox
+    model, ratio = LossModel(gearbox), gearbox.ratio_effective
+    rng = np.random.default_rng(seed)
+    runs = []
+    for rpm in speeds_rpm:
+        for direction in (1.0, -1.0):
+            t = np.arange(2000) / 100.0
+            w, tq = np.full(len(t), direction * rpm * np.pi / 30.0), np.full(len(t), direction * torque_nm)
+            loss = model.loss_magnitude(tq, w) + 0.05 + 2e-4 * np.abs(w)
+            runs.append({"t": t, "T_in": tq + rng.normal(0.0, 0.01, len(t)), "w_in": w + rng.normal(0.0, 0.02, len(t)),
+                         "T_out": (tq - loss * np.sign(w)) * ratio + rng.normal(0.0, 0.01 * ratio, len(t))})
+    csv = _export(tmp / f"{name}.csv", runs)
+    cmap = tmp / f"{name}_map.yaml"
+    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
+                    "motor_speed: {column: w_in, unit: rad/s}\noutput_torque: {column: T_out, unit: N*m}\n"
+                    f"ratio: {ratio}\n")
+    return csv, cmap
+
+
+def held_out_runs(csv: Path, cmap: Path, params: Path) -> tuple[np.ndarray, int, int]:
+    """``replay`` of an export with ``params``: each run's mean residual (over the samples it measures a
+    loss of), the rows estimated (a finite loss) and the rows."""
+    from rollergear_ros.core.params import load_config
+    from rollergear_ros.replay.run import replay
+    from rollergear_ros.sources.importer import as_mcap
+
+    with as_mcap([csv], cmap) as bags:
+        _summary, batches = replay(bags[0], load_config(params), collect=True, show_progress=False)
+    t = np.concatenate([b.t_ns for b in batches]).astype(float) * 1e-9
+    r = np.concatenate([b.residual_nm for b in batches])
+    loss = np.concatenate([b.loss_torque_nm for b in batches])
+    cut = np.r_[0, np.flatnonzero(np.diff(t) > 1.0) + 1, len(t)]
+    means = np.array([np.nanmean(r[i:j]) if np.isfinite(r[i:j]).any() else np.nan for i, j in zip(cut[:-1], cut[1:])])
+    return means, int(np.count_nonzero(np.isfinite(loss))), len(np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2))
+
+
+def line_at(train_csv: Path, held_csv: Path, load: bool, ratio: float) -> float:
+    """The least-squares line ``a + b·ω`` through the fitted runs' mean loss, its RMS error at the held-out
+    runs' means (the hand fit of a one-way plan: Coulomb + viscous)."""
+    def means(csv):
+        a = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
+        cut = np.r_[0, np.flatnonzero(np.diff(a[:, 0]) > 1.0) + 1, len(a)]
+        m = np.array([a[i:j].mean(axis=0) for i, j in zip(cut[:-1], cut[1:])])
+        return m[:, 2], m[:, 1] - (m[:, 3] / ratio if load else 0.0)
+
+    w, loss = means(train_csv)
+    coef, *_ = np.linalg.lstsq(np.column_stack([np.ones_like(w), w]), loss, rcond=None)
+    w, loss = means(held_csv)
+    return float(np.sqrt(np.mean((loss - (coef[0] + coef[1] * w)) ** 2)))
