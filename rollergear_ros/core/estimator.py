@@ -678,7 +678,8 @@ class Estimator:
             self.counts["non_finite"] += int(np.count_nonzero(~finite & ~lost & ~stale))
         self.counts["implausible"] += int(np.count_nonzero(finite & ~plausible))
         if not plausible.all():
-            for name, x, limit in (("speed", speed, est.max_abs_speed_rad_s), ("torque", torque, est.max_abs_torque_nm)):
+            for name, x, limit in (("speed", speed, est.max_abs_speed_rad_s),
+                                   ("torque", torque, est.max_abs_torque_nm)):
                 over = finite & (np.abs(x) > limit)
                 if over.any():
                     seen = self.beyond[name]

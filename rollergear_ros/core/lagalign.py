@@ -9,9 +9,9 @@ pair of samples brackets ``t + τ`` within ``max_gap_s`` (a pause in the recordi
 stream; :func:`max_gap_s`: the staleness, or :data:`GAP_PERIODS` sample periods of a slower recording),
 the nearest reading is held where it lies within ``|τ|`` of ``t + τ`` (the last of a run before a pause:
 no later reading exists, and one from before the lag is closer than any other), counted per channel
-(:attr:`LagAligner.held`); beyond that the value is NaN: that sample has no reading to align.  ``calibrate`` writes the lag
-it found and aligned into the file, and the node, ``replay`` and ``calibrate``'s own claims apply it
-here -- one rule for all.  Zero lags (the default) change nothing.  No rclpy import.
+(:attr:`LagAligner.held`); beyond that the value is NaN: that sample has no reading to align.
+``calibrate`` writes the lag it found and aligned into the file, and the node, ``replay`` and
+``calibrate``'s own claims apply it here -- one rule for all.  Zero lags (the default) change nothing.  No rclpy import.
 """
 
 from __future__ import annotations
