@@ -145,6 +145,7 @@ class _Procedure:
             pass
         self._settle_readings(state)
         self._backward(state)
+        self._straighten(state)
         final = state.selected + state.provisional
         cal.stage("exponent intervals")
         ranges = {t.name: cal.member_range(final, i) for i, t in enumerate(final) if t.member is not None}
@@ -466,6 +467,24 @@ class _Procedure:
             del state.selected[i]
             state.selected = cal.optimise(state.selected + state.provisional)[:len(state.selected)]
             state.accepted_at.pop(t.name, None)
+
+    def _straighten(self, state: _Forward) -> None:
+        """A law whose exponent the later terms moved back near its line (p = 1) is the line again unless its
+        curve still predicts held-out operating points better by more than the minimum improvement:
+        curvature enters only where the data between the operating points fitted ask for it."""
+        cal = self.cal
+        for i, t in enumerate(state.selected):
+            if t.fixed or t.member is None or t.name not in EFFECTS or EFFECTS[t.name].linear is None:
+                continue
+            final = state.selected + state.provisional
+            line = cal.line_of(t)
+            alt = cal.optimise(final[:i] + [line] + final[i + 1:])
+            if cal.screen(alt, self.check) is None and \
+                    cal.cv_rmse_points(final) >= (1.0 - cal.min_improvement) * cal.cv_rmse_points(alt):
+                self.log.append(f"{t.name}: its {EFFECTS[t.name].member} = {t.member:.3g} predicts held-out operating "
+                                f"points no better than its line: the line is taken")
+                n = len(state.selected)
+                state.selected, state.provisional = alt[:n], alt[n:]
 
     # ------------------------------------------------------------------ decisions
     def _decisions(self, state: _Forward, final: list[Term]) -> tuple[list[Decision], list[RejectedEffect], list[str]]:

@@ -403,16 +403,19 @@ class Calibrator:
         curved = self.optimise(base + [cands[int(np.argmin(scores))]])
         return self._line_unless_curve_predicts(name, base, curved)
 
+    def line_of(self, term: Term) -> Term:
+        """``term``'s law as its line (:attr:`~core.effects.Effect.linear`), the member held."""
+        t = self._with_member(term, EFFECTS[term.name].linear)
+        return Term(t.name, t.column, t.member, t.second, t.law, fixed=True)
+
     def _line_unless_curve_predicts(self, name: str, base: list[Term], curved: list[Term]) -> list[Term]:
         """The law as a line (its :attr:`~core.effects.Effect.linear` member, held) unless the curve found
         predicts held-out operating points better by more than :attr:`min_improvement` and is a law within
         the vocabulary (its member not stopped at its search's bound): curvature enters only where the
         data between the operating points fitted ask for it."""
-        linear = EFFECTS[name].linear
-        if linear is None:
+        if EFFECTS[name].linear is None:
             return curved
-        t = self._with_member(members(self.b, name)[0], linear)
-        line = self.optimise(base + [Term(t.name, t.column, t.member, t.second, t.law, fixed=True)])
+        line = self.optimise(base + [self.line_of(members(self.b, name)[0])])
         lo, hi = self.search_ranges(name)[EFFECTS[name].member]
         member = curved[-1].member
         at_bound = min(abs(member - lo), abs(member - hi)) <= 1e-3 * (hi - lo)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..base.text import printable
 from ..base.errors import ParameterError
 from .covariance import ParameterCovariance
 from .estimator import BatchEstimate, Estimator
@@ -283,7 +284,8 @@ class PredictionSums:
         if self._lags:
             out.notes.append(f"channel lags (the parameter file's): {self._lags}")
         if form and form.segment:
-            out.notes.append(f"the parameter file describes the gearbox of {form.segment} (it changed inside the "
+            out.notes.append(f"the parameter file describes the gearbox of {printable(form.segment)} (it changed "
+                             "inside the "
                              "recordings calibrated on)")
         if self._collect:
             cat = [np.concatenate(p) if p else np.zeros(0) for p in zip(*self._parts)] if self._parts else \

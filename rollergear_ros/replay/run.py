@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from collections.abc import Callable, Iterator, Sequence
 
+from ..base.text import printable
 from ..recordings.baginfo import BagInfo, inspect_bag, read_metadata
 from ..recordings.messages import TopicMap
 from ..base import atomic
@@ -337,4 +338,4 @@ def _describes(config: Config) -> str:
     from ..core.modelform import ModelForm
 
     form = ModelForm.from_text(config.calibration.model_form)
-    return form.segment if form else ""
+    return printable(form.segment) if form else ""

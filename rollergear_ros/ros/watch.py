@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import datetime
 import json
 import math
 import re
@@ -54,12 +55,15 @@ class WatchWindow:
     #: the latest measured-efficiency window and its uncertainty, kept across periods (one comes a
     #: second of sample time: a period of the watcher's own clock may see none)
     measured: tuple[float, float] = (math.nan, math.nan)
+    status_at: float | None = None  #: when the node's latest status came (``time.monotonic``)
+    started: float = field(default_factory=time.monotonic)  #: when the watcher began
 
     def add_status(self, level: int, message: str, values: dict[str, str]) -> None:
         """The node's status (``/diagnostics``): its level and message, and the measured efficiency it
         states (the same window the window channels carry, so a row has it from the first status on,
         not only after the next window message)."""
         self.diagnostic = (level, message)
+        self.status_at = time.monotonic()
         try:
             efficiency = float(values.get("measured efficiency", "none"))
         except ValueError:  # "none (no measured output torque)"
@@ -81,13 +85,22 @@ class WatchWindow:
     def add(self, channel: str, raw: bytes) -> None:
         self.payloads[channel].append(raw)
 
-    def take(self, period_s: float) -> dict:
+    def silent_s(self, period_s: float, now: float | None = None) -> float:
+        """How long the node has been silent on ``/diagnostics`` (its status comes once a second): the
+        time since its latest status, or since the watcher began when none came; 0 while it speaks."""
+        now = time.monotonic() if now is None else now
+        age = now - (self.status_at if self.status_at is not None else self.started)
+        return age if age > max(SILENT_AFTER_S, 2.5 * period_s) else 0.0
+
+    def take(self, period_s: float, now: float | None = None) -> dict:
         """The period's figures (and start a new one): what :meth:`line`, ``--csv`` and ``--json`` show.
 
         Keys: ``estimates_per_s``, ``loss_torque_nm``, ``loss_power_w``, ``efficiency``,
         ``efficiency_min`` (means over the period), ``residual_nm``, ``efficiency_measured`` and
         ``efficiency_measured_uncertainty`` (the latest window), ``level`` and ``message`` of the
-        node's status; a further Float64 channel by its name (its mean).  NaN / "" where none came."""
+        node's status -- ``SILENT`` and how long where ``/diagnostics`` stopped (:meth:`silent_s`: a node
+        that ended, was killed or hangs is not an idle rig) --, ``status_age_s``; a further Float64 channel by
+        its name (its mean).  NaN / "" where none came."""
         values = {k: decode_float64(v) for k, v in self.payloads.items()}
         for v in self.payloads.values():
             v.clear()
@@ -103,6 +116,16 @@ class WatchWindow:
                "residual_nm": _mean(values["residual_torque"]),
                "efficiency_measured": self.measured[0], "efficiency_measured_uncertainty": self.measured[1],
                "level": "" if level is None else LEVEL_NAMES.get(level, str(level)), "message": message}
+        now = time.monotonic() if now is None else now
+        row["status_age_s"] = now - self.status_at if self.status_at is not None else math.nan
+        silent = self.silent_s(period_s, now)
+        if silent:
+            last = f"; its last status: [{row['level']}] {message}" if row["level"] else ""
+            row["level"] = "SILENT"
+            row["message"] = (f"no status from the node for {silent:.0f} s: /diagnostics stopped (the node ended, "
+                              f"was killed or hangs){last}" if self.status_at is not None else
+                              f"no status from a node in {silent:.0f} s (none running in this namespace and "
+                              "ROS_DOMAIN_ID?)")
         row |= {name: _mean(v) for name, v in values.items() if name not in _FORMATTED}
         return row
 
@@ -135,6 +158,8 @@ class WatchWindow:
         return "  ".join(parts) + status
 
 
+#: the node's status comes once a second: silent after this long without one (or 2.5 periods, if longer)
+SILENT_AFTER_S = 3.0
 #: the status message's measured-efficiency headline ("; measured efficiency 98.1 ± 0.3 % over 10 s")
 _HEADLINE = re.compile(r"(^|; )measured efficiency [^;]* over [^;]* s$")
 
@@ -144,10 +169,14 @@ def _mean(v: np.ndarray) -> float:
     return float(finite.mean()) if len(finite) else float("nan")
 
 
-def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out=sys.stdout, fmt: str = "text") -> int:
+def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out=None, fmt: str = "text",
+          until_silent_s: float = 0.0) -> int:
     """Print one :meth:`WatchWindow.line` per ``period_s`` until Ctrl-C (or ``count`` lines); ``fmt``
-    ``csv`` (a header, then one row of :meth:`WatchWindow.take` per period, the time first) or ``json``
-    (one object per line) for a logger."""
+    ``csv`` (a header, then one row of :meth:`WatchWindow.take` per period, the time first; a figure with
+    no value an empty field) or ``json`` (one object per line, null) for a logger; the time to the
+    millisecond.  ``until_silent_s``: end with status 3 once the node has said nothing on ``/diagnostics``
+    for that long (a logger's watchdog: a dead node is no idle rig)."""
+    out = sys.stdout if out is None else out  # as the command line wraps it now (its errors name it)
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
     from rclpy.experimental import EventsExecutor
     from rclpy.node import Node
@@ -186,6 +215,7 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
     )
     lines = 0
     writer = None
+    status = 0
     try:
         start = time.monotonic()
         while count <= 0 or lines < count:
@@ -198,7 +228,9 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
                     print(f"{stamp}  {traced}", file=out, flush=True)
                 print(f"{stamp}  {window.line(period_s, topic_of_loss)}", file=out, flush=True)
             else:
-                row = {"time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())} | window.take(period_s)
+                now = datetime.datetime.now(datetime.UTC)
+                row = {"time_utc": now.strftime("%Y-%m-%dT%H:%M:%S.") + f"{now.microsecond // 1000:03d}Z"} \
+                    | window.take(period_s)
                 row["traced"] = " | ".join(window.take_traced())
                 if fmt == "json":
                     print(json.dumps({k: (None if isinstance(v, float) and not math.isfinite(v) else v)
@@ -207,15 +239,25 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
                     if writer is None:
                         writer = csv.DictWriter(out, fieldnames=list(row), lineterminator="\n")
                         writer.writeheader()
-                    writer.writerow({k: row.get(k, "") for k in writer.fieldnames})
+                    writer.writerow({k: _field(row.get(k, "")) for k in writer.fieldnames})
                     out.flush()
             lines += 1
+            if until_silent_s > 0 and window.silent_s(period_s) >= until_silent_s:
+                print(f"rollergear watch: no status from the node for {window.silent_s(period_s):.0f} s: ended "
+                      "(--until-silent)", file=sys.stderr)
+                status = 3
+                break
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM: the normal end
         pass
     finally:
         executor.shutdown()
         node.destroy_node()
-    return 0
+    return status
+
+
+def _field(value) -> str | float | int:
+    """A CSV field: a figure with no value (NaN) empty."""
+    return "" if isinstance(value, float) and not math.isfinite(value) else value
 
 
 def cmd_watch(args: argparse.Namespace) -> int:
@@ -223,10 +265,12 @@ def cmd_watch(args: argparse.Namespace) -> int:
 
     if not (args.period > 0):
         raise UsageError("--period must be > 0")
+    if not (args.until_silent >= 0):
+        raise UsageError("--until-silent must be >= 0 s")
     init_for_command_line()
     try:
         fmt = "json" if args.json else "csv" if args.csv else "text"
-        return watch(args.namespace, args.period, args.count, fmt=fmt)
+        return watch(args.namespace, args.period, args.count, fmt=fmt, until_silent_s=args.until_silent)
     finally:
         rclpy.try_shutdown()
 
@@ -236,6 +280,9 @@ def register_watch(sub, with_params) -> None:  # noqa: ARG001
     p.add_argument("--namespace", default=NAMESPACE, help=f"the node's namespace (default {NAMESPACE})")
     p.add_argument("--period", type=float, default=1.0, metavar="S", help="seconds per line (default 1)")
     p.add_argument("--count", type=int, default=0, metavar="N", help="stop after N lines (default: until Ctrl-C)")
+    p.add_argument("--until-silent", type=float, default=0.0, metavar="S",
+                   help="end with exit status 3 once the node has said nothing on /diagnostics for S seconds "
+                        "(it ended, was killed or hangs; default: watch on)")
     fmt = p.add_mutually_exclusive_group()
     fmt.add_argument("--csv", action="store_true", help="a CSV header, then one row per period (for a logger)")
     fmt.add_argument("--json", action="store_true", help="one JSON object per period and line (JSON Lines)")

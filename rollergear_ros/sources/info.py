@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from .channelmap import ChannelMap, load_channel_map
+from ..base.text import printable
 from ..base.errors import InputFileError
 from .formats import InputFormat, input_format
 
@@ -62,7 +63,7 @@ class FileInfo:
     def text(self) -> str:
         """As ``mcap info`` lays it out: one field per line, then one line per stream; what the file
         names (topics, types, metadata) with control characters escaped: a file cannot fake lines."""
-        return "\n".join(_printable(line) for line in self._lines())
+        return "\n".join(printable(line, None) for line in self._lines())
 
     def _lines(self) -> list[str]:
         lines = [f"path:      {self.path}", f"format:    {self.format}", f"size:      {_size(self.size_bytes)}"]
@@ -82,13 +83,6 @@ class FileInfo:
         lines.append(f"damaged:   {'; '.join(self.damaged) or 'nothing found'}")
         lines += [f"note:      {n}" for n in self.notes]
         return lines
-
-
-def _printable(text: str) -> str:
-    """``text`` with every non-printable character (escape codes, carriage returns) escaped as Python would."""
-    if text.isprintable():
-        return text
-    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
 
 
 def describe(path: str | Path, channels: str | Path | None = None) -> FileInfo:

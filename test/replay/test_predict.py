@@ -21,7 +21,7 @@ from rollergear_ros.core.covariance import ParameterCovariance
 from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 
-from helpers import run_cli
+from helpers import BAGS, run_cli
 
 TRUE_DRAG = "drag_speed:c=3e-4,p=1.4"
 CALIBRATED = ("/**/loss_estimator:\n  ros__parameters:\n    estimator: {adapt: false}\n    effects:\n"
@@ -223,3 +223,20 @@ def test_predict_json_is_json_for_a_one_sample_profile_and_a_duplicated_time(tmp
     for p in (one, twice):
         text = json.dumps(p.to_json(), allow_nan=False)
         assert json.loads(text)["mean_loss_power_w"] is None
+
+
+def test_a_files_segment_text_is_escaped_and_bounded_on_the_terminal(tmp_path):
+    """A parameter file's ``calibration.model_form`` segment is shown by replay and predict: escape codes
+    (one that clears the screen) come out escaped, and 900 KB of it as its first few hundred characters
+    and how many more there were -- never raw, never whole."""
+    import json as _json
+
+    segment = "\x1b[2J\x1b[31mthe latest stretch" + "x" * 900_000
+    form = _json.dumps({"verdict": "effects_found", "segment": segment}, separators=(",", ":"))
+    params = tmp_path / "cal.yaml"
+    params.write_text(CALIBRATED + "      model_form: " + _json.dumps(form) + "\n")
+    for verb in ("replay", "predict"):
+        out = run_cli(verb, str(BAGS / "rig_map.mcap"), "--params", str(params), *(["--no-png"] if verb == "replay"
+                                                                                   else [])).stdout
+        assert "\x1b" not in out and "\\x1b[2J\\x1b[31mthe latest stretch" in out, verb
+        assert len(out) < 20_000 and "characters more)" in out, (verb, len(out))

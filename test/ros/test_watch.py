@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 
 import numpy as np
@@ -111,7 +112,6 @@ def test_a_period_as_the_row_a_logger_takes():
 def test_watch_writes_rows_for_a_logger(fmt):
     import csv
     import io
-    import json
 
     proc = run_cli("watch", "--period", "0.5", "--count", "2", fmt, timeout=30)
     if fmt == "--json":
@@ -121,7 +121,59 @@ def test_watch_writes_rows_for_a_logger(fmt):
         rows = list(csv.DictReader(io.StringIO(proc.stdout)))
     assert len(rows) == 2 and all(float(r["estimates_per_s"]) == 0 and r["time_utc"].endswith("Z") for r in rows)
     assert {"loss_torque_nm", "efficiency", "efficiency_measured", "efficiency_measured_uncertainty", "level",
-            "message", "traced"} <= set(rows[0])
+            "message", "traced", "status_age_s"} <= set(rows[0])
+    # to the millisecond (a logger's rows a period apart never share a stamp); no value: null / an empty field
+    assert all(re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z", r["time_utc"]) for r in rows), rows
+    assert rows[0]["time_utc"] != rows[1]["time_utc"]
+    assert all(r["loss_torque_nm"] in (None, "") for r in rows), rows
+
+
+def test_a_node_that_stopped_speaking_is_silent_not_idle():
+    """The node's last status said STALE (an idle rig); /diagnostics then stops (the node ended or was
+    killed): after three seconds without a status the row says SILENT, how long, and the last status --
+    never the frozen STALE; a watcher that never heard a node says so too."""
+    w = WatchWindow()
+    w.add_status(3, "stale input: motor_torque silent for 1.44 s: idle", {})
+    assert w.take(1.0, now=w.status_at + 1.0)["level"] == "STALE"
+    row = w.take(1.0, now=w.status_at + 5.2)
+    assert row["level"] == "SILENT" and row["status_age_s"] == pytest.approx(5.2), row
+    assert row["message"].startswith("no status from the node for 5 s") and "[STALE] stale input" in row["message"]
+    assert "[SILENT] no status from the node for 5 s" in _line(w, w.status_at + 5.2)
+    never = WatchWindow()
+    assert never.take(1.0, now=never.started + 1.0)["level"] == ""
+    assert never.take(1.0, now=never.started + 4.0)["message"].startswith("no status from a node in 4 s")
+
+
+def _line(w: WatchWindow, now: float) -> str:
+    import time
+
+    real = time.monotonic
+    try:  # the line of a period ending at ``now`` (its clock is the watcher's)
+        time.monotonic = lambda: now
+        return w.line(1.0, "/x")
+    finally:
+        time.monotonic = real
+
+
+@pytest.mark.ros
+def test_watch_ends_when_the_node_stays_silent_and_says_a_full_device_in_one_line(tmp_path):
+    """``--until-silent S``: a logger's watchdog ends with status 3 once /diagnostics said nothing for S
+    seconds (here no node at all); standard output on a full device: one error line, status 2."""
+    proc = run_cli("watch", "--period", "0.5", "--until-silent", "3", "--json", check=False, timeout=60)
+    assert proc.returncode == 3 and "no status from the node for" in proc.stderr, proc.stderr
+    assert json.loads(proc.stdout.splitlines()[-1])["level"] == "SILENT"
+    import subprocess
+    import sys
+
+    from helpers import ROOT
+
+    for fmt in ([], ["--csv"], ["--json"]):
+        with open("/dev/full", "w") as full:
+            done = subprocess.run([sys.executable, "-m", "rollergear_ros", "watch", "--period", "0.3", "--count", "2",
+                                   *fmt], stdout=full, stderr=subprocess.PIPE, text=True, cwd=ROOT, timeout=60)
+        lines = done.stderr.strip().splitlines()
+        assert done.returncode == 2 and "Traceback" not in done.stderr, done.stderr
+        assert lines[-1] == "rollergear: error: standard output: No space left on device", lines
 
 
 def test_a_line_says_the_measured_efficiency_once_and_keeps_the_latest_window_across_periods():
