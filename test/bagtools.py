@@ -117,3 +117,42 @@ def _copy(src: Path, dst: Path, each, log_time_order: bool) -> Path:
             writer.add_metadata(record.name, record.metadata)
         writer.finish()
     return dst
+
+
+def swallowed_record_bag(path: Path, samples: int = 3000) -> Path:
+    """An uncompressed MCAP of motor torque and speed whose middle chunk holds one message record with a
+    length that swallows the rest of the chunk (its CRC zeroed: unchecked), written by the ``mcap``
+    library and then patched: a record's bytes that are no Float64."""
+    import struct
+
+    from mcap.writer import CompressionType, Writer
+
+    with open(path, "wb") as fh:
+        writer = Writer(fh, compression=CompressionType.NONE, chunk_size=2000)
+        writer.start(profile="ros2", library="rollergear tests")
+        schema = writer.register_schema("std_msgs/msg/Float64", "ros2msg", b"float64 data")
+        channels = {t: writer.register_channel(t, "cdr", schema) for t in ("/rollergear/motor/torque",
+                                                                           "/rollergear/motor/speed")}
+        for k in range(samples):
+            t = 10**18 + k * 1_000_000
+            for topic, value in (("/rollergear/motor/torque", 10.0 + k * 1e-3), ("/rollergear/motor/speed", 100.0)):
+                writer.add_message(channels[topic], t, b"\x00\x01\x00\x00" + struct.pack("<d", value), t)
+        writer.finish()
+    data = bytearray(Path(path).read_bytes())
+    pos, chunks = 8, []
+    while pos < len(data) - 8 and data[pos] != 0x0F:  # records up to the footer: the chunks
+        length = struct.unpack_from("<Q", data, pos + 1)[0]
+        if data[pos] == 0x06:
+            chunks.append(pos)
+        pos += 9 + length
+    chunk = chunks[len(chunks) // 2]
+    at = chunk + 9 + 24 + 4  # opcode, length; start, end, uncompressed size; crc
+    at += 4 + struct.unpack_from("<I", data, at)[0]  # the compression's name
+    records_end = at + 8 + struct.unpack_from("<Q", data, at)[0]
+    at += 8
+    while data[at] != 0x05:  # the chunk's first message record
+        at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
+    struct.pack_into("<Q", data, at + 1, records_end - at - 9)
+    struct.pack_into("<I", data, chunk + 9 + 24, 0)
+    Path(path).write_bytes(bytes(data))
+    return Path(path)

@@ -9,7 +9,9 @@ parser (rcl) rejects them too, so a file the CLI accepted would not start the no
 
 from __future__ import annotations
 
+import math
 import re
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -92,6 +94,23 @@ class _Loader(yaml.SafeLoader):
 _Loader.add_implicit_resolver("tag:yaml.org,2002:float",
                               re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
                               list("-+0123456789."))
+
+
+def _ros_float(loader: yaml.SafeLoader, node: yaml.ScalarNode):
+    """A number as ROS 2's parameter parser reads it (``strtod``, refused on ``ERANGE``): one that overflows
+    to infinity or underflows below the smallest normal double (``1e-320``, ``1e999``) is text there, so it
+    is text here -- the node and every command give one file one verdict."""
+    value = loader.construct_yaml_float(node)
+    text = node.value.strip().lower().replace("_", "")
+    if text.lstrip("+-") in (".inf", ".nan"):
+        return value
+    digits = text.lstrip("+-").split("e")[0].replace(".", "")
+    if math.isinf(value) or (value != 0.0 and abs(value) < sys.float_info.min) or (value == 0.0 and digits.strip("0")):
+        return node.value
+    return value
+
+
+_Loader.add_constructor("tag:yaml.org,2002:float", _ros_float)
 
 
 def loads(text: str) -> Any:

@@ -152,7 +152,8 @@ def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, 
     input queue of ``limits.queue_depth`` messages holds ``queue_depth / expected_rate_hz`` seconds;
     an executor running half of that behind is about to lose the oldest of them, so that is a WARN
     (by arrival, the node counts what was lost, from the publishers' sequence numbers: ``lost in
-    delivery``).  ``None``: a reliable keep-all input (the publisher waits instead).
+    delivery``).  ``None``: a reliable keep-all input (the publisher waits instead).  Nothing is said of it
+    before the first input message: no queue holds anything to lose.
 
     Stale: an input silent for longer than ``estimator.staleness_s`` (at least ten expected periods)
     plus the executor lag -- an overloaded or starved node is behind, its rig not idle.
@@ -174,7 +175,8 @@ def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, 
     values.append(("input callbacks busy [%]", _fmt(100 * busy_fraction, 3)))
     values.append(("executor lag [s]", _fmt(executor_lag_s, 3)))
     limit_s = OVERLOAD_QUEUE_SHARE * (queue_depth / expected_rate_hz if queue_depth else RELIABLE_LAG_S)
-    if executor_lag_s > limit_s:
+    # before any input came there is no queue to overflow (a node's start-up lags its first timers)
+    if executor_lag_s > limit_s and any(inputs.monitor.counts.values()):
         lost = " its input queues overflow: the oldest messages are lost" if queue_depth else \
             " the publishers are slowed down"
         reasons.append((WARN, f"overloaded: the node runs {executor_lag_s:.2f} s behind its inputs "

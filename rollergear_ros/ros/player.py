@@ -88,15 +88,23 @@ class PlayStats:
     max_late_ms: float = 0.0  #: worst delay of a publish behind its scheduled time
     late_over_5ms: int = 0  #: publishes more than 5 ms behind
     held_back: int = 0  #: publishes that waited for a reliable keep-all subscriber to catch up
+    refused: int = 0  #: messages the middleware would not publish (not its type: a damaged record's bytes)
     damaged: list[str] = field(default_factory=list)  #: the damaged spans the read skipped (one line each)
     lost_share: float = 0.0  #: the share of the recording they cost (:func:`base.errors.lost_share`)
 
     def text(self) -> str:
         held = f"; held back {self.held_back} times by a subscriber that fell behind" if self.held_back else ""
+        refused = (f"; {self.refused:,} not published: the middleware refused them (a damaged record's bytes, not "
+                   "its topic's message)" if self.refused else "")
         return (f"{self.messages:,} messages; timing: max {self.max_late_ms:.1f} ms late, "
-                f"{self.late_over_5ms} more than 5 ms late{held}")
+                f"{self.late_over_5ms} more than 5 ms late{held}{refused}")
 
 
+#: a publish to a keep-all subscriber whose queue is full fails after blocking this long or longer; one that
+#: fails sooner was refused for what it is (bytes that are not its topic's message), never retried
+FULL_QUEUE_BLOCK_S = 0.01
+#: a message still held back after this long is given up (said): a subscriber that never catches up
+MAX_HELD_BACK_S = 30.0
 #: after the subscribers have matched, before the first message: they must discover the player as
 #: well (a best-effort subscription drops what a publisher it has not matched yet sends)
 SUBSCRIBER_SETTLE_S = 1.0
@@ -310,15 +318,8 @@ def _play_once(bag: Path, pubs: dict, rate: float, clock_pub, stats: PlayStats) 
                     c.clock.sec, c.clock.nanosec = divmod(t_bag, 1_000_000_000)
                     clock_pub.publish(c)
                     last_clock = t_bag
-                while True:
-                    try:
-                        pub.publish(data)
-                        break
-                    except publish_failed:  # a keep-all subscriber's queue is full (after ~0.1 s)
-                        if not rclpy.ok():
-                            raise
-                        stats.held_back += 1
-                stats.messages += 1
+                if _publish(pub, data, publish_failed, stats):
+                    stats.messages += 1
     finally:
         reader.close()
         if state.damaged and not stats.damaged:  # said once (a loop reads the file again)
@@ -327,6 +328,28 @@ def _play_once(bag: Path, pubs: dict, rate: float, clock_pub, stats: PlayStats) 
             stats.lost_share = lost_share(state.damaged, info.bytes_total, info.message_count)
             for line in stats.damaged:
                 print(f"warning: {bag}: {line}", file=sys.stderr)
+
+
+def _publish(pub, data: bytes, publish_failed: type, stats: PlayStats) -> bool:
+    """Publish one message, waiting while a keep-all subscriber's queue is full (a failure after blocking,
+    :data:`FULL_QUEUE_BLOCK_S`) for at most :data:`MAX_HELD_BACK_S`; a failure at once is a refusal of the
+    bytes themselves (a damaged record's): counted, not retried.  Whether it was published."""
+    import rclpy
+
+    first = time.monotonic()
+    while True:
+        tried = time.monotonic()
+        try:
+            pub.publish(data)
+            return True
+        except publish_failed:
+            if not rclpy.ok():
+                raise
+            now = time.monotonic()
+            if now - tried < FULL_QUEUE_BLOCK_S or now - first > MAX_HELD_BACK_S:
+                stats.refused += 1
+                return False
+            stats.held_back += 1
 
 
 def init_for_command_line() -> None:

@@ -62,6 +62,11 @@ def test_an_executor_behind_its_input_queue_is_an_overload_warning():
     assert "input queues overflow" in rep.message and dict(rep.values)["executor lag [s]"] == "0.55"
     assert report(0.15, 1000, rate=5000.0).level == WARN  # 1000 messages at 5 kHz hold 0.2 s
     assert report(0.45, None).level == OK and "publishers are slowed" in report(0.55, None).message
+    # a node starting with no input yet: its first timers lag, but no queue holds anything to lose
+    quiet = diagnose(InputsNow(now, InputMonitor(now - 2 * 10**9), {TORQUE: 0.0, SPEED: 0.0}), est,
+                     DiagnosticLimits(1000.0, 0.9, queue_depth=1000), SinceLast(dict(est.counts), 0),
+                     NodeLoad(busy_fraction=0.0, executor_lag_s=2.0))
+    assert "overloaded" not in quiet.message, quiet.message
 
 
 def test_silence_the_node_s_own_lag_explains_is_no_stale_input():

@@ -15,7 +15,7 @@ from rollergear_ros.core.params import load_config
 from rollergear_ros.replay.run import replay
 
 from bagtools import float_series, read_mcap_ros2, read_rosbags
-from helpers import BAGS, CONFIG, REALDATA, with_effect
+from helpers import BAGS, CONFIG, REALDATA, run_cli, with_effect
 from rostools import (LOSSLESS, PROBE_DEPTH, FloatProbe, NodeProcess, WatchProcess, call_until_answered, play,
                       ros_context, wait_for)
 
@@ -867,6 +867,18 @@ def _storage_messages(folder, topic: str) -> list[bytes]:
         return [m.data for _, c, m in make_reader(fh).iter_messages(topics=[topic], log_time_order=True)]
 
 
+def test_play_of_a_record_whose_bytes_the_middleware_refuses_ends_and_says_so(tmp_path):
+    """A chunk whose one message record swallows the rest of the chunk: its bytes are no Float64, and the
+    middleware refuses them at once -- never a full queue to wait on.  The player counts it, goes on, ends
+    (it retried for ever at 100 % CPU) and exits as replay of the file does."""
+    from bagtools import swallowed_record_bag
+
+    bag = swallowed_record_bag(tmp_path / "swallowed.mcap")
+    proc = run_cli("play", str(bag), "--no-wait", "--rate", "20", "--no-progress", check=False, timeout=120)
+    assert "not published: the middleware refused them" in proc.stderr, proc.stderr
+    assert proc.returncode == run_cli("replay", str(bag), "--no-png", check=False).returncode, proc.stderr
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_player_interrupted_while_publishing_ends_cleanly(sig):
     """A signal that arrives during a publish (4 k messages/s) ends the player with exit code 0 and
@@ -1097,6 +1109,23 @@ def test_start_up_refuses_what_would_run_on_defaults_or_crash(tmp_path, file_tex
     assert code == 2 and "Traceback" not in node.stderr, node.stderr
     errors = [ln for ln in node.stderr.splitlines() if ln.strip()]
     assert len(errors) == 1 and errors[0].startswith("loss_estimator: error:") and message in errors[0], errors
+
+
+@pytest.mark.parametrize("value", ["1e-320", "1e999"])
+def test_a_number_ros_reads_as_text_is_one_verdict_for_the_node_and_the_command_line(tmp_path, value):
+    """``output_torque_lag_s: 1e-320`` (below the smallest normal double) or ``1e999``: ROS 2's parser reads
+    it as text, and so does the command line now -- both refuse the file in one line naming the parameter
+    (the command line took 1e-320 for a number: one file, two verdicts)."""
+    params = tmp_path / "p.yaml"
+    params.write_text(f"loss_estimator:\n  ros__parameters:\n    estimator: {{output_torque_lag_s: {value}}}\n")
+    cli = run_cli("replay", str(BAGS / "rig_map.mcap"), "--params", str(params), "--no-png", check=False)
+    assert cli.returncode == 2 and "estimator.output_torque_lag_s" in cli.stderr, cli.stderr
+    assert cli.stderr.strip().count("\n") == 0, cli.stderr
+    node = NodeProcess(params_file=params)
+    code = node.proc.wait(timeout=60)
+    node.stop()
+    errors = [ln for ln in node.stderr.splitlines() if ln.strip()]
+    assert code == 2 and len(errors) == 1 and "estimator.output_torque_lag_s" in errors[0], node.stderr
 
 
 def test_an_integer_for_a_float_parameter_is_accepted(tmp_path):
