@@ -280,7 +280,6 @@ def _wait_to_start(node, pubs: dict, o: PlayOptions) -> None:
 def _play_once(bag: Path, pubs: dict, rate: float, clock_pub, stats: PlayStats) -> None:
     """One pass through the bag: each selected message published at its log time scaled by
     ``rate`` (and the bag's clock on ``clock_pub``), counted in ``stats``."""
-    import rclpy
     from rclpy.impl.implementation_singleton import rclpy_implementation
     from rosgraph_msgs.msg import Clock
 
