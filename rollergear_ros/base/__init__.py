@@ -1,6 +1,6 @@
 """The base: names other tools depend on (``interface``), the output-channel table
 (``output_channels``), the one exception family (``errors``), safe YAML, atomic file writing,
-progress bars and graceful stopping.  Imports nothing else of the package.
+progress bars, graceful stopping and text from files made safe to show (``text``).  Imports nothing else of the package.
 """
 
 from .face import lazy_face
@@ -35,6 +35,7 @@ _FACE = {
     "RPM_PER_RAD_S": "interface",
     "Topic": "interface",
     "package_version": "interface",
+    "printable": "text",
     "OUTPUT_CHANNELS": "output_channels",
     "OutputChannel": "output_channels",
     "float64_channels": "output_channels",

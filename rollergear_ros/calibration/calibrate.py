@@ -158,8 +158,10 @@ def _size(result: CalibrationResult) -> tuple[int, int]:
     """A written file's terms (effects and model parameters alike), then its fitted values (coefficients,
     model parameters, exponents not held at a line)."""
     values = len(result.parameters)
-    for e in result.effects:
-        values += 1 + sum(1 for k, (lo, hi) in e.ci95.items() if k != EFFECTS[e.name].coefficient and hi > lo)
+    for e in result.effects:  # a member held at the law's line is no fitted value
+        effect = EFFECTS[e.name]
+        values += 1 + sum(1 for k in e.ci95 if k != effect.coefficient
+                          and not (k == effect.member and e.params.get(k) == effect.linear))
     return len(result.effects) + len(result.parameters), values
 
 

@@ -469,22 +469,33 @@ class _Procedure:
             state.accepted_at.pop(t.name, None)
 
     def _straighten(self, state: _Forward) -> None:
-        """A law whose exponent the later terms moved back near its line (p = 1) is the line again unless its
-        curve still predicts held-out operating points better by more than the minimum improvement:
-        curvature enters only where the data between the operating points fitted ask for it."""
+        """Beside the final set, each law with a line (:attr:`~core.effects.Effect.linear`) is its curve only
+        where the curve predicts held-out operating points better than the line by more than the minimum
+        improvement and stops inside its search: a line taken when the law came in (the rest of the loss
+        still unexplained) is curved now if the data between the operating points ask for it, and a curve
+        the later terms moved back near the line is the line again."""
         cal = self.cal
         for i, t in enumerate(state.selected):
-            if t.fixed or t.member is None or t.name not in EFFECTS or EFFECTS[t.name].linear is None:
+            if t.member is None or t.name not in EFFECTS or EFFECTS[t.name].linear is None:
                 continue
             final = state.selected + state.provisional
-            line = cal.line_of(t)
-            alt = cal.optimise(final[:i] + [line] + final[i + 1:])
-            if cal.screen(alt, self.check) is None and \
-                    cal.cv_rmse_points(final) >= (1.0 - cal.min_improvement) * cal.cv_rmse_points(alt):
-                self.log.append(f"{t.name}: its {EFFECTS[t.name].member} = {t.member:.3g} predicts held-out operating "
-                                f"points no better than its line: the line is taken")
-                n = len(state.selected)
-                state.selected, state.provisional = alt[:n], alt[n:]
+            if t.fixed:
+                free = Term(t.name, t.column, t.member, t.second, t.law)
+                line, curve = final, cal.optimise(final[:i] + [free] + final[i + 1:])
+            else:
+                line, curve = cal.optimise(final[:i] + [cal.line_of(t)] + final[i + 1:]), final
+            lo, hi = cal.search_ranges(t.name)[EFFECTS[t.name].member]
+            bent = curve[i].member
+            curved = not min(abs(bent - lo), abs(bent - hi)) <= 1e-3 * (hi - lo) \
+                and cal.cv_rmse_points(curve) < (1.0 - cal.min_improvement) * cal.cv_rmse_points(line)
+            chosen = curve if curved else line
+            if chosen is final or cal.screen(chosen, self.check) is not None:
+                continue
+            self.log.append(f"{t.name}: beside the final set its {EFFECTS[t.name].member} = {chosen[i].member:.3g} "
+                            + ("(its curve predicts held-out operating points better than its line)" if curved
+                               else "(its line: its curve predicts held-out operating points no better)"))
+            n = len(state.selected)
+            state.selected, state.provisional = chosen[:n], chosen[n:]
 
     # ------------------------------------------------------------------ decisions
     def _decisions(self, state: _Forward, final: list[Term]) -> tuple[list[Decision], list[RejectedEffect], list[str]]:
@@ -507,6 +518,8 @@ class _Procedure:
                 c, se = cal.coefficient(final, i)
                 rms = cal.contribution_rms(final, i)
                 note = "assumed (--assume)" if g in self.assume else state.notes.get(g, "")
+                if final[i].fixed and g in cal.line_notes:  # a law held at its line: why not its curve
+                    note = "; ".join(x for x in (note, cal.line_notes[g]) if x)
                 decisions.append(Decision(g, True, state.accepted_at.get(g), cv_final, cv_without,
                                           abs(c) / se if se > 0 else math.inf,
                                           [max(0.0, abs(c) - 1.96 * se) * rms, (abs(c) + 1.96 * se) * rms], [], note))

@@ -148,6 +148,8 @@ class Calibrator:
         self.starts: dict[str, tuple[float, float | None]] = {}
         self.bounds: dict[str, dict[str, tuple[float, float]]] = {}
         self.datasheet_law: tuple[float, float, float] | None = None  #: the oil's data sheet's Vogel B, C, θ_ref
+        #: effect -> why it was last taken as its line (:meth:`_line_unless_curve_predicts`)
+        self.line_notes: dict[str, str] = {}
 
     def search_ranges(self, name: str) -> dict[str, tuple[float, float]]:
         """Short name -> search bounds of an effect's profiled members (a start's, else the registry's)."""
@@ -416,22 +418,30 @@ class Calibrator:
         if EFFECTS[name].linear is None:
             return curved
         line = self.optimise(base + [self.line_of(members(self.b, name)[0])])
-        lo, hi = self.search_ranges(name)[EFFECTS[name].member]
+        short = EFFECTS[name].member
+        lo, hi = self.search_ranges(name)[short]
         member = curved[-1].member
         at_bound = min(abs(member - lo), abs(member - hi)) <= 1e-3 * (hi - lo)
-        if at_bound or self.cv_rmse_points(curved) >= (1.0 - self.min_improvement) * self.cv_rmse_points(line):
+        if at_bound:
+            self.line_notes[name] = (f"its line ({short} = {line[-1].member:g}): its curve's {short} = {member:.4g} "
+                                     f"stopped at the bound of its search [{lo:g}, {hi:g}] (a law outside the "
+                                     "vocabulary)")
             return line
+        if self.cv_rmse_points(curved) >= (1.0 - self.min_improvement) * self.cv_rmse_points(line):
+            self.line_notes[name] = (f"its line ({short} = {line[-1].member:g}): its curve ({short} = {member:.3g}) "
+                                     "predicts held-out operating points no better")
+            return line
+        self.line_notes.pop(name, None)
         return curved
 
     def member_range(self, terms: list[Term], i: int, second: bool = False) -> list[float]:
         """Profile-likelihood 95 % range of term i's exponent (the others held at their optimum); of
         a pair (Vogel B and C), of either one with the other profiled, at the held coefficient.
-        ``second``: the range of the second member."""
+        ``second``: the range of the second member.  A law held at its line has the range its exponent
+        would have free: what the data allow, which the other terms' intervals cover."""
         from scipy.optimize import brentq, minimize_scalar
 
-        t = terms[i]
-        if t.fixed:  # held at its line: no range of its own
-            return [float(t.second if second else t.member)] * 2
+        t = terms[i]  # a line held at its member still has the range the data allow it (its curve's)
         effect = EFFECTS[t.name]
         pair = effect.second_member is not None
         w0 = self.wsse_held(terms, i) if effect.profile_coefficient is not None else self.wsse(terms)

@@ -145,6 +145,9 @@ def _print_result(result) -> None:
         print(f"  effect {e.name}: {params}  (95 %: {ci}; RMS contribution {e.rms_contribution_nm:.4g} N·m)")
         if e.bound_note():
             print(f"    note: {e.bound_note()}")
+        line = next((d.note for d in result.decisions if d.name == e.name and "its line" in d.note), "")
+        if line:  # a law held at its line: why not its curve
+            print(f"    note: {line[line.index('its line'):]}")
     for prm in result.parameters:
         print(f"  parameter {prm.sentence()}")
     _print_not_found(result)

@@ -110,13 +110,21 @@ def test_a_lifting_torque_rising_and_a_lowering_torque_falling_near_standstill_i
     assert not {"load_dependent", "load_speed", "backdrive"} & set(found), sorted(found)
     assert "one load" in result["untestable"]["load_dependent"]
     assert {"stribeck_direction", "torque_offset"} <= set(found), sorted(found)
-    one = found["stribeck_direction"]["ci95"]
-    assert one["c"][0] <= 0.005 <= one["c"][1] and one["omega_s"][0] <= 0.3 <= one["omega_s"][1], one
-    assert found["torque_offset"]["ci95"]["b"][0] <= 0.001 <= found["torque_offset"]["ci95"]["b"][1]
+    # five 95 % intervals on one draw miss together about one time in four: each truth is checked against
+    # its interval widened to 99.9 % (3.29/1.96 of each half-width about the estimate), as in test_calibrate
+    assert _within(found["stribeck_direction"], "c", 0.005) and _within(found["stribeck_direction"], "omega_s", 0.3)
+    assert _within(found["torque_offset"], "b", 0.001)
     held, _ = lifting_table(tmp_path, (1.2, 1.7, 2.5, 3.5, 5, 7, 10, 14, 25, 40), "held", seed=1, offset_nm=0.001)
     again = json.loads(run_cli("calibrate", str(held), "--channels", str(cmap), "--params", str(out),
                                "--json").stdout)
     assert again["error_before"]["rmse_nm"] < 1e-4, again["error_before"]  # 5 × the rows' scatter
+
+
+def _within(effect: dict, key: str, truth: float) -> bool:
+    """Whether ``truth`` lies in the effect's 95 % interval of ``key`` widened to 99.9 %."""
+    lo, hi = effect["ci95"][key]
+    est, k = effect["params"][key], 3.29 / 1.96
+    return est - k * (est - lo) <= truth <= est + k * (hi - est)
 
 
 def test_a_directed_breakaway_is_found_in_a_recording_of_a_drive_that_sticks_and_slips(tmp_path):

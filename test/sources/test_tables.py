@@ -229,8 +229,9 @@ def test_a_tables_intervals_come_from_its_own_scatter(tmp_path):
 
 def test_a_speed_law_flatter_than_the_vocabulary_allows_is_not_accepted_at_its_bound_and_said(tmp_path):
     """A churning loss growing like ω^0.1 (below drag_speed's range, p ≥ 0.3): the search goes on past
-    the grid's first member to the bound, and an exponent stopped there is no estimate -- it is not
-    accepted (it used to be written, with a note), and calibrate says why."""
+    the grid's first member to the bound, and an exponent stopped there is no estimate -- the curve is
+    never accepted (it used to be written, with a note); where the law's line passes instead, that is
+    written (p = 1), and calibrate says why not the curve."""
     lines = [HEADER.strip()]
     for n in range(250, 4001, 250):
         w = n * 2 * np.pi / 60
@@ -239,13 +240,18 @@ def test_a_speed_law_flatter_than_the_vocabulary_allows_is_not_accepted_at_its_b
     (tmp_path / "flat.vtlm").write_text("\n".join(lines) + "\n")
     params = str(_params(tmp_path, False))
     result = json.loads(run_cli("calibrate", str(tmp_path / "flat.vtlm"), "--params", params, "--json").stdout)
-    assert "drag_speed" not in {e["name"] for e in result["effects"]}
+    speed = {e["name"]: e for e in result["effects"]}.get("drag_speed")
     assert all(not e["at_bound"] for e in result["effects"])
-    rejected = {r["name"]: r for r in result["rejected"]}
-    assert "stopped at the bound of its search [0.3, 3.5]" in rejected["drag_speed"]["reason"]
+    decision = {d["name"]: d for d in result["decisions"]}["drag_speed"]
+    if speed is not None:  # its line
+        assert speed["params"]["p"] == 1.0, speed
+        assert "its curve's p = 0.3" in decision["note"] and "stopped at the bound of its search [0.3, 3.5]" in \
+            decision["note"], decision
+    else:
+        rejected = {r["name"]: r for r in result["rejected"]}
+        assert "stopped at the bound of its search [0.3, 3.5]" in rejected["drag_speed"]["reason"]
     text = run_cli("calibrate", str(tmp_path / "flat.vtlm"), "--params", params).stdout
-    assert "drag_speed: not accepted" in text and "drag_speed's p = 0.3" in text
-    assert "the data want a law outside" in text
+    assert "stopped at the bound of its search [0.3, 3.5]" in text
 
 
 def test_an_output_side_efficiency_table_with_a_ratio_column_is_put_on_the_input_shaft(tmp_path, config):
