@@ -38,7 +38,8 @@ def fmt_truth(effects) -> str:
 def fmt_found(res) -> str:
     parts = [f"{e.name} " + ", ".join(f"{k}={v:.3g}" for k, v in e.params.items()
                                          if k != "theta_ref") for e in res.effects]
-    parts += [f"cannot tell apart {' / '.join(a.effects)}" for a in res.ambiguous]
+    parts += [f"the other reading: {' + '.join(e for e in a.effects if e not in a.taken.split(' + '))}"
+              if a.taken else f"cannot tell apart {' / '.join(a.effects)}" for a in res.ambiguous]
     return "; ".join(parts) or "—"
 
 
