@@ -10,17 +10,23 @@ Procedure (after ``shared/closing-the-loop.md``):
    across a recording, a sign change of ω or T, or a gap; a transient cut into shorter ones).  Every
    candidate term is linear in its coefficient, so block means of the regressors keep the relation
    exact while noise averages out.  Blocks weigh by their samples (a clearly noisier one less).
-3. **Dwells and folds**: consecutive blocks at the same operating point form a dwell (≤ 5 s);
-   5-fold grouped cross-validation assigns whole dwells to folds (never random rows).
+3. **Operating points and folds** (:mod:`.grouping`): a run that holds one operating point (a test
+   plan's steady run between pauses) is one, elsewhere a dwell of consecutive blocks; the same one met
+   again is one group; 5-fold cross-validation holds out whole groups (never part of one, never random
+   rows), so a fit is judged where it must interpolate.
 4. **Candidates** are the physical laws of the vocabulary and the model's own parameters, one column
    each; a law's exponent (``p``, ``q``) or Vogel ``B``/``C`` is profiled (:mod:`.selection`).  The
    rig's nuisances -- each channel's lag behind the drive torque, the drive's inertia -- are always
    in the fit (:mod:`.nuisance`); a lag worth it is applied to the samples and the analysis run again.
-5. **Selection** (:mod:`.forward`) from the parameter file's own effects: every candidate tested,
-   the first that passes at each step accepted -- significance (cluster-robust by dwell, α = 0.01
-   Bonferroni-corrected), the lower 95 % bound of its RMS contribution above δ, held-out RMSE better
-   by more than 2 % -- then a backward check; two readings of one part of the loss both named;
-   columns the data cannot tell apart make the verdict *inconclusive* unless ``--assume`` chooses.
+5. **Selection** (:mod:`.forward`) from the parameter file's own effects: every candidate tested
+   (a law with an exponent as its line unless its curve predicts held-out operating points better; a
+   law only where the data vary its argument), the first that passes at each step accepted --
+   significance (cluster-robust by dwell, α = 0.01 Bonferroni-corrected), the lower 95 % bound of its
+   RMS contribution above δ, held-out RMSE better by more than 2 % -- then a backward check; two
+   readings of one part of the loss both named, each with what ``--assume`` of it writes, the file with
+   fewer terms written; columns the data cannot tell apart make the verdict *inconclusive* unless
+   ``--assume`` chooses.  The engineer's least-squares line (:mod:`.handfit`) is weighed beside it and
+   written where it predicts the held-out operating points better.
 6. **Verdict**: ``effects_found``; ``no_missing_effect`` (every candidate's upper 95 % bound < δ); or
    ``inconclusive``.  Errors before (the parameter file as given) and after (exactly what the result
    writes) are on held-out dwells; a result that would predict worse than the file is not written.
@@ -749,7 +755,7 @@ def _holdout_text(blocks: Blocks, folds: int) -> str:
             + (", oil temperature" if any("oil" in x for x in groups.labels) else "")
             + f"; a run that holds one is one, {100 * groups.steady_share:.0f} % of the samples in such runs)")
         return (f"{folds}-fold cross-validation over {what}: every fold holds out whole operating points, both "
-                "directions of a speed together, spread over the speeds and loads, so each is predicted by a fit "
+                "directions of a speed bin together, spread over the speeds and loads, so each is predicted by a fit "
                 f"that saw the others but never it; errors are of the {blocks.block_s:g} s block means "
                 f"({len(blocks.y)} blocks)" if not blocks.steady_state else
                 f"{folds}-fold cross-validation over {what}: every fold holds out whole operating points, spread over "

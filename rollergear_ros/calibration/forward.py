@@ -6,7 +6,10 @@ Step 5 of :mod:`.calibrate`, over the fits of :class:`~.selection.Calibrator`:
 2. **Forward**: at each step the remaining candidates are fitted beside what is accepted and ranked
    by held-out error (the smaller explanation first among those that fit as well); they are tested
    in that order and the first that passes is accepted -- a candidate that fails does not end the
-   selection, the next one is tested.  The selection ends when none passes.
+   selection, the next one is tested.  The selection ends when none passes.  A law with an exponent
+   comes as its line (p = 1) unless its curve predicts held-out operating points better
+   (:meth:`~.selection.Calibrator.best_candidate`); beside the final set each is settled again
+   (:meth:`_Procedure._straighten`).
 3. **Readings**: where two readings of the same part of the loss both pass (a torque offset and a
    drag that differs by direction; a back-driving friction and a torque gain plus a load friction:
    :attr:`~core.effects.Effect.alternative_to`), both are named with their held-out errors and what

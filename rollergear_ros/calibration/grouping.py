@@ -166,7 +166,7 @@ def operating_groups(d: SampleData, start: np.ndarray, count: np.ndarray, dwell:
     mean.  An operating point is its direction, its speed and load in 10 % bins (the load not in a spin
     test: the drive torque is the loss) and, where it varies, the oil temperature in
     :data:`GROUP_TEMPERATURE_C` bins; the same operating point met again, in any run or recording, is the
-    same group.  Folds go over the speed, load and temperature bins diagonally (both directions of a speed
+    same group.  Folds go over the speed, load and temperature bins diagonally (both directions of a speed bin
     together), so each fold holds out speeds and loads between others the fit sees.  With fewer operating
     points than folds the dwells are held out instead (said by :attr:`OperatingGroups.by_operating_point`)."""
     nb = len(start)

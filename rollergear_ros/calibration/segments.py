@@ -7,14 +7,17 @@ their residual best when a flexible
 design -- the accepted terms, every testable candidate at the middle of its exponent's grid, a
 level and a direction-dependent level -- is fitted on each side apart (weighted least squares over
 block means; every split at a block boundary, both sides at least :data:`MIN_STRETCH_S` and
-:data:`MIN_STRETCH_SHARE` of the blocks).  The best split is a change when
+:data:`MIN_STRETCH_SHARE` of the blocks).  Only the operating points both sides visit (direction and
+speed in 10 % bins, the load in 50 % bins) can tell a change from the operating point: each side holds at
+least :data:`MIN_SHARED_SHARE` of its samples there (a test plan that sweeps the speed has none: said,
+and no change is claimed).  The best split is a change when
 
 * the accepted terms with a level and a direction-dependent level, fitted on each side apart,
-  predict the held-out blocks better than one fit across it (by more than the selection's minimum
-  improvement, folds by dwell as everywhere),
+  predict the held-out blocks at those operating points better than one fit across it (by more than
+  the selection's minimum improvement, the analysis' folds: whole operating points),
 * what the change changes -- the RMS of the difference between the flexible fits on each side and one
-  across, over the blocks at operating points both sides visit (direction, speed and load in 10 %
-  bins: where only one side has data, a side's fit extrapolates) -- exceeds δ, and
+  across, over the blocks at operating points both sides visit (where only one side has data, a side's
+  fit extrapolates) -- exceeds δ, and
 * their coefficients differ significantly (a cluster-robust Wald test by dwell at :data:`CHANGE_ALPHA`).
 
 Its time comes with the range of splits whose fit is within the χ² threshold of the best.  The

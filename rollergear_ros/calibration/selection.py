@@ -417,7 +417,7 @@ class Calibrator:
         data between the operating points fitted ask for it."""
         if EFFECTS[name].linear is None:
             return curved
-        line = self.optimise(base + [self.line_of(members(self.b, name)[0])])
+        line = base + [self.line_of(members(self.b, name)[0])]  # the others as the step found them
         short = EFFECTS[name].member
         lo, hi = self.search_ranges(name)[short]
         member = curved[-1].member
