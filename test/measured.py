@@ -148,6 +148,10 @@ class Judged:
     given_rms: float  #: no model (the parameter file given) at the held-out runs' means
     file_rms: float
     references: dict[str, float]
+    #: the per-sample error calibrate claims the written file leaves of the fitted runs, and what replay of
+    #: those runs with the file leaves of the same samples
+    claimed_nm: float = float("nan")
+    replayed_nm: float = float("nan")
 
     @property
     def estimated(self) -> tuple[int, int]:
@@ -205,5 +209,25 @@ def judge(s: MeasuredSet, tmp: Path) -> Judged:
         e = np.array([r[1] for r in rows])
         return float(np.sqrt(np.nanmean(e ** 2)))
 
-    return Judged(result, written if result["written"] else None, errors, rms(given), rms(errors),
-                  hand_fits(s.train, s.held))
+    judged = Judged(result, written if result["written"] else None, errors, rms(given), rms(errors),
+                    hand_fits(s.train, s.held))
+    if result["written"]:
+        judged.claimed_nm = result["sample_level_errors"]["after"]["rmse_nm"]
+        judged.replayed_nm = replayed_error(s, written)
+    return judged
+
+
+def replayed_error(s: MeasuredSet, params: Path) -> float:
+    """What ``replay`` of the fitted runs with ``params`` leaves of the samples calibrate analysed (RMS)."""
+    from rollergear_ros.calibration.samples import load_samples
+    from rollergear_ros.core.params import load_config
+    from rollergear_ros.replay.run import replay
+    from rollergear_ros.sources.importer import as_mcap
+
+    with as_mcap([s.train], s.channels) as bags:
+        analysed = load_samples(bags, load_config(s.params)).t_ns
+        _summary, batches = replay(bags[0], load_config(params), collect=True, show_progress=False)
+    t = np.concatenate([b.t_ns for b in batches])
+    r = np.concatenate([b.residual_nm for b in batches])[np.searchsorted(t, analysed)]
+    r = r[np.isfinite(r)]
+    return float(np.sqrt(np.mean(r * r)))

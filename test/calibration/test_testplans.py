@@ -39,14 +39,17 @@ def test_a_measured_test_plan_exported_as_one_file_is_never_worse_than_the_hand_
     within 2 % of the least-squares Coulomb + viscous + offset line through the fitted runs' means (the
     selection's resolution: the line written is fitted on block means weighed by their noise, the reference
     on the runs' means); no change is claimed (the runs sweep the speed: a change could only be the
-    operating point), no lag is fitted (steady runs hold no transient), and the held-out runs' every row is
-    estimated (a written lag once reached across the pauses and cost 1 068).  The worm: within 1.1 × the
+    operating point), no lag is fitted (steady runs hold no transient), the held-out runs' every row is
+    estimated (a written lag once reached across the pauses and cost 1 068), and what calibrate claims the
+    file leaves of the fitted runs is what replay of them with it leaves, to 1e-9.  The worm: within 1.1 × the
     line (0.069 mN·m), where a release wrote a file at 1.506 (no model: 1.536)."""
     measured = tro_set(tmp_path, drive, payload)
     judged = judge(measured, tmp_path)
     hand = judged.references["least squares + offset"]
     assert judged.result["written"], judged.result["notes"]
     assert judged.file_rms <= 1.02 * hand, (judged.file_rms, judged.references, judged.result["effects"])
+    # the claim is the file: what calibrate says it leaves of the fitted runs is what replay of them leaves
+    assert judged.claimed_nm == pytest.approx(judged.replayed_nm, rel=1e-9), (judged.claimed_nm, judged.replayed_nm)
     assert judged.file_rms < 0.1 * judged.given_rms
     assert judged.result["changes"] == [] and judged.result["drift"] is None, judged.result["notes"]
     assert judged.result["nuisances"]["lags"] == [], judged.result["nuisances"]
