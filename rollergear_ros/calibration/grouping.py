@@ -129,12 +129,14 @@ def dwells(d: SampleData, spd: np.ndarray, trq: np.ndarray, start: np.ndarray, b
 #: a pause longer than this many of its neighbours' sample periods ends a run (a test plan's gap between
 #: steady runs, a recording's dropout)
 GAP_PERIODS = 5.0
-#: a run holds one operating point when the means of its thirds (speed, load) stay within this share of its
+#: a run holds one operating point when the means of its chunks (speed, load) stay within this share of its
 #: level, or within :data:`STEADY_STANDARD_ERRORS` of their noise (a ramp, a step or a reversal does not)
 STEADY_SHARE = 0.1
 STEADY_STANDARD_ERRORS = 4.0
 #: a run shorter than this many samples holds its operating point (nothing tells otherwise)
 STEADY_MIN_SAMPLES = 12
+#: a run's level is judged from this many chunk means
+STEADY_CHUNKS = 12
 #: across stretches (:attr:`OperatingGroups.place`), loads in bins this wide (relative)
 PLACE_LOAD_RELATIVE = 0.5
 #: the oil temperature in bins this wide [°C] where it varies: held out like a speed or a load
@@ -160,14 +162,14 @@ def operating_groups(d: SampleData, start: np.ndarray, count: np.ndarray, dwell:
     """The blocks' operating-point groups and folds: whole operating points are held out, never part of one.
 
     A recording is cut into runs at its pauses (:data:`GAP_PERIODS`).  A run whose operating point holds
-    -- its thirds' mean speed (and output torque) within :data:`STEADY_SHARE` of its level or within the
-    noise -- is one operating point: its mean speed and load (a stick-slipping 1 rpm run is 1 rpm, not the
-    0…12 rpm its readings show).  Elsewhere (a drive cycle, ramps between dwells) each dwell is one, at its
-    mean.  An operating point is its direction, its speed and load in 10 % bins (the load not in a spin
-    test: the drive torque is the loss) and, where it varies, the oil temperature in
-    :data:`GROUP_TEMPERATURE_C` bins; the same operating point met again, in any run or recording, is the
-    same group.  Folds go over the speed, load and temperature bins diagonally (both directions of a speed bin
-    together), so each fold holds out speeds and loads between others the fit sees.  With fewer operating
+    -- its chunks' mean speed (and output torque) within :data:`STEADY_SHARE` of its level or within the
+    noise, none the other way -- is one operating point: its mean speed and load (a stick-slipping 1 rpm
+    run is 1 rpm, not the 0…12 rpm its readings show).  Elsewhere (a drive cycle, ramps between dwells)
+    each dwell is one, at its mean.  An operating point is its direction, its speed and load in 10 % bins
+    (the load not in a spin test: the drive torque is the loss) and, where it varies, the oil temperature
+    in :data:`GROUP_TEMPERATURE_C` bins; the same operating point met again, in any run or recording, is
+    the same group.  Folds go over the speed, load and temperature bins diagonally (both directions of a
+    speed bin together), so each fold holds out speeds and loads between others the fit sees.  With fewer operating
     points than folds the dwells are held out instead (said by :attr:`OperatingGroups.by_operating_point`)."""
     nb = len(start)
     if d.steady_state:  # each row is an operating point of its own
@@ -270,18 +272,18 @@ def pauses(t: np.ndarray) -> np.ndarray:
 
 
 def _holds(x: np.ndarray) -> bool:
-    """Whether a run's reading ``x`` holds one level: the means of its thirds within :data:`STEADY_SHARE` of
-    its mean or within :data:`STEADY_STANDARD_ERRORS` standard errors of it, a sample's noise from the run's
-    second differences (a ramp's are 0, a step's one sample: a stick-slip's bursts count as noise, a drive
-    cycle's dwells do not)."""
+    """Whether a run's reading ``x`` holds one level: every one of :data:`STEADY_CHUNKS` chunk means within
+    :data:`STEADY_SHARE` of the run's mean or within :data:`STEADY_STANDARD_ERRORS` standard errors of it (a
+    sample's noise from the run's second differences: a ramp's are 0, a step's one sample, a stick-slip's
+    bursts count as noise), and no chunk the other way (a reversal, sweeps both ways about 0)."""
     n = len(x)
     if n < STEADY_MIN_SAMPLES:
         return True
     sigma = float(np.sqrt(np.mean(np.diff(x, 2) ** 2) / 6.0))
-    thirds = np.array([float(np.mean(c)) for c in np.array_split(x, 3)])
+    chunks = np.array([float(np.mean(c)) for c in np.array_split(x, min(STEADY_CHUNKS, n // 4))])
     level = float(np.mean(x))
-    tolerance = max(STEADY_SHARE * abs(level), STEADY_STANDARD_ERRORS * sigma / math.sqrt(n / 3.0))
-    return bool(np.max(np.abs(thirds - level)) <= tolerance)
+    tolerance = max(STEADY_SHARE * abs(level), STEADY_STANDARD_ERRORS * sigma / math.sqrt(n / len(chunks)))
+    return bool(np.max(np.abs(chunks - level)) <= tolerance and not np.any(chunks * level < 0))
 
 
 def _group_labels(d: SampleData, group: np.ndarray, w: np.ndarray, load: np.ndarray, theta: np.ndarray,

@@ -139,10 +139,11 @@ def weigh(cal: Calibrator, selection, hand: HandFit | None) -> dict | None:
                           f"{mine:.4g} N·m), but its {', '.join(weak)} {'is' if len(weak) == 1 else 'are'} not "
                           "significant: no finding, the selection stands")
         return said
-    unresolved = {t.name for t in selection.provisional}
+    open_sets = [a for a in selection.ambiguous if a.taken is None and a.assumed is None]
+    unresolved = {e for a in open_sets for e in a.effects}
     if unresolved - CONSTANT_READINGS:
         said["reason"] = ("it predicts held-out operating points better, but the data cannot tell apart "
-                          f"{', '.join(sorted(unresolved))} from what it holds: not written")
+                          + "; ".join(" / ".join(a.effects) for a in open_sets) + ": not written")
         return said
     if hand.not_physical:
         said["reason"] = ("it predicts held-out operating points better, but is no loss the gearbox has: "
@@ -150,9 +151,9 @@ def weigh(cal: Calibrator, selection, hand: HandFit | None) -> dict | None:
         return said
     why = (f"the {hand.text()} predicts held-out operating points better than the selection's set "
            f"({hand.heldout_rmse_nm:.4g} against {mine:.4g} N·m)")
-    if unresolved:  # one direction: the line's constant is Coulomb friction or the reading's zero -- said
-        why += ("; the data cannot tell a constant drag from the torque reading's zero error (one direction): the "
-                "line takes it as Coulomb friction, drag_constant (--assume torque_offset: the sensor's)")
+    if unresolved:  # the line's constant is Coulomb friction or the reading's zero -- said
+        why += ("; the data cannot tell a constant drag from the torque reading's zero error: the line takes it as "
+                "Coulomb friction, drag_constant (--assume torque_offset: the sensor's)")
     said.update(written=True, reason=why + ": written instead")
     taken = set(hand.names)
     decisions = []
@@ -165,9 +166,9 @@ def weigh(cal: Calibrator, selection, hand: HandFit | None) -> dict | None:
         else:
             decisions.append(d)
     selection.decisions = decisions
-    # two readings of one part the line holds both of (an offset and a viscous drag per direction: its
-    # Coulomb and viscous friction per direction) are no longer a choice
-    selection.ambiguous = [a for a in selection.ambiguous if not set(a.effects) <= taken]
+    # two readings of one part of the loss are the selection's choice: the line replaces it (its own terms
+    # are its readings: an offset, a viscous drag per direction)
+    selection.ambiguous = [a for a in selection.ambiguous if a.taken is None and not set(a.effects) <= taken]
     selection.selected = list(hand.terms)
     selection.provisional = []
     selection.ranges = {k: v for k, v in selection.ranges.items() if k not in taken}
