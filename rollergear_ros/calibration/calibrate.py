@@ -47,7 +47,7 @@ import numpy as np
 from .blocks import Blocks, make_blocks
 from .forward import select
 from .noise import sensor_delta
-from .nuisance import apply_lags, lag_channel, median_period_s, worth_applying, ChannelLag
+from .nuisance import apply_lags, lag_channel, lag_from_fit, median_period_s, ChannelLag
 from .outcome import CalibrationResult, Change, FoundEffect, FoundParameter, segment_summary
 from .samples import SampleData, file_residual, load_samples
 from ..core.lagalign import LAG_CHANNELS
@@ -300,7 +300,7 @@ def _analyse(data: SampleData, config: Config, how: _Analysis) -> CalibrationRes
                             f"{first.error_after.rmse_nm:.4g} N·m); the written file carries them ("
                             + ", ".join(f"estimator.{c}_lag_s: {v:.4g}" for c, v in lags.items())
                             + "): replay and the node align the channels as the selection did")
-    if result.negative and config.estimator.paper_model:
+    if config.estimator.paper_model and (result.negative or _structured(result)):
         result = _without_paper_model(data, config, how, result)
     result.speed_noise = data.speed_noise_text
     return result
@@ -323,10 +323,24 @@ def _window(data: SampleData, start_s: float | None, end_s: float | None) -> tup
     return data.select(keep), text
 
 
+def _structured(result: CalibrationResult) -> str:
+    """What the residual left by a file of effects found follows, where one input carries most of its
+    variance (more than :data:`MODEL_SHAPE_SHARE`): the statement, or '' (none, or nothing found)."""
+    structure = result.structure or {}
+    strongest = structure.get("strongest")
+    if result.verdict != "effects_found" or not result.written or not strongest \
+            or structure.get("explained_share", {}).get(strongest, 0.0) <= MODEL_SHAPE_SHARE:
+        return ""
+    return structure.get("statement", "")
+
+
 def _without_paper_model(data: SampleData, config: Config, how: _Analysis,
                          result: CalibrationResult) -> CalibrationResult:
-    """The analysis again with the paper's model switched off, taken when it explains the loss and
-    predicts the held-out data clearly better (said either way)."""
+    """The analysis again with the paper's model switched off -- weighed where the fits with it
+    needed a negative friction (the model over-predicts) or the file they would write leaves a
+    residual that still follows an input (the model's shape is not this gearbox's) -- taken when its
+    effects explain the loss and predict the held-out operating points clearly better (said either
+    way)."""
     how.stage("the paper's model switched off")
     off = config.with_values({"estimator.paper_model": False})
     zero = np.zeros(len(data.t_ns))
@@ -334,14 +348,16 @@ def _without_paper_model(data: SampleData, config: Config, how: _Analysis,
     applied = {lag.channel: lag.lag_s for lag in result.lags if lag.applied}
     alt = _calibrate_once(without, off, how, before=result, applied=applied)
     on_text = f"{result.error_after.rmse_nm:.4g}" if result.written else "no file"
+    why_weighed = (f"with it, the fits needed a negative friction ({', '.join(result.negative)})" if result.negative
+                   else f"with it, {_structured(result)}")
     explains = (alt.error_after.rel_rmse_pct <= ALTERNATIVE_MAX_ERROR_PCT
                 or not (alt.structure or {}).get("strongest"))
     if alt.written and alt.verdict == "effects_found" and explains and (
             not result.written or alt.error_after.rmse_nm
             < (1.0 - ALTERNATIVE_MIN_IMPROVEMENT) * result.error_after.rmse_nm):
         alt.notes.insert(0, (
-            f"the paper's model over-predicts this gearbox's loss: with it, the fits needed a negative friction "
-            f"({', '.join(result.negative)}); written with estimator.paper_model: false, whose effects predict the "
+            f"the paper's model {'over-predicts' if result.negative else 'does not have the shape of'} this "
+            f"gearbox's loss: {why_weighed}; written with estimator.paper_model: false, whose effects predict the "
             f"held-out data better (RMSE {alt.error_after.rmse_nm:.4g} N·m against {on_text} with the model)"))
         return alt
     if not alt.written:
@@ -354,9 +370,8 @@ def _without_paper_model(data: SampleData, config: Config, how: _Analysis,
     else:
         why = "it predicts no better"
     result.notes.append(
-        f"fits with a negative friction were set aside ({', '.join(result.negative)}); the paper's model switched "
-        f"off was weighed and not taken: {why} (held-out RMSE {alt.error_after.rmse_nm:.4g} N·m against "
-        f"{on_text} with the model)")
+        f"{why_weighed}: the paper's model switched off was weighed and not taken: {why} (held-out RMSE "
+        f"{alt.error_after.rmse_nm:.4g} N·m against {on_text} with the model)")
     return result
 
 
@@ -367,6 +382,9 @@ ALTERNATIVE_MIN_IMPROVEMENT = 0.02  #: the paper's model is switched off only fo
 #: ... and only when the effects then explain the loss: a held-out error within this share of it, or a
 #: residual left without structure (switching the model off is a claim about the gearbox)
 ALTERNATIVE_MAX_ERROR_PCT = 10.0
+#: a residual left by the paper's model and its effects that follows one input by more than this
+#: share of its variance: the model's shape is not the gearbox's, and the model switched off is weighed
+MODEL_SHAPE_SHARE = 0.5
 #: a data sheet's viscosity law: Vogel B searched within this factor, C within this span [K], and the
 #: viscosity at the reference temperature within this factor of the data sheet's
 DATASHEET_B_FACTOR = 1.5
@@ -550,10 +568,7 @@ def _nuisances(cal: Calibrator, full, data: SampleData,
         c, se = float(full.coef[k]), float(math.sqrt(max(full.cov[k, k], 0.0)))
         channel = lag_channel(name)
         if channel is not None:
-            before = applied.get(channel, 0.0)
-            total = before + c
-            lags.append(ChannelLag(channel, total, (total - 1.96 * se, total + 1.96 * se),
-                                   bool(before) or worth_applying(c, se, period)))
+            lags.append(lag_from_fit(name, c, se, period, applied.get(channel, 0.0)))
         elif name == "inertia":
             inertia = {"j_kg_m2": c, "ci95": [c - 1.96 * se, c + 1.96 * se],
                        "text": f"the drive's inertia between the torque sensor and the loss: J = {c:.4g} kg·m² "

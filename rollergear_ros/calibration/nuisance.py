@@ -71,14 +71,19 @@ class ChannelLag:
     channel: str  #: motor_speed | output_torque | output_speed
     lag_s: float  #: positive: the channel's reading comes later than the drive torque's
     ci95_s: tuple[float, float]
-    applied: bool  #: the analysis aligned the samples by it (else it was too small to matter)
+    applied: bool  #: the analysis aligned the samples by it (else it was too small to matter, or beyond range)
+    #: why it was not applied though clearly there ('': applied, or too small to matter)
+    why_not: str = ""
 
     def to_json(self) -> dict:
-        return {"channel": self.channel, "lag_s": self.lag_s, "ci95_s": list(self.ci95_s), "applied": self.applied}
+        return {"channel": self.channel, "lag_s": self.lag_s, "ci95_s": list(self.ci95_s), "applied": self.applied,
+                **({"why_not": self.why_not} if self.why_not else {})}
 
     def sentence(self) -> str:
         ms = 1e3 * self.lag_s
         lo, hi = (1e3 * v for v in self.ci95_s)
+        if self.why_not:
+            return f"{self.channel}: a lag of {ms:.4g} ms fitted (95 %: {lo:.4g} to {hi:.4g} ms), {self.why_not}"
         how = "the analysis aligned it" if self.applied else "too small to matter: not applied"
         return (f"{self.channel} lags the drive torque by {ms:.3g} ms (95 %: {lo:.3g} to {hi:.3g} ms; {how}; "
                 f"lag_s: {self.lag_s:.4g} in the channel map's {self.channel} applies it on import)")
@@ -171,11 +176,29 @@ def _resample(d: SampleData, t: np.ndarray, x: np.ndarray, lag_s: float) -> np.n
     return out
 
 
+def lag_range_s() -> float:
+    """The largest lag a parameter file may hold (``estimator.<channel>_lag_s``, either sign)."""
+    from ..core.paramspecs import spec_by_name
+
+    return float(spec_by_name()["estimator.output_torque_lag_s"].high)
+
+
 def lag_from_fit(name: str, coef: float, se: float, period_s: float, applied_before: float = 0.0) -> ChannelLag:
-    """A channel's total lag (what an earlier pass applied plus this fit's) with its 95 % interval."""
+    """A channel's total lag (what an earlier pass applied plus this fit's) with its 95 % interval:
+    applied where it is clearly there and half a sample long (:func:`worth_applying`), or an earlier
+    pass applied one -- never beyond the range a parameter file may hold (a channel that far out of
+    step is not late: another clock or another rate; the first order of ``x(t − τ)`` holds for lags
+    of a few samples), said with the reason."""
+    channel = lag_channel(name) or name
     total = applied_before + coef
-    return ChannelLag(lag_channel(name) or name, total, (total - 1.96 * se, total + 1.96 * se),
-                      applied_before != 0.0 or worth_applying(coef, se, period_s))
+    ci = (total - 1.96 * se, total + 1.96 * se)
+    limit = lag_range_s()
+    if abs(total) > limit:
+        return ChannelLag(channel, total, ci, False,
+                          f"beyond the ±{limit:g} s a parameter file may hold for estimator.{channel}_lag_s: not "
+                          "applied -- a channel this far out of step is not read late but on another clock or at "
+                          "another rate (align its stamps, or give its rate), and no lag is claimed")
+    return ChannelLag(channel, total, ci, applied_before != 0.0 or worth_applying(coef, se, period_s))
 
 
 def median_period_s(d: SampleData) -> float:

@@ -315,7 +315,7 @@ def _summary_lines(result: CalibrationResult, sources: Sequence[str]) -> list[st
 
 def _rig_lines(result: CalibrationResult) -> list[str]:
     """The rig's nuisances: each channel's lag that matters, the inertia, what is periodic in the angle."""
-    lines = [lag.sentence() for lag in result.lags if lag.applied]
+    lines = [lag.sentence() for lag in result.lags if lag.applied or lag.why_not]
     if result.inertia is not None and result.inertia["ci95"][0] * result.inertia["ci95"][1] > 0:
         lines.append(result.inertia["text"])
     for p in (result.structure or {}).get("periodic", []):

@@ -189,7 +189,7 @@ def _print_result(result) -> None:
 def _nuisance_lines(result) -> list[str]:
     """The speed reading's noise, each channel's lag that matters, the inertia, said."""
     lines = [f"speed reading's noise: {result.speed_noise}"] if result.speed_noise else []
-    lines += [lag.sentence() for lag in result.lags if lag.applied]
+    lines += [lag.sentence() for lag in result.lags if lag.applied or lag.why_not]
     if result.inertia is not None and result.inertia["ci95"][0] * result.inertia["ci95"][1] > 0:
         lines.append(result.inertia["text"])
     return lines

@@ -29,6 +29,19 @@ def effect_coefficients(config: Config) -> dict[str, float]:
     return {n: config.effects.params(n)[EFFECTS[n].coefficient] for n in adaptive_effects(config)}
 
 
+def coefficient_bounds(names: Iterable[str]) -> list[tuple[float, float]]:
+    """The range a parameter file may hold for each adaptive effect's linear coefficient (the
+    validation of a written file, :mod:`.paramspecs`): online adaptation stays inside it."""
+    from .paramspecs import spec_by_name
+
+    specs = spec_by_name()
+    bounds = []
+    for n in names:
+        spec = specs[f"effects.{n}.{EFFECTS[n].parameter(EFFECTS[n].coefficient).key}"]
+        bounds.append((float(spec.low), float(spec.high)))
+    return bounds
+
+
 def regressor_plan(names: Iterable[str], config: Config) -> list[tuple[Callable[[EffectInputs], Any], float]]:
     """For each adaptive effect: its term bound to its parameters with the coefficient set to 1
     (positionally: the per-sample path builds no keyword dict), and the registry's
@@ -60,15 +73,30 @@ class RecursiveLeastSquares:
     """RLS with exponential forgetting and a bounded covariance (anti-windup), pure Python.
 
     ``θ ← θ + K·(y − φᵀθ)``, ``K = Pφ/(λ + φᵀPφ)``, ``P ← (P − KφᵀP)/λ``, then ``P`` is scaled so that
-    ``trace(P) ≤ max_trace``.  A handful of parameters: plain lists beat numpy here (~5 µs/update).
+    ``trace(P) ≤ max_trace``; with ``bounds``, each ``θ_i`` is projected into its ``[low, high]``
+    (projection RLS: a coefficient a parameter file could not hold is never used) and each projection
+    counted in :attr:`held`.  A handful of parameters: plain lists beat numpy here (~5 µs/update).
     """
 
-    def __init__(self, theta0: list[float], forgetting: float, p0: float = 1.0, max_trace: float = 1e6) -> None:
+    def __init__(self, theta0: list[float], forgetting: float, p0: float = 1.0, max_trace: float = 1e6,
+                 bounds: list[tuple[float, float]] | None = None) -> None:
         n = len(theta0)
         self.theta = list(theta0)
         self.lam = forgetting
         self.max_trace = max_trace
         self.P = [[p0 if i == j else 0.0 for j in range(n)] for i in range(n)]
+        self.bounds = [(-math.inf, math.inf)] * n if bounds is None else list(bounds)
+        self.held = [0] * n  #: per parameter: the updates whose θ was projected back to a bound
+
+    def _project(self, i: int, theta: float) -> float:
+        low, high = self.bounds[i]
+        if theta < low:
+            self.held[i] += 1
+            return low
+        if theta > high:
+            self.held[i] += 1
+            return high
+        return theta
 
     def predict(self, phi: list[float]) -> float:
         return sum(t * f for t, f in zip(self.theta, phi))
@@ -83,7 +111,7 @@ class RecursiveLeastSquares:
         denom = self.lam + sum(phi[i] * pphi[i] for i in range(n))
         err = y - self.predict(phi)
         k = [v / denom for v in pphi]
-        self.theta = [t + ki * err for t, ki in zip(self.theta, k)]
+        self.theta = [self._project(i, t + ki * err) for i, (t, ki) in enumerate(zip(self.theta, k))]
         inv_lam = 1.0 / self.lam
         for i in range(n):
             ki = k[i]
@@ -106,7 +134,7 @@ class RecursiveLeastSquares:
         theta = self.theta[0]
         err = y - theta * f
         k = pphi / denom
-        self.theta[0] = theta + k * err
+        self.theta[0] = self._project(0, theta + k * err)
         p = (p - k * pphi) * (1.0 / self.lam)
         if p > self.max_trace:
             p *= self.max_trace / p

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, adaptive_effects,
+from .adaptation import (ChangeDetector, RecursiveLeastSquares, ResidualStats, adaptive_effects, coefficient_bounds,
                          effect_coefficients, regressor_plan, regressors)
 from .effects import (EFFECTS, STATE_STILL_WIDTHS, EffectInputs, additive_terms, corrected_torque, fr_scale,
                       reading_errors, state_speed)
@@ -177,7 +177,9 @@ class Estimator:
         self._regressor_plan = regressor_plan(self.adaptive, config)
         self._scales = [scale for _term, scale in self._regressor_plan]
         self.rls = RecursiveLeastSquares([coef[n] * s for n, s in zip(self.adaptive, self._scales)],
-                                         est.rls_forgetting, 1.0, est.rls_max_covariance)
+                                         est.rls_forgetting, 1.0, est.rls_max_covariance,
+                                         [(low * s, high * s) for (low, high), s
+                                          in zip(coefficient_bounds(self.adaptive), self._scales)])
         self.detector = ChangeDetector(est.change_block_samples, est.change_threshold_nm)
         self._active = config.effects.active()  # enabled effect -> its parameters
         self._additive = any(not EFFECTS[n].scales_fr for n in self._active)
@@ -249,6 +251,18 @@ class Estimator:
             if n:
                 said.append(f"{int(n):,} samples with |{name}| above estimator.{key} = {limit:g} {unit} (up to "
                             f"{largest:.4g}): raise estimator.{key} to {_raise_to(largest):g} to estimate them")
+        return "; ".join(said)
+
+    def adaptation_text(self) -> str:
+        """The adapted coefficients projected back into the range a parameter file may hold, with how
+        often ('' where none was): online adaptation wanted a value no written file could carry."""
+        said = []
+        for i, (name, held) in enumerate(zip(self.adaptive, self.rls.held)):
+            if held:
+                low, high = (b / self._scales[i] for b in self.rls.bounds[i])
+                key = EFFECTS[name].parameter(EFFECTS[name].coefficient).key
+                said.append(f"effects.{name}.{key} kept within the range a parameter file may hold "
+                            f"[{low:g}, {high:g}] at {held:,} updates (now {self.rls.theta[i] / self._scales[i]:.4g})")
         return "; ".join(said)
 
     def corrected_torque(self, torque_meas):

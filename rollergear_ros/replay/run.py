@@ -330,6 +330,7 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
                 "the recording): the nearest reading held" for c, n in held.items())
     summary.describes = _describes(estimator.config)
     summary.beyond_text = estimator.beyond_text()
+    summary.adaptation_text = estimator.adaptation_text()
 
 
 def _describes(config: Config) -> str:

@@ -71,6 +71,8 @@ class ReplaySummary:
     speed_noise_text: str = ""  #: ... and where it came from (the file, or learned)
     lags_text: str = ""  #: the channel lags the file's estimator aligned ('': none)
     beyond_text: str = ""  #: the samples beyond a plausibility limit, by limit, and the setting to raise
+    #: the adapted coefficients kept within the range a parameter file may hold ('': none needed it)
+    adaptation_text: str = ""
     #: the channels at another rate, resampled onto the drive torque's stamps ('': none)
     resampled_text: str = ""
     #: per resampled channel: its samples by how they were made (exact, interpolated, held, none)
@@ -122,6 +124,8 @@ class ReplaySummary:
         lines.append("skipped: " + (", ".join(f"{v:,} {k.replace('_', ' ')}" for k, v in skipped.items()) or "none"))
         if self.beyond_text:
             lines.append(f"implausible: {self.beyond_text}")
+        if self.adaptation_text:
+            lines.append(f"adaptation: {self.adaptation_text}")
         lines.append(
             f"loss torque: mean {self.mean_loss_nm:.4f} N·m, peak {self.peak_loss_nm:.4f} N·m; "
             f"energy lost {self.energy_lost_j:.1f} J; model efficiency: mean "

@@ -285,8 +285,10 @@ def _estimate_status(estimator: Estimator, min_efficiency_warn: float, previous_
     if stats.count:
         values += [("residual mean [N·m]", _fmt(stats.mean)), ("residual RMS [N·m]", _fmt(stats.rms)),
                    ("residual samples", str(stats.count))]
-    for name, c in estimator.coefficients().items():
+    for (name, c), held in zip(estimator.coefficients().items(), estimator.rls.held):
         values.append((f"adapted {name}", _fmt(c, 5)))
+        if held:
+            values.append((f"adapted {name} kept in range [updates]", str(held)))
     _residual_alarm_status(estimator, previous_alarms, reasons, values, trace_hint)
 
 

@@ -130,3 +130,31 @@ def test_a_lagging_channel_is_aligned_alike_message_by_message_and_in_arrays(lag
     values = np.column_stack(streams).ravel()
     floor = residuals(load_config().with_values({"estimator.adapt": False}), False)
     assert rms < 1.5 * float(np.sqrt(np.nanmean(floor ** 2))), rms
+
+
+def test_online_adaptation_stays_inside_the_range_a_parameter_file_may_hold():
+    """A gearbox that loses less than the file's model (measured: no loss at all) drives the adapted
+    constant drag below zero, a value the parameter file refuses ("a power source"): the coefficient
+    is projected back to its bound, the model never claims an efficiency above 100 %, the clamp is
+    counted and said, and the node's path and replay's still agree bit for bit."""
+    rig = simulate(load_config(), SimulationOptions("drive_cycle", 100.0, 5))
+    moving = np.abs(rig.out_speed_meas_rad_s) > 1e-3
+    out_torque = np.full(len(rig.t_ns), np.nan)  # every watt in comes out: P_out = T·ω
+    out_torque[moving] = rig.torque_meas_nm[moving] * rig.speed_rad_s[moving] / rig.out_speed_meas_rad_s[moving]
+    config = with_effect(load_config().with_values({"estimator.adapt": True}), "drag_constant", {"c": 0.05})
+    columns = (rig.t_ns, rig.torque_meas_nm, rig.speed_rad_s, out_torque, rig.out_speed_meas_rad_s, rig.temperature_c)
+    replayed = Estimator(config)
+    batch = replayed.process_batch(*columns, breakdown=False)
+    unbounded = Estimator(config)
+    unbounded.rls.bounds = [(-np.inf, np.inf)]
+    unbounded.process_batch(*columns, breakdown=False)
+    assert unbounded.coefficients()["drag_constant"] < -0.01  # what adaptation wanted
+    assert replayed.coefficients()["drag_constant"] == 0.0 and replayed.rls.held[0] > 100
+    assert np.nanmax(batch.efficiency) <= 1.0
+    said = replayed.adaptation_text()
+    assert "effects.drag_constant.c_nm kept within the range a parameter file may hold [0," in said
+    node = Estimator(config)
+    live = [e for e in (node.process(SyncedSample(*row)) for row in zip(*(np.asarray(c).tolist() for c in columns)))
+            if e is not None]
+    np.testing.assert_array_equal(np.array([e.loss_torque_nm for e in live]), batch.loss_torque_nm)
+    assert node.rls.held == replayed.rls.held

@@ -897,3 +897,29 @@ def test_every_sample_implausible_is_a_warning_and_whole_empty_outputs(tmp_path)
     assert "Traceback" not in proc.stderr
     assert (tmp_path / "o.csv").read_text().count("\n") == 1  # the header
     assert inspect_bag(tmp_path / "o.mcap").counts.get("/rollergear/loss/torque", 0) == 0
+
+
+def test_adaptation_kept_inside_the_files_range_is_said_by_replay(tmp_path):
+    """A gearbox that loses nothing measured against a file with a constant drag: online adaptation
+    wants the drag below zero (a file with it is refused: a power source).  Replay keeps it at 0,
+    says so in one line with the count, and no model efficiency is above 100 %."""
+    from dataclasses import replace
+
+    opts = SimulationOptions("drive_cycle", 100.0, 5)
+    rig = simulate(load_config(), opts)
+    moving = np.abs(rig.out_speed_meas_rad_s) > 1e-3
+    out_torque = np.full(len(rig.t_ns), np.nan)  # every watt in comes out
+    out_torque[moving] = rig.torque_meas_nm[moving] * rig.speed_rad_s[moving] / rig.out_speed_meas_rad_s[moving]
+    write_rig_bag(replace(rig, out_torque_meas_nm=out_torque), opts, tmp_path / "lossless.mcap")
+    params = tmp_path / "drag.yaml"
+    params.write_text("/**/loss_estimator:\n  ros__parameters:\n    estimator: {adapt: true}\n"
+                      "    effects:\n      drag_constant: {enabled: true, c_nm: 0.05}\n")
+    proc = run_cli("replay", str(tmp_path / "lossless.mcap"), "--params", str(params), "--no-png",
+                   "--csv", str(tmp_path / "o.csv"))
+    line = next(ln for ln in proc.stdout.splitlines() if ln.startswith("adaptation: "))
+    assert "effects.drag_constant.c_nm kept within the range a parameter file may hold [0, " in line
+    assert "(now 0)" in line
+    header, *rows = (ln.split(",") for ln in (tmp_path / "o.csv").read_text().splitlines())
+    efficiency = np.array([r[header.index('"efficiency [1]"')] or "nan" for r in rows], dtype=float)
+    assert np.isfinite(efficiency).sum() > 10_000
+    assert np.nanmax(efficiency) <= 1.0
