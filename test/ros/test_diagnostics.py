@@ -197,3 +197,23 @@ def test_the_alarm_points_to_loss_traced_only_where_a_trace_exists_or_will_come(
     assert "(traced on loss/traced once 12 s more samples have come)" in message(
         "traced on loss/traced once 12 s more samples have come")
     assert "(see loss/traced)" in message("see loss/traced")
+
+
+def test_an_adapted_coefficient_kept_inside_the_files_range_is_in_the_status():
+    """Adaptation that wanted a constant drag below zero (held at 0) shows the count in the status."""
+    config = load_config().with_values({"effects.drag_constant.enabled": True, "effects.drag_constant.c_nm": 0.01})
+    est = Estimator(config)
+    now = 100 * 10**9
+    healthy = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
+    rates = {TORQUE: 1000.0, SPEED: 1000.0}
+
+    def values():
+        return dict(diagnose(InputsNow(now, healthy, rates), est, DiagnosticLimits(1000.0, 0.9),
+                             SinceLast(dict(est.counts), 0)).values)
+
+    assert "adapted drag_constant kept in range [updates]" not in values()
+    for _ in range(50):  # a measured loss far below the model's: the drag wants to be negative
+        est.rls.update([1.0], -5.0)
+    assert est.coefficients()["drag_constant"] == 0.0
+    shown = values()
+    assert shown["adapted drag_constant"] == "0" and int(shown["adapted drag_constant kept in range [updates]"]) > 0
