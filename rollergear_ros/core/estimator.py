@@ -171,7 +171,8 @@ class Estimator:
                                        int(round(pairing_tolerance_s(est.sync_tolerance_s, sample_period_s) * 1e9)))
         #: a channel that reads late, aligned between the pairing and the estimate (None: none lags)
         lags = {c: getattr(est, f"{c}_lag_s") for c in LAG_CHANNELS}
-        self.aligner = LagAligner(lags, max_gap_s(est.staleness_s, sample_period_s)) if any(lags.values()) else None
+        self.aligner = LagAligner(lags, max_gap_s(est.staleness_s, sample_period_s), sample_period_s) \
+            if any(lags.values()) else None
         self.adaptive = adaptive_effects(config) if est.adapt else ()
         coef = effect_coefficients(config)
         self._regressor_plan = regressor_plan(self.adaptive, config)
@@ -346,7 +347,7 @@ class Estimator:
         else:
             samples = self._push_resampled(self.resampler.push(Message(channel, t_ns, value, source_ns)))
         if samples and self.aligner is not None:
-            samples = _synced(self.aligner.push(samples_to_arrays(samples)))
+            samples = _synced(self._aligned(samples_to_arrays(samples)))
         if not samples:
             return ()
         out = []
@@ -425,13 +426,17 @@ class Estimator:
                               breakdown=False)
 
     def _aligned(self, paired: tuple[np.ndarray, ...], final: bool = False) -> tuple[np.ndarray, ...]:
-        """Paired samples through the lag alignment (:mod:`.lagalign`; as they are where nothing lags)."""
-        if self.aligner is None:
+        """Paired samples through the lag alignment (:mod:`.lagalign`; as they are where nothing lags);
+        the samples it finds too late to order are counted as ``out_of_order``."""
+        aligner = self.aligner
+        if aligner is None:
             return paired
-        out = self.aligner.push(paired)
+        late = aligner.late
+        out = aligner.push(paired)
         if final:
-            rest = self.aligner.flush()
+            rest = aligner.flush()
             out = tuple(np.concatenate([a, b]) for a, b in zip(out, rest))
+        self.counts["out_of_order"] += aligner.late - late
         return out
 
     def _estimate(self, paired: tuple[np.ndarray, ...], breakdown: bool = True) -> BatchEstimate | None:

@@ -112,7 +112,7 @@ STALL_BURST_MESSAGES = 4
 #: ``duplicate`` count input messages that were never paired (not a Float64, a repeat)
 SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
                                  "output_non_finite", "temperature_missing", "malformed", "duplicate", "lost",
-                                 "stale")
+                                 "stale", "out_of_order")
 
 #: a message the middleware lost, known from a gap in its publisher's sequence numbers: the live
 #: node pushes (and records) one NaN with this payload per lost message, in its place, so that first-in

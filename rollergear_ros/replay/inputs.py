@@ -98,19 +98,26 @@ def plan_inputs(info: BagInfo, topics: TopicMap) -> InputPlan:
     )
 
 
-def _decode_temperature(payload: bytes, plan: InputPlan, info: BagInfo) -> tuple[float, str | None]:
-    """An oil temperature message (Float64 or sensor_msgs/Temperature) -> (°C, problem or None)."""
+def _decode_temperature(payload: bytes, plan: InputPlan, info: BagInfo) -> tuple[float, str | None, int]:
+    """An oil temperature message (Float64 or sensor_msgs/Temperature) -> (°C, problem or None, its
+    header stamp in ns: 0 where it has none)."""
     temp_type = plan.temperature[1]
     if temp_type == MessageType.FLOAT64:
         problem = float64_problem(payload)
-        return (math.nan, problem) if problem else (float(decode_float64([payload])[0]), None)
+        return (math.nan, problem, 0) if problem else (float(decode_float64([payload])[0]), None, 0)
     problem = cdr_problem(payload)
     if problem:
-        return math.nan, problem
+        return math.nan, problem, 0
     try:
-        return float(decoder_for(temp_type, info.schema_texts.get(temp_type))(payload).temperature), None
+        msg = decoder_for(temp_type, info.schema_texts.get(temp_type))(payload)
     except Exception as exc:  # noqa: BLE001 - the CDR decoder raises assorted errors on a bad payload
-        return math.nan, f"cannot decode {temp_type} ({type(exc).__name__})"
+        return math.nan, f"cannot decode {temp_type} ({type(exc).__name__})", 0
+    return float(msg.temperature), None, _stamp_ns(msg)
+
+
+def _stamp_ns(msg) -> int:
+    """A message's header stamp in ns (0: none given)."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
 def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo,
@@ -128,9 +135,9 @@ def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo,
     js_dec = decoder_for(MessageType.JOINT_STATE, info.schema_texts.get(MessageType.JOINT_STATE))
     for i, (topic, t, data) in enumerate(zip(batch.topics, batch.log_time_ns, batch.data)):
         if topic == temp_topic:
-            value, problem = _decode_temperature(data, plan, info)
-            if problem is None:
-                out.append((t, OIL_TEMPERATURE, value))
+            value, problem, stamp = _decode_temperature(data, plan, info)
+            if problem is None:  # on the joint states' clock, their header stamps, as the node takes it
+                out.append((stamp or t, OIL_TEMPERATURE, value))
         elif topic == plan.joint_states:
             problem = cdr_problem(data)
             if problem is None:
@@ -140,6 +147,7 @@ def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo,
                     problem = f"cannot decode {MessageType.JOINT_STATE} ({type(exc).__name__})"
             if problem is None:
                 names = list(msg.name)
+                t = _stamp_ns(msg) or t  # the sample's own stamp, as the node pairs and aligns by
                 for joint, ch_t, ch_w in ((tp.input_joint, TORQUE, SPEED), (tp.output_joint, OUT_TORQUE, OUT_SPEED)):
                     if joint in names:
                         k = names.index(joint)
@@ -361,7 +369,7 @@ class _PartDecoder:
                     problems.add("malformed", problems.topic_of[int(c[rows[j]])],
                                  int(arrays.log_time[keep[rows[j]]]), reason)
         for j in np.flatnonzero(~f64).tolist():
-            v[j], reason = _decode_temperature(arrays.payload(int(keep[j])), plan, self.info)
+            v[j], reason, _stamp = _decode_temperature(arrays.payload(int(keep[j])), plan, self.info)
             if reason:
                 good[j] = False
                 problems.add("malformed", plan.temperature[0], int(arrays.log_time[keep[j]]), reason)

@@ -328,6 +328,8 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
                 f"no {c} reading {1e3 * abs(lags[f'estimator.{c}_lag_s']):.3g} ms "
                 f"{'later' if lags[f'estimator.{c}_lag_s'] > 0 else 'earlier'} at {n:,} samples (a pause or an end of "
                 "the recording): the nearest reading held" for c, n in held.items())
+        if estimator.aligner.jitter_text():
+            summary.lags_text += "; " + estimator.aligner.jitter_text()
     summary.describes = _describes(estimator.config)
     summary.beyond_text = estimator.beyond_text()
     summary.adaptation_text = estimator.adaptation_text()

@@ -258,6 +258,14 @@ def _skip_status(estimator: Estimator, previous_skips: dict[str, int], reasons: 
         elif new and r == "stale":
             reasons.append((WARN, f"{new} samples skipped: the motor speed (another rate than the torque's) "
                                   "had no value within estimator.resample_max_age_s"))
+        elif new and r == "out_of_order":
+            reasons.append((WARN, f"{new} samples skipped: stamped too far behind one already seen to be put "
+                                  "in order for the channel lags"))
+    aligner = estimator.aligner
+    if aligner is not None:  # the file's lags: how steady the stamps they are applied on are
+        values.append(("lag stamp intervals off the period", f"{aligner.jittered} of {aligner.intervals}"))
+        if aligner.jitters:
+            reasons.append((WARN, aligner.jitter_text()))
     resampler = estimator.resampler
     for channel in resampler.resampled:  # channels at another rate: how their values were made
         made = resampler.made[channel]

@@ -923,3 +923,24 @@ def test_adaptation_kept_inside_the_files_range_is_said_by_replay(tmp_path):
     efficiency = np.array([r[header.index('"efficiency [1]"')] or "nan" for r in rows], dtype=float)
     assert np.isfinite(efficiency).sum() > 10_000
     assert np.nanmax(efficiency) <= 1.0
+
+
+def test_stamps_that_jitter_beyond_what_the_files_lags_assume_are_said_by_replay(tmp_path):
+    """A file with channel lags of 7 to 21 ms replayed on a recording whose stamps jitter by 4 ms (a
+    publisher preempted now and then) says so on its channel lags line; the same rig on a steady clock
+    does not."""
+    from dataclasses import replace
+
+    opts = SimulationOptions("drive_cycle", 100.0, 5)
+    rig = simulate(load_config(), opts)
+    jitter = np.random.default_rng(3).normal(0.0, 4e6, len(rig.t_ns)).astype(np.int64)
+    write_rig_bag(rig, opts, tmp_path / "steady.mcap")
+    write_rig_bag(replace(rig, t_ns=np.sort(rig.t_ns + jitter)), opts, tmp_path / "jittered.mcap")
+    config = load_config().with_values({"estimator.motor_speed_lag_s": -0.0073, "estimator.output_torque_lag_s": 0.0131,
+                                        "estimator.output_speed_lag_s": 0.0207})
+    steady, _ = replay(tmp_path / "steady.mcap", config, show_progress=False)
+    jittered, _ = replay(tmp_path / "jittered.mcap", config, show_progress=False)
+    assert "jitter" not in steady.lags_text and "motor_speed 7.3 ms early" in steady.lags_text
+    assert "the stamps jitter: " in jittered.lags_text and "more than 3.65 ms, half the shortest lag" in \
+        jittered.lags_text, jittered.lags_text
+    assert f"channel lags (the parameter file's): {jittered.lags_text}" in jittered.text()
