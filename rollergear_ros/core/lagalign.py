@@ -96,6 +96,18 @@ class LagAligner:
         return "; ".join(f"{names[c]} {abs(v) * 1e-6:.3g} ms {'late' if v > 0 else 'early'}"
                          for c, v in self.lags_ns.items()) + ": each sample takes its value at t + lag"
 
+    def text(self) -> str:
+        """:meth:`describe`, the samples that held the nearest reading (no two around ``t + τ``), and
+        :meth:`jitter_text`."""
+        names = {column: name for name, column in LAG_CHANNELS.items()}
+        parts = [self.describe()]
+        for column, lag in self.lags_ns.items():
+            if self.held[names[column]]:
+                parts.append(f"no {names[column]} reading {abs(lag) * 1e-6:.3g} ms {'later' if lag > 0 else 'earlier'} "
+                             f"at {self.held[names[column]]:,} samples (a pause or an end of the recording): the "
+                             "nearest reading held")
+        return "; ".join(p for p in (*parts, self.jitter_text()) if p)
+
     @property
     def jitters(self) -> bool:
         """Whether the stamps jitter beyond what the lags assume (:data:`JITTER_SHARE`)."""

@@ -10,10 +10,13 @@ Pairing rule (inputs are header-less ``std_msgs/Float64``): every channel has a 
 output torque and output speed join the pairing once they have delivered a message.  Whenever
 every active channel has a message queued, the heads form one sample if their times lie within
 ``sync_tolerance_s`` of each other; otherwise the oldest head has no partner and is dropped
-(counted as ``unpaired`` for a motor channel).  The tolerance must stay below half the sample
-period, so sample k never pairs with k±1; ``sync_tolerance_s: 0`` (the default) takes 0.4 × the
-motor torque's median message period (:func:`pairing_tolerance_s`), which also pairs topics that
-separate publishers or recorders logged a fraction of a period apart.  An optional channel silent
+(counted as ``unpaired`` for a motor channel) -- except, by stamps, a drive sample whose torque and
+speed pair: it is estimated with the output heads within the tolerance and without those beyond it (a
+late or jittering output never costs the loss estimate; no residual, ``output_missing``).  The
+tolerance must stay below half the sample period, so sample k never pairs with k±1;
+``sync_tolerance_s: 0`` (the default) takes 0.4 × the motor torque's median message period
+(:func:`pairing_tolerance_s`), which also pairs topics that separate
+publishers or recorders logged a fraction of a period apart.  An optional channel silent
 for longer than ``staleness_s`` no longer holds up the motor samples (they are estimated without a
 residual and counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
 is dropped as ``unpaired`` (over a lossless arrival delivery both wait :data:`LOSSLESS_HOLD_S`: a late
@@ -231,6 +234,7 @@ class SampleSynchronizer:
         self.temperature: tuple[int, float] | None = None
         self.counts: dict[str, int] = {r: 0 for r in SKIP_REASONS}
         self.received: dict[str, int] = {c: 0 for c in CHANNELS}
+        self.unpaired: dict[str, int] = {c: 0 for c in _REQUIRED}  #: motor messages without a partner, by channel
 
     def set_limits(self, sync_tolerance_s: float, staleness_s: float) -> None:
         """Change the pairing tolerance and the staleness limit; queued messages are kept."""
@@ -266,7 +270,7 @@ class SampleSynchronizer:
         pairing starts unlocked, as after a clean end (a gap too long to fill with placeholders)."""
         for ch, qq in self.queues.items():
             if ch in _REQUIRED:
-                self.counts["unpaired"] += len(qq)
+                self._unpaired(ch, len(qq))
             qq.clear()
         self._locked, self._timed_pairs, self._wide = False, 0, 0
         self._skew_chans, self._skew_last, self._gap_ns = (), [], None
@@ -324,7 +328,7 @@ class SampleSynchronizer:
         self.latest_ns += 2 * max(self.tolerance_ns, self.hold_ns) + 1
         out = self._drain()
         for ch in _REQUIRED:
-            self.counts["unpaired"] += len(self.queues[ch])
+            self._unpaired(ch, len(self.queues[ch]))
             self.queues[ch].clear()
         for ch in _OPTIONAL:
             self.queues[ch].clear()
@@ -488,9 +492,16 @@ class SampleSynchronizer:
                 out.append(self._sample(t, vals))
                 continue
             oldest = chans[times.index(min(times))]
+            if not self.arrival and oldest in _REQUIRED and abs(times[0] - times[1]) <= tol:
+                # a whole drive sample whose output heads lie beyond the tolerance after it (a late or
+                # jittering output): estimated without them (no residual: ``output_missing``), never lost
+                first = min(times[0], times[1])
+                vals = {c: q[c].popleft()[1] for c, t in zip(chans, times) if t - first <= tol}
+                out.append(self._sample(times[0], vals))
+                continue
             q[oldest].popleft()
             if oldest in _REQUIRED:
-                self.counts["unpaired"] += 1
+                self._unpaired(oldest)
 
     def _arrival_wide(self, wide: bool) -> bool:
         """Arrival pairing: whether a pair whose times are ``wide`` apart is taken as misaligned.
@@ -604,7 +615,7 @@ class SampleSynchronizer:
             for _ in range(min(lag, len(q))):
                 q.popleft()
                 if ch in _REQUIRED:
-                    self.counts["unpaired"] += 1
+                    self._unpaired(ch)
         self._skew_chans, self._skew_last = (), []
 
     def _expire_required(self) -> None:
@@ -615,7 +626,12 @@ class SampleSynchronizer:
             qq = self.queues[ch]
             while qq and qq[0][0] < limit:
                 qq.popleft()
-                self.counts["unpaired"] += 1
+                self._unpaired(ch)
+
+    def _unpaired(self, channel: str, n: int = 1) -> None:
+        """``n`` messages of motor ``channel`` dropped without a partner: counted, in total and by channel."""
+        self.counts["unpaired"] += n
+        self.unpaired[channel] += n
 
     def _sample(self, t_ns: int, vals: dict[str, float]) -> SyncedSample:
         if OUT_TORQUE not in vals and self.received[OUT_TORQUE]:

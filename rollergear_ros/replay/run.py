@@ -29,6 +29,7 @@ from ..core.params import Config
 from ..base.progress import TimedProgress
 from .inputs import InputBatch, InputProblems, damaged_share, input_batches, paired_plan
 from .output import ReplayOutputs
+from .skew import ChannelSpans
 from .switches import ParameterSwitch, apply_switch, recorded_switches, split_at
 from .summary import Accumulator, ReplaySummary
 from .window import MEMORY_LEAD_NS, TimeWindow
@@ -140,6 +141,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
         acc.trace = SummaryTrace(info.counts.get(plan.joint_states or req.topics.motor_torque, 0))
     outputs = ReplayOutputs(req.topics, acc, req.collect)
     bar = None
+    spans = ChannelSpans()
     completed = False  # an error (not an interrupt) leaves no output in place of an existing one
     try:
         with stop.critical():  # outputs are opened whole
@@ -147,7 +149,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
         total = sum(info.counts.get(t, 0) for t in plan.all_topics)
         bar = TimedProgress("replay", total, "msg", enabled=req.show_progress).start()
         batches = input_batches(info, plan, req.batch_size, _warn, problems, window.read_range() if window else None)
-        run = _Pass(estimator, outputs, window, summary, stop, switches)
+        run = _Pass(estimator, outputs, window, summary, stop, switches, spans)
         try:
             _estimate(batches, run, bar)
         finally:
@@ -165,7 +167,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
                                        and not summary.interrupted)
     if stop.requested and not summary.interrupted:  # the whole recording was read: the outputs are whole
         _warn("a stop signal came after the whole recording was processed: every output is complete")
-    _count(summary, estimator, window, acc, _warn)
+    _count(summary, estimator, window, acc, _warn, spans if window is None else None)
     summary.warnings = warnings
     if acc.trace is not None and acc.n and stop.requested:  # asked to stop: the files, not a picture
         _warn(f"interrupted: no summary picture {req.summary_png}")
@@ -241,6 +243,7 @@ class _Pass:
     summary: ReplaySummary
     stop: GracefulStop
     switches: list[ParameterSwitch]
+    spans: ChannelSpans  #: each channel's first and last stamp (the whole recording)
 
     def push(self, codes, t_ns, values, source_ns) -> Iterator[BatchEstimate]:
         """The inputs through the estimator; at a recorded parameter change within them, the
@@ -277,6 +280,7 @@ def _estimate(batches: Iterator[InputBatch], run: _Pass, bar: TimedProgress) -> 
         else:
             with stop.critical():  # one batch's estimates and inputs, both or neither
                 summary.input_messages += batch.message_count
+                run.spans.add(batch.codes, batch.t_ns)
                 for estimates in run.push(batch.codes, batch.t_ns, batch.values, batch.source_ns):
                     outputs.emit(estimates)
                 outputs.inputs_done(batch, run.estimator, release_lag_ns)
@@ -292,8 +296,9 @@ def _estimate(batches: Iterator[InputBatch], run: _Pass, bar: TimedProgress) -> 
 
 
 def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | None, acc: Accumulator,
-           warn: Callable[[str], None]) -> None:
-    """The estimator's counts and the sums in ``summary``; a warning when many samples went unpaired."""
+           warn: Callable[[str], None], run_spans: ChannelSpans | None = None) -> None:
+    """The estimator's counts and the sums in ``summary``; a warning when many samples of a channel went
+    unpaired, or a channel's stream is shifted against the drive torque's (``run_spans``: its ends)."""
     summary.samples = estimator.motor_messages
     summary.estimated = estimator.estimated
     summary.skipped = dict(estimator.counts)
@@ -302,13 +307,18 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
     summary.alarm_times_ns, summary.alarm_from_start = list(detector.alarm_times_ns), list(detector.alarm_from_start)
     if window is not None:
         window.finish(summary, estimator, acc)
-    unpaired = summary.skipped.get("unpaired", 0)
-    if summary.samples and unpaired > 0.05 * summary.samples:
+    sync = estimator.sync
+    unpaired = {c: n for c, n in sync.unpaired.items() if n > 0.05 * max(sync.received[c], 1)}
+    if unpaired:
+        counts = ", ".join(f"{c.replace('_', ' ')} {n:,} of {sync.received[c]:,}" for c, n in unpaired.items())
         warn(
-            f"{unpaired:,} of {summary.samples:,} motor messages had no partner within the pairing tolerance of "
-            f"{1e3 * estimator.sync_tolerance_s:.2g} ms: do the input topics share one time base? "
+            f"input messages without a partner within the pairing tolerance of {1e3 * estimator.sync_tolerance_s:.2g} "
+            f"ms: {counts}: do the input topics share one time base? "
             "Set estimator.sync_tolerance_s (below half the sample period) if they are logged further apart"
         )
+    skewed = run_spans.text(estimator.sample_period_s) if run_spans is not None else ""
+    if skewed:
+        warn(skewed)
     if summary.samples and not summary.estimated:
         reasons = ", ".join(f"{k.replace('_', ' ')} {v:,}" for k, v in summary.skipped.items() if v)
         warn(f"no sample was estimated: every one of the {summary.samples:,} was skipped ({reasons}); "
@@ -320,16 +330,7 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
     summary.resampled_text = estimator.resampler.describe() or ""
     summary.resampled = {c: dict(made) for c, made in estimator.resampler.made.items()}
     if estimator.aligner is not None:
-        summary.lags_text = estimator.aligner.describe()
-        held = {c: n for c, n in estimator.aligner.held.items() if n}
-        if held:
-            lags = {c: v for c, v in estimator.config.to_flat().items() if c.endswith("_lag_s")}
-            summary.lags_text += "; " + "; ".join(
-                f"no {c} reading {1e3 * abs(lags[f'estimator.{c}_lag_s']):.3g} ms "
-                f"{'later' if lags[f'estimator.{c}_lag_s'] > 0 else 'earlier'} at {n:,} samples (a pause or an end of "
-                "the recording): the nearest reading held" for c, n in held.items())
-        if estimator.aligner.jitter_text():
-            summary.lags_text += "; " + estimator.aligner.jitter_text()
+        summary.lags_text = estimator.aligner.text()
     summary.describes = _describes(estimator.config)
     summary.beyond_text = estimator.beyond_text()
     summary.adaptation_text = estimator.adaptation_text()

@@ -458,3 +458,39 @@ def test_lossless_arrival_pairing_is_not_moved_by_a_publisher_late_in_most_sampl
     out += sync.flush()
     assert sync.counts["unpaired"] == 0 and len(out) == n
     assert all(s.torque_nm == s.speed_rad_s == s.out_torque_nm == s.out_speed_rad_s for s in out)
+
+
+def test_a_jittering_output_torque_never_costs_the_loss_estimate():
+    """The output torque stamped with jitter of ±0.6 sample period (one message in three beyond the
+    pairing tolerance): every drive sample is still estimated -- those whose output lies beyond the
+    tolerance without a residual, counted as ``output_missing`` -- message by message (the node) and in
+    arrays (replay) alike."""
+    from rollergear_ros.calibration.simulate import SimulationOptions, simulate
+
+    rig = simulate(load_config(), SimulationOptions("drive_cycle", 100.0, 5))
+    n = 4001
+    period = int(rig.t_ns[1] - rig.t_ns[0])
+    t = np.asarray(rig.t_ns[:n], dtype=np.int64)
+    jittered = np.sort(t + (np.random.default_rng(2).uniform(-0.6, 0.6, n) * period).astype(np.int64))
+    streams = [(0, t, rig.torque_meas_nm[:n]), (1, t, rig.speed_rad_s[:n]), (2, jittered, rig.out_torque_meas_nm[:n]),
+               (3, t, rig.out_speed_meas_rad_s[:n])]
+    codes = np.concatenate([np.full(n, c, dtype=np.int8) for c, _, _ in streams])
+    times = np.concatenate([tt for _, tt, _ in streams])
+    values = np.concatenate([v for _, _, v in streams])
+    order = np.argsort(times, kind="stable")
+    codes, times, values = codes[order], times[order], values[order]
+    config = load_config().with_values({"estimator.adapt": False})
+
+    batch_est = Estimator(config, sample_period_s=period * 1e-9)
+    parts = [p for p in (batch_est.push_many(codes, times, values), batch_est.flush()) if p is not None]
+    loss = np.concatenate([p.loss_torque_nm for p in parts])
+    residual = np.concatenate([p.residual_nm for p in parts])
+    node_est = Estimator(config, sample_period_s=period * 1e-9)
+    live = [e for c, tt, v in zip(codes.tolist(), times.tolist(), values.tolist())
+            for e in node_est.push(CHANNELS[c], tt, v)] + node_est.finish()
+    assert batch_est.estimated == n - batch_est.counts["implausible"] - batch_est.counts["non_finite"] \
+        and batch_est.counts["unpaired"] == 0, batch_est.counts
+    without = int(np.count_nonzero(np.isnan(residual)))
+    assert 0.2 * n < batch_est.counts["output_missing"] == without < 0.5 * n, batch_est.counts
+    np.testing.assert_array_equal(np.array([e.loss_torque_nm for e in live]), loss)
+    np.testing.assert_array_equal(np.array([e.residual_nm for e in live]), residual)

@@ -944,3 +944,44 @@ def test_stamps_that_jitter_beyond_what_the_files_lags_assume_are_said_by_replay
     assert "the stamps jitter: " in jittered.lags_text and "more than 3.65 ms, half the shortest lag" in \
         jittered.lags_text, jittered.lags_text
     assert f"channel lags (the parameter file's): {jittered.lags_text}" in jittered.text()
+
+
+def test_an_output_torque_stamped_ten_seconds_late_is_said_and_counts_name_their_channel(tmp_path):
+    """The output torque of a 100 Hz rig re-stamped 10 s late pairs, stamp for stamp, with drive samples
+    of another moment: replay says the channel is shifted (by how much, after the torque) instead of
+    a silent measured efficiency.  Its own recording, and one whose output torque logger only started
+    late, say nothing.  A motor speed lost in part is counted as its own channel's."""
+    from bagtools import _copy
+
+    source = BAGS / "rig_map_drag.mcap"
+    late = _copy(source, tmp_path / "late.mcap", lambda _s, channel, m: (
+        (m.log_time + 10**10, m.data, m.publish_time + 10**10) if channel.topic == T_OUT_TORQUE
+        else (m.log_time, m.data, m.publish_time)), log_time_order=False)
+    started_late = _copy(source, tmp_path / "started_late.mcap", lambda _s, channel, m: None if (
+        channel.topic == T_OUT_TORQUE and m.log_time < 10**10 + _first_log_time(source)) else (
+        m.log_time, m.data, m.publish_time), log_time_order=False)
+    speed_gaps = _copy(source, tmp_path / "speed_gaps.mcap", lambda _s, channel, m: None if (
+        channel.topic == TopicMap().motor_speed and m.sequence % 5 == 0) else (
+        m.log_time, m.data, m.publish_time), log_time_order=False)
+    said: dict[str, list[str]] = {}
+    for path in (source, late, started_late, speed_gaps):
+        said[path.stem] = []
+        replay(path, load_config(), show_progress=False, warn=said[path.stem].append)
+    shifted = [w for w in said["late"] if "whole stream is shifted" in w]
+    assert len(shifted) == 1 and "output torque 10 s after it, at both ends" in shifted[0], said["late"]
+    for stem in ("rig_map_drag", "started_late", "speed_gaps"):
+        assert not any("shifted" in w for w in said[stem]), said[stem]
+    unpaired = [w for w in said["speed_gaps"] if "without a partner" in w]
+    assert len(unpaired) == 1 and "motor torque 2,016 of 10,080" in unpaired[0] and "motor speed" not in \
+        unpaired[0], unpaired
+
+
+T_OUT_TORQUE = TopicMap().output_torque
+
+
+def _first_log_time(path: Path) -> int:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return make_reader(f).get_summary().statistics.message_start_time
+
