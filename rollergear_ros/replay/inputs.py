@@ -121,14 +121,15 @@ def _stamp_ns(msg) -> int:
 
 
 def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo,
-                 problems: InputProblems | None = None) -> tuple[list[tuple[int, str, float]], set[int]]:
-    """Decode a raw batch of a JointState recording into ``(time, channel, value)`` in file order,
-    and the indices of the messages that could not be decoded.
+                 problems: InputProblems | None = None) -> tuple[list[tuple[int, str, float, int]], set[int]]:
+    """Decode a raw batch of a JointState recording into ``(time, channel, value, log time)`` in file
+    order (time: a message's header stamp, its log time where the stamp is 0), and the indices of the
+    messages that could not be decoded.
 
     Float64 recordings take the vectorised path (:func:`_float64_batches`); non-finite values are
     kept.  A message that cannot be decoded is skipped and added to ``problems`` (raised without).
     """
-    out: list[tuple[int, str, float]] = []
+    out: list[tuple[int, str, float, int]] = []
     bad: set[int] = set()
     tp = plan.topics
     temp_topic = plan.temperature[0] if plan.temperature else None
@@ -137,7 +138,7 @@ def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo,
         if topic == temp_topic:
             value, problem, stamp = _decode_temperature(data, plan, info)
             if problem is None:  # on the joint states' clock, their header stamps, as the node takes it
-                out.append((stamp or t, OIL_TEMPERATURE, value))
+                out.append((stamp or t, OIL_TEMPERATURE, value, t))
         elif topic == plan.joint_states:
             problem = cdr_problem(data)
             if problem is None:
@@ -147,12 +148,13 @@ def decode_batch(batch: RawBatch, plan: InputPlan, info: BagInfo,
                     problem = f"cannot decode {MessageType.JOINT_STATE} ({type(exc).__name__})"
             if problem is None:
                 names = list(msg.name)
-                t = _stamp_ns(msg) or t  # the sample's own stamp, as the node pairs and aligns by
+                sample_t = _stamp_ns(msg) or t  # the sample's own stamp, as the node pairs and aligns by
                 for joint, ch_t, ch_w in ((tp.input_joint, TORQUE, SPEED), (tp.output_joint, OUT_TORQUE, OUT_SPEED)):
                     if joint in names:
                         k = names.index(joint)
-                        out.append((t, ch_t, float(msg.effort[k]) if k < len(msg.effort) else math.nan))
-                        out.append((t, ch_w, float(msg.velocity[k]) if k < len(msg.velocity) else math.nan))
+                        out.append((sample_t, ch_t, float(msg.effort[k]) if k < len(msg.effort) else math.nan, t))
+                        out.append((sample_t, ch_w, float(msg.velocity[k]) if k < len(msg.velocity) else math.nan,
+                                    t))
         else:
             problem = None
         if problem is not None:
@@ -235,6 +237,9 @@ class InputBatch:
     #: the log times of the recording's messages these came from, where one carries several channels
     #: (a JointState: torque and speed of two joints); None: one value per message
     message_t_ns: np.ndarray | None = None
+    #: each value's message's log time, where the value is taken at another time (a JointState's header
+    #: stamp): the clock the node's recorded parameter changes are placed on; None: ``t_ns``
+    event_log_ns: np.ndarray | None = None
 
     @property
     def message_count(self) -> int:
@@ -281,11 +286,12 @@ def _decoded_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
     code_of = {c: i for i, c in enumerate(CHANNELS)}
     for raw in iter_raw_batches(info, plan.all_topics, batch_size, state):
         events, bad = decode_batch(raw, plan, info, problems)
-        codes = np.array([code_of[c] for _, c, _ in events], dtype=np.int8)
+        codes = np.array([code_of[e[1]] for e in events], dtype=np.int8)
         t = np.array([e[0] for e in events], dtype=np.int64)
         v = np.array([e[2] for e in events], dtype=float)
+        logged = np.array([e[3] for e in events], dtype=np.int64)
         keep = problems.check_order(codes, t, v)
-        codes, t, v = codes[keep], t[keep], v[keep]
+        codes, t, v, logged = codes[keep], t[keep], v[keep], logged[keep]
 
         def write(writer: BagWriter, raw: RawBatch = raw, bad: set[int] = bad) -> None:
             for i, (tp, tt, d) in enumerate(zip(raw.topics, raw.log_time_ns, raw.data)):
@@ -293,7 +299,7 @@ def _decoded_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, pro
                     writer.write_raw(tp, info.topics[tp], tt, d, info.schema_texts.get(info.topics[tp]))
 
         read = np.array([tt for i, tt in enumerate(raw.log_time_ns) if i not in bad], dtype=np.int64)
-        yield InputBatch(codes, t, v, write, message_t_ns=read)
+        yield InputBatch(codes, t, v, write, message_t_ns=read, event_log_ns=logged)
 
 
 def _float64_batches(info: BagInfo, plan: InputPlan, batch_size: int, state, problems: InputProblems,

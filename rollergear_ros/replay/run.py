@@ -245,16 +245,18 @@ class _Pass:
     switches: list[ParameterSwitch]
     spans: ChannelSpans  #: each channel's first and last stamp (the whole recording)
 
-    def push(self, codes, t_ns, values, source_ns) -> Iterator[BatchEstimate]:
+    def push(self, codes, t_ns, values, source_ns, log_ns=None) -> Iterator[BatchEstimate]:
         """The inputs through the estimator; at a recorded parameter change within them, the
-        estimates before it, then those of the estimator after it."""
-        while self.switches and len(t_ns) and t_ns[-1] > self.switches[0].at_ns:
+        estimates before it, then those of the estimator after it.  The change's boundary is a log
+        time: ``log_ns`` gives each input's where it is not its sample time (a JointState's stamp)."""
+        clock = t_ns if log_ns is None else log_ns
+        while self.switches and len(clock) and clock[-1] > self.switches[0].at_ns:
             switch = self.switches.pop(0)
-            k = split_at(t_ns, switch.at_ns)
+            k = split_at(clock, switch.at_ns)
             if k:
                 yield self.estimator.push_many(codes[:k], t_ns[:k], values[:k],
                                                None if source_ns is None else source_ns[:k])
-                codes, t_ns, values = codes[k:], t_ns[k:], values[k:]
+                codes, t_ns, values, clock = codes[k:], t_ns[k:], values[k:], clock[k:]
                 source_ns = None if source_ns is None else source_ns[k:]
             self.estimator = apply_switch(self.estimator, switch)
             self.summary.parameter_changes.append(
@@ -281,7 +283,8 @@ def _estimate(batches: Iterator[InputBatch], run: _Pass, bar: TimedProgress) -> 
             with stop.critical():  # one batch's estimates and inputs, both or neither
                 summary.input_messages += batch.message_count
                 run.spans.add(batch.codes, batch.t_ns)
-                for estimates in run.push(batch.codes, batch.t_ns, batch.values, batch.source_ns):
+                for estimates in run.push(batch.codes, batch.t_ns, batch.values, batch.source_ns,
+                                          batch.event_log_ns):
                     outputs.emit(estimates)
                 outputs.inputs_done(batch, run.estimator, release_lag_ns)
         bar.update(len(batch.codes))

@@ -1481,7 +1481,7 @@ def test_a_traced_effect_taken_in_switches_the_estimator_at_a_recorded_sample_an
     t = np.concatenate([b.t_ns for b in batches])
     replayed = np.concatenate([b.loss_torque_nm for b in batches])
     np.testing.assert_array_equal(replayed, recorded)
-    after = t > boundary
+    after = t > header_ns[at]  # the estimates carry their samples' stamps: the boundary message's
     # every sample of the second recording after the switch (played once the switch was made), and
     # those of the first that came after the trace (none when it finished after the first play)
     assert after.sum() >= inspect_bag(tmp_path / "then.mcap").counts[T.joint_states]
