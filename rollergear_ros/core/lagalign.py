@@ -28,6 +28,7 @@ __all__ = ["GAP_PERIODS", "LAG_CHANNELS", "REORDER_PERIODS", "LagAligner", "max_
 #: channels a lag can be given for, and their column in a paired sample
 #: ``(t_ns, torque, speed, out_torque, out_speed, temperature)``
 LAG_CHANNELS = {"motor_speed": 2, "output_torque": 3, "output_speed": 4}
+_CHANNEL_OF_COLUMN = {column: name for name, column in LAG_CHANNELS.items()}
 #: two samples this many sample periods apart still bracket ``t + τ``: one sample missing is no gap
 GAP_PERIODS = 2.5
 #: stamps may come out of order by this many sample periods (at most the widest gap) and still be ordered
@@ -77,7 +78,7 @@ class LagAligner:
         self._newest_ns: int | None = None  #: the newest stamp seen
         self._previous_ns: int | None = None  #: the stamp of the sample fed last (jitter)
         #: channel -> samples that took the nearest reading (no two around ``t + τ``: a pause, an end)
-        self.held: dict[str, int] = {name: 0 for name, column in LAG_CHANNELS.items() if column in self.lags_ns}
+        self.held: dict[str, int] = {_CHANNEL_OF_COLUMN[column]: 0 for column in self.lags_ns}
         self.late = 0  #: samples whose stamp came further back than the reorder window: not estimated
         self.intervals = 0  #: stamp intervals measured (successive samples as fed, pauses excluded)
         #: ... off the stamps' own period by more than half the shortest lag (or backwards): stamps too
@@ -92,19 +93,18 @@ class LagAligner:
 
     def describe(self) -> str:
         """``output_torque 29.8 ms late: read at t + lag``."""
-        names = {column: name for name, column in LAG_CHANNELS.items()}
-        return "; ".join(f"{names[c]} {abs(v) * 1e-6:.3g} ms {'late' if v > 0 else 'early'}"
+        return "; ".join(f"{_CHANNEL_OF_COLUMN[c]} {abs(v) * 1e-6:.3g} ms {'late' if v > 0 else 'early'}"
                          for c, v in self.lags_ns.items()) + ": each sample takes its value at t + lag"
 
     def text(self) -> str:
         """:meth:`describe`, the samples that held the nearest reading (no two around ``t + τ``), and
         :meth:`jitter_text`."""
-        names = {column: name for name, column in LAG_CHANNELS.items()}
         parts = [self.describe()]
         for column, lag in self.lags_ns.items():
-            if self.held[names[column]]:
-                parts.append(f"no {names[column]} reading {abs(lag) * 1e-6:.3g} ms {'later' if lag > 0 else 'earlier'} "
-                             f"at {self.held[names[column]]:,} samples (a pause or an end of the recording): the "
+            name = _CHANNEL_OF_COLUMN[column]
+            if self.held[name]:
+                parts.append(f"no {name} reading {abs(lag) * 1e-6:.3g} ms {'later' if lag > 0 else 'earlier'} "
+                             f"at {self.held[name]:,} samples (a pause or an end of the recording): the "
                              "nearest reading held")
         return "; ".join(p for p in (*parts, self.jitter_text()) if p)
 
@@ -179,10 +179,9 @@ class LagAligner:
         stop = max(stop, self._pending)
         idx = np.arange(self._pending, stop)
         out = [times[idx], *(rows[idx, j].copy() for j in range(5))]
-        names = {column: name for name, column in LAG_CHANNELS.items()}
         for column, lag in self.lags_ns.items():
             out[column], held = self._at(rows[:, column - 1], times[idx] + lag, abs(lag))
-            self.held[names[column]] += held
+            self.held[_CHANNEL_OF_COLUMN[column]] += held
         self._pending = stop
         if stop:  # keep what the samples still waiting may read back to (one sample before it)
             keep = max(int(np.searchsorted(times, int(times[stop - 1]) - self._back_ns, side="left")) - 1, 0)

@@ -4,24 +4,23 @@ The node pushes one message at a time, replay whole arrays (:meth:`SampleSynchro
 vectorised where it can be, message by message where a rule needs it; the result is the same).
 No rclpy import.
 
-Pairing rule (inputs are header-less ``std_msgs/Float64``): every channel has a FIFO of
-``(time, value)``; *time* is the bag's log time offline and the publisher's source timestamp live
-(the receive time when the middleware gives none).  Motor torque and motor speed are required;
-output torque and output speed join the pairing once they have delivered a message.  Whenever
-every active channel has a message queued, the heads form one sample if their times lie within
-``sync_tolerance_s`` of each other; otherwise the oldest head has no partner and is dropped
-(counted as ``unpaired`` for a motor channel) -- except, by stamps, a drive sample whose torque and
-speed pair: it is estimated with the output heads within the tolerance and without those beyond it (a
-late or jittering output never costs the loss estimate; no residual, ``output_missing``).  The
-tolerance must stay below half the sample period, so sample k never pairs with k±1;
-``sync_tolerance_s: 0`` (the default) takes 0.4 × the motor torque's median message period
-(:func:`pairing_tolerance_s`), which also pairs topics that separate
-publishers or recorders logged a fraction of a period apart.  An optional channel silent
-for longer than ``staleness_s`` no longer holds up the motor samples (they are estimated without a
-residual and counted as ``output_missing``); a motor message whose partner has not come within ``staleness_s``
-is dropped as ``unpaired`` (over a lossless arrival delivery both wait :data:`LOSSLESS_HOLD_S`: a late
-partner there was held up, not lost).  During the first ``staleness_s`` of a stream, samples wait for the
-optional channels to show up, so a log's first samples already carry their measured output.
+Pairing rule (inputs are header-less ``std_msgs/Float64``): every channel has a FIFO of ``(time,
+value)``; *time* is the bag's log time offline and the publisher's source timestamp live (the receive
+time when the middleware gives none).  Motor torque and motor speed are required; output torque and
+output speed join the pairing once they have delivered a message.  Whenever every active channel has a
+message queued, the heads form one sample if their times lie within ``sync_tolerance_s`` of each other;
+otherwise the oldest head has no partner and is dropped (counted as ``unpaired`` for a motor channel) --
+except, by stamps, a drive sample whose torque and speed pair: it is estimated with the output heads
+within the tolerance and without those beyond it (a late or jittering output never costs the loss
+estimate; no residual, ``output_missing``).  The tolerance must stay below half the sample period, so
+sample k never pairs with k±1; ``sync_tolerance_s: 0`` (the default) takes 0.4 × the motor torque's
+median message period (:func:`pairing_tolerance_s`), which also pairs topics that separate publishers or
+recorders logged a fraction of a period apart.  An optional channel silent for longer than
+``staleness_s`` no longer holds up the motor samples (they are estimated without a residual and counted
+as ``output_missing``); a motor message whose partner has not come within ``staleness_s`` is dropped as
+``unpaired`` (over a lossless arrival delivery both wait :data:`LOSSLESS_HOLD_S`: a late partner there
+was held up, not lost).  During the first ``staleness_s`` of a stream, samples wait for the optional
+channels to show up, so a log's first samples already carry their measured output.
 
 Arrival pairing (``arrival=True``, for a live executor that gives no publisher timestamps, so
 *time* is the callback time): messages are paired first-in first-out per channel even when their

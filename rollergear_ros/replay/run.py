@@ -167,7 +167,7 @@ def _replay(req: ReplayRequest, stop: GracefulStop) -> tuple[ReplaySummary, list
                                        and not summary.interrupted)
     if stop.requested and not summary.interrupted:  # the whole recording was read: the outputs are whole
         _warn("a stop signal came after the whole recording was processed: every output is complete")
-    _count(summary, estimator, window, acc, _warn, spans if window is None else None)
+    _count(summary, estimator, window, acc, _warn, spans)
     summary.warnings = warnings
     if acc.trace is not None and acc.n and stop.requested:  # asked to stop: the files, not a picture
         _warn(f"interrupted: no summary picture {req.summary_png}")
@@ -243,7 +243,7 @@ class _Pass:
     summary: ReplaySummary
     stop: GracefulStop
     switches: list[ParameterSwitch]
-    spans: ChannelSpans  #: each channel's first and last stamp (the whole recording)
+    spans: ChannelSpans  #: each channel's first and last stamp (a whole recording; none of a time slice)
 
     def push(self, codes, t_ns, values, source_ns, log_ns=None) -> Iterator[BatchEstimate]:
         """The inputs through the estimator; at a recorded parameter change within them, the
@@ -299,9 +299,10 @@ def _estimate(batches: Iterator[InputBatch], run: _Pass, bar: TimedProgress) -> 
 
 
 def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | None, acc: Accumulator,
-           warn: Callable[[str], None], run_spans: ChannelSpans | None = None) -> None:
+           warn: Callable[[str], None], spans: ChannelSpans) -> None:
     """The estimator's counts and the sums in ``summary``; a warning when many samples of a channel went
-    unpaired, or a channel's stream is shifted against the drive torque's (``run_spans``: its ends)."""
+    unpaired, or a channel's stream is shifted against the drive torque's (``spans``: the streams' ends,
+    taken of a whole recording only)."""
     summary.samples = estimator.motor_messages
     summary.estimated = estimator.estimated
     summary.skipped = dict(estimator.counts)
@@ -319,7 +320,7 @@ def _count(summary: ReplaySummary, estimator: Estimator, window: TimeWindow | No
             f"ms: {counts}: do the input topics share one time base? "
             "Set estimator.sync_tolerance_s (below half the sample period) if they are logged further apart"
         )
-    skewed = run_spans.text(estimator.sample_period_s) if run_spans is not None else ""
+    skewed = spans.text(estimator.sample_period_s)
     if skewed:
         warn(skewed)
     if summary.samples and not summary.estimated:

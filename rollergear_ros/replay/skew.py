@@ -32,9 +32,9 @@ class ChannelSpans:
         for channel in (TORQUE, *_CHECKED):
             t = t_ns[codes == CHANNELS.index(channel)]
             if len(t):
-                self.first.setdefault(channel, int(t.min()))
-                self.first[channel] = min(self.first[channel], int(t.min()))
-                self.last[channel] = max(self.last.get(channel, int(t.max())), int(t.max()))
+                lo, hi = int(t.min()), int(t.max())
+                self.first[channel] = min(self.first.get(channel, lo), lo)
+                self.last[channel] = max(self.last.get(channel, hi), hi)
 
     def shifted(self, period_s: float | None) -> dict[str, float]:
         """Channel -> its shift against the drive torque in s, where its first and its last stamp are
