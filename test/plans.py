@@ -7,6 +7,9 @@ written as a DAQ exports them (one CSV, runs in recording order, a channel map).
   the drive torque is mostly the friction itself.
 * :func:`one_load_plan`: the paper's gearbox (``config/gearbox.yaml``) in steady runs at one drive torque,
   with a drag and a viscous line the parameter file lacks.
+* :func:`servo_plan`: a small servo (a coreless motor behind 288:1 spur gears) swinging a pendulum both
+  ways, then letting go: the pendulum back-drives the gears until the friction holds it at rest; its friction
+  Coulomb + viscous at the motor.
 * :func:`held_out_runs`: the mean of a replay's residual over each run of an export (the static map's
   error at each held-out operating point).
 """
@@ -81,18 +84,25 @@ def one_load_plan(tmp: Path, torque_nm: float, speeds_rpm, name: str, seed: int)
     return csv, cmap
 
 
-def held_out_runs(csv: Path, cmap: Path, params: Path) -> tuple[np.ndarray, int, int]:
-    """``replay`` of an export with ``params``: each run's mean residual (over the samples it measures a
-    loss of), the rows estimated (a finite loss) and the rows."""
+def replayed(csv: Path, cmap: Path, params: Path) -> dict[str, np.ndarray]:
+    """``replay`` of an export with ``params``: its estimates' columns (``t`` in s)."""
     from rollergear_ros.core.params import load_config
     from rollergear_ros.replay.run import replay
     from rollergear_ros.sources.importer import as_mcap
 
     with as_mcap([csv], cmap) as bags:
         _summary, batches = replay(bags[0], load_config(params), collect=True, show_progress=False)
-    t = np.concatenate([b.t_ns for b in batches]).astype(float) * 1e-9
-    r = np.concatenate([b.residual_nm for b in batches])
-    loss = np.concatenate([b.loss_torque_nm for b in batches])
+    names = ("speed_rad_s", "measured_loss_nm", "residual_nm", "loss_torque_nm")
+    columns = {n: np.concatenate([getattr(b, n) for b in batches]) for n in names}
+    columns["t"] = np.concatenate([b.t_ns for b in batches]).astype(float) * 1e-9
+    return columns
+
+
+def held_out_runs(csv: Path, cmap: Path, params: Path) -> tuple[np.ndarray, int, int]:
+    """``replay`` of an export with ``params``: each run's mean residual (over the samples it measures a
+    loss of), the rows estimated (a finite loss) and the rows."""
+    c = replayed(csv, cmap, params)
+    t, r, loss = c["t"], c["residual_nm"], c["loss_torque_nm"]
     cut = np.r_[0, np.flatnonzero(np.diff(t) > 1.0) + 1, len(t)]
     means = np.array([np.nanmean(r[i:j]) if np.isfinite(r[i:j]).any() else np.nan for i, j in zip(cut[:-1], cut[1:])])
     return means, int(np.count_nonzero(np.isfinite(loss))), len(np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2))
@@ -111,3 +121,57 @@ def line_at(train_csv: Path, held_csv: Path, load: bool, ratio: float) -> float:
     coef, *_ = np.linalg.lstsq(np.column_stack([np.ones_like(w), w]), loss, rcond=None)
     w, loss = means(held_csv)
     return float(np.sqrt(np.mean((loss - (coef[0] + coef[1] * w)) ** 2)))
+
+
+#: the servo: its ratio, the pendulum's m·g·l [N·m] and inertia [kg·m²] at the output, the motor's Coulomb
+#: [N·m] and viscous [N·m·s/rad] friction, its sampling [Hz]
+SERVO_RATIO, SERVO_MGL_NM, SERVO_INERTIA, SERVO_COULOMB_NM, SERVO_VISCOUS_NM_S, SERVO_RATE_HZ = (
+    288.0, 0.3, 0.009, 3e-4, 1.5e-7, 500.0)
+
+
+def _servo_friction(w_motor: float) -> float:
+    return (SERVO_COULOMB_NM + SERVO_VISCOUS_NM_S * abs(w_motor)) * float(np.sign(w_motor))
+
+
+def _servo_run(amplitude_rad: float, freq_hz: float, rng) -> dict[str, np.ndarray]:
+    """4 s driven along ``amplitude·sin(2π f t)`` (the motor torque the pendulum's torque through the gears
+    plus the friction), then 4 s let go (motor torque 0): the pendulum swings back-driving the gears, the
+    friction braking it, until it sticks where gravity cannot overcome the Coulomb friction.  Logged: the
+    motor's current-based torque, its speed (encoder noise 1 rad/s) and the output torque the pendulum's
+    dynamics give (θ̈ and θ from the joint encoder)."""
+    n, dt = int(4.0 * SERVO_RATE_HZ), 1.0 / SERVO_RATE_HZ
+    t = np.arange(n) * dt
+    phase = 2 * np.pi * freq_hz * t
+    theta, rate = amplitude_rad * np.sin(phase), amplitude_rad * 2 * np.pi * freq_hz * np.cos(phase)
+    out = SERVO_INERTIA * -amplitude_rad * (2 * np.pi * freq_hz) ** 2 * np.sin(phase) + SERVO_MGL_NM * np.sin(theta)
+    motor = out / SERVO_RATIO + np.array([_servo_friction(SERVO_RATIO * v) for v in rate])
+    x, v, free_theta_rate, free_out = float(theta[-1]), float(rate[-1]), [], []
+    substeps = 20
+    for _ in range(n):
+        for _ in range(substeps):  # semi-implicit Euler; a reversal that gravity cannot carry sticks
+            gravity = SERVO_MGL_NM * np.sin(x)
+            if v == 0.0 and abs(gravity) <= SERVO_RATIO * SERVO_COULOMB_NM:
+                continue
+            accel = (-SERVO_RATIO * _servo_friction(SERVO_RATIO * v) - gravity) / SERVO_INERTIA
+            moved = v + accel * dt / substeps
+            v = 0.0 if v != 0.0 and moved * v < 0 and abs(gravity) <= SERVO_RATIO * SERVO_COULOMB_NM else moved
+            x += v * dt / substeps
+        accel = 0.0 if v == 0.0 else (-SERVO_RATIO * _servo_friction(SERVO_RATIO * v) - SERVO_MGL_NM * np.sin(x)) \
+            / SERVO_INERTIA
+        free_theta_rate.append(v)
+        free_out.append(SERVO_INERTIA * accel + SERVO_MGL_NM * np.sin(x))
+    w = SERVO_RATIO * np.r_[rate, np.array(free_theta_rate)]
+    return {"t": np.r_[t, t + 4.0], "T_in": np.r_[motor, np.zeros(n)] + rng.normal(0.0, 2e-5, 2 * n),
+            "w_in": w + rng.normal(0.0, 1.0, 2 * n),
+            "T_out": np.r_[out, np.array(free_out)] + rng.normal(0.0, 5e-3, 2 * n)}
+
+
+def servo_plan(tmp: Path, swings, name: str, seed: int) -> tuple[Path, Path]:
+    """The servo's swings ``(amplitude [rad], frequency [Hz])`` one after another, as one CSV and its map."""
+    rng = np.random.default_rng(seed)
+    csv = _export(tmp / f"{name}.csv", [_servo_run(a, f, rng) for a, f in swings])
+    cmap = tmp / f"{name}_map.yaml"
+    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
+                    "motor_speed: {column: w_in, unit: rad/s}\noutput_torque: {column: T_out, unit: N*m}\n"
+                    f"ratio: {SERVO_RATIO}\n")
+    return csv, cmap

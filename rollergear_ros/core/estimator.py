@@ -128,6 +128,14 @@ def _synced(paired: tuple[np.ndarray, ...]) -> list[SyncedSample]:
     return [SyncedSample(int(t[i]), *(float(v[i]) for v in values)) for i in range(len(t))]
 
 
+def balance_below(min_speed_rad_s: float, min_measured_rad_s: float) -> float:
+    """Below this |ω| the measured loss is the torque balance where the direction is known, else none: the
+    efficiency's speed threshold, or 3 × the speed reading's noise where that is higher (once the noise is
+    known) -- a drive at rest reads speeds of either sign up to there, and their sign is no direction of a
+    sliding friction."""
+    return max(min_speed_rad_s, 1e-9, min_measured_rad_s if math.isfinite(min_measured_rad_s) else 0.0)
+
+
 class Estimator:
     """Model + accepted effects + residual + online adaptation, for one :class:`Config`."""
 
@@ -155,6 +163,7 @@ class Estimator:
         self.speed_noise = SpeedNoise(est.speed_noise_rad_s)  # given, or learned from the first samples
         self.sign_width_rad_s = self.speed_noise.value
         self.min_measured_speed_rad_s = self.speed_noise.min_measured_rad_s
+        self.balance_below_rad_s = balance_below(self.model.min_speed_rad_s, self.min_measured_speed_rad_s)
         self._still_rad_s = STATE_STILL_WIDTHS * self.sign_width_rad_s  # a memory does not step within it
         if pairing in ARRIVAL_PAIRINGS:
             self.sync_tolerance_s = max(self.sync_tolerance_s, ARRIVAL_TOLERANCE_S)
@@ -290,7 +299,8 @@ class Estimator:
     def measured_loss(self, torque, speed, out_torque, out_speed, previous_speed=None, run=None):
         """``T_loss,meas = (T_in·ω_in − T_out·ω_out)/|ω_in|``; ``ω_out = ω_in/ratio`` when not measured.
 
-        Below the efficiency speed threshold the quotient of two noisy speeds is noise: the torque
+        Below :attr:`balance_below_rad_s` (the efficiency speed threshold, or 3 × the speed reading's
+        noise where higher: :func:`balance_below`) the quotient of two noisy speeds is noise: the torque
         balance ``(T_in − T_out/ratio)·sgn ω`` instead (a spin test: ``T_in·sgn ω``), where the
         direction is known -- ``|ω|`` and the previous sample's (``previous_speed``, in the same
         direction) at least 3 × the speed reading's noise: a reading at rest is beyond 3σ once in 400
@@ -304,7 +314,7 @@ class Estimator:
             m = (torque * speed - out_torque * w_out) / np.abs(speed)
         if self.operating_points:  # dwell means: no speed noise to divide by, the power balance throughout
             return np.where(speed != 0, m, np.nan)
-        slow = np.abs(speed) < max(self.model.min_speed_rad_s, 1e-9)
+        slow = np.abs(speed) < self.balance_below_rad_s
         if np.any(slow):
             prev = previous_speed if previous_speed is not None else speed
             least = self.min_measured_speed_rad_s
@@ -319,7 +329,7 @@ class Estimator:
             return math.nan
         if speed == 0 and self.operating_points:
             return math.nan
-        if abs(speed) < self.model.min_speed_rad_s and not self.operating_points:  # the torque balance, where
+        if abs(speed) < self.balance_below_rad_s and not self.operating_points:  # the torque balance, where
             least = self.min_measured_speed_rad_s  # the direction is known
             if abs(speed) < least or abs(previous_speed) < least or (speed > 0) != (previous_speed > 0) \
                     or speed == 0:
@@ -507,6 +517,7 @@ class Estimator:
         """The sign's width and the least measured speed after the speed noise was (re)learned."""
         self.sign_width_rad_s = self.speed_noise.value
         self.min_measured_speed_rad_s = self.speed_noise.min_measured_rad_s
+        self.balance_below_rad_s = balance_below(self.model.min_speed_rad_s, self.min_measured_speed_rad_s)
         self._still_rad_s = STATE_STILL_WIDTHS * self.sign_width_rad_s
 
     @property

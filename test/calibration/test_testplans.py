@@ -193,3 +193,38 @@ def test_a_file_whose_lag_reaches_across_the_pauses_of_a_test_plan_holds_the_nea
     said = run_cli("replay", str(pauses), "--channels", str(cmap), "--params", str(p), "--no-png").stdout
     assert "skipped: none" in said, said
     assert "no motor_speed reading 44.5 ms later at " in said and "the nearest reading held" in said, said
+
+
+def test_a_servo_that_swings_and_lets_go_gets_coulomb_and_viscous_not_a_square_root_law(tmp_path):
+    """A 288:1 servo swinging a pendulum both ways and letting it go (the pendulum back-drives the gears until
+    the friction holds it): its friction Coulomb + viscous at the motor.  At rest the speed readings' noise
+    (1 rad/s) crossed the efficiency's threshold (0.5 rad/s) with either sign, and those readings were taken
+    as losses of about 0: a law with no friction at standstill (``drag_speed`` p = 0.35) fitted them alone and
+    ``drag_constant`` was rejected.  Now no loss is measured where the direction is not known: the pair is
+    written with p = 1 at the truth's numbers, and on swings it never saw the file predicts as the
+    least-squares line through the fitted swings' samples does."""
+    from plans import SERVO_COULOMB_NM, SERVO_VISCOUS_NM_S, replayed, servo_plan
+
+    fit, cmap = servo_plan(tmp_path, [(a, f) for a in (0.4, 0.8, 1.2) for f in (0.8, 1.6)], "fit", 0)
+    held, _ = servo_plan(tmp_path, [(0.6, 1.2), (1.0, 1.2)], "held", 1)
+    given = params(tmp_path / "p.yaml", "    gearbox: {ratio: 288.0}\n")
+    given.write_text(given.read_text().replace("paper_model: false", "paper_model: false, max_abs_speed_rad_s: 5000.0"))
+    out = tmp_path / "written.yaml"
+    result = calibrate_json(str(fit), "--channels", str(cmap), "--params", str(given), "--out", str(out))
+    found = {e["name"]: e["params"] for e in result["effects"]}
+    assert set(found) == {"drag_constant", "drag_speed"}, found
+    assert found["drag_constant"]["c"] == pytest.approx(SERVO_COULOMB_NM, rel=0.02)
+    assert found["drag_speed"]["p"] == pytest.approx(1.0, abs=0.05)
+    assert found["drag_speed"]["c"] == pytest.approx(SERVO_VISCOUS_NM_S, rel=0.2)
+
+    def line(columns):  # Coulomb + viscous + offset: a + b·|ω| + o·sgn ω
+        w = columns["speed_rad_s"]
+        return np.column_stack([np.ones_like(w), np.abs(w), np.sign(w)])
+
+    trained = replayed(fit, cmap, given)
+    ok = np.isfinite(trained["measured_loss_nm"])
+    coef, *_ = np.linalg.lstsq(line(trained)[ok], trained["measured_loss_nm"][ok], rcond=None)
+    judged = replayed(held, cmap, out)
+    ok = np.isfinite(judged["measured_loss_nm"])
+    hand = _rms(judged["measured_loss_nm"][ok] - line(judged)[ok] @ coef)
+    assert ok.sum() > 4000 and _rms(judged["residual_nm"][ok]) <= 1.02 * hand, (_rms(judged["residual_nm"][ok]), hand)

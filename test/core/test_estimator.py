@@ -158,3 +158,30 @@ def test_online_adaptation_stays_inside_the_range_a_parameter_file_may_hold():
             if e is not None]
     np.testing.assert_array_equal(np.array([e.loss_torque_nm for e in live]), batch.loss_torque_nm)
     assert node.rls.held == replayed.rls.held
+
+
+@pytest.mark.parametrize("sigma", [0.3, 1.0, 3.0])
+def test_a_drive_at_rest_gives_no_measured_loss_whatever_its_speed_readings_noise(sigma):
+    """A servo stuck at rest, its output held by a load (the input torque 0, the output torque what holds
+    it), its speed readings noise of σ on either side of the efficiency's speed threshold (0.5 rad/s): a
+    reading's sign is no direction there, so no loss is measured from it -- it was, as ± the holding
+    torque, wherever |ω| passed 0.5 rad/s, and a law without a Coulomb part fitted those zeros -- while a
+    drive turning at 5σ is measured at every sample.  The node's path and replay's alike."""
+    config = load_config().with_values({"estimator.speed_noise_rad_s": sigma, "estimator.paper_model": False,
+                                        "gearbox.ratio": 288.0})
+    rng = np.random.default_rng(1)
+    n = 4000
+    t = np.arange(n, dtype=np.int64) * 2_000_000
+    speed = np.r_[rng.normal(0.0, sigma, n // 2), 5.0 * sigma + rng.normal(0.0, sigma, n // 2)]
+    torque = np.r_[np.zeros(n // 2), np.full(n // 2, 3e-4)]
+    out = np.full(n, -0.05)
+    columns = (t, torque, speed, out, np.full(n, np.nan), np.full(n, np.nan))
+    batch = Estimator(config).process_batch(*columns, breakdown=False)
+    node = Estimator(config)
+    live = np.array([e.measured_loss_nm for e in (node.process(SyncedSample(*row))
+                                                  for row in zip(*(np.asarray(c).tolist() for c in columns)))])
+    np.testing.assert_array_equal(live, batch.measured_loss_nm)
+    at_rest, turning = batch.measured_loss_nm[: n // 2], batch.measured_loss_nm[n // 2:]
+    assert np.count_nonzero(np.isfinite(at_rest)) <= 0.005 * len(at_rest), np.count_nonzero(np.isfinite(at_rest))
+    assert np.count_nonzero(np.isfinite(turning)) >= 0.97 * len(turning)
+    assert np.nanmean(turning) == pytest.approx(3e-4 + 0.05 / 288.0, rel=0.02)
