@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from collections.abc import Callable
 
@@ -250,46 +250,110 @@ def write_rig_bag(rig: SimulatedRig, opts: SimulationOptions, path: Path, topics
                   progress: Callable[[int], None] | None = None, gearbox_id: str | None = None) -> int:
     """Write a simulated rig to a ROS 2 MCAP; returns the number of messages written.  ``gearbox_id``
     goes into the ``rollergear`` metadata record, as a fleet's logger writes it."""
+    with BagWriter(path) as bw:
+        _write_metadata(bw, opts, gearbox_id)
+        return _write_samples(bw, rig, opts, topics, progress)
+
+
+@dataclass(frozen=True)
+class Written:
+    """What :func:`write_simulation` wrote."""
+
+    messages: int
+    samples: int
+    duration_s: float  #: from the first sample to the last
+    repeats: int  #: the profile's passes (the last one cut)
+
+
+def write_simulation(config: Config, opts: SimulationOptions, path: Path, duration_s: float | None = None,
+                     topics: TopicMap = TopicMap(), progress: Callable[[int], None] | None = None) -> Written:
+    """Simulate and write a recording of ``duration_s`` seconds (None: the profile once): the profile runs
+    again and again, each pass on from the last one's clock with its seed advanced by one (its noise and a
+    drive cycle's knots new), the last pass cut at the duration.  One pass is held in memory at a time, so
+    a week at 1 kHz costs what one pass does; a step change (``opts.step_change_at_s``) is on the
+    recording's clock."""
+    if duration_s is not None and not (duration_s > 0 and math.isfinite(duration_s)):
+        raise UsageError(f"--duration must be a positive number of seconds, not {duration_s!r}")
+    period_ns = 1e9 / opts.rate_hz
+    messages = samples = repeats = 0
+    last_ns = first_ns = opts.start_ns
+    with BagWriter(path) as bw:
+        _write_metadata(bw, opts, None, duration_s)
+        while True:
+            offset_ns = int(round(samples * period_ns))
+            step = None if opts.step_change_at_s is None else opts.step_change_at_s - offset_ns * 1e-9
+            rig = simulate(config, replace(opts, seed=opts.seed + repeats, start_ns=opts.start_ns + offset_ns,
+                                           step_change_at_s=step))
+            repeats += 1
+            if duration_s is not None:
+                rig = cut_rig(rig, first_ns + int(round(duration_s * 1e9)))
+            if len(rig.t_ns):
+                messages += _write_samples(bw, rig, opts, topics, progress)
+                samples += len(rig.t_ns)
+                last_ns = int(rig.t_ns[-1])
+            if duration_s is None or not len(rig.t_ns) or last_ns + period_ns > first_ns + duration_s * 1e9:
+                break
+    return Written(messages, samples, (last_ns - first_ns) * 1e-9, repeats)
+
+
+def cut_rig(rig: SimulatedRig, end_ns: int) -> SimulatedRig:
+    """The rig's samples up to ``end_ns`` (included)."""
+    keep = rig.t_ns <= end_ns
+    if keep.all():
+        return rig
+    return replace(rig, **{f.name: getattr(rig, f.name)[keep] for f in fields(rig)
+                           if isinstance(getattr(rig, f.name), np.ndarray) and len(getattr(rig, f.name)) == len(keep)})
+
+
+def _write_metadata(bw: BagWriter, opts: SimulationOptions, gearbox_id: str | None,
+                    duration_s: float | None = None) -> None:
     truth = {"profile": opts.profile, "seed": opts.seed, "rate_hz": opts.rate_hz,
              "effects": [{"name": e.name, "params": e.params} for e in opts.effects],
              "torque_noise_nm": opts.torque_noise_nm, "noise_ar1": opts.noise_ar1,
              "output_lag_s": opts.output_lag_s, "step_change_at_s": opts.step_change_at_s,
              "step_from_factor": opts.step_from_factor,
              "joint_states": opts.joint_states, "oil_nu40_nu100_mm2_s": opts.oil_nu40_nu100_mm2_s}
+    if duration_s is not None:
+        truth["duration_s"] = duration_s  # the profile repeated, each pass's seed one more
+    bw.add_metadata(Metadata.SIMULATION, {"truth": json.dumps(truth)})
+    if gearbox_id is not None:
+        bw.add_metadata(Metadata.GEARBOX, {"gearbox_id": gearbox_id})
+
+
+def _write_samples(bw: BagWriter, rig: SimulatedRig, opts: SimulationOptions, topics: TopicMap,
+                   progress: Callable[[int], None] | None) -> int:
+    """The rig's samples as messages (each temperature after the sample of its time); their count."""
     count = 0
-    with BagWriter(path) as bw:
-        bw.add_metadata(Metadata.SIMULATION, {"truth": json.dumps(truth)})
-        if gearbox_id is not None:
-            bw.add_metadata(Metadata.GEARBOX, {"gearbox_id": gearbox_id})
-        n = len(rig.t_ns)
-        block = 20_000
-        temp_every = max(int(round(opts.rate_hz / opts.temperature_rate_hz)), 1)
-        temp_msgs = {i: _temperature_message(rig, opts, i) for i in range(0, n, temp_every)}
-        float64_topics = [(name, MessageType.FLOAT64, None) for name in
-                          (topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed)]
-        for s in range(0, n, block):
-            e = min(s + block, n)
-            if opts.joint_states:
-                for i in range(s, e):
-                    t = int(rig.t_ns[i])
-                    bw.write_message(topics.joint_states, MessageType.JOINT_STATE, t, {
-                        "header": {"stamp": stamp(t), "frame_id": ""},
-                        "name": [topics.input_joint, topics.output_joint], "position": [],
-                        "velocity": [float(rig.speed_rad_s[i]), float(rig.out_speed_meas_rad_s[i])],
-                        "effort": [float(rig.torque_meas_nm[i]), float(rig.out_torque_meas_nm[i])]})
-            else:
-                # the four channels interleaved sample by sample, as a recorder stores them
-                values = np.stack([rig.torque_meas_nm[s:e], rig.speed_rad_s[s:e], rig.out_torque_meas_nm[s:e],
-                                   rig.out_speed_meas_rad_s[s:e]], axis=1).reshape(-1)
-                bw.write_fixed_mixed(float64_topics, np.tile(np.arange(4), e - s), np.repeat(rig.t_ns[s:e], 4),
-                                     float64_payloads(values))
-            count += (e - s) * (1 if opts.joint_states else 4)
-            # each temperature after the sample of its time (the buffer keeps the order added among equal times)
-            for i in range(s + (-s) % temp_every, e, temp_every):
-                bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, int(rig.t_ns[i]), temp_msgs[i])
-                count += 1
-            if progress:
-                progress(e - s)
+    n = len(rig.t_ns)
+    block = 20_000
+    temp_every = max(int(round(opts.rate_hz / opts.temperature_rate_hz)), 1)
+    float64_topics = [(name, MessageType.FLOAT64, None) for name in
+                      (topics.motor_torque, topics.motor_speed, topics.output_torque, topics.output_speed)]
+    for s in range(0, n, block):
+        e = min(s + block, n)
+        if opts.joint_states:
+            for i in range(s, e):
+                t = int(rig.t_ns[i])
+                bw.write_message(topics.joint_states, MessageType.JOINT_STATE, t, {
+                    "header": {"stamp": stamp(t), "frame_id": ""},
+                    "name": [topics.input_joint, topics.output_joint], "position": [],
+                    "velocity": [float(rig.speed_rad_s[i]), float(rig.out_speed_meas_rad_s[i])],
+                    "effort": [float(rig.torque_meas_nm[i]), float(rig.out_torque_meas_nm[i])]})
+        else:
+            # the four channels interleaved sample by sample, as a recorder stores them
+            values = np.stack([rig.torque_meas_nm[s:e], rig.speed_rad_s[s:e], rig.out_torque_meas_nm[s:e],
+                               rig.out_speed_meas_rad_s[s:e]], axis=1).reshape(-1)
+            bw.write_fixed_mixed(float64_topics, np.tile(np.arange(4), e - s), np.repeat(rig.t_ns[s:e], 4),
+                                 float64_payloads(values))
+        count += (e - s) * (1 if opts.joint_states else 4)
+        # each temperature after the sample of its time (the buffer keeps the order added among equal times)
+        for i in range(s + (-s) % temp_every, e, temp_every):
+            bw.write_message(topics.oil_temperature, MessageType.TEMPERATURE, int(rig.t_ns[i]),
+                             _temperature_message(rig, opts, i))
+            count += 1
+        bw.release(int(rig.t_ns[e - 1]))  # what comes next is later: written now, not held to the end
+        if progress:
+            progress(e - s)
     return count
 
 

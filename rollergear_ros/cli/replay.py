@@ -32,7 +32,7 @@ def topics_from_args(args: argparse.Namespace) -> TopicMap:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from ..calibration.simulate import DeclaredEffect, SimulationOptions, simulate, write_rig_bag
+    from ..calibration.simulate import DeclaredEffect, SimulationOptions, write_simulation
 
     check_outputs([args.params], [Output("--out", args.out, "folder" if args.fleet else "mcap")])
     config = config_from_args(args)
@@ -45,17 +45,18 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                              step_change_at_s=args.step_change_at, oil_nu40_nu100_mm2_s=_oil(args.oil, config),
                              start_ns=_start_ns(args.start) if args.start else time.time_ns() // 10**9 * 10**9)
     with TimedProgress("simulate", unit="sample") as bar:
-        bar.stage = "the model along the profile"
-        rig = _cut(simulate(config, opts), args.duration)
-        bar.set_total(len(rig.t_ns))
-        bar.stage = "writing"
-        n = write_rig_bag(rig, opts, Path(args.out), topics_from_args(args), progress=bar.update)
-    dur = (rig.t_ns[-1] - rig.t_ns[0]) * 1e-9
+        bar.stage = "the model along the profile, writing"
+        if args.duration is not None:
+            bar.set_total(int(args.duration * args.rate) + 1)
+        written = write_simulation(config, opts, Path(args.out), args.duration, topics_from_args(args),
+                                   progress=bar.update)
     names = [e.name for e in effects]
     if opts.oil_nu40_nu100_mm2_s and viscosity_law().name not in names:
         names.append(viscosity_law().name)
-    print(f"wrote {args.out}: {n:,} messages, {dur:.1f} s at {args.rate:g} Hz, profile {args.profile}, "
-          f"effects: {', '.join(names) or 'none'}"
+    passes = (f" (the profile {written.repeats} times, seeds {opts.seed}…{opts.seed + written.repeats - 1})"
+              if written.repeats > 1 else "")
+    print(f"wrote {args.out}: {written.messages:,} messages, {written.duration_s:.1f} s at {args.rate:g} Hz, "
+          f"profile {args.profile}{passes}, effects: {', '.join(names) or 'none'}"
           + (" (oil: ASTM D341 through ν40 = {:g}, ν100 = {:g} mm²/s)".format(*opts.oil_nu40_nu100_mm2_s)
              if opts.oil_nu40_nu100_mm2_s else ""))
     return 0
@@ -74,19 +75,6 @@ def _oil(text: str | None, config) -> tuple[float, float] | None:
     # the parameter file's rules (ν40 > ν100 > 0, the ranges): a ParameterError naming the violated one
     config.with_values({"gearbox.oil_nu40_mm2_s": nu40, "gearbox.oil_nu100_mm2_s": nu100})
     return nu40, nu100
-
-
-def _cut(rig, duration_s: float | None):
-    """The rig's samples of the first ``duration_s`` seconds (None: all)."""
-    if duration_s is not None:
-        import numpy as np
-
-        keep = (rig.t_ns - rig.t_ns[0]) <= duration_s * 1e9
-        for f in fields(rig):
-            v = getattr(rig, f.name)
-            if isinstance(v, np.ndarray) and len(v) == len(keep):
-                setattr(rig, f.name, v[keep])
-    return rig
 
 
 def add_channels_option(p: argparse.ArgumentParser) -> None:
@@ -174,7 +162,9 @@ def register_simulate(sub, with_params) -> None:
     p.add_argument("--profile", choices=sorted(PROFILES), default="rig_map",
                    help="operating profile: a rig map (forward or both directions), a drive cycle, a warm-up")
     p.add_argument("--rate", type=float, default=200.0, help="sample rate [Hz] (default 200)")
-    p.add_argument("--duration", type=float, help="cut the profile after this many seconds")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="the recording's length [s]: the profile repeats, its seed one more each pass, or is cut "
+                        "(default: the profile once)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the sensor noise and the drive cycle")
     p.add_argument("--start", metavar="ISO8601",
                    help="when the recording starts (UTC unless given; default: now; with --fleet the first day, "

@@ -46,3 +46,47 @@ def test_a_bad_oil_is_one_line(tmp_path, value, message):
     proc = run_cli("simulate", "--out", str(tmp_path / "x.mcap"), "--oil", value, check=False)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and message in proc.stderr, proc.stderr
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_simulate_duration_repeats_the_profile_with_its_seed_advancing(tmp_path):
+    """``--duration`` longer than the profile (rig_map: 50.4 s) makes what it says: 250 s of
+    samples on one regular clock, read back by two readers; the profile runs again with the next seed (the
+    same operating points, other noise), the last pass cut; a shorter one cuts; a negative one is one error."""
+    from bagtools import float_series, read_mcap_ros2, read_rosbags
+
+    out = tmp_path / "long.mcap"
+    said = run_cli("simulate", "--rate", "20", "--duration", "250", "--out", str(out),
+                   "--start", "2026-01-01T00:00:00").stdout
+    assert "250.0 s at 20 Hz" in said and "the profile 5 times, seeds 0…4" in said, said
+    for read in (read_mcap_ros2, read_rosbags):
+        t, speed = float_series(read(out), "/rollergear/motor/speed")
+        assert len(t) == 250 * 20 + 1 and set(np.diff(t).tolist()) == {50_000_000}, (len(t), set(np.diff(t)))
+    once = simulate(load_config(), SimulationOptions(rate_hz=20.0))
+    n = len(once.t_ns)
+    np.testing.assert_array_equal(speed[:n], once.speed_rad_s)
+    second = simulate(load_config(), SimulationOptions(rate_hz=20.0, seed=1))
+    np.testing.assert_array_equal(speed[n:2 * n], second.speed_rad_s)
+    assert not np.array_equal(speed[n:2 * n], speed[:n])
+    short = run_cli("simulate", "--rate", "20", "--duration", "30", "--out", str(tmp_path / "short.mcap")).stdout
+    assert "30.0 s at 20 Hz" in short and "times" not in short, short
+    bad = run_cli("simulate", "--duration", "-5", "--out", str(tmp_path / "bad.mcap"), check=False)
+    assert bad.returncode == 2 and bad.stderr.strip().splitlines() == [
+        "rollergear: error: --duration must be a positive number of seconds, not -5.0"], bad.stderr
+
+
+def test_a_long_simulation_is_written_in_the_memory_of_one_pass(tmp_path):
+    """Ten passes of the profile hold no more memory at their peak than one: each pass is written as it is
+    made (the time-ordered writer releases what is older than the next), so a week costs what a pass does."""
+    import tracemalloc
+
+    from rollergear_ros.calibration.simulate import write_simulation
+
+    opts = SimulationOptions(rate_hz=200.0)
+    peaks = []
+    for passes in (1, 10):
+        tracemalloc.start()
+        written = write_simulation(load_config(), opts, tmp_path / f"p{passes}.mcap", passes * 50.0)
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+        assert written.repeats == passes and written.samples == passes * 50 * 200 + 1
+    assert peaks[1] < 1.3 * peaks[0], peaks
