@@ -61,6 +61,7 @@ from .selection import Calibrator, ErrorStats, Term, error_stats, members
 from .structure import adequacy, angle_spectrum, residual_structure
 from .written import calibrated_config, changed, describing, not_written_because
 from ..base.errors import BagError, ParameterError, UsageError
+from ..base.instants import Instant, iso_ns
 from ..core.effects import EFFECTS, reading_errors, viscosity_law
 from ..core.model import LossModel
 from ..core.modelparams import MODEL_PARAMETERS
@@ -87,8 +88,10 @@ class CalibrationSettings:
     #: changes inside the recordings: "latest" (calibrate the stretch after the last), "each" (also
     #: every stretch), "off" (all samples at once)
     segments: str = "latest"
-    start_s: float | None = None  #: the window analysed, seconds after the first sample (None: open)
-    end_s: float | None = None
+    #: the window analysed: seconds after the first sample analysed (the end not included), or an instant on the
+    #: recordings' clock (:class:`~base.instants.Instant`, included); None: open
+    start_s: float | Instant | None = None
+    end_s: float | Instant | None = None
 
 
 def calibrate(data: SampleData, config: Config,
@@ -306,20 +309,32 @@ def _analyse(data: SampleData, config: Config, how: _Analysis) -> CalibrationRes
     return result
 
 
-def _window(data: SampleData, start_s: float | None, end_s: float | None) -> tuple[SampleData, str]:
-    """The samples from ``start_s`` to ``end_s`` seconds after the first one (``--start/--end``)."""
-    if start_s is None and end_s is None:
+def _window(data: SampleData, start: float | Instant | None, end: float | Instant | None) -> tuple[SampleData, str]:
+    """The samples of the window ``--start/--end``: each bound seconds after the first sample analysed (the end
+    not included), or an instant on the recordings' clock (:class:`~base.instants.Instant`, included); the
+    window is said by its first and last sample's instants, as a trace names its window."""
+    if start is None and end is None:
         return data, ""
-    t = (data.t_ns - data.t_ns[0]) * 1e-9
+    first = int(data.t_ns[0])
+    t = (data.t_ns - first) * 1e-9
     keep = np.ones(len(t), bool)
-    if start_s is not None:
-        keep &= t >= start_s
-    if end_s is not None:
-        keep &= t < end_s
+    if isinstance(start, Instant):
+        keep &= data.t_ns >= start
+    elif start is not None:
+        keep &= t >= start
+    if isinstance(end, Instant):
+        keep &= data.t_ns <= end
+    elif end is not None:
+        keep &= t < end
     if not keep.any():
-        raise UsageError(f"no sample between --start {start_s} and --end {end_s} s (the recordings span "
+        def said(bound):
+            return f"{bound:g} s" if isinstance(bound, float) else str(bound)
+        raise UsageError(f"no sample between --start {said(start or 0.0)} and --end {said(end or float(t[-1]))} (the "
+                         f"samples analysed run from {iso_ns(first)} to {iso_ns(int(data.t_ns[-1]))}, "
                          f"{float(t[-1]):.1f} s)")
-    text = f"the window from {start_s or 0:g} s to {end_s if end_s is not None else float(t[-1]):g} s"
+    kept = data.t_ns[keep]
+    text = (f"the window {iso_ns(int(kept[0]))} to {iso_ns(int(kept[-1]))} ({(int(kept[0]) - first) * 1e-9:g} to "
+            f"{(int(kept[-1]) - first) * 1e-9:g} s after the first sample analysed)")
     return data.select(keep), text
 
 

@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..base.errors import BagError, RollergearError
+from ..base.instants import iso_ns
 from ..core.estimator import Estimator
 from ..core.params import Config, config_to_yaml, validate
 from .calibrate import CalibrationResult, CalibrationSettings, calibrate
@@ -154,9 +155,17 @@ class TraceResult:
     notes: list[str] = field(default_factory=list)
     alarm_ns: int | None = None  #: the change alarm traced (reason "alarm")
 
+    @property
+    def calibrate_window(self) -> str:
+        """The window as ``calibrate --start/--end`` of the node's recording takes it: its first and last
+        sample's instants on the recording's clock (the same samples, to the nanosecond)."""
+        return f"--start {iso_ns(self.window_ns[0])} --end {iso_ns(self.window_ns[1])}"
+
     def to_json(self) -> dict:
         return {"reason": self.reason, "alarm_ns": self.alarm_ns, "verdict": self.verdict, "message": self.message,
-                "since_ns": self.since_ns, "window_ns": list(self.window_ns), "samples": self.samples,
+                "since_ns": self.since_ns, "window_ns": list(self.window_ns),
+                "window_iso": [iso_ns(t) for t in self.window_ns], "calibrate_window": self.calibrate_window,
+                "samples": self.samples,
                 "effects": self.effects, "error_now_nm": self.error_now_nm,
                 "error_candidate_nm": self.error_candidate_nm, "heldout_rmse_nm": list(self.heldout_rmse_nm),
                 "elapsed_s": self.elapsed_s, "notes": self.notes}
@@ -165,7 +174,9 @@ class TraceResult:
         """Key/values of the ``/diagnostics`` entry and the ``loss/traced`` status."""
         kv = [("reason", self.reason), ("verdict", self.verdict),
               ("since [ns]", "" if self.since_ns is None else str(self.since_ns)),
-              ("window [ns]", f"{self.window_ns[0]} {self.window_ns[1]}"), ("samples", str(self.samples)),
+              ("window [ns]", f"{self.window_ns[0]} {self.window_ns[1]}"),
+              ("window", " ".join(iso_ns(t) for t in self.window_ns)), ("calibrate window", self.calibrate_window),
+              ("samples", str(self.samples)),
               ("error now RMS [N*m]", f"{self.error_now_nm:.6g}"),
               ("error with candidate RMS [N*m]", f"{self.error_candidate_nm:.6g}"),
               ("held-out RMSE before/after [N*m]", f"{self.heldout_rmse_nm[0]:.6g} {self.heldout_rmse_nm[1]:.6g}"),
@@ -348,11 +359,14 @@ def _judge(result: TraceResult, config: Config, cal: CalibrationResult, before_c
     result.candidate_changes = {k: v for k, v in cal.config.to_flat().items() if now.get(k) != v}
     result.candidate_yaml = config_to_yaml(cal.config, (
         f"# Candidate written by the live tracer of rollergear's loss_estimator ({result.reason} trace of the samples "
-        f"{result.window_ns[0]}..{result.window_ns[1]} ns)\n# {result.message}\n"
+        f"{result.window_ns[0]}..{result.window_ns[1]} ns: calibrate RECORDING {result.calibrate_window})\n"
+        f"# {result.message}\n"
         "# The parameter file the node was started with is not changed.\n"))
 
 
 def _timed(result: TraceResult, start: float) -> TraceResult:
+    if result.samples:  # where to find it offline: the window on the recording's own clock
+        result.message += f" (offline: calibrate RECORDING {result.calibrate_window})"
     result.elapsed_s = time.perf_counter() - start
     return result
 

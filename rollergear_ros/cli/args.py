@@ -9,6 +9,7 @@ import math
 from pathlib import Path
 
 from ..base.errors import UsageError
+from ..base.instants import Instant, parse_iso_ns
 from ..core.params import Config, load_config
 
 DEFAULT_PARAMS = Path(__file__).resolve().parents[2] / "config" / "gearbox.yaml"
@@ -74,12 +75,17 @@ def block_seconds(s: str) -> float:
     return v
 
 
-def seconds(s: str) -> float:
-    """A time in seconds (finite, at least 0)."""
+def window_time(s: str) -> float | Instant:
+    """``--start/--end``: seconds after the first sample analysed (finite, at least 0), or an instant on the
+    recording's own clock -- ISO 8601 to the nanosecond, as a trace names its window (:class:`Instant`)."""
+    at = parse_iso_ns(s)
+    if at is not None:
+        return Instant(at)
     try:
         v = float(s)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{s!r} is not a number of seconds") from None
+        raise argparse.ArgumentTypeError(f"{s!r} is neither a number of seconds after the first sample analysed "
+                                         "nor an ISO 8601 time (e.g. 2026-12-07T10:00:01.234567891Z)") from None
     if not (math.isfinite(v) and v >= 0):
         raise argparse.ArgumentTypeError(f"{s!r} must be a finite number of seconds, at least 0")
     return v

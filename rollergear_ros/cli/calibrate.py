@@ -9,7 +9,7 @@ import os
 import sys
 from pathlib import Path
 
-from .args import block_seconds, config_from_args, positive_float, seconds
+from .args import block_seconds, config_from_args, positive_float, window_time
 from ..core.effects import EFFECTS
 from ..sources.paths import Output, check_outputs
 from ..base.progress import TimedProgress
@@ -279,10 +279,12 @@ def register_calibrate(sub, with_params) -> None:
     p.add_argument("--segments", choices=("latest", "each", "off"), default="latest",
                    help="changes inside the recordings: calibrate the latest stretch after the last one (default), "
                    "also each stretch (each), or all samples at once (off)")
-    p.add_argument("--start", type=seconds, default=None, metavar="S",
-                   help="analyse from S seconds after the first sample (with --end: a window)")
-    p.add_argument("--end", type=seconds, default=None, metavar="S",
-                   help="analyse up to S seconds after the first sample")
+    p.add_argument("--start", type=window_time, default=None, metavar="S|ISO",
+                   help="analyse from S seconds after the first sample analysed, or from an instant on the "
+                   "recording's clock (ISO 8601 to the ns, as a trace names its window; with --end: a window)")
+    p.add_argument("--end", type=window_time, default=None, metavar="S|ISO",
+                   help="analyse up to S seconds after the first sample analysed (before it), or up to an instant "
+                   "(ISO 8601: the samples at it included)")
     p.add_argument("--oil", type=_datasheet, metavar="NU40,NU100[,RHO15]",
                    help="the oil's data sheet: kinematic viscosities at 40 and 100 degC [mm^2/s] and the density at "
                    "15 degC [kg/m^3, default 880]; the viscosity law (ASTM D341) starts from it and stays near it "

@@ -360,3 +360,31 @@ def test_recordings_of_different_rigs_are_not_fitted_across(tmp_path):
     proc = run_cli("calibrate", *bags, "--segments", "off", "--out", str(tmp_path / "across.yaml"), check=False)
     assert "needs a negative friction" in proc.stdout
     assert "residual left: the residual left depends most on" in proc.stdout
+
+
+def test_a_window_is_said_on_the_recordings_clock_and_taken_back_in_that_form(tmp_path):
+    """``--start/--end`` in seconds after the first sample analysed say the window by its first and last
+    sample's instants (ISO 8601 to the ns, the form a trace names its window in); given back in that form,
+    the bounds included, the window is the same samples -- the same stretch, the same numbers -- whatever
+    the recording's first message was.  An instant outside the samples, or text that is no time, is one line."""
+    import re
+
+    from helpers import BAGS
+
+    bag = str(BAGS / "rig_map_drag.mcap")
+    relative = calibrate_json(bag, extra=("--start", "10", "--end", "40"))
+    said = re.fullmatch(r"the window (\S+Z) to (\S+Z) \(10 to (39\.9\d*) s after the first sample analysed\)",
+                        relative["stretch"])
+    assert said, relative["stretch"]
+    absolute = calibrate_json(bag, extra=("--start", said[1], "--end", said[2]))
+    assert absolute["stretch"] == relative["stretch"]
+    assert absolute["effects"] == relative["effects"] and absolute["error_after"] == relative["error_after"]
+    outside = run_cli("calibrate", bag, "--start", "2001-01-01T00:00:00Z", "--end", "2001-01-01T00:01:00Z",
+                      check=False)
+    assert outside.returncode == 2 and outside.stderr.strip().splitlines()[-1].startswith("rollergear: error: "), \
+        outside.stderr
+    assert "no sample between --start 2001-01-01T00:00:00.000000000Z" in outside.stderr
+    assert "the samples analysed run from 20" in outside.stderr, outside.stderr
+    bad = run_cli("calibrate", bag, "--start", "yesterday", check=False)
+    assert bad.returncode == 2 and "neither a number of seconds after the first sample analysed nor an ISO 8601" \
+        in bad.stderr, bad.stderr

@@ -179,6 +179,7 @@ def _trace_and_calibrate_window(bag, config):
     of the recording over the trace's window: the trace's result and calibrate's."""
     from rollergear_ros.calibration.calibrate import CalibrationSettings, calibrate
     from rollergear_ros.calibration.samples import load_samples
+    from rollergear_ros.cli.args import window_time
     from rollergear_ros.recordings.messages import TopicMap
     from rollergear_ros.recordings.baginfo import inspect_bag
     from rollergear_ros.replay.inputs import paired_plan
@@ -194,10 +195,10 @@ def _trace_and_calibrate_window(bag, config):
     alarm = int(t[200])
     result = trace(TraceRequest(samples, config.to_flat(), "alarm", alarm, 60.0, 20.0, None,
                                 tuple(node_estimator.speed_noise.learned)))
-    data = load_samples([bag], config)
-    first = int(data.t_ns[0])  # --start/--end count from the first sample analysed; --end is exclusive
-    window = calibrate(data, config, CalibrationSettings(start_s=(result.window_ns[0] - first) * 1e-9,
-                                                         end_s=(result.window_ns[1] - first) * 1e-9 + 1e-6))
+    # the window as the trace names it on the recording's clock, read as calibrate's command line reads it
+    _, start, _, end = result.calibrate_window.split()
+    window = calibrate(load_samples([bag], config), config,
+                       CalibrationSettings(start_s=window_time(start), end_s=window_time(end)))
     return result, window
 
 

@@ -1370,7 +1370,6 @@ def test_the_readme_three_terminals_trace_what_calibrate_names_on_the_nodes_reco
 
     from helpers import ROOT
 
-    from rollergear_ros.calibration.samples import load_samples
     from rollergear_ros.core.params import config_to_yaml, flat_from_yaml_document
     from rollergear_ros.base import safeyaml
 
@@ -1406,10 +1405,10 @@ def test_the_readme_three_terminals_trace_what_calibrate_names_on_the_nodes_reco
     params = tmp_path / "node_params.yaml"
     config = load_config(None, flat)
     params.write_text(config_to_yaml(config))
-    first = int(load_samples([rec], config).t_ns[0])  # --start/--end count from the first sample analysed
-    start_s, end_s = (result["window_ns"][0] - first) * 1e-9, (result["window_ns"][1] - first) * 1e-9 + 1e-6
+    # the window as the trace names it, on the recording's own clock: what --start/--end take
+    assert result["calibrate_window"] in traced[-1].message, traced[-1].message
     proc = subprocess.run([sys.executable, "-m", "rollergear_ros", "calibrate", str(rec), "--params", str(params),
-                           "--start", repr(start_s), "--end", repr(end_s), "--json"],
+                           *result["calibrate_window"].split(), "--json"],
                           capture_output=True, text=True, cwd=ROOT, timeout=600)
     assert proc.returncode in (0, 1) and proc.stdout.strip(), proc.stderr
     window = json.loads(proc.stdout)
