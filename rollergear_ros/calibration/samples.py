@@ -113,9 +113,13 @@ class SampleData:
                        source_index=pick(self.source_index), sign=pick(self.sign))
 
 
+#: a time slice ``[start, end)`` of a recording [ns since 1970] (None: open)
+TimeSpan = tuple[int | None, int | None]
+
+
 def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = TopicMap(),
                  warn: Callable[[str], None] | None = None, min_speed_rad_s: float = 0.0,
-                 progress: bool = False) -> SampleData:
+                 progress: bool = False, windows: Sequence[TimeSpan] | None = None) -> SampleData:
     """Replay bags through the bare model (no effects, no adaptation) and keep samples with a measured
     loss: down to 3 × the speed reading's noise from standstill (closer, the direction is not known and
     the estimator gives no measured loss), or ``min_speed_rad_s``.
@@ -128,8 +132,11 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
 
     The same for the gearbox ratio (:func:`recordings_ratio`): where the recordings' own ratio is not the
     file's, they are read again at theirs (said in :attr:`SampleData.ratio_text`; the paper's model
-    takes the balls' kinematics from the geometry, not from this ratio)."""
-    data = _load(bags, config, topics, warn, min_speed_rad_s, progress)
+    takes the balls' kinematics from the geometry, not from this ratio).
+
+    ``windows``: per bag, the time slice ``[start, end)`` (ns, None: open) whose samples are read -- only its
+    chunks (and a lead-in) are, as a fleet's window of a long log (:class:`~replay.window.TimeWindow`)."""
+    data = _load(bags, config, topics, warn, min_speed_rad_s, progress, windows)
     overrides: dict[str, float] = {}
     given = config.estimator.speed_noise_rad_s
     if isinstance(given, float) and not data.steady_state:
@@ -144,7 +151,7 @@ def load_samples(bags: Sequence[str | Path], config: Config, topics: TopicMap = 
         overrides["gearbox.ratio"] = ratio
     if not overrides:
         return data
-    again = _load(bags, config.with_values(overrides), topics, None, min_speed_rad_s, progress)
+    again = _load(bags, config.with_values(overrides), topics, None, min_speed_rad_s, progress, windows)
     again.overrides = overrides
     if "estimator.speed_noise_rad_s" in overrides:
         again.speed_noise_text = noise_text
@@ -188,16 +195,17 @@ def recordings_ratio(data: SampleData, min_speed_rad_s: float) -> float | None:
 SPEED_NOISE_FACTOR = 5.0
 
 
-def _load(bags, config, topics, warn, min_speed_rad_s, progress) -> SampleData:
+def _load(bags, config, topics, warn, min_speed_rad_s, progress, windows=None) -> SampleData:
     from ..replay.run import replay
 
     base = bare_config(config)
     batches_of_bags = []
     skipped: dict[str, int] = {}
     widths, said, lost, beyond = [], [], [0.0], []
-    for bag in bags:
+    for i, bag in enumerate(bags):
+        window = None if windows is None or windows[i] == (None, None) else windows[i]
         summary, batches = replay(bag, base, topics, show_progress=progress, warn=warn, collect=True,
-                                  parameter_changes=False)  # the bare model throughout
+                                  parameter_changes=False, window_ns=window)  # the bare model throughout
         if summary.interrupted:  # a calibration of part of the data is no answer to the command given
             raise KeyboardInterrupt
         lost.append(summary.lost_share)

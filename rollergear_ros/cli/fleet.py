@@ -27,6 +27,11 @@ def cmd_fleet(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     if args.workers is not None and args.workers < 1:
         raise UsageError("--workers must be at least 1")
+    if args.window_hours is not None:
+        if not (math.isfinite(args.window_hours) and 0 < args.window_hours <= MAX_WINDOW_DAYS * 24):
+            raise UsageError(f"--window must be a number of hours in (0, {MAX_WINDOW_DAYS * 24:,}], "
+                             f"not {args.window_hours:g}")
+        args.window_days = args.window_hours / 24.0
     if not (math.isfinite(args.window_days) and 0 < args.window_days <= MAX_WINDOW_DAYS):
         raise UsageError(f"--window-days must be a number of days in (0, {MAX_WINDOW_DAYS:,}], "
                          f"not {args.window_days:g}")
@@ -46,7 +51,8 @@ def cmd_fleet(args: argparse.Namespace) -> int:
         if args.action == "replay":
             rows, ran = run_replay(recs, out, run, slice_messages=args.slice_messages)
         else:
-            rows, ran = run_calibrate(recs, out, run, int(args.window_days * DAY_S * 1e9), assume=args.assume)
+            rows, ran = run_calibrate(recs, out, run, int(round(args.window_days * DAY_S * 1e9)),
+                                      assume=args.assume)
     failed = [r for r in rows if r.get("status") != "ok"]
     print(f"{args.action}: {ran} run now, {len(rows)} rows in {out}; {len(failed)} failed")
     for r in failed[:10]:
@@ -91,7 +97,7 @@ def register_fleet(sub, with_params) -> None:
     r.add_argument("--slice-messages", type=int, default=SLICE_MESSAGES, metavar="N",
                    help="replay a recording of more messages in time slices of about N, one task each "
                    f"(default {SLICE_MESSAGES:,}: ~10 s a task on a 2-core machine of 2026)")
-    r.set_defaults(func=cmd_fleet, window_days=1.0, assume=[])
+    r.set_defaults(func=cmd_fleet, window_days=1.0, window_hours=None, assume=[])
     c = with_params(actions.add_parser(
         "calibrate", help="calibrate each gearbox per time window: DIR/fleet_calibrate.parquet, drift",
         description="Calibrate each gearbox per time window on a Dask cluster: DIR/fleet_calibrate.parquet (a row "
@@ -99,8 +105,11 @@ def register_fleet(sub, with_params) -> None:
         "same --out skips what is done.",
         epilog="example: rollergear fleet calibrate fleet/ --out fleet_out/ --workers 2"))
     _common_options(c)
-    c.add_argument("--window-days", type=float, default=1.0, metavar="DAYS",
-                   help="calibration window (default 1 day)")
+    span = c.add_mutually_exclusive_group()
+    span.add_argument("--window-days", type=float, default=1.0, metavar="DAYS",
+                      help="calibration window (default 1 day); a recording across windows is split between them")
+    span.add_argument("--window", dest="window_hours", type=float, default=None, metavar="HOURS",
+                      help="calibration window in hours (a rig's long recording: drift inside it)")
     add_assume_option(c)
     c.set_defaults(func=cmd_fleet, slice_messages=SLICE_MESSAGES)
 

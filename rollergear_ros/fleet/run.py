@@ -22,10 +22,11 @@ from typing import Any
 from ..base.atomic import replacing
 from ..core.params import Config, SensorParams, config_to_yaml
 from .logs import SLICE_MESSAGES, Recording, time_slices
+from ..calibration.samples import TimeSpan
 from .tasks import CalibrationWindow, calibrate_task, combine_slices, replay_task
 
 __all__ = ["FLEET_TABLE", "CALIBRATE_TABLE", "SLICES_TABLE", "FleetRun", "FleetTable", "read_table", "run_calibrate",
-           "run_replay", "settings_fingerprint"]
+           "run_replay", "settings_fingerprint", "window_parts"]
 
 FLEET_TABLE = "fleet.parquet"
 CALIBRATE_TABLE = "fleet_calibrate.parquet"
@@ -238,15 +239,29 @@ def run_replay(recs: Sequence[Recording], out_dir: Path, run: FleetRun,
 def run_calibrate(recs: Sequence[Recording], out_dir: Path, run: FleetRun, window_ns: int,
                   assume: Sequence[str] = ()) -> tuple[list[dict], int]:
     """Calibrate every gearbox over each time window (``assume``: as :func:`~calibration.calibrate.calibrate`'s);
+    a recording that runs across windows is split between them, each window's task reading only its part;
     returns the table's rows and how many ran now."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    groups: dict[tuple[str, int], list[Recording]] = {}
+    groups: dict[tuple[str, int], list[tuple[Recording, TimeSpan]]] = {}
     for r in recs:
-        start = r.start_ns if r.start_ns is not None else int(r.mtime * 1e9)
-        groups.setdefault((r.gearbox_id, start // window_ns), []).append(r)
+        for w, cut in window_parts(r, window_ns):
+            groups.setdefault((r.gearbox_id, w), []).append((r, cut))
     units: list[Unit] = []
-    for (gid, w), rs in sorted(groups.items()):
-        win = CalibrationWindow(gid, w, window_ns, tuple(rs))
+    for (gid, w), parts in sorted(groups.items()):
+        win = CalibrationWindow(gid, w, window_ns, tuple(r for r, _ in parts), tuple(c for _, c in parts))
         units.append((win.key, [(win.key, calibrate_task, (win, run.config, run.channels, tuple(assume)))]))
     settings = settings_fingerprint(run.config, run.channels, window_ns, sorted(assume))
     return _run(run, FleetTable(out_dir / CALIBRATE_TABLE, "windows", settings), units)
+
+
+def window_parts(rec: Recording, window_ns: int) -> list[tuple[int, TimeSpan]]:
+    """The windows (numbers of ``window_ns`` since 1970) a recording's span falls in, each with the part of
+    it there (``[start, end)`` in ns; None where the recording begins or ends inside the window).  Without a
+    span (a table, a file whose summary has none) the recording is one part, in its start's (or modification
+    time's) window."""
+    start = rec.start_ns if rec.start_ns is not None else int(rec.mtime * 1e9)
+    if rec.start_ns is None or rec.end_ns is None or rec.end_ns // window_ns == start // window_ns:
+        return [(start // window_ns, (None, None))]
+    first, last = start // window_ns, rec.end_ns // window_ns
+    return [(w, (None if w == first else w * window_ns, None if w == last else (w + 1) * window_ns))
+            for w in range(first, last + 1)]

@@ -143,6 +143,8 @@ class CalibrationWindow:
     window: int
     window_ns: int
     recordings: tuple[Recording, ...]
+    #: per recording, its part in the window (``[start, end)`` ns, None: open; empty: every one whole)
+    parts: tuple[tuple[int | None, int | None], ...] = ()
 
     @property
     def key(self) -> str:
@@ -163,7 +165,8 @@ def calibrate_task(win: CalibrationWindow, config: Config, channels: str | None,
     row = {"gearbox_id": gearbox_id, "window": window, "window_start_ns": window * window_ns,
            "window_end_ns": (window + 1) * window_ns, "window_start": utc_text(window * window_ns),
            "window_end": utc_text((window + 1) * window_ns), "recordings": len(recs),
-           "key": win.key, "status": "ok", "reason": "", "warning": ""}
+           "key": win.key, "status": "ok", "reason": "", "warning": "",
+           "recordings_in_part": sum(p != (None, None) for p in win.parts)}
     t0 = time.perf_counter()
     bad = [r for r in recs if r.problem]
     if bad:
@@ -172,12 +175,15 @@ def calibrate_task(win: CalibrationWindow, config: Config, channels: str | None,
         with ExitStack() as stack:
             local = [stack.enter_context(_local(r.path)) for r in recs]
             bags = stack.enter_context(as_mcap(local, channels))
-            data = load_samples(bags, config)
+            # a recording across windows: only its part in this one is read
+            data = load_samples(bags, config, windows=win.parts or None)
             row["warning"] = power_balance_warning(data) or ""  # as calibrate's command line warns
             result = calibrate(data, config, CalibrationSettings(assume=assume))
     except Exception as exc:  # noqa: BLE001 - one bad window must not stop the fleet; the row says why
         return _failed(row, exc) | {"seconds": time.perf_counter() - t0}
-    row |= {"samples": result.samples, "verdict": result.verdict,
+    first, last = int(data.t_ns.min()), int(data.t_ns.max())  # what the window holds: the samples analysed
+    row |= {"data_start_ns": first, "data_end_ns": last, "data_start": utc_text(first), "data_end": utc_text(last),
+            "samples": result.samples, "verdict": result.verdict,
             "effects": json.dumps([e.to_json() for e in result.effects]),
             "error_before_rmse_nm": result.error_before.rmse_nm, "error_after_rmse_nm": result.error_after.rmse_nm,
             "calibrated_yaml": config_to_yaml(result.config), "seconds": time.perf_counter() - t0}

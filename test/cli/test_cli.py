@@ -289,6 +289,7 @@ def test_a_fifo_as_input_is_refused_not_waited_on(tmp_path, name, command):
 @pytest.mark.parametrize(("action", "args", "message"), [
     ("calibrate", ["--window-days", "inf"], "--window-days must be a number of days in (0, 100,000], not inf"),
     ("calibrate", ["--window-days", "nan"], "--window-days must be a number of days"),
+    ("calibrate", ["--window", "0"], "--window must be a number of hours in (0, 2,400,000], not 0"),
     ("replay", ["--slice-messages", "1"], "--slice-messages must be at least 10,000"),
 ])
 def test_fleet_limits_are_one_line(tmp_path, action, args, message):

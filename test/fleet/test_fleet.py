@@ -329,3 +329,102 @@ def test_a_task_whose_worker_keeps_dying_is_a_failed_row_and_the_rest_finish(tmp
     assert by_key["dies"]["status"] == "failed" and "KilledWorker" in by_key["dies"]["reason"]
     assert by_key[rec.key]["status"] == "ok" and by_key[rec.key]["estimated"] > 0
     assert {r["key"]: r["status"] for r in read_table(tmp_path / FLEET_TABLE)} == {"dies": "failed", rec.key: "ok"}
+
+
+def test_a_long_log_is_split_between_windows_and_drift_inside_it_is_found(client, tmp_path):
+    """One 200 s log of a gearbox whose seal drag appears at 100 s, calibrated in 50 s windows: four rows,
+    each reading only its part of the log (its samples those of the whole log's replay in that part, its
+    true span named), the drag found in the last two windows and not in the first two, and the drift dated
+    at the third -- as drift across daily logs is."""
+    import numpy as np
+
+    from rollergear_ros.calibration.samples import load_samples
+    from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOptions, write_simulation
+
+    config = load_config(CONFIG)
+    window_ns = 50 * 10**9
+    start_ns = 1_700_000_000 * 10**9  # a multiple of the window: the passes of the profile fill the windows
+    (tmp_path / "logs" / "gb01").mkdir(parents=True)
+    log = tmp_path / "logs" / "gb01" / "long.mcap"
+    opts = SimulationOptions(profile="bidirectional_map", rate_hz=100.0, seed=2, start_ns=start_ns,
+                             effects=[DeclaredEffect.parse("drag_constant:c=0.08")], step_change_at_s=100.0)
+    write_simulation(config, opts, log, 199.9)
+    rows, ran = run_calibrate(discover([str(tmp_path / "logs")]), tmp_path / "out", FleetRun(client, config),
+                              window_ns)
+    rows = sorted(rows, key=lambda r: r["window"])
+    assert ran == 4 and [r["window"] - rows[0]["window"] for r in rows] == [0, 1, 2, 3], rows
+    assert all(r["status"] == "ok" for r in rows), [r["reason"] for r in rows]
+    whole = load_samples([log], config)
+    for r in rows:
+        lo, hi = r["window_start_ns"], r["window_end_ns"]
+        assert lo <= r["data_start_ns"] < r["data_start_ns"] + 45 * 10**9 < r["data_end_ns"] < hi, r
+        assert r["samples"] == np.count_nonzero((whole.t_ns >= lo) & (whole.t_ns < hi)), r
+        assert r["recordings_in_part"] == 1
+    found = [{e["name"]: e["params"] for e in json.loads(r["effects"])} for r in rows]
+    assert ["drag_constant" in f for f in found] == [False, False, True, True], found
+    assert all(f["drag_constant"]["c"] == pytest.approx(0.08, rel=0.1) for f in found[2:])
+    (gearbox,) = [g for g in drift(rows) if g.drifts]
+    (d,) = gearbox.drifts
+    assert d.effect == "drag_constant" and d.since_ns == rows[2]["window_start_ns"], d
+
+
+def test_a_window_of_a_log_reads_the_samples_the_whole_log_has_there():
+    """``load_samples`` of a time slice: the samples a replay of the whole recording has in it, to the bit."""
+    import numpy as np
+
+    from rollergear_ros.calibration.samples import load_samples
+
+    bag, config = BAGS / "rig_map_drag.mcap", load_config(CONFIG)
+    whole = load_samples([bag], config)
+    lo, hi = int(whole.t_ns[0]) + 30 * 10**9, int(whole.t_ns[0]) + 60 * 10**9
+    part = load_samples([bag], config, windows=[(lo, hi)])
+    inside = (whole.t_ns >= lo) & (whole.t_ns < hi)
+    np.testing.assert_array_equal(part.t_ns, whole.t_ns[inside])
+    np.testing.assert_array_equal(part.measured_loss, whole.measured_loss[inside])
+
+
+def test_a_fleet_runs_on_a_scheduler_and_workers_started_apart(fleet, tmp_path):
+    """``dask scheduler`` and two ``dask worker`` processes started on their own, as on a cluster of machines
+    (over TCP on loopback here), and ``fleet replay --scheduler``: every recording's row equals the one a
+    single process replays, and both workers took tasks."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from dask.distributed import Client, get_task_stream
+
+    from helpers import ROOT, run_cli
+
+    logs, _ = fleet
+    dask_cli = str(Path(sys.executable).parent / "dask")
+    address_file = tmp_path / "scheduler.json"
+    procs = [subprocess.Popen([dask_cli, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(address_file)], cwd=ROOT,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        assert wait_for(lambda: address_file.exists() and address_file.stat().st_size > 0, 120), "no scheduler"
+        address = json.loads(address_file.read_text())["address"]
+        for _ in range(2):
+            procs.append(subprocess.Popen([dask_cli, "worker", address, "--nthreads", "1", "--no-dashboard"],
+                                          cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        with Client(address, timeout=120) as c:
+            c.wait_for_workers(2, timeout=300)
+            with get_task_stream(client=c) as stream:  # what the scheduler ran, and where
+                run_cli("fleet", "replay", str(logs), "--scheduler", address, "--out", str(tmp_path / "out"),
+                        timeout=900)
+            workers = {t["worker"] for t in stream.data}
+        assert len(workers) == 2, workers
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            p.wait(timeout=60)
+    rows = read_table(tmp_path / "out" / FLEET_TABLE)
+    recs = discover([str(logs)])
+    assert len(rows) == len(recs) and all(r["status"] == "ok" for r in rows)
+    by_path = {r["recording"]: r for r in rows}
+    config = load_config()
+    for rec in recs[::7]:
+        s, _ = replay(rec.path, config, show_progress=False)
+        row = by_path[rec.path]
+        assert (row["samples"], row["estimated"], row["energy_lost_j"]) == (s.samples, s.estimated, s.energy_lost_j)
