@@ -10,6 +10,8 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*", "bench"]),
+    # the FMU's C source, compiled into each unit at export (outputs/fmu.py)
+    package_data={"rollergear_ros.outputs": ["fmu_gearbox.c"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),

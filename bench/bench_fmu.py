@@ -7,7 +7,9 @@ drag), then times, best of --repeat runs of --steps steps each:
   2. fmpy's own cost of a call into the unit (getReal of one output), the floor any unit pays;
   3. the package's estimator at one operating point per call (what a planner calling the model
      sample by sample would pay without the unit).
-Usage: python bench/bench_fmu.py [--steps 20000] [--repeat 3] [--no-oil]
+  4. with --against UNIT.fmu, another unit of the same variables (one an earlier release exported) timed
+     as in 1., in the same run.
+Usage: python bench/bench_fmu.py [--steps 20000] [--repeat 3] [--no-oil] [--against UNIT.fmu]
   --no-oil   the package's default parameters (a model that follows no oil: a table of one temperature)
 """
 
@@ -30,10 +32,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=20_000)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-oil", action="store_true", help="the default parameters: no oil law, a quick build")
+    ap.add_argument("--against", type=Path, metavar="UNIT.fmu", help="another unit to time the same way")
     args = ap.parse_args()
-    from fmpy import extract, read_model_description
-    from fmpy.fmi2 import FMU2Slave
-
     config = load_config() if args.no_oil else validate(load_config().to_flat() | {
         "effects.viscosity_temperature.enabled": True, "effects.viscosity_temperature.B_k": 1100.0,
         "effects.drag_speed.enabled": True, "effects.drag_speed.c": 2e-4})
@@ -47,30 +47,9 @@ def main() -> None:
         table = build_fmu(config, path)
         print(f"built {path.stat().st_size / 1e6:.1f} MB unit in {time.perf_counter() - t0:.1f} s: "
               f"{table.loss_nm.size:,} nodes, interpolation error <= {table.interpolation_error_nm:.3g} N·m")
-        md = read_model_description(str(path))
-        vr = {v.name: v.valueReference for v in md.modelVariables}
-        unit = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path), unzipdir=Path(tmp) / "x"),
-                         modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
-        unit.instantiate()
-        unit.setupExperiment(startTime=0.0)
-        unit.enterInitializationMode()
-        unit.exitInitializationMode()
-        inputs = [vr["drive_torque_nm"], vr["drive_speed_rad_s"], vr["oil_temperature_c"]]
-        outputs = [vr["loss_torque_nm"], vr["loss_power_w"], vr["efficiency"]]
-        step = call = float("inf")
-        for _ in range(args.repeat):
-            t0 = time.perf_counter()
-            for i in range(args.steps):
-                unit.setReal(inputs, [torque[i], speed[i], oil[i]])
-                unit.doStep(currentCommunicationPoint=1e-3 * i, communicationStepSize=1e-3)
-                unit.getReal(outputs)
-            step = min(step, (time.perf_counter() - t0) / args.steps)
-            t0 = time.perf_counter()
-            for _ in range(args.steps):
-                unit.getReal(outputs[:1])
-            call = min(call, (time.perf_counter() - t0) / args.steps)
-        unit.terminate()
-        unit.freeInstance()
+        step, call = _time_unit(path, Path(tmp) / "x", torque, speed, oil, args.repeat)
+        other = _time_unit(args.against, Path(tmp) / "y", torque, speed, oil, args.repeat)[0] if args.against \
+            else None
     points = min(2_000, args.steps)
     model = float("inf")
     for _ in range(args.repeat):
@@ -82,6 +61,40 @@ def main() -> None:
     print(f"  fmpy's call into the unit alone (getReal of one output): {1e6 * call:.1f} us")
     print(f"  the package's model at one point per call (evaluate_points): {1e6 * model:.0f} us "
           f"-> the unit is {model / step:.0f}x faster per sample")
+    if other is not None:
+        print(f"  {args.against.name} the same way: {1e6 * other:.1f} us -> this unit {other / step:.2f}x faster")
+
+
+def _time_unit(path: Path, folder: Path, torque, speed, oil, repeat: int) -> tuple[float, float]:
+    """Best of ``repeat`` runs: one step (3 inputs, doStep, 3 outputs) and fmpy's bare call into the unit [s]."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(path))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    unit = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path), unzipdir=folder),
+                     modelIdentifier=md.coSimulation.modelIdentifier, instanceName="bench")
+    unit.instantiate()
+    unit.setupExperiment(startTime=0.0)
+    unit.enterInitializationMode()
+    unit.exitInitializationMode()
+    inputs = [vr["drive_torque_nm"], vr["drive_speed_rad_s"], vr["oil_temperature_c"]]
+    outputs = [vr["loss_torque_nm"], vr["loss_power_w"], vr["efficiency"]]
+    step = call = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for i in range(len(torque)):
+            unit.setReal(inputs, [torque[i], speed[i], oil[i]])
+            unit.doStep(currentCommunicationPoint=1e-3 * i, communicationStepSize=1e-3)
+            unit.getReal(outputs)
+        step = min(step, (time.perf_counter() - t0) / len(torque))
+        t0 = time.perf_counter()
+        for _ in range(len(torque)):
+            unit.getReal(outputs[:1])
+        call = min(call, (time.perf_counter() - t0) / len(torque))
+    unit.terminate()
+    unit.freeInstance()
+    return step, call
 
 
 if __name__ == "__main__":

@@ -40,11 +40,11 @@ def cmd_export(args: argparse.Namespace) -> int:
 def register_export(sub, with_params) -> None:
     p = with_params(sub.add_parser(
         "export", help="the calibrated gearbox as an FMI 2.0 co-simulation unit (--fmu)",
-        description="An FMI 2.0 co-simulation unit (pythonfmu) of the parameter file's model (the paper's model "
+        description="A native FMI 2.0 co-simulation unit of the parameter file's model (the paper's model "
         "and the accepted physical effects; the rig's torque-sensor errors not applied, as in map): inputs drive "
         "torque, drive speed, oil temperature; outputs loss torque, loss power, efficiency. It carries the model as "
-        "a table with its interpolation error stated and runs without this package (the host needs a Python 3 "
-        "shared library)."))
+        "a table with its interpolation error stated; its binary is C built at export with the machine's compiler "
+        "($CC, cc or gcc) and needs nothing on the host; its sources ship inside it (sources/)."))
     p.add_argument("--fmu", required=True, metavar="FILE.fmu", help="the unit to write")
     p.add_argument("--oil-temperature-c", type=finite_float, nargs=3, metavar=("START", "STOP", "STEP"),
                    help="a model that follows the oil: the table's temperatures before refinement "

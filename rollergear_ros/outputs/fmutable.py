@@ -2,7 +2,7 @@
 
 ``rollergear export --fmu`` (:mod:`outputs.fmu`) puts the model into a co-simulation unit that
 runs where this package is not installed, so the unit holds the model as a table and interpolates
-it (trilinear, in :mod:`outputs.fmu_gearbox`, pure Python).  The table's nodes are the model
+it (trilinear, in the unit's C source ``outputs/fmu_gearbox.c``).  The table's nodes are the model
 itself (:func:`core.operating_points.evaluate_points`: the paper's model and the accepted
 physical effects, the rig's torque-sensor errors not applied, as in ``map``); its stated
 interpolation error is measured here, against the model at every cell's centre and the middle
