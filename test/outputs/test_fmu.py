@@ -25,14 +25,14 @@ WARMING = ("/**/loss_estimator:\n  ros__parameters:\n    effects:\n      viscosi
 TORQUES = [-73.3, -12.1, -0.7, 0.33, 4.4, 57.9]
 SPEEDS = [-250.3, -7.7, 0.9, 33.3, 201.7]
 
-#: runs in a fresh interpreter: fmpy steps the unit at every (temperature, torque, speed) of argv's JSON;
+#: runs in a fresh interpreter: fmpy steps the unit at every (temperature, torque, speed) of stdin's JSON;
 #: this package is made unimportable first, so the unit must carry what it needs
 RUN_UNIT = textwrap.dedent("""
     import json, sys
     sys.modules["rollergear_ros"] = None
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
-    path, points = sys.argv[1], json.loads(sys.argv[2])
+    path, points = sys.argv[1], json.loads(sys.stdin.read())
     md = read_model_description(path)
     vr = {v.name: v.valueReference for v in md.modelVariables}
     unit = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
@@ -56,8 +56,8 @@ RUN_UNIT = textwrap.dedent("""
 
 
 def run_unit(path, points) -> dict:
-    proc = subprocess.run([sys.executable, "-c", RUN_UNIT, str(path), json.dumps(points)], capture_output=True,
-                          text=True, timeout=300, check=False)
+    proc = subprocess.run([sys.executable, "-c", RUN_UNIT, str(path)], input=json.dumps(points), capture_output=True,
+                          text=True, timeout=600, check=False)
     assert proc.returncode == 0, proc.stderr
     return json.loads(proc.stdout)
 
@@ -311,3 +311,41 @@ def test_ten_thousand_short_host_processes_load_run_and_exit_without_an_abort(na
     proc = subprocess.run([str(hosts), str(binary), guid, uri, "10000"], capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split() == ["10000", "0", "0"], proc.stdout
+
+
+def test_the_unit_over_a_recorded_warm_up_equals_predict_within_its_stated_error(tmp_path):
+    """The recorded warm-up (oil 20 -> 85 degC) stepped through the unit sample by sample equals ``predict`` of
+    the recording, sample by sample, within the unit's stated interpolation error times the speed, and its
+    energy within the error's share of it."""
+    import csv
+
+    from helpers import BAGS
+
+    from rollergear_ros.core.params import load_config
+    from rollergear_ros.replay.run import replay
+
+    params = tmp_path / "oil.yaml"  # the warming file without its torque-sensor error: the unit's torque is true
+    params.write_text(WARMING.replace("      torque_offset: {enabled: true, offset_nm: 0.3}\n", ""))
+    unit = tmp_path / "g.fmu"
+    run_cli("export", "--fmu", str(unit), "--params", str(params))
+    bag = BAGS / "warmup.mcap"
+    run_cli("predict", str(bag), "--params", str(params), "--no-adapt", "--csv", str(tmp_path / "p.csv"))
+    with open(tmp_path / "p.csv") as fh:
+        predicted = np.array([float(r["loss_power_w"]) for r in csv.DictReader(fh)])
+    _summary, batches = replay(bag, load_config(params).with_values({"estimator.adapt": False}), collect=True,
+                               show_progress=False)
+    columns = {k: np.concatenate([getattr(b, k) for b in batches]) for k in ("temperature_c", "torque_nm",
+                                                                             "speed_rad_s", "t_ns")}
+    assert len(columns["t_ns"]) == len(predicted) > 20_000
+    every = slice(None, None, 3)
+    points = np.column_stack([columns["temperature_c"], columns["torque_nm"], columns["speed_rad_s"]])[every]
+    ran = run_unit(unit, points.tolist())
+    power = np.array([row[1] for row in ran["rows"]])
+    inside = np.array([row[3] for row in ran["rows"]])
+    assert inside.all()
+    error_nm = ran["error"][0]
+    speed = np.abs(points[:, 2])
+    np.testing.assert_array_less(np.abs(power - predicted[every]), error_nm * speed + 1e-9)
+    dt = np.diff(columns["t_ns"][every]) * 1e-9
+    energy_unit, energy_predict = np.sum(power[:-1] * dt), np.sum(predicted[every][:-1] * dt)
+    assert abs(energy_unit - energy_predict) <= 0.01 * energy_predict, (energy_unit, energy_predict)
