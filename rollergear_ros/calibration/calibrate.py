@@ -541,7 +541,8 @@ def _untested_file_effects(config: Config, cal: Calibrator) -> list[str]:
 def _model_form(cal: Calibrator, out, full, final: list[Term], selected: list[Term], data: SampleData,
                 verdict: str) -> ModelForm:
     """What the written file leaves unresolved (the terms kept in the fit and not written, at their
-    fitted values; the ambiguous sets in words) and the largest speed and torque analysed."""
+    fitted values; the ambiguous sets in words), the largest speed and torque analysed and the span of oil
+    temperatures (to 0.01 °C, outward: the extremes stay inside it)."""
     k0 = len(cal.nuisance)
     alternatives = []
     for i, term in enumerate(final[len(selected):], start=len(selected)):
@@ -550,8 +551,11 @@ def _model_form(cal: Calibrator, out, full, final: list[Term], selected: list[Te
     unresolved = "; ".join(f"{' or '.join(a.effects)} (the data cannot tell them apart: needs {a.needs})"
                            for a in out.ambiguous if a.assumed is None and a.taken is None)
     speed, torque = np.abs(data.speed), np.abs(data.torque)
+    theta = data.temperature[np.isfinite(data.temperature)]
     return ModelForm(verdict, tuple(alternatives), unresolved,
-                     float(speed.max()) if len(speed) else math.inf, float(torque.max()) if len(torque) else math.inf)
+                     float(speed.max()) if len(speed) else math.inf, float(torque.max()) if len(torque) else math.inf,
+                     (math.floor(100 * float(theta.min())) / 100, math.ceil(100 * float(theta.max())) / 100)
+                     if len(theta) else None)
 
 
 def _file_errors(data: SampleData, blocks: Blocks, config: Config) -> tuple[ErrorStats, ErrorStats, np.ndarray]:

@@ -82,13 +82,8 @@ def _write_samples(result, kind: str, path: Path) -> None:
     import numpy as np
 
     from ..base.atomic import replacing
-    from ..core.prediction import Z95
 
-    half = Z95 * result.loss_power_sd_w
-    low = result.loss_power_w + result.loss_power_form_low_w - half
-    high = result.loss_power_w + result.loss_power_form_high_w + half
-    if result.band_refused:
-        low = high = np.full(len(result.loss_power_w), np.nan)
+    low, high = result.loss_power_band_w()
     columns = {"time_s": (result.t_ns - result.t_ns[0]) * 1e-9 if len(result.t_ns) else result.t_ns * 1.0,
                "loss_power_w": result.loss_power_w, "loss_power_low95_w": low, "loss_power_high95_w": high}
     with replacing(path) as partial:

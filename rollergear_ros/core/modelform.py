@@ -7,16 +7,16 @@ is the right one.  ``calibrate`` writes beside it, as one JSON text::
       model_form: '{"verdict": "inconclusive",
                     "alternatives": [{"name": "drag_constant", "params": {"c": 0.0398}}],
                     "unresolved": "dahl or drag_constant: ...",
-                    "seen": {"speed_rad_s": 314.2, "torque_nm": 95.0},
+                    "seen": {"speed_rad_s": 314.2, "torque_nm": 95.0, "oil_temperature_c": [21.5, 84.0]},
                     "segment": "the latest stretch, 9,800 samples after the change at 240.8 s"}'
 
 * ``alternatives``: effects the fit kept and the file does not hold (the best of a set the data could
   not tell apart): a prediction is also made with each added, and the band spans them;
 * ``unresolved``: what the verdict left open, in words; with no alternative to span, ``predict``
   refuses the band with it;
-* ``seen``: the largest drive speed and torque the calibration analysed: beyond them (or beyond the
-  gearbox's rating) the accepted effects are extrapolated, and the band counts their share as
-  unknown;
+* ``seen``: the largest drive speed and torque the calibration analysed, and the span of oil temperatures it
+  analysed (where it had them): beyond them (or beyond the gearbox's rating) the accepted effects are
+  extrapolated, and the band counts their share as unknown;
 * ``segment``: the part of the recordings the file describes where the gearbox changed inside them
   (``""``: every sample), said with every prediction.
 
@@ -46,12 +46,16 @@ class ModelForm:
     unresolved: str = ""
     seen_speed_rad_s: float = math.inf  #: the largest |ω| analysed (inf: not said)
     seen_torque_nm: float = math.inf  #: the largest |T| analysed
+    #: the oil temperatures analysed, lowest and highest [°C] (None: not said, no temperature channel)
+    seen_oil_c: tuple[float, float] | None = None
     segment: str = ""  #: the stretch of the recordings the file describes ('': all of them)
     notes: list[str] = field(default_factory=list, compare=False)
 
     def to_text(self) -> str:
-        seen = {k: v for k, v in (("speed_rad_s", self.seen_speed_rad_s), ("torque_nm", self.seen_torque_nm))
-                if math.isfinite(v)}
+        seen: dict = {k: v for k, v in (("speed_rad_s", self.seen_speed_rad_s), ("torque_nm", self.seen_torque_nm))
+                      if math.isfinite(v)}
+        if self.seen_oil_c is not None:
+            seen["oil_temperature_c"] = list(self.seen_oil_c)
         return json.dumps({"verdict": self.verdict,
                            "alternatives": [{"name": n, "params": p} for n, p in self.alternatives],
                            "unresolved": self.unresolved, "seen": seen}
@@ -79,11 +83,16 @@ class ModelForm:
                 raise ValueError('each alternative is {"name": effect, "params": {short name: number}}')
             alts.append((a["name"], {k: float(v) for k, v in a["params"].items()}))
         seen = data.get("seen", {})
+        oil = seen.pop("oil_temperature_c", None) if isinstance(seen, dict) else None
         if not isinstance(seen, dict) or not set(seen) <= {"speed_rad_s", "torque_nm"} \
-                or not all(finite_number(v) and v > 0 for v in seen.values()):
-            raise ValueError('"seen" is {"speed_rad_s": number > 0, "torque_nm": number > 0}')
+                or not all(finite_number(v) and v > 0 for v in seen.values()) \
+                or not (oil is None or (isinstance(oil, list) and len(oil) == 2 and all(map(finite_number, oil))
+                                        and oil[0] <= oil[1])):
+            raise ValueError('"seen" is {"speed_rad_s": number > 0, "torque_nm": number > 0, '
+                             '"oil_temperature_c": [lowest, highest]}')
         return cls(verdict, tuple(alts), unresolved, float(seen.get("speed_rad_s", math.inf)),
-                   float(seen.get("torque_nm", math.inf)), segment)
+                   float(seen.get("torque_nm", math.inf)), None if oil is None else (float(oil[0]), float(oil[1])),
+                   segment)
 
 
 

@@ -80,6 +80,10 @@ class Prediction:
     beyond_samples: int = 0  #: samples beyond what the calibration saw or the rating
     beyond_effects_j: float = 0.0  #: the accepted effects' energy there (counted as unknown)
     limits: tuple[float, float] = (math.inf, math.inf)  #: |ω| [rad/s] and |T| [N·m] seen and rated
+    #: the oil temperatures the calibration saw [°C] (None: not said, or the model follows no oil)
+    oil_limits: tuple[float, float] | None = None
+    #: samples beyond on each axis ("speed", "torque", "oil temperature"; a sample may count on several)
+    beyond_by_axis: dict[str, int] = field(default_factory=dict)
     band_refused: str = ""  #: why there is no band ('': there is one)
     notes: list[str] = field(default_factory=list)
     #: per sample, with ``collect``: times, loss power and its standard deviation
@@ -89,6 +93,20 @@ class Prediction:
     #: per sample, with ``collect``: how far the unresolved alternatives move the loss power (down, up)
     loss_power_form_low_w: np.ndarray | None = field(default=None, repr=False)
     loss_power_form_high_w: np.ndarray | None = field(default=None, repr=False)
+    #: per sample, with ``collect``: the accepted effects' loss power where it is extrapolated (0 elsewhere)
+    loss_power_beyond_w: np.ndarray | None = field(default=None, repr=False)
+
+    def loss_power_band_w(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each sample's 95 % band of the loss power (with ``collect``; NaN where the band is refused): never below
+        0, nor below the loss without the effects where they are extrapolated."""
+        half = Z95 * self.loss_power_sd_w
+        low = self.loss_power_w + self.loss_power_form_low_w - half
+        high = self.loss_power_w + self.loss_power_form_high_w + half
+        if self.band_refused:
+            return np.full(len(low), np.nan), np.full(len(high), np.nan)
+        floor = np.where(self.loss_power_beyond_w > 0,
+                         self.loss_power_w + self.loss_power_form_low_w - self.loss_power_beyond_w, -np.inf)
+        return np.maximum(np.maximum(low, floor), 0.0), high
 
     @property
     def energy_band_j(self) -> tuple[float, float]:
@@ -97,7 +115,10 @@ class Prediction:
         if self.band_refused:
             return math.nan, math.nan
         half = Z95 * self.energy_lost_sd_j
-        return self.energy_lost_j + self.model_form_j[0] - half, self.energy_lost_j + self.model_form_j[1] + half
+        low = self.energy_lost_j + self.model_form_j[0] - half
+        if self.beyond_effects_j > 0:  # the effects extrapolated: as large as they are, or none -- never negative
+            low = max(low, self.energy_lost_j + self.model_form_j[0] - self.beyond_effects_j)
+        return max(low, 0.0), self.energy_lost_j + self.model_form_j[1] + half
 
     @property
     def mean_loss_power_w(self) -> float:
@@ -113,7 +134,9 @@ class Prediction:
                 "recorded": self.recorded, "alternatives_j": self.alternatives,
                 "beyond_calibration": {"samples": self.beyond_samples, "effects_energy_j": self.beyond_effects_j,
                                        "speed_limit_rad_s": _finite(self.limits[0]),
-                                       "torque_limit_nm": _finite(self.limits[1])},
+                                       "torque_limit_nm": _finite(self.limits[1]),
+                                       "oil_temperature_c": list(self.oil_limits) if self.oil_limits else None,
+                                       "samples_by_axis": self.beyond_by_axis},
                 "band_refused": self.band_refused or None, "notes": self.notes}
 
     def text(self) -> str:
@@ -146,9 +169,14 @@ class Prediction:
                          + ", ".join(f"with {n} {v:+,.1f} J" for n, v in self.alternatives.items()))
         if self.beyond_samples:
             speed, torque = self.limits
+            axes = {"speed": f"|ω| > {speed:.4g} rad/s", "torque": f"|T| > {torque:.4g} N·m"}
+            if self.oil_limits:
+                axes["oil temperature"] = f"oil outside {self.oil_limits[0]:g} … {self.oil_limits[1]:g} °C"
+            said = "; ".join(f"{axes[a]}: {n:,}" for a, n in self.beyond_by_axis.items() if n)
             lines.append(f"{self.beyond_samples:,} samples lie beyond what the calibration saw or the rating "
-                         f"(|ω| > {speed:.4g} rad/s or |T| > {torque:.4g} N·m): the accepted effects' "
-                         f"{self.beyond_effects_j:,.1f} J there are extrapolated, counted in the band as unknown")
+                         f"({said}): the accepted effects' {self.beyond_effects_j:,.1f} J there are extrapolated, "
+                         "counted in the band as unknown (as large as they are, or none: the band's lower end "
+                         "stays above the energy without them)")
         lines.extend(self.notes)
         return "\n".join(lines)
 
@@ -212,8 +240,11 @@ class PredictionSums:
                                g.rated_speed_rpm * math.pi / 30.0 if g.rated_speed_rpm > 0 else math.inf)
         self.torque_limit = min(self.form.seen_torque_nm if self.form else math.inf,
                                 g.rated_torque_nm if g.rated_torque_nm > 0 else math.inf)
+        follows_oil = any(EFFECTS[n].needs_temperature for n in fixed.effects.enabled())
+        self.oil_limits = self.form.seen_oil_c if self.form and follows_oil else None
         self._paper_only = Estimator(only(fixed, ())) if fixed.effects.enabled() else None
         self.beyond_samples = 0
+        self.beyond_by_axis = {"speed": 0, "torque": 0, "oil temperature": 0}
         self.beyond_effects_j = 0.0  #: the accepted effects' energy beyond what was seen or rated
 
     def base_estimator(self, **kwargs) -> Estimator:
@@ -249,18 +280,24 @@ class PredictionSums:
         for j, (_name, estimator) in enumerate(self._alternatives):
             shifts[:, j] = evaluate(estimator) - written
         self.alternative_shift_j += shifts.T @ dt
-        beyond = (np.abs(b.speed_rad_s) > self.speed_limit) | (np.abs(b.torque_nm) > self.torque_limit)
+        axes = {"speed": np.abs(b.speed_rad_s) > self.speed_limit, "torque": np.abs(b.torque_nm) > self.torque_limit}
+        if self.oil_limits is not None and b.temperature_c is not None:
+            theta = np.asarray(b.temperature_c, dtype=float)
+            axes["oil temperature"] = (theta < self.oil_limits[0]) | (theta > self.oil_limits[1])
+        beyond = np.logical_or.reduce(list(axes.values()))
         effects_w = np.zeros(len(t))
         if self._paper_only is not None and beyond.any():
             effects_w = np.where(beyond, np.abs(written - evaluate(self._paper_only)), 0.0)
             self.beyond_samples += int(beyond.sum())
+            for axis, mask in axes.items():
+                self.beyond_by_axis[axis] += int(mask.sum())
             self.beyond_effects_j += float(np.sum(effects_w * dt))
         if self._collect:
             cov = self.covariance.matrix if self.covariance else np.zeros((0, 0))
             sd = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", jac, cov, jac), 0.0) + effects_w * effects_w)
             low = np.minimum(shifts.min(axis=1), 0.0) if shifts.shape[1] else np.zeros(len(t))
             high = np.maximum(shifts.max(axis=1), 0.0) if shifts.shape[1] else np.zeros(len(t))
-            self._parts.append((t, power, sd, low, high))
+            self._parts.append((t, power, sd, low, high, effects_w))
 
     def finish(self) -> Prediction:
         """The prediction of everything added."""
@@ -275,7 +312,8 @@ class PredictionSums:
                             max(0.0, float(shifts.max())) if len(shifts) else 0.0)
         out.alternatives = {name: float(v) for (name, _e), v in zip(self._alternatives, shifts)}
         out.beyond_samples, out.beyond_effects_j = self.beyond_samples, self.beyond_effects_j
-        out.limits = (self.speed_limit, self.torque_limit)
+        out.limits, out.oil_limits = (self.speed_limit, self.torque_limit), self.oil_limits
+        out.beyond_by_axis = {k: v for k, v in self.beyond_by_axis.items() if v}
         form = self.form
         if form and form.unresolved and not self._alternatives:
             out.band_refused = (f"the calibration left {form.unresolved} unresolved, with no alternative written to "
@@ -289,6 +327,7 @@ class PredictionSums:
                              "recordings calibrated on)")
         if self._collect:
             cat = [np.concatenate(p) if p else np.zeros(0) for p in zip(*self._parts)] if self._parts else \
-                [np.zeros(0, dtype=np.int64), *(np.zeros(0) for _ in range(4))]
-            out.t_ns, out.loss_power_w, out.loss_power_sd_w, out.loss_power_form_low_w, out.loss_power_form_high_w = cat
+                [np.zeros(0, dtype=np.int64), *(np.zeros(0) for _ in range(5))]
+            out.t_ns, out.loss_power_w, out.loss_power_sd_w, out.loss_power_form_low_w, out.loss_power_form_high_w, \
+                out.loss_power_beyond_w = cat
         return out

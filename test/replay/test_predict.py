@@ -240,3 +240,39 @@ def test_a_files_segment_text_is_escaped_and_bounded_on_the_terminal(tmp_path):
                                                                                    else [])).stdout
         assert "\x1b" not in out and "\\x1b[2J\\x1b[31mthe latest stretch" in out, verb
         assert len(out) < 20_000 and "characters more)" in out, (verb, len(out))
+
+
+def test_beyond_the_calibration_the_band_stays_physical_on_every_axis_the_oil_temperature_among_them(tmp_path):
+    """A file calibrated on speeds up to 50 rad/s and torques up to 20 N·m, oil 40 … 65 °C, with a drag
+    that follows the oil, predicting a plan far beyond (the drive cycle's speeds and torques, its oil
+    at −15 °C): every beyond-sample counted on its axis (the oil's too) and said; the energy band's lower end
+    never below the energy without the extrapolated effects (it went below the energy with no effects at all),
+    each sample's loss power band never below 0 nor below the loss without them (446 W had a band down to
+    −321 W); the upper end widened as before."""
+    seen = ('{"verdict":"effects_found","seen":{"speed_rad_s":50.0,"torque_nm":20.0,'
+            '"oil_temperature_c":[40.0,65.0]}}')
+    oil = ("      viscosity_temperature: {enabled: true, B_k: 1100.0, C_k: 95.0, theta_ref_c: 40.0, scale: 1.0}\n"
+           "      drag_viscous: {enabled: true, c: 1.0e-3, p: 1.2, a: 0.8, B_k: 1100.0, C_k: 95.0, theta_ref_c: 40.0}\n")
+    params = tmp_path / "cal.yaml"
+    params.write_text(CALIBRATED.replace("    calibration:\n", oil + "    calibration:\n")
+                      + f"      model_form: '{seen}'\n")
+    arrays = _plan_arrays()
+    arrays["oil_temperature_c"] = np.full(len(arrays["t_s"]), -15.0)
+    config = load_config(params)
+    got = predict(arrays, config, collect=True)
+    fast = (np.abs(arrays["speed_rad_s"]) > 50.0) | (np.abs(arrays["torque_nm"]) > 20.0)
+    assert got.beyond_samples == len(fast) and got.beyond_by_axis["oil temperature"] == len(fast)
+    assert got.beyond_by_axis["speed"] == int(np.count_nonzero(np.abs(arrays["speed_rad_s"]) > 50.0))
+    assert "oil outside 40 … 65 °C: " in got.text(), got.text()
+    bare = predict(arrays, config.with_values({"effects.viscosity_temperature.enabled": False,
+                                               "effects.drag_viscous.enabled": False, "effects.drag_speed.enabled": False}))
+    low, high = got.energy_band_j
+    assert low >= got.energy_lost_j - got.beyond_effects_j - 1e-9 and low >= bare.energy_lost_j > 0, (low, bare)
+    assert high > got.energy_lost_j + got.beyond_effects_j
+    power_low, power_high = got.loss_power_band_w()
+    assert np.all(power_low >= 0.0) and np.all(power_low <= got.loss_power_w) and np.all(power_high >= got.loss_power_w)
+    _write_plan_csv(tmp_path, arrays)
+    out = json.loads(run_cli("predict", str(tmp_path / "plan.csv"), "--channels", str(tmp_path / "plan.yaml"),
+                             "--params", str(params), "--json").stdout)
+    assert out["beyond_calibration"]["oil_temperature_c"] == [40.0, 65.0]
+    assert out["beyond_calibration"]["samples_by_axis"]["oil temperature"] == len(fast)
