@@ -388,3 +388,17 @@ def test_a_window_is_said_on_the_recordings_clock_and_taken_back_in_that_form(tm
     bad = run_cli("calibrate", bag, "--start", "yesterday", check=False)
     assert bad.returncode == 2 and "neither a number of seconds after the first sample analysed nor an ISO 8601" \
         in bad.stderr, bad.stderr
+
+
+def test_the_written_file_says_the_span_of_oil_temperatures_it_was_calibrated_on(tmp_path):
+    """A warm-up's file carries the oil temperatures it analysed (its lowest and highest, outward to 0.01 °C),
+    so that predict and the FMU can tell a plan in colder or hotter oil from one it knows."""
+    from helpers import BAGS
+
+    out = tmp_path / "cal.yaml"
+    calibrate_json(BAGS / "warmup.mcap", extra=("--out", str(out)))
+    form = ModelForm.from_text(load_config(out).calibration.model_form)
+    data = load_samples([BAGS / "warmup.mcap"], load_config())
+    low, high = form.seen_oil_c
+    assert low <= np.nanmin(data.temperature) < low + 0.01 and high - 0.01 < np.nanmax(data.temperature) <= high
+    assert high - low > 50.0
