@@ -49,6 +49,8 @@ _QUANTISED = 1.0 / math.sqrt(12.0)
 #: integrated across it
 GAP_PERIODS = 5.0
 MIN_GAP_S = 0.1
+#: delivered energy within this share of the supplied: no power leaves the output (a spin test), no efficiency
+NO_OUTPUT_SHARE = 0.01
 
 
 def powers(torque_nm, speed_rad_s, out_torque_nm, out_speed_rad_s, ratio: float):
@@ -120,6 +122,12 @@ class EnergyBalance:
     def lost_j(self) -> float:
         """Energy lost in the gearbox (supplied − delivered)."""
         return self.supplied_j - self.delivered_j
+
+    @property
+    def no_output(self) -> bool:
+        """No power leaves the output (a spin test: nothing on it): what is delivered is within
+        :data:`NO_OUTPUT_SHARE` of what is supplied -- the drive power is all loss, and an efficiency says nothing."""
+        return self.supplied_j > 0 and abs(self.delivered_j) <= NO_OUTPUT_SHARE * self.supplied_j
 
     @property
     def efficiency(self) -> float:

@@ -126,11 +126,13 @@ class ReplaySummary:
             lines.append(f"implausible: {self.beyond_text}")
         if self.adaptation_text:
             lines.append(f"adaptation: {self.adaptation_text}")
+        spin = self.measured.samples > 0 and self.measured.no_output
         lines.append(
             f"loss torque: mean {self.mean_loss_nm:.4f} N·m, peak {self.peak_loss_nm:.4f} N·m; "
-            f"energy lost {self.energy_lost_j:.1f} J; model efficiency: mean "
-            + ("n/a" if math.isnan(self.mean_efficiency) else f"{100 * self.mean_efficiency:.2f} %")
-            + " over the samples"
+            f"energy lost {self.energy_lost_j:.1f} J; model efficiency: "
+            + ("none (no power leaves the output)" if spin else "mean " + (
+                "n/a" if math.isnan(self.mean_efficiency) else f"{100 * self.mean_efficiency:.2f} %")
+               + " over the samples")
         )
         if self.measured.samples:
             lines.extend(self._measured_lines())
@@ -165,6 +167,11 @@ class ReplaySummary:
     def _measured_lines(self) -> list[str]:
         """The measured efficiency beside the model's, over the recording and per operating point."""
         m, stated = self.measured, self.sensors_stated
+        if m.no_output:  # a spin test: the loss, not an efficiency
+            return [f"measured: no power leaves the output (a spin test: {m.delivered_j:,.2g} J delivered of "
+                    f"{m.supplied_j:,.0f} J supplied over {m.seconds:,.1f} s): the drive power is all loss, "
+                    f"{m.supplied_j / m.seconds if m.seconds > 0 else math.nan:.4g} W on average; the model's loss "
+                    f"over the same samples {m.model_loss_j:,.0f} J -- no efficiency where no power flows out"]
         unknown = "" if stated else " (its uncertainty not known: state the sensors' accuracy in sensors.*)"
         both = bool(self.measured_quadrants) and all(b.supplied_j > 0 for b, _ in self.measured_quadrants)
         cancels = ""

@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field
 
 from ..core.estimator import Estimator
-from ..core.measured import WindowValue
+from ..core.measured import NO_OUTPUT_SHARE, WindowValue
 from ..core.pairing import CHANNELS, OUT_TORQUE, SKIP_REASONS, SPEED, TORQUE
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
@@ -185,7 +185,10 @@ def diagnose(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLimits, 
     values.append(("stale after [s]", _fmt(stale_after_s, 3)))
     values.append(("samples estimated", str(estimator.estimated)))
     _skip_status(estimator, since.skips, reasons, values)
-    _estimate_status(estimator, limits.min_efficiency_warn, since.alarms, reasons, values, trace_hint)
+    spin = measured is not None and math.isfinite(measured.efficiency) and abs(measured.efficiency) <= NO_OUTPUT_SHARE
+    # a spin test: no power leaves the output, so no efficiency -- nor a low one to warn of
+    _estimate_status(estimator, -math.inf if spin else limits.min_efficiency_warn, since.alarms, reasons, values,
+                     trace_hint)
     headline = _measured_status(measured, estimator.config.sensors.stated, values)
     level = max((lv for lv, _ in reasons), default=OK)
     message = "; ".join(m for lv, m in sorted(reasons, key=lambda r: -r[0])) if reasons else "estimating"
@@ -235,6 +238,8 @@ def _measured_status(measured: WindowValue | None, stated: bool, values: list[tu
                ("measured efficiency window [s]", _fmt(measured.window_s)),
                ("measured efficiency samples", str(measured.samples)),
                ("measured efficiency window end [ns]", str(measured.end_ns))]
+    if math.isfinite(measured.efficiency) and abs(measured.efficiency) <= NO_OUTPUT_SHARE:
+        return f"no power leaves the output over {measured.window_s:g} s (a spin test): the drive power is all loss"
     spread = f" ± {100 * measured.uncertainty:.2f}" if stated else ""
     return f"measured efficiency {100 * measured.efficiency:.2f}{spread} % over {measured.window_s:g} s"
 

@@ -985,3 +985,23 @@ def _first_log_time(path: Path) -> int:
     with open(path, "rb") as f:
         return make_reader(f).get_summary().statistics.message_start_time
 
+
+
+def test_a_spin_test_prints_its_loss_not_an_efficiency(tmp_path):
+    """A spin test (the channel map's output torque the constant 0): replay says the drive power is all loss,
+    in watts, and prints no measured efficiency (it printed 0.00 %, the model's beside it, per operating
+    point) and no model efficiency."""
+    from helpers import run_cli
+    from rigs import params, spin_map, write_csv
+
+    t = np.arange(0.0, 30.0, 0.005)
+    w = 300.0 * np.sin(2 * np.pi * 0.1 * t)
+    rng = np.random.default_rng(0)
+    csv = write_csv(tmp_path / "spin.csv", {"t": t, "T": (0.02 + 1e-4 * np.abs(w)) * np.sign(w)
+                                            + rng.normal(0.0, 1e-3, len(t)), "w": w + rng.normal(0.0, 0.05, len(t))})
+    said = run_cli("replay", str(csv), "--channels", str(spin_map(tmp_path / "spin.yaml")), "--params",
+                   str(params(tmp_path / "p.yaml")), "--no-png").stdout
+    assert "measured: no power leaves the output (a spin test: 0 J delivered of " in said, said
+    assert "the drive power is all loss" in said and " W on average" in said
+    assert "measured efficiency" not in said and "model efficiency: none (no power leaves the output)" in said
+    assert "per operating point" not in said and "%" not in said.split("skipped:")[1], said

@@ -217,3 +217,31 @@ def test_an_adapted_coefficient_kept_inside_the_files_range_is_in_the_status():
     assert est.coefficients()["drag_constant"] == 0.0
     shown = values()
     assert shown["adapted drag_constant"] == "0" and int(shown["adapted drag_constant kept in range [updates]"]) > 0
+
+
+def test_a_spin_test_is_said_as_a_loss_not_an_efficiency():
+    """Nothing on the output (its torque reads 0): the drive power is all loss -- the status says so instead of
+    a measured efficiency of 0.00 % and a WARN that the model's efficiency is below the limit; with power
+    leaving the output the efficiency is the headline and a low model efficiency is warned of."""
+    from rollergear_ros.core.measured import WindowValue
+    from rollergear_ros.core.pairing import SyncedSample
+
+    est = Estimator(load_config().with_values({"estimator.paper_model": False, "effects.drag_constant.enabled": True,
+                                               "effects.drag_constant.c_nm": 0.5}))
+    assert est.process(SyncedSample(10**9, 0.6, 100.0, 0.0, math.nan, math.nan)) is not None
+    assert est.last.efficiency < 0.9
+    now = 100 * 10**9
+    healthy = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
+    rates = {TORQUE: 1000.0, SPEED: 1000.0}
+
+    def report(efficiency: float):
+        return diagnose(InputsNow(now, healthy, rates), est, DiagnosticLimits(1000.0, 0.9),
+                        SinceLast(dict(est.counts), 0), measured=WindowValue(now, efficiency, 0.0, 1000, 5.0))
+
+    spin = report(0.0)
+    assert "no power leaves the output over 5 s (a spin test)" in spin.message, spin.message
+    assert "efficiency" not in spin.message and spin.level == OK, spin.message
+    assert dict(spin.values)["measured efficiency"] == "0.0"  # the number stays for loggers
+    loaded = report(0.85)
+    assert "measured efficiency 85.00 % over 5 s" in loaded.message and loaded.level == WARN
+    assert "below 90 %" in loaded.message
