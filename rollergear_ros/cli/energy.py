@@ -11,7 +11,7 @@ from pathlib import Path
 from ..base.atomic import together
 from ..base.errors import UsageError, damaged_exit
 from ..sources.paths import Output, check_outputs
-from .args import config_from_args, default_params_path, finite_float
+from .args import config_from_args, default_params_path, finite_float, positive_float
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -30,10 +30,13 @@ def cmd_export(args: argparse.Namespace) -> int:
     check_outputs([args.params], [Output("--fmu", out, "fmu")])
     print(f"tabulating the model of {args.params or default_params_path()} …", flush=True)
     with together():
-        table = build_fmu(config, out, args.params or default_params_path(), tuple(oil) if oil else None)
+        table = build_fmu(config, out, args.params or default_params_path(), tuple(oil) if oil else None,
+                          args.speed_max_rpm, args.torque_max_nm)
+    calibrated, rated = table.ranges_text()
     print(f"wrote {out}: {table.provenance['strings']['rollergear_table']}; interpolation error <= "
           f"{table.interpolation_error_nm:.3g} N·m, <= {100 * table.interpolation_error_relative:.2g} % where the "
-          "efficiency is defined")
+          f"efficiency is defined; calibrated: {calibrated}; rated: {rated} (outputs inside_calibration, "
+          "inside_rating)")
     return 0
 
 
@@ -46,6 +49,12 @@ def register_export(sub, with_params) -> None:
         "a table with its interpolation error stated; its binary is C built at export with the machine's compiler "
         "($CC, cc or gcc) and needs nothing on the host; its sources ship inside it (sources/)."))
     p.add_argument("--fmu", required=True, metavar="FILE.fmu", help="the unit to write")
+    p.add_argument("--speed-max-rpm", type=positive_float, metavar="RPM",
+                   help="the table's speeds up to ± this (default: the map grid's, gearbox.rated_speed_rpm, widened "
+                        "to what the calibration saw)")
+    p.add_argument("--torque-max-nm", type=positive_float, metavar="NM",
+                   help="the table's torques ± this (default: the map grid's, ± gearbox.rated_torque_nm, widened to "
+                        "what the calibration saw)")
     p.add_argument("--oil-temperature-c", type=finite_float, nargs=3, metavar=("START", "STOP", "STEP"),
                    help="a model that follows the oil: the table's temperatures before refinement "
                         "(default -20 140 5 degC; halved where the oil's viscosity changes fast)")

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import datetime
 import hashlib
+import math
 import os
 import shutil
 import subprocess
@@ -34,7 +35,7 @@ from ..core.params import Config, config_to_yaml
 from .fmutable import LossTable, loss_table
 from .lossmap import accepted_effects_text, calibration_lines
 
-__all__ = ["MODEL_IDENTIFIER", "REALS", "build_fmu", "c_compiler", "fmi2_headers"]
+__all__ = ["BOOLEANS", "MODEL_IDENTIFIER", "REALS", "build_fmu", "c_compiler", "fmi2_headers"]
 
 #: the unit's model identifier: its binary's and its C source's name
 MODEL_IDENTIFIER = "rollergear_gearbox"
@@ -48,6 +49,11 @@ REALS = (("drive_torque_nm", "input", "N.m", "drive (input) torque [N*m]"),
          ("interpolation_error_nm", "calculatedParameter", "N.m", "largest |table - model| between the nodes [N*m]"),
          ("interpolation_error_relative", "calculatedParameter", "1",
           "the same relative to the loss where eta is defined"))
+#: the Boolean outputs in value-reference order (the C source's VB_*): name, description
+BOOLEANS = (("inside_table", "false: an input is not finite or lies beyond the table (the other outputs NaN)"),
+            ("inside_calibration", "the point lies within what the calibration analysed (speed, torque, oil); false "
+                                   "where the parameter file states no calibrated range"),
+            ("inside_rating", "the point lies within the gearbox's rated speed and torque"))
 #: the units' definitions in SI base units (exponents; a degC's offset)
 UNIT_DEFINITIONS = {"N.m": {"kg": "1", "m": "2", "s": "-2"}, "rad/s": {"s": "-1", "rad": "1"},
                     "W": {"kg": "1", "m": "2", "s": "-3"}, "degC": {"K": "1", "offset": "273.15"}, "1": {}}
@@ -74,6 +80,7 @@ def _provenance(config: Config, params_path: Path | None, table: LossTable) -> d
     error = (f"interpolation error <= {table.interpolation_error_nm:.3g} N*m, "
              f"<= {100 * table.interpolation_error_relative:.2g} % where the efficiency is defined")
     parameters = parameters_file_text(params_path)
+    calibrated, rated = table.ranges_text()
     description = (f"Roller gearing gearbox losses (rollergear_ros {package_version()}): parameters "
                    f"{parameters}; accepted effects: {effects}; a table of {grid}; {error}")
     return {"description": description, "package_version": package_version(), "strings": {
@@ -83,6 +90,8 @@ def _provenance(config: Config, params_path: Path | None, table: LossTable) -> d
         "rollergear_accepted_effects": effects,
         "rollergear_parameters_yaml": config_to_yaml(config),
         "rollergear_table": grid,
+        "rollergear_calibrated_range": calibrated,
+        "rollergear_rated_range": rated,
         "rollergear_created_utc": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds")}}
 
 
@@ -123,9 +132,19 @@ def _c_string(text: str) -> str:
     return '"' + "".join(out) + '"'
 
 
+def _c_double(value: float) -> str:
+    """A double as a C expression that reads back to the same bits (``INFINITY``, ``NAN`` as C99 names them)."""
+    v = float(value)
+    if math.isnan(v):
+        return "NAN"
+    if math.isinf(v):
+        return "INFINITY" if v > 0 else "(-INFINITY)"
+    return repr(v)
+
+
 def _c_doubles(values: np.ndarray) -> str:
     """Doubles as C initialisers that read back to the same bits (17 significant digits)."""
-    return ", ".join(repr(float(v)) if np.isfinite(v) else "NAN" for v in np.asarray(values, dtype=float))
+    return ", ".join(_c_double(v) for v in np.asarray(values, dtype=float))
 
 
 def table_header(table: LossTable, guid: str, reference_c: float, strings: dict[str, str]) -> str:
@@ -140,6 +159,7 @@ def table_header(table: LossTable, guid: str, reference_c: float, strings: dict[
              f"#define RG_INTERPOLATION_ERROR_NM {float(table.interpolation_error_nm)!r}",
              f"#define RG_INTERPOLATION_ERROR_RELATIVE {float(table.interpolation_error_relative)!r}",
              f"#define RG_REFERENCE_TEMPERATURE_C {float(reference_c)!r}",
+             *_range_defines(table),
              f"static const double rg_speeds[RG_NS] = {{{_c_doubles(table.speeds_rad_s)}}};",
              f"static const double rg_torques[RG_NT] = {{{_c_doubles(table.torques_nm)}}};",
              f"static const double rg_temperatures[RG_NK] = {{{_c_doubles(table.temperatures_c)}}};",
@@ -148,6 +168,17 @@ def table_header(table: LossTable, guid: str, reference_c: float, strings: dict[
     lines += [f"    {_c_string(text)}, /* {name} */" for name, text in strings.items()]
     lines += ["};", "#endif", ""]
     return "\n".join(lines)
+
+
+def _range_defines(table: LossTable) -> list[str]:
+    """The calibrated and the rated range as the C source's constants (inf where a bound is not said)."""
+    speed, torque, oil = table.calibrated if table.calibrated is not None else (math.inf, math.inf, None)
+    low, high = oil if oil is not None and table.follows_oil else (-math.inf, math.inf)
+    return [f"#define RG_CALIBRATED {int(table.calibrated is not None)}",
+            f"#define RG_SEEN_SPEED_RAD_S {_c_double(speed)}", f"#define RG_SEEN_TORQUE_NM {_c_double(torque)}",
+            f"#define RG_SEEN_OIL_LOW_C {_c_double(low)}", f"#define RG_SEEN_OIL_HIGH_C {_c_double(high)}",
+            f"#define RG_RATED_SPEED_RAD_S {_c_double(table.rated[0])}",
+            f"#define RG_RATED_TORQUE_NM {_c_double(table.rated[1])}"]
 
 
 def model_description(table: LossTable, guid: str, reference_c: float, provenance: dict) -> bytes:
@@ -184,12 +215,12 @@ def model_description(table: LossTable, guid: str, reference_c: float, provenanc
             attrs |= {"variability": "fixed", "initial": "calculated"}
             calculated.append(index)
         SubElement(SubElement(variables, "ScalarVariable", attrs), "Real", real)
-    index += 1
-    SubElement(SubElement(variables, "ScalarVariable", {
-        "name": "inside_table", "valueReference": "0", "causality": "output", "variability": "discrete",
-        "initial": "calculated",
-        "description": "false: an input is not finite or lies beyond the table (the other outputs NaN)"}), "Boolean")
-    outputs.append(index)
+    for vr, (name, what) in enumerate(BOOLEANS):
+        index += 1
+        SubElement(SubElement(variables, "ScalarVariable", {
+            "name": name, "valueReference": str(vr), "causality": "output", "variability": "discrete",
+            "initial": "calculated", "description": what}), "Boolean")
+        outputs.append(index)
     for vr, name in enumerate(provenance["strings"]):
         index += 1
         SubElement(SubElement(variables, "ScalarVariable", {
@@ -208,10 +239,12 @@ def model_description(table: LossTable, guid: str, reference_c: float, provenanc
 
 
 def build_fmu(config: Config, out: str | Path, params_path: str | Path | None = None,
-              oil_grid_c: tuple[float, float, float] | None = None) -> LossTable:
-    """Write the unit to ``out`` (replaced atomically) and return the table it carries."""
+              oil_grid_c: tuple[float, float, float] | None = None, speed_max_rpm: float | None = None,
+              torque_max_nm: float | None = None) -> LossTable:
+    """Write the unit to ``out`` (replaced atomically) and return the table it carries (its grid:
+    :func:`~.fmutable.loss_table`)."""
     compiler, headers = c_compiler(), fmi2_headers()
-    table = loss_table(config, oil_grid_c)
+    table = loss_table(config, oil_grid_c, speed_max_rpm, torque_max_nm)
     table.provenance = _provenance(config, Path(params_path) if params_path else None, table)
     reference = reference_temperature_c(config)
     reference_c = 40.0 if reference is None else float(reference)  # the oil input's start value

@@ -16,11 +16,14 @@
  *            loss_torque_nm*|w|, efficiency [1] (eq. 30 in four quadrants: motoring (|T| - T_loss)/|T|,
  *            regenerating |T|/(|T| + T_loss); NaN where undefined: |T| or |w| below the estimator's
  *            thresholds), inside_table (false: an input is not finite or lies beyond the table, and every
- *            other output is NaN -- the table says nothing there).
+ *            other output is NaN -- the table says nothing there), inside_calibration (the point lies within
+ *            what the calibration analysed: |w| and |T| at most the largest it saw, the oil within its span
+ *            where the model follows the oil; false where the parameter file states no calibrated range),
+ *            inside_rating (|w| and |T| at most the gearbox's rating).
  *
  * Value references: Real 0 drive_torque_nm, 1 drive_speed_rad_s, 2 oil_temperature_c, 3 loss_torque_nm,
  * 4 loss_power_w, 5 efficiency, 6 interpolation_error_nm, 7 interpolation_error_relative; Boolean 0
- * inside_table; String 0 ... RG_N_STRINGS - 1 the provenance (rg_string_names).
+ * inside_table, 1 inside_calibration, 2 inside_rating; String 0 ... RG_N_STRINGS - 1 the provenance.
  *
  * No input makes a step fail: NaN or infinite inputs give NaN outputs.  Setting an output, a calculated
  * parameter or a variable that does not exist is refused (fmi2Error, logged); so is a call out of the
@@ -39,6 +42,7 @@
 #define RG_NODES ((size_t)RG_NS * (size_t)RG_NT * (size_t)RG_NK)
 
 enum { VR_TORQUE, VR_SPEED, VR_OIL, VR_LOSS, VR_POWER, VR_EFFICIENCY, VR_ERROR_NM, VR_ERROR_RELATIVE, VR_REALS };
+enum { VB_INSIDE_TABLE, VB_INSIDE_CALIBRATION, VB_INSIDE_RATING, VB_BOOLEANS };
 
 typedef enum { INSTANTIATED = 1, INITIALIZING = 2, STEPPING = 4, TERMINATED = 8, FAILED = 16 } Mode;
 
@@ -51,7 +55,7 @@ typedef struct {
     char name[256];
     double *loss; /* RG_NODES values, read at instantiation */
     double real[VR_REALS];
-    fmi2Boolean inside;
+    fmi2Boolean boolean[VB_BOOLEANS];
     double time;
 } Instance;
 
@@ -94,7 +98,7 @@ static void evaluate(Instance *c) {
     if (!isfinite(torque) || !isfinite(speed) || !isfinite(oil) || !cell(rg_speeds, RG_NS, speed, &i, &wi)
         || !cell(rg_torques, RG_NT, torque, &j, &wj) || (RG_NK > 1 && !cell(rg_temperatures, RG_NK, oil, &k, &wk))) {
         c->real[VR_LOSS] = c->real[VR_POWER] = c->real[VR_EFFICIENCY] = NAN;
-        c->inside = fmi2False;
+        c->boolean[VB_INSIDE_TABLE] = c->boolean[VB_INSIDE_CALIBRATION] = c->boolean[VB_INSIDE_RATING] = fmi2False;
         return;
     }
     for (d = 0; d < 2; d++) {
@@ -110,7 +114,10 @@ static void evaluate(Instance *c) {
     }
     c->real[VR_LOSS] = total;
     c->real[VR_POWER] = total * fabs(speed);
-    c->inside = fmi2True;
+    c->boolean[VB_INSIDE_TABLE] = fmi2True;
+    c->boolean[VB_INSIDE_CALIBRATION] = RG_CALIBRATED && fabs(speed) <= RG_SEEN_SPEED_RAD_S
+        && fabs(torque) <= RG_SEEN_TORQUE_NM && RG_SEEN_OIL_LOW_C <= oil && oil <= RG_SEEN_OIL_HIGH_C;
+    c->boolean[VB_INSIDE_RATING] = fabs(speed) <= RG_RATED_SPEED_RAD_S && fabs(torque) <= RG_RATED_TORQUE_NM;
     magnitude = fabs(torque);
     power_sign = speed > 0 ? (torque > 0) - (torque < 0) : (speed < 0 ? (torque < 0) - (torque > 0) : 0);
     if (magnitude >= RG_MIN_TORQUE_NM && fabs(speed) >= RG_MIN_SPEED_RAD_S && power_sign != 0) {
@@ -326,8 +333,8 @@ fmi2Status fmi2GetBoolean(fmi2Component component, const fmi2ValueReference vr[]
     if (c == NULL) return fmi2Error;
     if (nvr > 0 && (vr == NULL || value == NULL)) return refuse(c, "fmi2GetBoolean: no value references");
     for (n = 0; n < nvr; n++) {
-        if (vr[n] != 0) return refuse(c, "fmi2GetBoolean: no such Boolean variable (0: inside_table)");
-        value[n] = c->inside;
+        if (vr[n] >= VB_BOOLEANS) return refuse(c, "fmi2GetBoolean: no such Boolean variable");
+        value[n] = c->boolean[vr[n]];
     }
     return fmi2OK;
 }
@@ -338,7 +345,7 @@ fmi2Status fmi2SetBoolean(fmi2Component component, const fmi2ValueReference vr[]
     (void)vr;
     (void)value;
     if (c == NULL) return fmi2Error;
-    return nvr == 0 ? fmi2OK : refuse(c, "fmi2SetBoolean: inside_table is an output");
+    return nvr == 0 ? fmi2OK : refuse(c, "fmi2SetBoolean: the Booleans are outputs");
 }
 
 fmi2Status fmi2GetString(fmi2Component component, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {

@@ -8,21 +8,24 @@ physical effects, the rig's torque-sensor errors not applied, as in ``map``); it
 interpolation error is measured here, against the model at every cell's centre and the middle
 of every cell edge -- where a linear interpolation is furthest from its nodes.
 
-Grid: the speeds of the ``map.*`` grid (0 … the rated speed) mirrored to both directions, with
-the nodes of the model's smoothing of ``sgn ω`` (±3 σ of the speed noise) added; the torques of
-``map.*`` (both signs); oil temperatures ``-20 … 140 °C`` every 5 °C when an accepted effect
+Grid: the speeds of the ``map.*`` grid (0 … the rated speed, or what ``export`` asks for; widened to
+what the calibration analysed) mirrored to both directions, with the nodes of the model's smoothing of
+``sgn ω`` (±3 σ of the speed noise) added; the torques of ``map.*`` (both signs; widened alike); oil
+temperatures ``-20 … 140 °C`` every 5 °C when an accepted effect
 needs the oil's (one node otherwise: the table holds at any temperature).  No rclpy import.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..base.errors import UsageError
 from ..base.interface import RPM_PER_RAD_S
+from ..core.modelform import ModelForm
 from ..core.operating_points import temperature_effects
 from ..core.params import Config, grid_cells_problem
 from .lossmap import plausible_points
@@ -60,6 +63,20 @@ class LossTable:
     #: ``|ω| ≥ min_speed_rad_s``) and the loss ≥ 1e-3 N·m
     interpolation_error_relative: float = 0.0
     provenance: dict[str, str] = field(default_factory=dict)
+    #: what the calibration analysed: the largest |ω| [rad/s] and |T| [N·m], the oil's span [°C] (None: not
+    #: said); None: the file states no calibrated range (``calibration.model_form``'s ``seen``)
+    calibrated: tuple[float, float, tuple[float, float] | None] | None = None
+    rated: tuple[float, float] = (math.inf, math.inf)  #: the gearbox's rated |ω| [rad/s] and |T| [N·m]
+
+    def ranges_text(self) -> tuple[str, str]:
+        """The calibrated and the rated range in words (the unit's provenance)."""
+        if self.calibrated is None:
+            calibrated = "not stated (the parameter file holds no calibration.model_form)"
+        else:
+            speed, torque, oil = self.calibrated
+            calibrated = f"|w| <= {speed:.6g} rad/s, |T| <= {torque:.6g} N*m" + (
+                f", oil {oil[0]:g} ... {oil[1]:g} degC" if oil is not None and self.follows_oil else "")
+        return calibrated, f"|w| <= {self.rated[0]:.6g} rad/s, |T| <= {self.rated[1]:.6g} N*m"
 
     def as_json(self) -> dict:
         """What the FMU's JSON resource holds: everything but the loss values (those go to a binary
@@ -80,10 +97,29 @@ def _axis(start: float, stop: float, step: float) -> np.ndarray:
     return points if points[-1] >= stop - 1e-9 * max(1.0, abs(stop)) else np.append(points, stop)
 
 
-def loss_table(config: Config, oil_grid_c: tuple[float, float, float] | None = None) -> LossTable:
-    """The model of ``config`` tabulated, with its interpolation error measured (module docstring)."""
+def loss_table(config: Config, oil_grid_c: tuple[float, float, float] | None = None,
+               speed_max_rpm: float | None = None, torque_max_nm: float | None = None) -> LossTable:
+    """The model of ``config`` tabulated, with its interpolation error measured (module docstring).
+
+    The grid spans ``speed_max_rpm`` and ``± torque_max_nm``; None: the ``map.*`` grid's, widened to what the
+    calibration analysed where that is more (a step of the grid beyond it), so that a drive the calibration
+    knows is inside the table."""
     from .livemap import map_grid
 
+    form = ModelForm.from_text(config.calibration.model_form)
+    seen = None if form is None or not math.isfinite(form.seen_speed_rad_s) else (
+        form.seen_speed_rad_s, form.seen_torque_nm, form.seen_oil_c)
+    m, g = config.map, config.gearbox
+    if speed_max_rpm is None:
+        speed_max_rpm = m.last_speed_rpm(g)
+        if seen is not None and seen[0] * RPM_PER_RAD_S > speed_max_rpm:
+            speed_max_rpm = (math.floor(seen[0] * RPM_PER_RAD_S / m.speed_step_rpm) + 1) * m.speed_step_rpm
+    if torque_max_nm is None:
+        torque_max_nm = max(abs(v) for v in m.torque_range_nm(g))
+        if seen is not None and math.isfinite(seen[1]) and seen[1] > torque_max_nm:
+            torque_max_nm = (math.floor(seen[1] / m.torque_step_nm) + 1) * m.torque_step_nm
+    config = config.with_values({"map.speed_max_rpm": float(speed_max_rpm), "map.torque_min_nm": -float(torque_max_nm),
+                                 "map.torque_max_nm": float(torque_max_nm)})
     speeds_rpm, torques = map_grid(config)
     noise = config.estimator.speed_noise_rad_s
     smoothing = 3.0 * noise if isinstance(noise, float) and noise > 0 else 0.0
@@ -106,7 +142,9 @@ def loss_table(config: Config, oil_grid_c: tuple[float, float, float] | None = N
     loss = np.stack([planes[theta] for theta in temperatures], axis=-1)
     est = config.estimator
     table = LossTable(speeds, torques, temperatures, loss, est.min_torque_for_efficiency_nm,
-                      est.min_speed_for_efficiency_rad_s, follows)
+                      est.min_speed_for_efficiency_rad_s, follows, calibrated=seen,
+                      rated=(g.rated_speed_rpm / RPM_PER_RAD_S if g.rated_speed_rpm > 0 else math.inf,
+                             g.rated_torque_nm if g.rated_torque_nm > 0 else math.inf))
     table.interpolation_error_nm, table.interpolation_error_relative = _interpolation_error(config, table)
     return table
 

@@ -105,7 +105,8 @@ def test_the_unit_follows_the_oil_temperature_and_says_where_it_came_from(warmin
     beyond = ran["rows"][-1]  # 900 rad/s lies beyond the table: said, and nothing made up there
     assert beyond[3] is False and all(np.isnan(v) for v in beyond[:3])
     assert ran["inputs"] == ["drive_speed_rad_s", "drive_torque_nm", "oil_temperature_c"]
-    assert ran["outputs"] == ["efficiency", "inside_table", "loss_power_w", "loss_torque_nm"]
+    assert ran["outputs"] == ["efficiency", "inside_calibration", "inside_rating", "inside_table", "loss_power_w",
+                              "loss_torque_nm"]
     strings = ran["strings"]
     digest = hashlib.sha256(params.read_bytes()).hexdigest()
     assert strings["rollergear_parameters_file"] == f"cal.yaml (sha256 {digest})"
@@ -349,3 +350,58 @@ def test_the_unit_over_a_recorded_warm_up_equals_predict_within_its_stated_error
     dt = np.diff(columns["t_ns"][every]) * 1e-9
     energy_unit, energy_predict = np.sum(power[:-1] * dt), np.sum(predicted[every][:-1] * dt)
     assert abs(energy_unit - energy_predict) <= 0.01 * energy_predict, (energy_unit, energy_predict)
+
+
+def _step_booleans(unit, points) -> list[tuple[float, bool, bool, bool]]:
+    """fmpy steps the unit at each (oil temperature, torque, speed): (loss, inside_table, inside_calibration,
+    inside_rating)."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(str(unit))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(unit)), modelIdentifier="rollergear_gearbox",
+                      instanceName="ranges")
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    slave.exitInitializationMode()
+    rows = []
+    for i, (theta, torque, speed) in enumerate(points):
+        slave.setReal([vr["oil_temperature_c"], vr["drive_torque_nm"], vr["drive_speed_rad_s"]], [theta, torque, speed])
+        slave.doStep(currentCommunicationPoint=0.01 * i, communicationStepSize=0.01)
+        flags = slave.getBoolean([vr["inside_table"], vr["inside_calibration"], vr["inside_rating"]])
+        rows.append((slave.getReal([vr["loss_torque_nm"]])[0], *map(bool, flags)))
+    strings = {n: slave.getString([vr[n]])[0].decode() for n in ("rollergear_calibrated_range",
+                                                                   "rollergear_rated_range")}
+    slave.terminate()
+    slave.freeInstance()
+    return rows, strings
+
+
+def test_the_table_covers_what_the_calibration_saw_and_each_step_says_where_it_is_known(tmp_path):
+    """A file calibrated up to 500 rad/s and 150 N·m (beyond the 3000 rpm / 100 N·m rating), oil 20 … 80 °C:
+    the table reaches past both (it stopped at the rating: NaN at 480 rad/s), and each step says whether
+    the point lies within what the calibration saw (the oil's span too) and within the rating; the unit names
+    both ranges.  ``--speed-max-rpm`` and ``--torque-max-nm`` widen it further; beyond the table, NaN."""
+    form = ('{"verdict":"effects_found","seen":{"speed_rad_s":500.0,"torque_nm":150.0,'
+            '"oil_temperature_c":[20.0,80.0]}}')
+    params = tmp_path / "cal.yaml"
+    params.write_text(WARMING + f"    calibration:\n      model_form: '{form}'\n")
+    unit = tmp_path / "g.fmu"
+    said = run_cli("export", "--fmu", str(unit), "--params", str(params)).stdout
+    assert "calibrated: |w| <= 500 rad/s, |T| <= 150 N*m, oil 20 ... 80 degC" in said, said
+    rows, strings = _step_booleans(unit, [[40.0, 50.0, 200.0], [40.0, 120.0, 480.0], [-10.0, 50.0, 200.0],
+                                          [40.0, 50.0, 700.0]])
+    assert rows[0][1:] == (True, True, True) and np.isfinite(rows[0][0])
+    assert rows[1][1:] == (True, True, False) and np.isfinite(rows[1][0])  # calibrated beyond the rating
+    assert rows[2][1:] == (True, False, True)  # the oil colder than any the calibration saw
+    assert rows[3][1:] == (False, False, False) and np.isnan(rows[3][0])  # beyond the table
+    assert strings["rollergear_calibrated_range"] == "|w| <= 500 rad/s, |T| <= 150 N*m, oil 20 ... 80 degC"
+    assert strings["rollergear_rated_range"] == "|w| <= 314.159 rad/s, |T| <= 100 N*m"
+    wide = tmp_path / "wide.fmu"
+    run_cli("export", "--fmu", str(wide), "--speed-max-rpm", "9000", "--torque-max-nm", "300")
+    rows, strings = _step_booleans(wide, [[40.0, 250.0, 900.0], [40.0, 50.0, 200.0]])
+    assert rows[0][1:] == (True, False, False) and np.isfinite(rows[0][0])
+    assert rows[1][1:] == (True, False, True)  # no calibrated range stated: nothing is known to be calibrated
+    assert strings["rollergear_calibrated_range"].startswith("not stated")

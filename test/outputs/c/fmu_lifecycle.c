@@ -28,16 +28,18 @@ static double hostile(void) {
 }
 
 static void steps(fmi2Component c, int n) {
-    const fmi2ValueReference in[3] = {0, 1, 2}, out[3] = {3, 4, 5}, inside_vr = 0;
+    const fmi2ValueReference in[3] = {0, 1, 2}, out[3] = {3, 4, 5}, inside_vr = 0, flags_vr[3] = {0, 1, 2};
     int i;
     for (i = 0; i < n; i++) {
         double x[3], y[3];
-        fmi2Boolean inside;
+        fmi2Boolean inside, flags[3];
         x[0] = hostile(); x[1] = hostile(); x[2] = hostile();
         CHECK(fmi2SetReal(c, in, 3, x) == fmi2OK);
         CHECK(fmi2DoStep(c, 0.01 * i, 0.01, fmi2True) == fmi2OK);
         CHECK(fmi2GetReal(c, out, 3, y) == fmi2OK);
         CHECK(fmi2GetBoolean(c, &inside_vr, 1, &inside) == fmi2OK);
+        CHECK(fmi2GetBoolean(c, flags_vr, 3, flags) == fmi2OK && flags[0] == inside);
+        if (!inside) CHECK(!flags[1] && !flags[2]);
         if (!isfinite(x[0]) || !isfinite(x[1]) || !isfinite(x[2])) CHECK(!inside);
         if (!inside) CHECK(isnan(y[0]) && isnan(y[1]) && isnan(y[2]));
         else CHECK(isfinite(y[0]) && y[0] >= 0.0 && isfinite(y[1]));
