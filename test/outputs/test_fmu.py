@@ -405,3 +405,12 @@ def test_the_table_covers_what_the_calibration_saw_and_each_step_says_where_it_i
     assert rows[0][1:] == (True, False, False) and np.isfinite(rows[0][0])
     assert rows[1][1:] == (True, False, True)  # no calibrated range stated: nothing is known to be calibrated
     assert strings["rollergear_calibrated_range"].startswith("not stated")
+
+
+def test_without_a_c_compiler_export_is_one_line_and_writes_nothing(tmp_path):
+    """No ``$CC`` and no ``cc`` or ``gcc`` on the PATH: one error line naming what to install, exit 2."""
+    out = tmp_path / "g.fmu"
+    proc = run_cli("export", "--fmu", str(out), env={"PATH": str(tmp_path), "CC": ""}, check=False)
+    assert proc.returncode == 2 and not out.exists(), proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("rollergear: error: export --fmu builds the unit's binary "
+                                                           "with the machine's C compiler and found none"), proc.stderr
