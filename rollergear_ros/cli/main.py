@@ -189,7 +189,13 @@ def _write_maps(args: argparse.Namespace, config, speeds: np.ndarray, torques: n
     from ..outputs.lossmap import build_map, coverage_warning, map_comments, plot_map, vtlm_problems, write_vtlm
     from ..outputs.oiltable import oil_dependence_warning
 
+    from ..core.modelform import ModelForm
+    from ..core.operating_points import reference_temperature_c
+
     params_path = Path(args.params) if args.params else default_params_path()
+    reference = reference_temperature_c(config)  # None: the model follows no oil
+    form = ModelForm.from_text(config.calibration.model_form)
+    oil_seen = form.seen_oil_c if form is not None and reference is not None else None
     maps = []  # (temperature, path, map)
     for temperature, out in forward.items():
         maps.append((temperature, out, build_map(config, speeds, torques, temperature)))
@@ -209,8 +215,15 @@ def _write_maps(args: argparse.Namespace, config, speeds: np.ndarray, torques: n
               f"{'' if temperature is None else f', oil {temperature:g} °C'})" + (f" and {png}" if png else ""))
         if np.isfinite(eta).any():
             model_share = 100.0 * float(np.sum(loss_map.model_nm)) / max(float(np.sum(loss_map.loss_nm)), 1e-300)
+            where = ("" if reference is None else
+                     f" at the file's viscosity (gearbox.eta0_pa_s, the oil at {reference:g} °C)")
             print(f"  efficiency {100 * np.nanmin(eta):.2f} … {100 * np.nanmax(eta):.2f} %, "
-                  f"max loss {loss_map.loss_nm.max():.4f} N·m; the paper's model: {model_share:.0f} % of the loss")
+                  f"max loss {loss_map.loss_nm.max():.4f} N·m; the paper's model alone{where}: {model_share:.0f} % "
+                  "of this map's loss, summed over its points")
+        if oil_seen is not None and temperature is not None and not oil_seen[0] <= temperature <= oil_seen[1]:
+            print(f"rollergear: warning: {path}: oil {temperature:g} °C lies outside the oil temperatures the "
+                  f"calibration saw ({oil_seen[0]:g} … {oil_seen[1]:g} °C): the oil's law is extrapolated there",
+                  file=sys.stderr)
     if table is not None:
         from ..outputs.oiltable import write_long_table
 

@@ -118,7 +118,7 @@ def test_map_obeys_vectos_rules_and_reverse_rotation_goes_to_its_own_file(tmp_pa
     np.testing.assert_allclose(backward[:, 2], lm.loss_magnitude(-backward[:, 1], -w), rtol=1e-5, atol=1e-9)
     for png in (tmp_path / "map.png", tmp_path / "map_reverse.png"):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
-    assert "the paper's model: 100 % of the loss" in proc.stdout
+    assert "the paper's model alone: 100 % of this map's loss, summed over its points" in proc.stdout
 
 
 def test_map_grid_from_the_parameter_file_ends_at_the_rated_speed(tmp_path):

@@ -81,3 +81,20 @@ def test_bad_temperatures_or_tables_are_one_line_and_nothing_is_written(tmp_path
     last = proc.stderr.strip().splitlines()[-1]  # argparse's own errors come after its usage lines
     assert proc.returncode == 2 and message in last and "Traceback" not in proc.stderr, proc.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_map_in_oil_the_calibration_never_saw_is_said_and_its_share_says_of_what(tmp_path):
+    """A file calibrated in oil at 30 … 70 °C mapped at 0, 50 and 100 °C: the maps at 0 and 100 °C are said to
+    lie outside what the calibration saw (the oil's law extrapolated), the one at 50 °C is not; the paper's
+    model's share says of what it is a share (it printed "128 % of the loss" at 60 °C, unsaid of what)."""
+    params = tmp_path / "warming.yaml"
+    params.write_text(WARMING + "    calibration:\n      model_form: '{\"verdict\":\"effects_found\",\"seen\":"
+                      "{\"speed_rad_s\":300.0,\"torque_nm\":50.0,\"oil_temperature_c\":[30.0,70.0]}}'\n")
+    proc = run_cli("map", "--out", str(tmp_path / "gb.vtlm"), "--params", str(params), "--oil-temperature-c", "0",
+                   "50", "100", *GRID, "--no-plot")
+    for t in (0, 100):
+        assert (f"gb_{t}C.vtlm: oil {t} °C lies outside the oil temperatures the calibration saw (30 … 70 °C): "
+                "the oil's law is extrapolated there") in proc.stderr, proc.stderr
+    assert "gb_50C.vtlm: oil" not in proc.stderr
+    assert ("the paper's model alone at the file's viscosity (gearbox.eta0_pa_s, the oil at 40 °C): "
+            in proc.stdout) and "of this map's loss, summed over its points" in proc.stdout, proc.stdout
