@@ -115,10 +115,29 @@ def calibrate(data: SampleData, config: Config,
         raise UsageError(f"unknown effect(s) to assume: {', '.join(unknown)} (one of {', '.join(EFFECTS)})")
     stage = settings.stage or (lambda text: None)
     how = _Analysis(settings.delta_nm, settings.block_s, settings.folds, stage, tuple(settings.assume))
+    config = _without_testable_derived(data, config)
     result = _readings_as_written(data, config, settings, how, _over_time(data, config, settings, how))
     if data.beyond_text:  # left out of the analysis, said with the limit and the setting to raise
         result.notes.append(f"left out as implausible: {data.beyond_text}")
     return result
+
+
+def _without_testable_derived(data: SampleData, config: Config) -> Config:
+    """``config`` without the effects it derived (the oil's data sheet's law) that this data can test: those are
+    candidates, fitted whole from where the data sheet starts them; one the data cannot test stays in the model
+    as the file states it (:attr:`~core.params.EffectParams.derived`)."""
+    from dataclasses import replace
+
+    from .blocks import testability
+
+    derived = config.effects.derived
+    testable = [n for n in derived if not testability(data)[n]] if derived else []
+    if not testable:
+        return config
+    e = config.effects
+    switches = {n: on and n not in testable for n, on in e.switches.items()}
+    kept = tuple(n for n in derived if n not in testable)
+    return replace(config, effects=replace(e, switches=switches, derived=kept, set_aside=tuple(testable)))
 
 
 def _readings_as_written(data: SampleData, config: Config, settings: CalibrationSettings, how: _Analysis,
@@ -445,7 +464,8 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
     idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
     # the parameter file as given (at the recordings' speed noise and ratio where its own were off them:
     # rig facts corrected either way, said), replayed through the one forward path
-    given = config.with_values(data.overrides) if data.overrides else config
+    given = config.as_given()
+    given = given.with_values(data.overrides) if data.overrides else given
     if before is None:
         error_before, sample_before, s_b = _file_errors(data, blocks0, given)
         err_b = blocks0.mean(s_b)  # the residual it leaves, as block means

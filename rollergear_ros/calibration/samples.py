@@ -18,6 +18,7 @@ from ..sources.channelmap import ChannelMap
 from ..base.errors import BagError, InputFileError
 from ..base.interface import Metadata
 from ..core.model import LossModel
+from ..core.effects import EFFECTS
 from ..core.params import Config, validate
 from ..core.speednoise import reading_noise
 from ..sources.tables import SteadyStateTable
@@ -229,6 +230,7 @@ def bare_config(config: Config) -> Config:
     from ..core.lagalign import LAG_CHANNELS
 
     return validate({k: v for k, v in config.to_flat().items() if not k.startswith("effects.")}
+                    | {f"effects.{n}.enabled": False for n in EFFECTS}  # no oil law either, not the data sheet's
                     | {"estimator.adapt": False} | {f"estimator.{c}_lag_s": 0.0 for c in LAG_CHANNELS})
 
 

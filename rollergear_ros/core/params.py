@@ -15,6 +15,7 @@ metres, angles degrees (``_deg``), viscosities Pa·s.  No rclpy import here.
 
 from __future__ import annotations
 
+import functools
 import math
 import re
 from dataclasses import dataclass, field
@@ -87,6 +88,10 @@ class EffectParams:
 
     switches: Mapping[str, bool] = field(default_factory=dict)  #: effect -> enabled
     values: Mapping[str, Mapping[str, float]] = field(default_factory=dict)  #: effect -> key -> value
+    #: enabled effects the file states no values of, derived from what it does state (the oil's data sheet's law)
+    derived: tuple[str, ...] = ()
+    #: derived effects ``calibrate`` set aside to fit them whole (the file as given has them: :meth:`as_given`)
+    set_aside: tuple[str, ...] = ()
 
     def enabled(self) -> tuple[str, ...]:
         """Names of the enabled effects, in registry order."""
@@ -278,6 +283,13 @@ class Config:
             return self.effects.values.get(effect, {}).get(key, spec.default)
         return getattr(getattr(self, section), rest)
 
+    def as_given(self) -> Config:
+        """The parameter file as given: with the derived effects ``calibrate`` set aside derived again."""
+        if not self.effects.set_aside:
+            return self
+        return validate({k: v for k, v in self.to_flat().items()
+                         if k not in {f"effects.{n}.enabled" for n in self.effects.set_aside}})
+
     def with_values(self, values: Mapping[str, Any]) -> Config:
         """A new validated config with some dotted parameters changed."""
         flat = self.to_flat()
@@ -363,10 +375,48 @@ def validate(values: Mapping[str, Any]) -> Config:
                 effect_values.setdefault(effect, {})[key] = value
         else:
             checked[section][rest] = value
-    config = Config(effects=EffectParams(switches, effect_values),
+    # a file that states the oil's data sheet and says nothing of a law: the data sheet's law
+    derived = () if f"effects.{viscosity_law_name()}.enabled" in values else \
+        _datasheet_law(checked["gearbox"], switches, effect_values)
+    config = Config(effects=EffectParams(switches, effect_values, derived),
                     **{k: _SECTION_TYPES[k](**v) for k, v in checked.items()})
     _check_consistency(config)
     return config
+
+
+def viscosity_law_name() -> str:
+    from .effects import viscosity_law
+
+    return viscosity_law().name
+
+
+def _datasheet_law(gearbox: dict[str, Any], switches: dict[str, bool],
+                   effect_values: dict[str, dict[str, float]]) -> tuple[str, ...]:
+    """An oil's data sheet (``gearbox.oil_nu40_mm2_s``, ``oil_nu100_mm2_s``) is a viscosity law: where the file
+    states one and says nothing of a law (no ``effects.viscosity_temperature.enabled``), the law is the data sheet's
+    (ASTM D341 as the closest Vogel law, :func:`.oil.vogel_from_datasheet`; ``gearbox.eta0_pa_s`` the viscosity
+    at its reference, 40 °C), so that every command and the node follow the oil the file names.  Returns the
+    effects so derived (``calibrate`` fits the law whole, from the data sheet, where the data can test it)."""
+    from .effects import viscosity_law
+
+    nu40, nu100 = gearbox.get("oil_nu40_mm2_s", 0.0), gearbox.get("oil_nu100_mm2_s", 0.0)
+    law = viscosity_law()
+    if not (nu40 > nu100 >= MIN_OIL_NU_MM2_S) or switches.get(law.name, False):
+        return ()  # no data sheet, or one _check_consistency refuses; or the file's own law
+    b_k, c_k = _datasheet_vogel(float(nu40), float(nu100), float(gearbox.get("oil_density15_kg_m3", 880.0)))
+    keys = {q.short: q.key for q in law.parameters}
+    switches[law.name] = True
+    effect_values[law.name] = dict(effect_values.get(law.name, {})) | {
+        keys["B"]: b_k, keys["C"]: c_k, keys["theta_ref"]: 40.0, keys["scale"]: 1.0}
+    return (law.name,)
+
+
+@functools.lru_cache(maxsize=64)
+def _datasheet_vogel(nu40: float, nu100: float, density15: float) -> tuple[float, float]:
+    from .oil import vogel_from_datasheet
+
+    b_k, c_k, _eta = vogel_from_datasheet(nu40, nu100, density15, theta_ref_c=40.0)
+    return round(b_k, 6), round(c_k, 6)
 
 
 #: the smallest size a split recording's files may be given (a file holds its header, provenance and summary)

@@ -137,7 +137,8 @@ GEARBOX_SPECS: tuple[ParamSpec, ...] = (
     _g("rated_torque_nm", 100.0, "N*m", "rated input torque (the loss map's torque range by default: ± this)",
        low=0.0, low_open=True, high=1e7),
     _g("oil_nu40_mm2_s", 0.0, "mm^2/s", "the oil's data-sheet kinematic viscosity at 40 degC (0 = not known): "
-       "calibrate's viscosity law starts from it (ASTM D341)", low=0.0, high=1e5),
+       "with oil_nu100_mm2_s and no effects.viscosity_temperature stated, the loss follows its law (ASTM D341); "
+       "calibrate's viscosity law starts from it", low=0.0, high=1e5),
     _g("oil_nu100_mm2_s", 0.0, "mm^2/s", "the oil's data-sheet kinematic viscosity at 100 degC (0 = not known)",
        low=0.0, high=1e5),
     _g("oil_density15_kg_m3", 880.0, "kg/m^3", "the oil's density at 15 degC (data sheet)", low=500.0, high=1500.0),

@@ -13,7 +13,7 @@ from pathlib import Path
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from ..base.errors import ParameterError
-from ..core.params import Config, validate
+from ..core.params import Config, validate, viscosity_law_name
 from ..core.paramspecs import parameter_specs
 
 __all__ = ["check_new_output", "check_params_files", "declare_parameters", "live_provenance",
@@ -105,7 +105,9 @@ def declare_parameters(node) -> Config:
             override = overrides.get(spec.name)
             value = override.value if override is not None else spec.default
             raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
-    flat = {spec.name: node.get_parameter(spec.name).value for spec in parameter_specs()}
+    flat = {spec.name: node.get_parameter(spec.name).value for spec in parameter_specs()
+            if spec.name in overrides or spec.name != f"effects.{viscosity_law_name()}.enabled"}  # the data sheet's law
+    # where the files state none (validate derives it)
     # an override of no declared parameter (``-p gearbox.dw_mm:=0.1``) would be ignored by
     # rclpy, the node running on the default: validate() refuses it with "did you mean"
     flat.update({name: p.value for name, p in overrides.items()

@@ -221,3 +221,36 @@ def test_a_split_size_no_file_reaches_is_refused():
         validate({"node.record_max_mb": 1e-9})
     assert validate({"node.record_max_mb": 0.0}).node.record_max_mb == 0.0
     assert validate({"node.record_max_mb": 0.5}).node.record_max_mb == 0.5
+
+
+def test_a_file_stating_the_oils_data_sheet_follows_its_law_in_every_command(tmp_path):
+    """``gearbox.oil_nu40_mm2_s: 100, oil_nu100_mm2_s: 11`` and nothing of a law: ``model`` at 20 and 80 °C
+    gave the same loss; now the data sheet's law (ASTM D341 as Vogel B, C) is the file's, exactly the file that
+    states that law, in ``model`` as in the FMU's table and ``predict``; switched off beside it, no oil is
+    followed."""
+    import json
+
+    from helpers import run_cli
+
+    from rollergear_ros.core.oil import vogel_from_datasheet
+
+    sheet = tmp_path / "sheet.yaml"
+    sheet.write_text("/**/loss_estimator:\n  ros__parameters:\n"
+                     "    gearbox: {oil_nu40_mm2_s: 100.0, oil_nu100_mm2_s: 11.0}\n")
+    b_k, c_k, _ = vogel_from_datasheet(100.0, 11.0, 880.0, theta_ref_c=40.0)
+    law = tmp_path / "law.yaml"
+    law.write_text(sheet.read_text() + "    effects:\n      viscosity_temperature: {enabled: true, "
+                   f"B_k: {round(b_k, 6)!r}, C_k: {round(c_k, 6)!r}, theta_ref_c: 40.0, scale: 1.0}}\n")
+    off = tmp_path / "off.yaml"
+    off.write_text(sheet.read_text() + "    effects:\n      viscosity_temperature: {enabled: false}\n")
+
+    def loss(params, theta):
+        out = run_cli("model", "--params", str(params), "--torque", "50", "--speed", "100", "--oil-temperature-c",
+                      str(theta), "--json").stdout
+        return json.loads(out)["points"][0]["loss_torque_nm"]
+
+    cold, warm = loss(sheet, 20), loss(sheet, 80)
+    assert cold > 2 * warm, (cold, warm)
+    assert (cold, warm) == (loss(law, 20), loss(law, 80))
+    assert load_config(sheet).effects.derived == ("viscosity_temperature",) and not load_config(law).effects.derived
+    assert loss(off, 20) == loss(off, 80)

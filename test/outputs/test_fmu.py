@@ -352,9 +352,9 @@ def test_the_unit_over_a_recorded_warm_up_equals_predict_within_its_stated_error
     assert abs(energy_unit - energy_predict) <= 0.01 * energy_predict, (energy_unit, energy_predict)
 
 
-def _step_booleans(unit, points) -> list[tuple[float, bool, bool, bool]]:
-    """fmpy steps the unit at each (oil temperature, torque, speed): (loss, inside_table, inside_calibration,
-    inside_rating)."""
+def _step_booleans(unit, points) -> tuple[list[tuple[float, bool, bool, bool]], dict[str, str]]:
+    """The unit stepped by fmpy at each (oil temperature, torque, speed): (loss, inside_table, inside_calibration,
+    inside_rating) per point, and its two range strings."""
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 

@@ -252,7 +252,8 @@ def test_beyond_the_calibration_the_band_stays_physical_on_every_axis_the_oil_te
     seen = ('{"verdict":"effects_found","seen":{"speed_rad_s":50.0,"torque_nm":20.0,'
             '"oil_temperature_c":[40.0,65.0]}}')
     oil = ("      viscosity_temperature: {enabled: true, B_k: 1100.0, C_k: 95.0, theta_ref_c: 40.0, scale: 1.0}\n"
-           "      drag_viscous: {enabled: true, c: 1.0e-3, p: 1.2, a: 0.8, B_k: 1100.0, C_k: 95.0, theta_ref_c: 40.0}\n")
+           "      drag_viscous: {enabled: true, c: 1.0e-3, p: 1.2, a: 0.8, B_k: 1100.0, C_k: 95.0, "
+           "theta_ref_c: 40.0}\n")
     params = tmp_path / "cal.yaml"
     params.write_text(CALIBRATED.replace("    calibration:\n", oil + "    calibration:\n")
                       + f"      model_form: '{seen}'\n")
@@ -264,8 +265,8 @@ def test_beyond_the_calibration_the_band_stays_physical_on_every_axis_the_oil_te
     assert got.beyond_samples == len(fast) and got.beyond_by_axis["oil temperature"] == len(fast)
     assert got.beyond_by_axis["speed"] == int(np.count_nonzero(np.abs(arrays["speed_rad_s"]) > 50.0))
     assert "oil outside 40 … 65 °C: " in got.text(), got.text()
-    bare = predict(arrays, config.with_values({"effects.viscosity_temperature.enabled": False,
-                                               "effects.drag_viscous.enabled": False, "effects.drag_speed.enabled": False}))
+    bare = predict(arrays, config.with_values({f"effects.{n}.enabled": False
+                                               for n in ("viscosity_temperature", "drag_viscous", "drag_speed")}))
     low, high = got.energy_band_j
     assert low >= got.energy_lost_j - got.beyond_effects_j - 1e-9 and low >= bare.energy_lost_j > 0, (low, bare)
     assert high > got.energy_lost_j + got.beyond_effects_j
