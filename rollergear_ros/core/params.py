@@ -376,7 +376,8 @@ def validate(values: Mapping[str, Any]) -> Config:
         else:
             checked[section][rest] = value
     # a file that states the oil's data sheet and says nothing of a law: the data sheet's law
-    derived = () if f"effects.{viscosity_law_name()}.enabled" in values else \
+    stated = f"effects.{viscosity_law_name()}."
+    derived = () if any(k.startswith(stated) for k in values) else \
         _datasheet_law(checked["gearbox"], switches, effect_values)
     config = Config(effects=EffectParams(switches, effect_values, derived),
                     **{k: _SECTION_TYPES[k](**v) for k, v in checked.items()})
@@ -385,6 +386,7 @@ def validate(values: Mapping[str, Any]) -> Config:
 
 
 def viscosity_law_name() -> str:
+    """The registry's viscosity law of the oil (its name: the parameter file's ``effects.<name>`` key)."""
     from .effects import viscosity_law
 
     return viscosity_law().name
@@ -393,7 +395,7 @@ def viscosity_law_name() -> str:
 def _datasheet_law(gearbox: dict[str, Any], switches: dict[str, bool],
                    effect_values: dict[str, dict[str, float]]) -> tuple[str, ...]:
     """An oil's data sheet (``gearbox.oil_nu40_mm2_s``, ``oil_nu100_mm2_s``) is a viscosity law: where the file
-    states one and says nothing of a law (no ``effects.viscosity_temperature.enabled``), the law is the data sheet's
+    states one and says nothing of a law (no ``effects.viscosity_temperature.*`` key), the law is the data sheet's
     (ASTM D341 as the closest Vogel law, :func:`.oil.vogel_from_datasheet`; ``gearbox.eta0_pa_s`` the viscosity
     at its reference, 40 °C), so that every command and the node follow the oil the file names.  Returns the
     effects so derived (``calibrate`` fits the law whole, from the data sheet, where the data can test it)."""
@@ -406,8 +408,7 @@ def _datasheet_law(gearbox: dict[str, Any], switches: dict[str, bool],
     b_k, c_k = _datasheet_vogel(float(nu40), float(nu100), float(gearbox.get("oil_density15_kg_m3", 880.0)))
     keys = {q.short: q.key for q in law.parameters}
     switches[law.name] = True
-    effect_values[law.name] = dict(effect_values.get(law.name, {})) | {
-        keys["B"]: b_k, keys["C"]: c_k, keys["theta_ref"]: 40.0, keys["scale"]: 1.0}
+    effect_values[law.name] = {keys["B"]: b_k, keys["C"]: c_k, keys["theta_ref"]: 40.0, keys["scale"]: 1.0}
     return (law.name,)
 
 

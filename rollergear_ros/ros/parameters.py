@@ -105,9 +105,11 @@ def declare_parameters(node) -> Config:
             override = overrides.get(spec.name)
             value = override.value if override is not None else spec.default
             raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
+    # the oil's law as the files state it: none stated (only its declared defaults), the data sheet's
+    law = f"effects.{viscosity_law_name()}."
+    stated = any(name.startswith(law) for name in overrides)
     flat = {spec.name: node.get_parameter(spec.name).value for spec in parameter_specs()
-            if spec.name in overrides or spec.name != f"effects.{viscosity_law_name()}.enabled"}  # the data sheet's law
-    # where the files state none (validate derives it)
+            if stated or not spec.name.startswith(law)}
     # an override of no declared parameter (``-p gearbox.dw_mm:=0.1``) would be ignored by
     # rclpy, the node running on the default: validate() refuses it with "did you mean"
     flat.update({name: p.value for name, p in overrides.items()
