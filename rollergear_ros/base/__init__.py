@@ -1,6 +1,7 @@
 """The base: names other tools depend on (``interface``), the output-channel table
 (``output_channels``), the one exception family (``errors``), safe YAML, atomic file writing,
-progress bars, graceful stopping and text from files made safe to show (``text``).  Imports nothing else of the package.
+progress bars, graceful stopping, text from files made safe to show (``text``) and instants on a
+recording's clock to the nanosecond (``instants``).  Imports nothing else of the package.
 """
 
 from .face import lazy_face
@@ -8,6 +9,9 @@ from .face import lazy_face
 #: the wing's API (the names other wings use) and the module that defines each
 _FACE = {
     "lazy_face": "face",
+    "Instant": "instants",
+    "iso_ns": "instants",
+    "parse_iso_ns": "instants",
     "commit": "atomic",
     "discard": "atomic",
     "named": "atomic",

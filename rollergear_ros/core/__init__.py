@@ -23,6 +23,7 @@ _FACE = {
     "MeasuredEfficiency": "measured",
     "WindowValue": "measured",
     "energy_steps_s": "measured",
+    "NO_OUTPUT_SHARE": "measured",
     "BREAKDOWN_KEYS": "model",
     "LossModel": "model",
     "reference_terms": "model",

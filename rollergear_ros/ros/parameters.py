@@ -13,7 +13,8 @@ from pathlib import Path
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
 from ..base.errors import ParameterError
-from ..core.params import Config, validate, viscosity_law_name
+from ..core.effects import viscosity_law
+from ..core.params import Config, validate
 from ..core.paramspecs import parameter_specs
 
 __all__ = ["check_new_output", "check_params_files", "declare_parameters", "live_provenance",
@@ -106,7 +107,7 @@ def declare_parameters(node) -> Config:
             value = override.value if override is not None else spec.default
             raise ParameterError(spec.name, value, f"{spec.allowed_text()} ({exc})") from None
     # the oil's law as the files state it: none stated (only its declared defaults), the data sheet's
-    law = f"effects.{viscosity_law_name()}."
+    law = f"effects.{viscosity_law().name}."
     stated = any(name.startswith(law) for name in overrides)
     flat = {spec.name: node.get_parameter(spec.name).value for spec in parameter_specs()
             if stated or not spec.name.startswith(law)}
