@@ -131,7 +131,10 @@ def _without_testable_derived(data: SampleData, config: Config) -> Config:
     from .blocks import testability
 
     derived = config.effects.derived
-    testable = [n for n in derived if not testability(data)[n]] if derived else []
+    if not derived:
+        return config
+    untestable = testability(data)
+    testable = [n for n in derived if not untestable[n]]
     if not testable:
         return config
     e = config.effects

@@ -376,20 +376,13 @@ def validate(values: Mapping[str, Any]) -> Config:
         else:
             checked[section][rest] = value
     # a file that states the oil's data sheet and says nothing of a law: the data sheet's law
-    stated = f"effects.{viscosity_law_name()}."
+    stated = f"effects.{viscosity_law().name}."
     derived = () if any(k.startswith(stated) for k in values) else \
         _datasheet_law(checked["gearbox"], switches, effect_values)
     config = Config(effects=EffectParams(switches, effect_values, derived),
                     **{k: _SECTION_TYPES[k](**v) for k, v in checked.items()})
     _check_consistency(config)
     return config
-
-
-def viscosity_law_name() -> str:
-    """The registry's viscosity law of the oil (its name: the parameter file's ``effects.<name>`` key)."""
-    from .effects import viscosity_law
-
-    return viscosity_law().name
 
 
 def _datasheet_law(gearbox: dict[str, Any], switches: dict[str, bool],
@@ -399,8 +392,6 @@ def _datasheet_law(gearbox: dict[str, Any], switches: dict[str, bool],
     (ASTM D341 as the closest Vogel law, :func:`.oil.vogel_from_datasheet`; ``gearbox.eta0_pa_s`` the viscosity
     at its reference, 40 °C), so that every command and the node follow the oil the file names.  Returns the
     effects so derived (``calibrate`` fits the law whole, from the data sheet, where the data can test it)."""
-    from .effects import viscosity_law
-
     nu40, nu100 = gearbox.get("oil_nu40_mm2_s", 0.0), gearbox.get("oil_nu100_mm2_s", 0.0)
     law = viscosity_law()
     if not (nu40 > nu100 >= MIN_OIL_NU_MM2_S) or switches.get(law.name, False):

@@ -35,7 +35,7 @@ from .estimator import BatchEstimate, Estimator
 from .effects import EFFECTS
 from .measured import energy_steps_s
 from .modelform import ModelForm
-from .operating_points import map_config, only
+from .operating_points import map_config, only, temperature_effects
 from .params import Config
 
 __all__ = ["METHOD", "Prediction", "PredictionSums", "prediction_config"]
@@ -240,8 +240,7 @@ class PredictionSums:
                                g.rated_speed_rpm * math.pi / 30.0 if g.rated_speed_rpm > 0 else math.inf)
         self.torque_limit = min(self.form.seen_torque_nm if self.form else math.inf,
                                 g.rated_torque_nm if g.rated_torque_nm > 0 else math.inf)
-        follows_oil = any(EFFECTS[n].needs_temperature for n in fixed.effects.enabled())
-        self.oil_limits = self.form.seen_oil_c if self.form and follows_oil else None
+        self.oil_limits = self.form.seen_oil_c if self.form and temperature_effects(fixed) else None
         self._paper_only = Estimator(only(fixed, ())) if fixed.effects.enabled() else None
         self.beyond_samples = 0
         self.beyond_by_axis = {"speed": 0, "torque": 0, "oil temperature": 0}
