@@ -1,6 +1,6 @@
 """Close the loop: trace the residual to effects the model lacks, fit them, report before/after.
 
-Procedure (after ``shared/closing-the-loop.md``):
+Procedure (``docs/closing-the-loop.md``):
 
 1. **Measured loss** ``T_loss,meas = (T_in·ω_in − T_out·ω_out)/|ω_in|`` (any quadrant) and the
    residual ``y = T_loss,meas − T_loss,model`` per sample (never the efficiency), the model being the

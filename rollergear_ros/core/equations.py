@@ -1,6 +1,6 @@
 """The paper's equations, one pure function each (lmfit ``lineshapes`` style), and the contact geometry.
 
-Each function's docstring gives its formula and equation number (Polák, ``shared/model-spec.md``);
+Each function's docstring gives its formula and equation number (Polák; the reading of ``docs/model.md``);
 :data:`EQUATIONS` collects them (tested across the registry).  :func:`contact_geometry` evaluates
 the load- and speed-independent ones once for a parameter set.  numpy and ``math`` only: the
 parameter set (:mod:`.params`) validates with this geometry and the model (:mod:`.model`) chains
@@ -90,7 +90,7 @@ def rolling_resistance_n(e_eq_pa, rx_m, k, g, u, w):
 
 
 def ellipse_semi_major_m(ellipse_a, rx_m, k, w):
-    """Eq. 19: ``a = 1.1552·R_x·k^0.4676·W^(1/3)`` (paper prints 1.552, see model-spec)."""
+    """Eq. 19: ``a = 1.1552·R_x·k^0.4676·W^(1/3)`` (paper prints 1.552, docs/model.md reading 3)."""
     return ellipse_a * rx_m * k ** 0.4676 * np.cbrt(w)
 
 

@@ -1,4 +1,4 @@
-"""The ball-track loss model of Polák's paper, as read by ``shared/model-spec.md``.
+"""The ball-track loss model of Polák's paper, as read by ``docs/model.md``.
 
 Pure physics: numpy and ``math`` only, no rclpy.  Each equation of the paper is a small function
 of :mod:`.equations` whose docstring gives its formula and equation number; they are collected in

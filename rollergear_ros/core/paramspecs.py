@@ -97,7 +97,7 @@ def _g(name: str, default: float, unit: str, desc: str, **kw: Any) -> ParamSpec:
     return ParamSpec("gearbox." + name, kind, default, desc, unit, read_only=False, **kw)
 
 
-#: Table 1 of the paper plus the assumptions of ``model-spec.md``.
+#: Table 1 of the paper plus the assumptions of ``docs/model.md``.
 GEARBOX_SPECS: tuple[ParamSpec, ...] = (
     _g("dw_m", 0.006, "m", "ball diameter d_w", low=0.0, low_open=True, high=0.1),
     _g("dm1_m", 0.0475, "m", "track pitch diameter of the drive disc d_m1 (eq. 4, 24)",
