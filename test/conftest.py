@@ -41,7 +41,8 @@ def pytest_collection_modifyitems(items):
 
 def pytest_xdist_make_scheduler(config, log):
     """``--dist loadfile`` with the whole of :data:`DDS_FOLDER` as one unit: one pytest-xdist worker
-    runs the tests over DDS one at a time (two at once beside a busy loop lost a test's outputs) while the other workers take the rest file by file."""
+    runs the tests over DDS one at a time (two at once beside a busy loop lost a test's outputs) while the
+    other workers take the rest file by file."""
     if config.getoption("dist") != "loadfile":
         return None
     from xdist.scheduler import LoadFileScheduling

@@ -179,3 +179,25 @@ def test_each_wing_has_a_face_that_holds_what_other_wings_import_and_imports_not
             "print(sorted(m for m in sys.modules if m.startswith('rollergear_ros.') and m.count('.') > 1))")
     loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert loaded.strip() == "['rollergear_ros.base.face']", loaded
+
+
+def test_each_verb_is_a_module_of_its_own_that_imports_no_other_verb_and_no_rclpy_until_it_runs():
+    """``cli/main.py`` is the table of verbs; each verb module takes shared options from ``cli/args.py``
+    only, never from another verb (nor the table), and building the whole parser loads no rclpy."""
+    import subprocess
+    import sys
+
+    from rollergear_ros.cli.main import VERBS
+
+    graph = import_graph()
+    verbs = {m for m in graph if m.startswith("cli.") and m not in ("cli", "cli.main", "cli.args")}
+    assert {f"cli.{module.__name__.rsplit('.', 1)[1]}" for module in VERBS.values()} == verbs
+    assert all(module.__name__.rsplit(".", 1)[1].rstrip("_") == name for name, module in VERBS.items()
+               if name != "map") and VERBS["map"].__name__.endswith(".map")
+    crossing = sorted(f"{v} -> {t}" for v in verbs for t in graph[v] if t in verbs or t == "cli.main")
+    assert crossing == [], crossing
+    assert graph["cli.main"] >= verbs
+    code = ("import sys\nfrom rollergear_ros.cli.main import build_parser\nbuild_parser()\n"
+            "print(sorted(m for m in ('rclpy', 'scipy', 'dask', 'matplotlib') if m in sys.modules))")
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert loaded.strip() == "[]", loaded

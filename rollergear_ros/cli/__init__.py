@@ -1,5 +1,5 @@
-"""The ``rollergear`` command: ``main`` (a static table of the subcommand modules) and one module
-per group of subcommands, sharing ``args``.
+"""The ``rollergear`` command: ``main`` (the table of verbs and the dispatch) and one module per verb,
+sharing ``args``.
 """
 
 #: the command is ``main.main`` (``rollergear``); nothing imports from the top of the house

@@ -1,16 +1,20 @@
 """What every ``rollergear`` subcommand module shares: the parameter file from the command line and
-argument types.  The command table (:mod:`.main`) imports the subcommand modules; they import this
-module, never the table."""
+argument types, and the options more than one verb takes (the parameter file, the channel map, the topic
+names, ``--assume``).  The command table (:mod:`.main`) imports the verb modules; they import this module,
+never the table nor each other."""
 
 from __future__ import annotations
 
 import argparse
 import math
+from dataclasses import fields
 from pathlib import Path
 
 from ..base.errors import UsageError
 from ..base.instants import Instant, parse_iso_ns
+from ..core.effects import EFFECTS
 from ..core.params import Config, load_config
+from ..recordings.messages import TopicMap
 
 DEFAULT_PARAMS = Path(__file__).resolve().parents[2] / "config" / "gearbox.yaml"
 
@@ -89,3 +93,36 @@ def window_time(s: str) -> float | Instant:
     if not (math.isfinite(v) and v >= 0):
         raise argparse.ArgumentTypeError(f"{s!r} must be a finite number of seconds, at least 0")
     return v
+
+
+def add_params_option(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """``--params YAML``, the parameter file (every subcommand that evaluates the model)."""
+    p.add_argument("--params", metavar="YAML", help="parameter file (default: config/gearbox.yaml)")
+    return p
+
+
+def add_channels_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--channels", metavar="MAP.yaml",
+                   help="channel map for CSV, Parquet, MDF4 or TDMS inputs (format in docs/interface.md)")
+
+
+def add_topic_options(p: argparse.ArgumentParser) -> None:
+    """``--topic-<name>`` for every topic of :class:`TopicMap` (and the JointState joint names)."""
+    g = p.add_argument_group("topic names (defaults from interface.md)")
+    for f in fields(TopicMap):
+        opt = f.name.replace("_", "-")
+        prefix = "" if f.name.endswith("_joint") else "topic-"
+        g.add_argument(f"--{prefix}{opt}", dest=f"topic_{f.name}", default=f.default, metavar="NAME",
+                       help=f"default {f.default}")
+
+
+def topics_from_args(args: argparse.Namespace) -> TopicMap:
+    return TopicMap(**{f.name: getattr(args, f"topic_{f.name}") for f in fields(TopicMap)})
+
+
+def add_assume_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
+    """``--assume EFFECT`` (repeatable), for ``calibrate`` and ``fleet calibrate``."""
+    p.add_argument("--assume", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
+                   help=f"{prefix}when the data cannot tell EFFECT from another effect, take it as EFFECT and write "
+                   "it (what you know of the rig, e.g. drag_constant when the torque sensors were zeroed at "
+                   "standstill); repeatable")

@@ -9,12 +9,22 @@ import os
 import sys
 from pathlib import Path
 
-from .args import block_seconds, config_from_args, positive_float, window_time
-from ..core.effects import EFFECTS
-from ..sources.paths import Output, check_outputs
-from ..base.progress import TimedProgress
 from ..base.errors import damaged_exit
-from .replay import add_channels_option, add_topic_options, topics_from_args
+from ..base.progress import TimedProgress
+from ..sources.paths import Output, check_outputs
+from .args import (
+    add_assume_option,
+    add_channels_option,
+    add_params_option,
+    add_topic_options,
+    block_seconds,
+    config_from_args,
+    positive_float,
+    topics_from_args,
+    window_time,
+)
+
+EXAMPLE = "rollergear calibrate rig.mcap --out calibrated.yaml --report report/"
 
 
 def _log(msg: str) -> None:
@@ -27,8 +37,8 @@ def _warn(msg: str) -> None:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     from ..base.atomic import together, write_text
-    from ..calibration.written import calibrated_yaml
     from ..calibration.report import REPORT_FILES, write_report
+    from ..calibration.written import calibrated_yaml
 
     check_outputs([*args.bags, args.params, args.channels],  # now, not after the whole analysis
                   [Output("--out", args.out, "yaml"), Output("--report", args.report, "folder", REPORT_FILES)])
@@ -245,16 +255,8 @@ def _error_after_warnings(result, assume: list[str]) -> list[str]:
     return lines
 
 
-def add_assume_option(p: argparse.ArgumentParser, prefix: str = "") -> None:
-    """``--assume EFFECT`` (repeatable), for ``calibrate`` and ``fleet calibrate``."""
-    p.add_argument("--assume", action="append", default=[], metavar="EFFECT", choices=list(EFFECTS),
-                   help=f"{prefix}when the data cannot tell EFFECT from another effect, take it as EFFECT and write "
-                   "it (what you know of the rig, e.g. drag_constant when the torque sensors were zeroed at "
-                   "standstill); repeatable")
-
-
-def register_calibrate(sub, with_params) -> None:
-    p = with_params(
+def register(sub) -> None:
+    p = add_params_option(
         sub.add_parser(
             "calibrate",
             help="find effects the model lacks from recordings with measured "
@@ -306,6 +308,3 @@ def _datasheet(text: str) -> tuple[float, ...]:
         raise argparse.ArgumentTypeError(f"{text!r}: need NU40 > NU100 > 0 mm^2/s (an oil is thinner when warm) "
                                          "and optionally RHO15 kg/m^3")
     return values
-
-
-REGISTER = [register_calibrate]

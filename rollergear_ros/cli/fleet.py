@@ -7,22 +7,28 @@ import math
 import sys
 from pathlib import Path
 
-from .calibrate import add_assume_option
-from .args import config_from_args
 from ..base.errors import UsageError
 from ..fleet.logs import SLICE_MESSAGES
 from ..sources.paths import Output, check_outputs
+from .args import add_assume_option, add_params_option, config_from_args
+
+EXAMPLE = "rollergear fleet calibrate fleet/ --out fleet_out/ --workers 2"
+
 
 DAY_S = 86_400
+
+
 MAX_WINDOW_DAYS = 100_000  #: about 270 years: a window's nanoseconds stay within 64 bits
+
+
 MIN_SLICE_MESSAGES = 10_000
 
 
 def cmd_fleet(args: argparse.Namespace) -> int:
     from ..fleet.cluster import dask_client
     from ..fleet.logs import discover
-    from ..fleet.run import FleetRun, run_calibrate, run_replay
     from ..fleet.report import drift, write_fleet_report
+    from ..fleet.run import FleetRun, run_calibrate, run_replay
 
     config = config_from_args(args)
     if args.workers is not None and args.workers < 1:
@@ -79,7 +85,7 @@ def _common_options(p: argparse.ArgumentParser) -> None:
                    help="gearbox identity: metadata gearbox_id, else the folder (auto); or only one of them")
 
 
-def register_fleet(sub, with_params) -> None:
+def register(sub) -> None:
     p = sub.add_parser(
         "fleet", help="replay or calibrate a fleet's recordings on Dask: fleet table, drift, report",
         description="Many recordings on a Dask cluster (a LocalCluster of worker processes unless --scheduler), "
@@ -87,7 +93,7 @@ def register_fleet(sub, with_params) -> None:
         "'rollergear fleet replay --help' and 'rollergear fleet calibrate --help' give each action's options.")
     actions = p.add_subparsers(dest="action", required=True, metavar="{replay,calibrate}",
                                help="what to run on each recording; each has its own --help")
-    r = with_params(actions.add_parser(
+    r = add_params_option(actions.add_parser(
         "replay", help="replay each recording: DIR/fleet.parquet, a row per recording",
         description="Replay each recording through the estimator on a Dask cluster: DIR/fleet.parquet (a row per "
         "recording: energy, efficiency, residual), DIR/report.md. Long recordings are replayed in time slices, "
@@ -98,7 +104,7 @@ def register_fleet(sub, with_params) -> None:
                    help="replay a recording of more messages in time slices of about N, one task each "
                    f"(default {SLICE_MESSAGES:,}: ~10 s a task on a 2-core machine of 2026)")
     r.set_defaults(func=cmd_fleet, window_days=1.0, window_hours=None, assume=[])
-    c = with_params(actions.add_parser(
+    c = add_params_option(actions.add_parser(
         "calibrate", help="calibrate each gearbox per time window: DIR/fleet_calibrate.parquet, drift",
         description="Calibrate each gearbox per time window on a Dask cluster: DIR/fleet_calibrate.parquet (a row "
         "per gearbox and window), the drift ranking in DIR/report.md, DIR/maps/<gearbox>.vtlm. A rerun with the "
@@ -112,6 +118,3 @@ def register_fleet(sub, with_params) -> None:
                       help="calibration window in hours (a rig's long recording: drift inside it)")
     add_assume_option(c)
     c.set_defaults(func=cmd_fleet, slice_messages=SLICE_MESSAGES)
-
-
-REGISTER = [register_fleet]

@@ -1,4 +1,5 @@
-"""``rollergear watch``: a running ``loss_estimator``'s estimates and status, one line per second.
+"""The watcher behind ``rollergear watch`` (:mod:`cli.watch`): a running ``loss_estimator``'s estimates and
+status, one line per second.
 
 Stands in for ``ros2 topic echo`` (the ``ros2`` CLI has no PyPI wheels) in the terminal next to a
 node and a player.  Each line gives, over the last period: estimates received per second, the mean
@@ -16,7 +17,6 @@ shown is what reached the watcher.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import datetime
 import json
@@ -28,12 +28,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..recordings.messages import decode_float64
 from ..base.interface import NAMESPACE, Topic
 from ..base.output_channels import OUTPUT_CHANNELS, float64_channels, trace_channels, window_channels
-from ..base.errors import UsageError
+from ..recordings.messages import decode_float64
 from .diagnostics import LEVEL_NAMES, STATUS_NAME
-from .player import init_for_command_line
 
 #: the channels the line formats in a place of their own; any other is added as ``name mean unit``
 _FORMATTED = ("loss_torque", "loss_power", "efficiency", "residual_torque", "efficiency_measured",
@@ -258,35 +256,3 @@ def watch(namespace: str = NAMESPACE, period_s: float = 1.0, count: int = 0, out
 def _field(value) -> str | float | int:
     """A CSV field: a figure with no value (NaN) empty."""
     return "" if isinstance(value, float) and not math.isfinite(value) else value
-
-
-def cmd_watch(args: argparse.Namespace) -> int:
-    import rclpy
-
-    if not (args.period > 0):
-        raise UsageError("--period must be > 0")
-    if not (args.until_silent >= 0):
-        raise UsageError("--until-silent must be >= 0 s")
-    init_for_command_line()
-    try:
-        fmt = "json" if args.json else "csv" if args.csv else "text"
-        return watch(args.namespace, args.period, args.count, fmt=fmt, until_silent_s=args.until_silent)
-    finally:
-        rclpy.try_shutdown()
-
-
-def register_watch(sub, with_params) -> None:  # noqa: ARG001
-    p = sub.add_parser("watch", help="print a running loss_estimator's estimates and status once a second")
-    p.add_argument("--namespace", default=NAMESPACE, help=f"the node's namespace (default {NAMESPACE})")
-    p.add_argument("--period", type=float, default=1.0, metavar="S", help="seconds per line (default 1)")
-    p.add_argument("--count", type=int, default=0, metavar="N", help="stop after N lines (default: until Ctrl-C)")
-    p.add_argument("--until-silent", type=float, default=0.0, metavar="S",
-                   help="end with exit status 3 once the node has said nothing on /diagnostics for S seconds "
-                        "(it ended, was killed or hangs; default: watch on)")
-    fmt = p.add_mutually_exclusive_group()
-    fmt.add_argument("--csv", action="store_true", help="a CSV header, then one row per period (for a logger)")
-    fmt.add_argument("--json", action="store_true", help="one JSON object per period and line (JSON Lines)")
-    p.set_defaults(func=cmd_watch)
-
-
-REGISTER = [register_watch]

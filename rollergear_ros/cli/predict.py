@@ -1,5 +1,4 @@
-"""For energy managers: ``export --fmu`` (the calibrated gearbox as a model they can run) and
-``predict`` (what a planned drive will cost, with its band)."""
+"""``rollergear predict``: what a planned drive will cost, with its band."""
 
 from __future__ import annotations
 
@@ -11,59 +10,13 @@ from pathlib import Path
 from ..base.atomic import together
 from ..base.errors import UsageError, damaged_exit
 from ..sources.paths import Output, check_outputs
-from .args import config_from_args, default_params_path, finite_float, positive_float
+from .args import add_params_option, add_topic_options, config_from_args, topics_from_args
 
-
-def cmd_export(args: argparse.Namespace) -> int:
-    from ..core.oil import OIL_TEMPERATURE_RANGE_C
-    from ..outputs.fmu import build_fmu
-
-    config = config_from_args(args)
-    out = Path(args.fmu)
-    if out.suffix.lower() != ".fmu":
-        raise UsageError(f"--fmu {out}: an FMU file ends in .fmu")
-    oil = args.oil_temperature_c
-    low, high = OIL_TEMPERATURE_RANGE_C
-    if oil is not None and not (low <= oil[0] < oil[1] <= high and oil[2] > 0 and (oil[1] - oil[0]) / oil[2] <= 1000):
-        raise UsageError(f"--oil-temperature-c START STOP STEP: {low:g} <= START < STOP <= {high:g} degC, STEP > 0, "
-                         "at most 1000 steps")
-    check_outputs([args.params], [Output("--fmu", out, "fmu")])
-    print(f"tabulating the model of {args.params or default_params_path()} …", flush=True)
-    with together():
-        table = build_fmu(config, out, args.params or default_params_path(), tuple(oil) if oil else None,
-                          args.speed_max_rpm, args.torque_max_nm)
-    calibrated, rated = table.ranges_text()
-    print(f"wrote {out}: {table.provenance['strings']['rollergear_table']}; interpolation error <= "
-          f"{table.interpolation_error_nm:.3g} N·m, <= {100 * table.interpolation_error_relative:.2g} % where the "
-          f"efficiency is defined; calibrated: {calibrated}; rated: {rated} (outputs inside_calibration, "
-          "inside_rating)")
-    return 0
-
-
-def register_export(sub, with_params) -> None:
-    p = with_params(sub.add_parser(
-        "export", help="the calibrated gearbox as an FMI 2.0 co-simulation unit (--fmu)",
-        description="A native FMI 2.0 co-simulation unit of the parameter file's model (the paper's model "
-        "and the accepted physical effects; the rig's torque-sensor errors not applied, as in map): inputs drive "
-        "torque, drive speed, oil temperature; outputs loss torque, loss power, efficiency. It carries the model as "
-        "a table with its interpolation error stated; its binary is C built at export with the machine's compiler "
-        "($CC, cc or gcc) and needs nothing on the host; its sources ship inside it (sources/)."))
-    p.add_argument("--fmu", required=True, metavar="FILE.fmu", help="the unit to write")
-    p.add_argument("--speed-max-rpm", type=positive_float, metavar="RPM",
-                   help="the table's speeds up to ± this (default: the map grid's, gearbox.rated_speed_rpm, widened "
-                        "to what the calibration saw)")
-    p.add_argument("--torque-max-nm", type=positive_float, metavar="NM",
-                   help="the table's torques ± this (default: the map grid's, ± gearbox.rated_torque_nm, widened to "
-                        "what the calibration saw)")
-    p.add_argument("--oil-temperature-c", type=finite_float, nargs=3, metavar=("START", "STOP", "STEP"),
-                   help="a model that follows the oil: the table's temperatures before refinement "
-                        "(default -20 140 5 degC; halved where the oil's viscosity changes fast)")
-    p.set_defaults(func=cmd_export)
+EXAMPLE = "rollergear predict plan.mcap --params calibrated.yaml --csv plan_losses.csv"
 
 
 def cmd_predict(args: argparse.Namespace) -> int:
     from ..replay.predict import predict
-    from .replay import topics_from_args
 
     exports = [(kind, getattr(args, kind)) for kind in ("csv", "parquet") if getattr(args, kind) is not None]
     check_outputs([args.profile, args.params, args.channels], [Output(f"--{k}", p, k) for k, p in exports])
@@ -107,10 +60,9 @@ def _write_samples(result, kind: str, path: Path) -> None:
             np.savetxt(partial, table, delimiter=",", header=header, comments="", fmt="%.9g")
 
 
-def register_predict(sub, with_params) -> None:
-    from .replay import add_topic_options
+def register(sub) -> None:
 
-    p = with_params(sub.add_parser(
+    p = add_params_option(sub.add_parser(
         "predict", help="what a planned drive will cost: loss energy and power with their 95 %% band",
         description="The loss power and energy of a profile (planned torque, speed, optionally oil temperature: "
         "an MCAP, or a CSV/Parquet/MF4/TDMS with --channels as for import) under the parameter file's model, "
@@ -127,6 +79,3 @@ def register_predict(sub, with_params) -> None:
                    help="the file's coefficients as written even where the profile has measured output torque")
     add_topic_options(p)
     p.set_defaults(func=cmd_predict)
-
-
-REGISTER = [register_export, register_predict]
