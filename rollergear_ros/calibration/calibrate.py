@@ -45,7 +45,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .blocks import Blocks, make_blocks
-from .forward import select
+from .forward import Selection, select
 from .noise import sensor_delta
 from .nuisance import apply_lags, lag_channel, lag_from_fit, median_period_s, ChannelLag
 from .outcome import CalibrationResult, Change, FoundEffect, FoundParameter, segment_summary
@@ -444,97 +444,146 @@ def _calibrate_once(data: SampleData, config: Config, how: _Analysis, before: Ca
                     applied: Mapping[str, float] | None = None) -> CalibrationResult:
     """One analysis with ``config``'s model (:func:`calibrate`); ``before``: the errors "before" are
     that result's (the parameter file as given), when this one switched the paper's model off;
-    ``applied``: the lags the samples were aligned by (channel -> s)."""
-    blocks, cal, ranges = _calibrator(data, config, how)
+    ``applied``: the lags the samples were aligned by (channel -> s).  In named steps: select the terms,
+    the errors before, the file to write, the file as given where a refit predicts no better, the claim
+    the written file makes, the result."""
+    sel = _select_terms(data, config, how)
+    before_errors = _errors_before(data, sel.blocks0, config, before)
+    cal, out = sel.cal, sel.out
+    blocks = cal.b
+    # held out: exactly what the file writes -- the accepted terms, fitted with the rest of the set
+    # (nuisance columns, ambiguous sets kept in the fit) on the other folds
+    pred_after = cal.cv_predictions(sel.final, only_terms=len(sel.selected))
+    err_a = blocks.y - pred_after
+    error_after = error_stats(err_a, blocks.measured, blocks.count)
+    verdict = _verdict(out, sel.selected, cal.delta)
+    s_a = sel.data_c.residual - pred_after[np.repeat(np.arange(len(blocks.y)), blocks.count)]
+    sample_level = {"before": before_errors.sample_level, "after": error_stats(s_a, data.measured_loss,
+                                                                                np.ones(len(s_a)))}
+    new_config = _config_to_write(data, config, sel, verdict, applied)
+    notes: list[str] = [data.ratio_text] if data.ratio_text else []
+    effects = sel.effects
+    same_terms = {e.name for e in effects} == {t.name for t in sel.start} and not sel.parameters
+    if sel.start and same_terms and before is None and error_after.rmse_nm >= before_errors.error.rmse_nm:
+        # the file's own effects, refitted, predict no better than as given: the file stands
+        notes.append(f"the parameter file's effects ({', '.join(t.name for t in sel.start)}) predict the held-out "
+                     f"data as well as a refit of them (RMSE {before_errors.error.rmse_nm:.4g} against "
+                     f"{error_after.rmse_nm:.4g} N·m): written as given")
+        effects = [_as_given(e, config) for e in effects]
+        new_config = before_errors.given
+        error_after, pred_after = before_errors.error, sel.blocks0.y - before_errors.block_residual
+        err_a = before_errors.block_residual
+    # the claim is the file: what the given and the written file leave of these samples, each replayed
+    # through the one forward path (the estimator as replay runs it); the held-out error claimed is
+    # never below what the written file leaves of the very samples it was fitted to
+    written_blocks, sample_level["after"], s_a = _file_errors(data, sel.blocks0, new_config)
+    if written_blocks.rmse_nm > error_after.rmse_nm:
+        notes.append(f"the written file replayed on these samples leaves {written_blocks.rmse_nm:.4g} N·m (block "
+                     f"means), more than the selection's held-out {error_after.rmse_nm:.4g} N·m: the error after is "
+                     "the written file's")
+        error_after = written_blocks
+    why_not = not_written_because(before_errors.error, error_after, changed(config, new_config))
+    written = why_not is None
+    if not written:
+        verdict = "inconclusive"
+        notes.append(why_not)
+    fit_adequacy = _adequacy(data, config, cal, sel.full, sel.final, sel.selected)
+    angle = angle_spectrum(data.t_ns * 1e-9, data.bag_id, data.speed, _output_speed(data), s_a) \
+        if not data.steady_state else None
+    result = CalibrationResult(
+        verdict, effects, before_errors.error, error_after, _holdout_text(blocks, how.folds), int(len(data.t_ns)),
+        cal.delta, out.rejected, out.ambiguous, out.unavailable, cal.log, sample_level, new_config, fit_adequacy,
+        blocks, pred_after, sel.parameters, written, notes, out.negative,
+        residual_structure(blocks, err_a, angle=angle, spin_test=data.spin_test))
+    result.before_residual, result.after_residual = before_errors.sample_residual, s_a
+    result.decisions, result.minimum, result.untestable = out.decisions, cal.minimum, out.untestable
+    result.lags, result.inertia = _nuisances(cal, sel.full, data, applied or {})
+    result.from_file = [t.name for t in sel.start]
+    result.hand_fit = sel.hand
+    result.groups = _heldout_groups(blocks, err_a)
+    result.calibrator, result.terms = cal, sel.final
+    return result
+
+
+@dataclass
+class _Selected:
+    """What the selection took (step 1 of :func:`_calibrate_once`)."""
+
+    cal: Calibrator  #: refitted at the corrected torque where a sensor error was taken
+    out: Selection  #: the selection's outcome (:func:`.forward.select`)
+    blocks0: Blocks  #: the block means at the torque as read
+    data_c: SampleData  #: the samples at the corrected torque
+    start: list[Term]  #: the parameter file's own effects
+    selected: list[Term]
+    final: list[Term]  #: the selected terms and the provisional ones
+    full: Fit  #: the final terms fitted on every block
+    effects: list[FoundEffect]
+    parameters: list[FoundParameter]
+    hand: dict | None  #: the engineer's least-squares line, weighed on the same folds
+
+
+def _select_terms(data: SampleData, config: Config, how: _Analysis) -> _Selected:
+    """The selection from the file's own effects, the hand fit weighed beside it, a refit at the corrected
+    torque where a sensor error was taken, the values kept in range."""
+    blocks0, cal, ranges = _calibrator(data, config, how)
     start = _file_terms(cal, config)
     out = select(cal, start, how.assume, _value_check(config, ranges))
     # the engineer's least-squares line on the same folds: the written file is never worse than it
     hand = weigh(cal, out, hand_fit(cal, _value_check(config, ranges)))
     selected: list[Term] = out.selected
     final = selected + out.provisional
-    blocks0, data_c = blocks, data
+    data_c = data
     if any(_is_sensor_error(t.name) for t in final):
         how.stage("refit at the corrected torque")
         cal, final, data_c = _refit_sensor_errors(cal, data, final, config, how)
         selected = final[: len(selected)]
     how.stage("held-out errors and intervals")
-    blocks = cal.b
     full, selected, final = _in_range(cal, selected, final, _value_check(config, ranges), out)
     effects, parameters = _found(cal, out, full, final, selected, config)
-    # held out: exactly what the file writes -- the accepted terms, fitted with the rest of the set
-    # (nuisance columns, ambiguous sets kept in the fit) on the other folds
-    pred_after = cal.cv_predictions(final, only_terms=len(selected))
-    idx_block = np.repeat(np.arange(len(blocks.y)), blocks.count)
-    # the parameter file as given (at the recordings' speed noise and ratio where its own were off them:
-    # rig facts corrected either way, said), replayed through the one forward path
+    return _Selected(cal, out, blocks0, data_c, start, selected, final, full, effects, parameters, hand)
+
+
+@dataclass(frozen=True)
+class _Before:
+    """The parameter file as given, on these samples (step 2 of :func:`_calibrate_once`)."""
+
+    given: Config  #: at the recordings' speed noise and ratio where its own were off them
+    error: ErrorStats  #: block means
+    sample_level: ErrorStats  #: per sample
+    sample_residual: np.ndarray
+    block_residual: np.ndarray
+
+
+def _errors_before(data: SampleData, blocks0: Blocks, config: Config, before: CalibrationResult | None) -> _Before:
+    """What the file as given leaves (rig facts corrected either way, said), replayed through the one forward
+    path; or ``before``'s, when this analysis switched the paper's model off."""
     given = config.as_given()
     given = given.with_values(data.overrides) if data.overrides else given
     if before is None:
         error_before, sample_before, s_b = _file_errors(data, blocks0, given)
-        err_b = blocks0.mean(s_b)  # the residual it leaves, as block means
     else:
         s_b, error_before = before.before_residual, before.error_before
         sample_before = before.sample_level["before"]
-        err_b = blocks0.mean(s_b)
-    err_a = blocks.y - pred_after
-    error_after = error_stats(err_a, blocks.measured, blocks.count)
-    verdict = _verdict(out, selected, cal.delta)
-    s_a = data_c.residual - pred_after[idx_block]
-    sample_level = {"before": sample_before, "after": error_stats(s_a, data.measured_loss, np.ones(len(s_a)))}
-    new_config = calibrated_config(config, effects, parameters, kept=_untested_file_effects(config, cal))
-    # the lags the samples were aligned by: the written file aligns them as the selection did
+    return _Before(given, error_before, sample_before, s_b, blocks0.mean(s_b))
+
+
+def _config_to_write(data: SampleData, config: Config, sel: _Selected, verdict: str,
+                     applied: Mapping[str, float] | None) -> Config:
+    """The file to write: the accepted effects and parameters, the lags the samples were aligned by (the
+    written file aligns them as the selection did), the covariance, the model form, the table's ratio and
+    the recordings' rig facts where the file's were off them."""
+    cal = sel.cal
+    new_config = calibrated_config(config, sel.effects, sel.parameters, kept=_untested_file_effects(config, cal))
     new_config = new_config.with_values({f"estimator.{c}_lag_s": (applied or {}).get(c, 0.0) for c in LAG_CHANNELS})
-    covariance = fitted_covariance(cal, final, len(selected), config)
+    covariance = fitted_covariance(cal, sel.final, len(sel.selected), config)
     new_config = new_config.with_values({"calibration.covariance": covariance.to_text() if covariance else ""})
-    new_config = new_config.with_values(
-        {"calibration.model_form": _model_form(cal, out, full, final, selected, data, verdict).to_text()})
+    new_config = new_config.with_values({"calibration.model_form": _model_form(
+        cal, sel.out, sel.full, sel.final, sel.selected, data, verdict).to_text()})
     if data.ratio is not None:  # the table's own ratio: what a map of the file states
         new_config = new_config.with_values({"gearbox.ratio": data.ratio})
     if data.overrides:  # the recordings' speed noise and ratio, where the file's were off them
         new_config = new_config.with_values(data.overrides)
-    notes: list[str] = [data.ratio_text] if data.ratio_text else []
-    same_terms = {e.name for e in effects} == {t.name for t in start} and not parameters
-    if start and same_terms and before is None and error_after.rmse_nm >= error_before.rmse_nm:
-        # the file's own effects, refitted, predict no better than as given: the file stands
-        notes.append(f"the parameter file's effects ({', '.join(t.name for t in start)}) predict the held-out data "
-                     f"as well as a refit of them (RMSE {error_before.rmse_nm:.4g} against {error_after.rmse_nm:.4g} "
-                     "N·m): written as given")
-        effects = [_as_given(e, config) for e in effects]
-        new_config = given
-        error_after, s_a, pred_after = error_before, s_b, blocks0.y - err_b
-        sample_level["after"] = sample_level["before"]
-        err_a = err_b
-    # the claim is the file: what the given and the written file leave of these samples, each replayed
-    # through the one forward path (the estimator as replay runs it); the held-out error claimed is
-    # never below what the written file leaves of the very samples it was fitted to
-    written_blocks, written_samples, s_a = _file_errors(data, blocks0, new_config)
-    sample_level["after"] = written_samples
-    if written_blocks.rmse_nm > error_after.rmse_nm:
-        notes.append(f"the written file replayed on these samples leaves {written_blocks.rmse_nm:.4g} N·m (block "
-                     f"means), more than the selection's held-out {error_after.rmse_nm:.4g} N·m: the error after is "
-                     "the written file's")
-        error_after = written_blocks
-    why_not = not_written_because(error_before, error_after, changed(config, new_config))
-    written = why_not is None
-    if not written:
-        verdict = "inconclusive"
-        notes.append(why_not)
-    fit_adequacy = _adequacy(data, config, cal, full, final, selected)
-    angle = angle_spectrum(data.t_ns * 1e-9, data.bag_id, data.speed, _output_speed(data), s_a) \
-        if not data.steady_state else None
-    result = CalibrationResult(
-        verdict, effects, error_before, error_after, _holdout_text(blocks, how.folds), int(len(data.t_ns)), cal.delta,
-        out.rejected, out.ambiguous, out.unavailable, cal.log, sample_level, new_config, fit_adequacy, blocks,
-        pred_after, parameters, written, notes, out.negative,
-        residual_structure(blocks, err_a, angle=angle, spin_test=data.spin_test))
-    result.before_residual, result.after_residual = s_b, s_a
-    result.decisions, result.minimum, result.untestable = out.decisions, cal.minimum, out.untestable
-    result.lags, result.inertia = _nuisances(cal, full, data, applied or {})
-    result.from_file = [t.name for t in start]
-    result.hand_fit = hand
-    result.groups = _heldout_groups(blocks, err_a)
-    result.calibrator, result.terms = cal, final
-    return result
+    return new_config
 
 
 def _file_terms(cal: Calibrator, config: Config) -> list[Term]:

@@ -21,7 +21,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import yaml
 
@@ -415,87 +415,147 @@ def _datasheet_vogel(nu40: float, nu100: float, density15: float) -> tuple[float
 MIN_RECORD_MB = 0.01
 
 
-def _check_consistency(config: Config) -> None:
-    if config.calibration.covariance:
-        from .covariance import covariance_problem
+#: what a consistency rule finds wrong: the key to name, its value, and what it must be
+Problem = tuple[str, Any, str]
 
-        numeric = [s.name for s in parameter_specs() if s.kind is float]
-        problem = covariance_problem(config.calibration.covariance, numeric)
-        if problem:
-            text = config.calibration.covariance
-            raise ParameterError("calibration.covariance", text if len(text) <= 60 else text[:57] + "...", problem)
-    if config.calibration.model_form:
-        from .effects import EFFECTS
-        from .modelform import model_form_problem
 
-        problem = model_form_problem(config.calibration.model_form, EFFECTS)
-        if problem:
-            text = config.calibration.model_form
-            raise ParameterError("calibration.model_form", text if len(text) <= 60 else text[:57] + "...", problem)
-    node = config.node
-    if 0 < node.record_max_mb < MIN_RECORD_MB:  # a size no file reaches with its header and summary
-        raise ParameterError("node.record_max_mb", node.record_max_mb,
-                             f"must be 0 (one file) or at least {MIN_RECORD_MB:g} MB")
+def _shortened(text: str) -> str:
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _covariance_rule(config: Config) -> Problem | None:
+    """``calibration.covariance`` names numeric parameters and is a covariance."""
+    if not config.calibration.covariance:
+        return None
+    from .covariance import covariance_problem
+
+    numeric = [s.name for s in parameter_specs() if s.kind is float]
+    problem = covariance_problem(config.calibration.covariance, numeric)
+    return ("calibration.covariance", _shortened(config.calibration.covariance), problem) if problem else None
+
+
+def _model_form_rule(config: Config) -> Problem | None:
+    """``calibration.model_form`` is one a calibration writes."""
+    if not config.calibration.model_form:
+        return None
+    from .modelform import model_form_problem
+
+    problem = model_form_problem(config.calibration.model_form, EFFECTS)
+    return ("calibration.model_form", _shortened(config.calibration.model_form), problem) if problem else None
+
+
+def _record_size_rule(config: Config) -> Problem | None:
+    """A split size some file reaches with its header and summary."""
+    mb = config.node.record_max_mb
+    return ("node.record_max_mb", mb, f"must be 0 (one file) or at least {MIN_RECORD_MB:g} MB") \
+        if 0 < mb < MIN_RECORD_MB else None
+
+
+def _balls_rule(config: Config) -> Problem | None:
     g = config.gearbox
-    if g.z > g.Z:
-        raise ParameterError("gearbox.z", g.z, f"connected balls z must be <= Z = {g.Z}")
-    if g.dm1_m <= g.dw_m:
-        raise ParameterError("gearbox.dm1_m", g.dm1_m,
-                             f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m")
-    if g.dm2_m <= g.dw_m:
-        raise ParameterError(
-            "gearbox.dm2_m", g.dm2_m, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m"
-        )
+    return ("gearbox.z", g.z, f"connected balls z must be <= Z = {g.Z}") if g.z > g.Z else None
+
+
+def _pitch_diameters_rule(config: Config) -> Problem | None:
+    """Each track's pitch diameter exceeds the ball diameter."""
+    g = config.gearbox
+    for key, value in (("gearbox.dm1_m", g.dm1_m), ("gearbox.dm2_m", g.dm2_m)):
+        if value <= g.dw_m:
+            return key, value, f"track pitch diameter must exceed the ball diameter {g.dw_m:g} m"
+    return None
+
+
+def _oil_datasheet_rule(config: Config) -> Problem | None:
+    """A data sheet's oil is thinner when warm, and a lubricating oil's viscosity (ISO VG 2 is the thinnest
+    grade; Walther's law ends below)."""
+    g = config.gearbox
     if (g.oil_nu40_mm2_s > 0 or g.oil_nu100_mm2_s > 0) and not (g.oil_nu40_mm2_s > g.oil_nu100_mm2_s > 0):
-        raise ParameterError("gearbox.oil_nu100_mm2_s", g.oil_nu100_mm2_s, f"an oil is thinner when warm: need "
-                             f"oil_nu40_mm2_s ({g.oil_nu40_mm2_s:g}) > oil_nu100_mm2_s > 0, or both 0")
-    if 0 < g.oil_nu100_mm2_s < MIN_OIL_NU_MM2_S:  # ISO VG 2 is the thinnest grade; Walther's law ends below
-        raise ParameterError("gearbox.oil_nu100_mm2_s", g.oil_nu100_mm2_s,
-                             f"a lubricating oil's viscosity is at least {MIN_OIL_NU_MM2_S:g} mm^2/s at 100 degC")
-    # the Snare term (eq. 21) needs k_j = Ry/Rx >= 1; checked on the derived geometry
+        return ("gearbox.oil_nu100_mm2_s", g.oil_nu100_mm2_s, f"an oil is thinner when warm: need "
+                f"oil_nu40_mm2_s ({g.oil_nu40_mm2_s:g}) > oil_nu100_mm2_s > 0, or both 0")
+    if 0 < g.oil_nu100_mm2_s < MIN_OIL_NU_MM2_S:
+        return ("gearbox.oil_nu100_mm2_s", g.oil_nu100_mm2_s,
+                f"a lubricating oil's viscosity is at least {MIN_OIL_NU_MM2_S:g} mm^2/s at 100 degC")
+    return None
+
+
+def _ellipticity_rule(config: Config) -> Problem | None:
+    """The Snare term (eq. 21) needs k_j = Ry/Rx >= 1: checked on the derived geometry."""
+    g = config.gearbox
     geo = contact_geometry(g)
     for j, k in ((1, geo.k1), (2, geo.k2)):
         if not (math.isfinite(k) and k >= 1.0):
-            name = f"gearbox.f{j}"
-            raise ParameterError(
-                name,
-                getattr(g, f"f{j}"),
-                f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove",
-            )
+            return (f"gearbox.f{j}", getattr(g, f"f{j}"),
+                    f"gives an ellipticity k{j} = Ry/Rx = {k:.4g} < 1 (eq. 6); use a tighter groove")
+    return None
+
+
+def _sensor_full_scale_rule(config: Config) -> Problem | None:
+    """An accuracy stated in % of a full scale needs the full scale."""
     sensors = config.sensors
     for side in ("input", "output"):
         if getattr(sensors, f"{side}_torque_fs_pct") > 0 and not getattr(sensors, f"{side}_torque_full_scale_nm") > 0:
-            raise ParameterError(f"sensors.{side}_torque_full_scale_nm", 0.0,
-                                 f"must be > 0 when sensors.{side}_torque_fs_pct states an accuracy of its full scale")
-    if not (config.node.publish_stamped or config.node.publish_float64):
-        raise ParameterError("node.publish_float64", False, "and node.publish_stamped are both off: the node would "
-                             "publish no estimate (switch one on)")
+            return (f"sensors.{side}_torque_full_scale_nm", 0.0,
+                    f"must be > 0 when sensors.{side}_torque_fs_pct states an accuracy of its full scale")
+    return None
+
+
+def _some_estimate_rule(config: Config) -> Problem | None:
+    """The node publishes its estimates one way at least."""
+    if config.node.publish_stamped or config.node.publish_float64:
+        return None
+    return ("node.publish_float64", False, "and node.publish_stamped are both off: the node would publish no "
+            "estimate (switch one on)")
+
+
+def _rerun_url_rule(config: Config) -> Problem | None:
     problem = rerun_url_problem(config.node.rerun_connect)
-    if problem:
-        raise ParameterError("node.rerun_connect", config.node.rerun_connect,
-                             f"{problem} (e.g. rerun+http://127.0.0.1:9876/proxy)")
-    if config.map.last_speed_rpm(g) < config.map.speed_min_rpm:
-        raise ParameterError("map.speed_max_rpm", config.map.speed_max_rpm,
-                             "must be >= map.speed_min_rpm (0: gearbox.rated_speed_rpm)")
-    first, last = config.map.torque_range_nm(g)
+    return ("node.rerun_connect", config.node.rerun_connect, f"{problem} (e.g. rerun+http://127.0.0.1:9876/proxy)") \
+        if problem else None
+
+
+def _map_grid_rule(config: Config) -> Problem | None:
+    """The loss map's ranges run upwards and its grid is one a map can hold."""
+    g, m = config.gearbox, config.map
+    if m.last_speed_rpm(g) < m.speed_min_rpm:
+        return "map.speed_max_rpm", m.speed_max_rpm, "must be >= map.speed_min_rpm (0: gearbox.rated_speed_rpm)"
+    first, last = m.torque_range_nm(g)
     if last < first:
-        raise ParameterError("map.torque_max_nm", config.map.torque_max_nm,
-                             f"must be >= map.torque_min_nm ({first:g} N*m; auto: ± gearbox.rated_torque_nm)")
-    m = config.map
+        return ("map.torque_max_nm", m.torque_max_nm,
+                f"must be >= map.torque_min_nm ({first:g} N*m; auto: ± gearbox.rated_torque_nm)")
     speeds, torques = (m.speed_min_rpm, m.last_speed_rpm(g), m.speed_step_rpm), m.torques_nm(g)
     for key, axis, name in (("map.speed_step_rpm", speeds, "speed"), ("map.torque_step_nm", torques, "torque")):
         problem = grid_axis_problem(*axis, name)
         if problem:
-            raise ParameterError(key, axis[2], problem)
+            return key, axis[2], problem
     problem = grid_cells_problem(grid_points(*speeds), grid_points(*torques))
-    if problem:
-        raise ParameterError("map.torque_step_nm", m.torque_step_nm, problem)
+    return ("map.torque_step_nm", m.torque_step_nm, problem) if problem else None
+
+
+def _vogel_rule(config: Config) -> Problem | None:
+    """The oil's Vogel law has a pole below its reference temperature."""
     law = viscosity_law()
-    if law.name in config.effects.enabled():
-        vogel = config.effects.params(law.name)
-        if vogel["theta_ref"] + vogel["C"] <= 0:
-            raise ParameterError(f"effects.{law.name}.{law.parameter('C').key}", vogel["C"],
-                                 "theta_ref + C must be > 0")
+    if law.name not in config.effects.enabled():
+        return None
+    vogel = config.effects.params(law.name)
+    if vogel["theta_ref"] + vogel["C"] <= 0:
+        return f"effects.{law.name}.{law.parameter('C').key}", vogel["C"], "theta_ref + C must be > 0"
+    return None
+
+
+#: the rules a parameter set obeys beyond each value's own range, in the order they are checked (the first
+#: broken one is said)
+CONSISTENCY_RULES: tuple[Callable[[Config], Problem | None], ...] = (
+    _covariance_rule, _model_form_rule, _record_size_rule, _balls_rule, _pitch_diameters_rule, _oil_datasheet_rule,
+    _ellipticity_rule, _sensor_full_scale_rule, _some_estimate_rule, _rerun_url_rule, _map_grid_rule, _vogel_rule,
+)
+
+
+def _check_consistency(config: Config) -> None:
+    """:data:`CONSISTENCY_RULES`, one after the other: the first broken one as a :class:`ParameterError`."""
+    for rule in CONSISTENCY_RULES:
+        problem = rule(config)
+        if problem:
+            raise ParameterError(*problem)
 
 
 def _flatten(prefix: str, data: Mapping[str, Any], out: dict[str, Any]) -> None:
