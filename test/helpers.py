@@ -49,7 +49,8 @@ def preempted_catch_up(seed: int) -> list[tuple[str, int, float, int | None]]:
     messages 5-15 µs apart."""
     import numpy as np
 
-    from rollergear_ros.core.pairing import LOST_VALUE, SPEED, TORQUE
+    from rollergear_ros.core.pairing import SPEED, TORQUE
+    from rollergear_ros.core.lostmarks import LOST_VALUE
 
     rng = np.random.default_rng(seed)
     sent, clock = {}, 10**15

@@ -30,8 +30,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .pairing import (CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, is_lost, is_placeholder,
-                      placeholder, placeholder_mask)
+from .pairing import CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
+from .lostmarks import is_lost, is_placeholder, placeholder, placeholder_mask
 
 RESAMPLED_CHANNELS = (SPEED, OUT_TORQUE, OUT_SPEED)
 DECIDE_TORQUE_MESSAGES = 32  #: motor torque messages a channel's rate and step are told against

@@ -25,7 +25,7 @@ import numpy as np
 from ..base.atomic import commit, discard, named, partial_path
 
 if TYPE_CHECKING:  # the command line imports this module for its names only
-    from ..core.estimator import BatchEstimate
+    from ..core.batchpath import BatchEstimate
 
 __all__ = ["COLUMNS", "EXPORT_KINDS", "Column", "Export"]
 

@@ -14,7 +14,8 @@ from ..outputs import stamped
 from ..recordings.baginfo import BagInfo
 from ..recordings.bagwriter import BagWriter, offered_qos_yaml
 from ..recordings.messages import TopicMap
-from ..core.estimator import BatchEstimate, Estimator
+from ..core.batchpath import BatchEstimate
+from ..core.estimator import Estimator
 from ..base.interface import MessageType, Metadata
 from ..base.output_channels import float64_channels, stamped_channels, window_channels
 from ..core.measured import WindowValue

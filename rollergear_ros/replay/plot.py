@@ -22,7 +22,7 @@ import numpy as np
 
 from ..base.atomic import save_figure
 from ..base.errors import UsageError
-from ..core.estimator import BatchEstimate
+from ..core.batchpath import BatchEstimate
 from ..base.interface import RPM_PER_RAD_S
 from ..core.operating_points import evaluate_points, only, temperature_effects
 from ..core.params import Config

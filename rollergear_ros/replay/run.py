@@ -23,7 +23,8 @@ from ..recordings.messages import TopicMap
 from ..base import atomic
 from ..base.errors import UsageError
 from ..base.interface import Metadata
-from ..core.estimator import BatchEstimate, Estimator
+from ..core.batchpath import BatchEstimate
+from ..core.estimator import Estimator
 from ..core.operating_points import rows_config
 from ..core.params import Config
 from ..base.progress import TimedProgress

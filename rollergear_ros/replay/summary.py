@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..core.estimator import BatchEstimate
+from ..core.batchpath import BatchEstimate
 from ..core.measured import EnergyBalance, MeasuredEfficiency, energy_steps_s
 from ..core.pairing import ARRIVAL_PAIRINGS
 from ..core.params import Config

@@ -7,7 +7,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from ..core.estimator import BatchEstimate
+from ..core.batchpath import BatchEstimate
 from .inputs import InputBatch
 from .summary import Accumulator, ReplaySummary
 

@@ -26,8 +26,8 @@ from std_msgs.msg import Float64
 from rclpy.serialization import serialize_message
 
 from ..base.interface import MessageType, Topic
-from ..core.pairing import ARRIVAL_PAIRINGS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE, \
-    SequenceGaps
+from ..core.pairing import ARRIVAL_PAIRINGS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
+from ..core.lostmarks import LOST_VALUE, SequenceGaps
 from ..recordings.messages import CDR_LE_HEADER, TopicMap, decode_float64, float64_problem
 from .diagnostics import InputMonitor
 from .intake import InputTaker

@@ -176,7 +176,7 @@ class NodeRecording:
             return
         import numpy as np
 
-        from ..core.estimator import BatchEstimate
+        from ..core.batchpath import BatchEstimate
 
         with self._lock:
             buf = list(self.estimates)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from rollergear_ros.core.estimator import Estimator
-from rollergear_ros.core.pairing import (CHANNELS, LOST_VALUE, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
-                                         SampleSynchronizer, SequenceGaps, is_lost, lost_mask, pairing_tolerance_s,
-                                         samples_to_arrays)
+from rollergear_ros.core.pairing import (CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE,
+                                         SampleSynchronizer, pairing_tolerance_s, samples_to_arrays)
+from rollergear_ros.core.lostmarks import LOST_VALUE, SequenceGaps, is_lost, lost_mask
 from rollergear_ros.core.params import load_config
 
 from helpers import preempted_catch_up
