@@ -34,7 +34,8 @@ def crc_cost(bag: Path) -> float:
     import struct
     import zlib
 
-    from rollergear_ros.recordings.fastmcap import OP_CHUNK, chunk_records
+    from rollergear_ros.recordings.records import OP_CHUNK
+    from rollergear_ros.recordings.fastmcap import chunk_records
 
     total = 0.0
     with bag.open("rb") as fh:

@@ -1,9 +1,10 @@
-"""ROS 2 MCAP recordings without ROS, by concern: ``messages`` (definitions, the topic map, the CDR
-codec), ``baginfo`` (what a bag holds, its metadata, raw messages), ``bagwriter`` (writing),
-``fastmcap`` (the one chunk reader, damage skipped and reported), ``layout`` (the one layout of
-a message record; the optional C kernel ``_records`` lays out the same bytes), ``mcapwriter`` (the
-chunked writer), ``timeorder`` (messages handed to it in log-time order), ``rolling`` (a recording
-split by size and age).  Imports ``base`` only.
+"""ROS 2 MCAP recordings without ROS, by concern: ``records`` (every record framed by hand, its read and
+write side by side), ``messages`` (definitions, the topic map, the CDR codec), ``baginfo`` (what a bag
+holds, its metadata, raw messages), ``bagwriter`` (writing), ``fastmcap`` (the one chunk reader),
+``damage`` (what a read skipped, where it resumed), ``logorder`` (messages in log-time order),
+``layout`` (message records laid out for whole arrays; the optional C kernel ``_records`` lays out the
+same bytes), ``mcapwriter`` (the chunked writer), ``timeorder`` (messages handed to it in log-time
+order), ``rolling`` (a recording split by size and age).  Imports ``base`` only.
 """
 
 from ..base.face import lazy_face
@@ -20,11 +21,11 @@ _FACE = {
     "BagWriter": "bagwriter",
     "offered_qos_yaml": "bagwriter",
     "ReadState": "fastmcap",
-    "byte_rows": "fastmcap",
-    "iter_log_time_order": "fastmcap",
+    "byte_rows": "records",
+    "iter_log_time_order": "logorder",
     "iter_message_arrays": "fastmcap",
     "preload_summary": "fastmcap",
-    "release_count": "fastmcap",
+    "release_count": "logorder",
     "CDR_LE_HEADER": "messages",
     "MSG_DEFINITIONS": "messages",
     "TopicMap": "messages",

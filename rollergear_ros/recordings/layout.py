@@ -1,50 +1,24 @@
-"""The one layout of an MCAP message record, for whole arrays of messages (no rclpy).
+"""Message records laid out for whole arrays of messages (no rclpy).
 
-:func:`message_rows` is the record as the MCAP spec lays it out (opcode, length, channel id,
-sequence, log and publish time, payload; little-endian), one record per row of a uint8 array;
-:func:`lay_out_records` places records of several payload widths in one buffer, with sequence
-numbers counted per channel.  A C function (``_records.c``, built by setup.py where a compiler is
-found) lays out exactly the same bytes in one pass; numpy does where it was not built.  Both are
-tested against the ``mcap`` library's encoder of each record.
+:func:`lay_out_records` places records of several payload widths in one buffer -- each record as
+:func:`.records.message_rows` frames it -- with sequence numbers counted per channel, and
+:func:`interleave` puts the records of several channels in their order.  A C function (``_records.c``,
+built by setup.py where a compiler is found) lays out exactly the same bytes in one pass; numpy does
+where it was not built.  Both are tested against the ``mcap`` library's encoder of each record.
 """
 
 from __future__ import annotations
 
 import functools
-import struct
 
 import numpy as np
 
-from .fastmcap import _MSG_FIXED, OP_MESSAGE, byte_rows
+from .records import MESSAGE_FIXED, byte_rows, message_rows
 
 try:  # the record layout in C (built by setup.py where a compiler is found)
     from ._records import records as _native_records
 except ImportError:  # pragma: no cover - a build without a compiler: numpy lays out the records
     _native_records = None
-
-
-def message_rows(channel_id: np.ndarray, log_time: np.ndarray, payload: np.ndarray,
-                 sequence: np.ndarray | None = None, publish_time: np.ndarray | None = None) -> np.ndarray:
-    """Message records (one row each) for payloads of equal length: the MCAP message record, opcode
-    0x05, its length, channel id (uint16), sequence (uint32; None leaves 0), log time and publish time
-    (uint64; ``publish_time`` None: the log time), the payload -- all little-endian.  The one layout
-    of a message record in the package (``_records.c`` lays out exactly this, faster)."""
-    n, plen = payload.shape
-    rows = np.empty((n, 9 + _MSG_FIXED + plen), dtype=np.uint8)
-    rows[:, 0] = OP_MESSAGE
-    rows[:, 1:9] = np.frombuffer(struct.pack("<Q", _MSG_FIXED + plen), dtype=np.uint8)
-    rows[:, 9:11] = np.ascontiguousarray(channel_id, dtype="<u2").view(np.uint8).reshape(n, 2)
-    if sequence is None:
-        rows[:, 11:15] = 0
-    else:
-        rows[:, 11:15] = (sequence & 0xFFFFFFFF).astype("<u4").view(np.uint8).reshape(n, 4)
-    rows[:, 15:23] = np.ascontiguousarray(log_time, dtype="<i8").view(np.uint8).reshape(n, 8)
-    if publish_time is None:
-        rows[:, 23:31] = rows[:, 15:23]
-    else:
-        rows[:, 23:31] = np.ascontiguousarray(publish_time, dtype="<i8").view(np.uint8).reshape(n, 8)
-    rows[:, 31:] = payload
-    return rows
 
 
 def lay_out_records(starts: np.ndarray, size: int, channel_id: np.ndarray, log_time: np.ndarray,
@@ -117,7 +91,7 @@ def _check_layout(starts: np.ndarray, size: int, channel_id: np.ndarray, log_tim
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(f"channel[{i}] = {int(channel_id[i])}: no counter")
-    bad = (starts < 0) | (starts > size - 9 - _MSG_FIXED - widths[group])
+    bad = (starts < 0) | (starts > size - 9 - MESSAGE_FIXED - widths[group])
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise ValueError(f"starts[{i}] = {int(starts[i])}: the record ends beyond out")

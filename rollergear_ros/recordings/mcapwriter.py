@@ -9,18 +9,16 @@ bytes (tested).
 from __future__ import annotations
 
 import os
-import struct
 import zlib
 from pathlib import Path
 
 import numpy as np
 from mcap.opcode import Opcode
 from mcap.well_known import Profile
-from mcap.writer import MCAP0_MAGIC as MAGIC
 
 from ..base import atomic
-from .fastmcap import _MSG_FIXED
 from .layout import lay_out_records
+from .records import MAGIC, MESSAGE_FIXED, chunk_head, footer_head, message_index_head
 
 #: records laid out per pass (a few chunks: whole arrays amortise the per-call cost, and a whole
 #: recording added at once still costs no more than this beside it)
@@ -197,7 +195,7 @@ class ChunkedMcapWriter:
                  payloads: list[np.ndarray], publish_time: np.ndarray | None) -> None:
         """:meth:`add_mixed` of int64 arrays (``publish_time`` None: the log times)."""
         n = len(log_time)
-        rec_of_group = np.array([9 + _MSG_FIXED + p.shape[1] for p in payloads], dtype=np.int64)
+        rec_of_group = np.array([9 + MESSAGE_FIXED + p.shape[1] for p in payloads], dtype=np.int64)
         ends = np.cumsum(rec_of_group[group])
         start = 0
         while start < n:
@@ -267,7 +265,7 @@ class ChunkedMcapWriter:
         if type(data) is not bytes:  # a copy of a buffer its owner may change before the layout
             data = bytes(data)
         self._one_by_one.append((channel_id, log_time, publish_time, data))
-        self._one_by_one_bytes += 9 + _MSG_FIXED + len(data)
+        self._one_by_one_bytes += 9 + MESSAGE_FIXED + len(data)
         if self._size + self._one_by_one_bytes >= self.chunk_size:
             self.flush_chunk()
 
@@ -334,8 +332,7 @@ class ChunkedMcapWriter:
         summary_start = data_end + len(head)
         summary, summary_offset_start = self._summary(summary_start, chunk_indexes)
         # the summary CRC covers the summary section and the footer's fields before it (MCAP spec)
-        footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
-        summary_crc = zlib.crc32(footer_head, zlib.crc32(summary))
+        summary_crc = zlib.crc32(footer_head(summary_start, summary_offset_start), zlib.crc32(summary))
         fb = RecordBuilder()
         Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
                summary_crc=summary_crc).write(fb)
@@ -430,15 +427,14 @@ class ChunkedMcapWriter:
         from mcap.records import ChunkIndex
 
         compressed = self._zstd.compress(data)
-        fields = struct.pack("<QQQII4sQ", start, end, len(data), zlib.crc32(data), 4, b"zstd", len(compressed))
         chunk_offset = at = self._position()
-        parts = [struct.pack("<BQ", Opcode.CHUNK, len(fields) + len(compressed)) + fields, compressed]
+        parts = [chunk_head(start, end, len(data), zlib.crc32(data), len(compressed)), compressed]
         at += len(parts[0]) + len(compressed)
         chunk_length = at - chunk_offset
         index_offsets: dict[int, int] = {}
         for cid, entries in _message_indexes(index):
             index_offsets[cid] = at
-            parts += [struct.pack("<BQHI", Opcode.MESSAGE_INDEX, 6 + entries.nbytes, cid, entries.nbytes), entries]
+            parts += [message_index_head(cid, entries.nbytes), entries]
             at += len(parts[-2]) + entries.nbytes
         self._append(parts)
         self._chunk_indexes.append(ChunkIndex(

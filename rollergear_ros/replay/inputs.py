@@ -17,7 +17,7 @@ from ..base.errors import BagError
 from ..recordings.baginfo import BagInfo, RawBatch, iter_raw_batches, median_period_s, read_metadata
 from ..recordings.bagwriter import BagWriter
 from ..recordings.messages import TopicMap, cdr_problem, decode_float64, decoder_for, encode_float64, float64_problem
-from ..recordings.fastmcap import byte_rows
+from ..recordings.records import byte_rows
 from ..base.errors import damage_totals, lost_share
 from ..core.pairing import ARRIVAL_PAIRINGS, CHANNELS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from ..base.interface import MessageType, Metadata
@@ -443,7 +443,7 @@ class _TimeOrder:
     def __call__(self, batch: InputBatch, final: bool) -> InputBatch:
         """Prepend what the previous batch held back, sort by log time (file order among equal
         times), and hold back messages newer than the oldest channel's last one (not final)."""
-        from ..recordings.fastmcap import release_count
+        from ..recordings.logorder import release_count
 
         if self.file_order:
             return batch

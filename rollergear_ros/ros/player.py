@@ -19,7 +19,8 @@ from pathlib import Path
 from ..base.errors import UsageError, lost_share
 from ..base.progress import TimedProgress
 from ..recordings.baginfo import inspect_bag
-from ..recordings.fastmcap import ReadState, iter_log_time_order, preload_summary
+from ..recordings.fastmcap import ReadState, preload_summary
+from ..recordings.logorder import iter_log_time_order
 
 
 def message_class(type_name: str):

@@ -96,7 +96,8 @@ def test_the_subset_holds_every_family_and_feature():
 
 @pytest.mark.parametrize("name", sorted(VARIANTS))
 def test_each_conformance_file_is_read_as_the_specification_lists_it(name, tmp_path):
-    from rollergear_ros.recordings.fastmcap import ReadState, iter_log_time_order, iter_message_arrays
+    from rollergear_ros.recordings.fastmcap import ReadState, iter_message_arrays
+    from rollergear_ros.recordings.logorder import iter_log_time_order
 
     data = conformance_file(name)
     # the bytes are the conformance file, not a look-alike

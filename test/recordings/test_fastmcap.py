@@ -9,7 +9,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from rollergear_ros.recordings.fastmcap import ReadState, iter_log_time_order, iter_message_arrays, release_count
+from rollergear_ros.recordings.fastmcap import ReadState, iter_message_arrays
+from rollergear_ros.recordings.logorder import iter_log_time_order, release_count
 
 
 def _lagging_recording(path, n: int = 3000, chunk_size: int = 4096) -> None:
@@ -187,7 +188,7 @@ def test_hostile_lengths_cost_neither_memory_nor_time(tmp_path, mutation):
     import resource
     import time
 
-    from rollergear_ros.recordings.fastmcap import MAX_CHUNK_BYTES
+    from rollergear_ros.recordings.records import MAX_CHUNK_BYTES
 
     path = tmp_path / "ok.mcap"
     chunks = _twenty_chunks(path, 2000)
