@@ -8,7 +8,7 @@ package_name = "rollergear_ros"
 
 setup(
     name=package_name,
-    version="0.1.0",
+    version="0.2.0",
     packages=find_packages(exclude=["test", "test.*", "bench"]),
     # the FMU's C source, compiled into each unit at export (outputs/fmu.py)
     package_data={"rollergear_ros.outputs": ["fmu_gearbox.c"]},
