@@ -13,7 +13,7 @@ from ..base.atomic import save_figure, write_text
 from ..core.effects import EFFECTS
 
 if TYPE_CHECKING:
-    from .calibrate import CalibrationResult, FoundEffect
+    from .outcome import CalibrationResult, FoundEffect
     from .samples import SampleData
 
 
