@@ -8,7 +8,9 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
+
 import numpy as np
+
 from .blocks import Blocks, make_blocks
 from .forward import Selection, select
 from .noise import sensor_delta

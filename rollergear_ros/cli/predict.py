@@ -61,7 +61,6 @@ def _write_samples(result, kind: str, path: Path) -> None:
 
 
 def register(sub) -> None:
-
     p = add_params_option(sub.add_parser(
         "predict", help="what a planned drive will cost: loss energy and power with their 95 %% band",
         description="The loss power and energy of a profile (planned torque, speed, optionally oil temperature: "
