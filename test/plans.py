@@ -5,6 +5,8 @@ written as a DAQ exports them (one CSV, runs in recording order, a channel map).
 * :func:`joint_plan`: a robot joint behind a harmonic drive (100:1), constant-speed runs one way, its
   friction a straight line in the speed; the joint's torque sensor reads a small, nearly constant load, so
   the drive torque is mostly the friction itself.
+* :func:`loaded_joint_plan`: that joint with a load friction in the output-side load, at several loads per
+  speed (a law in the load testable, the drive torque still mostly the friction).
 * :func:`one_load_plan`: the paper's gearbox (``config/gearbox.yaml``) in steady runs at one drive torque,
   with a drag and a viscous line the parameter file lacks.
 * :func:`servo_plan`: a small servo (a coreless motor behind 288:1 spur gears) swinging a pendulum both
@@ -56,6 +58,32 @@ def joint_plan(tmp: Path, speeds, name: str, seed: int, load: bool) -> tuple[Pat
     out = "{column: T_out, unit: N*m}" if load else "{constant: 0, unit: N*m}"
     cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
                     f"motor_speed: {{column: w_in, unit: rad/s}}\noutput_torque: {out}\nratio: {JOINT_RATIO}\n")
+    return csv, cmap
+
+
+#: the loaded joint's load friction: a share of the load at the joint (its bearings carry the load)
+JOINT_LOAD_SHARE = 0.3
+
+
+def loaded_joint_plan(tmp: Path, speeds, loads, name: str, seed: int) -> tuple[Path, Path]:
+    """The joint of :func:`joint_plan` with a load friction ``0.3·|T_load|`` beside its line, run at several
+    loads per speed, both ways (3 s each, 200 Hz): the joint torque sensor reads the load ``T_load`` (a
+    spring that helps or a weight that resists, ±0.6 N·m), the motor ``((Fc + Fv·|ω| + 0.3·|T_load|)·sgn ω
+    + T_load)/100`` -- the drive torque still mostly the friction."""
+    rng = np.random.default_rng(seed)
+    runs = []
+    for w in [*speeds, *(-v for v in speeds)]:
+        for held in loads:
+            t = np.arange(600) / 200.0
+            friction = (JOINT_COULOMB_NM + JOINT_VISCOUS_NM_S * abs(w) + JOINT_LOAD_SHARE * abs(held)) * np.sign(w)
+            runs.append({"t": t, "T_in": (friction + held) / JOINT_RATIO + rng.normal(0.0, 4e-4, len(t)),
+                         "w_in": w * JOINT_RATIO + rng.normal(0.0, 0.05, len(t)),
+                         "T_out": held + rng.normal(0.0, 0.02, len(t))})
+    csv = _export(tmp / f"{name}.csv", runs)
+    cmap = tmp / f"{name}_map.yaml"
+    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
+                    "motor_speed: {column: w_in, unit: rad/s}\noutput_torque: {column: T_out, unit: N*m}\n"
+                    f"ratio: {JOINT_RATIO}\n")
     return csv, cmap
 
 

@@ -93,9 +93,9 @@ class Rig:
     ratio: float = 4.0
     drag_nm: float = 0.2  #: a constant drag
     viscous_nm_s: float = 0.002  #: a viscous drag c·|ω|
-    load_share: float = 0.0  #: a load friction k·|T|
+    load_share: float = 0.0  #: a load friction k·|T_load| (the output-side load)
     viscous_reverse_nm_s: float | None = None  #: the viscous drag in reverse (None: as forward)
-    backdrive_share: float = 0.0  #: a friction k·|T| only while the output drives the input
+    backdrive_share: float = 0.0  #: a friction k·|T_load| only while the output drives the input
     step_at_s: float | None = None  #: the drag appears here (None: from the start)
     output_lag_s: float = 0.0  #: the output torque channel's lag behind the drive torque
     rate_hz: float = 100.0
@@ -122,16 +122,24 @@ def rig_profile(rate_hz: float, seed: int, duration_s: float = 160.0) -> tuple[n
 
 
 def loaded_rig(tmp: Path, rig: Rig = Rig(), seed: int = 0, name: str = "rig") -> tuple[Path, Path, dict]:
-    """The rig's CSV and channel map: ``T_out = (T_in − loss·sgn ω)·ratio`` (a loss opposes the motion),
-    torque noise on both torque channels, the output torque delayed by ``rig.output_lag_s``."""
+    """The rig's CSV and channel map: the output torque ``T_out = T_load·ratio``, the load on the output side
+    ``T_load = T_in − loss·sgn ω`` (a loss opposes the motion), the load frictions ``k·|T_load|`` solved in
+    closed form (linear in the load: ``s·T_load = (s·T_in − rest)/(1 ± k)``); torque noise on both torque
+    channels, the output torque delayed by ``rig.output_lag_s``."""
     rng = np.random.default_rng(seed)
     t, w, tq = rig_profile(rig.rate_hz, seed)
+    s = np.sign(w)
     viscous = np.where(w >= 0, rig.viscous_nm_s, rig.viscous_nm_s if rig.viscous_reverse_nm_s is None
                        else rig.viscous_reverse_nm_s)
-    back = (tq * w < 0) * rig.backdrive_share * np.abs(tq)
     drag = np.full(len(t), rig.drag_nm) if rig.step_at_s is None else np.where(t >= rig.step_at_s, rig.drag_nm, 0.0)
-    loss = drag + viscous * np.abs(w) + rig.load_share * np.abs(tq) + back
-    t_out = (tq - loss * np.sign(w)) * rig.ratio
+    rest = drag + viscous * np.abs(w)
+    u = s * tq - rest  # s·T_load without the load frictions
+    back = tq * w < 0  # the output drives the input
+    share = rig.load_share + back * rig.backdrive_share
+    v = np.where(u >= 0, u / (1.0 + rig.load_share), u / (1.0 - share)) if share.any() else u
+    load = np.where(s == 0, tq, s * v)
+    loss = rest + rig.load_share * np.abs(load) + back * rig.backdrive_share * np.abs(load)
+    t_out = load * rig.ratio
     if rig.output_lag_s:
         t_out = np.interp(t - rig.output_lag_s, t, t_out)
     t_in_meas = tq + rng.normal(0.0, rig.torque_noise_nm, len(t))

@@ -40,6 +40,14 @@ def _reverses(speed: np.ndarray, bag_id: np.ndarray, clear_rad_s: float) -> bool
     return bool(np.any((s[1:] != s[:-1]) & (b[1:] == b[:-1])))
 
 
+def _rows(x: EffectInputs, pick: np.ndarray) -> EffectInputs:
+    """The effects' inputs ``x`` at the samples ``pick`` (an index array): each per-sample array indexed,
+    a value shared by all samples kept, no state."""
+    n = x.abs_speed.shape
+    return EffectInputs(*(v[pick] if isinstance(v, np.ndarray) and v.shape == n else v
+                          for v in x._replace(state={})))
+
+
 def groups() -> tuple[str, ...]:
     """The candidate groups: every effect of the registry, in its order, then the model's own
     parameters (:mod:`core.modelparams`, one per part of the model)."""
@@ -95,6 +103,7 @@ class Blocks:
     #: the operating points held out together, the folds, the runs' steadiness (:mod:`.grouping`)
     groups: OperatingGroups | None = None
     full_count: float = 1.0  # samples in a whole block (a transient's parts hold fewer)
+    load: np.ndarray | None = None  # mean output-side load referred to the input [N·m] (what laws in the load take)
     untestable: dict[str, str] = field(default_factory=dict)  # candidate -> why this data cannot test it
     load_rule: str = ""  # why a law in the load cannot be tested here ('' where it can: :func:`load_rule`)
     #: the rig's nuisances' columns (:mod:`.nuisance`: a channel's lag, the inertia), always in the fit --
@@ -130,8 +139,7 @@ class Blocks:
         if cached is not None:
             return cached
         params = effect.defaults() | (dict(zip(("B", "C", "theta_ref"), law)) if law is not None else {})
-        x = EffectInputs(*(v[idx] if isinstance(v, np.ndarray) and v.shape == self.x.abs_speed.shape else v
-                           for v in self.x[:6]))
+        x = _rows(self.x, idx)
         values = effect.column(x, params, member, second)
         if effect.needs_temperature:
             values = np.where(np.isnan(values), 0.0, values)
@@ -233,8 +241,7 @@ class Blocks:
         (computed once)."""
         if self._speed_order is None:
             order = np.argsort(self.x.abs_speed, kind="stable")
-            n = len(order)
-            x = EffectInputs(*(v[order] if isinstance(v, np.ndarray) and v.shape == (n,) else v for v in self.x[:6]))
+            x = _rows(self.x, order)
             self._speed_order = (x, np.repeat(np.arange(len(self.count)), self.count)[order])
         return self._speed_order
 
@@ -294,8 +301,7 @@ class Blocks:
         moving, decay, z_start = self._transients(runs, params[effect.relaxes_over])
         if not len(moving):
             return base.copy()
-        x = EffectInputs(*(v[moving] if isinstance(v, np.ndarray) and v.shape == runs.since.shape else v
-                           for v in self.x[:6]))
+        x = _rows(self.x, moving)
         settled = runs.settled[moving]
         z = settled + (z_start - runs.sign)[runs.run[moving]] * decay
         change = (effect.column(x._replace(state={name: z}), params, member, second)
@@ -354,7 +360,8 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     # a lag or an inertia shows only where a run's operating point moves: steady runs, and the pauses
     # between them, carry none (their readings' noise would be fitted as one)
     nuisance = {name: mean(col) for name, col in nuisance_columns(d, sg).items()} if groups.transients else {}
-    x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part)
+    # the laws in the load take the output-side load the power balance measured (core.effects.output_load)
+    x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part, abs_load=np.abs(d.torque - sg * d.measured_loss))
     blocks = Blocks(
         start,
         count,
@@ -385,6 +392,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     blocks.place = groups.place
     blocks.groups = groups
     blocks.full_count = _full_block(t, block_s)
+    blocks.load = mean(d.torque - sg * d.measured_loss)
     blocks.untestable = untestable
     blocks.load_rule = load_rule(d)
     blocks.nuisance = nuisance

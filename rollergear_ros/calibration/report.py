@@ -20,6 +20,7 @@ if TYPE_CHECKING:
 #: the residual over time is drawn as at most this many points (block means, evenly thinned)
 MAX_TIME_POINTS = 20_000
 _AXES = {"speed": ("speed", "drive speed [rad/s]"), "torque": ("torque", "drive torque [N·m]"),
+         "load": ("load", "output-side load referred to the input [N·m]"),
          "temperature": ("temperature", "oil temperature [°C]"),
          "speed_near_zero": ("speed", "drive speed [rad/s] (symmetric log scale: standstill in the middle)")}
 
@@ -49,7 +50,7 @@ def _residual_scatter(result: CalibrationResult, out_dir: Path, plots: list[Path
     before, after = b.y, b.y - result.pred_after
     temperature_testable = any(EFFECTS[n].needs_temperature for n in b.testable if n in EFFECTS)
     for key, (attr, label) in _AXES.items():
-        if key == "speed_near_zero":  # an effect's axis, not an input of its own
+        if key in ("speed_near_zero", "load"):  # an effect's axis, not an input of its own
             continue
         x = getattr(b, attr)
         if not np.isfinite(x).any() or (key == "temperature" and not temperature_testable):

@@ -25,7 +25,7 @@ import numpy as np
 from ..core.oil import oil_viscosity_ratio, vogel_viscosity_ratio, walther_viscosity_mm2_s  # noqa: F401 - re-exported
 from ..recordings.bagwriter import BagWriter
 from ..recordings.messages import TopicMap, float64_payloads, stamp
-from ..core.effects import EFFECTS, EffectInputs, viscosity_law
+from ..core.effects import EFFECTS, EffectInputs, takes_load, viscosity_law
 from ..base.errors import UsageError
 from ..base.interface import RAD_S_PER_RPM, MessageType, Metadata
 from ..core.model import LossModel, reference_terms, rotation_sign
@@ -190,6 +190,37 @@ def _noise(rng: np.random.Generator, n: int, sigma: float, ar1: float) -> np.nda
     return lfilter([math.sqrt(1 - ar1 ** 2)], [1.0, -ar1], e)
 
 
+def _laws_at_true_load(x: EffectInputs, other_loss_nm: np.ndarray, laws: list, active: np.ndarray,
+                       halvings: int = 200) -> np.ndarray:
+    """The loss of the laws in the load at the output-side load they make themselves: the root ``v`` of
+    ``v + F(|v|) = s·T − L_other`` (``v = s·T_load``, ``F`` the laws' sum times ``active``) by bisection
+    on a bracket, to the last bit -- the rig's physics, not the estimator's Newton steps.  A drive the laws
+    lock (no root: a friction growing faster than the load that back-drives it) is refused."""
+    def F(v):
+        xi = x._replace(abs_load=np.abs(v))
+        return active * sum(effect.term(xi, **p) for effect, p in laws)
+
+    s = np.where(x.rot_sign == 0, 0.0, np.sign(x.rot_sign))
+    u = s * x.torque - other_loss_nm
+    h0 = F(np.zeros_like(u)) - u
+    lo = np.where(h0 <= 0, 0.0, -(np.abs(u) + F(np.zeros_like(u)) + 1e-12))
+    hi = np.where(h0 <= 0, np.maximum(u, 0.0), 0.0)
+    for _ in range(200):  # widen downwards until h(lo) <= 0 (a back-driven drive: |T_load| > |T|)
+        up = lo + F(lo) - u > 0
+        if not up.any():
+            break
+        hi, lo = np.where(up, lo, hi), np.where(up, 2.0 * lo, lo)
+    else:
+        raise UsageError("the simulated laws in the load lock the drive: no output-side load balances the "
+                         "drive torque (a friction growing faster than the load that back-drives it)")
+    for _ in range(halvings):
+        mid = 0.5 * (lo + hi)
+        below = mid + F(mid) - u <= 0
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    v = 0.5 * (lo + hi)
+    return np.where(s == 0, F(x.torque), F(v))
+
+
 def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
     """Run the rig simulation (no file I/O)."""
     if opts.profile not in PROFILES:
@@ -209,6 +240,7 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
     eta_ratio = np.ones(len(w))  # η(θ)/η0
     extra = np.zeros(len(w))
     gain, offset = 0.0, 0.0
+    laws = []  # the laws in the load: at the true output-side load, once the other losses are known
     effects = list(opts.effects)
     law = viscosity_law()
     if opts.oil_nu40_nu100_mm2_s is not None and not any(e.name == law.name for e in effects):
@@ -225,12 +257,17 @@ def simulate(config: Config, opts: SimulationOptions) -> SimulatedRig:
             offset = offset + p[effect.coefficient] * active
         elif effect.reading_error == "gain":
             gain = gain + p[effect.coefficient] * active
+        elif takes_load(effect):
+            laws.append((effect, p))
         elif effect.physical:  # any other loss: its term, added to the true loss
             extra += effect.term(EffectInputs(at, aw, tq, sg, theta), **p) * active
         else:
             raise UsageError(f"simulate does not know how the sensor error {eff.name} corrupts a reading")
     model_loss = model.loss_magnitude(tq, w)
     loss_true = reference_terms(g, tq, w, g.eta0_pa_s * eta_ratio)["T_loss"] + extra
+    if laws:
+        x = EffectInputs(at, aw, tq, sg, theta)
+        loss_true = loss_true + _laws_at_true_load(x, loss_true, laws, active)
     out_torque_true = ratio * (tq - loss_true * sg)
     n = len(w)
     torque_meas = tq + gain * tq + offset + _noise(rng, n, opts.torque_noise_nm, opts.noise_ar1)

@@ -13,6 +13,7 @@ _FACE = {
     "reading_errors": "effects",
     "separating_data": "effects",
     "state_speed": "effects",
+    "takes_load": "effects",
     "viscosity_law": "effects",
     "BatchEstimate": "batchpath",
     "Estimate": "estimator",

@@ -230,8 +230,10 @@ class BatchPath:
             self._previous_speed = float(speed[-1])
         state = self._advance_many(t_ns, speed) if self._stateful else {}
         x = EffectInputs(at, aw, torque, sg, temperature, state=state)
-        phys, sens, coefficients = self._effects_batch(x, meas, mag, t_ns)
+        phys, sens, coefficients = self._effects_batch(x, meas, mag, t_ns, torque_meas)
         loss = mag + phys
+        if self._load_laws:
+            self.counts["load_unbalanced"] += int(np.count_nonzero(np.isnan(loss) & ~np.isnan(mag)))
         residual = meas - (loss + sens)
         eff = efficiency(torque, speed, loss, self.model.min_torque_nm, self.model.min_speed_rad_s)
         eff_meas = np.where(np.isfinite(meas),
@@ -315,20 +317,35 @@ class BatchPath:
         keep = finite & plausible
         return tuple(a[keep] for a in (t_ns, torque, speed, *others))
 
-    def _effects_batch(self, x: EffectInputs, meas: np.ndarray, mag: np.ndarray,
-                       t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    def _effects_batch(self, x: EffectInputs, meas: np.ndarray, mag: np.ndarray, t_ns: np.ndarray,
+                       torque_meas: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """The effects' (physical, sensor) contributions of a batch and the adapted coefficients of
         each sample: the adaptive effects by RLS sample by sample, the rest as configured (their
-        residual fed to the change detector)."""
+        residual fed to the change detector).  With adaptation the laws in the load take the measured
+        load where a loss is measured (what the RLS learns from), else the one solved at the a-priori
+        coefficients (:meth:`~.estimator.Estimator.solved_load`), as :meth:`process` does."""
         coefficients: dict[str, np.ndarray] = {}
         if self.adaptive:
+            if self._load_laws:
+                with np.errstate(invalid="ignore"):
+                    x = x._replace(abs_load=np.abs(torque_meas - x.rot_sign * meas))
             phys = np.zeros(len(mag))
             sens = np.zeros(len(mag))
-            if self._fixed_additive:
-                fixed = additive_terms(self._fixed, x)
+            fixed = additive_terms(self._fixed, x, mag) if self._fixed_additive else None
+            if fixed is not None:
                 phys, sens = phys + fixed.physical_nm, sens + fixed.sensor_nm
             phis = regressors(self._regressor_plan, x)
             theta_hist = self._adapt_batch(phis, meas - mag - phys - sens, t_ns)
+            unmeasured = ~np.isfinite(meas)
+            if self._load_laws and unmeasured.any():
+                solved = self.solved_load(x._replace(abs_load=None), mag,
+                                          [theta_hist[:, i] for i in range(len(self.adaptive))])
+                x = x._replace(abs_load=np.where(unmeasured, solved.abs_load, x.abs_load))
+                phys, sens = np.zeros(len(mag)), np.zeros(len(mag))
+                if self._fixed_additive:
+                    fixed = additive_terms(self._fixed, x, mag)
+                    phys, sens = phys + fixed.physical_nm, sens + fixed.sensor_nm
+                phis = regressors(self._regressor_plan, x)
             for i, (name, phi) in enumerate(zip(self.adaptive, phis)):
                 contrib = theta_hist[:, i] * phi
                 if self._sensor[i]:
@@ -337,7 +354,7 @@ class BatchPath:
                     phys += contrib
                 coefficients[name] = theta_hist[:, i] / self._scales[i]
             return phys, sens, coefficients
-        terms = additive_terms(self._active, x)
+        terms = additive_terms(self._active, x, mag)
         phys, sens = np.asarray(terms.physical_nm) + 0.0 * mag, np.asarray(terms.sensor_nm) + 0.0 * mag
         y = meas - mag - phys - sens
         ok = np.isfinite(y)

@@ -15,12 +15,20 @@ effect                     contribution to the measured loss [N·m]      kind
 =========================  ===========================================  ======================
 ``drag_constant``          ``c``                                        loss (seal, return track)
 ``drag_speed``             ``c·|ω|^p``                                  loss (churning, windage)
-``load_dependent``         ``c·|T|^q``                                  loss (bearing load, sliding)
-``load_speed``             ``c·|T|·|ω|^p``                              loss (load × speed: mesh sliding, power loss)
+``load_dependent``         ``c·|T_load|^q``                             loss (bearing load, sliding)
+``load_speed``             ``c·|T_load|·|ω|^p``                         loss (load × speed: mesh sliding, power loss)
 ``viscosity_temperature``  ``scale·T_Fr·(s(θ) − 1)``, ``s = (η(θ)/η0)^0.66``  loss (oil warming), scales Fr
 ``torque_offset``          ``b·sgn(ω)``                                 sensor zero error
 ``torque_gain``            ``g·T·sgn(ω)``                               sensor gain error
 =========================  ===========================================  ======================
+
+``T_load`` is the load on the output side, referred to the input: the torque the gearbox passes on,
+``T_load = T − sgn(ω)·L`` with ``L`` the whole loss (the power balance ``T_load·ω_in = T_out·ω_out``).
+A law in the load takes it, never the drive torque ``T``: under a light load the drive torque is mostly
+the loss itself, and a law of it would explain the loss by the loss.  Calibration reads it from the
+measured output torque (``T − sgn(ω)·L_meas``); the estimator, which has the drive torque only, solves
+``T_load = T − sgn(ω)·(L_model + L_other + F(|T_load|))`` for it (:func:`output_load`: ``F`` the laws in
+the load, ``L_other`` every other loss).
 
 ``T_Fr`` is the Fr part of the model (eq. 3, ∝ η^0.66 through U^0.66 of eq. 9) -- the only part
 that depends on the viscosity, so ``T_Fr·(s − 1)`` is the whole model at ``η(θ)`` minus the model
@@ -42,7 +50,8 @@ Adding an effect
    kind is said by the descriptor too, never by its name elsewhere: a sensor error says how it
    corrupts the torque reading (``reading_error``), a factor on the model's Fr part sets
    ``scales_fr``, an effect with memory its ``state_step``/``state_steps``, the oil's own viscosity
-   law ``viscosity_law``.
+   law ``viscosity_law``, a loss law in the output-side load (its term reads ``x.abs_load``) its
+   ``load_exponent``.
 3. Tests: the function against its formula, and a recording simulated with the effect declared
    that ``calibrate`` finds (``test/core/test_effects.py`` shows both, for a toy loss registered at
    run time, and a toy sensor error that simulate and the estimator take from its descriptor).
@@ -58,7 +67,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
 
 from .floatops import power
 
@@ -80,6 +91,9 @@ class EffectInputs(NamedTuple):
     #: the states of the effects with memory (effect -> its state at this sample, :attr:`Effect.state_step`);
     #: empty: their steady state (an operating point of a map, a steady dwell)
     state: Mapping[str, Any] = {}
+    #: |T_load| [N·m], the load on the output side referred to the input, what the laws in the load take
+    #: (None: not known; :func:`additive_terms` solves it from the drive torque and the other losses)
+    abs_load: Any = None
 
 
 # ------------------------------------------------------------------------------------ terms
@@ -103,8 +117,8 @@ def stribeck(x: EffectInputs, c, omega_s, delta):
 
 
 def load_dependent(x: EffectInputs, c, q):
-    """Load-dependent friction: ``ΔT = c·|T|^q`` (bearing load friction, sliding)."""
-    return c * power(x.abs_torque, q)
+    """Load-dependent friction: ``ΔT = c·|T_load|^q`` (bearing load friction, sliding; T_load the output-side load)."""
+    return c * power(x.abs_load, q)
 
 
 def drag_direction(x: EffectInputs, c, p):
@@ -129,17 +143,18 @@ def stribeck_direction(x: EffectInputs, c, omega_s, delta):
 
 
 def backdrive(x: EffectInputs, c, q):
-    """Back-driving friction: ``ΔT = c·|T|^q`` while the output drives the input (``T·ω < 0``), else 0.
+    """Back-driving friction: ``ΔT = c·|T_load|^q`` while the output drives the input (``T·ω < 0``), else 0.
 
     Friction that appears only when the power flows back (a self-locking tendency of the ball track, a
-    one-way clutch, a worm's back-driving); motoring losses do not carry it.
+    one-way clutch, a worm's back-driving); motoring losses do not carry it.  Its size follows the
+    output-side load ``T_load``, whether the power flows back the drive torque says.
     """
-    return c * power(x.abs_torque, q) * ((x.torque * x.rot_sign < 0) * 1.0)
+    return c * power(x.abs_load, q) * ((x.torque * x.rot_sign < 0) * 1.0)
 
 
 def load_speed(x: EffectInputs, c, p):
-    """Load-speed friction: ``ΔT = c·|T|·|ω|^p`` (a loss power ∝ transmitted power·|ω|^(p−1): mesh sliding)."""
-    return c * x.abs_torque * power(x.abs_speed, p)
+    """Load-speed friction: ``ΔT = c·|T_load|·|ω|^p`` (a loss power ∝ transmitted power·|ω|^(p−1): mesh sliding)."""
+    return c * x.abs_load * power(x.abs_speed, p)
 
 
 def drag_viscous(x: EffectInputs, c, p, a, B, C, theta_ref):
@@ -290,9 +305,12 @@ class Effect:
     #: its Vogel law (``B``, ``C``, ``theta_ref``) is the calibrated oil's: the set's
     #: viscosity_temperature, else the oil's data sheet; ``calibrate`` does not search it
     oil_law: bool = False
-    #: its term depends on the drive torque: no candidate on a spin test (nothing on the output, the
-    #: drive torque is the loss itself)
+    #: its term depends on the torque: no candidate on a spin test (nothing on the output, the drive
+    #: torque is the loss itself) nor where the load does not vary at a fixed speed
     depends_on_load: bool = False
+    #: a loss law in the output-side load (``x.abs_load``): its exponent in the load -- the parameter
+    #: named here, or 1.0 (a law linear in the load) -- gives :func:`output_load` its slope
+    load_exponent: str | float | None = None
     #: testable only where the data reach this slow: a share of the samples (:data:`MIN_SLOW_SHARE`)
     #: at |ω| at most this [rad/s] (a law of speeds near standstill)
     needs_speeds_below: float | None = None
@@ -335,7 +353,8 @@ class Effect:
     #: the oil's viscosity law itself (Vogel ``B``, ``C`` at ``theta_ref``): what ``--oil`` and an
     #: oil's data sheet set (:func:`viscosity_law`); one effect of the registry carries it
     viscosity_law: bool = False
-    #: the report draws its fitted curve over "speed", "torque", "temperature", "speed_near_zero"
+    #: the report draws its fitted curve over "speed", "torque", "load" (the output-side load), "temperature",
+    #: "speed_near_zero"
     #: (signed speed, standstill magnified) or "angle_since_reversal" (an effect with memory: per sample)
     plotted_against: str = "speed"
     #: the member that makes the law a line (p = 1: viscous, linear in the load): the form ``calibrate`` takes
@@ -494,30 +513,32 @@ for _effect in (
            **_STRIBECK_SEARCH, signed=True, needs_both_directions=True,
            separated_from={"torque_offset": "speeds near standstill and far from it, in both directions",
                            "stribeck": "speeds near standstill in both directions"}),
-    Effect("backdrive", backdrive, True, "add a friction c*|T|^q that appears only while the output drives the input",
+    Effect("backdrive", backdrive, True,
+           "add a friction c*|T_load|^q that appears only while the output drives the input",
            "friction only under back-driving: a self-locking tendency, a one-way clutch, a worm's back-driving",
            (EffectParameter("c", "c", 0.0, "back-driving friction coefficient c (N*m/(N*m)^q)", simulated=3e-3),
             EffectParameter("q", "q", 1.0, "back-driving friction exponent q", low=0.0, high=4.0)),
            coefficient="c", member="q", member_grid=_grid(0.5, 2.5, 0.1), member_bounds=(0.3, 3.0),
-           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="torque", depends_on_load=True,
-           needs_regeneration=True, alternative_to=("torque_gain", "load_dependent"), linear=1.0,
+           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="load", depends_on_load=True,
+           load_exponent="q", needs_regeneration=True, alternative_to=("torque_gain", "load_dependent"), linear=1.0,
            alternative_needs="a calibration of the torque sensors (a known torque at standstill: a gain error shows "
                              "in it, a friction does not)",
            separated_from={"load_dependent": "motoring and regeneration at the same loads"}),
-    Effect("load_dependent", load_dependent, True, "add a load friction c*|T|^q", "bearing load friction, sliding",
+    Effect("load_dependent", load_dependent, True, "add a load friction c*|T_load|^q", "bearing load friction, sliding",
            (EffectParameter("c", "c", 0.0, "load friction coefficient c (N*m/(N*m)^q)", simulated=2e-3),
             EffectParameter("q", "q", 1.0, "load friction exponent q", low=0.0, high=4.0)),
            coefficient="c", member="q", member_grid=_grid(0.5, 2.5, 0.1), member_bounds=(0.3, 3.0),
-           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="torque", depends_on_load=True,
-           linear=1.0, separated_from={"torque_gain": "regeneration (torque and speed of opposite sign)",
+           regressor_scale=lambda params: TORQUE_REF_NM ** params["q"], plotted_against="load", depends_on_load=True,
+           load_exponent="q", linear=1.0,
+           separated_from={"torque_gain": "regeneration (torque and speed of opposite sign)",
                            "viscosity_temperature": "the same torques at different oil temperatures"}),
-    Effect("load_speed", load_speed, True, "add a load-speed friction c*|T|*|w|^p",
+    Effect("load_speed", load_speed, True, "add a load-speed friction c*|T_load|*|w|^p",
            "load- and speed-dependent sliding (gear mesh), a loss power proportional to the transmitted power",
            (EffectParameter("c", "c", 0.0, "load-speed coefficient c (N*m/(N*m*(rad/s)^p))", simulated=2e-5),
             EffectParameter("p", "p", 1.0, "load-speed exponent p of |w|", low=0.0, high=4.0)),
            coefficient="c", member="p", member_grid=_grid(0.5, 2.0, 0.1), member_bounds=(0.3, 2.5),
            regressor_scale=lambda params: TORQUE_REF_NM * SPEED_REF_RAD_S ** params["p"], depends_on_load=True,
-           linear=1.0,
+           load_exponent=1.0, plotted_against="load", linear=1.0,
            separated_from={"load_dependent": "the same torques at several speeds",
                            "drag_speed": "the same speeds at several torques, including light load",
                            "torque_gain": "regeneration (torque and speed of opposite sign)"}),
@@ -559,21 +580,100 @@ class EffectTerms:
 
     physical_nm: object  #: added to the published loss torque magnitude
     sensor_nm: object  #: added only to the expected *measured* loss
+    #: the inputs the terms were evaluated at, ``abs_load`` among them (solved where it was not given)
+    inputs: EffectInputs | None = None
 
 
-def additive_terms(enabled: Mapping[str, Mapping[str, float]], x: EffectInputs) -> EffectTerms:
-    """Sum the enabled additive effects (``enabled``: name -> short parameters), in registry order;
-    effects that scale the model's Fr part are applied inside the model instead (:func:`fr_scale`)."""
+#: Newton steps of :func:`output_load` (a fixed count: a float and an array element take the same steps)
+LOAD_STEPS = 10
+#: the torque balance :func:`output_load` must close, relative to the torques in it: no load closes it
+#: closer where the laws lock the drive (a friction growing faster than the load that back-drives it)
+LOAD_BALANCE = 1e-9
+#: the least slope Newton's step divides by: where a friction grows with the load as fast as the load
+#: (a self-locking drive, back-driven) the step is damped instead of thrown far off
+LOAD_MIN_SLOPE = 0.5
+
+
+def takes_load(effect: Effect) -> bool:
+    """Whether ``effect`` is a loss law in the output-side load (:attr:`Effect.load_exponent`)."""
+    return effect.physical and effect.load_exponent is not None
+
+
+def _at_least(a, floor: float):
+    return max(a, floor) if isinstance(a, float) else np.maximum(a, floor)
+
+
+def output_load(x: EffectInputs, other_loss_nm, laws: Sequence[tuple[Effect, Mapping[str, float]]]):
+    """``|T_load|`` and the laws' loss: ``T_load = T − s·(L_other + F(|T_load|))`` solved for ``T_load``.
+
+    ``T`` the drive torque (``x.torque``), ``s`` the direction the loss opposes (``x.rot_sign``),
+    ``L_other`` every loss that is not a law in the load (the paper's model and the other effects),
+    ``F`` the sum of ``laws`` (effect, its parameters) at the load.  Newton from the load without the laws'
+    own loss, :data:`LOAD_STEPS` steps; each law's slope is ``e·F_i/|T_load|`` (its exponent ``e`` in the
+    load), so a law linear in the load is solved in one step.  Where the balance does not close
+    (:data:`LOAD_BALANCE`: the laws lock a back-driven drive) both are NaN.  Same floats for a float and
+    an array.
+    """
+    torque, s = x.torque, x.rot_sign
+    y = torque - s * other_loss_nm
+    if not laws:
+        return abs(y), 0.0 * x.abs_speed
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):  # a locked drive runs off: NaN below
+        return _newton_load(x, torque, s, y, other_loss_nm, laws)
+
+
+def _newton_load(x: EffectInputs, torque, s, y, other_loss_nm, laws):
+    """:func:`output_load`'s steps from the load ``y`` without the laws' own loss."""
+    for _ in range(LOAD_STEPS):
+        w = abs(y)
+        xi = x._replace(abs_load=w)
+        f, slope = 0.0, 0.0
+        for effect, params in laws:
+            fi = effect.term(xi, **params)
+            e = params[effect.load_exponent] if isinstance(effect.load_exponent, str) else effect.load_exponent
+            f = f + fi
+            slope = slope + e * fi
+        slope = slope / _at_least(w, 1e-300)
+        direction = (y > 0) * 1.0 - (y < 0) * 1.0
+        g = y - torque + s * (other_loss_nm + f)
+        y = y - g / _at_least(1.0 + s * direction * slope, LOAD_MIN_SLOPE)
+    w = abs(y)
+    xi = x._replace(abs_load=w)
+    f = 0.0 * w
+    for effect, params in laws:
+        f = f + effect.term(xi, **params)
+    # where the balance stays open the laws lock the drive: no load (NaN), never a guess
+    unbalanced = abs(y - torque + s * (other_loss_nm + f)) > LOAD_BALANCE * (abs(torque) + abs(other_loss_nm) + f)
+    if isinstance(w, float):
+        return (math.nan, math.nan) if unbalanced or w != w else (w, f)
+    return np.where(unbalanced, np.nan, w), np.where(unbalanced, np.nan, f)
+
+
+def additive_terms(enabled: Mapping[str, Mapping[str, float]], x: EffectInputs,
+                   model_loss_nm=0.0) -> EffectTerms:
+    """Sum the enabled additive effects (``enabled``: name -> short parameters), in registry order, the
+    laws in the load (:func:`takes_load`) last, at the load :func:`output_load` solves where ``x`` does
+    not give it (``model_loss_nm``: the paper's model's loss magnitude, part of the loss that load is
+    without); effects that scale the model's Fr part are applied inside the model instead (:func:`fr_scale`)."""
     phys = 0.0 * x.abs_speed
     sens = 0.0 * x.abs_speed
+    laws = []
     for name, effect in EFFECTS.items():
         if name in enabled and not effect.scales_fr:
             xi = with_temperature(x, enabled[name]) if effect.needs_temperature else x
-            if effect.physical:
+            if takes_load(effect):
+                laws.append((effect, enabled[name]))
+            elif effect.physical:
                 phys = phys + effect.term(xi, **enabled[name])
             else:
                 sens = sens + effect.term(xi, **enabled[name])
-    return EffectTerms(phys, sens)
+    if x.abs_load is None:
+        w, f = output_load(x, model_loss_nm + phys, laws)
+        x = x._replace(abs_load=w)
+        return EffectTerms(phys + f, sens, x)
+    for effect, params in laws:
+        phys = phys + effect.term(x, **params)
+    return EffectTerms(phys, sens, x)
 
 
 def with_temperature(x: EffectInputs, params: Mapping[str, float]) -> EffectInputs:
@@ -599,6 +699,7 @@ def fr_scale(enabled: Mapping[str, Mapping[str, float]], x: EffectInputs):
 
 #: how the report's ``effect_<name>.png`` draws an effect (:attr:`Effect.plotted_against`)
 _DRAWN_OVER = {"speed": "drive speed", "torque": "drive torque", "temperature": "oil temperature",
+               "load": "output-side load referred to the input",
                "speed_near_zero": "signed drive speed, standstill magnified (symmetric log axis)",
                "angle_since_reversal": "the angle turned since the last reversal, per sample"}
 

@@ -34,6 +34,7 @@ from .effects import (
     corrected_torque,
     fr_scale,
     reading_errors,
+    takes_load,
 )
 from .lagalign import LAG_CHANNELS, LagAligner, max_gap_s
 from .model import LossModel, rotation_sign_scalar
@@ -144,6 +145,7 @@ class Estimator(BatchPath):
         # effects with their configured coefficients (all of them when adaptation is off)
         self._fixed = {n: p for n, p in self._active.items() if n not in self.adaptive}
         self._fixed_additive = any(not EFFECTS[n].scales_fr for n in self._fixed)
+        self._load_laws = any(takes_load(EFFECTS[n]) for n in self._active)
         # effects with memory: their states, advanced sample by sample in time order (node and replay
         # alike: the same step, in the same float arithmetic, so a replay reproduces the node exactly)
         self._stateful = {n: p for n, p in self._active.items() if EFFECTS[n].state_step is not None}
@@ -377,10 +379,6 @@ class Estimator(BatchPath):
         # the effects' inputs, fixed terms and regressors, once per sample for the estimate and the RLS
         state = self._advance(s.t_ns, w) if self._stateful else {}
         x = EffectInputs(at, aw, t, sg, s.temperature_c, 1.0, state) if self._additive or self.adaptive else None
-        fixed = additive_terms(self._fixed, x) if self._fixed_additive else None
-        phi = [term(x) / scale for term, scale in self._regressor_plan] if self.adaptive else ()  # regressors()
-        phys, sens = self._effects_scalar(fixed, phi)
-        loss = mag + phys
         meas = self._measured_loss_scalar(t_meas, w, s.out_torque_nm, s.out_speed_rad_s, self._previous_speed, run)
         self._previous_speed = w
         if math.isnan(s.out_torque_nm):
@@ -389,6 +387,18 @@ class Estimator(BatchPath):
                 s.out_speed_rad_s):
             self.counts["output_non_finite"] += 1
             meas = math.nan
+        if self.adaptive:  # regressors(): the laws in the load at the measured load, else the one solved
+            if self._load_laws:
+                x = x._replace(abs_load=abs(t_meas - sg * meas)) if math.isfinite(meas) \
+                    else self.solved_load(x, mag, self.rls.theta)
+            phi = [term(x) / scale for term, scale in self._regressor_plan]
+        else:
+            phi = ()
+        fixed = additive_terms(self._fixed, x, mag) if self._fixed_additive else None
+        phys, sens = self._effects_scalar(fixed, phi)
+        loss = mag + phys
+        if self._load_laws and loss != loss and mag == mag:
+            self.counts["load_unbalanced"] += 1
         residual = meas - (loss + sens) if math.isfinite(meas) else math.nan
         if math.isfinite(residual):
             self._adapt_scalar(fixed, phi, meas - mag, s.t_ns)
@@ -431,6 +441,15 @@ class Estimator(BatchPath):
         self._state_t_ns = t_ns
         return states  # read within this sample only (the next one steps it on)
 
+
+    def solved_load(self, x: EffectInputs, mag, theta) -> EffectInputs:
+        """``x`` with the load the laws in it take where no loss is measured: solved with the fixed effects
+        and the adaptive ones at the RLS's coefficients ``theta`` (a list; per sample in a batch, arrays),
+        :func:`~.effects.output_load`."""
+        enabled = dict(self._fixed)
+        for i, name in enumerate(self.adaptive):
+            enabled[name] = dict(self._active[name]) | {EFFECTS[name].coefficient: theta[i] / self._scales[i]}
+        return additive_terms(enabled, x, mag).inputs
 
     def _effects_scalar(self, fixed, phi) -> tuple[float, float]:
         """(physical, sensor) contributions of the additive effects: the ``fixed`` terms as

@@ -18,7 +18,8 @@ differ on purpose from evaluating a *recording*:
 
 Besides the totals, :class:`PointLosses` splits the loss magnitude into the paper's model
 (``model_nm``, at ``η0``) and each accepted physical effect (``effects_nm``: the estimator with
-that effect alone minus the model alone); they add up to ``loss_magnitude_nm`` (tested).  No rclpy import.
+that effect alone minus the model alone; a law in the load its term at the load the whole loss leaves,
+:func:`~.effects.output_load`); they add up to ``loss_magnitude_nm`` (tested).  No rclpy import.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .effects import EFFECTS
+from .effects import EFFECTS, EffectInputs, takes_load
 from ..base.errors import UsageError
 from .estimator import Estimator
 from .params import Config, EffectParams
@@ -126,8 +127,13 @@ def evaluate_points(config: Config, torque_nm, speed_rad_s, temperature_c: float
 
     # each effect's share: the estimator with only that effect minus the paper's model alone
     # (exact for additive terms; Fr-scaling effects add up too, the model is linear in Fr)
+    # a law in the load: its term at the load of the whole loss (alone it would see another load)
     model_nm = run(only(cfg, ()))[0]
-    shares = {name: run(only(cfg, (name,)))[0] - model_nm for name in cfg.effects.enabled()}
+    active = cfg.effects.active()
+    load_x = EffectInputs(np.abs(torque), np.abs(speed), torque, np.sign(scatter(batch.sign)), theta,
+                          abs_load=np.abs(torque - scatter(batch.loss_torque_nm)))
+    shares = {name: EFFECTS[name].term(load_x, **active[name]) if takes_load(EFFECTS[name])
+              else run(only(cfg, (name,)))[0] - model_nm for name in cfg.effects.enabled()}
     return PointLosses(
         torque_nm=torque, speed_rad_s=speed, temperature_c=theta,
         loss_torque_nm=scatter(batch.loss_torque_nm), loss_magnitude_nm=magnitude,

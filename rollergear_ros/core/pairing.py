@@ -114,7 +114,7 @@ STALL_BURST_MESSAGES = 4
 #: ``duplicate`` count input messages that were never paired (not a Float64, a repeat)
 SKIP_REASONS: tuple[str, ...] = ("unpaired", "non_finite", "implausible", "output_missing",
                                  "output_non_finite", "temperature_missing", "malformed", "duplicate", "lost",
-                                 "stale", "out_of_order")
+                                 "stale", "out_of_order", "load_unbalanced")
 
 
 def pairing_tolerance_s(sync_tolerance_s: float, sample_period_s: float | None) -> float:

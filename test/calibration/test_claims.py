@@ -11,6 +11,7 @@ claims after is what its written file, replayed, leaves.
 from __future__ import annotations
 
 import itertools
+import math
 import json
 
 import numpy as np
@@ -92,7 +93,8 @@ def test_calibrate_replay_predict_and_model_give_one_answer(drive, names):
     if any(EFFECTS[n].state_step is not None for n in names):
         return
     fixed = config.with_values({"estimator.adapt": False, "estimator.speed_noise_rad_s": data.sign_width_rad_s})
-    _s, still = replay(path, fixed, collect=True, show_progress=False)
+    still_summary, still = replay(path, fixed, collect=True, show_progress=False)
+    still_counts = still_summary.skipped
     pick = np.linspace(0, len(data.t_ns) - 1, 25).astype(int)
     offset, gain = reading_errors(fixed.effects.active())
     for i in pick:
@@ -101,6 +103,9 @@ def test_calibrate_replay_predict_and_model_give_one_answer(drive, names):
         true_torque = corrected_torque(data.torque[i], offset, gain)
         theta = float(data.temperature[i]) if np.isfinite(data.temperature[i]) else None
         point = evaluate_points(fixed, [true_torque], [data.speed[i]], theta)
+        if math.isnan(loss):  # laws in the load that lock the drive there: no loss in either
+            assert math.isnan(point.loss_torque_nm[0]) and still_counts["load_unbalanced"], (names, i)
+            continue
         assert point.loss_torque_nm[0] == pytest.approx(loss, rel=1e-9, abs=1e-12), (names, i)
 
 

@@ -103,7 +103,7 @@ def test_viscous_friction_that_differs_by_direction_is_found(tmp_path):
 
 
 def test_friction_only_under_back_driving_is_named_with_its_other_reading(tmp_path):
-    """A loss 0.004·|T| only while the output drives the input: taken as backdrive (one term), the
+    """A loss 0.004·|T_load| only while the output drives the input: taken as backdrive (one term), the
     other reading -- a torque-sensor gain plus a load friction in every quadrant -- named beside it
     with its error and what tells them apart; --assume takes the other."""
     rig = Rig(drag_nm=0.1, viscous_nm_s=0.0, backdrive_share=0.004)
@@ -341,14 +341,23 @@ def test_a_parameter_file_at_another_ratio_than_the_recordings_calibrates_at_the
         assert wrong[key] == right[key], key
 
 
-def test_a_set_that_explains_the_data_below_their_noise_is_refused_as_an_identity(tmp_path, monkeypatch):
-    """The backstop behind the one-load rule: the worm drive with that rule (and the load-follows-speed rule)
-    off.  load_dependent (c = 1,
-    q = 1) with a torque offset then reproduces the torque balance to 1e-7 N·m, under the 2e-4 N·m of the
-    torque reading's noise: that set is refused as an identity, whatever its significance."""
+def _balance_mirror(x, c):
+    """``c·(T·sgn ω − |T_load|)``: the measured loss itself wherever the drive motors (a toy law whose
+    column carries the torque balance: no friction, an identity)."""
+    return c * (x.torque * x.rot_sign - x.abs_load)
+
+
+def test_a_law_in_the_load_does_not_explain_the_loss_by_the_loss_and_an_identity_is_refused(tmp_path, monkeypatch):
+    """The backstops behind the one-load rule, on the worm drive with that rule (and the load-follows-speed
+    rule) off.  A law in the drive torque -- the load plus the very loss measured -- with a torque offset
+    reproduced the torque balance to 1e-7 N·m there; the laws in the load take the measured output-side
+    load, so none does: neither load_dependent nor a torque offset is written and the wavy friction no law
+    has is left.  A law whose column carries the measured loss itself (registered here) is refused as an
+    identity, whatever its significance."""
     from rollergear_ros.calibration import blocks
     from rollergear_ros.calibration.calibrate import calibrate
     from rollergear_ros.calibration.samples import load_samples
+    from rollergear_ros.core import effects
     from rollergear_ros.core.params import load_config
     from rollergear_ros.sources.importer import as_mcap
 
@@ -356,12 +365,22 @@ def test_a_set_that_explains_the_data_below_their_noise_is_refused_as_an_identit
     config = load_config(params(tmp_path / "p.yaml", "    gearbox: {ratio: 60.0}\n"))
     csv, cmap = worm_drive(tmp_path, 0.6)
     with as_mcap([csv], cmap) as bags:
-        result = calibrate(load_samples(bags, config), config).to_json()
+        samples = load_samples(bags, config)
+    result = calibrate(samples, config).to_json()
     accepted = {e["name"] for e in result["effects"]}
     assert not {"load_dependent", "torque_offset"} <= accepted, result["effects"]
     assert result["error_after"]["rmse_nm"] > 1e-3  # the wavy friction no law has is left, not explained away
-    refused = [d for d in result["decisions"] if any("an identity" in r for r in d["reasons"])]
-    assert refused, [(d["name"], d["reasons"]) for d in result["decisions"]]
+    effects.register(effects.Effect("balance_mirror", _balance_mirror, True, "add the torque balance", "toy",
+                                    (effects.EffectParameter("c", "c", 0.0, "mirror coefficient"),),
+                                    coefficient="c", depends_on_load=True))
+    try:
+        mirrored = calibrate(samples, config.with_values({"estimator.paper_model": False})).to_json()
+    finally:
+        effects.unregister("balance_mirror")
+    assert "balance_mirror" not in {e["name"] for e in mirrored["effects"]}, mirrored["effects"]
+    refused = [d for d in mirrored["decisions"] if any("an identity" in r for r in d["reasons"])]
+    assert refused, [(d["name"], d["reasons"]) for d in mirrored["decisions"]]
+    assert mirrored["error_after"]["rmse_nm"] > 1e-3
 
 
 def test_a_loss_that_follows_acceleration_is_named_as_such_in_the_residuals_structure(tmp_path):

@@ -93,17 +93,17 @@ def test_a_steep_stribeck_in_range_never_makes_an_efficiency_above_one(tmp_path,
 def test_a_recording_whose_direction_flips_every_sample_is_calibrated_and_reported(tmp_path):
     """Reported as a LinAlgError traceback in the report: speed and torque change sign at every
     sample (a CSV through a channel map), calibrate --report ends with its report, exit 0.  Its loss
-    (0.02 + 0.001·|T| + 1e-4·|ω| N·m) is less than the paper's model: a term accepted when it was
+    (0.02 + 0.001·|T_load| + 1e-4·|ω| N·m) is less than the paper's model: a term accepted when it was
     tested once turned negative fitted with the whole set (a parameter-file error, exit 2); it is now
     dropped, and the file written holds the three laws with the paper's model off."""
     n = 6_000
     rng = np.random.default_rng(0)
     sign = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
-    speed, torque = sign * rng.uniform(50, 250, n), sign * rng.uniform(5, 80, n)
+    speed, load = sign * rng.uniform(50, 250, n), sign * rng.uniform(5, 80, n)
     ratio = 1.36842
-    loss = 0.02 + 0.001 * np.abs(torque) + 1e-4 * np.abs(speed)
-    table = np.column_stack([np.arange(n) * 0.01, torque, speed, (torque - np.sign(speed) * loss) * ratio,
-                             speed / ratio])
+    loss = 0.02 + 0.001 * np.abs(load) + 1e-4 * np.abs(speed)  # the load friction in the output-side load
+    torque = load + np.sign(speed) * loss
+    table = np.column_stack([np.arange(n) * 0.01, torque, speed, load * ratio, speed / ratio])
     np.savetxt(tmp_path / "flip.csv", table, delimiter=",", header="t,T_in,w_in,T_out,w_out", comments="",
                fmt="%.17g")
     (tmp_path / "map.yaml").write_text(

@@ -25,14 +25,16 @@ from rollergear_ros.calibration.simulate import DeclaredEffect, SimulationOption
 
 ROOT = Path(__file__).resolve().parents[2]
 X = EffectInputs(abs_torque=np.array([2.0, 40.0]), abs_speed=np.array([10.0, 200.0]), torque=np.array([2.0, -40.0]),
-                 rot_sign=np.array([1.0, -1.0]), temperature_c=np.array([20.0, 80.0]), fr_part_nm=np.array([0.1, 0.3]))
+                 rot_sign=np.array([1.0, -1.0]), temperature_c=np.array([20.0, 80.0]), fr_part_nm=np.array([0.1, 0.3]),
+                 abs_load=np.array([1.5, 41.0]))
 
 
 @pytest.mark.parametrize(("name", "params", "expected"), [
     ("drag_constant", {"c": 0.04}, 0.04 + 0.0 * X.abs_speed),
     ("drag_speed", {"c": 3e-4, "p": 1.4}, 3e-4 * X.abs_speed ** 1.4),
-    ("load_dependent", {"c": 2e-3, "q": 1.2}, 2e-3 * X.abs_torque ** 1.2),
-    ("load_speed", {"c": 2e-5, "p": 1.3}, 2e-5 * X.abs_torque * X.abs_speed ** 1.3),
+    ("load_dependent", {"c": 2e-3, "q": 1.2}, 2e-3 * X.abs_load ** 1.2),
+    ("load_speed", {"c": 2e-5, "p": 1.3}, 2e-5 * X.abs_load * X.abs_speed ** 1.3),
+    ("backdrive", {"c": 3e-3, "q": 1.1}, 3e-3 * X.abs_load ** 1.1 * (X.torque * X.rot_sign < 0)),
     ("viscosity_temperature", {"B": 700.0, "C": 95.0, "theta_ref": 40.0, "scale": 1.0},
      X.fr_part_nm * (np.exp(700.0 / (X.temperature_c + 95.0) - 700.0 / 135.0) ** 0.66 - 1.0)),
     ("torque_offset", {"b": 0.05}, 0.05 * X.rot_sign),
@@ -48,7 +50,7 @@ X = EffectInputs(abs_torque=np.array([2.0, 40.0]), abs_speed=np.array([10.0, 200
 def test_each_term_is_its_documented_formula(name, params, expected):
     np.testing.assert_allclose(EFFECTS[name].term(X, **params), expected, rtol=1e-12)
     # on Python floats too (the node's per-sample path)
-    x0 = EffectInputs(*(float(v[0]) for v in X[:6]))
+    x0 = EffectInputs(*(float(v[0]) for v in X[:6]), abs_load=float(X.abs_load[0]))
     assert EFFECTS[name].term(x0, **params) == pytest.approx(float(np.asarray(expected)[0]), rel=1e-12)
 
 

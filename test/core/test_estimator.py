@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from rollergear_ros.calibration.simulate import SimulationOptions, simulate
-from rollergear_ros.core.effects import EFFECTS
+from rollergear_ros.core.effects import EFFECTS, EffectInputs
 from rollergear_ros.core.estimator import Estimator
 from rollergear_ros.core.model import SIGN_BAND
 from rollergear_ros.core.pairing import SyncedSample
@@ -50,6 +50,28 @@ def test_the_nodes_sample_by_sample_path_equals_replays_arrays_bit_for_bit(name,
     assert node.speed_noise.value == replayed.speed_noise.value > 0 and node.speed_noise.learned_from == 1000
     assert np.any(np.abs(rig.speed_rad_s) < SIGN_BAND * node.speed_noise.value)  # the tanh band
     for field in ("loss_torque_nm", "loss_power_w", "efficiency", "measured_loss_nm", "residual_nm"):
+        np.testing.assert_array_equal(np.array([getattr(e, field) for e in live]), getattr(batch, field), err_msg=field)
+
+
+@pytest.mark.parametrize("adapt", [True, False], ids=["adapted", "fixed"])
+def test_laws_in_the_load_give_one_answer_sample_by_sample_and_in_arrays_with_and_without_an_output(adapt):
+    """The laws in the load beside other losses, the output torque measured over stretches only: where it
+    is, the adapted laws take the measured load; where not, the load solved at the coefficients of the
+    moment.  The node's path and replay's give the same bits."""
+    config = load_config().with_values({"estimator.adapt": adapt})
+    for name, params in (("drag_speed", {"c": 3e-3, "p": 1.2}), ("load_dependent", {"c": 0.05, "q": 1.3}),
+                         ("load_speed", {"c": 2e-4, "p": 1.0}), ("backdrive", {"c": 0.03, "q": 0.8})):
+        config = with_effect(config, name, params)
+    rig = simulate(config, SimulationOptions("drive_cycle", 100.0, 5))
+    out = np.where((np.arange(len(rig.t_ns)) // 700) % 2 == 0, rig.out_torque_meas_nm, np.nan)
+    columns = (rig.t_ns, rig.torque_meas_nm, rig.speed_rad_s, out, rig.out_speed_meas_rad_s, rig.temperature_c)
+    batch = Estimator(config).process_batch(*columns, breakdown=False)
+    node = Estimator(config)
+    live = [e for e in (node.process(SyncedSample(*row)) for row in zip(*(np.asarray(c).tolist() for c in columns)))
+            if e is not None]
+    assert len(live) == len(batch.t_ns) > 1000
+    assert np.isfinite(batch.measured_loss_nm).any() and np.isnan(batch.measured_loss_nm).any()
+    for field in ("loss_torque_nm", "loss_power_w", "efficiency", "residual_nm"):
         np.testing.assert_array_equal(np.array([getattr(e, field) for e in live]), getattr(batch, field), err_msg=field)
 
 
@@ -185,3 +207,34 @@ def test_a_drive_at_rest_gives_no_measured_loss_whatever_its_speed_readings_nois
     assert np.count_nonzero(np.isfinite(at_rest)) <= 0.005 * len(at_rest), np.count_nonzero(np.isfinite(at_rest))
     assert np.count_nonzero(np.isfinite(turning)) >= 0.97 * len(turning)
     assert np.nanmean(turning) == pytest.approx(3e-4 + 0.05 / 288.0, rel=0.02)
+
+
+@pytest.mark.parametrize(("law", "params"), [("load_dependent", {"c": 0.08, "q": 1.3}),
+                                             ("load_dependent", {"c": 0.05, "q": 0.6}),
+                                             ("load_speed", {"c": 4e-4, "p": 1.0}),
+                                             ("backdrive", {"c": 0.2, "q": 1.0})])
+def test_a_law_in_the_load_takes_the_output_side_load_not_the_drive_torque(law, params):
+    """Operating points made from the output side: a load ``T_load`` and a speed give the drive torque
+    ``T = T_load + sgn ω·(drag + law(|T_load|))`` (the paper's model off).  Fed the drive torque alone,
+    as a node without an output sensor is, the estimator's loss is the drag plus the law at ``T_load`` --
+    under a light load, where the drive torque is mostly the loss, as under a heavy one, motoring and
+    back-driven."""
+    config = with_effect(with_effect(load_config().with_values({"estimator.paper_model": False,
+                                                                "estimator.speed_noise_rad_s": 0.0}),
+                                     "drag_constant", {"c": 1.5}), law, params)
+    load = np.array([-60.0, -5.0, -0.3, 0.0, 0.25, 4.0, 60.0, 60.0, -60.0])
+    speed = np.array([30.0, 30.0, 30.0, 30.0, 30.0, -30.0, 200.0, -200.0, -200.0])
+    s = np.sign(speed)
+    x = EffectInputs(np.abs(load), np.abs(speed), load, s, abs_load=np.abs(load))
+    drive = load + s * (1.5 + EFFECTS[law].term(x._replace(torque=load + s * 1.5), **params))
+    # backdrive's condition is the drive torque's: the point above, re-made at its own drive torque
+    if law == "backdrive":
+        drive = load + s * (1.5 + EFFECTS[law].term(x._replace(torque=drive), **params))
+    est = Estimator(config, operating_points=True)
+    b = est.process_batch(np.arange(len(load), dtype=np.int64), drive, speed)
+    truth = drive - load
+    np.testing.assert_allclose(b.loss_torque_nm, truth, rtol=1e-11, atol=1e-12)
+    # the drive torque taken as the load instead would miss by the law's slope times the loss
+    wrong = s * (1.5 + EFFECTS[law].term(EffectInputs(np.abs(drive), np.abs(speed), drive, s,
+                                                     abs_load=np.abs(drive)), **params))
+    assert np.max(np.abs(wrong - truth)) > 1e-3

@@ -227,15 +227,21 @@ def test_an_overload_is_reported_while_the_reports_keep_their_pace():
 
         def overloaded() -> list:
             return [s for _, s in during_flood() if "overloaded" in s.message]
-        try:  # a condition: an overload reported and eight reports while the inputs arrived
-            assert wait_for(lambda: overloaded() and len(during_flood()) >= 8, 300), [s.message for _, s in reports]
+
+        def lost_on_both() -> list:  # an overload whose report has counted losses on both inputs by now
+            return [s for s in overloaded() if all(
+                int({kv.key: kv.value for kv in s.values}.get(f"{ch} lost in delivery", 0)) > 0
+                for ch in ("motor_torque", "motor_speed"))]
+        try:  # a condition: an overload reported, losses counted on both inputs, eight reports during the flood
+            assert wait_for(lambda: lost_on_both() and len(during_flood()) >= 8, 300), \
+                [s.message for _, s in reports]
         finally:
             flood.send_signal(signal.SIGINT)
             flood.communicate(timeout=60)
     assert node.stop() == 0, node.stderr
     arrivals = np.array([t for t, _ in during_flood()])
     assert np.diff(arrivals).max() < 3.0, np.diff(arrivals)  # 1 s apart, not 4-9 s
-    status = overloaded()[0]
+    status = lost_on_both()[0]
     values = {kv.key: kv.value for kv in status.values}
     # the oldest messages of the overflowing queues were lost: counted, by input, from the publisher's
     # sequence numbers, and the samples they belonged to skipped as lost

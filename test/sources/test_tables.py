@@ -75,19 +75,22 @@ def _params(tmp_path, paper_model: bool):
 
 @needs_realdata
 def test_the_40t_axle_map_is_found_to_be_40_plus_0_015_abs_torque(tmp_path):
-    """VECTO's generic 40 t axle map is exactly 40 + 0.015·|T| N·m: with the paper's model switched
-    off, calibrate finds drag_constant c = 40 and load_dependent c = 0.015, q = 1 and nothing else;
-    the written parameter file gives the energy manager the same map back."""
+    """VECTO's generic 40 t axle map is exactly 40 + 0.015·|T| N·m in the input torque T.  The load
+    friction takes the output-side load, ``|T| − L`` driving and ``|T| + L`` in overrun, where the same
+    map reads ``(40 + 0.015·|T_load|)/(1 ± 0.015)``: with the paper's model switched off, calibrate finds
+    drag_constant c ≈ 40 and load_dependent c ≈ 0.015, q = 1 and nothing else, the one law nearest both
+    directions (0.3 % of the loss left); the written parameter file gives the energy manager the map
+    back within 1 %."""
     cal = tmp_path / "axle_cal.yaml"
     proc = run_cli("calibrate", str(AXLE_40T), "--params", str(_params(tmp_path, False)), "--json", "--out", str(cal))
     result = json.loads(proc.stdout)
     assert result["verdict"] == "effects_found"
     found = {e["name"]: e["params"] for e in result["effects"]}
     assert set(found) == {"drag_constant", "load_dependent"}
-    assert found["drag_constant"]["c"] == pytest.approx(40.0, rel=0.01)
-    assert found["load_dependent"]["c"] == pytest.approx(0.015, rel=0.01)
+    assert found["drag_constant"]["c"] == pytest.approx(40.0, rel=0.03)
+    assert found["load_dependent"]["c"] == pytest.approx(0.015, rel=0.07)
     assert found["load_dependent"]["q"] == pytest.approx(1.0, rel=0.01)
-    assert result["error_after"]["rel_rmse_pct"] < 0.1 < 50 < result["error_before"]["rel_rmse_pct"]
+    assert result["error_after"]["rel_rmse_pct"] < 0.3 < 50 < result["error_before"]["rel_rmse_pct"]
     assert "rows of the steady-state table" in result["holdout"]
     adequacy = result["adequacy"]
     assert adequacy["paper_model"] is False and adequacy["model_share_pct"] == 0
@@ -98,7 +101,7 @@ def test_the_40t_axle_map_is_found_to_be_40_plus_0_015_abs_torque(tmp_path):
             "--torque-nm", "-5000", "35000", "2500")
     rows = np.array([ln.split(",") for ln in out.read_text().splitlines()
                      if not ln.startswith("#")][1:], dtype=float)
-    np.testing.assert_allclose(rows[:, 2], 40 + 0.015 * np.abs(rows[:, 1]), rtol=0.01)
+    np.testing.assert_allclose(rows[:, 2], 40 + 0.015 * np.abs(rows[:, 1]), rtol=0.03)
 
 
 @needs_realdata
@@ -117,7 +120,7 @@ def test_with_the_papers_model_on_the_axle_no_negative_friction_the_model_switch
     assert result["adequacy"]["paper_model"] is False
     assert any("the paper's model over-predicts this gearbox's loss" in n and "estimator.paper_model: false" in n
                for n in result["notes"])
-    assert result["error_after"]["rel_rmse_pct"] < 0.1
+    assert result["error_after"]["rel_rmse_pct"] < 0.3  # a law in the input torque, fitted in the load
     assert load_config(cal).estimator.paper_model is False  # the claim is the file
 
 
@@ -138,7 +141,9 @@ def test_a_map_the_papers_model_cannot_shape_is_written_without_it_and_said(tmp_
     assert any("does not have the shape of this gearbox's loss" in n and "depends most on torque" in n
                for n in on["notes"])
     assert on["error_after"]["rmse_nm"] == pytest.approx(off["error_after"]["rmse_nm"], rel=1e-9)
-    assert on["error_after"]["rel_rmse_pct"] < 5.0
+    # VECTO's law is in the input torque; in the output-side load the laws take, driving and overrun
+    # differ by c/(1 ± c) (c = 0.04 here): 5.5 % of the loss left
+    assert on["error_after"]["rel_rmse_pct"] < 6.0
 
 
 def test_an_undeclared_effect_in_a_table_from_the_full_model_is_found(tmp_path, config):
@@ -232,9 +237,9 @@ def test_a_tables_intervals_come_from_its_own_scatter(tmp_path):
     lines = [HEADER.strip()]
     for n in range(250, 4001, 250):
         w = n * 2 * np.pi / 60
-        for t in [*range(-200, 0, 20), *range(20, 201, 20)]:
-            loss = 1.2 + 4e-4 * w ** 1.3 + 0.012 * abs(t) + rng.normal(0, 0.01)
-            lines.append(f"{n},{t},{loss:.6f}")
+        for load in [*range(-200, 0, 20), *range(20, 201, 20)]:  # the output-side load, referred to the input
+            loss = 1.2 + 4e-4 * w ** 1.3 + 0.012 * abs(load) + rng.normal(0, 0.01)
+            lines.append(f"{n},{load + loss:.6f},{loss:.6f}")
     (tmp_path / "map.vtlm").write_text("\n".join(lines) + "\n")
     result = json.loads(run_cli("calibrate", str(tmp_path / "map.vtlm"), "--params", str(_params(tmp_path, False)),
                                 "--json").stdout)
