@@ -58,8 +58,12 @@ def cmd_model(args: argparse.Namespace) -> int:
     print("-" * len(head))
     for p in points:
         if p["loss_torque_nm"] is None:
-            print(f"{p['torque_nm']:>10.4g} {p['speed_rad_s']:>10.4g}  skipped: outside the estimator's "
-                  "plausible range (estimator.max_abs_*)")
+            est = config.estimator
+            why = ("outside the estimator's plausible range (estimator.max_abs_*)"
+                   if abs(p["torque_nm"]) > est.max_abs_torque_nm or abs(p["speed_rad_s"]) > est.max_abs_speed_rad_s
+                   else "the file's laws in the load lock the drive here (back-driven, no output-side load "
+                        "balances it: load_unbalanced)")
+            print(f"{p['torque_nm']:>10.4g} {p['speed_rad_s']:>10.4g}  skipped: {why}")
             continue
         terms = {**p["breakdown_nm"], **p["effects_nm"]}
         dom = max(terms, key=lambda k: abs(terms[k]))

@@ -100,10 +100,19 @@ def build_map(config: Config, speeds_rpm: Sequence[float], torques_nm: Sequence[
 
 def plausible_points(config: Config, torque_nm, speed_rad_s, temperature_c: float | None, what: str) -> PointLosses:
     """:func:`~core.operating_points.evaluate_points`, refusing points the estimator skips as
-    implausible (``what`` -- the grid, the table -- names them in the error)."""
+    implausible, or where the file's laws in the load lock a back-driven drive (``load_unbalanced``;
+    ``what`` -- the grid, the table -- names them in the error)."""
     points = evaluate_points(config, torque_nm, speed_rad_s, temperature_c)
-    if np.isnan(points.loss_magnitude_nm).any():
-        est = config.estimator
+    missing = np.isnan(points.loss_magnitude_nm)
+    est = config.estimator
+    locked = missing & (np.abs(torque_nm) <= est.max_abs_torque_nm) & (np.abs(speed_rad_s) <= est.max_abs_speed_rad_s)
+    if locked.any():
+        i = int(np.flatnonzero(locked)[0])
+        raise UsageError(f"the parameter file's laws in the load lock the drive at {int(locked.sum())} points of the "
+                         f"{what} (back-driven, no output-side load balances the drive torque; the first at "
+                         f"T = {float(np.asarray(torque_nm)[i]):g} N·m, w = {float(np.asarray(speed_rad_s)[i]):g} "
+                         "rad/s): lower their coefficient or exponent, or the grid's torques")
+    if missing.any():
         raise UsageError(f"the {what} leaves the estimator's plausible range (|T| <= {est.max_abs_torque_nm:g} N·m, "
                          f"|w| <= {est.max_abs_speed_rad_s:g} rad/s): estimator.max_abs_*")
     return points

@@ -285,3 +285,26 @@ def test_a_parameter_file_or_a_run_time_change_with_a_grid_too_large_is_refused(
         config.with_values({"map.speed_step_rpm": 1.0, "map.torque_step_nm": 0.1})
     edge = config.map.last_speed_rpm(config.gearbox) / (MAX_MAP_AXIS_POINTS - 1)
     assert config.with_values({"map.speed_step_rpm": edge, "map.torque_step_nm": 50.0}).map.speed_step_rpm == edge
+
+
+def test_laws_in_the_load_that_lock_a_back_driven_drive_are_said_by_model_and_refused_by_map(tmp_path):
+    """A back-driving friction growing with the cube of the load (c = 0.003, q = 3) locks the drive once the
+    output back-drives it with some 7 N·m: no output-side load balances the drive torque there.  ``model``
+    says so at such a point (not "outside the plausible range"), ``map`` refuses the grid in one line
+    naming the first such point; a grid whose overrun stays below the lock is mapped."""
+    p = tmp_path / "locked.yaml"
+    p.write_text("/**/loss_estimator:\n  ros__parameters:\n    effects:\n      backdrive: {enabled: true, c: 0.003, "
+                 "q: 3.0}\n")
+    text = run_cli("model", "--params", str(p), "--torque", "-90", "-5", "90", "--speed", "100").stdout
+    rows = {ln.split()[0]: ln for ln in text.splitlines() if ln.strip() and ln.split()[0] in ("-90", "-5", "90")}
+    assert "laws in the load lock the drive" in rows["-90"] and "plausible" not in rows["-90"], text
+    assert "skipped" not in rows["-5"] and "skipped" not in rows["90"], text
+    out = tmp_path / "locked.vtlm"
+    proc = run_cli("map", "--params", str(p), "--out", str(out), "--no-plot", "--both-directions", "--torque-nm",
+                   "-100", "100", "10", "--speed-rpm", "0", "2000", "500", check=False)
+    assert proc.returncode == 2 and not out.exists(), proc.stderr
+    [line] = proc.stderr.strip().splitlines()
+    assert "laws in the load lock the drive" in line and "T = -100 N·m" in line, line
+    run_cli("map", "--params", str(p), "--out", str(out), "--no-plot", "--torque-nm", "-5", "100", "5",
+            "--speed-rpm", "0", "2000", "500")
+    assert out.exists()
