@@ -585,13 +585,13 @@ class EffectTerms:
 
 
 #: Newton steps of :func:`output_load` (a fixed count: a float and an array element take the same steps)
-LOAD_STEPS = 10
+LOAD_STEPS = 24
 #: the torque balance :func:`output_load` must close, relative to the torques in it: no load closes it
 #: closer where the laws lock the drive (a friction growing faster than the load that back-drives it)
 LOAD_BALANCE = 1e-9
-#: the least slope Newton's step divides by: where a friction grows with the load as fast as the load
-#: (a self-locking drive, back-driven) the step is damped instead of thrown far off
-LOAD_MIN_SLOPE = 0.5
+#: the least slope Newton's step divides by: a back-driven law may take up to 95 % of each further unit of
+#: load; where a friction grows with the load as fast as the load (a self-locking drive) the steps run off
+LOAD_MIN_SLOPE = 0.05
 
 
 def takes_load(effect: Effect) -> bool:
@@ -608,43 +608,57 @@ def output_load(x: EffectInputs, other_loss_nm, laws: Sequence[tuple[Effect, Map
 
     ``T`` the drive torque (``x.torque``), ``s`` the direction the loss opposes (``x.rot_sign``),
     ``L_other`` every loss that is not a law in the load (the paper's model and the other effects),
-    ``F`` the sum of ``laws`` (effect, its parameters) at the load.  Newton from the load without the laws'
-    own loss, :data:`LOAD_STEPS` steps; each law's slope is ``e·F_i/|T_load|`` (its exponent ``e`` in the
-    load), so a law linear in the load is solved in one step.  Where the balance does not close
-    (:data:`LOAD_BALANCE`: the laws lock a back-driven drive) both are NaN.  Same floats for a float and
-    an array.
+    ``F`` the sum of ``laws`` (effect, its parameters) at the load.  In the direction's frame
+    ``v = sgn(s)·T_load`` solves ``v + |s|·F(|v|) = u``, ``u = sgn(s)·T − |s|·L_other``: Newton from ``v = u``,
+    :data:`LOAD_STEPS` steps, each law's slope ``e·F_i/|T_load|`` (its exponent ``e`` in the load: a law
+    linear in the load is solved in one step).  Where the load without the laws' own loss drives
+    (``u ≥ |s|·F(0)``) the root is the one in ``[0, u]``, and a step never goes below a sixteenth of the
+    last iterate -- a law steeper than the load near zero also balances a spurious back-driven load there;
+    else the load back-drives (``v ≤ 0``).  Where the balance does not close (:data:`LOAD_BALANCE`: the
+    laws lock a back-driven drive) both are NaN.  Same floats for a float and an array.
     """
     torque, s = x.torque, x.rot_sign
-    y = torque - s * other_loss_nm
     if not laws:
-        return abs(y), 0.0 * x.abs_speed
+        return abs(torque - s * other_loss_nm), 0.0 * x.abs_speed
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):  # a locked drive runs off: NaN below
-        return _newton_load(x, torque, s, y, other_loss_nm, laws)
+        return _newton_load(x, torque, s, other_loss_nm, laws)
 
 
-def _newton_load(x: EffectInputs, torque, s, y, other_loss_nm, laws):
-    """:func:`output_load`'s steps from the load ``y`` without the laws' own loss."""
-    for _ in range(LOAD_STEPS):
-        w = abs(y)
-        xi = x._replace(abs_load=w)
-        f, slope = 0.0, 0.0
-        for effect, params in laws:
-            fi = effect.term(xi, **params)
-            e = params[effect.load_exponent] if isinstance(effect.load_exponent, str) else effect.load_exponent
-            f = f + fi
-            slope = slope + e * fi
-        slope = slope / _at_least(w, 1e-300)
-        direction = (y > 0) * 1.0 - (y < 0) * 1.0
-        g = y - torque + s * (other_loss_nm + f)
-        y = y - g / _at_least(1.0 + s * direction * slope, LOAD_MIN_SLOPE)
-    w = abs(y)
+def _laws_at(x: EffectInputs, w, laws) -> tuple:
+    """The laws' sum at the load ``w`` and its slope there (``Σ e_i·F_i / w``)."""
     xi = x._replace(abs_load=w)
-    f = 0.0 * w
+    f, slope = 0.0 * w, 0.0 * w
     for effect, params in laws:
-        f = f + effect.term(xi, **params)
+        fi = effect.term(xi, **params)
+        e = params[effect.load_exponent] if isinstance(effect.load_exponent, str) else effect.load_exponent
+        f = f + fi
+        slope = slope + e * fi
+    return f, slope / _at_least(w, 1e-300)
+
+
+def _newton_load(x: EffectInputs, torque, s, other_loss_nm, laws):
+    """:func:`output_load`'s steps (in the direction's frame ``v``)."""
+    scalar = isinstance(torque, float)
+    sigma = (s > 0) * 1.0 - (s < 0) * 1.0
+    a = abs(s)
+    u = sigma * torque - a * other_loss_nm
+    f0, _ = _laws_at(x, 0.0 * u, laws)
+    drives = u >= a * f0
+    v = u
+    for _ in range(LOAD_STEPS):
+        f, slope = _laws_at(x, abs(v), laws)
+        direction = (v > 0) * 1.0 - (v < 0) * 1.0
+        step = (v + a * f - u) / _at_least(1.0 + a * direction * slope, LOAD_MIN_SLOPE)
+        if scalar:
+            v = min(max(v - step, 0.0625 * v), u) if drives else min(v - step, 0.0)
+        else:
+            v = np.where(drives, np.minimum(np.maximum(v - step, 0.0625 * v), u), np.minimum(v - step, 0.0))
+    y = sigma * v + (sigma == 0) * torque  # no direction: the load is the drive torque
+    w = abs(y)
+    f, _ = _laws_at(x, w, laws)
     # where the balance stays open the laws lock the drive: no load (NaN), never a guess
     unbalanced = abs(y - torque + s * (other_loss_nm + f)) > LOAD_BALANCE * (abs(torque) + abs(other_loss_nm) + f)
-    if isinstance(w, float):
+    if scalar:
         return (math.nan, math.nan) if unbalanced or w != w else (w, f)
     return np.where(unbalanced, np.nan, w), np.where(unbalanced, np.nan, f)
 
