@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rigs import write_csv
+from rigs import rig_map, write_csv
 
 PAUSE_S = 2.0
 
@@ -79,12 +79,7 @@ def loaded_joint_plan(tmp: Path, speeds, loads, name: str, seed: int) -> tuple[P
             runs.append({"t": t, "T_in": (friction + held) / JOINT_RATIO + rng.normal(0.0, 4e-4, len(t)),
                          "w_in": w * JOINT_RATIO + rng.normal(0.0, 0.05, len(t)),
                          "T_out": held + rng.normal(0.0, 0.02, len(t))})
-    csv = _export(tmp / f"{name}.csv", runs)
-    cmap = tmp / f"{name}_map.yaml"
-    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
-                    "motor_speed: {column: w_in, unit: rad/s}\noutput_torque: {column: T_out, unit: N*m}\n"
-                    f"ratio: {JOINT_RATIO}\n")
-    return csv, cmap
+    return _export(tmp / f"{name}.csv", runs), rig_map(tmp / f"{name}_map.yaml", JOINT_RATIO)
 
 
 def one_load_plan(tmp: Path, torque_nm: float, speeds_rpm, name: str, seed: int) -> tuple[Path, Path]:
@@ -104,12 +99,7 @@ def one_load_plan(tmp: Path, torque_nm: float, speeds_rpm, name: str, seed: int)
             loss = model.loss_magnitude(tq, w) + 0.05 + 2e-4 * np.abs(w)
             runs.append({"t": t, "T_in": tq + rng.normal(0.0, 0.01, len(t)), "w_in": w + rng.normal(0.0, 0.02, len(t)),
                          "T_out": (tq - loss * np.sign(w)) * ratio + rng.normal(0.0, 0.01 * ratio, len(t))})
-    csv = _export(tmp / f"{name}.csv", runs)
-    cmap = tmp / f"{name}_map.yaml"
-    cmap.write_text("time: {column: t, unit: s}\nmotor_torque: {column: T_in, unit: N*m}\n"
-                    "motor_speed: {column: w_in, unit: rad/s}\noutput_torque: {column: T_out, unit: N*m}\n"
-                    f"ratio: {ratio}\n")
-    return csv, cmap
+    return _export(tmp / f"{name}.csv", runs), rig_map(tmp / f"{name}_map.yaml", ratio)
 
 
 def replayed(csv: Path, cmap: Path, params: Path) -> dict[str, np.ndarray]:

@@ -361,7 +361,8 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     # between them, carry none (their readings' noise would be fitted as one)
     nuisance = {name: mean(col) for name, col in nuisance_columns(d, sg).items()} if groups.transients else {}
     # the laws in the load take the output-side load the power balance measured (core.effects.output_load)
-    x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part, abs_load=np.abs(d.torque - sg * d.measured_loss))
+    load = d.torque - sg * d.measured_loss
+    x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part, abs_load=np.abs(load))
     blocks = Blocks(
         start,
         count,
@@ -392,7 +393,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     blocks.place = groups.place
     blocks.groups = groups
     blocks.full_count = _full_block(t, block_s)
-    blocks.load = mean(d.torque - sg * d.measured_loss)
+    blocks.load = mean(load)
     blocks.untestable = untestable
     blocks.load_rule = load_rule(d)
     blocks.nuisance = nuisance

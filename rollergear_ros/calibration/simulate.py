@@ -202,9 +202,9 @@ def _laws_at_true_load(x: EffectInputs, other_loss_nm: np.ndarray, laws: list, a
 
     s = np.where(x.rot_sign == 0, 0.0, np.sign(x.rot_sign))
     u = s * x.torque - other_loss_nm
-    h0 = F(np.zeros_like(u)) - u
-    lo = np.where(h0 <= 0, 0.0, -(np.abs(u) + F(np.zeros_like(u)) + 1e-12))
-    hi = np.where(h0 <= 0, np.maximum(u, 0.0), 0.0)
+    f0 = F(np.zeros_like(u))
+    lo = np.where(f0 - u <= 0, 0.0, -(np.abs(u) + f0 + 1e-12))
+    hi = np.where(f0 - u <= 0, np.maximum(u, 0.0), 0.0)
     for _ in range(200):  # widen downwards until h(lo) <= 0 (a back-driven drive: |T_load| > |T|)
         up = lo + F(lo) - u > 0
         if not up.any():

@@ -21,7 +21,7 @@ EXAMPLE = "rollergear model --torque 1 10 50 --speed 104.72 --params calibrated.
 # ---------------------------------------------------------------------------------- model
 def cmd_model(args: argparse.Namespace) -> int:
     from ..core.model import BREAKDOWN_KEYS
-    from ..core.operating_points import evaluate_points
+    from ..core.operating_points import evaluate_points, locked_points
 
     config = config_from_args(args)
     if args.csv:
@@ -56,13 +56,12 @@ def cmd_model(args: argparse.Namespace) -> int:
             f"{'model [%]':>9}  dominant term")
     print(head)
     print("-" * len(head))
-    for p in points:
+    locked = locked_points(config, res)
+    for p, lock in zip(points, locked.tolist()):
         if p["loss_torque_nm"] is None:
-            est = config.estimator
-            why = ("outside the estimator's plausible range (estimator.max_abs_*)"
-                   if abs(p["torque_nm"]) > est.max_abs_torque_nm or abs(p["speed_rad_s"]) > est.max_abs_speed_rad_s
-                   else "the file's laws in the load lock the drive here (back-driven, no output-side load "
-                        "balances it: load_unbalanced)")
+            why = ("the file's laws in the load lock the drive here (back-driven, no output-side load balances "
+                   "it: load_unbalanced)" if lock else
+                   "outside the estimator's plausible range (estimator.max_abs_*)")
             print(f"{p['torque_nm']:>10.4g} {p['speed_rad_s']:>10.4g}  skipped: {why}")
             continue
         terms = {**p["breakdown_nm"], **p["effects_nm"]}

@@ -39,6 +39,7 @@ _FACE = {
     "walther_viscosity_mm2_s": "oil",
     "PointLosses": "operating_points",
     "evaluate_points": "operating_points",
+    "locked_points": "operating_points",
     "only": "operating_points",
     "reference_temperature_c": "operating_points",
     "rows_config": "operating_points",

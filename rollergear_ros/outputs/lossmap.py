@@ -29,7 +29,7 @@ import numpy as np
 from ..base.atomic import save_figure, write_text
 from ..base.errors import UsageError
 from ..base.interface import RPM_PER_RAD_S, package_version
-from ..core.operating_points import PointLosses, evaluate_points
+from ..core.operating_points import PointLosses, evaluate_points, locked_points
 from ..core.params import Config, grid_axis_problem, grid_cells_problem, grid_points
 from ..sources.tables import MIN_ROWS
 
@@ -103,16 +103,15 @@ def plausible_points(config: Config, torque_nm, speed_rad_s, temperature_c: floa
     implausible, or where the file's laws in the load lock a back-driven drive (``load_unbalanced``;
     ``what`` -- the grid, the table -- names them in the error)."""
     points = evaluate_points(config, torque_nm, speed_rad_s, temperature_c)
-    missing = np.isnan(points.loss_magnitude_nm)
-    est = config.estimator
-    locked = missing & (np.abs(torque_nm) <= est.max_abs_torque_nm) & (np.abs(speed_rad_s) <= est.max_abs_speed_rad_s)
+    locked = locked_points(config, points)
     if locked.any():
         i = int(np.flatnonzero(locked)[0])
         raise UsageError(f"the parameter file's laws in the load lock the drive at {int(locked.sum())} points of the "
                          f"{what} (back-driven, no output-side load balances the drive torque; the first at "
                          f"T = {float(np.asarray(torque_nm)[i]):g} N·m, w = {float(np.asarray(speed_rad_s)[i]):g} "
                          "rad/s): lower their coefficient or exponent, or the grid's torques")
-    if missing.any():
+    if np.isnan(points.loss_magnitude_nm).any():
+        est = config.estimator
         raise UsageError(f"the {what} leaves the estimator's plausible range (|T| <= {est.max_abs_torque_nm:g} N·m, "
                          f"|w| <= {est.max_abs_speed_rad_s:g} rad/s): estimator.max_abs_*")
     return points
