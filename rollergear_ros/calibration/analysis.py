@@ -140,6 +140,8 @@ def _select_terms(data: SampleData, config: Config, how: Analysis) -> _Selected:
     out = select(cal, start, how.assume, _value_check(config, ranges))
     # the engineer's least-squares line on the same folds: the written file is never worse than it
     hand = weigh(cal, out, hand_fit(cal, _value_check(config, ranges)))
+    if hand is not None and hand["written"]:  # the line is written as it was weighed: through the points' means
+        cal = cal.at_operating_points()
     selected: list[Term] = out.selected
     final = selected + out.provisional
     data_c = data
@@ -526,6 +528,8 @@ def _refit_sensor_errors(cal: Calibrator, data: SampleData, final: list[Term], c
                          cal.min_improvement)
         new.minimum = cal.minimum
         new.log = cal.log
+        if cal.point_means:
+            new = new.at_operating_points()
         final = [new._with_member(t, t.member) if t.member is not None else members(new.b, t.name)[0] for t in final]
         cal = new
     return cal, final, corrected

@@ -7,7 +7,9 @@ is always in the race, on the same folds as the selection (:mod:`.grouping`: who
 held out).  The written file predicts held-out operating points at least as well as this line: where
 the selection's set does not, the line is written instead and the result says why (a law with a free
 exponent that takes the Coulomb part first, a curve bent where the data are straight).  The per-direction
-form is taken only where it predicts clearly better (by the selection's minimum improvement).
+form is taken only where it predicts clearly better (by the selection's minimum improvement).  The line is
+fitted as by hand, to the operating points' means (:meth:`~.selection.Calibrator.at_operating_points`): on its
+folds, and in the file where it is written.
 No rclpy import.
 """
 
@@ -64,7 +66,9 @@ CONSTANT_READINGS = frozenset({"drag_constant", "torque_offset"})
 
 def hand_fit(cal: Calibrator, check: Callable[[Term, float], str | None] | None = None,
              min_improvement: float | None = None) -> HandFit | None:
-    """The least-squares line on ``cal``'s blocks (None where the data cannot test a constant drag)."""
+    """The least-squares line through ``cal``'s operating points (None where the data cannot test a constant
+    drag)."""
+    cal = cal.at_operating_points()
     b = cal.b
     if "drag_constant" not in b.testable or "drag_speed" not in b.testable:
         return None
@@ -133,7 +137,7 @@ def weigh(cal: Calibrator, selection, hand: HandFit | None) -> dict | None:
         said["reason"] = (f"the selection predicts held-out operating points at least as well ({mine:.4g} against "
                           f"{hand.heldout_rmse_nm:.4g} N·m)")
         return said
-    weak = _not_significant(cal, hand.terms, {u.name for u in selection.selected})
+    weak = _not_significant(cal.at_operating_points(), hand.terms, {u.name for u in selection.selected})
     if weak:
         said["reason"] = (f"it predicts held-out operating points a little better ({hand.heldout_rmse_nm:.4g} against "
                           f"{mine:.4g} N·m), but its {', '.join(weak)} {'is' if len(weak) == 1 else 'are'} not "

@@ -22,7 +22,6 @@ from ..core.covariance import ParameterCovariance
 from ..core.effects import EFFECTS
 from ..core.modelparams import MODEL_PARAMETERS
 from ..core.params import Config
-from .leastsquares import wls
 from .selection import Calibrator, Term
 
 __all__ = ["fitted_covariance"]
@@ -59,7 +58,7 @@ def fitted_covariance(cal: Calibrator, final: list[Term], selected: int, config:
             extra.append((cal._offset(moved, dict(enumerate(coef))) - base) / step)
             quantities.append((which, i, ""))
     design = np.column_stack([x, *extra]) if extra else x
-    cov = wls(design, y, cal.b.weight, cal.b.dwell).cov
+    cov = cal.solve(design, y).cov
     keys, rows = _keys(final[:selected], quantities, coef, config)
     if not keys:
         return None

@@ -9,6 +9,7 @@ No rclpy import.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -150,6 +151,49 @@ class Calibrator:
         self.datasheet_law: tuple[float, float, float] | None = None  #: the oil's data sheet's Vogel B, C, θ_ref
         #: effect -> why it was last taken as its line (:meth:`_line_unless_curve_predicts`)
         self.line_notes: dict[str, str] = {}
+        #: fits on the operating points' means, not the blocks' (:meth:`at_operating_points`)
+        self.point_means = False
+
+    def at_operating_points(self) -> Calibrator:
+        """This calibrator fitting the operating points' means (:mod:`.grouping`), each weighing by its samples,
+        instead of the blocks: a line through a test plan's runs as an engineer fits it by hand, which how torque
+        and speed ripple together inside a run does not tilt.  Its held-out predictions and
+        every fit of it go the same way; without operating-point groups, this calibrator itself."""
+        if self.b.groups is None or self.point_means:
+            return self
+        out = copy.copy(self)
+        out.point_means = True
+        return out
+
+    def solve(self, x: np.ndarray, y: np.ndarray, rows: np.ndarray | None = None) -> Fit:
+        """The weighted fit of ``y`` by ``x``'s columns over the blocks (or ``rows`` of them), cluster-robust by
+        dwell; at the operating points (:meth:`at_operating_points`): of their means, robust point by point.
+        The prediction is per block."""
+        b = self.b
+        if rows is not None:
+            x, y = x[rows], y[rows]
+        if not self.point_means:
+            w = b.weight if rows is None else b.weight[rows]
+            return wls(x, y, w, b.dwell if rows is None else b.dwell[rows])
+        group = b.groups.group if rows is None else b.groups.group[rows]
+        count = b.count if rows is None else b.count[rows]
+        points, index = np.unique(group, return_inverse=True)
+        n = np.bincount(index, weights=count)
+        yg = np.bincount(index, weights=count * y) / n
+        if x.shape[1] == 0:
+            return Fit(np.zeros(0), np.zeros((0, 0)), float(np.sum(n * yg**2)), np.zeros(len(y)))
+        xg = np.column_stack([np.bincount(index, weights=count * c) / n for c in x.T])
+        f = wls(xg, yg, n, np.arange(len(points)))
+        return Fit(f.coef, f.cov, f.wsse, x @ f.coef)
+
+    def _residual_sse(self, x: np.ndarray, y: np.ndarray) -> float:
+        """The weighted residual sum of squares of the fit of ``y`` by ``x`` (the profiles': the normal
+        equations where well conditioned; the operating points' means where they are fitted)."""
+        if self.point_means:
+            return self.solve(x, y).wsse
+        if x.shape[1] == 0:
+            return float(np.sum(self.b.weight * y**2))
+        return weighted_sse(x, y, self.b.weight)
 
     def search_ranges(self, name: str) -> dict[str, tuple[float, float]]:
         """Short name -> search bounds of an effect's profiled members (a start's, else the registry's)."""
@@ -202,9 +246,9 @@ class Calibrator:
         offset = self._offset(terms, held)
         k0 = len(self.nuisance)
         if x.shape[1] == 0:
-            f = Fit(np.zeros(0), np.zeros((0, 0)), float(np.sum(self.b.weight * (self.b.y - offset) ** 2)), offset)
+            f = Fit(np.zeros(0), np.zeros((0, 0)), self._residual_sse(x, self.b.y - offset), offset)
         else:
-            f = wls(x, self.b.y - offset, self.b.weight, self.b.dwell)
+            f = self.solve(x, self.b.y - offset)
             f.pred = f.pred + offset
         if not held:
             return f
@@ -221,10 +265,7 @@ class Calibrator:
         """The weighted residual sum of squares of a set's fit (what the exponents' profiles minimise)."""
         held = self.held(terms)
         x = self.design(terms, skip=held)
-        y = self.b.y - self._offset(terms, held)
-        if x.shape[1] == 0:
-            return float(np.sum(self.b.weight * y**2))
-        return weighted_sse(x, y, self.b.weight)
+        return self._residual_sse(x, self.b.y - self._offset(terms, held))
 
     def cv_predictions(self, terms: Sequence[Term], only_terms: int | None = None) -> np.ndarray:
         """Prediction of every block from a fit that did not see its fold.
@@ -245,7 +286,7 @@ class Calibrator:
         cols = slice(None) if only_terms is None else slice(k0, k0 + n_free)
         for k in np.unique(self.b.fold):
             test = self.b.fold == k
-            f = wls(x[~test], self.b.y[~test] - fit_offset[~test], self.b.weight[~test])
+            f = self.solve(x, self.b.y - fit_offset, rows=~test)
             pred[test] += x[test][:, cols] @ f.coef[cols]
         return pred
 
@@ -299,10 +340,7 @@ class Calibrator:
         """:meth:`wsse` with term ``i``'s coefficient held at its effect's ``profile_coefficient``."""
         held = self.held(terms) | {i: float(EFFECTS[terms[i].name].profile_coefficient)}
         x = self.design(terms, skip=held)
-        y = self.b.y - self._offset(terms, held)
-        if x.shape[1] == 0:
-            return float(np.sum(self.b.weight * y**2))
-        return weighted_sse(x, y, self.b.weight)
+        return self._residual_sse(x, self.b.y - self._offset(terms, held))
 
     def _score(self, terms: list[Term], i: int) -> Callable[[Term], float]:
         """What term ``i``'s members minimise: the fit's wsse, with the coefficient held where the

@@ -36,9 +36,10 @@ def _rms(x) -> float:
 def test_a_measured_test_plan_exported_as_one_file_is_never_worse_than_the_hand_fit(tmp_path, drive, payload):
     """Every measured drive of ``../shared/realdata``, its steady runs in recording order as one CSV, every
     other speed fitted with the default settings: at the speeds between, the written file's static map is
-    within 2 % of the least-squares Coulomb + viscous + offset line through the fitted runs' means (the
-    selection's resolution: the line written is fitted on block means weighed by their noise, the reference
-    on the runs' means); no change is claimed (the runs sweep the speed: a change could only be the
+    never worse than the least-squares Coulomb + viscous + offset line through the fitted runs' means (where
+    calibrate writes that line, it fits it through the same means: equal to the last digits; a line through
+    the blocks, tilted by how torque and speed ripple together inside the runs, was 0.13 % worse on the
+    antibacklash screw); no change is claimed (the runs sweep the speed: a change could only be the
     operating point), no lag is fitted (steady runs hold no transient), the held-out runs' every row is
     estimated (a written lag once reached across the pauses and cost 1 068), and what calibrate claims the
     file leaves of the fitted runs is what replay of them with it leaves, to 1e-9.  The worm: within 1.1 × the
@@ -47,7 +48,7 @@ def test_a_measured_test_plan_exported_as_one_file_is_never_worse_than_the_hand_
     judged = judge(measured, tmp_path)
     hand = judged.references["least squares + offset"]
     assert judged.result["written"], judged.result["notes"]
-    assert judged.file_rms <= 1.02 * hand, (judged.file_rms, judged.references, judged.result["effects"])
+    assert judged.file_rms <= (1.0 + 1e-9) * hand, (judged.file_rms, judged.references, judged.result["effects"])
     # the claim is the file: what calibrate says it leaves of the fitted runs is what replay of them leaves
     assert judged.claimed_nm == pytest.approx(judged.replayed_nm, rel=1e-9), (judged.claimed_nm, judged.replayed_nm)
     assert judged.file_rms < 0.1 * judged.given_rms
@@ -66,8 +67,9 @@ def test_a_joint_whose_drive_torque_is_mostly_friction_gets_the_line_not_a_load_
     """A harmonic-drive joint: ten 3 s constant-speed runs one way, five fitted, the five between held out;
     the joint torque sensor reads a small, nearly constant load while the drive torque rises with the
     friction.  No law in the load is tested (the load varies with the speed only: the drive torque there is
-    the loss itself), and the file predicts the speeds between as the straight line a + b·ω does -- where a
-    law in the drive torque (c = 0.146, q = 0.5) left 90× the line's error."""
+    the loss itself), and the file predicts the speeds between as the straight line a + b·ω through the
+    fitted runs does, to the last digits -- where a law in the drive torque (c = 0.146, q = 0.5) left 90× the
+    line's error."""
     speeds = np.geomspace(0.03, 1.5, 10)
     fit, cmap = joint_plan(tmp_path, speeds[0::2], "fit", 0, load)
     held, _ = joint_plan(tmp_path, speeds[1::2], "held", 1, load)
@@ -79,7 +81,7 @@ def test_a_joint_whose_drive_torque_is_mostly_friction_gets_the_line_not_a_load_
         assert "varies with the speed only" in result["untestable"]["load_dependent"], result["untestable"]
     means, estimated, rows = held_out_runs(held, cmap, out)
     assert estimated == rows
-    assert _rms(means) <= 1.05 * line_at(fit, held, load, 100.0), (_rms(means), result["effects"])
+    assert _rms(means) <= (1.0 + 1e-9) * line_at(fit, held, load, 100.0), (_rms(means), result["effects"])
 
 
 def test_a_model_parameter_that_scales_with_the_load_is_not_tested_under_one_load(tmp_path):
@@ -227,7 +229,7 @@ def test_a_servo_that_swings_and_lets_go_gets_coulomb_and_viscous_not_a_square_r
     judged = replayed(held, cmap, out)
     ok = np.isfinite(judged["measured_loss_nm"])
     hand = _rms(judged["measured_loss_nm"][ok] - line(judged)[ok] @ coef)
-    assert ok.sum() > 4000 and _rms(judged["residual_nm"][ok]) <= 1.02 * hand, (_rms(judged["residual_nm"][ok]), hand)
+    assert ok.sum() > 4000 and _rms(judged["residual_nm"][ok]) <= hand, (_rms(judged["residual_nm"][ok]), hand)
 
 
 def test_a_law_in_the_load_is_found_in_the_output_side_load_where_the_drive_torque_is_mostly_friction(tmp_path):
