@@ -360,7 +360,7 @@ def make_blocks(d: SampleData, block_s: float = 0.25, folds: int = 5, like: Bloc
     # a lag or an inertia shows only where a run's operating point moves: steady runs, and the pauses
     # between them, carry none (their readings' noise would be fitted as one)
     nuisance = {name: mean(col) for name, col in nuisance_columns(d, sg).items()} if groups.transients else {}
-    # the laws in the load take the output-side load the power balance measured (core.effects.output_load)
+    # the laws in the load take the output-side load the power balance measured (core.effectsum.output_load)
     load = d.torque - sg * d.measured_loss
     x = EffectInputs(at, aw, d.torque, sg, theta, d.fr_part, abs_load=np.abs(load))
     blocks = Blocks(

@@ -20,10 +20,9 @@ from .adaptation import (
 from .effects import (
     EFFECTS,
     EffectInputs,
-    additive_terms,
-    fr_scale,
     state_speed,
 )
+from .effectsum import additive_terms, fr_scale
 from .equations import efficiency
 from .measured import measured_efficiency
 from .model import rotation_sign

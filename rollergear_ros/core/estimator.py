@@ -30,12 +30,11 @@ from .effects import (
     EFFECTS,
     STATE_STILL_WIDTHS,
     EffectInputs,
-    additive_terms,
     corrected_torque,
-    fr_scale,
     reading_errors,
     takes_load,
 )
+from .effectsum import additive_terms, fr_scale
 from .lagalign import LAG_CHANNELS, LagAligner, max_gap_s
 from .model import LossModel, rotation_sign_scalar
 from .pairing import (ARRIVAL_PAIRINGS, ARRIVAL_TOLERANCE_S, LOSSLESS_PAIRINGS, TORQUE, SampleSynchronizer,
@@ -445,7 +444,7 @@ class Estimator(BatchPath):
     def solved_load(self, x: EffectInputs, mag, theta) -> EffectInputs:
         """``x`` with the load the laws in it take where no loss is measured: solved with the fixed effects
         and the adaptive ones at the RLS's coefficients ``theta`` (a list; per sample in a batch, arrays),
-        :func:`~.effects.output_load`."""
+        :func:`~.effectsum.output_load`."""
         enabled = dict(self._fixed)
         for i, name in enumerate(self.adaptive):
             enabled[name] = dict(self._active[name]) | {EFFECTS[name].coefficient: theta[i] / self._scales[i]}

@@ -19,7 +19,7 @@ differ on purpose from evaluating a *recording*:
 Besides the totals, :class:`PointLosses` splits the loss magnitude into the paper's model
 (``model_nm``, at ``η0``) and each accepted physical effect (``effects_nm``: the estimator with
 that effect alone minus the model alone; a law in the load its term at the load the whole loss leaves,
-:func:`~.effects.output_load`); they add up to ``loss_magnitude_nm`` (tested).  No rclpy import.
+:func:`~.effectsum.output_load`); they add up to ``loss_magnitude_nm`` (tested).  No rclpy import.
 """
 
 from __future__ import annotations
@@ -145,7 +145,7 @@ def evaluate_points(config: Config, torque_nm, speed_rad_s, temperature_c: float
 
 def locked_points(config: Config, points: PointLosses) -> np.ndarray:
     """Which of ``points`` have no loss though inside the estimator's plausible range: where the file's
-    laws in the load lock a back-driven drive (``load_unbalanced``, :func:`~.effects.output_load`)."""
+    laws in the load lock a back-driven drive (``load_unbalanced``, :func:`~.effectsum.output_load`)."""
     est = config.estimator
     return (np.isnan(points.loss_magnitude_nm) & (np.abs(np.asarray(points.torque_nm, float)) <= est.max_abs_torque_nm)
             & (np.abs(np.asarray(points.speed_rad_s, float)) <= est.max_abs_speed_rad_s))
