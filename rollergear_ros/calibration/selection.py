@@ -165,16 +165,17 @@ class Calibrator:
         out.point_means = True
         return out
 
-    def solve(self, x: np.ndarray, y: np.ndarray, rows: np.ndarray | None = None) -> Fit:
-        """The weighted fit of ``y`` by ``x``'s columns over the blocks (or ``rows`` of them), cluster-robust by
-        dwell; at the operating points (:meth:`at_operating_points`): of their means, robust point by point.
-        The prediction is per block."""
+    def solve(self, x: np.ndarray, y: np.ndarray, rows: np.ndarray | None = None, robust: bool = True) -> Fit:
+        """The weighted fit of ``y`` by ``x``'s columns over the blocks (or ``rows`` of them), its covariance
+        cluster-robust by dwell (``robust``; else the plain one, for a fit whose coefficients alone are used);
+        at the operating points (:meth:`at_operating_points`): of their means, robust point by point.  The
+        prediction is per block."""
         b = self.b
         if rows is not None:
             x, y = x[rows], y[rows]
         if not self.point_means:
             w = b.weight if rows is None else b.weight[rows]
-            return wls(x, y, w, b.dwell if rows is None else b.dwell[rows])
+            return wls(x, y, w, (b.dwell if rows is None else b.dwell[rows]) if robust else None)
         group = b.groups.group if rows is None else b.groups.group[rows]
         count = b.count if rows is None else b.count[rows]
         points, index = np.unique(group, return_inverse=True)
@@ -286,7 +287,7 @@ class Calibrator:
         cols = slice(None) if only_terms is None else slice(k0, k0 + n_free)
         for k in np.unique(self.b.fold):
             test = self.b.fold == k
-            f = self.solve(x, self.b.y - fit_offset, rows=~test)
+            f = self.solve(x, self.b.y - fit_offset, rows=~test, robust=False)
             pred[test] += x[test][:, cols] @ f.coef[cols]
         return pred
 
