@@ -93,7 +93,7 @@ def rigs_table() -> None:
          lambda tmp: loaded_rig(tmp, Rig(drag_nm=0.15, step_at_s=70.0))[:2]),
         ("loaded rig, viscous friction differs by direction", "drag 0.1, viscous 0.0015 forward / 0.0025 reverse",
          lambda tmp: loaded_rig(tmp, Rig(drag_nm=0.1, viscous_nm_s=0.0015, viscous_reverse_nm_s=0.0025))[:2]),
-        ("loaded rig, friction only under back-driving", "drag 0.1, 0.004·\\|T\\| while the output drives",
+        ("loaded rig, friction only under back-driving", "drag 0.1, 0.004·\\|T_load\\| while the output drives",
          lambda tmp: loaded_rig(tmp, Rig(drag_nm=0.1, viscous_nm_s=0.0, backdrive_share=0.004))[:2]),
     ]
     print()
