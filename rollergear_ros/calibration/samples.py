@@ -368,8 +368,7 @@ def table_samples(paths: Sequence[str | Path], config: Config, warn: Callable[[s
         readings = readings and table.readings
         if table.dropped and warn:
             warn(f"{path}: {table.dropped} rows without a finite torque, speed or loss: skipped")
-        keep = ((np.abs(table.torque_nm) <= est.max_abs_torque_nm)
-                & (np.abs(table.speed_rad_s) <= est.max_abs_speed_rad_s))
+        keep = est.plausible(table.torque_nm, table.speed_rad_s)
         if np.count_nonzero(~keep) > MAX_BEYOND_SHARE * len(keep):  # the table is another gearbox's size
             need_t = float(np.max(np.abs(table.torque_nm)))
             need_w = float(np.max(np.abs(table.speed_rad_s)))

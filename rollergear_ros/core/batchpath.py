@@ -297,7 +297,7 @@ class BatchPath:
         est = self.config.estimator
         finite = np.isfinite(torque) & np.isfinite(speed)
         with np.errstate(invalid="ignore"):
-            plausible = (np.abs(torque) <= est.max_abs_torque_nm) & (np.abs(speed) <= est.max_abs_speed_rad_s)
+            plausible = est.plausible(torque, speed)
         if not finite.all():
             lost = lost_mask(torque) | lost_mask(speed)
             stale = stale_mask(speed) & ~lost

@@ -146,9 +146,8 @@ def evaluate_points(config: Config, torque_nm, speed_rad_s, temperature_c: float
 def locked_points(config: Config, points: PointLosses) -> np.ndarray:
     """Which of ``points`` have no loss though inside the estimator's plausible range: where the file's
     laws in the load lock a back-driven drive (``load_unbalanced``, :func:`~.effectsum.output_load`)."""
-    est = config.estimator
-    return (np.isnan(points.loss_magnitude_nm) & (np.abs(np.asarray(points.torque_nm, float)) <= est.max_abs_torque_nm)
-            & (np.abs(np.asarray(points.speed_rad_s, float)) <= est.max_abs_speed_rad_s))
+    return np.isnan(points.loss_magnitude_nm) & config.estimator.plausible(np.asarray(points.torque_nm, float),
+                                                                           np.asarray(points.speed_rad_s, float))
 
 
 def only(config: Config, names: tuple[str, ...]) -> Config:

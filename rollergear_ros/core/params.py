@@ -129,6 +129,12 @@ class EstimatorParams:
     change_block_samples: int = 200
     change_threshold_nm: float = 0.02
 
+    def plausible(self, torque_nm, speed_rad_s):
+        """Where a drive torque and speed (floats or arrays) lie in the range the estimator takes
+        (``max_abs_torque_nm``, ``max_abs_speed_rad_s``; NaN does not); beyond it a sample is skipped as
+        implausible."""
+        return (abs(torque_nm) <= self.max_abs_torque_nm) & (abs(speed_rad_s) <= self.max_abs_speed_rad_s)
+
 
 @dataclass(frozen=True)
 class NodeParams:
