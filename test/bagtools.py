@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
 
-def read_rosbags(path: Path) -> dict[str, tuple[np.ndarray, list]]:
-    """Topic -> (log times ns, messages) with the rosbags library."""
+def read_rosbags(path: Path, topics: Iterable[str] | None = None) -> dict[str, tuple[np.ndarray, list]]:
+    """Topic -> (log times ns, messages) with the rosbags library (``topics``: only those)."""
     from rosbags.highlevel import AnyReader
 
     out: dict[str, tuple[list, list]] = {}
     with AnyReader([Path(path)]) as reader:
-        for con, t, raw in reader.messages():
+        connections = None if topics is None else [c for c in reader.connections if c.topic in set(topics)]
+        for con, t, raw in reader.messages(connections=connections):
             msg = reader.deserialize(raw, con.msgtype)
             ts, ms = out.setdefault(con.topic, ([], []))
             ts.append(t)
@@ -21,15 +23,17 @@ def read_rosbags(path: Path) -> dict[str, tuple[np.ndarray, list]]:
     return {k: (np.array(v[0], dtype=np.int64), v[1]) for k, v in out.items()}
 
 
-def read_mcap_ros2(path: Path) -> dict[str, tuple[np.ndarray, list]]:
-    """Topic -> (log times ns, decoded messages) with mcap + mcap-ros2-support, in log-time order."""
+def read_mcap_ros2(path: Path, topics: Iterable[str] | None = None) -> dict[str, tuple[np.ndarray, list]]:
+    """Topic -> (log times ns, decoded messages) with mcap + mcap-ros2-support, in log-time order
+    (``topics``: only those)."""
     from mcap.reader import make_reader
     from mcap_ros2.decoder import DecoderFactory
 
     out: dict[str, tuple[list, list]] = {}
     with Path(path).open("rb") as fh:
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
-        for _schema, channel, message, decoded in reader.iter_decoded_messages():
+        for _schema, channel, message, decoded in reader.iter_decoded_messages(
+                topics=None if topics is None else list(topics)):
             ts, ms = out.setdefault(channel.topic, ([], []))
             ts.append(message.log_time)
             ms.append(decoded)

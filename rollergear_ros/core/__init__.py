@@ -53,6 +53,7 @@ _FACE = {
     "SKIP_REASONS": "pairing",
     "SPEED": "pairing",
     "SequenceGaps": "lostmarks",
+    "SequenceClock": "seqclock",
     "TORQUE": "pairing",
     "Config": "params",
     "GearboxParams": "params",

@@ -153,6 +153,7 @@ class NodeParams:
     map_oil_step_c: float = 5.0
     publish_float64: bool = True
     expected_rate_hz: float = 1000.0
+    sample_clock: str = "arrival"
     learn_input_rate: bool = True
     efficiency_window_s: float = 10.0
     min_efficiency_warn: float = 0.9
@@ -513,6 +514,14 @@ def _some_estimate_rule(config: Config) -> Problem | None:
             "estimate (switch one on)")
 
 
+def _sample_clock_rule(config: Config) -> Problem | None:
+    """The sequence clock times Float64 inputs: joint states carry their samples' stamps."""
+    if config.node.sample_clock == "sequence" and config.node.input_mode != "float64":
+        return ("node.sample_clock", "sequence", "times std_msgs/Float64 inputs (node.input_mode: float64); joint "
+                "states carry their samples' own stamps")
+    return None
+
+
 def _rerun_url_rule(config: Config) -> Problem | None:
     problem = rerun_url_problem(config.node.rerun_connect)
     return ("node.rerun_connect", config.node.rerun_connect, f"{problem} (e.g. rerun+http://127.0.0.1:9876/proxy)") \
@@ -552,7 +561,8 @@ def _vogel_rule(config: Config) -> Problem | None:
 #: broken one is said)
 CONSISTENCY_RULES: tuple[Callable[[Config], Problem | None], ...] = (
     _covariance_rule, _model_form_rule, _record_size_rule, _balls_rule, _pitch_diameters_rule, _oil_datasheet_rule,
-    _ellipticity_rule, _sensor_full_scale_rule, _some_estimate_rule, _rerun_url_rule, _map_grid_rule, _vogel_rule,
+    _ellipticity_rule, _sensor_full_scale_rule, _some_estimate_rule, _sample_clock_rule, _rerun_url_rule,
+    _map_grid_rule, _vogel_rule,
 )
 
 

@@ -245,8 +245,15 @@ NODE_SPECS: tuple[ParamSpec, ...] = (
     ParamSpec("node.publish_float64", bool, True,
               "publish the four std_msgs/Float64 outputs (loss/torque, loss/power, efficiency, residual/torque) for "
               "plotting tools; off: one publication per sample", read_only=True),
-    ParamSpec("node.expected_rate_hz", float, 1000.0, "expected input rate, for diagnostics", "Hz",
-              low=0.0, low_open=True, high=1e6),
+    ParamSpec("node.expected_rate_hz", float, 1000.0,
+              "the inputs' sample rate: diagnostics, the pairing tolerance, and the rate of the sequence sample clock "
+              "(node.sample_clock; read at start there)", "Hz", low=0.0, low_open=True, high=1e6),
+    ParamSpec("node.sample_clock", str, "arrival",
+              "Float64 inputs' sample times: arrival (the times the node pairs them by: arrival, or publisher "
+              "timestamps under single_threaded) or sequence (each topic's publisher numbers its messages at "
+              "node.expected_rate_hz, one per sample, as a rig's acquisition loop does: the times are that grid, "
+              "whatever delivery does; channel lags are applied on it as replay applies them on a recording's log "
+              "times)", choices=("arrival", "sequence"), read_only=True),
     ParamSpec("node.learn_input_rate", bool, True,
               "diagnostics: an input is slow below 80 % of the rate its stream started at (a bag played at another "
               "rate is no warning); false: below 80 % of node.expected_rate_hz"),

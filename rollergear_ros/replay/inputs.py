@@ -487,7 +487,7 @@ def recorded_pairing(path: Path, plan: InputPlan, period_s: float | None) -> tup
     """
     recording = read_metadata(path, Metadata.RECORDING) if plan.mode == "float64" else None
     if recording and (recording.get("pairing") in ARRIVAL_PAIRINGS
-                      or recording.get("input_log_time") == "source_timestamp"):
+                      or recording.get("input_log_time") in ("source_timestamp", "sequence_clock")):
         try:
             node_period_s = float(recording.get("sample_period_s", "nan"))
         except ValueError:

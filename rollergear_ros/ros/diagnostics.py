@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from ..core.estimator import Estimator
 from ..core.measured import NO_OUTPUT_SHARE, WindowValue
 from ..core.pairing import CHANNELS, OUT_TORQUE, SKIP_REASONS, SPEED, TORQUE
+from ..core.seqclock import SequenceClock
 
 OK, WARN, ERROR, STALE = 0, 1, 2, 3
 LEVEL_NAMES = {OK: "OK", WARN: "WARN", ERROR: "ERROR", STALE: "STALE"}
@@ -50,6 +51,8 @@ class InputMonitor:
     _active_windows: dict[str, int] = field(default_factory=lambda: {c: 0 for c in CHANNELS})
     _learning: dict[str, list[float]] = field(default_factory=lambda: {c: [] for c in CHANNELS})
     _learned_hz: dict[str, float | None] = field(default_factory=lambda: {c: None for c in CHANNELS})
+    #: ``node.sample_clock: sequence``: the clock the Float64 inputs are timed by (None: their arrival)
+    sample_clock: SequenceClock | None = None
 
     def __post_init__(self) -> None:
         self._window_start_ns = self.start_ns
@@ -225,6 +228,12 @@ def _input_status(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLim
                 reasons += _slow_input(ch, rates.get(ch, 0.0), expected, limits.learn_rate)
         elif ch == OUT_TORQUE and last is not None and age > stale_after_s:
             reasons.append((WARN, f"measured output stale ({age:.2f} s): no residual"))
+    clock = monitor.sample_clock
+    if clock is not None:
+        values.append(("sample clock", f"publishers' numbers at {1e9 / clock.period_ns:.6g} Hz; "
+                                       f"{clock.pauses} pause(s) or restart(s)"))
+        if clock.rate_problem:
+            reasons.append((WARN, clock.rate_problem))
 
 
 def _measured_status(measured: WindowValue | None, stated: bool, values: list[tuple[str, str]]) -> str:

@@ -28,6 +28,7 @@ from rclpy.serialization import serialize_message
 from ..base.interface import MessageType, Topic
 from ..core.pairing import ARRIVAL_PAIRINGS, OIL_TEMPERATURE, OUT_SPEED, OUT_TORQUE, SPEED, TORQUE
 from ..core.lostmarks import LOST_VALUE, SequenceGaps
+from ..core.seqclock import ClockMerge, SequenceClock
 from ..recordings.messages import CDR_LE_HEADER, TopicMap, decode_float64, float64_problem
 from .diagnostics import InputMonitor
 from .intake import InputTaker
@@ -69,6 +70,13 @@ class InputPath:
         self._interleaved_warned = False
         #: (when, how long the message taken then had waited since the middleware received it)
         self.lag = (0, 0)
+        #: ``node.sample_clock: sequence``: the Float64 inputs' times from their publishers' numbers
+        params = node.config.node
+        self.clock = SequenceClock(1.0 / params.expected_rate_hz) \
+            if params.sample_clock == "sequence" and params.input_mode == "float64" else None
+        self.monitor.sample_clock = self.clock
+        #: ... whose messages are handed on in the clock's time order (one topic's backlog may come first)
+        self._merge = ClockMerge() if self.clock is not None else None
 
     # ------------------------------------------------------------------ subscriptions
     def subscribe(self) -> None:
@@ -186,11 +194,13 @@ class InputPath:
         pushed as placeholders in their place: :meth:`_push_lost`)."""
         node = self._node
         counts, last = self.monitor.counts, self.monitor.last_ns
+        clock = self.clock
         unpack = struct.Struct("<d").unpack_from
         time_ns = time.time_ns
         record_pairing_time = self.record_pairing_time
 
-        def handle(raw: bytes, t_ns: int, wall_ns: int, source_ns: int | None = None) -> None:
+        def take(raw: bytes, t_ns: int, wall_ns: int, source_ns: int | None = None) -> list:
+            """Record the message and push it to the estimator: the estimates it completes."""
             counts[channel] += 1
             last[channel] = wall_ns
             recorder = node.recorder
@@ -203,14 +213,27 @@ class InputPath:
                 value = float(decode_float64([raw])[0])
             else:  # not a Float64 payload: counted (diagnostics warn), never decoded as garbage
                 node.estimator.counts["malformed"] += 1
-                return
-            for est in node.estimator.push(channel, t_ns, value, source_ns):
+                return []
+            return node.estimator.push(channel, t_ns, value, source_ns)
+
+        def handle(raw: bytes, t_ns: int, wall_ns: int, source_ns: int | None = None) -> None:
+            for est in take(raw, t_ns, wall_ns, source_ns):
                 node._publish(est)  # noqa: SLF001 - the node's one publishing path
 
         if self.pairing not in ARRIVAL_PAIRINGS:
+            merge = self._merge
+
             def cb_timestamp(raw: bytes, info) -> None:
                 wall = time_ns()
-                handle(raw, info["source_timestamp"] or wall, wall)
+                t_ns = info["source_timestamp"] or wall
+                if clock is None:
+                    handle(raw, t_ns, wall)
+                else:  # the slot of its publisher's number, handed on in the clock's time order
+                    reference_ns, t_ns = t_ns, clock.time_ns(channel, info.get("publication_sequence_number"), t_ns)
+                    self.monitor.lost[channel] += clock.gap
+                    for held in merge.push(channel, t_ns, reference_ns, (take, raw, t_ns, wall)):
+                        for est in held[0](*held[1:]):
+                            node._publish(est)  # noqa: SLF001
                 self.busy_ns += time_ns() - wall
             return cb_timestamp
 
@@ -223,20 +246,31 @@ class InputPath:
                 return
             wall = t_ns = time_ns()
             self.lag = (wall, wall - (info["received_timestamp"] or wall))
-            lost = lost_before(info["publication_sequence_number"])
+            sequence = info["publication_sequence_number"]
+            if clock is not None:  # the slot of its number: lost messages before it leave theirs empty
+                t_ns = clock.time_ns(channel, sequence, info["source_timestamp"] or wall)
+            lost = lost_before(sequence)
             if lost:
-                t_ns = self._push_lost(channel, topic, lost, wall)
+                t_ns = self._push_lost(channel, topic, lost, t_ns)
             last_input[channel] = t_ns
             handle(raw, t_ns, wall, info["source_timestamp"] or None)
             self.busy_ns += time_ns() - wall
         return cb_arrival
 
+    def release_held(self) -> list:
+        """The inputs the sequence clock still holds for a topic behind (the node stops): recorded and
+        pushed to the estimator in time order; returns the estimates they complete, to be published."""
+        if self._merge is None:
+            return []
+        return [est for take, *args in self._merge.drain() for est in take(*args)]
+
     def _push_lost(self, channel: str, topic: str, lost: int, t_ns: int) -> int:
         """``lost`` messages of ``channel`` were lost just before the one taken at ``t_ns``: push
         (and record) a placeholder for each (:data:`~core.pairing.LOST_VALUE`), 1 ns
-        apart just before it, so that first-in first-out pairing stays aligned.  Returns the time
-        for the message itself (moved on by at most ``lost`` ns where the channel's previous message
-        leaves no room: the times on a topic must grow for replay to keep this order)."""
+        apart just before it (in the slots they left empty on the sequence clock), so that first-in
+        first-out pairing stays aligned.  Returns the time for the message itself (moved on by at most
+        ``lost`` ns where the channel's previous message leaves no room: the times on a topic must grow
+        for replay to keep this order)."""
         node = self._node
         handle = self._handles.get(channel)
         if handle is not None and handle.get_publisher_count() > 1:
@@ -250,8 +284,9 @@ class InputPath:
         if lost > MAX_PLACEHOLDERS:
             node.estimator.sync.restart()
             return t_ns
-        t_ns = max(t_ns, self._last_input_ns.get(channel, t_ns) + lost + 1)
-        for t_i in range(t_ns - lost, t_ns):
+        step = self.clock.period_ns if self.clock is not None else 1
+        t_ns = max(t_ns, self._last_input_ns.get(channel, t_ns) + (lost + 1) * step)
+        for t_i in range(t_ns - lost * step, t_ns, step):
             recorder = node.recorder
             if recorder is not None:
                 log_ns = self.log_ns = t_i if self.record_pairing_time else node.get_clock().now().nanoseconds
@@ -288,13 +323,15 @@ class InputPath:
         node = self._node
         wall = time.time_ns()
         self.monitor.record(OIL_TEMPERATURE, wall)
+        # on the sequence clock, the time of the latest input taken: it holds from the samples after it
+        on_clock = self.clock.latest_ns() if self.clock is not None else None
         if node.recorder is not None:
             node.recorder.write_raw(node.resolve_topic_name(Topic.OIL_TEMPERATURE), MessageType.TEMPERATURE,
-                                    wall if self.record_pairing_time else node.get_clock().now().nanoseconds,
-                                    serialize_message(msg))
+                                    (on_clock or wall) if self.record_pairing_time
+                                    else node.get_clock().now().nanoseconds, serialize_message(msg))
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         # the stamp keeps the temperature on the inputs' clock in JointState mode (header stamps)
-        t_ns = stamp if (stamp and node.config.node.input_mode == "joint_state") else wall
+        t_ns = stamp if (stamp and node.config.node.input_mode == "joint_state") else (on_clock or wall)
         node.estimator.push(OIL_TEMPERATURE, t_ns, float(msg.temperature))
         if math.isfinite(msg.temperature):
             node.live_map.oil_temperature_c = float(msg.temperature)

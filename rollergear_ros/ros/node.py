@@ -18,6 +18,7 @@ loss_estimator …``).
 from __future__ import annotations
 
 import gc
+import itertools
 import struct
 import sys
 import threading
@@ -83,7 +84,8 @@ class LossEstimatorNode(Node):
         self.config: Config = declare_parameters(self)  # ParameterError: refused with the reason
         # the single-threaded executor gives publisher timestamps; the events executor keeps arrival order
         node = self.config.node
-        if node.executor == "single_threaded":
+        if node.executor == "single_threaded" or node.sample_clock == "sequence":
+            # the publisher timestamps, or the sequence clock's times: paired by time, as replay pairs a bag
             self.pairing = "timestamp"
         else:  # a reliable, keep-all input loses nothing; over best effort the publishers'
             # sequence numbers tell what was lost (filled in with placeholders: :mod:`.inputpath`)
@@ -172,6 +174,10 @@ class LossEstimatorNode(Node):
 
     def _change_parameters(self, changes: dict[str, Any]) -> SetParametersResult:
         try:
+            if self.input_path.clock is not None and "node.expected_rate_hz" in changes:
+                raise ParameterError("node.expected_rate_hz", changes["node.expected_rate_hz"],
+                                     "it is the sequence sample clock's rate (node.sample_clock: sequence), read "
+                                     "at start")
             new = self.config.with_values(changes)
         except ParameterError as exc:
             self.get_logger().warn(f"refused: {exc}")
@@ -300,11 +306,13 @@ class LossEstimatorNode(Node):
         super().destroy_node()
 
     def _finish_pending(self) -> None:
-        """Samples paired but still held for a measured output when the node stops: estimated as replay
-        estimates them at the end of a recording, so that replay of the recording gives exactly what
-        the node published; sent while the middleware still runs, recorded either way."""
+        """Samples paired but still held for a measured output (and inputs the sequence clock held) when
+        the node stops: estimated as replay estimates them at the end of a recording, so that replay of
+        the recording gives exactly what the node published; sent while the middleware still runs,
+        recorded either way."""
         send = self.context.ok()
-        for est in self.estimator.finish():
+        held = self.input_path.release_held()  # inputs the sequence clock held, before the estimator's last
+        for est in itertools.chain(held, self.estimator.finish()):
             try:
                 self._publish(est, send)
                 continue

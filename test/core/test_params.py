@@ -223,6 +223,15 @@ def test_a_split_size_no_file_reaches_is_refused():
     assert validate({"node.record_max_mb": 0.5}).node.record_max_mb == 0.5
 
 
+def test_the_sequence_clock_is_for_float64_inputs_only():
+    """Joint states carry their samples' stamps: a sequence clock asked for them is refused, not ignored."""
+    assert validate({"node.sample_clock": "sequence"}).node.sample_clock == "sequence"
+    with pytest.raises(ParameterError, match="node.sample_clock.*joint states carry"):
+        validate({"node.sample_clock": "sequence", "node.input_mode": "joint_state"})
+    with pytest.raises(ParameterError, match="node.sample_clock"):
+        validate({"node.sample_clock": "publisher"})
+
+
 def test_a_file_stating_the_oils_data_sheet_follows_its_law_in_every_command(tmp_path):
     """``gearbox.oil_nu40_mm2_s: 100, oil_nu100_mm2_s: 11`` and nothing of a law: ``model`` at 20 and 80 °C
     gave the same loss; now the data sheet's law (ASTM D341 as Vogel B, C) is the file's, exactly the file that

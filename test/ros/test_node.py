@@ -58,7 +58,9 @@ def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     ref_loss = np.concatenate([b.loss_torque_nm for b in batches])
     ref_eff = np.concatenate([b.efficiency for b in batches])
     ref_res = np.concatenate([b.residual_nm for b in batches])
-    live = read_rosbags(rec)
+    window_topic = "/rollergear/efficiency/measured"
+    live = read_rosbags(rec, (T.loss_torque, T.efficiency, T.residual_torque, T.loss_estimate, window_topic,
+                              window_topic + "_uncertainty", T.motor_torque, T.joint_states))
     _, loss = float_series(live, T.loss_torque)
     _, eff = float_series(live, T.efficiency)
     _, res = float_series(live, T.residual_torque)
@@ -73,7 +75,7 @@ def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     assert len(got) == len(loss)
     np.testing.assert_allclose(got, loss, rtol=0, atol=0)
     # the recording is a valid ROS 2 MCAP for the other reader too
-    assert len(read_mcap_ros2(rec)[T.loss_torque][0]) == len(loss)
+    assert len(read_mcap_ros2(rec, [T.loss_torque])[T.loss_torque][0]) == len(loss)
     # and replaying the node's own recording gives exactly what the node published
     np.testing.assert_array_equal(np.concatenate([b.loss_torque_nm for b in own]), loss)
     # the stamped estimate of every sample: the Float64 values, stamped with the time the node paired
@@ -87,13 +89,12 @@ def test_node_outputs_equal_offline_replay_with_no_drops(bag, tmp_path):
     # the measured efficiency's windows the node published once a second are those replay writes for
     # the same sample times (the node stops before the last ones are due: a prefix) -- its recording's,
     # or, for joint states (whose header stamps are their sample times), the bag's
-    window_topic = "/rollergear/efficiency/measured"
     if np.isfinite(ref_res).any():
         replayed = tmp_path / "replayed.mcap"
         replay(bag if "joint_states" in bag.stem else rec, load_config(CONFIG), out_mcap=replayed,
                show_progress=False)
         _, published = float_series(live, window_topic)
-        _, written = float_series(read_rosbags(replayed), window_topic)
+        _, written = float_series(read_rosbags(replayed, [window_topic]), window_topic)
         assert 0.8 * len(written) <= len(published) <= len(written), (len(published), len(written))
         # the same sums, added up in other pieces: equal to rounding
         np.testing.assert_allclose(published, written[:len(published)], rtol=1e-12, atol=0)
@@ -771,7 +772,7 @@ def test_decimated_outputs_are_every_nth_estimate(tmp_path):
     assert "/rollergear/loss/traced" not in inspect_bag(rec).topics
     _, batches = replay(BAGS / "rig_map.mcap", load_config(CONFIG), show_progress=False, collect=True)
     ref_loss = np.concatenate([b.loss_torque_nm for b in batches])
-    _, loss = float_series(read_rosbags(rec), T.loss_torque)
+    _, loss = float_series(read_rosbags(rec, [T.loss_torque]), T.loss_torque)
     assert len(loss) == len(ref_loss) // 10
     np.testing.assert_array_equal(loss, ref_loss[9::10])
     np.testing.assert_array_equal(got, loss)
@@ -914,7 +915,7 @@ def test_use_sim_time_stamps_estimates_with_the_bag_clock(tmp_path):
     play(BAGS / "rig_map.mcap", "--rate", "5", "--clock", "--wait-for-subscribers", "20")
     assert node.stop() == 0
     info = inspect_bag(BAGS / "rig_map.mcap")
-    t, _ = float_series(read_rosbags(rec), T.loss_torque)
+    t, _ = float_series(read_rosbags(rec, [T.loss_torque]), T.loss_torque)
     assert len(t) > 0
     assert info.start_ns <= t.min() and t.max() <= info.end_ns + 1_000_000_000
 
@@ -927,7 +928,7 @@ def test_clean_shutdown_keeps_the_recording(tmp_path, sig):
     play_and_receive(BAGS / "rig_map.mcap", 5, 10080)
     code = node.stop(sig)
     assert code == 0 and "Traceback" not in node.stderr, node.stderr
-    n = len(read_rosbags(rec)[T.loss_torque][0])
+    n = len(read_rosbags(rec, [T.loss_torque])[T.loss_torque][0])
     assert n == 10080  # recording and rerun logging on: still no drop at 1 kHz
     assert inspect_bag(rec).indexed
     from rollergear_ros.outputs.review import LOSS_TORQUE, OUTPUT_TORQUE, read_rrd_series
@@ -979,7 +980,7 @@ def test_a_sample_waiting_for_its_output_at_shutdown_is_estimated_and_recorded(e
                     "output_speed messages": n}
         assert wait_for(lambda: all(counts.get(k) == v for k, v in expected.items()), 60), counts
     assert node.stop() == 0 and "Traceback" not in node.stderr, node.stderr
-    loss = float_series(read_rosbags(rec), T.loss_torque)[1]
+    loss = float_series(read_rosbags(rec, [T.loss_torque]), T.loss_torque)[1]
     assert len(loss) > 0
     _, batches = replay(rec, load_config(CONFIG), show_progress=False, collect=True)
     np.testing.assert_array_equal(np.concatenate([b.loss_torque_nm for b in batches]), loss)
@@ -1061,7 +1062,7 @@ def test_rerun_streams_to_a_viewer_address(tmp_path):
         finally:
             if server.poll() is None:
                 os.killpg(server.pid, signal.SIGKILL)
-    _, loss = float_series(read_rosbags(rec), T.loss_torque)
+    _, loss = float_series(read_rosbags(rec, [T.loss_torque]), T.loss_torque)
     assert len(loss) == 10080
     t, streamed = read_rrd_series(received)[LOSS_TORQUE]
     np.testing.assert_array_equal(streamed, loss)
@@ -1075,7 +1076,7 @@ def test_unreachable_rerun_viewer_costs_only_the_rerun_data(tmp_path):
     assert node.stop() == 0, node.stderr
     assert "Traceback" not in node.stderr and "rerun logging incomplete" in node.stderr, node.stderr
     assert len(received) == 10080, f"published {len(received)} of 10080 estimates"
-    assert len(read_rosbags(rec)[T.loss_torque][0]) == 10080
+    assert len(read_rosbags(rec, [T.loss_torque])[T.loss_torque][0]) == 10080
     assert inspect_bag(rec).indexed
 
 
@@ -1350,7 +1351,7 @@ def test_the_node_traces_an_effect_that_appears_mid_play_and_proposes_a_paramete
         r = np.concatenate([b.residual_nm for b in batches])
         errors.append(float(np.sqrt(np.nanmean(r ** 2))))
     assert errors[1] <= 1.05 * errors[2] and errors[0] >= 1.5 * errors[2], errors
-    for messages in (read_mcap_ros2(rec), read_rosbags(rec)):
+    for messages in (read_mcap_ros2(rec, ["/rollergear/loss/traced"]), read_rosbags(rec, ["/rollergear/loss/traced"])):
         _, recorded = messages["/rollergear/loss/traced"]
         assert [m.message for m in recorded] == [m.message for m in traced]
     assert f"traces: {len(traced)} (effects traced in 1, taken in 0)" in node.stderr, node.stderr
@@ -1468,7 +1469,7 @@ def test_a_traced_effect_taken_in_switches_the_estimator_at_a_recorded_sample_an
 
     result = json.loads({kv.key: kv.value for kv in traced[-1].values}["json"])
     assert [e["name"] for e in result["effects"]] == ["drag_speed"], result
-    live = read_rosbags(rec)
+    live = read_rosbags(rec, ["/parameter_events", T.joint_states, T.loss_torque])
     _, events = live["/parameter_events"]
     (event,) = events
     boundary = event.stamp.sec * 1_000_000_000 + event.stamp.nanosec
@@ -1506,14 +1507,17 @@ def test_a_traced_effect_taken_in_switches_the_estimator_at_a_recorded_sample_an
 FILE_LAGS = (("motor_speed", -0.0073), ("output_torque", 0.0131), ("output_speed", 0.0207))
 
 
-@pytest.mark.parametrize("bag", ["drive_cycle_joint_states", "rig_map_drag"])
-def test_with_channel_lags_the_node_estimates_what_replay_does_through_a_stall(bag, tmp_path):
+@pytest.mark.parametrize(("bag", "clock"), [("drive_cycle_joint_states", ""), ("rig_map_drag", "arrival"),
+                                            ("rig_map_drag", "sequence")])
+def test_with_channel_lags_the_node_estimates_what_replay_does_through_a_stall(bag, clock, tmp_path):
     """A parameter file with channel lags, the node stopped (SIGSTOP) for a second mid-play: its inputs
     wait in the middleware's queues and come in a burst.  Joint states carry their samples' stamps, so
     the node aligns on the recording's own clock: every sample estimated and each estimate equal, to
-    the last bit, to replay of the played bag.  Float64 inputs carry none: the node aligns on the times
-    it paired them by, which its recording logs, and replay of that recording gives what it published
-    to the last bit -- the stall included (one order however the samples come, :mod:`core.lagalign`)."""
+    the last bit, to replay of the played bag.  Float64 inputs carry none.  On the sequence clock
+    (``node.sample_clock: sequence`` at the bag's rate) the node times them by their publishers'
+    numbers: the same, every sample, to the last bit.  By arrival it aligns on the times it paired them
+    by, which its recording logs, and replay of that recording gives what it published to the last bit
+    -- the stall included (one order however the samples come, :mod:`core.lagalign`)."""
     import os
 
     rec = tmp_path / "live.mcap"
@@ -1521,6 +1525,9 @@ def test_with_channel_lags_the_node_estimates_what_replay_does_through_a_stall(b
     config = load_config(CONFIG).with_values({f"estimator.{c}_lag_s": v for c, v in FILE_LAGS})
     joint = "joint_states" in bag
     path = BAGS / f"{bag}.mcap"
+    if clock == "sequence":  # the bag's own rate (it is played faster: the publishers' rate is not it)
+        rate_hz = 1e9 / float(np.median(np.diff(read_rosbags(path, [T.motor_torque])[T.motor_torque][0])))
+        lags += ["node.sample_clock:=sequence", f"node.expected_rate_hz:={rate_hz!r}"]
     node = NodeProcess(f"node.record_mcap:={rec}", *LOSSLESS, *lags, *(["node.input_mode:=joint_state"] * joint))
     n_expected = inspect_bag(path).counts[T.joint_states if joint else T.motor_torque]
     with ros_context() as probe_node:
@@ -1534,8 +1541,18 @@ def test_with_channel_lags_the_node_estimates_what_replay_does_through_a_stall(b
         time.sleep(1.0)  # the stall itself (what is asserted waits for conditions)
         os.kill(node.proc.pid, signal.SIGCONT)
         player.join()
+        if clock == "sequence":  # the clock's rate is read at start: a change of it is refused, with why
+            from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+            from rcl_interfaces.srv import SetParameters
+
+            client = probe_node.create_client(SetParameters, "/rollergear/loss_estimator/set_parameters")
+            assert client.wait_for_service(timeout_sec=20)
+            value = ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=2 * rate_hz)
+            (refused,) = call_until_answered(client, SetParameters.Request(
+                parameters=[Parameter(name="node.expected_rate_hz", value=value)])).results
+            assert not refused.successful and "sequence sample clock" in refused.reason, refused.reason
         assert node.stop() == 0, node.stderr  # what is still waiting is estimated and recorded as it stops
-        live = read_rosbags(rec)
+        live = read_rosbags(rec, [T.loss_torque, T.residual_torque])
         _, loss = float_series(live, T.loss_torque)
         # all but the few estimated as it stopped have reached the probe
         assert wait_for(lambda: len(probe) >= len(loss) - 5, 600), (len(probe), len(loss))
@@ -1549,7 +1566,7 @@ def test_with_channel_lags_the_node_estimates_what_replay_does_through_a_stall(b
     own_residual = np.concatenate([b.residual_nm for b in own])
     np.testing.assert_array_equal(own_residual[np.isfinite(own_residual)], residual)
     assert "motor_speed 7.3 ms early" in own_summary.lags_text
-    if joint:  # the samples' own stamps: what replay of the played bag estimates, every sample
+    if joint or clock == "sequence":  # the samples' own times: what replay of the played bag estimates
         summary, batches = replay(path, config, show_progress=False, collect=True)
         assert len(loss) == summary.estimated == n_expected, (len(loss), summary.skipped)
         np.testing.assert_array_equal(np.concatenate([b.loss_torque_nm for b in batches]), loss)
