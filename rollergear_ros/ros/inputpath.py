@@ -2,9 +2,10 @@
 
 :class:`InputPath` subscribes the inputs (the four Float64 channels or the joint states, and the
 oil temperature) and makes the callbacks that hand every message to the node's estimator -- paired
-by the publishers' timestamps (``single_threaded``) or by arrival (``events``) -- and to its
-recording, at the very times the estimator paired them by, so that replay of the recording pairs
-them as the node did.  Over best effort, a gap in a publisher's sequence numbers becomes
+by the publishers' timestamps (``single_threaded``), by arrival (``events``), or by their times on
+the sequence clock (``node.sample_clock: sequence``: :mod:`core.seqclock`, handed on in that clock's
+time order) -- and to its recording, at the very times the estimator paired them by, so that replay
+of the recording pairs them as the node did.  Over best effort, a gap in a publisher's sequence numbers becomes
 placeholders (:meth:`InputPath._push_lost`), and the messages queued before the node first takes
 from its subscriptions are judged as a whole (:meth:`InputPath.take_start_up_backlog`).
 
@@ -246,12 +247,9 @@ class InputPath:
                 return
             wall = t_ns = time_ns()
             self.lag = (wall, wall - (info["received_timestamp"] or wall))
-            sequence = info["publication_sequence_number"]
-            if clock is not None:  # the slot of its number: lost messages before it leave theirs empty
-                t_ns = clock.time_ns(channel, sequence, info["source_timestamp"] or wall)
-            lost = lost_before(sequence)
+            lost = lost_before(info["publication_sequence_number"])
             if lost:
-                t_ns = self._push_lost(channel, topic, lost, t_ns)
+                t_ns = self._push_lost(channel, topic, lost, wall)
             last_input[channel] = t_ns
             handle(raw, t_ns, wall, info["source_timestamp"] or None)
             self.busy_ns += time_ns() - wall
@@ -267,10 +265,9 @@ class InputPath:
     def _push_lost(self, channel: str, topic: str, lost: int, t_ns: int) -> int:
         """``lost`` messages of ``channel`` were lost just before the one taken at ``t_ns``: push
         (and record) a placeholder for each (:data:`~core.pairing.LOST_VALUE`), 1 ns
-        apart just before it (in the slots they left empty on the sequence clock), so that first-in
-        first-out pairing stays aligned.  Returns the time for the message itself (moved on by at most
-        ``lost`` ns where the channel's previous message leaves no room: the times on a topic must grow
-        for replay to keep this order)."""
+        apart just before it, so that first-in first-out pairing stays aligned.  Returns the time for the
+        message itself (moved on by at most ``lost`` ns where the channel's previous message leaves no
+        room: the times on a topic must grow for replay to keep this order)."""
         node = self._node
         handle = self._handles.get(channel)
         if handle is not None and handle.get_publisher_count() > 1:
@@ -284,9 +281,8 @@ class InputPath:
         if lost > MAX_PLACEHOLDERS:
             node.estimator.sync.restart()
             return t_ns
-        step = self.clock.period_ns if self.clock is not None else 1
-        t_ns = max(t_ns, self._last_input_ns.get(channel, t_ns) + (lost + 1) * step)
-        for t_i in range(t_ns - lost * step, t_ns, step):
+        t_ns = max(t_ns, self._last_input_ns.get(channel, t_ns) + lost + 1)
+        for t_i in range(t_ns - lost, t_ns):
             recorder = node.recorder
             if recorder is not None:
                 log_ns = self.log_ns = t_i if self.record_pairing_time else node.get_clock().now().nanoseconds
