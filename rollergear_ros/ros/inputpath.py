@@ -200,10 +200,8 @@ class InputPath:
         time_ns = time.time_ns
         record_pairing_time = self.record_pairing_time
 
-        def take(raw: bytes, t_ns: int, wall_ns: int, source_ns: int | None = None) -> list:
+        def take(raw: bytes, t_ns: int, source_ns: int | None = None) -> list:
             """Record the message and push it to the estimator: the estimates it completes."""
-            counts[channel] += 1
-            last[channel] = wall_ns
             recorder = node.recorder
             if recorder is not None:
                 log_ns = self.log_ns = t_ns if record_pairing_time else node.get_clock().now().nanoseconds
@@ -218,7 +216,9 @@ class InputPath:
             return node.estimator.push(channel, t_ns, value, source_ns)
 
         def handle(raw: bytes, t_ns: int, wall_ns: int, source_ns: int | None = None) -> None:
-            for est in take(raw, t_ns, wall_ns, source_ns):
+            counts[channel] += 1
+            last[channel] = wall_ns
+            for est in take(raw, t_ns, source_ns):
                 node._publish(est)  # noqa: SLF001 - the node's one publishing path
 
         if self.pairing not in ARRIVAL_PAIRINGS:
@@ -230,9 +230,11 @@ class InputPath:
                 if clock is None:
                     handle(raw, t_ns, wall)
                 else:  # the slot of its publisher's number, handed on in the clock's time order
+                    counts[channel] += 1
+                    last[channel] = wall
                     reference_ns, t_ns = t_ns, clock.time_ns(channel, info.get("publication_sequence_number"), t_ns)
                     self.monitor.lost[channel] += clock.gap
-                    for held in merge.push(channel, t_ns, reference_ns, (take, raw, t_ns, wall)):
+                    for held in merge.push(channel, t_ns, reference_ns, (take, raw, t_ns)):
                         for est in held[0](*held[1:]):
                             node._publish(est)  # noqa: SLF001
                 self.busy_ns += time_ns() - wall

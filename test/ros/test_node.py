@@ -541,13 +541,16 @@ def test_under_sim_time_a_stream_queued_at_start_up_waits_for_the_clock(tmp_path
     assert t_in.min() >= 1000 * 10**9 and t_out.min() >= 1000 * 10**9
 
 
-def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inputs(tmp_path):
+@pytest.mark.parametrize("clock", ["arrival", "sequence"])
+def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inputs(tmp_path, clock):
     """Arrival pairing over best-effort delivery: a node that falls a whole queue behind loses the
     oldest messages of each topic -- a different number on each -- and nothing in their arrival
     tells.  The publishers' sequence numbers do: every lost message is pushed (and recorded) as a
     placeholder in its place, so no estimate joins one topic's message from before the loss with
     another's from after it, the samples with a lost input are counted ``lost``, and replay of the
-    recording gives exactly what the node published."""
+    recording gives exactly what the node published.  On the sequence clock a lost message leaves
+    its slot empty: its sample's other input has no partner at its time (``unpaired``), as in a
+    recording that misses it, and every other sample is estimated from its own inputs."""
     from rclpy.parameter import Parameter
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from std_msgs.msg import Float64
@@ -567,8 +570,11 @@ def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inpu
         for topic in seen:  # a fence: the node's queue has what this deep probe has
             probe.create_subscription(Float64, topic, lambda m, topic=topic: seen[topic].append(m.data),
                                       QoSProfile(depth=3 * depth, reliability=ReliabilityPolicy.BEST_EFFORT))
-        node = LossEstimatorNode(context=probe.context,
-                                 parameter_overrides=[Parameter("node.record_mcap", value=str(rec))])
+        overrides = [Parameter("node.record_mcap", value=str(rec))]
+        if clock == "sequence":
+            overrides += [Parameter("node.sample_clock", value="sequence"), Parameter("node.expected_rate_hz",
+                                                                                      value=1000.0)]
+        node = LossEstimatorNode(context=probe.context, parameter_overrides=overrides)
         executor = make_executor("events", context=probe.context)
         try:
             executor.add_node(node)
@@ -626,8 +632,13 @@ def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inpu
     k_t = np.round(1000 * (np.concatenate([b.torque_nm for b in batches]) - 10.0)).astype(int)
     k_w = np.round(1000 * (np.concatenate([b.speed_rad_s for b in batches]) - 50.0)).astype(int)
     assert np.array_equal(k_t, k_w), f"{np.sum(k_t != k_w)} estimates from inputs of different samples"
-    assert counts["lost"] == len(missing[TORQUE] | missing[SPEED]) == summary.skipped["lost"]
-    assert estimated == len(k_t) >= last_k + 1 - counts["lost"] - 10
+    if clock == "sequence":
+        assert counts["lost"] == 0 and counts["unpaired"] == len(missing[TORQUE] ^ missing[SPEED]), counts
+        assert estimated == len(k_t) == last_k + 1 - len(missing[TORQUE] | missing[SPEED]), (estimated, len(k_t))
+        assert sorted(k_t.tolist()) == k_t.tolist()
+    else:
+        assert counts["lost"] == len(missing[TORQUE] | missing[SPEED]) == summary.skipped["lost"]
+        assert estimated == len(k_t) >= last_k + 1 - counts["lost"] - 10
     np.testing.assert_array_equal(np.concatenate([b.loss_torque_nm for b in batches]),
                                   float_series(recorded, T.loss_torque)[1])
 
