@@ -90,9 +90,9 @@ class SequenceClock:
         self.gap = max(steps - 1, 0)
         elapsed = reference_ns - state.reference_ns
         if steps <= 0 or elapsed - steps * self.period_ns > self._pause_ns:
-            # a restarted publisher (or none numbering), or a pause: the slot of its reference time
+            # a restarted publisher, a pause (or no numbers at all): the slot of its reference time
             slot = max(state.slot + 1, self._slot_near(reference_ns))
-            self.pauses += 1
+            self.pauses += sequence is not None
         else:
             slot = state.slot + steps
             if len(state.intervals) < RATE_LEARN and elapsed > 0:

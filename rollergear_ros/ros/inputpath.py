@@ -267,9 +267,9 @@ class InputPath:
     def _push_lost(self, channel: str, topic: str, lost: int, t_ns: int) -> int:
         """``lost`` messages of ``channel`` were lost just before the one taken at ``t_ns``: push
         (and record) a placeholder for each (:data:`~core.pairing.LOST_VALUE`), 1 ns
-        apart just before it, so that first-in first-out pairing stays aligned.  Returns the time for the
-        message itself (moved on by at most ``lost`` ns where the channel's previous message leaves no
-        room: the times on a topic must grow for replay to keep this order)."""
+        apart just before it, so that first-in first-out pairing stays aligned.  Returns the time
+        for the message itself (moved on by at most ``lost`` ns where the channel's previous message
+        leaves no room: the times on a topic must grow for replay to keep this order)."""
         node = self._node
         handle = self._handles.get(channel)
         if handle is not None and handle.get_publisher_count() > 1:

@@ -245,3 +245,29 @@ def test_a_spin_test_is_said_as_a_loss_not_an_efficiency():
     loaded = report(0.85)
     assert "measured efficiency 85.00 % over 5 s" in loaded.message and loaded.level == WARN
     assert "below 90 %" in loaded.message
+
+
+def test_the_sequence_clock_shows_its_rate_and_warns_when_the_publishers_say_another():
+    """``node.sample_clock: sequence``: the status shows the clock's rate and the pauses it moved on at;
+    once a topic's publisher has shown another rate (a recording played 10x), a WARN says both."""
+    from rollergear_ros.core.seqclock import RATE_LEARN, SequenceClock
+
+    est = Estimator(load_config())
+    now = 100 * 10**9
+    monitor = _monitor(now, {TORQUE: now - MS, SPEED: now - MS})
+    monitor.sample_clock = clock = SequenceClock(0.01)
+    rates = {TORQUE: 1000.0, SPEED: 1000.0}
+
+    def report():
+        return diagnose(InputsNow(now, monitor, rates), est, DiagnosticLimits(1000.0, 0.9),
+                        SinceLast(dict(est.counts), 0))
+
+    for k in range(RATE_LEARN):  # 100 Hz, as the clock
+        clock.time_ns("motor_torque", k + 1, k * 10 * MS)
+    rep = report()
+    assert rep.level == OK, rep.message
+    assert dict(rep.values)["sample clock"] == "publishers' numbers at 100 Hz; 0 pause(s) or restart(s)"
+    for k in range(RATE_LEARN + 1):  # ten times as fast
+        clock.time_ns("motor_speed", k + 1, k * MS)
+    rep = report()
+    assert rep.level == WARN and "motor_speed is published at 1000 Hz, the sample clock runs at 100 Hz" in rep.message
