@@ -18,7 +18,7 @@ def node_samples(config, effects=(), seed=0, onset_s=ONSET_S, rate_hz=200.0):
     est = Estimator(config).process_batch(rig.t_ns, rig.torque_meas_nm, rig.speed_rad_s, rig.out_torque_meas_nm,
                                           rig.out_speed_meas_rad_s, rig.temperature_c, breakdown=False)
     buffer = TraceBuffer(10 ** 6)
-    for i in range(len(est.t_ns)):  # the node's _publish: every estimate's inputs
+    for i in range(len(est.t_ns)):  # the node's publish_estimate: every estimate's inputs
         buffer.add((int(est.t_ns[i]), float(est.torque_nm[i]), float(est.speed_rad_s[i]),
                     float(est.out_torque_nm[i]), float(est.out_speed_rad_s[i]), float(est.temperature_c[i]),
                     float(est.measured_loss_nm[i])))

@@ -50,7 +50,7 @@ class LiveEfficiencyWindow:
         """The timer: take the new samples, publish each second completed since the last look."""
         node = self.node
         buffer = node.tracer.buffer
-        with node._input_lock:  # noqa: SLF001 - the buffer is appended under it
+        with node.input_lock:  # the buffer is appended under it
             fresh = buffer.since(self._seen_ns)
             if not node.config.node.trace:  # the tracer trims it otherwise
                 buffer.trim()
@@ -87,5 +87,5 @@ class LiveEfficiencyWindow:
             raw = _PACK(CDR_LE_HEADER, getattr(value, channel.value))
             publish(raw)
             if recorder is not None:
-                with self.node._input_lock:  # noqa: SLF001 - the recorder is written under it
+                with self.node.input_lock:  # the recorder is written under it
                     recorder.write_raw(topic, MessageType.FLOAT64, stamp, raw)

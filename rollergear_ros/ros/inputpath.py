@@ -11,7 +11,7 @@ from its subscriptions are judged as a whole (:meth:`InputPath.take_start_up_bac
 
 It reads the node's ``estimator``, ``recorder`` and ``config`` at each message (a parameter change
 replaces the estimator; closing ends the recording) and hands each estimate to the node's
-``_publish``.
+``publish_estimate``.
 """
 
 from __future__ import annotations
@@ -219,7 +219,7 @@ class InputPath:
             counts[channel] += 1
             last[channel] = wall_ns
             for est in take(raw, t_ns, source_ns):
-                node._publish(est)  # noqa: SLF001 - the node's one publishing path
+                node.publish_estimate(est)
 
         if self.pairing not in ARRIVAL_PAIRINGS:
             merge = self._merge
@@ -236,7 +236,7 @@ class InputPath:
                     self.monitor.lost[channel] += clock.gap
                     for held in merge.push(channel, t_ns, reference_ns, (take, raw, t_ns)):
                         for est in held[0](*held[1:]):
-                            node._publish(est)  # noqa: SLF001
+                            node.publish_estimate(est)
                 self.busy_ns += time_ns() - wall
             return cb_timestamp
 
@@ -290,7 +290,7 @@ class InputPath:
                 log_ns = self.log_ns = t_i if self.record_pairing_time else node.get_clock().now().nanoseconds
                 recorder.write_raw(topic, MessageType.FLOAT64, log_ns, _LOST_RAW)
             for est in node.estimator.push(channel, t_i, LOST_VALUE):
-                node._publish(est)  # noqa: SLF001
+                node.publish_estimate(est)
         return t_ns
 
     def _joint_state(self, msg: JointState) -> None:
@@ -313,7 +313,7 @@ class InputPath:
                 self.monitor.record(ch_w, wall)
                 for channel, value in ((ch_t, effort), (ch_w, velocity)):
                     for est in node.estimator.push(channel, t_ns, float(value)):
-                        node._publish(est)  # noqa: SLF001
+                        node.publish_estimate(est)
         self.busy_ns += time.time_ns() - wall
 
     def _temperature(self, msg: Temperature) -> None:

@@ -98,14 +98,14 @@ class LossEstimatorNode(Node):
         self._every = self.config.node.publish_every_n
         self.executor_kind = node.executor
         # the events executor's input thread delivers under this lock, which a parameter change takes too
-        self._input_lock = threading.Lock()
+        self.input_lock = threading.Lock()
         self._closed = False
         # Float64 inputs are recorded at the very times the estimator paired them by (publisher
         # timestamps, or arrival times), so that replay of the recording pairs them as the node did
         # (``rollergear_recording`` metadata); under sim time the recording keeps one clock: ROS time
         record_pairing_time = node.input_mode == "float64" and not self.get_parameter("use_sim_time").value
         #: the input subscriptions and what each message does (:mod:`.inputpath`)
-        self.input_path = InputPath(self, self._input_lock, self.pairing, record_pairing_time)
+        self.input_path = InputPath(self, self.input_lock, self.pairing, record_pairing_time)
         self._create_outputs()
         # the live loss map (transient-local: an energy manager that starts later gets the last one)
         self.live_map = LiveMapPublisher(self._map_publishers, self.get_fully_qualified_name(), self.get_logger())
@@ -152,7 +152,7 @@ class LossEstimatorNode(Node):
                        Output("node.traced_params_file", self.traced_params_path, "yaml")])
         if self._map_publishers or node.map_file:
             self._update_map()  # before the inputs are subscribed: nothing waits for it
-        self.recording = NodeRecording(self, self.config, self.out_topics, self._input_lock, self.pairing,
+        self.recording = NodeRecording(self, self.config, self.out_topics, self.input_lock, self.pairing,
                                        self.input_path.record_pairing_time, lambda: self.estimator)
         #: the MCAP recorder the input and output paths write into (None: not recording)
         self.recorder = self.recording.mcap
@@ -169,7 +169,7 @@ class LossEstimatorNode(Node):
         changes = {p.name: p.value for p in params if p.name in self._package_parameters}
         if not changes:
             return SetParametersResult(successful=True)
-        with self._input_lock:  # never between two messages of one sample's push
+        with self.input_lock:  # never between two messages of one sample's push
             return self._change_parameters(changes)
 
     def _change_parameters(self, changes: dict[str, Any]) -> SetParametersResult:
@@ -257,7 +257,7 @@ class LossEstimatorNode(Node):
                                        if c.name in self.output_publishers)
         self.traced_topic = next((self.out_topics[c.name] for c in trace_channels() if c.name in self.out_topics), "")
 
-    def _publish(self, est: Estimate, send: bool = True) -> None:
+    def publish_estimate(self, est: Estimate, send: bool = True) -> None:
         """Publish one estimate (``send=False``: record it only) and buffer its inputs for rerun and the
         online tracer (every sample, with a measured output or not: a trace steps an effect's memory
         over each, as ``calibrate`` does over the recording)."""
@@ -318,7 +318,7 @@ class LossEstimatorNode(Node):
             held = []
         for est in itertools.chain(held, self.estimator.finish()):
             try:
-                self._publish(est, send)
+                self.publish_estimate(est, send)
                 continue
             except Exception as exc:  # noqa: BLE001 - nothing may keep close() from closing the files
                 self._published -= 1
@@ -326,7 +326,7 @@ class LossEstimatorNode(Node):
             if send:  # the context went down meanwhile (a second signal): record this one and the rest
                 send = False
                 try:
-                    self._publish(est, False)
+                    self.publish_estimate(est, False)
                     continue
                 except Exception as exc:  # noqa: BLE001
                     self._published -= 1

@@ -100,7 +100,7 @@ class LiveTracer:
             if detector.alarm_times_ns:
                 alarm = detector.alarm_times_ns[-1]
                 self._pending = (alarm, alarm + int(params.trace_min_after_s * 1e9))
-        with self.node._input_lock:
+        with self.node.input_lock:
             self.buffer.trim()
         last_ns = self.buffer.last_ns()
         if self.worker.busy or last_ns is None:
@@ -126,7 +126,7 @@ class LiveTracer:
         return "traced on loss/traced once samples have come after the alarm"
 
     def _start(self, reason: str, alarm_ns: int | None, end_ns: int | None) -> None:
-        with self.node._input_lock:  # a memory copy: milliseconds
+        with self.node.input_lock:  # a memory copy: milliseconds
             samples = self.buffer.snapshot()
         if reason == "period" and not np.isfinite(samples["out_torque_nm"]).any():
             return  # no measured output to trace (an alarm's trace says what it lacks)
@@ -161,7 +161,7 @@ class LiveTracer:
         for publisher in self.publishers:
             publisher.publish(status)
         if node.recorder is not None:
-            with node._input_lock:
+            with node.input_lock:
                 node.recorder.write_message(node.traced_topic, MessageType.DIAGNOSTIC_STATUS,
                                             node.get_clock().now().nanoseconds, status_dict(status))
         if node.rerun is not None and done.since_ns is not None:

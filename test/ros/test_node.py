@@ -440,7 +440,7 @@ def _start_up(probe, before_node: int, queued: int, live: int):
     node = LossEstimatorNode(context=probe.context)
     executor = make_executor("events", context=probe.context)
     estimates = []
-    node._publish = lambda est, send=True: estimates.append(est)  # noqa: SLF001 - the estimates, as made
+    node.publish_estimate = lambda est, send=True: estimates.append(est)  # the estimates, as made
     try:
         executor.add_node(node)
         assert wait_for(lambda: all(p.get_subscription_count() == 2 for p in pubs), 20)
@@ -597,7 +597,7 @@ def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inpu
                 time.sleep(0.001)
             assert wait_for(lambda: node.estimator.estimated >= 150 and monitor.counts[SPEED] == 200, 30)
             # the node stalls; its queues overflow: torque loses samples 200..(200 + 300), speed 200..(200 + 200)
-            with node._input_lock:
+            with node.input_lock:
                 for k in range(200, depth + 500 + 1):
                     publish(pub_t, k)
                     if k <= depth + 400:
@@ -614,7 +614,7 @@ def test_messages_lost_in_delivery_leave_every_estimate_paired_with_its_own_inpu
                 time.sleep(0.001)
             assert wait_for(lambda: all(monitor.counts[ch] + monitor.lost[ch] == last_k + 1
                                         for ch in (TORQUE, SPEED)), 60), (monitor.counts, monitor.lost)
-            with node._input_lock:
+            with node.input_lock:
                 counts, lost, estimated = dict(node.estimator.counts), dict(monitor.lost), node.estimator.estimated
         finally:
             node.close()

@@ -87,8 +87,8 @@ def test_the_node_publishes_and_records_a_toy_channel(toy_channel, tmp_path):
             probe.wait_matched()
             unmeasured = Estimate(1_000, 10.0, 50.0, 0.1, 5.0, 0.99, float("nan"), float("nan"))
             measured = Estimate(2_000, 10.0, 50.0, 0.1, 5.0, 0.99, 0.123, 0.023)
-            node._publish(unmeasured)  # noqa: SLF001 - what the input path does with an estimate
-            node._publish(measured)  # noqa: SLF001
+            node.publish_estimate(unmeasured)
+            node.publish_estimate(measured)
             assert wait_for(lambda: len(probe) >= 1, 60)
             np.testing.assert_array_equal(probe.values(), [0.123])
             node.close()
