@@ -8,8 +8,11 @@ message ``k`` of a topic is sample ``k``.  :class:`SequenceClock` gives each mes
 slot on one grid, ``anchor + slot × period``:
 
 - the first message of the stream is slot 0 at its reference time (the publisher's timestamp, else
-  its arrival); a topic's first message takes the slot nearest its reference time, counted from the
-  recent message (of any topic) whose reference time is nearest;
+  its arrival).  A topic's first message takes the slot its number gives alongside a topic already
+  timed (a loop that publishes every topic once per sample numbers them alike) where that topic's
+  message of the slot was published within :data:`JOIN_PERIODS` periods of it; else (a publisher
+  numbering apart, started later) the slot nearest its reference time, counted from the recent
+  message of any topic whose reference time is nearest;
 - each later message moves its topic on by as many slots as its publisher's sequence number moved
   (a message lost in delivery leaves its slot empty);
 - a pause in publishing -- the publisher's timestamps further apart than the numbers allow by more
@@ -32,13 +35,18 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["PAUSE_S", "RATE_LEARN", "RATE_TOLERANCE", "RECENT", "SILENT_S", "ClockMerge", "SequenceClock"]
+__all__ = ["JOIN_PERIODS", "PAUSE_S", "RATE_LEARN", "RATE_TOLERANCE", "RECENT", "SILENT_S", "ClockMerge",
+           "SequenceClock"]
 
 #: a publisher whose timestamps lie this much further apart than its numbers allow paused publishing
 PAUSE_S = 1.0
 RATE_LEARN = 64  #: the publishers' rate is the median of this many of a topic's first intervals
 RATE_TOLERANCE = 0.02  #: ... and differs from the clock's beyond this share (said once)
 RECENT = 64  #: a topic's latest messages a joining topic is placed against
+#: a joining topic's first message and the message its number pairs it with in a topic already timed,
+#: published within this many periods of each other: numbered alike (a publisher preempted between
+#: the two, a recording played faster), not a publisher that started a sample or more later
+JOIN_PERIODS = 2
 #: a topic whose publisher's latest timestamp lies this far behind another's no longer holds the others
 #: back (:class:`ClockMerge`: a publisher that stopped, not one whose messages are still on their way)
 SILENT_S = 5.0
@@ -75,6 +83,19 @@ class SequenceClock:
         ref, slot = min((m for t in self._topics.values() for m in t.recent), key=lambda m: abs(m[0] - reference_ns))
         return slot + int(np.floor((reference_ns - ref) / self.period_ns + 0.5))
 
+    def _join_slot(self, sequence: int | None, reference_ns: int) -> int:
+        """A joining topic's first slot: by its number alongside a topic already timed whose message of
+        that slot was published within :data:`JOIN_PERIODS` periods of it, else by its reference time."""
+        if sequence is not None:
+            for other in self._topics.values():  # the first timed first
+                if other.sequence is None:
+                    continue
+                slot = other.slot - other.sequence + sequence
+                partner_ns = next((ref for ref, s in other.recent if s == slot), None)
+                if partner_ns is not None and abs(reference_ns - partner_ns) < JOIN_PERIODS * self.period_ns:
+                    return slot
+        return self._slot_near(reference_ns)
+
     def time_ns(self, topic: str, sequence: int | None, reference_ns: int) -> int:
         """The time of ``topic``'s message numbered ``sequence`` by its publisher (None: unknown; the
         reference time decides), whose publisher timestamp (else arrival) is ``reference_ns``."""
@@ -82,7 +103,7 @@ class SequenceClock:
             self._anchor_ns = reference_ns
         state = self._topics.get(topic)
         if state is None:
-            slot = self._slot_near(reference_ns) if self._topics else 0
+            slot = self._join_slot(sequence, reference_ns) if self._topics else 0
             self._topics[topic] = state = _Topic(slot, sequence, reference_ns, [])
             state.recent.append((reference_ns, slot))
             return self._anchor_ns + slot * self.period_ns

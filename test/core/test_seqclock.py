@@ -137,3 +137,22 @@ def test_a_topic_that_stopped_publishing_holds_nothing_back():
     assert merge.push("torque", PERIOD_NS, int(0.5 * SILENT_S * 1e9), "torque 1") == []  # still waited for
     late = int(1.5 * SILENT_S * 1e9)
     assert merge.push("torque", 2 * PERIOD_NS, late, "torque 2") == ["torque 1", "torque 2"]
+
+
+def test_a_topic_numbered_alike_joins_beside_its_partner_though_its_publisher_was_preempted():
+    """A recording played ten times as fast whose player was preempted for 3 ms between the torque's
+    first message and the speed's: by its timestamp the speed would join three slots late; its number
+    puts it beside the torque published with it.  A publisher numbering apart (started later) joins
+    by its timestamp."""
+    clock = SequenceClock(PERIOD_NS * 1e-9)
+    t0 = 10**18
+    fast = PERIOD_NS // 10
+    for k in range(5):
+        clock.time_ns("torque", k + 1, t0 + k * fast)
+    assert clock.time_ns("speed", 1, t0 + 3 * fast + 100_000) == t0
+    assert clock.time_ns("speed", 2, t0 + 4 * fast + 100_000) == t0 + PERIOD_NS
+    # at the recording's own rate, a publisher that numbers from 1 but started three samples later
+    clock = SequenceClock(PERIOD_NS * 1e-9)
+    for k in range(5):
+        clock.time_ns("torque", k + 1, t0 + k * PERIOD_NS)
+    assert clock.time_ns("out_torque", 1, t0 + 3 * PERIOD_NS + 100_000) == t0 + 3 * PERIOD_NS
