@@ -54,6 +54,7 @@ _FACE = {
     "SPEED": "pairing",
     "SequenceGaps": "lostmarks",
     "SequenceClock": "seqclock",
+    "ClockMerge": "seqclock",
     "TORQUE": "pairing",
     "Config": "params",
     "GearboxParams": "params",

@@ -8,11 +8,14 @@ message ``k`` of a topic is sample ``k``.  :class:`SequenceClock` gives each mes
 slot on one grid, ``anchor + slot × period``:
 
 - the first message of the stream is slot 0 at its reference time (the publisher's timestamp, else
-  its arrival).  A topic's first message takes the slot its number gives alongside a topic already
-  timed (a loop that publishes every topic once per sample numbers them alike) where that topic's
-  message of the slot was published within :data:`JOIN_PERIODS` periods of it; else (a publisher
-  numbering apart, started later) the slot nearest its reference time, counted from the recent
-  message of any topic whose reference time is nearest;
+  its arrival).  The publishers number their messages alike -- sample ``k`` is message ``k`` on every
+  topic, as one acquisition loop's publishers do -- so a topic's first message takes the slot its
+  number gives beside the topic timed first, where that topic's message of the slot was published
+  less than :data:`PAUSE_S` from it; else the slot nearest its reference time, counted from the
+  recent message of any topic whose reference time is nearest.  Whether the numbers were alike is
+  seen afterwards: over a topic's first :data:`RATE_LEARN` messages, its publisher's timestamps and
+  those of the messages it is paired with lie more than half a period apart, typically
+  (:attr:`SequenceClock.step_problem`: said);
 - each later message moves its topic on by as many slots as its publisher's sequence number moved
   (a message lost in delivery leaves its slot empty);
 - a pause in publishing -- the publisher's timestamps further apart than the numbers allow by more
@@ -35,18 +38,13 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["JOIN_PERIODS", "PAUSE_S", "RATE_LEARN", "RATE_TOLERANCE", "RECENT", "SILENT_S", "ClockMerge",
-           "SequenceClock"]
+__all__ = ["PAUSE_S", "RATE_LEARN", "RATE_TOLERANCE", "RECENT", "SILENT_S", "ClockMerge", "SequenceClock"]
 
 #: a publisher whose timestamps lie this much further apart than its numbers allow paused publishing
 PAUSE_S = 1.0
 RATE_LEARN = 64  #: the publishers' rate is the median of this many of a topic's first intervals
 RATE_TOLERANCE = 0.02  #: ... and differs from the clock's beyond this share (said once)
 RECENT = 64  #: a topic's latest messages a joining topic is placed against
-#: a joining topic's first message and the message its number pairs it with in a topic already timed,
-#: published within this many periods of each other: numbered alike (a publisher preempted between
-#: the two, a recording played faster), not a publisher that started a sample or more later
-JOIN_PERIODS = 2
 #: a topic whose publisher's latest timestamp lies this far behind another's no longer holds the others
 #: back (:class:`ClockMerge`: a publisher that stopped, not one whose messages are still on their way)
 SILENT_S = 5.0
@@ -58,6 +56,8 @@ class _Topic:
     sequence: int | None  #: its publisher's sequence number
     reference_ns: int  #: its reference time (publisher's timestamp, else arrival)
     intervals: list[float]  #: the first publisher intervals per number (rate check)
+    #: joined beside the topic timed first: how far its first messages' timestamps lie from their partners'
+    offsets: list[int] | None = None
     #: its latest messages' (reference time, slot)
     recent: deque[tuple[int, int]] = field(default_factory=lambda: deque(maxlen=RECENT))
 
@@ -76,6 +76,8 @@ class SequenceClock:
         self.rate_problem: str | None = None
         self.pauses = 0  #: pauses and restarts the clock moved on at
         self.gap = 0  #: messages the last one's number says were lost just before it
+        #: a topic joined by its number whose timestamps say it is out of step (None: nothing to say)
+        self.step_problem: str | None = None
 
     def _slot_near(self, reference_ns: int) -> int:
         """The grid slot nearest ``reference_ns``, counted from the latest message whose reference time
@@ -83,18 +85,36 @@ class SequenceClock:
         ref, slot = min((m for t in self._topics.values() for m in t.recent), key=lambda m: abs(m[0] - reference_ns))
         return slot + int(np.floor((reference_ns - ref) / self.period_ns + 0.5))
 
-    def _join_slot(self, sequence: int | None, reference_ns: int) -> int:
-        """A joining topic's first slot: by its number alongside a topic already timed whose message of
-        that slot was published within :data:`JOIN_PERIODS` periods of it, else by its reference time."""
-        if sequence is not None:
-            for other in self._topics.values():  # the first timed first
-                if other.sequence is None:
-                    continue
-                slot = other.slot - other.sequence + sequence
-                partner_ns = next((ref for ref, s in other.recent if s == slot), None)
-                if partner_ns is not None and abs(reference_ns - partner_ns) < JOIN_PERIODS * self.period_ns:
-                    return slot
-        return self._slot_near(reference_ns)
+    def _join_slot(self, sequence: int | None, reference_ns: int) -> tuple[int, bool]:
+        """A joining topic's first slot, and whether its number gave it: beside the topic timed first,
+        whose message of that slot was published less than :data:`PAUSE_S` from it; else by its
+        reference time."""
+        first = next(iter(self._topics.values()))
+        if sequence is not None and first.sequence is not None:
+            slot = first.slot - first.sequence + sequence
+            partner_ns = self._partner_ns(first, slot)
+            if partner_ns is not None and abs(reference_ns - partner_ns) < self._pause_ns:
+                return slot, True
+        return self._slot_near(reference_ns), False
+
+    @staticmethod
+    def _partner_ns(topic: _Topic, slot: int) -> int | None:
+        """The reference time of ``topic``'s recent message of ``slot`` (None: none kept)."""
+        return next((ref for ref, s in topic.recent if s == slot), None)
+
+    def _check_step(self, name: str, state: _Topic, slot: int, reference_ns: int) -> None:
+        """A topic joined by its number: its first messages' timestamps against their partners'."""
+        first_name, first = next(iter(self._topics.items()))
+        partner_ns = self._partner_ns(first, slot)
+        if partner_ns is None:
+            return
+        state.offsets.append(reference_ns - partner_ns)
+        if len(state.offsets) == RATE_LEARN:
+            typical_ns = float(np.median(state.offsets))
+            if self.step_problem is None and abs(typical_ns) > 0.5 * self.period_ns:
+                self.step_problem = (f"{name}'s publisher numbers its messages out of step with {first_name}'s: "
+                                     f"its messages come {typical_ns * 1e-6:+.3g} ms from those they are paired "
+                                     "with (the sequence clock needs publishers that number alike, as one loop's do)")
 
     def time_ns(self, topic: str, sequence: int | None, reference_ns: int) -> int:
         """The time of ``topic``'s message numbered ``sequence`` by its publisher (None: unknown; the
@@ -103,9 +123,11 @@ class SequenceClock:
             self._anchor_ns = reference_ns
         state = self._topics.get(topic)
         if state is None:
-            slot = self._join_slot(sequence, reference_ns) if self._topics else 0
-            self._topics[topic] = state = _Topic(slot, sequence, reference_ns, [])
+            slot, by_number = self._join_slot(sequence, reference_ns) if self._topics else (0, False)
+            self._topics[topic] = state = _Topic(slot, sequence, reference_ns, [], [] if by_number else None)
             state.recent.append((reference_ns, slot))
+            if by_number:
+                self._check_step(topic, state, slot, reference_ns)
             return self._anchor_ns + slot * self.period_ns
         steps = sequence - state.sequence if sequence is not None and state.sequence is not None else 0
         self.gap = max(steps - 1, 0)
@@ -120,6 +142,8 @@ class SequenceClock:
                 state.intervals.append(elapsed / steps)
                 if len(state.intervals) == RATE_LEARN:
                     self._check_rate(topic, state.intervals)
+            if state.offsets is not None and len(state.offsets) < RATE_LEARN:
+                self._check_step(topic, state, slot, reference_ns)
         state.slot, state.sequence, state.reference_ns = slot, sequence, reference_ns
         state.recent.append((reference_ns, slot))
         return self._anchor_ns + slot * self.period_ns

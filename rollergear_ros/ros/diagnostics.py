@@ -232,8 +232,9 @@ def _input_status(inputs: InputsNow, estimator: Estimator, limits: DiagnosticLim
     if clock is not None:
         values.append(("sample clock", f"publishers' numbers at {1e9 / clock.period_ns:.6g} Hz; "
                                        f"{clock.pauses} pause(s) or restart(s)"))
-        if clock.rate_problem:
-            reasons.append((WARN, clock.rate_problem))
+        for problem in (clock.rate_problem, clock.step_problem):
+            if problem:
+                reasons.append((WARN, problem))
 
 
 def _measured_status(measured: WindowValue | None, stated: bool, values: list[tuple[str, str]]) -> str:

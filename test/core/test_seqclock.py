@@ -44,15 +44,16 @@ def test_delivery_jitter_and_a_catch_up_burst_change_no_time():
             np.testing.assert_array_equal(np.asarray(times[topic]) - first, np.arange(n) * PERIOD_NS)
 
 
-def test_a_lost_message_leaves_its_slot_and_a_late_topic_takes_the_slot_of_its_time():
+def test_a_lost_message_leaves_its_slot_and_a_topic_numbered_apart_takes_the_slot_of_its_time():
     clock = SequenceClock(PERIOD_NS * 1e-9)
     t0 = 10**18
     assert clock.time_ns("torque", 1, t0) == t0
     assert clock.time_ns("torque", 4, t0 + 3 * PERIOD_NS + 700_000) == t0 + 3 * PERIOD_NS  # 2 and 3 lost
-    # a topic whose publisher started later (its own numbering) joins at the slot nearest its time
-    assert clock.time_ns("speed", 1, t0 + 3 * PERIOD_NS + 2_100_000) == t0 + 3 * PERIOD_NS
-    assert clock.time_ns("speed", 2, t0 + 4 * PERIOD_NS - 1_900_000) == t0 + 4 * PERIOD_NS
-    assert clock.rate_problem is None and clock.pauses == 0
+    # a topic whose number pairs it with no message kept (a publisher numbering far apart) joins at
+    # the slot nearest its time
+    assert clock.time_ns("speed", 5001, t0 + 3 * PERIOD_NS + 2_100_000) == t0 + 3 * PERIOD_NS
+    assert clock.time_ns("speed", 5002, t0 + 4 * PERIOD_NS - 1_900_000) == t0 + 4 * PERIOD_NS
+    assert clock.rate_problem is None and clock.step_problem is None and clock.pauses == 0
 
 
 @pytest.mark.parametrize("pause_s", [PAUSE_S * 1.5, 30.0])
@@ -151,8 +152,25 @@ def test_a_topic_numbered_alike_joins_beside_its_partner_though_its_publisher_wa
         clock.time_ns("torque", k + 1, t0 + k * fast)
     assert clock.time_ns("speed", 1, t0 + 3 * fast + 100_000) == t0
     assert clock.time_ns("speed", 2, t0 + 4 * fast + 100_000) == t0 + PERIOD_NS
-    # at the recording's own rate, a publisher that numbers from 1 but started three samples later
+    # preempted for 4 ms where the clock's period is 1 ms: its number still puts it beside its partner
+    clock = SequenceClock(1e-3)
+    assert clock.time_ns("torque", 1, t0) == t0
+    assert clock.time_ns("speed", 1, t0 + 4_000_000) == t0
+    for k in range(1, RATE_LEARN + 2):
+        assert clock.time_ns("torque", k + 1, t0 + k * 1_000_000) == clock.time_ns("speed", k + 1, t0 + k * 1_000_000)
+    assert clock.step_problem is None
+
+
+def test_a_publisher_that_numbers_out_of_step_is_said():
+    """Publishers that do not number alike (one started three samples after the other, both from 1):
+    paired by number, their messages lie three periods apart; once its first messages are in, the clock
+    says which topic and by how much."""
     clock = SequenceClock(PERIOD_NS * 1e-9)
-    for k in range(5):
+    t0 = 10**18
+    for k in range(RATE_LEARN + 3):
         clock.time_ns("torque", k + 1, t0 + k * PERIOD_NS)
-    assert clock.time_ns("out_torque", 1, t0 + 3 * PERIOD_NS + 100_000) == t0 + 3 * PERIOD_NS
+        if k >= 3:
+            clock.time_ns("out_torque", k - 2, t0 + k * PERIOD_NS + 50_000)
+    assert clock.step_problem is not None
+    assert "out_torque's publisher numbers its messages out of step with torque's" in clock.step_problem
+    assert "+15 ms" in clock.step_problem, clock.step_problem

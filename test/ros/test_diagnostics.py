@@ -271,3 +271,10 @@ def test_the_sequence_clock_shows_its_rate_and_warns_when_the_publishers_say_ano
         clock.time_ns("motor_speed", k + 1, k * MS)
     rep = report()
     assert rep.level == WARN and "motor_speed is published at 1000 Hz, the sample clock runs at 100 Hz" in rep.message
+    monitor.sample_clock = clock = SequenceClock(0.01)  # an output publisher three samples out of step
+    for k in range(RATE_LEARN + 3):
+        clock.time_ns("motor_torque", k + 1, k * 10 * MS)
+        clock.time_ns("output_torque", k + 1, (k + 3) * 10 * MS)
+    rep = report()
+    assert rep.level == WARN
+    assert "output_torque's publisher numbers its messages out of step with motor_torque's" in rep.message
