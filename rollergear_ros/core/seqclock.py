@@ -121,6 +121,7 @@ class SequenceClock:
         reference time decides), whose publisher timestamp (else arrival) is ``reference_ns``."""
         if self._anchor_ns is None:
             self._anchor_ns = reference_ns
+        self.gap = 0
         state = self._topics.get(topic)
         if state is None:
             slot, by_number = self._join_slot(sequence, reference_ns) if self._topics else (0, False)

@@ -49,9 +49,11 @@ def test_a_lost_message_leaves_its_slot_and_a_topic_numbered_apart_takes_the_slo
     t0 = 10**18
     assert clock.time_ns("torque", 1, t0) == t0
     assert clock.time_ns("torque", 4, t0 + 3 * PERIOD_NS + 700_000) == t0 + 3 * PERIOD_NS  # 2 and 3 lost
+    assert clock.gap == 2
     # a topic whose number pairs it with no message kept (a publisher numbering far apart) joins at
     # the slot nearest its time
     assert clock.time_ns("speed", 5001, t0 + 3 * PERIOD_NS + 2_100_000) == t0 + 3 * PERIOD_NS
+    assert clock.gap == 0  # a topic's first message follows no loss of its own
     assert clock.time_ns("speed", 5002, t0 + 4 * PERIOD_NS - 1_900_000) == t0 + 4 * PERIOD_NS
     assert clock.rate_problem is None and clock.step_problem is None and clock.pauses == 0
 
