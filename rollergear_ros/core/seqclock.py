@@ -40,8 +40,9 @@ import numpy as np
 
 __all__ = ["PAUSE_S", "RATE_LEARN", "RATE_TOLERANCE", "RECENT", "SILENT_S", "ClockMerge", "SequenceClock"]
 
-#: a publisher whose timestamps lie this much further apart than its numbers allow paused publishing
-PAUSE_S = 1.0
+#: a publisher whose timestamps lie this much further apart than its numbers allow paused publishing;
+#: shorter, it was held up (a reliable publisher waits while its subscriber stalls) and catches up
+PAUSE_S = 10.0
 RATE_LEARN = 64  #: the publishers' rate is the median of this many of a topic's first intervals
 RATE_TOLERANCE = 0.02  #: ... and differs from the clock's beyond this share (said once)
 RECENT = 64  #: a topic's latest messages a joining topic is placed against
