@@ -187,7 +187,7 @@ class ClockMerge:
         ``reference_ns``); returns the items no topic can still come before, in time order."""
         heapq.heappush(self._held, (t_ns, self._arrivals, item))
         self._arrivals += 1
-        self._latest_ns[topic] = max(t_ns, self._latest_ns.get(topic, t_ns))
+        self._latest_ns[topic] = t_ns  # a topic's times on the grid only grow
         self._reference_ns[topic] = max(reference_ns, self._reference_ns.get(topic, reference_ns))
         newest = max(self._reference_ns.values())
         upto = min(t for c, t in self._latest_ns.items() if newest - self._reference_ns[c] <= self._silent_ns)

@@ -71,10 +71,10 @@ class InputPath:
         self._interleaved_warned = False
         #: (when, how long the message taken then had waited since the middleware received it)
         self.lag = (0, 0)
-        #: ``node.sample_clock: sequence``: the Float64 inputs' times from their publishers' numbers
+        #: ``node.sample_clock: sequence`` (Float64 inputs only: the parameters refuse it for joint states):
+        #: the inputs' times from their publishers' numbers
         params = node.config.node
-        self.clock = SequenceClock(1.0 / params.expected_rate_hz) \
-            if params.sample_clock == "sequence" and params.input_mode == "float64" else None
+        self.clock = SequenceClock(1.0 / params.expected_rate_hz) if params.sample_clock == "sequence" else None
         self.monitor.sample_clock = self.clock
         #: ... whose messages are handed on in the clock's time order (one topic's backlog may come first)
         self._merge = ClockMerge() if self.clock is not None else None

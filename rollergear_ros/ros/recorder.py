@@ -108,7 +108,7 @@ class NodeRecording:
         recording = {
             "recorded_by": name, "executor": params.executor,
             "pairing": pairing if record_pairing_time else "timestamp",
-            "input_log_time": ("sequence_clock" if params.sample_clock == "sequence" and params.input_mode == "float64"
+            "input_log_time": ("sequence_clock" if params.sample_clock == "sequence"
                                else "arrival" if pairing in ARRIVAL_PAIRINGS else "source_timestamp")
             if record_pairing_time else "receive",
             "sample_period_s": repr(1.0 / params.expected_rate_hz)}
